@@ -1,0 +1,1 @@
+"""Acquisition: mux board and switching sequence, DAQ backends, demodulation, FSR press detection."""

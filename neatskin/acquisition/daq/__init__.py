@@ -1,0 +1,1 @@
+"""DAQ backends behind one interface: simulated and NI-DAQmx."""

@@ -1,0 +1,57 @@
+"""The `neatskin` command: a thin argparse layer over functions a user can also call from Python.
+
+Each component owns its subcommands in a `cli` module with a `register(subparsers)` function;
+handlers import their heavy dependencies lazily so `neatskin --help` stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from neatskin import __version__
+from neatskin.errors import NeatskinError
+
+COMMAND_MODULES = (
+    "neatskin.rig.skin.cli",
+    "neatskin.gcode.cli",
+    "neatskin.rig.marlin.cli",
+    "neatskin.acquisition.cli",
+    "neatskin.rig.campaign.cli",
+    "neatskin.datasets.cli",
+    "neatskin.datasets.baselines.cli",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="neatskin", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"neatskin-rig {__version__}")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name != name:
+                raise
+            continue  # component not built yet
+        module.register(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        result = args.handler(args)
+    except NeatskinError as exc:
+        print(f"neatskin: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("neatskin: interrupted", file=sys.stderr)
+        return 130
+    return int(result or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

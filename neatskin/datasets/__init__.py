@@ -1,0 +1,1 @@
+"""Datasets: parquet schema, crash-safe writer, reader, validation, curation, baselines."""

@@ -1,0 +1,1 @@
+"""Regression baselines: the paper LM network, scikit-learn models, evaluation and report."""

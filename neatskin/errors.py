@@ -1,0 +1,81 @@
+"""The toolkit's error types: one per kind of failure, each naming what was wrong and the fix.
+
+- ConfigError: a protocol, layout, wiring or printer-profile file (or the values built
+  from it) is wrong. Raised before any motion.
+- HardwareError: the printer, the serial line or the DAQ failed or is missing.
+- DataError: a dataset (parquet, manifest) is malformed or inconsistent.
+
+ConfigError and DataError carry one or more Problems (file, field, message, fix) so that a
+validator can report every mistake in a file at once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from os import PathLike
+from typing import Iterable
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One thing wrong with an input: where (file, field), what, and how to fix it."""
+
+    message: str
+    file: str | None = None
+    field: str | None = None
+    fix: str | None = None
+
+    def __str__(self) -> str:
+        where = ": ".join(part for part in (self.file, f"[{self.field}]" if self.field else None) if part)
+        text = f"{where}: {self.message}" if where else self.message
+        return f"{text} (fix: {self.fix})" if self.fix else text
+
+
+class NeatskinError(Exception):
+    """Base of every error this toolkit raises on purpose."""
+
+
+class _ProblemError(NeatskinError):
+    def __init__(
+        self,
+        message: str | None = None,
+        *,
+        file: str | PathLike | None = None,
+        field: str | None = None,
+        fix: str | None = None,
+        problems: Iterable[Problem] | None = None,
+    ) -> None:
+        if problems is None:
+            if message is None:
+                raise TypeError("give a message or a list of problems")
+            problems = [Problem(message, None if file is None else str(file), field, fix)]
+        self.problems: tuple[Problem, ...] = tuple(problems)
+        if not self.problems:
+            raise TypeError("an error needs at least one problem")
+        super().__init__("\n".join(str(p) for p in self.problems))
+
+    @property
+    def file(self) -> str | None:
+        return self.problems[0].file
+
+    @property
+    def field(self) -> str | None:
+        return self.problems[0].field
+
+
+class ConfigError(_ProblemError):
+    """A protocol, layout, wiring or printer-profile file is wrong; nothing has moved."""
+
+
+class DataError(_ProblemError):
+    """A dataset is malformed or inconsistent."""
+
+
+class HardwareError(NeatskinError):
+    """The printer, the serial line or the DAQ failed, or is missing."""
+
+
+def raise_problems(problems: list[Problem], kind: type[_ProblemError] = ConfigError) -> None:
+    """Raise one error listing every problem, if there are any."""
+    if problems:
+        raise kind(problems=problems)

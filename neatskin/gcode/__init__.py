@@ -1,0 +1,1 @@
+"""G-code: press positions, press programs, Marlin G-code text, parsing, bounds, motion-time estimates."""

@@ -1,0 +1,491 @@
+"""Skin layouts as data: junctions, channels, electrodes, the electrode pairs S and their symmetry classes.
+
+A layout is a frozen value loaded from TOML (see protocols/skins/paper.toml) and validated
+at construction: an invalid layout cannot exist in memory. Nothing here knows that the
+paper's skin has 8 electrodes or 12 channels; pairs, faces (the quadrants between channels)
+and symmetry classes are all derived from the data.
+
+Every component takes a Layout as an argument; it is the shared value type of the toolkit.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import tomllib
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from neatskin.errors import ConfigError, Problem
+
+_GEOMETRY_TOL_MM = 1e-6
+
+
+@dataclass(frozen=True)
+class Junction:
+    name: str
+    x_mm: float
+    y_mm: float
+
+
+@dataclass(frozen=True)
+class Channel:
+    """A straight fluid channel between two junctions (indices into Layout.junctions)."""
+
+    name: str
+    a: int
+    b: int
+    length_mm: float
+    width_mm: float
+    height_mm: float
+
+    @property
+    def area_mm2(self) -> float:
+        return self.width_mm * self.height_mm
+
+
+@dataclass(frozen=True)
+class Electrode:
+    number: int
+    junction: int
+
+
+@dataclass(frozen=True, order=True)
+class ElectrodePair:
+    """An unordered electrode pair (i < j), by electrode number."""
+
+    i: int
+    j: int
+
+    def __post_init__(self) -> None:
+        if not self.i < self.j:
+            raise ValueError(f"an electrode pair needs i < j, got ({self.i}, {self.j})")
+
+    @property
+    def label(self) -> str:
+        return f"{self.i}-{self.j}"
+
+    def __str__(self) -> str:
+        return f"({self.i},{self.j})"
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A channel network: junctions in the skin plane, channels between them, electrodes on junctions.
+
+    Coordinates are in mm in the sensor frame. `resistivity_ohm_m` is the fluid's; channel
+    resistances follow Pouillet's law R = rho * L / A.
+    """
+
+    name: str
+    junctions: tuple[Junction, ...]
+    channels: tuple[Channel, ...]
+    electrodes: tuple[Electrode, ...]
+    resistivity_ohm_m: float
+    thickness_mm: float
+    channel_depth_mm: float
+    source: str = "<memory>"
+    description: str = field(default="", compare=False)
+
+    def __post_init__(self) -> None:
+        problems = _validate(self)
+        if problems:
+            raise ConfigError(problems=problems)
+
+    # ---- derived structure -------------------------------------------------------------
+
+    @property
+    def n_junctions(self) -> int:
+        return len(self.junctions)
+
+    @property
+    def n_channels(self) -> int:
+        return len(self.channels)
+
+    @property
+    def n_electrodes(self) -> int:
+        return len(self.electrodes)
+
+    @cached_property
+    def xy_mm(self) -> np.ndarray:
+        """Junction coordinates, shape (junctions, 2)."""
+        return np.array([(j.x_mm, j.y_mm) for j in self.junctions], dtype=float)
+
+    @cached_property
+    def channel_ends(self) -> np.ndarray:
+        """Junction indices of each channel's ends, shape (channels, 2)."""
+        return np.array([(c.a, c.b) for c in self.channels], dtype=np.intp)
+
+    @cached_property
+    def electrode_junctions(self) -> np.ndarray:
+        """Junction index of each electrode, in Layout.electrodes order, shape (electrodes,)."""
+        return np.array([e.junction for e in self.electrodes], dtype=np.intp)
+
+    @cached_property
+    def electrode_index(self) -> dict[int, int]:
+        """Electrode number -> position in Layout.electrodes."""
+        return {e.number: k for k, e in enumerate(self.electrodes)}
+
+    @cached_property
+    def pairs(self) -> tuple[ElectrodePair, ...]:
+        """S: every unordered electrode pair, sorted by (i, j)."""
+        numbers = sorted(e.number for e in self.electrodes)
+        return tuple(ElectrodePair(i, j) for i, j in itertools.combinations(numbers, 2))
+
+    @cached_property
+    def pair_electrode_index(self) -> np.ndarray:
+        """For each pair of S, the positions of its two electrodes in Layout.electrodes, (pairs, 2)."""
+        idx = self.electrode_index
+        return np.array([(idx[p.i], idx[p.j]) for p in self.pairs], dtype=np.intp)
+
+    @cached_property
+    def channel_resistance_ohm(self) -> np.ndarray:
+        """Pouillet resistance of each undeformed channel, R = rho L / A, shape (channels,)."""
+        length_m = np.array([c.length_mm for c in self.channels]) * 1e-3
+        area_m2 = np.array([c.area_mm2 for c in self.channels]) * 1e-6
+        return self.resistivity_ohm_m * length_m / area_m2
+
+    @cached_property
+    def bounds_mm(self) -> tuple[float, float, float, float]:
+        """(x_min, y_min, x_max, y_max) of the junctions."""
+        lo, hi = self.xy_mm.min(axis=0), self.xy_mm.max(axis=0)
+        return float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])
+
+    @cached_property
+    def faces(self) -> tuple[tuple[int, ...], ...]:
+        """Bounded faces of the planar channel network (the 'quadrants'), as CCW junction cycles."""
+        return _bounded_faces(self.xy_mm, self.channel_ends)
+
+    @cached_property
+    def symmetries(self) -> tuple[dict[int, int], ...]:
+        """Isometries of the layout (rotations and reflections about the junction centroid),
+        each as a map electrode number -> electrode number. The identity is first."""
+        return _symmetries(self)
+
+    @cached_property
+    def pair_classes(self) -> tuple[tuple[ElectrodePair, ...], ...]:
+        """Orbits of S under the layout's symmetries; each class sorted, classes by first pair."""
+        seen: set[ElectrodePair] = set()
+        classes = []
+        for pair in self.pairs:
+            if pair in seen:
+                continue
+            orbit = set()
+            for sym in self.symmetries:
+                a, b = sorted((sym[pair.i], sym[pair.j]))
+                orbit.add(ElectrodePair(a, b))
+            seen |= orbit
+            classes.append(tuple(sorted(orbit)))
+        return tuple(classes)
+
+    def pair_class_representatives(self) -> tuple[ElectrodePair, ...]:
+        return tuple(c[0] for c in self.pair_classes)
+
+
+# ---- loading -----------------------------------------------------------------------------
+
+
+def load_layout(path: str | Path) -> Layout:
+    """Load and validate a layout TOML file; every error names the file and the field."""
+    path = Path(path)
+    source = str(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"cannot read layout file: {exc.strerror}", file=source,
+                          fix="check the path (relative paths are resolved from the protocol file's folder)") from exc
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"not valid TOML: {exc}", file=source, fix="correct the TOML syntax at that line") from exc
+    return layout_from_dict(data, source=source)
+
+
+def layout_from_dict(data: dict, source: str = "<memory>") -> Layout:
+    """Build a Layout from parsed TOML; collects every problem before raising."""
+    problems: list[Problem] = []
+
+    def problem(field_name: str, message: str, fix: str) -> None:
+        problems.append(Problem(message, source, field_name, fix))
+
+    skin = data.get("skin")
+    if not isinstance(skin, dict):
+        problem("skin", "missing [skin] table", "add [skin] with name, thickness_mm, channel_depth_mm, resistivity_ohm_m")
+        skin = {}
+    defaults = data.get("channel_defaults", {})
+
+    def number(table: dict, key: str, where: str, default: float | None = None) -> float | None:
+        value = table.get(key, default)
+        if value is None:
+            problem(where, f"missing '{key}'", f"set {key} to a positive number")
+            return None
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            problem(where, f"'{key}' must be a finite number, got {value!r}", f"set {key} to a positive number")
+            return None
+        if value <= 0:
+            problem(where, f"'{key}' must be positive, got {value!r}", f"set {key} to a positive number")
+            return None
+        return float(value)
+
+    resistivity = number(skin, "resistivity_ohm_m", "skin.resistivity_ohm_m")
+    thickness = number(skin, "thickness_mm", "skin.thickness_mm")
+    channel_depth = number(skin, "channel_depth_mm", "skin.channel_depth_mm")
+
+    junctions: list[Junction] = []
+    by_name: dict[str, int] = {}
+    raw_junctions = data.get("junctions")
+    if not isinstance(raw_junctions, list) or not raw_junctions:
+        problem("junctions", "no [[junctions]] entries", "add [[junctions]] tables with name, x_mm, y_mm")
+        raw_junctions = []
+    for k, raw in enumerate(raw_junctions):
+        where = f"junctions[{k}]"
+        name = raw.get("name")
+        if not isinstance(name, str) or not name:
+            problem(f"{where}.name", "missing junction name", "give every junction a unique name")
+            continue
+        if name in by_name:
+            problem(f"{where}.name", f"duplicate junction name '{name}'", "rename one of the junctions")
+            continue
+        xy = []
+        for key in ("x_mm", "y_mm"):
+            value = raw.get(key)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                problem(f"{where}.{key}", f"junction '{name}' needs a finite {key}, got {value!r}", f"set {key} in mm")
+                xy = None
+                break
+            xy.append(float(value))
+        if xy is None:
+            continue
+        by_name[name] = len(junctions)
+        junctions.append(Junction(name, xy[0], xy[1]))
+
+    channels: list[Channel] = []
+    seen_ends: dict[frozenset, str] = {}
+    raw_channels = data.get("channels")
+    if not isinstance(raw_channels, list) or not raw_channels:
+        problem("channels", "no [[channels]] entries", "add [[channels]] tables with from and to junction names")
+        raw_channels = []
+    for k, raw in enumerate(raw_channels):
+        where = f"channels[{k}]"
+        ends = []
+        for key in ("from", "to"):
+            ref = raw.get(key)
+            if ref not in by_name:
+                problem(f"{where}.{key}", f"unknown junction {ref!r}",
+                        f"use one of the junction names: {', '.join(by_name) or '(none defined)'}")
+            else:
+                ends.append(by_name[ref])
+        if len(ends) != 2:
+            continue
+        a, b = ends
+        name = raw.get("name", f"{junctions[a].name}-{junctions[b].name}")
+        if a == b:
+            problem(f"{where}", f"channel '{name}' starts and ends at the same junction", "connect two different junctions")
+            continue
+        key = frozenset((a, b))
+        if key in seen_ends:
+            problem(f"{where}", f"duplicate channel: '{name}' joins the same junctions as '{seen_ends[key]}'",
+                    "remove one of the two channels")
+            continue
+        seen_ends[key] = name
+        straight = math.dist((junctions[a].x_mm, junctions[a].y_mm), (junctions[b].x_mm, junctions[b].y_mm))
+        length = number(raw, "length_mm", f"{where}.length_mm", straight if straight > 0 else None)
+        width = number(raw, "width_mm", f"{where}.width_mm", defaults.get("width_mm"))
+        height = number(raw, "height_mm", f"{where}.height_mm", defaults.get("height_mm"))
+        if None in (length, width, height):
+            continue
+        channels.append(Channel(str(name), a, b, length, width, height))
+
+    electrodes: list[Electrode] = []
+    raw_electrodes = data.get("electrodes")
+    if not isinstance(raw_electrodes, list) or len(raw_electrodes) < 2:
+        problem("electrodes", "fewer than 2 [[electrodes]] entries", "add [[electrodes]] tables with number and junction")
+        raw_electrodes = raw_electrodes if isinstance(raw_electrodes, list) else []
+    numbers: set[int] = set()
+    used_junctions: dict[int, int] = {}
+    for k, raw in enumerate(raw_electrodes):
+        where = f"electrodes[{k}]"
+        num = raw.get("number")
+        if isinstance(num, bool) or not isinstance(num, int) or num < 1:
+            problem(f"{where}.number", f"electrode number must be a positive integer, got {num!r}", "number electrodes 1, 2, ...")
+            continue
+        if num in numbers:
+            problem(f"{where}.number", f"duplicate electrode number {num}", "give every electrode its own number")
+            continue
+        ref = raw.get("junction")
+        if ref not in by_name:
+            problem(f"{where}.junction", f"electrode {num} is on a missing junction {ref!r}",
+                    f"use one of the junction names: {', '.join(by_name) or '(none defined)'}")
+            continue
+        if by_name[ref] in used_junctions:
+            problem(f"{where}.junction", f"electrodes {used_junctions[by_name[ref]]} and {num} share junction '{ref}'",
+                    "put each electrode on its own junction")
+            continue
+        numbers.add(num)
+        used_junctions[by_name[ref]] = num
+        electrodes.append(Electrode(num, by_name[ref]))
+
+    if problems:
+        raise ConfigError(problems=problems)
+    return Layout(
+        name=str(skin.get("name", Path(source).stem)),
+        junctions=tuple(junctions),
+        channels=tuple(channels),
+        electrodes=tuple(sorted(electrodes, key=lambda e: e.number)),
+        resistivity_ohm_m=resistivity,
+        thickness_mm=thickness,
+        channel_depth_mm=channel_depth,
+        source=source,
+        description=str(skin.get("description", "")),
+    )
+
+
+# ---- validation --------------------------------------------------------------------------
+
+
+def _validate(layout: Layout) -> list[Problem]:
+    problems: list[Problem] = []
+    src = layout.source
+
+    def problem(field_name: str, message: str, fix: str) -> None:
+        problems.append(Problem(message, src, field_name, fix))
+
+    for key in ("resistivity_ohm_m", "thickness_mm", "channel_depth_mm"):
+        value = getattr(layout, key)
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            problem(f"skin.{key}", f"must be a positive finite number, got {value!r}", f"set {key} > 0")
+    if layout.channel_depth_mm >= layout.thickness_mm:
+        problem("skin.channel_depth_mm", f"channel depth {layout.channel_depth_mm} mm is not inside the "
+                f"{layout.thickness_mm} mm skin", "set channel_depth_mm below thickness_mm")
+    n = len(layout.junctions)
+    names = [j.name for j in layout.junctions]
+    if len(set(names)) != len(names):
+        problem("junctions", "duplicate junction names", "give every junction a unique name")
+    ends_seen = set()
+    for k, ch in enumerate(layout.channels):
+        if not (0 <= ch.a < n and 0 <= ch.b < n) or ch.a == ch.b:
+            problem(f"channels[{k}]", f"channel '{ch.name}' does not join two existing junctions", "fix its ends")
+            continue
+        key = frozenset((ch.a, ch.b))
+        if key in ends_seen:
+            problem(f"channels[{k}]", f"duplicate channel '{ch.name}'", "remove the duplicate")
+        ends_seen.add(key)
+        for attr in ("length_mm", "width_mm", "height_mm"):
+            value = getattr(ch, attr)
+            if not (math.isfinite(value) and value > 0):
+                problem(f"channels[{k}].{attr}", f"channel '{ch.name}' has {attr} = {value!r}", f"set {attr} > 0")
+    numbers = [e.number for e in layout.electrodes]
+    if len(set(numbers)) != len(numbers):
+        problem("electrodes", "duplicate electrode numbers", "give every electrode its own number")
+    if len(numbers) < 2:
+        problem("electrodes", "a layout needs at least 2 electrodes", "add electrodes")
+    for k, e in enumerate(layout.electrodes):
+        if not 0 <= e.junction < n:
+            problem(f"electrodes[{k}].junction", f"electrode {e.number} is on a missing junction", "use an existing junction")
+    if problems or n == 0:
+        return problems
+    # connectivity: every junction reachable from the first one through channels
+    parent = list(range(n))
+
+    def find(u: int) -> int:
+        while parent[u] != u:
+            parent[u] = parent[parent[u]]
+            u = parent[u]
+        return u
+
+    for ch in layout.channels:
+        parent[find(ch.a)] = find(ch.b)
+    components: dict[int, list[str]] = {}
+    for u in range(n):
+        components.setdefault(find(u), []).append(layout.junctions[u].name)
+    if len(components) > 1:
+        groups = sorted(components.values(), key=len)
+        problem("channels", f"the network is disconnected: junctions {', '.join(groups[0])} are not joined to "
+                f"{', '.join(groups[-1][:4])}{'...' if len(groups[-1]) > 4 else ''}",
+                "add channels so every junction is reachable, or remove the stray junctions")
+    return problems
+
+
+# ---- planar faces ------------------------------------------------------------------------
+
+
+def _bounded_faces(xy: np.ndarray, ends: np.ndarray) -> tuple[tuple[int, ...], ...]:
+    """Trace the faces of a straight-line planar embedding; keep those with positive (CCW) area."""
+    neighbours: dict[int, list[int]] = {}
+    for a, b in ends:
+        neighbours.setdefault(int(a), []).append(int(b))
+        neighbours.setdefault(int(b), []).append(int(a))
+    for u, nbrs in neighbours.items():
+        nbrs.sort(key=lambda v: math.atan2(xy[v, 1] - xy[u, 1], xy[v, 0] - xy[u, 0]))
+    visited: set[tuple[int, int]] = set()
+    faces = []
+    for a, b in ends:
+        for start in ((int(a), int(b)), (int(b), int(a))):
+            if start in visited:
+                continue
+            cycle = []
+            u, v = start
+            while (u, v) not in visited:
+                visited.add((u, v))
+                cycle.append(u)
+                nbrs = neighbours[v]
+                # next edge: the neighbour of v just clockwise of u (previous in CCW order)
+                w = nbrs[(nbrs.index(u) - 1) % len(nbrs)]
+                u, v = v, w
+            pts = xy[cycle]
+            area = 0.5 * float(np.sum(pts[:, 0] * np.roll(pts[:, 1], -1) - np.roll(pts[:, 0], -1) * pts[:, 1]))
+            if area > _GEOMETRY_TOL_MM:
+                faces.append(tuple(cycle))
+    return tuple(sorted(faces, key=lambda f: (float(xy[list(f), 1].mean()), float(xy[list(f), 0].mean()))))
+
+
+# ---- symmetries --------------------------------------------------------------------------
+
+
+def _symmetries(layout: Layout) -> tuple[dict[int, int], ...]:
+    xy = layout.xy_mm
+    centre = xy.mean(axis=0)
+    rel = xy - centre
+    radius = np.hypot(rel[:, 0], rel[:, 1])
+    angle = np.arctan2(rel[:, 1], rel[:, 0])
+    scale = max(float(radius.max()), 1.0)
+    tol = 1e-6 * scale
+    # candidate transforms: map the farthest junction onto every junction at the same radius
+    ref = int(np.argmax(radius))
+    candidates = []
+    for k in np.flatnonzero(np.abs(radius - radius[ref]) < tol):
+        theta = angle[k] - angle[ref]
+        c, s = math.cos(theta), math.sin(theta)
+        candidates.append(np.array([[c, -s], [s, c]]))
+        phi = angle[k] + angle[ref]  # reflection about the line at angle phi/2
+        c2, s2 = math.cos(phi), math.sin(phi)
+        candidates.append(np.array([[c2, s2], [s2, -c2]]))
+    channel_keys = {
+        frozenset((ch.a, ch.b)): (round(ch.width_mm, 9), round(ch.height_mm, 9), round(ch.length_mm, 9))
+        for ch in layout.channels
+    }
+    electrode_of = {e.junction: e.number for e in layout.electrodes}
+    found: list[dict[int, int]] = []
+    for matrix in candidates:
+        mapped = rel @ matrix.T
+        dist = np.linalg.norm(mapped[:, None, :] - rel[None, :, :], axis=2)
+        image = dist.argmin(axis=1)
+        if np.any(dist[np.arange(len(rel)), image] > tol) or len(set(image.tolist())) != len(rel):
+            continue
+        ok = all(
+            channel_keys.get(frozenset((int(image[a]), int(image[b])))) == props
+            for (a, b), props in ((tuple(k), v) for k, v in channel_keys.items())
+        )
+        if not ok:
+            continue
+        if any(int(image[j]) not in electrode_of for j in electrode_of):
+            continue
+        perm = {num: electrode_of[int(image[j])] for j, num in electrode_of.items()}
+        if perm not in found:
+            found.append(perm)
+    identity = {e.number: e.number for e in layout.electrodes}
+    found = [identity] + [p for p in found if p != identity]
+    return tuple(found)

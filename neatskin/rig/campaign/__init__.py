@@ -1,0 +1,1 @@
+"""Campaigns: protocol files, scenes, and the runner (real rig or dry run)."""

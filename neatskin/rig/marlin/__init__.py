@@ -1,0 +1,1 @@
+"""Marlin host protocol: serial driver and simulated printer."""

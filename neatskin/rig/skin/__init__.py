@@ -1,0 +1,1 @@
+"""The simulated skin: network physics, deformation model, sensitivity maps."""
