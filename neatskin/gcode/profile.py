@@ -1,0 +1,189 @@
+"""Printer profiles (protocols/printers/*.toml): bed, soft limits, feed and acceleration maxima, serial facts.
+
+`load_printer_profile(path)` reads and validates a profile and reports every bad field at once
+(one ConfigError naming file, field and fix). `PrinterProfile` is a frozen value; its
+`calibration` maps sensor coordinates to printer coordinates (see calibration.py).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from neatskin.errors import ConfigError, Problem
+from neatskin.gcode.calibration import Calibration
+
+
+@dataclass(frozen=True)
+class Axes:
+    """One value per Cartesian axis."""
+
+    x: float
+    y: float
+    z: float
+
+    def __iter__(self):
+        return iter((self.x, self.y, self.z))
+
+
+@dataclass(frozen=True)
+class PrinterProfile:
+    name: str
+    bed_x_mm: float
+    bed_y_mm: float
+    soft_min_mm: Axes
+    soft_max_mm: Axes
+    max_feed_mm_s: Axes
+    max_accel_mm_s2: Axes
+    accel_mm_s2: float
+    travel_feed_mm_s: float
+    z_feed_mm_s: float
+    press_feed_mm_s: float
+    safe_height_mm: float
+    park_mm: Axes
+    calibration: Calibration
+    baud_rate: int = 115200
+    planner_buffer_size: int = 16
+    rx_buffer_size: int = 128
+    homing_time_s: float = 20.0
+    firmware: str = "Marlin"
+    description: str = ""
+    source: str = "<memory>"
+
+    def __post_init__(self) -> None:
+        problems = _check(self)
+        if problems:
+            raise ConfigError(problems=problems)
+
+    def with_calibration(self, calibration: Calibration) -> "PrinterProfile":
+        from dataclasses import replace
+
+        return replace(self, calibration=calibration)
+
+
+def load_printer_profile(path: str | Path) -> PrinterProfile:
+    """Load and validate a printer profile TOML; every problem in the file in one ConfigError."""
+    path = Path(path)
+    source = str(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError(f"cannot read printer profile: {exc.strerror}", file=source,
+                          fix="check the path (relative paths are resolved from the protocol file's folder)") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"not valid TOML: {exc}", file=source, fix="correct the TOML syntax at that line") from exc
+    return printer_profile_from_dict(data, source)
+
+
+def printer_profile_from_dict(data: dict, source: str = "<memory>") -> PrinterProfile:
+    problems: list[Problem] = []
+
+    def table(name: str) -> dict:
+        value = data.get(name)
+        if not isinstance(value, dict):
+            problems.append(Problem(f"missing [{name}] table", source, name, f"add a [{name}] table (see protocols/printers/paper.toml)"))
+            return {}
+        return value
+
+    def number(tab: dict, tname: str, key: str, *, positive: bool = True, default: float | None = None) -> float:
+        where = f"{tname}.{key}"
+        value = tab.get(key, default)
+        if value is None:
+            problems.append(Problem(f"missing '{key}'", source, where, f"set {key} in [{tname}]"))
+            return math.nan
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            problems.append(Problem(f"'{key}' must be a finite number, got {value!r}", source, where, f"set {key} to a number"))
+            return math.nan
+        if positive and value <= 0:
+            problems.append(Problem(f"'{key}' must be positive, got {value!r}", source, where, f"set {key} > 0"))
+            return math.nan
+        return float(value)
+
+    def integer(tab: dict, tname: str, key: str, default: int) -> int:
+        value = tab.get(key, default)
+        if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+            problems.append(Problem(f"'{key}' must be a positive integer, got {value!r}", source, f"{tname}.{key}",
+                                    f"set {key} to a positive whole number"))
+            return 1
+        return value
+
+    printer, bed, soft = table("printer"), table("bed"), table("soft_limits")
+    feed, accel, motion = table("max_feed"), table("max_accel"), table("motion")
+    park, cal = data.get("park", {}), table("calibration")
+    soft_min = Axes(*(number(soft, "soft_limits", f"min_{a}_mm", positive=False) for a in "xyz"))
+    soft_max = Axes(*(number(soft, "soft_limits", f"max_{a}_mm", positive=False) for a in "xyz"))
+    values = dict(
+        name=str(printer.get("name", path_stem(source))),
+        bed_x_mm=number(bed, "bed", "size_x_mm"),
+        bed_y_mm=number(bed, "bed", "size_y_mm"),
+        soft_min_mm=soft_min,
+        soft_max_mm=soft_max,
+        max_feed_mm_s=Axes(*(number(feed, "max_feed", f"{a}_mm_s") for a in "xyz")),
+        max_accel_mm_s2=Axes(*(number(accel, "max_accel", f"{a}_mm_s2") for a in "xyz")),
+        accel_mm_s2=number(motion, "motion", "accel_mm_s2"),
+        travel_feed_mm_s=number(motion, "motion", "travel_feed_mm_s"),
+        z_feed_mm_s=number(motion, "motion", "z_feed_mm_s"),
+        press_feed_mm_s=number(motion, "motion", "press_feed_mm_s"),
+        safe_height_mm=number(motion, "motion", "safe_height_mm"),
+        park_mm=Axes(number(park, "park", "x_mm", positive=False, default=soft_min.x),
+                     number(park, "park", "y_mm", positive=False, default=soft_max.y),
+                     number(park, "park", "z_mm", positive=False, default=soft_max.z)),
+        calibration=None,
+        baud_rate=integer(printer, "printer", "baud_rate", 115200),
+        planner_buffer_size=integer(printer, "printer", "planner_buffer_size", 16),
+        rx_buffer_size=integer(printer, "printer", "rx_buffer_size", 128),
+        homing_time_s=number(printer, "printer", "homing_time_s", default=20.0),
+        firmware=str(printer.get("firmware", "Marlin")),
+        description=str(printer.get("description", "")),
+        source=source,
+    )
+    cal_values = {k: number(cal, "calibration", k, positive=False) for k in
+                  ("offset_x_mm", "offset_y_mm", "rotation_deg", "surface_z_mm")}
+    if problems:
+        raise ConfigError(problems=problems)
+    values["calibration"] = Calibration(**cal_values)
+    return PrinterProfile(**values)
+
+
+def path_stem(source: str) -> str:
+    return Path(source).stem
+
+
+def _check(p: PrinterProfile) -> list[Problem]:
+    """Cross-field checks (each field is already a number of the right sign when loaded from TOML)."""
+    problems: list[Problem] = []
+    src = p.source
+
+    def problem(where: str, message: str, fix: str) -> None:
+        problems.append(Problem(message, src, where, fix))
+
+    for axis in "xyz":
+        lo, hi = getattr(p.soft_min_mm, axis), getattr(p.soft_max_mm, axis)
+        if not lo < hi:
+            problem(f"soft_limits.max_{axis}_mm", f"soft limit max_{axis}_mm = {hi} is not above min_{axis}_mm = {lo}",
+                    f"set max_{axis}_mm > min_{axis}_mm")
+    for axis, size in (("x", p.bed_x_mm), ("y", p.bed_y_mm)):
+        if getattr(p.soft_min_mm, axis) < 0 or getattr(p.soft_max_mm, axis) > size:
+            problem(f"soft_limits.max_{axis}_mm", f"soft limits on {axis} [{getattr(p.soft_min_mm, axis)}, "
+                    f"{getattr(p.soft_max_mm, axis)}] reach outside the {size} mm bed",
+                    f"keep the {axis} soft limits within 0..{size} (bed.size_{axis}_mm)")
+    xy_max = min(p.max_feed_mm_s.x, p.max_feed_mm_s.y)
+    if p.travel_feed_mm_s > xy_max:
+        problem("motion.travel_feed_mm_s", f"travel feed {p.travel_feed_mm_s} mm/s exceeds the x/y maximum {xy_max} mm/s",
+                f"set travel_feed_mm_s <= {xy_max}")
+    for key in ("z_feed_mm_s", "press_feed_mm_s"):
+        if getattr(p, key) > p.max_feed_mm_s.z:
+            problem(f"motion.{key}", f"{key} = {getattr(p, key)} mm/s exceeds the z maximum {p.max_feed_mm_s.z} mm/s",
+                    f"set {key} <= {p.max_feed_mm_s.z} (max_feed.z_mm_s)")
+    if p.safe_height_mm + p.calibration.surface_z_mm > p.soft_max_mm.z:
+        problem("motion.safe_height_mm", f"safe height {p.safe_height_mm} mm above the surface at z = "
+                f"{p.calibration.surface_z_mm} mm is above the z soft limit {p.soft_max_mm.z} mm",
+                "lower safe_height_mm or check calibration.surface_z_mm")
+    for axis in "xyz":
+        value = getattr(p.park_mm, axis)
+        if not getattr(p.soft_min_mm, axis) <= value <= getattr(p.soft_max_mm, axis):
+            problem(f"park.{axis}_mm", f"park {axis} = {value} mm is outside the soft limits",
+                    f"put park.{axis}_mm inside [{getattr(p.soft_min_mm, axis)}, {getattr(p.soft_max_mm, axis)}]")
+    return problems
