@@ -1,0 +1,111 @@
+"""Reading campaign datasets back: presses (from the consolidated file and/or the durable parts,
+deduplicated by press_id, temp files ignored), their metadata, raw waveforms, and the (X, y, groups)
+arrays the baselines learn from.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.dataset as pads
+import pyarrow.parquet as pq
+
+from neatskin.datasets.paths import CONSOLIDATED_NAME, WAVEFORMS_DIR, part_press_id, press_parts
+from neatskin.datasets.schema import decode_metadata, parse_pair_column
+from neatskin.datasets.writer import deduplicate_sorted
+from neatskin.errors import DataError
+from neatskin.layout import ElectrodePair
+
+
+def press_files(path: str | os.PathLike) -> list[Path]:
+    """The parquet files holding a dataset's presses: a .parquet file itself, a campaign folder's
+    presses.parquet and presses/part-*.parquet, or the part-*.parquet files of a folder."""
+    path = Path(path)
+    if path.is_file():
+        return [path]
+    if not path.is_dir():
+        raise DataError("no such dataset file or folder", file=str(path), fix="give a campaign folder or a .parquet file")
+    files = [path / CONSOLIDATED_NAME] if (path / CONSOLIDATED_NAME).is_file() else []
+    files += list(press_parts(path).values())
+    if not files:
+        files = sorted(p for p in path.iterdir() if part_press_id(p) is not None)
+    if not files:
+        raise DataError("the folder holds no presses (no presses.parquet, no presses/part-*.parquet)",
+                        file=str(path), fix="check the path; a campaign that never finished a press has no data")
+    return files
+
+
+def read_press_table(path: str | os.PathLike, *, deduplicate: bool = True) -> pa.Table:
+    """All presses as one arrow table (sorted by press_id, first copy of a duplicated id kept), with the
+    `neatskin.` metadata of the consolidated file (or of the first part)."""
+    files = press_files(path)
+    try:
+        schema = pq.read_schema(files[0])
+        table = pads.dataset([str(f) for f in files], schema=schema.remove_metadata(), format="parquet").to_table()
+    except (OSError, pa.ArrowException) as exc:
+        raise DataError(f"cannot read the presses: {exc}", file=str(path),
+                        fix="run `neatskin dataset validate` on the folder to find the damaged file") from exc
+    if deduplicate:
+        table = deduplicate_sorted(table)
+    return table.replace_schema_metadata(schema.metadata)
+
+
+def read_presses(path: str | os.PathLike, *, deduplicate: bool = True) -> pd.DataFrame:
+    """All presses as a DataFrame, one row per press id; `df.attrs['neatskin']` holds the metadata."""
+    table = read_press_table(path, deduplicate=deduplicate)
+    df = table.to_pandas()
+    df.attrs["neatskin"] = decode_metadata(table.schema.metadata)
+    return df
+
+
+def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
+    """The `neatskin.` key-value metadata (prefix stripped, JSON decoded) of a dataset file or folder."""
+    return decode_metadata(pq.read_schema(press_files(path)[0]).metadata)
+
+
+def read_waveforms(folder: str | os.PathLike, press_ids: Iterable[int] | None = None) -> pd.DataFrame:
+    """Raw samples (one row per sample, with position_id from the partition) of the durable presses,
+    optionally only `press_ids`; sorted by press_id and sample."""
+    root = Path(folder) / WAVEFORMS_DIR
+    if not root.is_dir():
+        raise DataError("this campaign recorded no waveforms", file=str(root),
+                        fix="set the protocol to record raw waveforms and run the campaign again")
+    durable = set(read_press_table(folder).column("press_id").to_pylist())
+    wanted = durable if press_ids is None else durable & {int(i) for i in press_ids}
+    dataset = pads.dataset(str(root), format="parquet", partitioning="hive")
+    table = dataset.to_table(filter=pads.field("press_id").isin(sorted(wanted)))
+    return table.to_pandas().sort_values(["press_id", "sample"], kind="stable").reset_index(drop=True)
+
+
+def pair_labels_from_columns(df: pd.DataFrame) -> tuple[ElectrodePair, ...]:
+    """The electrode pairs of a press table, in the order of its dR_ohm_i_j columns."""
+    pairs = []
+    for name in df.columns:
+        parsed = parse_pair_column(str(name))
+        if parsed and parsed[0] == "dR":
+            pairs.append(parsed[1])
+    if not pairs:
+        raise DataError("the table has no dR_ohm_i_j columns", field="dR_ohm_*",
+                        fix="read the presses with read_presses()")
+    return tuple(pairs)
+
+
+def feature_matrix(df: pd.DataFrame, *, exclude_flagged: bool = False
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """X (n, pairs) from the dR columns in pair order, y (n, 2) = (x_mm, y_mm), groups (n,) = position_id.
+
+    Use `groups` for grouped splits (GroupKFold, GroupShuffleSplit) so repeats of a position never straddle
+    train and test. With exclude_flagged, presses carrying any flag are dropped.
+    """
+    if exclude_flagged:
+        df = df[[len(f) == 0 for f in df["flags"]]]
+    pairs = pair_labels_from_columns(df)
+    X = df[[f"dR_ohm_{p.i}_{p.j}" for p in pairs]].to_numpy(dtype=np.float64)
+    y = df[["x_mm", "y_mm"]].to_numpy(dtype=np.float64)
+    groups = df["position_id"].to_numpy(dtype=np.int64)
+    return X, y, groups

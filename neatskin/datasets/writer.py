@@ -1,0 +1,197 @@
+"""The crash-safe campaign writer: one durable parquet part per press, raw waveforms beside them, and a
+crash-safe finalize that consolidates the parts into presses.parquet.
+
+Durability: `write_press` returns only when the press's part is complete on disk (temp file, fsync,
+atomic rename, fsync of the folder). The press part is the commit record: waveforms are written first,
+so a kill between the two leaves an orphan waveform part that the next writer deletes (the press is
+not in `completed_press_ids()` and will be pressed again). A kill inside a write leaves only a hidden
+temp file, which readers ignore and the next writer removes.
+
+Waveforms are stored one row per sample: columns press_id (int64), sample (int32) and one column per
+named signal, in `waveforms/position_id=K/part-{press_id:06d}.parquet` (hive partitioning, so pyarrow,
+DuckDB and Spark add position_id as a column).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.dataset as pads
+import pyarrow.parquet as pq
+
+import neatskin
+from neatskin.datasets.durable import fsync_dir, remove_temp_files, write_durably
+from neatskin.datasets.paths import (CONSOLIDATED_NAME, PRESSES_DIR, WAVEFORMS_DIR, part_name, press_parts,
+                                     waveform_parts)
+from neatskin.datasets.schema import RowEncoder, decode_metadata, press_schema
+from neatskin.errors import DataError
+from neatskin.layout import ElectrodePair
+
+
+class CampaignWriter:
+    """Writes a campaign folder press by press; reopen the same folder to resume.
+
+    `metadata` (JSON-serialisable values) goes into every file's key-value metadata under `neatskin.`;
+    `software_version` defaults to neatskin.__version__. `fsync=False` is for tests and throwaway runs only.
+    """
+
+    def __init__(self, folder: str | os.PathLike, pairs: Sequence[ElectrodePair], metadata: Mapping[str, Any],
+                 *, fsync: bool = True) -> None:
+        self.folder = Path(folder)
+        self.fsync = fsync
+        meta = {"software_version": neatskin.__version__, **dict(metadata)}
+        self.schema = press_schema(pairs, meta)
+        self.metadata = decode_metadata(self.schema.metadata)
+        self.pairs = tuple(ElectrodePair(i, j) for i, j in self.metadata["pairs"])
+        self._encoder = RowEncoder(self.schema)
+        self._parts_dir = self.folder / PRESSES_DIR
+        self._waveforms_dir = self.folder / WAVEFORMS_DIR
+        new_folder = not self.folder.exists()
+        self._parts_dir.mkdir(parents=True, exist_ok=True)
+        if new_folder and fsync:
+            fsync_dir(self.folder.parent)
+        self._recover()
+        self._dir_fd = os.open(self._parts_dir, os.O_RDONLY)
+        self._position_dirs: set[Path] = set()
+
+    # ---- resume ------------------------------------------------------------------------------
+
+    def _recover(self) -> None:
+        """Remove what a killed writer left half-done and load the ids of the durable presses."""
+        for folder in (self.folder, self._parts_dir):
+            remove_temp_files(folder)
+        if self._waveforms_dir.is_dir():
+            for sub in self._waveforms_dir.iterdir():
+                remove_temp_files(sub)
+        parts = press_parts(self.folder)
+        self._completed = set(parts)
+        consolidated = self.folder / CONSOLIDATED_NAME
+        existing = [consolidated] if consolidated.exists() else []
+        existing += list(parts.values())[:1]
+        for path in existing:
+            self._check_compatible(path)
+        if consolidated.exists():
+            ids = pq.read_table(consolidated, columns=["press_id"]).column("press_id").to_pylist()
+            self._completed.update(int(i) for i in ids)
+        for press_id, path in waveform_parts(self.folder).items():
+            if press_id not in self._completed:
+                path.unlink(missing_ok=True)  # orphan: its press was never committed
+
+    def _check_compatible(self, path: Path) -> None:
+        try:
+            found = pq.read_schema(path)
+        except (OSError, pa.ArrowException) as exc:
+            raise DataError(f"cannot read an existing part: {exc}", file=str(path),
+                            fix="move the damaged file out of the campaign folder, then resume") from exc
+        if found.names != self.schema.names:
+            missing = sorted(set(self.schema.names) - set(found.names))
+            extra = sorted(set(found.names) - set(self.schema.names))
+            raise DataError(f"existing data has other columns (missing {missing[:3]}, extra {extra[:3]})",
+                            file=str(path), field="pairs",
+                            fix="resume with the layout the campaign started with, or write to a new folder")
+
+    def completed_press_ids(self) -> set[int]:
+        """Ids of the presses that are durable (in a part or in the consolidated file)."""
+        return set(self._completed)
+
+    # ---- writing -----------------------------------------------------------------------------
+
+    def write_press(self, row: Mapping[str, Any], waveforms: Mapping[str, np.ndarray] | None = None) -> Path:
+        """Make one press durable; returns its part's path. Refuses a press id that is already durable."""
+        table = self._encoder.table(row)
+        press_id = int(row["press_id"])
+        if press_id < 0:
+            raise DataError(f"press_id must be >= 0, got {press_id}", field="press_id", fix="number presses from 0")
+        if press_id in self._completed:
+            raise DataError(f"press {press_id} is already durable in {self.folder}", field="press_id",
+                            fix="skip the ids in completed_press_ids() when resuming")
+        if waveforms:
+            self._write_waveforms(press_id, int(row["position_id"]), waveforms)
+        path = self._parts_dir / part_name(press_id)
+        write_durably(path, lambda handle: pq.write_table(table, handle), fsync=self.fsync, dir_fd=self._dir_fd)
+        self._completed.add(press_id)
+        return path
+
+    def _write_waveforms(self, press_id: int, position_id: int, waveforms: Mapping[str, np.ndarray]) -> Path:
+        table = waveform_table(press_id, waveforms)
+        folder = self._waveforms_dir / f"position_id={position_id}"
+        if folder not in self._position_dirs:
+            created = not folder.exists()
+            folder.mkdir(parents=True, exist_ok=True)
+            if created and self.fsync:
+                fsync_dir(folder.parent)
+                fsync_dir(self.folder)
+            self._position_dirs.add(folder)
+        return write_durably(folder / part_name(press_id), lambda handle: pq.write_table(table, handle),
+                             fsync=self.fsync)
+
+    # ---- finalize ----------------------------------------------------------------------------
+
+    def finalize(self) -> Path:
+        """Consolidate every durable press into presses.parquet (sorted by press_id, this writer's metadata)
+        and then delete the parts. Crash-safe and idempotent: the consolidated file is replaced atomically
+        before any part is deleted, and readers deduplicate a press found in both."""
+        consolidated = self.folder / CONSOLIDATED_NAME
+        parts = press_parts(self.folder)
+        if not parts and consolidated.exists():
+            return consolidated
+        sources = ([str(consolidated)] if consolidated.exists() else []) + [str(p) for p in parts.values()]
+        plain = self.schema.remove_metadata()
+        if sources:
+            table = pads.dataset(sources, schema=plain, format="parquet").to_table()
+        else:
+            table = plain.empty_table()
+        table = deduplicate_sorted(table).replace_schema_metadata(self.schema.metadata)
+        write_durably(consolidated, lambda handle: pq.write_table(table, handle, row_group_size=1 << 16),
+                      fsync=self.fsync)
+        for path in parts.values():
+            path.unlink(missing_ok=True)
+        if self.fsync:
+            os.fsync(self._dir_fd)
+        return consolidated
+
+    def close(self) -> None:
+        if self._dir_fd is not None:
+            os.close(self._dir_fd)
+            self._dir_fd = None
+
+    def __enter__(self) -> "CampaignWriter":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:
+            pass
+
+
+def deduplicate_sorted(table: pa.Table) -> pa.Table:
+    """Rows sorted by press_id, the first occurrence of each press id kept."""
+    ids = table.column("press_id").to_numpy()
+    order = np.argsort(ids, kind="stable")
+    _, first = np.unique(ids[order], return_index=True)
+    return table.take(pa.array(order[first]))
+
+
+def waveform_table(press_id: int, waveforms: Mapping[str, np.ndarray]) -> pa.Table:
+    """One row per sample: press_id, sample, then each named 1-D signal (all of one length)."""
+    arrays = {name: np.asarray(values) for name, values in waveforms.items()}
+    lengths = {name: a.shape for name, a in arrays.items()}
+    if any(len(shape) != 1 for shape in lengths.values()) or len(set(lengths.values())) != 1:
+        raise DataError(f"waveforms must be 1-D arrays of one length, got shapes {lengths}", field="waveforms",
+                        fix="pass one 1-D array per signal, sample-aligned (e.g. voltage_v, current_a, fsr_v)")
+    reserved = {"press_id", "sample", "position_id"} & set(arrays)
+    if reserved:
+        raise DataError(f"waveform name(s) {sorted(reserved)} are reserved", field="waveforms",
+                        fix="rename the signal")
+    n = next(iter(lengths.values()))[0]
+    columns = {"press_id": np.full(n, press_id, dtype=np.int64), "sample": np.arange(n, dtype=np.int32)}
+    columns.update(arrays)
+    return pa.table(columns)
