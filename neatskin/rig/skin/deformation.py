@@ -1,0 +1,159 @@
+"""The deformation model: how a flat probe pressed into the skin pinches each channel, and the
+resulting channel resistance as the integral of rho / A(s) along the channel.
+
+Model (documented with its parameters in docs/skin.md):
+
+- The probe is a flat circular punch of radius a at (x, y), pressed to depth d into a skin of
+  thickness T (layout.thickness_mm). A channel's centre line is the straight segment between its
+  junctions; r(s) is the horizontal distance from the probe axis to the point s of that line.
+- The channel keeps its width and loses the fraction p(r) of its height (A = w h (1 - p)):
+      p(r) = p0                                  r <= a   (under the flat probe)
+      p(r) = p0 * exp(-((r - a) / l)^2)          r >  a   (decay outside the probe edge)
+      p0   = min(1, pinch_gain * d / T)          (uniform compression d / T of the layer, times a
+                                                  gain for the void's extra compliance; 1 = shut)
+      l    = decay_ratio * (c + d)               (c = layout.channel_depth_mm: the deformation
+                                                  field spreads as it goes down, and with depth)
+  p is C1 at the probe edge; a press to depth T / pinch_gain shuts the channels under the probe.
+- Channel resistance R = rho / (w h) * integral ds / (1 - p(r(s))) = R0 * F with the factor
+      F = (1 / L) * integral_0^L ds / (1 - p(r(s))).
+  Under the probe the integrand is the constant 1 / (1 - p0): that part is exact. Outside it the
+  integrand is analytic on each side of the probe footprint, so each side is split into two
+  panels ([edge, edge + l] and the rest) integrated by Gauss-Legendre with `nodes_per_panel`
+  nodes: the error falls exponentially with the node count (table in docs/skin.md, measured
+  against a 48-node reference in tests/test_skin_deformation.py and benchmarks/bench_skin.py).
+  A channel pinched shut over any length has F = inf (conductance 0).
+
+Everything is vectorised over presses x channels x nodes; presses are processed in chunks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from neatskin.layout import Layout
+
+_CHUNK_PRESSES = 384
+
+
+@dataclass(frozen=True)
+class PinchParams:
+    """Parameters of the pinch profile p(r) and of its quadrature."""
+
+    pinch_gain: float = 1.0
+    decay_ratio: float = 0.5
+    nodes_per_panel: int = 8
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.pinch_gain) and self.pinch_gain > 0):
+            raise ValueError(f"pinch_gain must be a positive number, got {self.pinch_gain!r}")
+        if not (np.isfinite(self.decay_ratio) and self.decay_ratio > 0):
+            raise ValueError(f"decay_ratio must be a positive number, got {self.decay_ratio!r}")
+        if not (isinstance(self.nodes_per_panel, int) and 1 <= self.nodes_per_panel <= 200):
+            raise ValueError(f"nodes_per_panel must be an integer in 1..200, got {self.nodes_per_panel!r}")
+
+
+def pinch_fraction(r_mm, depth_mm, probe_radius_mm: float, thickness_mm: float, channel_depth_mm: float,
+                   params: PinchParams = PinchParams()) -> np.ndarray:
+    """Fraction of the channel height lost at horizontal distance r_mm from the probe axis (broadcasts)."""
+    r_mm, depth_mm = np.asarray(r_mm, float), np.asarray(depth_mm, float)
+    depth = np.maximum(depth_mm, 0.0)
+    p0 = np.minimum(1.0, params.pinch_gain * depth / thickness_mm)
+    decay_mm = params.decay_ratio * (channel_depth_mm + depth)
+    outside = np.maximum(r_mm - probe_radius_mm, 0.0) / decay_mm
+    return p0 * np.exp(-outside * outside)
+
+
+def _channel_geometry(layout: Layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Start point (C, 2), unit direction (C, 2) and straight length (C,) of each channel's centre line."""
+    xy = layout.xy_mm
+    start = xy[layout.channel_ends[:, 0]]
+    vec = xy[layout.channel_ends[:, 1]] - start
+    length = np.hypot(vec[:, 0], vec[:, 1])
+    return start, vec / length[:, None], length
+
+
+@lru_cache(maxsize=64)
+def _gauss_legendre(q: int) -> tuple[np.ndarray, np.ndarray]:
+    x, w = np.polynomial.legendre.leggauss(q)
+    return (x + 1.0) / 2.0, w / 2.0  # on [0, 1]
+
+
+def resistance_factor(layout: Layout, x_mm, y_mm, depth_mm, probe_radius_mm,
+                      params: PinchParams = PinchParams()) -> np.ndarray:
+    """R / R0 of every channel for every press, shape (presses, channels); 1 exactly where depth <= 0,
+    inf where a channel is pinched shut. Inputs are arrays of shape (presses,) or scalars."""
+    x, y, depth, radius = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, float))
+                                                for v in (x_mm, y_mm, depth_mm, probe_radius_mm)))
+    out = np.empty((x.shape[0], layout.n_channels))
+    for lo in range(0, x.shape[0], _CHUNK_PRESSES):
+        sl = slice(lo, lo + _CHUNK_PRESSES)
+        out[sl] = _factor_chunk(layout, x[sl], y[sl], depth[sl], radius[sl], params)
+    return out
+
+
+def _factor_chunk(layout, x, y, depth, radius, params):
+    start, unit, length = _channel_geometry(layout)
+    thickness, cdepth = layout.thickness_mm, layout.channel_depth_mm
+    touching = depth > 0
+    d = np.where(touching, depth, 0.0)[:, None]
+    a = radius[:, None]
+    p0 = np.minimum(1.0, params.pinch_gain * d / thickness)  # (n, 1)
+    decay = params.decay_ratio * (cdepth + d)
+    rel_x, rel_y = x[:, None] - start[:, 0], y[:, None] - start[:, 1]  # (n, C)
+    s0 = rel_x * unit[:, 0] + rel_y * unit[:, 1]
+    perp = rel_x * unit[:, 1] - rel_y * unit[:, 0]
+    perp2 = perp * perp
+    half_chord = np.sqrt(np.maximum(a * a - perp2, 0.0))
+    foot_lo = np.clip(s0 - half_chord, 0.0, length)
+    foot_hi = np.clip(s0 + half_chord, 0.0, length)
+    foot = foot_hi - foot_lo
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inner = np.where(foot > 0, foot / (1.0 - p0), 0.0)  # exact: p = p0 under the probe
+    # the two sides outside the footprint, each as panels [edge, edge + l] and [edge + l, end];
+    # only (s - s0)^2 enters, and on side k, s - s0 = sign_k * (base_k + offset)
+    base = np.stack([foot_hi - s0, s0 - foot_lo], axis=-1)  # (n, C, 2): footprint edge to s0 distance
+    side_len = np.stack([length - foot_hi, foot_lo], axis=-1)
+    first = np.minimum(decay[..., None], side_len)
+    p_start = np.stack([base, base + first], axis=-1)  # (n, C, 2 sides, 2 panels)
+    p_width = np.stack([first, side_len - first], axis=-1)
+    nodes, weights = _gauss_legendre(params.nodes_per_panel)
+    # hot loop over (n, C, 2, 2, q): in place, one pass per operation
+    r = p_width[..., None] * nodes
+    r += p_start[..., None]
+    np.multiply(r, r, out=r)
+    r += perp2[..., None, None, None]
+    np.sqrt(r, out=r)
+    r -= a[..., None, None, None]
+    np.multiply(r, r, out=r)  # outside the footprint r >= a, so this is (r - a)^2
+    r *= (-1.0 / (decay * decay))[..., None, None, None]
+    np.exp(r, out=r)
+    r *= -p0[..., None, None, None]
+    r += 1.0
+    with np.errstate(divide="ignore"):
+        np.reciprocal(r, out=r)
+    outer = np.sum((r @ weights) * p_width, axis=(-1, -2))
+    factor = (inner + outer) / length
+    factor[~touching] = 1.0
+    return factor
+
+
+def nearest_point_factor(layout: Layout, x_mm, y_mm, depth_mm, probe_radius_mm,
+                         params: PinchParams = PinchParams()) -> np.ndarray:
+    """Closed-form stand-in for resistance_factor (the "network" fidelity): the pinch at the channel
+    point nearest the probe axis, applied over the probe's footprint (one diameter, at most the
+    channel length): F = 1 + (min(2a, L) / L) * (1 / (1 - p(r_min)) - 1). Shape (presses, channels)."""
+    x, y, depth, radius = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, float))
+                                                for v in (x_mm, y_mm, depth_mm, probe_radius_mm)))
+    start, unit, length = _channel_geometry(layout)
+    rel_x, rel_y = x[:, None] - start[:, 0], y[:, None] - start[:, 1]
+    s0 = np.clip(rel_x * unit[:, 0] + rel_y * unit[:, 1], 0.0, length)
+    r_min = np.hypot(rel_x - s0 * unit[:, 0], rel_y - s0 * unit[:, 1])
+    p = pinch_fraction(r_min, depth[:, None], radius[:, None], layout.thickness_mm, layout.channel_depth_mm, params)
+    share = np.minimum(2.0 * radius[:, None], length) / length
+    with np.errstate(divide="ignore"):
+        factor = 1.0 + share * (1.0 / (1.0 - p) - 1.0)
+    factor[depth <= 0] = 1.0
+    return factor
