@@ -1,0 +1,86 @@
+"""SIGKILL at random instants while a real process writes presses (fsync on) and finalizes; resume after
+each kill; the result has every press exactly once and equals an uninterrupted write."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pandas as pd
+
+from neatskin.datasets.reader import read_presses, read_waveforms
+from neatskin.datasets.writer import CampaignWriter
+from neatskin.datasets.synthetic import synthetic_rows
+
+from conftest import PROTOCOLS
+
+N_POSITIONS, REPEATS = 40, 4  # 160 presses
+META = {"seed": 11, "protocol": {"name": "kill"}}
+
+WORKER = r"""
+import sys, numpy as np
+from neatskin.layout import load_layout
+from neatskin.datasets.writer import CampaignWriter
+from neatskin.datasets.synthetic import synthetic_rows
+layout = load_layout(sys.argv[2])
+rows = synthetic_rows(layout, %d, %d, seed=11)
+writer = CampaignWriter(sys.argv[1], layout.pairs, {"seed": 11, "protocol": {"name": "kill"}}, fsync=True)
+done = writer.completed_press_ids()
+print("ready", len(done), flush=True)
+for row in rows:
+    if row["press_id"] not in done:
+        writer.write_press(row, {"voltage_v": np.full(200, float(row["press_id"]))})
+writer.finalize()
+print("finished", flush=True)
+""" % (N_POSITIONS, REPEATS)
+
+
+def run_worker(folder, kill_after_s=None):
+    """Run the worker; kill it with SIGKILL `kill_after_s` after it is ready. Returns True if it finished."""
+    proc = subprocess.Popen([sys.executable, "-c", WORKER, str(folder), str(PROTOCOLS / "skins" / "paper.toml")],
+                            stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().startswith("ready")
+    if kill_after_s is not None:
+        time.sleep(kill_after_s)
+        proc.send_signal(signal.SIGKILL)
+    out, _ = proc.communicate(timeout=120)
+    if kill_after_s is None:
+        assert proc.returncode == 0
+    return "finished" in out
+
+
+def test_sigkill_at_random_points_then_resume(paper_layout, tmp_path):
+    rows = synthetic_rows(paper_layout, N_POSITIONS, REPEATS, seed=11)
+    with CampaignWriter(tmp_path / "reference", paper_layout.pairs, META, fsync=False) as writer:
+        for row in rows:
+            writer.write_press(row, {"voltage_v": np.full(200, float(row["press_id"]))})
+        writer.finalize()
+    reference = read_presses(tmp_path / "reference")
+
+    rng = np.random.default_rng(2026)
+    folder = tmp_path / "killed"
+    progress = []
+    for delay in rng.uniform(0.0, 0.35, size=5):
+        run_worker(folder, kill_after_s=float(delay))
+        # between kills: whatever is on disk reads cleanly, ids unique, and only durable presses are counted
+        if folder.exists() and any(folder.rglob("*.parquet")):
+            df = read_presses(folder, deduplicate=False)
+            assert df["press_id"].is_unique
+            progress.append(len(df))
+            pd.testing.assert_frame_equal(df.reset_index(drop=True),
+                                          reference[reference["press_id"].isin(df["press_id"])].reset_index(drop=True))
+        else:
+            progress.append(0)
+    assert any(0 < n < len(rows) for n in progress), f"no kill landed mid-campaign: {progress}"
+    assert run_worker(folder) is True
+
+    final = read_presses(folder, deduplicate=False)
+    assert final["press_id"].tolist() == list(range(len(rows)))
+    pd.testing.assert_frame_equal(final, reference)
+    assert list((folder / "presses").iterdir()) == []
+    assert not [p for p in folder.rglob(".*.tmp")]
+    wf = read_waveforms(folder)
+    assert len(wf) == 200 * len(rows)
+    assert (wf.groupby("press_id")["voltage_v"].first().to_numpy() == np.arange(len(rows))).all()
