@@ -1,0 +1,117 @@
+"""Validation before any G-code text exists: targets inside the bed and soft limits, press depth, feeds.
+
+`check_press_plan` takes every press target in the printer frame and raises one ConfigError
+naming each offending press (id and position) and the limit it breaks. It is called by
+`program.build_program` before a single line is formatted, and by `neatskin gcode check` on a
+parsed file (`check_moves`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from neatskin.errors import ConfigError, Problem
+from neatskin.gcode.profile import PrinterProfile
+
+DEPTH_MARGIN_MM = 0.5  # the probe stops at least this far above the skin's underside
+_MAX_LISTED = 12
+
+
+def check_press_plan(profile: PrinterProfile, printer_x_mm: np.ndarray, printer_y_mm: np.ndarray,
+                     press_ids: np.ndarray, position_ids: np.ndarray, depth_mm: float, thickness_mm: float,
+                     depth_margin_mm: float = DEPTH_MARGIN_MM, source: str = "<program>") -> None:
+    """Raise one ConfigError listing every press whose target breaks a limit (nothing is emitted)."""
+    problems: list[Problem] = []
+    cal = profile.calibration
+    limit = thickness_mm - depth_margin_mm
+    if not depth_mm > 0:
+        problems.append(Problem(f"press depth {depth_mm} mm must be > 0 (below the surface)", source, "press.depth_mm",
+                                "set depth_mm to how far below the skin's top surface the probe goes"))
+    elif depth_mm > limit:
+        problems.append(Problem(f"press depth {depth_mm} mm is beyond the skin thickness {thickness_mm} mm minus the "
+                                f"{depth_margin_mm} mm margin (limit {limit:g} mm)", source, "press.depth_mm",
+                                f"set depth_mm <= {limit:g}"))
+    xy_max = min(profile.max_feed_mm_s.x, profile.max_feed_mm_s.y)
+    for key, value, vmax in (("travel_feed_mm_s", profile.travel_feed_mm_s, xy_max),
+                             ("z_feed_mm_s", profile.z_feed_mm_s, profile.max_feed_mm_s.z),
+                             ("press_feed_mm_s", profile.press_feed_mm_s, profile.max_feed_mm_s.z)):
+        if value > vmax:
+            problems.append(Problem(f"{key} = {value} mm/s exceeds the printer maximum {vmax} mm/s", profile.source,
+                                    f"motion.{key}", f"set {key} <= {vmax}"))
+    z_safe = cal.surface_z_mm + profile.safe_height_mm
+    z_press = cal.surface_z_mm - depth_mm
+    if z_safe > profile.soft_max_mm.z:
+        problems.append(Problem(f"safe travel height z = {z_safe:g} mm is above the z soft limit "
+                                f"{profile.soft_max_mm.z:g} mm", profile.source, "motion.safe_height_mm",
+                                "lower safe_height_mm or check calibration.surface_z_mm"))
+    if z_press < profile.soft_min_mm.z:
+        problems.append(Problem(f"press depth reaches z = {z_press:g} mm, below the z soft limit "
+                                f"{profile.soft_min_mm.z:g} mm", profile.source, "calibration.surface_z_mm",
+                                "re-measure surface_z_mm (the skin's top surface in printer z) or lower depth_mm"))
+    x = np.asarray(printer_x_mm, float)
+    y = np.asarray(printer_y_mm, float)
+    checks = (
+        ("x", x, max(0.0, profile.soft_min_mm.x), min(profile.bed_x_mm, profile.soft_max_mm.x)),
+        ("y", y, max(0.0, profile.soft_min_mm.y), min(profile.bed_y_mm, profile.soft_max_mm.y)),
+    )
+    bad = np.zeros(len(x), dtype=bool)
+    for axis, values, lo, hi in checks:
+        bad |= ~np.isfinite(values) | (values < lo) | (values > hi)
+    listed = 0
+    for i in np.flatnonzero(bad):
+        if listed == _MAX_LISTED:
+            problems.append(Problem(f"... and {int(bad.sum()) - listed} more presses out of bounds", source, "presses",
+                                    "fix the calibration or the positions"))
+            break
+        for axis, values, lo, hi in checks:
+            v = float(values[i])
+            if not lo <= v <= hi:
+                problems.append(Problem(
+                    f"press {int(press_ids[i])} (position {int(position_ids[i])}) goes to printer {axis} = {v:.3f} mm, "
+                    f"outside the bed and soft limits [{lo:g}, {hi:g}] mm", source,
+                    f"press {int(press_ids[i])}",
+                    "move the skin or refit the calibration offset/rotation so every position lands on the bed"))
+                listed += 1
+                break
+    if problems:
+        raise ConfigError(problems=problems)
+
+
+def check_moves(profile: PrinterProfile, lines, source: str = "<program>") -> list[Problem]:
+    """Problems with a parsed program: G0/G1 targets outside the bed or soft limits, feeds over the maxima."""
+    problems: list[Problem] = []
+    lo = [max(0.0, profile.soft_min_mm.x), max(0.0, profile.soft_min_mm.y), profile.soft_min_mm.z]
+    hi = [min(profile.bed_x_mm, profile.soft_max_mm.x), min(profile.bed_y_mm, profile.soft_max_mm.y),
+          profile.soft_max_mm.z]
+    fmax = max(profile.max_feed_mm_s)
+    relative = False
+    pos = [None, None, None]
+    for n, line in enumerate(lines, start=1):
+        code = line.code
+        if code in ("G90", "G91"):
+            relative = code == "G91"
+        elif code == "G28":
+            pos = [profile.soft_min_mm.x, profile.soft_min_mm.y, profile.soft_min_mm.z]
+        elif code in ("G0", "G1"):
+            for k, letter in enumerate("XYZ"):
+                value = line.get(letter)
+                if value is None:
+                    continue
+                if relative:
+                    if pos[k] is None:
+                        problems.append(Problem(f"relative {letter} move before the position is known", source,
+                                                f"command {n}", "home (G28) or move absolutely first"))
+                        continue
+                    value += pos[k]
+                pos[k] = value
+                if not lo[k] <= value <= hi[k]:
+                    problems.append(Problem(f"{line.raw.strip()!r} moves {letter} to {value:g} mm, outside "
+                                            f"[{lo[k]:g}, {hi[k]:g}] mm", source, f"command {n}",
+                                            "regenerate the program with a calibration that fits the bed"))
+            f = line.get("F")
+            if f is not None and f / 60.0 > fmax:
+                problems.append(Problem(f"feed F{f:g} ({f / 60:g} mm/s) exceeds every axis maximum", source,
+                                        f"command {n}", f"use F <= {fmax * 60:g}"))
+        if len(problems) > _MAX_LISTED:
+            break
+    return problems

@@ -1,0 +1,87 @@
+"""G-code text: number formatting, the header, preamble and postamble, and the program as one string.
+
+User text (campaign, layout and printer names) only ever lands in comments, and `safe_text`
+refuses anything that could end a comment or start a command there: newline, carriage return,
+';', '*', and every other control character. Commands never contain user text.
+"""
+
+from __future__ import annotations
+
+import unicodedata
+from typing import TYPE_CHECKING
+
+from neatskin import __version__
+from neatskin.errors import ConfigError
+
+if TYPE_CHECKING:
+    from neatskin.gcode.program import PressProgram
+
+FORBIDDEN = {"\n": "a newline", "\r": "a carriage return", ";": "';'", "*": "'*'"}
+MARKER = "M118 E1 NS"
+
+
+def safe_text(value: str, field: str, source: str = "<memory>") -> str:
+    """Return `value` if it is safe inside a G-code comment; ConfigError otherwise."""
+    if not isinstance(value, str):
+        raise ConfigError(f"{field} must be text, got {value!r}", file=source, field=field, fix="quote it in the TOML")
+    for char in value:
+        what = FORBIDDEN.get(char)
+        if what is None and unicodedata.category(char) in ("Cc", "Cf", "Zl", "Zp"):
+            what = f"the control character U+{ord(char):04X}"
+        if what is not None:
+            raise ConfigError(f"{field} {value!r} contains {what}, which could inject a G-code command",
+                              file=source, field=field,
+                              fix="use letters, digits, spaces and simple punctuation (no ';', '*' or line breaks)")
+    return value
+
+
+def fmt(value: float) -> str:
+    """A coordinate or feed as G-code text: at most 3 decimals, no trailing zeros, never '-0'."""
+    text = f"{value:.3f}".rstrip("0").rstrip(".")
+    return "0" if text in ("-0", "") else text
+
+
+def feed(mm_s: float) -> str:
+    return fmt(mm_s * 60.0)
+
+
+def marker(press_id: int, phase: str) -> str:
+    """The echo the runner matches on the wire: the printer answers `echo:NS press=<id> phase=<name>`."""
+    return f"{MARKER} press={press_id} phase={phase}"
+
+
+def header_lines(program: "PressProgram") -> list[str]:
+    p = program
+    lines = [
+        f"; neatskin-rig {__version__} press program",
+        f"; protocol: {safe_text(p.name, 'campaign.name')}",
+        f"; seed: {p.seed}",
+        f"; layout: {safe_text(p.layout_name, 'skin.name')}",
+        f"; printer: {safe_text(p.printer_name, 'printer.name')}",
+        f"; positions: {len(p.positions)}, presses: {len(p.presses)}, depth_mm: {fmt(p.depth_mm)}, "
+        f"hold_s: {fmt(p.hold_s)}, hold_in_gcode: {str(p.hold_in_gcode).lower()}",
+        f"; calibration: offset_x_mm={fmt(p.calibration.offset_x_mm)} offset_y_mm={fmt(p.calibration.offset_y_mm)} "
+        f"rotation_deg={fmt(p.calibration.rotation_deg)} surface_z_mm={fmt(p.calibration.surface_z_mm)}",
+    ]
+    if p.route_unordered_mm is not None:
+        lines.append(f"; travel ordering: route {fmt(p.route_mm)} mm instead of {fmt(p.route_unordered_mm)} mm")
+    return lines
+
+
+def preamble_lines() -> tuple[str, ...]:
+    return ("G21", "G90", "M211 S1", "G28", "M400")
+
+
+def program_text(program: "PressProgram") -> str:
+    """The whole program as text, one command per line, ending in a newline."""
+    out = header_lines(program)
+    out.append("; preamble")
+    out.extend(program.preamble)
+    for block in program.presses:
+        out.append(f"; press {block.press_id} position {block.position_id} repeat {block.repeat} "
+                   f"sensor x={fmt(block.x_mm)} y={fmt(block.y_mm)}")
+        for phase in block.phases:
+            out.extend(phase.lines)
+    out.append("; postamble")
+    out.extend(program.postamble)
+    return "\n".join(out) + "\n"

@@ -1,0 +1,166 @@
+"""Press programs: presses as structured blocks of named phases, ready for the campaign runner or a file.
+
+A press is four phases, each starting with an `M118 E1 NS press=<id> phase=<name>` marker
+(the printer echoes `echo:NS press=<id> phase=<name>`) and ending in `M400`:
+  travel  (to the safe height, then over the target)     acquire="baseline"
+  descend (down to contact with the skin's surface)
+  press   (on to depth_mm below the surface, press feed)  acquire="pressed"
+  lift    (back to the safe height)
+With `hold_in_gcode=True` (a file for standalone streaming) the press phase holds with
+`G4 P<ms>` before its final M400; for the runner the acquisition itself is the hold.
+Everything is checked by bounds.check_press_plan before any line is formatted.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Iterator
+
+import numpy as np
+
+from neatskin.errors import ConfigError
+from neatskin.gcode import emit
+from neatskin.gcode.bounds import DEPTH_MARGIN_MM, check_press_plan
+from neatskin.gcode.calibration import Calibration
+from neatskin.gcode.ordering import ORDERS, press_order, route_length_mm, shorten_route
+from neatskin.gcode.positions import PositionSet
+from neatskin.gcode.profile import PrinterProfile
+from neatskin.layout import Layout
+
+PHASES = ("travel", "descend", "press", "lift")
+
+
+@dataclass(frozen=True)
+class PressSpec:
+    depth_mm: float = 3.5
+    repeats: int = 1
+    order: str = "position"
+    hold_s: float = 0.0
+    probe_diameter_mm: float = 5.5
+    travel_ordering: bool = False
+    depth_margin_mm: float = DEPTH_MARGIN_MM
+    source: str = field(default="<memory>", compare=False)
+
+    def __post_init__(self) -> None:
+        def bad(key: str, message: str, fix: str) -> None:
+            raise ConfigError(message, file=self.source, field=f"press.{key}", fix=fix)
+
+        for key in ("depth_mm", "hold_s", "probe_diameter_mm", "depth_margin_mm"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+                bad(key, f"{key} must be a number >= 0, got {value!r}", f"set {key} to a non-negative number")
+        if isinstance(self.repeats, bool) or not isinstance(self.repeats, int) or self.repeats < 1:
+            bad("repeats", f"repeats must be a positive integer, got {self.repeats!r}", "set repeats >= 1")
+        if self.order not in ORDERS:
+            bad("order", f"unknown order {self.order!r}", f"use one of {', '.join(ORDERS)}")
+        if not isinstance(self.travel_ordering, bool):
+            bad("travel_ordering", f"travel_ordering must be true or false, got {self.travel_ordering!r}",
+                "set travel_ordering = true or false")
+        if self.travel_ordering and self.order != "position":
+            bad("travel_ordering", "travel ordering only applies to order = 'position' (shuffled presses jump "
+                "between positions on purpose)", "set travel_ordering = false or order = 'position'")
+
+
+@dataclass(frozen=True)
+class Phase:
+    name: str
+    lines: tuple[str, ...]
+    acquire: str | None = None
+
+
+@dataclass(frozen=True)
+class PressBlock:
+    press_id: int
+    position_id: int
+    repeat: int
+    x_mm: float  # sensor frame
+    y_mm: float
+    phases: tuple[Phase, ...]
+    feature: str = ""
+    printer_xyz_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the press target in the printer frame
+
+    def phase(self, name: str) -> Phase:
+        for phase in self.phases:
+            if phase.name == name:
+                return phase
+        raise KeyError(name)
+
+
+@dataclass(frozen=True)
+class PressProgram:
+    name: str
+    seed: int
+    layout_name: str
+    printer_name: str
+    depth_mm: float
+    hold_s: float
+    hold_in_gcode: bool
+    calibration: Calibration
+    positions: PositionSet
+    presses: tuple[PressBlock, ...]
+    preamble: tuple[str, ...]
+    postamble: tuple[str, ...]
+    route_mm: float  # xy route between positions, from the first to the last
+    route_unordered_mm: float | None = None  # the same without travel ordering (None: ordering off)
+
+    def command_lines(self) -> Iterator[str]:
+        """Every command in execution order (no comments)."""
+        yield from self.preamble
+        for block in self.presses:
+            for phase in block.phases:
+                yield from phase.lines
+        yield from self.postamble
+
+    def text(self) -> str:
+        return emit.program_text(self)
+
+
+def build_program(layout: Layout, positions: PositionSet, press: PressSpec, profile: PrinterProfile, *,
+                  name: str = "campaign", seed: int = 0, hold_in_gcode: bool = False,
+                  source: str = "<program>") -> PressProgram:
+    """The press program for these positions; every limit checked before any text is formatted."""
+    emit.safe_text(name, "campaign.name", source)
+    emit.safe_text(layout.name, "skin.name", layout.source)
+    emit.safe_text(profile.name, "printer.name", profile.source)
+    cal = profile.calibration
+    xy = positions.xy_mm
+    route_unordered = None
+    sequence = np.arange(len(positions))
+    if press.travel_ordering and len(positions) > 2:
+        start = np.array(cal.to_sensor(profile.park_mm.x, profile.park_mm.y), dtype=float)
+        route_unordered = route_length_mm(xy, sequence)
+        sequence = shorten_route(xy, start_xy_mm=start)
+    order = press_order(len(positions), press.repeats, press.order, seed, sequence)
+    pos_ids, repeats = order[:, 0], order[:, 1]
+    px, py = cal.to_printer(xy[pos_ids, 0], xy[pos_ids, 1]) if len(order) else (np.zeros(0), np.zeros(0))
+    press_ids = np.arange(len(order))
+    check_press_plan(profile, px, py, press_ids, pos_ids, press.depth_mm, layout.thickness_mm,
+                     press.depth_margin_mm, source)
+    route = route_length_mm(xy, pos_ids[np.r_[True, np.diff(pos_ids) != 0]]) if len(order) else 0.0
+
+    z_safe = emit.fmt(cal.surface_z_mm + profile.safe_height_mm)
+    z_contact = emit.fmt(cal.surface_z_mm)
+    z_press_mm = cal.surface_z_mm - press.depth_mm
+    f_z, f_travel, f_press = emit.feed(profile.z_feed_mm_s), emit.feed(profile.travel_feed_mm_s), emit.feed(profile.press_feed_mm_s)
+    hold = (f"G4 P{int(round(press.hold_s * 1000))}",) if hold_in_gcode and press.hold_s > 0 else ()
+    blocks = []
+    for k in range(len(order)):
+        pid, pos = int(press_ids[k]), int(pos_ids[k])
+        sx, sy = emit.fmt(float(px[k])), emit.fmt(float(py[k]))
+        phases = (
+            Phase("travel", (emit.marker(pid, "travel"), f"G0 Z{z_safe} F{f_z}", f"G0 X{sx} Y{sy} F{f_travel}", "M400"),
+                  "baseline"),
+            Phase("descend", (emit.marker(pid, "descend"), f"G1 Z{z_contact} F{f_z}", "M400")),
+            Phase("press", (emit.marker(pid, "press"), f"G1 Z{emit.fmt(z_press_mm)} F{f_press}", *hold, "M400"),
+                  "pressed"),
+            Phase("lift", (emit.marker(pid, "lift"), f"G0 Z{z_safe} F{f_z}", "M400")),
+        )
+        blocks.append(PressBlock(pid, pos, int(repeats[k]), positions.x_mm[pos], positions.y_mm[pos], phases,
+                                 positions.features[pos], (float(px[k]), float(py[k]), z_press_mm)))
+    park = profile.park_mm
+    postamble = (f"G0 Z{z_safe} F{f_z}", f"G0 X{emit.fmt(park.x)} Y{emit.fmt(park.y)} F{f_travel}",
+                 f"G0 Z{emit.fmt(max(park.z, cal.surface_z_mm + profile.safe_height_mm))} F{f_z}", "M400",
+                 f"{emit.MARKER} program=done")
+    return PressProgram(name, seed, layout.name, profile.name, press.depth_mm, press.hold_s, hold_in_gcode, cal,
+                        positions, tuple(blocks), emit.preamble_lines(), postamble, route, route_unordered)
