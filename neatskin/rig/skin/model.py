@@ -1,0 +1,167 @@
+"""SkinModel: the simulated skin the rest of the rig uses — press in, channel and pair resistances,
+probe force and position Jacobian out — plus the optional skin-side rig effects (SPEC level 3).
+
+Fidelities:
+- "deformation": each channel's resistance is the integral of rho / A(s) along it under the
+  pinch profile of `deformation.py` (Gauss-Legendre, `PinchParams.nodes_per_panel`).
+- "network": a closed-form factor per channel (the pinch at the channel point nearest the probe,
+  applied over one probe diameter: `deformation.nearest_point_factor`). About 20x cheaper; its
+  error against the deformation model is measured in tests/test_skin_model.py and docs/skin.md.
+
+Rig effects, each off by default: fluid resistivity drift with temperature (`temperature_c`),
+probe placement error (`placement_sigma_mm`, applied by the runner through
+`placement_error_mm`), silicone hysteresis (`hysteresis_fraction`: on unloading the skin lags
+behind the probe). Everything random takes an explicit numpy Generator.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from neatskin.layout import Layout
+from neatskin.rig.skin.deformation import PinchParams, nearest_point_factor, resistance_factor
+from neatskin.rig.skin.network import equivalent_resistance
+
+FIDELITIES = ("deformation", "network")
+
+
+@dataclass(frozen=True)
+class SkinModel:
+    """A simulated skin: a layout, a probe and the model choices. Frozen; nothing computed at construction.
+
+    youngs_modulus_pa / poisson_ratio: EcoFlex 00-30 (E ~ 70 kPa, nearly incompressible).
+    temperature_c: fluid temperature; None = no drift. Resistivity follows
+        rho(T) = rho_layout * (1 + resistivity_tempco_per_k * (T - reference_temperature_c)),
+        with -2 %/K for saline (its conductivity rises ~2 %/K).
+    hysteresis_fraction: 0 = elastic. On unloading (depth below the press's peak depth) the skin
+        recovers only partly: it pinches as at depth + h * (peak - depth), and pushes back with
+        (1 - h) times the loading force.
+    placement_sigma_mm: standard deviation of the probe placement error per axis (the runner draws
+        it with `placement_error_mm`).
+    """
+
+    layout: Layout
+    fidelity: str = "deformation"
+    probe_radius_mm: float = 2.75
+    pinch: PinchParams = field(default_factory=PinchParams)
+    youngs_modulus_pa: float = 70e3
+    poisson_ratio: float = 0.49
+    temperature_c: float | None = None
+    reference_temperature_c: float = 25.0
+    resistivity_tempco_per_k: float = -0.02
+    hysteresis_fraction: float = 0.0
+    placement_sigma_mm: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.fidelity not in FIDELITIES:
+            raise ValueError(f"fidelity must be one of {FIDELITIES}, got {self.fidelity!r}")
+        for name in ("probe_radius_mm", "youngs_modulus_pa"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number, got {value!r}")
+        if not 0 <= self.poisson_ratio < 0.5:
+            raise ValueError(f"poisson_ratio must be in [0, 0.5), got {self.poisson_ratio!r}")
+        if not 0 <= self.hysteresis_fraction < 1:
+            raise ValueError(f"hysteresis_fraction must be in [0, 1), got {self.hysteresis_fraction!r}")
+        if not (math.isfinite(self.placement_sigma_mm) and self.placement_sigma_mm >= 0):
+            raise ValueError(f"placement_sigma_mm must be >= 0, got {self.placement_sigma_mm!r}")
+        if self.temperature_c is not None and self.resistivity_factor(self.temperature_c) <= 0:
+            raise ValueError(f"temperature_c = {self.temperature_c} drives the resistivity to <= 0; "
+                             "check resistivity_tempco_per_k and reference_temperature_c")
+
+    # ---- resistances -----------------------------------------------------------------------
+
+    def resistivity_factor(self, temperature_c) -> np.ndarray | float:
+        """rho(T) / rho_layout (linear temperature coefficient)."""
+        return 1.0 + self.resistivity_tempco_per_k * (np.asarray(temperature_c, float) - self.reference_temperature_c)
+
+    def channel_resistance_ohm(self, x_mm, y_mm, depth_mm, peak_depth_mm=None, temperature_c=None) -> np.ndarray:
+        """Resistance of every channel for every press, (n, channels); inf for a channel pinched shut.
+
+        depth_mm <= 0 means not touching (baseline). peak_depth_mm (unloading branch) only matters
+        with hysteresis; temperature_c (per press or scalar) overrides the model's temperature."""
+        x, y, depth = _as_presses(x_mm, y_mm, depth_mm)
+        depth = self.effective_depth_mm(depth, peak_depth_mm)
+        args = (self.layout, x, y, depth, self.probe_radius_mm, self.pinch)
+        factor = resistance_factor(*args) if self.fidelity == "deformation" else nearest_point_factor(*args)
+        resistance = factor * self.layout.channel_resistance_ohm
+        temperature = self.temperature_c if temperature_c is None else temperature_c
+        if temperature is not None:
+            resistance = resistance * np.reshape(self.resistivity_factor(temperature), (-1, 1))
+        return resistance
+
+    def pair_resistance_ohm(self, x_mm, y_mm, depth_mm, peak_depth_mm=None, temperature_c=None) -> np.ndarray:
+        """Equivalent resistance of every electrode pair (layout.pairs order), (n, pairs); inf if cut apart."""
+        resistance = self.channel_resistance_ohm(x_mm, y_mm, depth_mm, peak_depth_mm, temperature_c)
+        with np.errstate(divide="ignore"):
+            return equivalent_resistance(self.layout, 1.0 / resistance)
+
+    @cached_property
+    def baseline_pair_resistance_ohm(self) -> np.ndarray:
+        """R_eq of every pair with nothing pressing (at the model's temperature), (pairs,)."""
+        return self.pair_resistance_ohm(0.0, 0.0, 0.0)[0]
+
+    def jacobian_mm(self, x_mm, y_mm, depth_mm, step_mm: float = 0.01) -> np.ndarray:
+        """d R_eq / d(x, y) in ohm/mm by central differences, (n, pairs, 2); NaN where R_eq is inf."""
+        x, y, depth = _as_presses(x_mm, y_mm, depth_mm)
+        n = x.shape[0]
+        xs = np.concatenate([x + step_mm, x - step_mm, x, x])
+        ys = np.concatenate([y, y, y + step_mm, y - step_mm])
+        r = self.pair_resistance_ohm(xs, ys, np.tile(depth, 4)).reshape(4, n, -1)
+        with np.errstate(invalid="ignore"):
+            jac = np.stack([r[0] - r[1], r[2] - r[3]], axis=-1) / (2.0 * step_mm)
+        jac[~np.isfinite(jac)] = np.nan
+        return jac
+
+    # ---- mechanics -------------------------------------------------------------------------
+
+    def effective_depth_mm(self, depth_mm, peak_depth_mm=None) -> np.ndarray:
+        """The depth the channels feel: the probe depth, or on unloading with hysteresis,
+        depth + h * (peak - depth)."""
+        depth = np.asarray(depth_mm, float)
+        if peak_depth_mm is None or self.hysteresis_fraction == 0:
+            return depth
+        peak = np.maximum(np.asarray(peak_depth_mm, float), depth)
+        lagged = depth + self.hysteresis_fraction * (peak - depth)
+        return np.where(depth > 0, lagged, depth)
+
+    def contact_force_n(self, depth_mm, loading: bool = True) -> np.ndarray:
+        """Force (N) on the flat probe at each depth, (n,); 0 where not touching.
+
+        Sneddon's flat circular punch on an elastic half-space, F = 2 a E d / (1 - nu^2), times a
+        bonded-layer correction kappa(a/T) = 1 + 1.33 (a/T) + 1.33 (a/T)^3 that interpolates between
+        the half-space (kappa -> 1) and the thin incompressible layer (kappa ~ (a/T)^3) limits.
+        Linear elasticity at strains up to d/T ~ 0.6 and an approximate kappa: take it as +-30 %.
+        For the paper's press (a = 2.75 mm, T = 5.5 mm, d = 3.5 mm, E = 70 kPa) F ~ 3.2 N.
+        With hysteresis, the unloading branch (loading=False) is (1 - h) times the loading one."""
+        depth_m = np.maximum(np.atleast_1d(np.asarray(depth_mm, float)), 0.0) * 1e-3
+        a_m = self.probe_radius_mm * 1e-3
+        ratio = self.probe_radius_mm / self.layout.thickness_mm
+        kappa = 1.0 + 1.33 * ratio + 1.33 * ratio ** 3
+        force = 2.0 * a_m * self.youngs_modulus_pa * depth_m / (1.0 - self.poisson_ratio ** 2) * kappa
+        return force if loading else force * (1.0 - self.hysteresis_fraction)
+
+    def placement_error_mm(self, x_mm, y_mm, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """Where the probe actually lands: the model's placement_sigma_mm applied (see the module function)."""
+        return placement_error_mm(x_mm, y_mm, self.placement_sigma_mm, rng)
+
+
+def placement_error_mm(x_mm, y_mm, sigma_mm: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Commanded (x, y) -> landed (x, y): independent Gaussian error of sigma_mm per axis.
+    sigma_mm = 0 returns the inputs unchanged and draws nothing from rng."""
+    x, y = np.asarray(x_mm, float), np.asarray(y_mm, float)
+    if sigma_mm == 0:
+        return x.copy(), y.copy()
+    err = rng.normal(0.0, sigma_mm, size=(2,) + np.broadcast_shapes(x.shape, y.shape))
+    return x + err[0], y + err[1]
+
+
+def _as_presses(x_mm, y_mm, depth_mm) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    x, y, depth = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, float)) for v in (x_mm, y_mm, depth_mm)))
+    if x.ndim != 1:
+        raise ValueError(f"x_mm, y_mm, depth_mm must be scalars or 1-D arrays of presses, got shape {x.shape}")
+    return x, y, depth

@@ -1,0 +1,314 @@
+"""The network solver against exact rationals, an exact Fraction reference, circuit theorems, and cut networks."""
+
+from __future__ import annotations
+
+from fractions import Fraction
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from neatskin.layout import ElectrodePair
+from neatskin.rig.skin.layouts import graph_layout, grid_layout
+from neatskin.rig.skin.network import equivalent_resistance
+
+
+# ---- exact reference: Fraction Gaussian elimination of the grounded Laplacian --------------
+
+
+def exact_pair_resistance(layout, conductance) -> list[Fraction | None]:
+    """Exact R_eq per pair of layout.pairs (None = the two electrodes are not connected)."""
+    n = layout.n_junctions
+    g = [Fraction(float(c)) for c in conductance]  # every float is an exact rational
+    lap = [[Fraction(0)] * n for _ in range(n)]
+    for (u, v), c in zip(layout.channel_ends.tolist(), g):
+        lap[u][u] += c
+        lap[v][v] += c
+        lap[u][v] -= c
+        lap[v][u] -= c
+    out = []
+    for pair in layout.pairs:
+        a = layout.electrodes[layout.electrode_index[pair.i]].junction
+        b = layout.electrodes[layout.electrode_index[pair.j]].junction
+        out.append(_exact_two_point(lap, a, b))
+    return out
+
+
+def _exact_two_point(lap, a, b):
+    n = len(lap)
+    reach, stack = {a}, [a]
+    while stack:
+        u = stack.pop()
+        for v in range(n):
+            if v not in reach and lap[u][v] != 0:
+                reach.add(v)
+                stack.append(v)
+    if b not in reach:
+        return None
+    nodes = [v for v in sorted(reach) if v != b]  # ground b; inject 1 A at a
+    m = len(nodes)
+    mat = [[lap[u][v] for v in nodes] + [Fraction(int(u == a))] for u in nodes]
+    for col in range(m):
+        piv = next(r for r in range(col, m) if mat[r][col] != 0)
+        mat[col], mat[piv] = mat[piv], mat[col]
+        for r in range(m):
+            if r != col and mat[r][col] != 0:
+                f = mat[r][col] / mat[col][col]
+                mat[r] = [x - f * y for x, y in zip(mat[r], mat[col])]
+    k = nodes.index(a)
+    return mat[k][m] / mat[k][k]
+
+
+def random_connected_edges(rng, n, extra):
+    edges = {tuple(sorted((k, int(rng.integers(0, k))))) for k in range(1, n)}
+    candidates = [(a, b) for a in range(n) for b in range(a + 1, n) if (a, b) not in edges]
+    rng.shuffle(candidates)
+    return sorted(edges | set(candidates[:extra]))
+
+
+def pinv_pair_resistance(layout, g):
+    n = layout.n_junctions
+    lap = np.zeros((n, n))
+    for (u, v), c in zip(layout.channel_ends, g):
+        lap[u, u] += c
+        lap[v, v] += c
+        lap[u, v] -= c
+        lap[v, u] -= c
+    p = np.linalg.pinv(lap)
+    ej = layout.electrode_junctions[layout.pair_electrode_index]
+    return p[ej[:, 0], ej[:, 0]] + p[ej[:, 1], ej[:, 1]] - 2 * p[ej[:, 0], ej[:, 1]]
+
+
+# ---- the paper's network -------------------------------------------------------------------
+
+PAPER_RATIONALS = {(1, 2): Fraction(17, 24), (1, 3): Fraction(5, 6), (1, 4): Fraction(29, 24),
+                   (1, 5): Fraction(1), (2, 4): Fraction(5, 4), (2, 6): Fraction(3, 2)}
+
+
+@pytest.mark.parametrize("method", ["dense", "sparse"])
+@pytest.mark.parametrize("r_ohm", [1.0, 3750.0, 1e-3])
+def test_paper_rationals_every_pair(paper_layout, method, r_ohm):
+    r = equivalent_resistance(paper_layout, np.full((1, 12), 1.0 / r_ohm), method=method)[0]
+    # every pair is one of the six classes by the square's symmetry
+    for cls in paper_layout.pair_classes:
+        value = PAPER_RATIONALS[(cls[0].i, cls[0].j)]
+        for pair in cls:
+            k = paper_layout.pairs.index(pair)
+            assert r[k] == pytest.approx(float(value) * r_ohm, rel=1e-12, abs=0)
+
+
+def test_paper_rationals_match_exact_reference(paper_layout):
+    exact = exact_pair_resistance(paper_layout, [1.0] * 12)
+    for pair, value in PAPER_RATIONALS.items():
+        assert exact[paper_layout.pairs.index(ElectrodePair(*pair))] == value
+
+
+def test_single_press_vector_shape(paper_layout):
+    r1 = equivalent_resistance(paper_layout, np.ones(12))
+    assert r1.shape == (28,)
+    assert np.array_equal(r1, equivalent_resistance(paper_layout, np.ones((1, 12)))[0])
+
+
+# ---- stiff networks against the exact reference ------------------------------------------
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_exact_reference_twelve_decades_and_near_short(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(4, 10))
+    layout = graph_layout(n, random_connected_edges(rng, n, int(rng.integers(0, 10))),
+                          sorted(rng.choice(n, size=int(rng.integers(2, n + 1)), replace=False).tolist()))
+    g = 10.0 ** rng.uniform(-6, 6, (3, layout.n_channels))  # 12 decades
+    g[1, rng.integers(layout.n_channels)] = g[1].max() * 1e12  # near-short
+    g[2, rng.integers(layout.n_channels)] = g[2].min() * 1e-12  # near-open
+    r = equivalent_resistance(layout, g)
+    for row in range(3):
+        exact = np.array([float(v) for v in exact_pair_resistance(layout, g[row])])
+        assert np.max(np.abs(r[row] / exact - 1)) < 1e-11
+
+
+def test_near_short_defeats_pinv_but_not_the_solver(paper_layout):
+    """The oracle can tell: a plain pseudo-inverse is visibly off on this input, the solver is not."""
+    g = np.ones(12)
+    g[4] = 1e12  # channel J11-J21 (between the centre and electrode 3) 1e12 x more conductive
+    exact = np.array([float(v) for v in exact_pair_resistance(paper_layout, g)])
+    assert np.max(np.abs(pinv_pair_resistance(paper_layout, g) / exact - 1)) > 1e-7
+    assert np.max(np.abs(equivalent_resistance(paper_layout, g) / exact - 1)) < 1e-13
+
+
+def test_sparse_path_agrees_with_dense_on_a_grid():
+    layout = grid_layout(7, 6, pitch_mm=5.0)
+    rng = np.random.default_rng(3)
+    g = rng.uniform(0.2, 1.0, (5, layout.n_channels))
+    g[4, :3] = 0.0  # cut the channels around a corner junction: pairs with electrode 8 open
+    dense = equivalent_resistance(layout, g, method="dense")
+    sparse = equivalent_resistance(layout, g, method="sparse")
+    assert np.array_equal(np.isinf(dense), np.isinf(sparse))
+    finite = np.isfinite(dense)
+    assert np.max(np.abs(sparse[finite] / dense[finite] - 1)) < 1e-12
+
+
+def test_auto_picks_sparse_for_a_30x30_grid_and_matches_a_dense_grounded_solve():
+    layout = grid_layout(30, 30, pitch_mm=1.0)
+    g = np.random.default_rng(1).uniform(0.1, 10.0, (2, layout.n_channels))
+    r = equivalent_resistance(layout, g)
+    assert np.array_equal(r, equivalent_resistance(layout, g, method="sparse"))
+    # independent check: numpy dense Laplacian, grounded at the second electrode of each pair
+    n = layout.n_junctions
+    for row in range(2):
+        lap = np.zeros((n, n))
+        for (u, v), c in zip(layout.channel_ends, g[row]):
+            lap[u, u] += c
+            lap[v, v] += c
+            lap[u, v] -= c
+            lap[v, u] -= c
+        for k in (0, 13, 27):
+            a, b = layout.electrode_junctions[layout.pair_electrode_index[k]]
+            free = [j for j in range(n) if j != b]
+            rhs = np.zeros(n - 1)
+            rhs[free.index(a)] = 1.0
+            potential = np.linalg.solve(lap[np.ix_(free, free)], rhs)
+            assert r[row, k] == pytest.approx(potential[free.index(a)], rel=1e-10)
+
+
+def test_foster_theorem_on_the_sparse_path():
+    layout = grid_layout(15, 15, pitch_mm=1.0, electrodes=[(i, j) for j in range(15) for i in range(15)])
+    assert layout.n_junctions > 64  # auto -> sparse
+    g = np.random.default_rng(2).uniform(0.1, 10.0, layout.n_channels)
+    r = equivalent_resistance(layout, g)
+    pair_of = {(int(a), int(b)): k for k, (a, b) in enumerate(layout.pair_electrode_index)}
+    idx = {e.junction: k for k, e in enumerate(layout.electrodes)}
+    r_edge = np.array([r[pair_of[tuple(sorted((idx[a], idx[b])))]] for a, b in layout.channel_ends])
+    assert np.sum(g * r_edge) == pytest.approx(layout.n_junctions - 1, rel=1e-10)
+
+
+# ---- cut networks -------------------------------------------------------------------------
+
+
+def test_pinched_shut_channels_isolate_an_electrode(paper_layout):
+    """Electrode 2 (J20) hangs on channels J10-J20 and J20-J21: shut both, and exactly its 7 pairs open."""
+    names = [c.name for c in paper_layout.channels]
+    shut = [names.index("J10-J20"), names.index("J20-J21")]
+    g = np.ones(12)
+    g[shut] = 0.0
+    r = equivalent_resistance(paper_layout, g)
+    with_2 = np.array([2 in (p.i, p.j) for p in paper_layout.pairs])
+    assert np.all(np.isinf(r[with_2])) and not np.any(np.isnan(r))
+    assert np.all(np.isfinite(r[~with_2]))
+    # the other pairs equal a solve on the network without electrode 2 and its channels
+    keep = [k for k in range(12) if k not in shut]
+    exact = exact_pair_resistance(paper_layout, g)
+    assert all(exact[k] is None for k in np.flatnonzero(with_2))
+    reduced = _paper_without_corner(paper_layout, keep)
+    r_reduced = equivalent_resistance(reduced, np.ones(len(keep)))
+    for k, pair in enumerate(paper_layout.pairs):
+        if not with_2[k]:
+            assert r[k] == pytest.approx(r_reduced[reduced.pairs.index(pair)], rel=1e-14)
+            assert r[k] == pytest.approx(float(exact[k]), rel=1e-14)
+
+
+def _paper_without_corner(layout, keep_channels):
+    from neatskin.layout import Channel, Electrode, Layout
+
+    drop = next(e.junction for e in layout.electrodes if e.number == 2)
+    new_index = {j: k for k, j in enumerate(j for j in range(layout.n_junctions) if j != drop)}
+    junctions = tuple(j for k, j in enumerate(layout.junctions) if k != drop)
+    channels = tuple(Channel(c.name, new_index[c.a], new_index[c.b], c.length_mm, c.width_mm, c.height_mm)
+                     for k, c in enumerate(layout.channels) if k in keep_channels)
+    electrodes = tuple(Electrode(e.number, new_index[e.junction]) for e in layout.electrodes if e.number != 2)
+    return Layout("paper-minus-2", junctions, channels, electrodes, layout.resistivity_ohm_m,
+                  layout.thickness_mm, layout.channel_depth_mm)
+
+
+def test_everything_shut_is_all_inf_never_nan(paper_layout):
+    r = equivalent_resistance(paper_layout, np.zeros((2, 12)))
+    assert np.all(np.isposinf(r))
+
+
+def test_bad_conductance_input_is_refused(paper_layout):
+    with pytest.raises(ValueError, match="shape"):
+        equivalent_resistance(paper_layout, np.ones((3, 11)))
+    with pytest.raises(ValueError, match=">= 0"):
+        equivalent_resistance(paper_layout, -np.ones((1, 12)))
+    with pytest.raises(ValueError, match="finite"):
+        equivalent_resistance(paper_layout, np.full((1, 12), np.nan))
+    with pytest.raises(ValueError, match="method"):
+        equivalent_resistance(paper_layout, np.ones((1, 12)), method="pinv")
+
+
+# ---- circuit theorems on random connected networks (hypothesis) ----------------------------
+
+
+@st.composite
+def networks(draw, all_electrodes=False):
+    n = draw(st.integers(3, 8))
+    seed = draw(st.integers(0, 2**32 - 1))
+    rng = np.random.default_rng(seed)
+    edges = random_connected_edges(rng, n, draw(st.integers(0, 8)))
+    if all_electrodes:
+        electrodes = list(range(n))
+    else:
+        electrodes = sorted(rng.choice(n, size=draw(st.integers(3, n)), replace=False).tolist())
+    layout = graph_layout(n, edges, electrodes)
+    g = 10.0 ** np.array(draw(st.lists(st.floats(-6, 6), min_size=len(edges), max_size=len(edges))))
+    return layout, g
+
+
+def _matrix(layout, r):
+    m = layout.n_electrodes
+    out = np.zeros((m, m))
+    pe = layout.pair_electrode_index
+    out[pe[:, 0], pe[:, 1]] = r
+    out[pe[:, 1], pe[:, 0]] = r
+    return out
+
+
+@settings(max_examples=60, deadline=None)
+@given(networks())
+def test_symmetry_under_electrode_renumbering(net):
+    layout, g = net
+    from neatskin.layout import Electrode, Layout
+
+    m = layout.n_electrodes
+    flipped = Layout(layout.name, layout.junctions, layout.channels,
+                     tuple(sorted((Electrode(m + 1 - e.number, e.junction) for e in layout.electrodes),
+                                  key=lambda e: e.number)),
+                     layout.resistivity_ohm_m, layout.thickness_mm, layout.channel_depth_mm)
+    r = _matrix(layout, equivalent_resistance(layout, g))
+    r_flipped = _matrix(flipped, equivalent_resistance(flipped, g))
+    # R_ij computed with i and j in swapped roles (i < j becomes j' < i')
+    assert np.allclose(r, r_flipped[::-1, ::-1], rtol=1e-12, atol=0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(networks())
+def test_triangle_inequality(net):
+    layout, g = net
+    r = _matrix(layout, equivalent_resistance(layout, g))
+    lhs = r[:, None, :]  # R_ik
+    rhs = r[:, :, None] + r[None, :, :]  # R_ij + R_jk
+    assert np.all(lhs <= rhs * (1 + 1e-12))
+
+
+@settings(max_examples=60, deadline=None)
+@given(networks(), st.data())
+def test_rayleigh_monotonicity(net, data):
+    layout, g = net
+    k = data.draw(st.integers(0, layout.n_channels - 1))
+    factor = data.draw(st.floats(1.0, 1e6))
+    raised = g.copy()
+    raised[k] /= factor  # the channel's resistance goes up
+    before, after = equivalent_resistance(layout, np.stack([g, raised]))
+    assert np.all(after >= before * (1 - 1e-12))
+
+
+@settings(max_examples=60, deadline=None)
+@given(networks(all_electrodes=True))
+def test_foster_theorem(net):
+    layout, g = net
+    r = _matrix(layout, equivalent_resistance(layout, g))
+    ends = layout.channel_ends
+    idx = {e.junction: k for k, e in enumerate(layout.electrodes)}
+    r_edge = np.array([r[idx[a], idx[b]] for a, b in ends])
+    assert np.sum(g * r_edge) == pytest.approx(layout.n_junctions - 1, rel=1e-12)
