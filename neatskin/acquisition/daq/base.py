@@ -1,0 +1,153 @@
+"""The DAQ interface every backend implements: its configuration value, the Acquisition it returns, and the Daq base class.
+
+One sample clock drives everything: sample n of an acquisition is at sample_index[n] /
+rate_hz, so the pair live on it is known from the sweep's line table by index, not by a timer.
+
+Channels (in this order): voltage_v (across the live pair), current_a (through it),
+fsr_v (the force-sensing resistor's divider output). The AI reads volts; `voltage_gain`
+(AI volts per volt across the pair) and `current_gain_v_per_a` (the galvanostat's current
+monitor) convert them to the physical units stored here. The defaults fit the paper's rig on
+the NI USB-6229's +-10 V range: 2 mA through up to 10 kohm.
+"""
+
+from __future__ import annotations
+
+import abc
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from neatskin.errors import ConfigError, Problem
+
+CHANNELS = ("voltage_v", "current_a", "fsr_v")
+
+
+@dataclass(frozen=True)
+class DaqConfig:
+    rate_hz: float = 10_000.0
+    amplitude_a: float = 0.002  # excitation peak current
+    frequency_hz: float = 1_000.0
+    voltage_range_v: float = 10.0  # AI range (+-) of each channel
+    current_range_v: float = 10.0
+    fsr_range_v: float = 10.0
+    voltage_gain: float = 0.5  # AI volts per volt across the pair (isolation amplifier / monitor divider)
+    current_gain_v_per_a: float = 1_000.0  # galvanostat current monitor: 1 V per mA
+    ao_v_per_a: float = 1_000.0  # galvanostat control input: AO volts per amp commanded
+    compliance_v: float = 15.0  # the galvanostat's output voltage limit
+    adc_bits: int = 16
+    channel_names: tuple[str, ...] = CHANNELS
+    device: str = "Dev1"
+    ai_channels: tuple[str, ...] = ("ai0", "ai1", "ai2")
+    ao_channel: str = "ao0"
+
+    def __post_init__(self) -> None:
+        problems = []
+        for name in ("rate_hz", "amplitude_a", "frequency_hz", "voltage_range_v", "current_range_v", "fsr_range_v",
+                     "voltage_gain", "current_gain_v_per_a", "ao_v_per_a", "compliance_v"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                problems.append(Problem(f"{name} must be a positive number, got {value!r}", "<daq config>", name,
+                                        f"set {name} > 0"))
+        if not problems and self.frequency_hz * 2 >= self.rate_hz:
+            problems.append(Problem(f"excitation {self.frequency_hz} Hz is not below Nyquist of {self.rate_hz} Hz",
+                                    "<daq config>", "frequency_hz", "sample at least 4x faster than the excitation"))
+        if len(self.channel_names) != 3 or len(self.ai_channels) != 3:
+            problems.append(Problem("three channels are needed: voltage, current, FSR", "<daq config>",
+                                    "channel_names", "name three channels and three AI inputs"))
+        if not isinstance(self.adc_bits, int) or not 8 <= self.adc_bits <= 24:
+            problems.append(Problem(f"adc_bits must be 8..24, got {self.adc_bits!r}", "<daq config>", "adc_bits",
+                                    "set adc_bits = 16 for the USB-6229"))
+        if not problems and self.amplitude_a * self.ao_v_per_a > 10.0:
+            problems.append(Problem(f"the excitation needs {self.amplitude_a * self.ao_v_per_a:.3g} V on the AO, "
+                                    "beyond +-10 V", "<daq config>", "amplitude_a",
+                                    "lower amplitude_a or the galvanostat's ao_v_per_a"))
+        if problems:
+            raise ConfigError(problems=problems)
+
+    @property
+    def voltage_limit_v(self) -> float:
+        """Largest voltage across the pair the AI can read without clipping."""
+        return self.voltage_range_v / self.voltage_gain
+
+    @property
+    def current_limit_a(self) -> float:
+        return self.current_range_v / self.current_gain_v_per_a
+
+    @property
+    def lsb_ai_v(self) -> np.ndarray:
+        """One ADC step in AI volts, per channel (3,)."""
+        ranges = np.array([self.voltage_range_v, self.current_range_v, self.fsr_range_v])
+        return 2.0 * ranges / 2 ** self.adc_bits
+
+    @property
+    def to_physical(self) -> np.ndarray:
+        """Factors from AI volts to stored units, per channel (3,)."""
+        return np.array([1.0 / self.voltage_gain, 1.0 / self.current_gain_v_per_a, 1.0])
+
+    @property
+    def samples_per_period(self) -> float:
+        return self.rate_hz / self.frequency_hz
+
+
+@dataclass(frozen=True, eq=False)
+class Acquisition:
+    """Samples of n_sweeps whole, consecutive sweeps: (samples, 3) in CHANNELS order, with their global indices."""
+
+    samples: np.ndarray = field(repr=False)  # (samples, 3): voltage_v, current_a, fsr_v
+    sample_index: np.ndarray = field(repr=False)  # (samples,) int64, global sample-clock index
+    config: DaqConfig
+    n_sweeps: int = 1
+
+    def __post_init__(self) -> None:
+        if self.samples.ndim != 2 or self.samples.shape[1] != 3:
+            raise ValueError(f"samples must be (samples, 3), got {self.samples.shape}")
+        if self.sample_index.shape != (self.samples.shape[0],):
+            raise ValueError("one sample index per sample is needed")
+
+    @property
+    def rate_hz(self) -> float:
+        return self.config.rate_hz
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.samples.shape[0])
+
+    @property
+    def times_s(self) -> np.ndarray:
+        return self.sample_index / self.config.rate_hz
+
+    @property
+    def voltage_v(self) -> np.ndarray:
+        return self.samples[:, 0]
+
+    @property
+    def current_a(self) -> np.ndarray:
+        return self.samples[:, 1]
+
+    @property
+    def fsr_v(self) -> np.ndarray:
+        return self.samples[:, 2]
+
+
+class Daq(abc.ABC):
+    """A DAQ backend: configure once, acquire whole sweeps, close. Usable as a context manager."""
+
+    config: DaqConfig
+
+    def configure(self, config: DaqConfig) -> None:
+        self.config = config
+
+    @abc.abstractmethod
+    def acquire(self, sweep, n_sweeps: int = 1, *, rng: np.random.Generator | None = None,
+                start_time_s: float = 0.0) -> Acquisition:
+        """Run n_sweeps of the sweep's line table on the sample clock; return every sample."""
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

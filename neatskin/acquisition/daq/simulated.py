@@ -1,0 +1,213 @@
+"""The simulated DAQ: voltage, current and FSR waveforms of whole sweeps from the skin's pair resistances, and a features-only fast path.
+
+It does not know the skin: the caller gives `pair_resistance_ohm(times_s) -> (n_times, pairs)`
+and `force_n(times_s) -> (n_times,)` (the rig passes its skin model and probe trajectory).
+
+Waveform path, per sample n at t = index / rate_hz (vectorised, no loop per sample):
+  i = clip(A sin(2 pi f t), +-compliance / R) through the live pair (0 while inhibited;
+      an open pair, R = inf, drives the galvanostat to its compliance rail with no current)
+  v = i R (R times the fluid drift 1 + drift_per_s * t) + a switching transient
+      transient_v * exp(-k / transient_tau_samples) k samples after the switch closes
+  + DC offsets, white noise, range clipping and ADC quantisation in AI volts;
+  fsr = Vcc F / (F + k / Rm) + noise, clipped and quantised.
+By default R is evaluated once per pair per sweep, at the middle of its live window
+(resistance_sampling="per_pair"); "per_sample" evaluates it at every sample.
+
+Features-only path (`estimate_sweep`): the estimate the demodulator would return, drawn
+from the estimator's analytic mean and standard deviation under this noise model (see
+docs/acquisition.md) — no waveform. Pairs that would clip, hit compliance or be open fall
+back to the waveform path, so flags and values stay the waveform path's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from neatskin.errors import ConfigError
+from neatskin.acquisition.daq.base import Acquisition, Daq, DaqConfig
+from neatskin.acquisition.estimates import PairEstimates, PairFlag
+from neatskin.acquisition.fsr import FsrModel
+from neatskin.acquisition.sequence import Sweep
+
+ResistanceSource = Callable[[np.ndarray], np.ndarray]
+ForceSource = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Rig imperfections of the simulated DAQ; NoiseModel.none() is an ideal instrument."""
+
+    voltage_noise_v: float = 2e-3  # white, across the pair
+    current_noise_a: float = 1e-7
+    fsr_noise_v: float = 5e-3
+    voltage_offset_v: float = 0.0
+    current_offset_a: float = 0.0
+    quantise: bool = True
+    clip: bool = True
+    transient_v: float = 0.2  # charge injection at each switch
+    transient_tau_samples: float = 2.0
+    drift_per_s: float = 0.0  # fluid resistivity drift, relative per second
+
+    @classmethod
+    def none(cls) -> "NoiseModel":
+        return cls(0.0, 0.0, 0.0, 0.0, 0.0, False, False, 0.0, 2.0, 0.0)
+
+
+def _no_force(times_s: np.ndarray) -> np.ndarray:
+    return np.zeros(np.shape(times_s))
+
+
+class SimulatedDAQ(Daq):
+    """Waveforms of whole sweeps at the configured rate from callables for the skin and the probe force."""
+
+    def __init__(self, config: DaqConfig, pair_resistance_ohm: ResistanceSource,
+                 force_n: ForceSource | None = None, noise: NoiseModel = NoiseModel(), fsr: FsrModel = FsrModel(),
+                 resistance_sampling: str = "per_pair") -> None:
+        if resistance_sampling not in ("per_pair", "per_sample"):
+            raise ConfigError(f"unknown resistance_sampling {resistance_sampling!r}", field="resistance_sampling",
+                              fix="use 'per_pair' or 'per_sample'")
+        self.config = config
+        self.pair_resistance_ohm = pair_resistance_ohm
+        self.force_n = force_n or _no_force
+        self.noise = noise
+        self.fsr = fsr
+        self.resistance_sampling = resistance_sampling
+
+    # ---- shared pieces --------------------------------------------------------------------
+
+    def _start(self, start_time_s: float) -> int:
+        return int(round(start_time_s * self.config.rate_hz))
+
+    def _slot_resistance(self, sweep: Sweep, n_sweeps: int, start: int) -> np.ndarray:
+        """(sweeps, pairs) resistance of each pair at the middle of its live window, drift included."""
+        mid = sweep.live_windows.mean(axis=1)  # (pairs,)
+        t = (start + np.arange(n_sweeps)[:, None] * sweep.n_samples + mid[None, :]) / self.config.rate_hz
+        r_all = np.asarray(self.pair_resistance_ohm(t.ravel()), dtype=float)
+        if r_all.shape != (t.size, sweep.n_pairs):
+            raise ConfigError(f"pair_resistance_ohm returned shape {r_all.shape}, expected {(t.size, sweep.n_pairs)}",
+                              field="pair_resistance_ohm", fix="return (n_times, pairs) in layout.pairs order")
+        r = r_all.reshape(n_sweeps, sweep.n_pairs, sweep.n_pairs)[:, np.arange(sweep.n_pairs), np.arange(sweep.n_pairs)]
+        return r * (1.0 + self.noise.drift_per_s * t)
+
+    # ---- waveform path ----------------------------------------------------------------
+
+    def acquire(self, sweep: Sweep, n_sweeps: int = 1, *, rng: np.random.Generator | None = None,
+                start_time_s: float = 0.0) -> Acquisition:
+        cfg, noise = self.config, self.noise
+        if abs(sweep.rate_hz - cfg.rate_hz) > 1e-9:
+            raise ConfigError(f"sweep built at {sweep.rate_hz} Hz, DAQ configured at {cfg.rate_hz} Hz",
+                              field="rate_hz", fix="build the sweep with the DAQ's rate")
+        rng = rng if rng is not None else np.random.default_rng()
+        start = self._start(start_time_s)
+        n = n_sweeps * sweep.n_samples
+        index = start + np.arange(n, dtype=np.int64)
+        t = index / cfg.rate_hz
+        pair = np.tile(sweep.pair_of_sample, n_sweeps)
+        sweep_of = np.repeat(np.arange(n_sweeps), sweep.n_samples)
+        connected = pair >= 0
+        if self.resistance_sampling == "per_pair":
+            r_slot = self._slot_resistance(sweep, n_sweeps, start)
+            r = np.where(connected, r_slot[sweep_of, np.maximum(pair, 0)], np.inf)
+        else:
+            r_all = np.asarray(self.pair_resistance_ohm(t), dtype=float)
+            r = np.where(connected, r_all[np.arange(n), np.maximum(pair, 0)], np.inf) * (1 + noise.drift_per_s * t)
+        command = cfg.amplitude_a * np.sin(2 * np.pi * cfg.frequency_hz * t)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            i_max = np.where(np.isfinite(r) & (r > 0), cfg.compliance_v / r, np.where(r > 0, 0.0, np.inf))
+        current = np.where(connected, np.clip(command, -i_max, i_max), 0.0)
+        finite = np.isfinite(r)
+        voltage = np.where(finite, current * np.where(finite, r, 0.0),
+                           np.where(connected, cfg.compliance_v * np.sign(command), 0.0))
+        if noise.transient_v:
+            since = (np.tile(np.arange(sweep.n_samples), n_sweeps) - np.tile(_switch_sample(sweep), n_sweeps))
+            voltage = voltage + np.where(connected, noise.transient_v * np.exp(-since / noise.transient_tau_samples), 0)
+        voltage = voltage + np.where(connected, noise.voltage_offset_v, 0.0)
+        current = current + np.where(connected, noise.current_offset_a, 0.0)
+        fsr_v = self.fsr.volts(np.asarray(self.force_n(t), dtype=float))
+        physical = np.stack([voltage, current, fsr_v], axis=1)
+        std = np.array([noise.voltage_noise_v, noise.current_noise_a, noise.fsr_noise_v])
+        if np.any(std > 0):
+            physical = physical + rng.standard_normal((n, 3)) * std
+        samples = self._digitise(physical)
+        return Acquisition(samples, index, cfg, n_sweeps)
+
+    def _digitise(self, physical: np.ndarray) -> np.ndarray:
+        cfg = self.config
+        ai = physical / cfg.to_physical
+        ranges = np.array([cfg.voltage_range_v, cfg.current_range_v, cfg.fsr_range_v])
+        if self.noise.clip:
+            ai = np.clip(ai, -ranges, ranges)
+        if self.noise.quantise:
+            lsb = cfg.lsb_ai_v
+            ai = np.round(ai / lsb) * lsb
+        return ai * cfg.to_physical
+
+    # ---- features-only path -----------------------------------------------------------
+
+    def estimate_sweep(self, sweep: Sweep, rng: np.random.Generator, start_time_s: float = 0.0,
+                       method: str = "lockin", window: int = 10, n_sweeps: int = 1) -> PairEstimates:
+        """Per-pair estimates with the waveform path's statistics, without generating waveforms."""
+        from neatskin.acquisition import demod
+
+        demod.check_method(method, window, sweep)
+        cfg, noise = self.config, self.noise
+        start = self._start(start_time_s)
+        r = self._slot_resistance(sweep, n_sweeps, start)  # (sweeps, pairs)
+        windows = (start + np.arange(n_sweeps)[:, None, None] * sweep.n_samples + sweep.live_windows[None])
+        amp = cfg.amplitude_a
+        peak_v = np.abs(r) * amp + abs(noise.voltage_offset_v)
+        peak_i = amp + abs(noise.current_offset_a)
+        exact = (np.isfinite(r) & (r > 0) & (r * amp < cfg.compliance_v)
+                 & ((peak_v < cfg.voltage_limit_v) | (not noise.clip)) & ((peak_i < cfg.current_limit_a) | (not noise.clip)))
+        if not exact.all():
+            acq = self.acquire(sweep, n_sweeps, rng=rng, start_time_s=start_time_s)
+            return demod.demodulate(acq, sweep, method=method, window=window)
+        sigma_v2, sigma_i2 = self.effective_noise_var()
+        v0 = r * amp
+        n_live = sweep.timing.live_samples
+        rel_lin = sigma_v2 / v0 ** 2 + sigma_i2 / amp ** 2
+        if method == "lockin":
+            mean = r
+            rel_var = 2.0 / n_live * rel_lin
+            blocks = max(1, n_live // max(1, int(round(cfg.samples_per_period))))
+        else:
+            t_live = windows[..., :1] + np.arange(n_live)  # (sweeps, pairs, N) global index
+            sin2 = np.sin(2 * np.pi * cfg.frequency_hz * t_live / cfg.rate_hz) ** 2
+            c = demod.window_counts(n_live, window)
+            n_win = n_live - window + 1
+            s = (c ** 2 * sin2).sum(axis=-1)
+            dc_v2 = noise.voltage_offset_v ** 2
+            dc_i2 = noise.current_offset_a ** 2
+            mean = r * np.sqrt((v0 ** 2 / 2 + sigma_v2 + dc_v2) / (amp ** 2 / 2 + sigma_i2 + dc_i2))
+            rel_var = (4.0 / (window * n_win) ** 2 * s * rel_lin
+                       + 2.0 * (c ** 2).sum() / (window * n_win) ** 2 * (sigma_v2 ** 2 / v0 ** 4 + sigma_i2 ** 2 / amp ** 4))
+            blocks = max(1, n_live // window)
+        std = r * np.sqrt(rel_var)
+        resistance = mean + std * rng.standard_normal(r.shape)
+        # the demodulator's uncertainty is std / sqrt(blocks) of `blocks` block estimates: a chi spread
+        spread = np.sqrt(rng.chisquare(max(blocks - 1, 1), r.shape) / max(blocks - 1, 1)) if blocks > 1 else 1.0
+        uncertainty = std * spread
+        flags = np.zeros(r.shape, dtype=np.uint8)
+        dc_share = demod.DC_OFFSET_SHARE
+        if abs(noise.voltage_offset_v) > dc_share * np.min(v0) / np.sqrt(2) or \
+                abs(noise.current_offset_a) > dc_share * amp / np.sqrt(2):
+            dc_v = np.abs(noise.voltage_offset_v) > dc_share * v0 / np.sqrt(2)
+            dc_i = abs(noise.current_offset_a) > dc_share * amp / np.sqrt(2)
+            flags[dc_v | dc_i] |= np.uint8(PairFlag.DC_OFFSET)
+        return PairEstimates(resistance, uncertainty, flags, windows, method)
+
+    def effective_noise_var(self) -> tuple[float, float]:
+        """Variance of the white noise on V and I (physical units), quantisation (lsb^2 / 12) included."""
+        cfg, noise = self.config, self.noise
+        lsb_phys = cfg.lsb_ai_v * cfg.to_physical
+        q = lsb_phys ** 2 / 12 if noise.quantise else np.zeros(3)
+        return noise.voltage_noise_v ** 2 + float(q[0]), noise.current_noise_a ** 2 + float(q[1])
+
+
+def _switch_sample(sweep: Sweep) -> np.ndarray:
+    """(samples,) the sample at which the current slot's switch closed."""
+    slot_len = sweep.timing.slot_samples
+    return (np.arange(sweep.n_samples) // slot_len) * slot_len + sweep.timing.break_samples

@@ -1,0 +1,157 @@
+"""The force-sensing resistor: its divider model (newtons <-> volts) and press detection on the force channel.
+
+FSR400 in a voltage divider: R_fsr = k / F, V = Vcc * Rm / (Rm + R_fsr) = Vcc * F / (F + k / Rm),
+so F = (k / Rm) * V / (Vcc - V). With no force R_fsr is open and V = 0.
+
+Press detection (pure, vectorised): a median filter removes isolated spikes, a morphological
+opening (running minimum then maximum over a window longer than a press) tracks the slow
+baseline drift, and a hysteresis threshold on the force above the baseline (on above
+on_threshold_n, off below off_threshold_n) with debounce (presses shorter than min_press_s
+dropped, gaps shorter than min_gap_s merged) gives onset, offset and peak per press.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+
+from neatskin.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class FsrModel:
+    vcc_v: float = 5.0
+    rm_ohm: float = 10_000.0  # divider resistor
+    k_ohm_n: float = 10_000.0  # R_fsr * F: ~10 kohm at 1 N for the FSR400
+
+    def __post_init__(self) -> None:
+        for name in ("vcc_v", "rm_ohm", "k_ohm_n"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ConfigError(f"{name} must be > 0, got {value!r}", file="<fsr model>", field=name,
+                                  fix=f"set {name} > 0")
+
+    @property
+    def knee_n(self) -> float:
+        """The force at which V = Vcc / 2."""
+        return self.k_ohm_n / self.rm_ohm
+
+    def volts(self, force_n: np.ndarray) -> np.ndarray:
+        force = np.maximum(np.asarray(force_n, dtype=float), 0.0)
+        return self.vcc_v * force / (force + self.knee_n)
+
+    def newtons(self, fsr_v: np.ndarray) -> np.ndarray:
+        """Invert the divider; volts at or above Vcc map to the force at 99.9 % of Vcc, below 0 to 0 N."""
+        v = np.clip(np.asarray(fsr_v, dtype=float), 0.0, 0.999 * self.vcc_v)
+        return self.knee_n * v / (self.vcc_v - v)
+
+
+@dataclass(frozen=True, eq=False)
+class PressDetection:
+    """Presses found on one force trace, in sample indices of that trace ([onset, offset))."""
+
+    onset: np.ndarray  # (presses,) int
+    offset: np.ndarray  # (presses,) int, exclusive
+    peak_index: np.ndarray  # (presses,) int
+    peak_force_n: np.ndarray  # (presses,) above the baseline
+    expected: int
+    rate_hz: float
+    baseline_n: np.ndarray = field(repr=False)  # (samples,)
+
+    @property
+    def n_presses(self) -> int:
+        return int(self.onset.shape[0])
+
+    @property
+    def flags(self) -> tuple[str, ...]:
+        if self.n_presses == 0 and self.expected > 0:
+            return ("missed",)
+        if self.n_presses > self.expected:
+            return ("multiple",)
+        if self.n_presses < self.expected:
+            return ("missed",)
+        return ()
+
+    @property
+    def ok(self) -> bool:
+        return not self.flags
+
+    @property
+    def duration_s(self) -> np.ndarray:
+        return (self.offset - self.onset) / self.rate_hz
+
+
+def detect_presses(signal: np.ndarray, rate_hz: float, expected: int = 1, *, units: str = "n",
+                   fsr: FsrModel | None = None, on_threshold_n: float = 0.5, off_threshold_n: float = 0.25,
+                   min_press_s: float = 0.05, min_gap_s: float = 0.05, spike_samples: int = 7,
+                   baseline_window_s: float | None = None) -> PressDetection:
+    """Find the presses on a force trace (newtons, or FSR volts with units="v").
+
+    baseline_window_s must exceed the longest press (default: the whole trace's length / 2,
+    at least 2 s); the baseline under a press is the running minimum around it.
+    """
+    if units not in ("n", "v"):
+        raise ConfigError(f"units must be 'n' or 'v', got {units!r}", field="units", fix="use 'n' or 'v'")
+    if not 0 < off_threshold_n < on_threshold_n:
+        raise ConfigError("thresholds need 0 < off_threshold_n < on_threshold_n", field="off_threshold_n",
+                          fix="set off below on for hysteresis")
+    x = np.asarray(signal, dtype=float)
+    force = (fsr or FsrModel()).newtons(x) if units == "v" else x
+    n = force.shape[0]
+    if n == 0:
+        empty = np.zeros(0, dtype=np.int64)
+        return PressDetection(empty, empty, empty, np.zeros(0), expected, rate_hz, np.zeros(0))
+    k = max(1, int(spike_samples)) | 1
+    clean = ndimage.median_filter(force, size=k, mode="nearest")
+    baseline = _baseline(clean, rate_hz, baseline_window_s)
+    above = clean - baseline
+    onset, offset = _hysteresis(above, on_threshold_n, off_threshold_n)
+    onset, offset = _debounce(onset, offset, int(round(min_press_s * rate_hz)), int(round(min_gap_s * rate_hz)))
+    # one argmax per press (a handful per trace), not per sample
+    peak_index = np.array([a + int(np.argmax(above[a:b])) for a, b in zip(onset, offset)], dtype=np.int64)
+    peak = above[peak_index] if peak_index.size else np.zeros(0)
+    return PressDetection(onset, offset, peak_index.astype(np.int64), peak, expected, rate_hz, baseline)
+
+
+def _baseline(force: np.ndarray, rate_hz: float, window_s: float | None) -> np.ndarray:
+    n = force.shape[0]
+    window_s = window_s if window_s is not None else max(2.0, n / rate_hz / 2)
+    # work on block medians (~2 ms) so a long window stays cheap
+    block = max(1, int(rate_hz // 500))
+    m = n // block
+    if m < 3:
+        return np.full(n, float(np.median(force)))
+    blocks = np.median(force[: m * block].reshape(m, block), axis=1)
+    size = max(3, int(round(window_s * rate_hz / block)) | 1)
+    opened = ndimage.maximum_filter1d(ndimage.minimum_filter1d(blocks, size, mode="nearest"), size, mode="nearest")
+    # smooth the staircase of the opening, then back to the sample grid
+    smooth = ndimage.uniform_filter1d(opened, max(1, size // 4), mode="nearest")
+    centres = (np.arange(m) + 0.5) * block
+    return np.interp(np.arange(n), centres, smooth)
+
+
+def _hysteresis(x: np.ndarray, on: float, off: float) -> tuple[np.ndarray, np.ndarray]:
+    """Intervals [onset, offset) where x went above `on` and has not yet fallen below `off`."""
+    event = np.zeros(x.shape[0], dtype=np.int8)
+    event[x >= on] = 1
+    event[x < off] = -1
+    idx = np.where(event != 0, np.arange(x.shape[0]), -1)
+    last = np.maximum.accumulate(idx)
+    state = np.where(last >= 0, event[np.maximum(last, 0)] == 1, False)
+    edges = np.diff(np.concatenate([[False], state, [False]]).astype(np.int8))
+    return np.flatnonzero(edges == 1).astype(np.int64), np.flatnonzero(edges == -1).astype(np.int64)
+
+
+def _debounce(onset: np.ndarray, offset: np.ndarray, min_len: int, min_gap: int) -> tuple[np.ndarray, np.ndarray]:
+    if onset.size == 0:
+        return onset, offset
+    gap = onset[1:] - offset[:-1]
+    keep_start = np.concatenate([[True], gap >= min_gap])  # a short gap merges with the previous press
+    group = np.cumsum(keep_start) - 1
+    onset2 = onset[keep_start]
+    offset2 = np.zeros(onset2.size, dtype=np.int64)
+    np.maximum.at(offset2, group, offset)
+    long_enough = offset2 - onset2 >= min_len
+    return onset2[long_enough], offset2[long_enough]
