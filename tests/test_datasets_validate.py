@@ -1,0 +1,157 @@
+"""Validation finds each kind of problem once, naming the file, the column and the fix."""
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+import pytest
+
+from neatskin.datasets.manifest import create_manifest, update_manifest
+from neatskin.datasets.synthetic import synthetic_rows
+from neatskin.datasets.validate import check_dataset, validate_dataset
+from neatskin.datasets.writer import CampaignWriter
+from neatskin.errors import DataError
+
+from conftest import PROTOCOLS
+
+LAYOUT_REF = {"path": str(PROTOCOLS / "skins" / "paper.toml"), "name": "neatskin-paper"}
+
+
+def make_campaign(folder, layout, rows=None, finalize=True):
+    rows = rows if rows is not None else synthetic_rows(layout, 5, 3, seed=9, campaign="val")
+    create_manifest(folder, fsync=False, campaign="val", seed=9, layout=LAYOUT_REF,
+                    counts={"planned": 15, "completed": len(rows)})
+    with CampaignWriter(folder, layout.pairs, {"seed": 9, "layout": LAYOUT_REF}, fsync=False) as writer:
+        for row in rows:
+            writer.write_press(row)
+        if finalize:
+            writer.finalize()
+    update_manifest(folder, fsync=False, status="complete")
+    return rows
+
+
+def rewrite(folder, edit):
+    path = folder / "presses.parquet"
+    table = pq.read_table(path)
+    pq.write_table(edit(table).replace_schema_metadata(table.schema.metadata), path)
+
+
+def only(problems):
+    assert len(problems) == 1, "\n".join(map(str, problems))
+    return problems[0]
+
+
+def test_clean_campaign_has_no_problems(paper_layout, tmp_path):
+    make_campaign(tmp_path, paper_layout)
+    assert validate_dataset(tmp_path) == []
+    check_dataset(tmp_path)
+
+
+def test_clean_unfinalized_parts_have_no_problems(paper_layout, tmp_path):
+    make_campaign(tmp_path, paper_layout, finalize=False)
+    assert validate_dataset(tmp_path) == []
+
+
+def test_missing_pair_column(paper_layout, tmp_path):
+    make_campaign(tmp_path, paper_layout)
+    rewrite(tmp_path, lambda t: t.drop_columns(["dR_ohm_3_4"]))
+    p = only(validate_dataset(tmp_path))
+    assert p.field == "dR_ohm_3_4" and p.file.endswith("presses.parquet") and "missing" in p.message and p.fix
+
+
+def test_wrong_column_type(paper_layout, tmp_path):
+    make_campaign(tmp_path, paper_layout)
+    rewrite(tmp_path, lambda t: t.set_column(t.schema.get_field_index("repeat"), "repeat",
+                                             pc.cast(t.column("repeat"), pa.float64())))
+    p = only(validate_dataset(tmp_path))
+    assert p.field == "repeat" and "double" in p.message and "int32" in p.message
+
+
+def test_nan_value(paper_layout, tmp_path):
+    rows = synthetic_rows(paper_layout, 5, 3, seed=9, campaign="val")
+    rows[7]["dR_ohm"] = rows[7]["dR_ohm"].copy()
+    rows[7]["dR_ohm"][0] = np.nan
+    make_campaign(tmp_path, paper_layout, rows)
+    p = only(validate_dataset(tmp_path))
+    assert p.field == "dR_ohm_1_2" and "press ids 7" in p.message and "1 NaN" in p.message
+
+
+def test_duplicate_press_id(paper_layout, tmp_path):
+    make_campaign(tmp_path, paper_layout)
+
+    def duplicate(t):
+        extra = t.slice(3, 1)
+        k = extra.schema.get_field_index("dR_ohm_1_2")
+        extra = extra.set_column(k, extra.schema.field(k), pa.array([123.0]))
+        return pa.concat_tables([t, extra])
+    rewrite(tmp_path, duplicate)
+    update_manifest(tmp_path, fsync=False)
+    p = only(validate_dataset(tmp_path))
+    assert p.field == "press_id" and "3" in p.message
+
+
+def test_identical_copy_in_part_and_consolidated_is_not_a_duplicate(paper_layout, tmp_path):
+    make_campaign(tmp_path, paper_layout)
+    one = pq.read_table(tmp_path / "presses.parquet").slice(2, 1)
+    pq.write_table(one, tmp_path / "presses" / "part-000002.parquet")  # a kill during finalize's cleanup
+    assert validate_dataset(tmp_path) == []
+
+
+def test_position_outside_layout(paper_layout, tmp_path):
+    rows = synthetic_rows(paper_layout, 5, 3, seed=9, campaign="val")
+    for row in rows:
+        if row["position_id"] == 2:
+            row["x_mm"] = 41.0
+    make_campaign(tmp_path, paper_layout, rows)
+    p = only(validate_dataset(tmp_path))
+    assert p.field == "x_mm, y_mm" and "3 press(es)" in p.message and "press ids 6, 7, 8" in p.message
+
+
+def test_flagged_rows(paper_layout, tmp_path):
+    rows = synthetic_rows(paper_layout, 5, 3, seed=9, campaign="val")
+    rows[4]["flags"] = ["fsr_missed"]
+    rows[9]["flags"] = ["fsr_missed", "clipped"]
+    make_campaign(tmp_path, paper_layout, rows)
+    p = only(validate_dataset(tmp_path))
+    assert p.field == "flags" and "2 flagged" in p.message and "fsr_missed: 2" in p.message
+    assert validate_dataset(tmp_path, allow_flagged=True) == []
+
+
+def test_manifest_count_and_seed_mismatch(paper_layout, tmp_path):
+    make_campaign(tmp_path, paper_layout)
+    update_manifest(tmp_path, fsync=False, counts={"completed": 14})
+    p = only(validate_dataset(tmp_path))
+    assert p.field == "counts.completed" and p.file.endswith("manifest.json") and "14" in p.message
+    update_manifest(tmp_path, fsync=False, counts={"completed": 15}, seed=10)
+    p = only(validate_dataset(tmp_path))
+    assert p.field == "seed"
+
+
+def test_incomplete_campaign_marked_complete(paper_layout, tmp_path):
+    rows = synthetic_rows(paper_layout, 5, 3, seed=9, campaign="val")[:12]
+    make_campaign(tmp_path, paper_layout, rows)
+    p = only(validate_dataset(tmp_path))
+    assert p.field == "counts.planned" and "12 of 15" in p.message
+
+
+def test_manifest_layout_missing_and_manifest_absent(paper_layout, tmp_path):
+    make_campaign(tmp_path / "a", paper_layout)
+    update_manifest(tmp_path / "a", fsync=False, layout={"path": "nowhere/skin.toml", "name": "neatskin-paper"})
+    p = only(validate_dataset(tmp_path / "a"))
+    assert p.field == "layout.path" and "cannot be loaded" in p.message
+    make_campaign(tmp_path / "b", paper_layout)
+    (tmp_path / "b" / "manifest.json").unlink()
+    p = only(validate_dataset(tmp_path / "b"))
+    assert p.file.endswith("manifest.json") and "no manifest" in p.message
+
+
+def test_several_problems_at_once_and_check_raises(paper_layout, tmp_path):
+    rows = synthetic_rows(paper_layout, 5, 3, seed=9, campaign="val")
+    rows[1]["flags"] = ["clipped"]
+    rows[2]["R_ohm"] = np.full(28, np.nan)
+    make_campaign(tmp_path, paper_layout, rows)
+    problems = validate_dataset(tmp_path)
+    assert len(problems) == 29  # 28 R columns with a NaN, 1 flagged press
+    with pytest.raises(DataError) as err:
+        check_dataset(tmp_path)
+    assert len(err.value.problems) == 29 and "fix:" in str(err.value)
