@@ -11,7 +11,8 @@ Strategies:
   `channel_fraction` overrides the share of positions on channels.
 - "grid": a regular rows x cols grid over the layout's bounding box (count must be rows*cols).
 - "stratified": every channel and every face gets positions (counts differ by at most one;
-  channels evenly spread along their length); with fewer positions than features, channels and
+  channels evenly spread along their length, one channel width clear of the junctions where
+  strips overlap); with fewer positions than features, channels and
   faces alternate in a seeded order so both kinds are covered.
 Options: `min_spacing_mm` between positions, keep-out circles (`keep_out`) and a keep-out
 radius around every electrode's fitting (`electrode_keep_out_mm`).
@@ -274,9 +275,13 @@ def _stratified(layout: Layout, spec: PositionSpec, rng: np.random.Generator) ->
         if kind == "channel":
             strata = iter(range(_MAX_ATTEMPTS * m))
 
-            def draw(k, index=index, m=m, strata=strata):
+            # stay one channel width away from the junctions, where strips of other channels overlap
+            ch = layout.channels[index]
+            end = min(ch.width_mm / ch.length_mm, 0.25)
+
+            def draw(k, index=index, m=m, strata=strata, end=end):
                 bins = np.array([next(strata) % m for _ in range(k)])
-                s = (bins + rng.random(k)) / m
+                s = end + (1 - 2 * end) * (bins + rng.random(k)) / m
                 return _on_channel(layout, rng, np.full(k, index), s)
         else:
             def draw(k, index=index):

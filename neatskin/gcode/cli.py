@@ -1,0 +1,120 @@
+"""`neatskin gcode ...`: generate a press program from a protocol, check a G-code file, fit a calibration.
+
+A thin layer over neatskin.gcode.spec, .parse, .bounds, .motion and .calibration.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser("gcode", help="press positions, press programs and Marlin G-code",
+                                   description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="gcode_command", metavar="ACTION", required=True)
+
+    gen = sub.add_parser("generate", help="write the press program of a protocol as G-code")
+    gen.add_argument("protocol", type=Path, help="protocol TOML (e.g. protocols/paper.toml)")
+    gen.add_argument("-o", "--output", type=Path, required=True, help="G-code file to write")
+    gen.add_argument("--no-hold", action="store_true",
+                     help="leave out the G4 hold (the runner's acquisition is the hold)")
+    gen.set_defaults(handler=_generate)
+
+    chk = sub.add_parser("check", help="parse a G-code file; with a profile, check bounds and estimate its time")
+    chk.add_argument("file", type=Path, help="G-code file")
+    chk.add_argument("--profile", type=Path, help="printer profile TOML (e.g. protocols/printers/paper.toml)")
+    chk.set_defaults(handler=_check)
+
+    cal = sub.add_parser("calibrate", help="fit sensor->printer offset, rotation and surface height")
+    cal.add_argument("--point", action="append", required=True, metavar="SX,SY,PX,PY,PZ",
+                     help="a reference point: sensor x,y (mm) and the printer x,y,z (M114) with the probe touching "
+                          "it; give 2 or 3")
+    cal.set_defaults(handler=_calibrate)
+
+
+def _generate(args: argparse.Namespace) -> int:
+    from neatskin.gcode.motion import estimate_program_time
+    from neatskin.gcode.spec import build_from_protocol
+
+    program, layout, profile = build_from_protocol(args.protocol, hold_in_gcode=not args.no_hold)
+    text = program.text()
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    tmp = args.output.with_name(args.output.name + ".tmp")
+    tmp.write_text(text, encoding="ascii")
+    tmp.replace(args.output)
+    estimate = estimate_program_time(program.command_lines(), profile)
+    print(f"wrote {args.output}: {len(program.positions)} positions, {len(program.presses)} presses, "
+          f"{text.count(chr(10))} lines")
+    print(f"estimated printer time: {_hms(estimate.total_s)} (motion {_hms(estimate.motion_s)}, "
+          f"dwell {_hms(estimate.dwell_s)}, homing {_hms(estimate.homing_s)})")
+    if program.route_unordered_mm is not None:
+        saved = program.route_unordered_mm - program.route_mm
+        print(f"travel ordering: route {program.route_mm:.1f} mm instead of {program.route_unordered_mm:.1f} mm "
+              f"({saved:.1f} mm, {100 * saved / max(program.route_unordered_mm, 1e-9):.0f} % shorter)")
+    return 0
+
+
+def _check(args: argparse.Namespace) -> int:
+    from neatskin.errors import ConfigError
+    from neatskin.gcode.bounds import check_moves
+    from neatskin.gcode.motion import estimate_program_time
+    from neatskin.gcode.parse import parse_program
+    from neatskin.gcode.profile import load_printer_profile
+
+    try:
+        text = args.file.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"cannot read G-code file: {exc.strerror}", file=str(args.file), fix="check the path") from exc
+    lines = parse_program(text, source=str(args.file))
+    codes: dict[str, int] = {}
+    for line in lines:
+        codes[line.code] = codes.get(line.code, 0) + 1
+    presses = sum(1 for line in lines if line.code == "M118" and line.text.startswith("NS ")
+                  and line.text.endswith(" phase=press"))
+    print(f"{args.file}: {len(lines)} commands, {presses} presses, "
+          + ", ".join(f"{code} x{n}" for code, n in sorted(codes.items())))
+    if args.profile is None:
+        print("no --profile given: bounds and time not checked")
+        return 0
+    profile = load_printer_profile(args.profile)
+    problems = check_moves(profile, lines, source=str(args.file))
+    estimate = estimate_program_time(lines, profile)
+    print(f"estimated printer time on {profile.name}: {_hms(estimate.total_s)} ({estimate.moves} moves, "
+          f"{estimate.path_mm / 1000:.1f} m of path)")
+    if problems:
+        for problem in problems:
+            print(f"out of bounds: {problem}", file=sys.stderr)
+        return 1
+    print("bounds: every move inside the bed and the soft limits, feeds within the maxima")
+    return 0
+
+
+def _calibrate(args: argparse.Namespace) -> int:
+    from neatskin.errors import ConfigError
+    from neatskin.gcode.calibration import fit_calibration
+
+    sensor, printer = [], []
+    for k, text in enumerate(args.point):
+        try:
+            values = [float(v) for v in text.split(",")]
+        except ValueError:
+            values = []
+        if len(values) != 5:
+            raise ConfigError(f"point {text!r} is not 5 numbers", field=f"--point[{k}]",
+                              fix="write SX,SY,PX,PY,PZ, e.g. --point 0,0,95.2,94.8,5.6")
+        sensor.append(values[:2])
+        printer.append(values[2:])
+    fit = fit_calibration(sensor, printer, source="--point")
+    c = fit.calibration
+    print("[calibration]")
+    print(f"offset_x_mm = {c.offset_x_mm:.3f}\noffset_y_mm = {c.offset_y_mm:.3f}\n"
+          f"rotation_deg = {c.rotation_deg:.4f}\nsurface_z_mm = {c.surface_z_mm:.3f}")
+    print(f"# residual: rms {fit.rms_mm:.3f} mm, max {fit.max_mm:.3f} mm (xy); surface z spread {fit.z_spread_mm:.3f} mm")
+    return 0
+
+
+def _hms(seconds: float) -> str:
+    s = int(round(seconds))
+    return f"{s // 3600}h{(s % 3600) // 60:02d}m{s % 60:02d}s"

@@ -1,0 +1,56 @@
+"""Motion-time estimates against hand computations."""
+
+import math
+
+import pytest
+
+from neatskin.gcode.motion import estimate_program_time, limited_feed_and_accel, trapezoid_time_s
+from neatskin.gcode.profile import load_printer_profile
+
+
+@pytest.fixture(scope="module")
+def profile(protocols_dir):
+    return load_printer_profile(protocols_dir / "printers" / "paper.toml")
+
+
+def test_trapezoidal_move_by_hand():
+    # 100 mm at 100 mm/s, 500 mm/s^2: accelerate 0.2 s over 10 mm, cruise 80 mm in 0.8 s, brake 0.2 s
+    assert trapezoid_time_s(100.0, 100.0, 500.0) == pytest.approx(0.2 + 0.8 + 0.2, abs=1e-12)
+
+
+def test_triangular_move_by_hand():
+    # 10 mm at 100 mm/s, 500 mm/s^2 never reaches 100 mm/s: peak sqrt(500*10) = 70.71 mm/s
+    v_peak = math.sqrt(500.0 * 10.0)
+    assert trapezoid_time_s(10.0, 100.0, 500.0) == pytest.approx(2 * v_peak / 500.0, abs=1e-12)
+    assert trapezoid_time_s(10.0, 100.0, 500.0) == pytest.approx(0.28284271247, abs=1e-10)
+
+
+def test_start_and_end_speeds():
+    # from 50 mm/s to 100 mm/s (7.5 mm), cruise, down to 0 (10 mm): 100 mm total
+    t = trapezoid_time_s(100.0, 100.0, 500.0, v_start_mm_s=50.0)
+    assert t == pytest.approx(0.1 + 82.5 / 100 + 0.2, abs=1e-12)
+    assert trapezoid_time_s(0.0, 10.0, 10.0) == 0.0
+    with pytest.raises(ValueError):
+        trapezoid_time_s(0.1, 100.0, 10.0, v_start_mm_s=100.0)
+    with pytest.raises(ValueError):
+        trapezoid_time_s(-1.0, 10.0, 10.0)
+
+
+def test_axis_limits_scale_a_z_move(profile):
+    # a pure Z move asked for at 100 mm/s runs at the Z maxima (5 mm/s, 100 mm/s^2)
+    assert limited_feed_and_accel((0.0, 0.0, 10.0), 100.0, profile) == (5.0, 100.0)
+    # 10 mm of Z at 5 mm/s, 100 mm/s^2: 0.05 s + 9.75 mm / 5 + 0.05 s
+    est = estimate_program_time(["G90", "G1 Z20 F6000", "G1 Z10"], profile, start_mm=(0.0, 0.0, 10.0))
+    per_move = 0.05 + 9.75 / 5.0 + 0.05
+    assert est.motion_s == pytest.approx(2 * per_move, abs=1e-12)
+    assert est.moves == 2 and est.path_mm == pytest.approx(20.0)
+
+
+def test_program_estimate_counts_dwell_and_homing(profile):
+    est = estimate_program_time(["G28", "G4 P500", "G4 S2", "G91", "G1 X100 F6000", "G1 X-100"], profile)
+    assert est.homing_s == profile.homing_time_s
+    assert est.dwell_s == pytest.approx(2.5)
+    # 100 mm at 100 mm/s (F6000), 500 mm/s^2: 1.2 s each, back and forth
+    assert est.motion_s == pytest.approx(2.4, abs=1e-12)
+    assert est.total_s == pytest.approx(2.4 + 2.5 + profile.homing_time_s)
+    assert est.travel_xy_mm == pytest.approx(200.0)

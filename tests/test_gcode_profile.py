@@ -1,0 +1,59 @@
+"""Printer profiles: the paper's loads; every bad field is reported at once with file, field and fix."""
+
+import tomllib
+
+import pytest
+
+from neatskin.errors import ConfigError
+from neatskin.gcode.profile import load_printer_profile, printer_profile_from_dict
+
+
+@pytest.fixture()
+def paper_dict(protocols_dir):
+    return tomllib.loads((protocols_dir / "printers" / "paper.toml").read_text())
+
+
+def test_paper_profile(protocols_dir):
+    p = load_printer_profile(protocols_dir / "printers" / "paper.toml")
+    assert p.firmware == "Marlin" and p.baud_rate == 115200
+    assert p.planner_buffer_size == 16 and p.rx_buffer_size == 128
+    assert (p.bed_x_mm, p.bed_y_mm) == (220.0, 220.0)
+    assert tuple(p.max_feed_mm_s) == (500.0, 500.0, 5.0)
+    assert tuple(p.max_accel_mm_s2) == (500.0, 500.0, 100.0)
+    assert p.calibration.offset_x_mm == 95.0 and p.calibration.surface_z_mm == 5.5
+    assert p.safe_height_mm == 10.0
+
+
+def test_every_bad_field_at_once(paper_dict):
+    paper_dict["bed"]["size_x_mm"] = -1
+    paper_dict["max_feed"]["z_mm_s"] = "fast"
+    del paper_dict["motion"]["press_feed_mm_s"]
+    paper_dict["printer"]["baud_rate"] = 0
+    paper_dict["calibration"]["rotation_deg"] = float("nan")
+    with pytest.raises(ConfigError) as info:
+        printer_profile_from_dict(paper_dict, "printer.toml")
+    fields = {p.field for p in info.value.problems}
+    assert fields == {"bed.size_x_mm", "max_feed.z_mm_s", "motion.press_feed_mm_s", "printer.baud_rate",
+                      "calibration.rotation_deg"}
+    assert all(p.file == "printer.toml" and p.fix for p in info.value.problems)
+
+
+def test_cross_field_limits(paper_dict):
+    paper_dict["soft_limits"]["max_x_mm"] = 300.0  # beyond the 220 mm bed
+    paper_dict["motion"]["press_feed_mm_s"] = 10.0  # above the 5 mm/s Z maximum
+    paper_dict["park"]["z_mm"] = 400.0
+    with pytest.raises(ConfigError) as info:
+        printer_profile_from_dict(paper_dict, "printer.toml")
+    assert {p.field for p in info.value.problems} == {"soft_limits.max_x_mm", "motion.press_feed_mm_s", "park.z_mm"}
+
+
+def test_missing_table_and_unreadable_file(paper_dict, tmp_path):
+    del paper_dict["max_accel"]
+    with pytest.raises(ConfigError) as info:
+        printer_profile_from_dict(paper_dict, "printer.toml")
+    assert info.value.problems[0].field == "max_accel"
+    with pytest.raises(ConfigError, match="cannot read"):
+        load_printer_profile(tmp_path / "nope.toml")
+    (tmp_path / "bad.toml").write_text("[bed\n")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_printer_profile(tmp_path / "bad.toml")
