@@ -149,7 +149,7 @@ def _read_toml(path: Path) -> dict:
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"not valid TOML: {exc}", file=str(path), fix="correct the TOML syntax at that line") from exc
+        raise ConfigError(f"not valid TOML: {exc}", file=str(path), field="<syntax>", fix="correct the TOML syntax at that line") from exc
 
 
 def load_wiring(path: str | Path, layout: Layout) -> Wiring:
