@@ -195,3 +195,10 @@ def waveform_table(press_id: int, waveforms: Mapping[str, np.ndarray]) -> pa.Tab
     columns = {"press_id": np.full(n, press_id, dtype=np.int64), "sample": np.arange(n, dtype=np.int32)}
     columns.update(arrays)
     return pa.table(columns)
+
+
+def write_table_durably(path: str | os.PathLike, table: pa.Table, *, fsync: bool = True) -> Path:
+    """Write a whole press table (with its metadata) as one parquet file, atomically and durably."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return write_durably(path, lambda handle: pq.write_table(table, handle, row_group_size=1 << 16), fsync=fsync)

@@ -1,0 +1,137 @@
+"""Dataset plots as PNG (matplotlib, Agg backend): the experimental sensitivity map (paper Fig. 8) and the
+map of pressed positions. The map values are computed by pure functions; drawing is the only I/O.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from neatskin.datasets.manifest import read_manifest, resolve_manifest_path
+from neatskin.datasets.reader import pair_labels_from_columns, read_presses
+from neatskin.errors import DataError
+from neatskin.layout import Layout, load_layout
+
+FIGSIZE_IN = (6.0, 5.0)
+DPI = 100  # 600 x 500 px
+
+
+def sensitivity_by_position(df: pd.DataFrame) -> pd.DataFrame:
+    """Per position: x_mm, y_mm, presses, and z = max over pairs of the mean dR over its repeats, normalised
+    to [-1, 1] by the largest |z| (paper eq. 2 on measured data). Flagged presses are left out."""
+    clean = df[[len(f) == 0 for f in df["flags"]]]
+    pairs = pair_labels_from_columns(clean)
+    dr_cols = [f"dR_ohm_{p.i}_{p.j}" for p in pairs]
+    grouped = clean.groupby("position_id")
+    mean_dr = grouped[dr_cols].mean()
+    finite = mean_dr.where(np.isfinite(mean_dr))
+    out = grouped[["x_mm", "y_mm"]].first()
+    out["presses"] = grouped.size()
+    z = finite.max(axis=1).to_numpy(float)
+    scale = np.nanmax(np.abs(z)) if np.isfinite(z).any() else 0.0
+    out["z"] = z / scale if scale > 0 else z
+    out["best_pair"] = finite.idxmax(axis=1).str.removeprefix("dR_ohm_").str.replace("_", "-")
+    return out.reset_index()
+
+
+def layout_for(path: str | os.PathLike, layout: Layout | str | os.PathLike | None = None) -> Layout:
+    """The layout given, or the one the campaign's manifest names."""
+    if isinstance(layout, Layout):
+        return layout
+    if layout is not None:
+        return load_layout(layout)
+    path = Path(path)
+    manifest = read_manifest(path if path.is_dir() else path.parent)
+    layout_path = resolve_manifest_path(path if path.is_dir() else path.parent, manifest, "layout")
+    if layout_path is None:
+        raise DataError("the manifest names no layout", file=str(path / "manifest.json"), field="layout",
+                        fix="pass --layout protocols/skins/<skin>.toml")
+    return load_layout(layout_path)
+
+
+def _draw_channels(ax, layout: Layout) -> None:
+    """Each channel's two long boundaries, dashed (as in the paper's figures)."""
+    for ch in layout.channels:
+        a, b = layout.xy_mm[ch.a], layout.xy_mm[ch.b]
+        direction = (b - a) / np.linalg.norm(b - a)
+        normal = np.array([-direction[1], direction[0]]) * ch.width_mm / 2
+        for side in (normal, -normal):
+            ax.plot([a[0] + side[0], b[0] + side[0]], [a[1] + side[1], b[1] + side[1]],
+                    linestyle="--", color="black", linewidth=0.8)
+
+
+def _figure():
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=FIGSIZE_IN, dpi=DPI)
+    return plt, fig, ax
+
+
+def _finish(plt, fig, ax, layout: Layout, out: Path, title: str) -> Path:
+    x0, y0, x1, y1 = layout.bounds_mm
+    margin = 0.08 * max(x1 - x0, y1 - y0)
+    ax.set_xlim(x0 - margin, x1 + margin)
+    ax.set_ylim(y0 - margin, y1 + margin)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_title(title, fontsize=10)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=DPI)
+    plt.close(fig)
+    return out
+
+
+def plot_sensitivity_map(path: str | os.PathLike, out: str | os.PathLike,
+                         layout: Layout | str | os.PathLike | None = None, grid_step_mm: float = 0.25) -> Path:
+    """Paper Fig. 8: normalised max-over-pairs mean dR per pressed position, interpolated linearly between
+    positions (blank outside their convex hull), pressed positions as dots, channel boundaries dashed."""
+    from scipy.interpolate import griddata
+
+    layout = layout_for(path, layout)
+    df = read_presses(path)
+    sens = sensitivity_by_position(df)
+    plt, fig, ax = _figure()
+    x0, y0, x1, y1 = layout.bounds_mm
+    gx, gy = np.meshgrid(np.arange(x0, x1 + grid_step_mm / 2, grid_step_mm),
+                         np.arange(y0, y1 + grid_step_mm / 2, grid_step_mm))
+    points = sens[["x_mm", "y_mm"]].to_numpy(float)
+    z = sens["z"].to_numpy(float)
+    ok = np.isfinite(z)
+    if ok.sum() >= 3 and np.linalg.matrix_rank(points[ok] - points[ok].mean(axis=0)) == 2:
+        grid = griddata(points[ok], z[ok], (gx, gy), method="linear")
+        image = ax.pcolormesh(gx, gy, grid, cmap="viridis", vmin=-1, vmax=1, shading="auto")
+    else:
+        image = ax.scatter(points[:, 0], points[:, 1], c=z, cmap="viridis", vmin=-1, vmax=1, s=60)
+    fig.colorbar(image, ax=ax, label="normalised max dR (Fig. 8)")
+    ax.scatter(points[:, 0], points[:, 1], s=6, color="black")
+    _draw_channels(ax, layout)
+    return _finish(plt, fig, ax, layout, Path(out),
+                   f"Sensitivity: max over pairs of mean dR, {len(sens)} positions, {len(df)} presses")
+
+
+def plot_press_map(path: str | os.PathLike, out: str | os.PathLike,
+                   layout: Layout | str | os.PathLike | None = None) -> Path:
+    """The pressed positions, numbered by position_id and coloured by how many presses each received."""
+    layout = layout_for(path, layout)
+    df = read_presses(path)
+    per = df.groupby("position_id").agg(x_mm=("x_mm", "first"), y_mm=("y_mm", "first"), presses=("press_id", "size"))
+    plt, fig, ax = _figure()
+    _draw_channels(ax, layout)
+    image = ax.scatter(per["x_mm"], per["y_mm"], c=per["presses"], cmap="plasma", s=40, edgecolors="black",
+                       linewidths=0.5, zorder=3)
+    from matplotlib.ticker import MaxNLocator
+
+    bar = fig.colorbar(image, ax=ax, label="presses (repeats) at the position")
+    bar.locator = MaxNLocator(integer=True)
+    bar.update_ticks()
+    for position_id, row in per.iterrows():
+        ax.annotate(str(position_id), (row["x_mm"], row["y_mm"]), xytext=(3, 3), textcoords="offset points",
+                    fontsize=6, zorder=4)
+    return _finish(plt, fig, ax, layout, Path(out), f"Pressed positions: {len(per)} positions, {len(df)} presses")
