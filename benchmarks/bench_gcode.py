@@ -1,0 +1,89 @@
+"""Benchmark: generate and validate the paper campaign (100 positions x 28 presses) and compare the wall
+time with the printer time the program will take.
+
+    .venv/bin/python benchmarks/bench_gcode.py [--repeats 5]
+
+Prints one table (best of --repeats runs per stage) and the ratio estimated printer time / generation time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import replace
+from pathlib import Path
+
+from neatskin.gcode.bounds import check_moves
+from neatskin.gcode.motion import estimate_program_time
+from neatskin.gcode.parse import parse_program
+from neatskin.gcode.positions import generate_positions
+from neatskin.gcode.profile import load_printer_profile
+from neatskin.gcode.program import build_program
+from neatskin.gcode.spec import load_gcode_spec
+from neatskin.layout import load_layout
+
+PROTOCOL = Path(__file__).resolve().parent.parent / "protocols" / "paper.toml"
+
+
+def best_of(repeats: int, fn):
+    best, result = float("inf"), None
+    for _ in range(repeats):
+        start = time.perf_counter()
+        result = fn()
+        best = min(best, time.perf_counter() - start)
+    return best, result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=5)
+    args = parser.parse_args()
+
+    spec = load_gcode_spec(PROTOCOL)
+    layout = load_layout(spec.layout_path)
+    profile = load_printer_profile(spec.printer_path)
+    stages = []
+    t, positions = best_of(args.repeats, lambda: generate_positions(layout, spec.positions))
+    stages.append(("positions (100, paper strategy)", t))
+    t, program = best_of(args.repeats, lambda: build_program(layout, positions, spec.press, profile, name=spec.name,
+                                                             seed=spec.seed, hold_in_gcode=True))
+    stages.append(("program: bounds + 2,800 press blocks", t))
+    t, text = best_of(args.repeats, program.text)
+    stages.append(("emit text", t))
+    generation = sum(s for _, s in stages)
+    t, lines = best_of(args.repeats, lambda: parse_program(text))
+    stages.append(("validate: parse every line", t))
+    t, problems = best_of(args.repeats, lambda: check_moves(profile, lines))
+    stages.append(("validate: bounds of every move", t))
+    assert not problems
+    t, estimate = best_of(args.repeats, lambda: estimate_program_time(lines, profile))
+    stages.append(("validate: motion-time estimate", t))
+    total = sum(s for _, s in stages)
+
+    ordered_spec = replace(spec.press, travel_ordering=True)
+    t_ord, ordered = best_of(args.repeats, lambda: build_program(layout, positions, ordered_spec, profile,
+                                                                 name=spec.name, seed=spec.seed, hold_in_gcode=True))
+    ordered_estimate = estimate_program_time(ordered.command_lines(), profile)
+
+    print(f"paper campaign: {len(program.positions)} positions x {spec.press.repeats} repeats = "
+          f"{len(program.presses)} presses, {len(text.splitlines())} lines, {len(text) / 1e6:.2f} MB")
+    print(f"{'stage':<40} {'wall time (best of ' + str(args.repeats) + ')':>26}")
+    for name, seconds in stages:
+        print(f"{name:<40} {seconds * 1e3:>23.1f} ms")
+    print(f"{'generate (positions + program + text)':<40} {generation * 1e3:>23.1f} ms")
+    print(f"{'generate + validate':<40} {total * 1e3:>23.1f} ms")
+    print()
+    print(f"estimated printer time: {estimate.total_s:,.0f} s = {estimate.total_s / 3600:.2f} h "
+          f"(motion {estimate.motion_s:,.0f} s, G4 holds {estimate.dwell_s:,.0f} s, homing {estimate.homing_s:.0f} s)")
+    print(f"ratio printer time / (generate + validate): {estimate.total_s / total:,.0f} x")
+    print(f"ratio printer time / generate alone:        {estimate.total_s / generation:,.0f} x")
+    print()
+    saved = ordered.route_unordered_mm - ordered.route_mm
+    print(f"travel ordering (nearest neighbour + 2-opt, {t_ord * 1e3:.1f} ms to build): xy route between positions "
+          f"{ordered.route_unordered_mm:.0f} mm -> {ordered.route_mm:.0f} mm ({100 * saved / ordered.route_unordered_mm:.0f} % "
+          f"shorter); printer time {estimate.total_s:,.0f} s -> {ordered_estimate.total_s:,.0f} s "
+          f"({estimate.total_s - ordered_estimate.total_s:.1f} s saved)")
+
+
+if __name__ == "__main__":
+    main()
