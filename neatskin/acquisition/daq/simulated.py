@@ -191,12 +191,10 @@ class SimulatedDAQ(Daq):
         spread = np.sqrt(rng.chisquare(max(blocks - 1, 1), r.shape) / max(blocks - 1, 1)) if blocks > 1 else 1.0
         uncertainty = std * spread
         flags = np.zeros(r.shape, dtype=np.uint8)
-        dc_share = demod.DC_OFFSET_SHARE
-        if abs(noise.voltage_offset_v) > dc_share * np.min(v0) / np.sqrt(2) or \
-                abs(noise.current_offset_a) > dc_share * amp / np.sqrt(2):
-            dc_v = np.abs(noise.voltage_offset_v) > dc_share * v0 / np.sqrt(2)
-            dc_i = abs(noise.current_offset_a) > dc_share * amp / np.sqrt(2)
-            flags[dc_v | dc_i] |= np.uint8(PairFlag.DC_OFFSET)
+        dc_share = demod.DC_OFFSET_SHARE  # the demodulator's rule, on the noise-free means
+        dc = (abs(noise.voltage_offset_v) > dc_share * v0 / np.sqrt(2)) | (
+            abs(noise.current_offset_a) > dc_share * amp / np.sqrt(2))
+        flags[dc] |= np.uint8(PairFlag.DC_OFFSET)
         return PairEstimates(resistance, uncertainty, flags, windows, method)
 
     def effective_noise_var(self) -> tuple[float, float]:
