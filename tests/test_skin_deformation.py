@@ -1,0 +1,125 @@
+"""The deformation integral: exact limits, convergence against an independent adaptive reference,
+and the stated error bound of the default resolution."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.integrate import quad
+
+from neatskin.rig.skin.deformation import PinchParams, nearest_point_factor, pinch_fraction, resistance_factor
+from neatskin.rig.skin.layouts import grid_layout
+
+PROBE_MM = 2.75
+
+
+@pytest.fixture(scope="module")
+def single():
+    """One 15 mm channel along x from (0, 0) to (15, 0) (a 2 x 2 grid is 4 channels; channel 0 is it)."""
+    return grid_layout(2, 2, pitch_mm=15.0)
+
+
+def quad_reference(layout, x, y, depth, params=PinchParams()):
+    """Adaptive QUADPACK integral of 1 / (1 - p(r(s))) over channel 0, split at the kinks."""
+    start = layout.xy_mm[layout.channel_ends[0, 0]]
+    end = layout.xy_mm[layout.channel_ends[0, 1]]
+    length = float(np.hypot(*(end - start)))
+    unit = (end - start) / length
+
+    def integrand(s):
+        px, py = start + s * unit
+        r = np.hypot(x - px, y - py)
+        return 1.0 / (1.0 - pinch_fraction(r, depth, PROBE_MM, layout.thickness_mm, layout.channel_depth_mm, params))
+
+    s0 = (x - start[0]) * unit[0] + (y - start[1]) * unit[1]
+    perp = abs((x - start[0]) * unit[1] - (y - start[1]) * unit[0])
+    e = np.sqrt(max(PROBE_MM**2 - perp**2, 0.0))
+    cuts = sorted({0.0, length, *(min(max(v, 0.0), length) for v in (s0 - e, s0, s0 + e))})
+    total = sum(quad(integrand, lo, hi, epsabs=0, epsrel=1e-13, limit=200)[0] for lo, hi in zip(cuts[:-1], cuts[1:]))
+    return total / length
+
+
+PRESSES = [  # (x, y, depth): on the channel, off it, at its end, near the probe-edge tangent, deep
+    (7.5, 0.0, 3.5), (7.5, 2.0, 3.5), (7.5, 2.9, 3.5), (7.5, 4.0, 3.5), (0.0, 0.0, 3.5), (3.0, 1.0, 3.5),
+    (7.5, 7.5, 3.5), (-2.0, 1.5, 3.5), (16.0, 2.5, 3.5), (7.5, 1.0, 1.0), (7.5, 1.0, 4.5), (7.5, 3.0, 5.0),
+]
+
+
+@pytest.mark.parametrize("x, y, depth", PRESSES)
+def test_default_resolution_within_stated_bound_of_adaptive_reference(single, x, y, depth):
+    factor = resistance_factor(single, x, y, depth, PROBE_MM)[0, 0]
+    # docs/skin.md: the default 6 nodes per panel -> <= 1e-5 relative for depth <= 0.91 T
+    assert factor == pytest.approx(quad_reference(single, x, y, depth), rel=1e-5)
+    fine = resistance_factor(single, x, y, depth, PROBE_MM, PinchParams(nodes_per_panel=16))[0, 0]
+    assert fine == pytest.approx(quad_reference(single, x, y, depth), rel=1e-10)
+
+
+def test_error_falls_with_resolution_against_fine_reference(paper_layout):
+    rng = np.random.default_rng(7)
+    n = 400
+    x, y = rng.uniform(-3, 33, n), rng.uniform(-3, 33, n)
+    depth = rng.uniform(0.5, 5.0, n)
+    fine = resistance_factor(paper_layout, x, y, depth, PROBE_MM, PinchParams(nodes_per_panel=48))
+    errors = []
+    for q in (3, 6, 8, 12):
+        approx = resistance_factor(paper_layout, x, y, depth, PROBE_MM, PinchParams(nodes_per_panel=q))
+        errors.append(np.max(np.abs(approx / fine - 1)))
+    assert errors == sorted(errors, reverse=True)  # monotone convergence
+    # the table in docs/skin.md: default 6 nodes <= 1e-5, 8 nodes <= 1e-6, 12 nodes <= 1e-9
+    assert errors[1] < 1e-5 and errors[2] < 1e-6 and errors[3] < 1e-9
+    assert errors[0] > 1e-4  # and the coarse end is visibly coarser: the check can fail
+
+
+def test_not_touching_is_exactly_baseline(paper_layout):
+    f = resistance_factor(paper_layout, [7.5, 15.0, 3.0], [0.0, 15.0, 3.0], [0.0, -1.0, -0.01], PROBE_MM)
+    assert np.array_equal(f, np.ones((3, 12)))
+
+
+def test_probe_covering_whole_channel_gives_uniform_pinch(single):
+    depth = 2.2
+    p0 = depth / single.thickness_mm
+    f = resistance_factor(single, 7.5, 0.0, depth, 40.0)[0, 0]  # a 40 mm probe covers the 15 mm channel
+    assert f == pytest.approx(1.0 / (1.0 - p0), rel=1e-14)
+
+
+def test_pinched_shut_channel_has_infinite_resistance(single):
+    f = resistance_factor(single, 7.5, 0.0, single.thickness_mm, PROBE_MM)[0]
+    assert np.isposinf(f[0])
+    assert np.all(np.isfinite(f[1:]))  # the other channels are 15 mm away: finite
+
+
+def test_far_press_leaves_channel_unchanged_and_mirror_presses_agree(single):
+    f = resistance_factor(single, [7.5, 7.5, 4.0, 11.0], [60.0, 1.0, 1.2, 1.2], 3.5, PROBE_MM)
+    assert f[0, 0] == pytest.approx(1.0, abs=1e-15)
+    assert f[2, 0] == pytest.approx(f[3, 0], rel=1e-12)  # mirror about the channel's middle
+    assert f[1, 0] > f[2, 0] > 1.0
+
+
+def test_factor_grows_with_depth(single):
+    depth = np.linspace(0.1, 5.0, 30)
+    f = resistance_factor(single, 7.5, 1.5, depth, PROBE_MM)[:, 0]
+    assert np.all(np.diff(f) > 0)
+
+
+def test_pinch_profile_values(single):
+    t, c = single.thickness_mm, single.channel_depth_mm
+    assert pinch_fraction(0.0, 3.5, PROBE_MM, t, c) == pytest.approx(3.5 / 5.5, rel=1e-15)
+    assert pinch_fraction(PROBE_MM, 3.5, PROBE_MM, t, c) == pytest.approx(3.5 / 5.5, rel=1e-15)
+    decay = 0.5 * (c + 3.5)
+    assert pinch_fraction(PROBE_MM + decay, 3.5, PROBE_MM, t, c) == pytest.approx(3.5 / 5.5 / np.e, rel=1e-14)
+    assert pinch_fraction(1.0, 9.0, PROBE_MM, t, c) == 1.0  # capped: shut, never more
+
+
+def test_nearest_point_factor_closed_form(single):
+    depth = 3.5
+    p0 = depth / single.thickness_mm
+    f = nearest_point_factor(single, 7.5, 0.0, depth, PROBE_MM)[0, 0]
+    assert f == pytest.approx(1 + (2 * PROBE_MM / 15.0) * (1 / (1 - p0) - 1), rel=1e-14)
+    assert np.array_equal(nearest_point_factor(single, 7.5, 0.0, 0.0, PROBE_MM), np.ones((1, 4)))
+
+
+def test_bad_params_are_refused():
+    with pytest.raises(ValueError, match="nodes_per_panel"):
+        PinchParams(nodes_per_panel=0)
+    with pytest.raises(ValueError, match="pinch_gain"):
+        PinchParams(pinch_gain=-1.0)
