@@ -14,6 +14,8 @@ import math
 from dataclasses import dataclass
 from typing import Iterable
 
+import numpy as np
+
 from neatskin.gcode.parse import GcodeLine, parse_line
 from neatskin.gcode.profile import PrinterProfile
 
@@ -80,47 +82,81 @@ class TimeEstimate:
         return self.motion_s + self.dwell_s + self.homing_s
 
 
-def estimate_program_time(lines: Iterable[GcodeLine | str], profile: PrinterProfile,
-                          start_mm: tuple[float, float, float] | None = None) -> TimeEstimate:
-    """Estimate a program's run time: G0/G1 (G90/G91, modal F in mm/min), G4 P/S dwells, G28 homing.
+class MotionClock:
+    """Steps through commands one at a time, keeping position, G90/G91 and the modal feed.
 
+    `step(line)` returns the seconds that command takes and accumulates the program's totals.
     Before a G28 the position is unknown; it starts at `start_mm` (default: the park position).
     """
-    pos = list(start_mm if start_mm is not None else tuple(profile.park_mm))
-    feed_mm_s = profile.travel_feed_mm_s
-    relative = False
-    motion = dwell = homing = path = travel_xy = 0.0
-    moves = 0
-    for item in lines:
+
+    def __init__(self, profile: PrinterProfile, start_mm: tuple[float, float, float] | None = None) -> None:
+        self.profile = profile
+        self.pos = list(start_mm if start_mm is not None else tuple(profile.park_mm))
+        self.feed_mm_s = profile.travel_feed_mm_s
+        self.relative = False
+        self.motion_s = self.dwell_s = self.homing_s = self.path_mm = self.travel_xy_mm = 0.0
+        self.moves = 0
+
+    def step(self, item: GcodeLine | str) -> float:
         line = parse_line(item) if isinstance(item, str) else item
         if line is None:
-            continue
-        code = line.code
+            return 0.0
+        code, profile = line.code, self.profile
         if code in ("G0", "G1"):
             f = line.get("F")
             if f is not None and f > 0:
-                feed_mm_s = f / 60.0
-            target = list(pos)
+                self.feed_mm_s = f / 60.0
+            target = list(self.pos)
             for k, letter in enumerate("XYZ"):
                 value = line.get(letter)
                 if value is not None:
-                    target[k] = pos[k] + value if relative else value
-            delta = [t - p for t, p in zip(target, pos)]
+                    target[k] = self.pos[k] + value if self.relative else value
+            delta = [t - p for t, p in zip(target, self.pos)]
             length = math.sqrt(sum(d * d for d in delta))
+            seconds = 0.0
             if length > 0:
-                motion += move_time_s(tuple(pos), tuple(target), feed_mm_s, profile)
-                path += length
-                travel_xy += math.hypot(delta[0], delta[1])
-                moves += 1
-            pos = target
-        elif code == "G4":
+                seconds = move_time_s(tuple(self.pos), tuple(target), self.feed_mm_s, profile)
+                self.motion_s += seconds
+                self.path_mm += length
+                self.travel_xy_mm += math.hypot(delta[0], delta[1])
+                self.moves += 1
+            self.pos = target
+            return seconds
+        if code == "G4":
             p_ms, s_s = line.get("P"), line.get("S")
-            dwell += (p_ms / 1000.0 if p_ms is not None else 0.0) + (s_s if s_s is not None else 0.0)
-        elif code == "G28":
-            homing += profile.homing_time_s
-            pos = [profile.soft_min_mm.x, profile.soft_min_mm.y, profile.soft_min_mm.z]
-        elif code == "G90":
-            relative = False
-        elif code == "G91":
-            relative = True
-    return TimeEstimate(motion, dwell, homing, moves, path, travel_xy)
+            seconds = (p_ms / 1000.0 if p_ms is not None else 0.0) + (s_s if s_s is not None else 0.0)
+            self.dwell_s += seconds
+            return seconds
+        if code == "G28":
+            self.homing_s += profile.homing_time_s
+            self.pos = [profile.soft_min_mm.x, profile.soft_min_mm.y, profile.soft_min_mm.z]
+            return profile.homing_time_s
+        if code in ("G90", "G91"):
+            self.relative = code == "G91"
+        return 0.0
+
+    def estimate(self) -> TimeEstimate:
+        return TimeEstimate(self.motion_s, self.dwell_s, self.homing_s, self.moves, self.path_mm, self.travel_xy_mm)
+
+
+def estimate_program_time(lines: Iterable[GcodeLine | str], profile: PrinterProfile,
+                          start_mm: tuple[float, float, float] | None = None) -> TimeEstimate:
+    """Estimate a program's run time: G0/G1 (G90/G91, modal F in mm/min), G4 P/S dwells, G28 homing."""
+    clock = MotionClock(profile, start_mm)
+    for line in lines:
+        clock.step(line)
+    return clock.estimate()
+
+
+def phase_durations_s(program, profile: PrinterProfile) -> np.ndarray:
+    """Printer time of every phase of every press, shape (presses, phases), in execution order
+    (the preamble's homing included in the state, not in the result): the runner's ETA and timeouts."""
+    clock = MotionClock(profile)
+    for line in program.preamble:
+        clock.step(line)
+    n_phases = max((len(b.phases) for b in program.presses), default=0)
+    out = np.zeros((len(program.presses), n_phases))
+    for i, block in enumerate(program.presses):
+        for j, phase in enumerate(block.phases):
+            out[i, j] = sum(clock.step(line) for line in phase.lines)
+    return out
