@@ -1,0 +1,119 @@
+"""`neatskin dataset info|validate|merge|split|export|plot`: a thin layer over neatskin.datasets.curate,
+.validate and .plots. Heavy imports happen inside the handlers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser("dataset", help="validate, describe, merge, split, export and plot datasets",
+                                   description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="dataset_command", metavar="ACTION", required=True)
+
+    info = sub.add_parser("info", help="summarise a campaign folder or press parquet file")
+    info.add_argument("path", type=Path, help="campaign folder or .parquet file")
+    info.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    info.set_defaults(handler=_info)
+
+    val = sub.add_parser("validate", help="check schema, NaNs, duplicates, bounds, flags and the manifest; "
+                                          "exit status 1 when anything is wrong")
+    val.add_argument("path", type=Path, help="campaign folder or .parquet file")
+    val.add_argument("--layout", type=Path, help="skin layout TOML (default: the one the manifest names)")
+    val.add_argument("--allow-flagged", action="store_true", help="do not count flagged presses as problems")
+    val.set_defaults(handler=_validate)
+
+    mer = sub.add_parser("merge", help="merge campaigns into one dataset (press and position ids re-keyed)")
+    mer.add_argument("folders", type=Path, nargs="+", help="campaign folders (two or more)")
+    mer.add_argument("-o", "--output", type=Path, required=True, help="new folder to write")
+    mer.add_argument("--allow-mixed", action="store_true", help="merge campaigns on different layouts or wirings")
+    mer.set_defaults(handler=_merge)
+
+    spl = sub.add_parser("split", help="split into train/ and test/ by position (repeats never straddle)")
+    spl.add_argument("path", type=Path, help="campaign folder")
+    spl.add_argument("-o", "--output", type=Path, required=True, help="new folder for train/ and test/")
+    spl.add_argument("--test-fraction", type=float, default=0.2, help="share of positions in test (default 0.2)")
+    spl.add_argument("--seed", type=int, default=0, help="seed of the position shuffle (default 0)")
+    spl.set_defaults(handler=_split)
+
+    exp = sub.add_parser("export", help="export the presses as one parquet or CSV file")
+    exp.add_argument("path", type=Path, help="campaign folder or .parquet file")
+    exp.add_argument("-o", "--output", type=Path, required=True, help="file to write")
+    exp.add_argument("--format", choices=("parquet", "csv"), help="default: from the output's suffix")
+    exp.add_argument("--drop-flagged", action="store_true", help="leave out presses that carry flags")
+    exp.set_defaults(handler=_export)
+
+    plot = sub.add_parser("plot", help="draw the sensitivity map (paper Fig. 8) and/or the press map as PNG")
+    plot.add_argument("path", type=Path, help="campaign folder")
+    plot.add_argument("-o", "--output", type=Path, required=True, help="folder for the PNG files")
+    plot.add_argument("--kind", choices=("sensitivity", "presses", "all"), default="all")
+    plot.add_argument("--layout", type=Path, help="skin layout TOML (default: the one the manifest names)")
+    plot.set_defaults(handler=_plot)
+
+
+def _info(args: argparse.Namespace) -> int:
+    from neatskin.datasets.curate import describe, format_description
+
+    info = describe(args.path)
+    print(json.dumps(info, indent=2, default=str) if args.json else format_description(info))
+    return 0
+
+
+def _validate(args: argparse.Namespace) -> int:
+    from neatskin.datasets.validate import validate_dataset
+    from neatskin.layout import load_layout
+
+    layout = load_layout(args.layout) if args.layout else None
+    problems = validate_dataset(args.path, layout=layout, allow_flagged=args.allow_flagged)
+    for problem in problems:
+        print(problem, file=sys.stderr)
+    if problems:
+        print(f"{args.path}: {len(problems)} problem(s)", file=sys.stderr)
+        return 1
+    print(f"{args.path}: valid")
+    return 0
+
+
+def _merge(args: argparse.Namespace) -> int:
+    from neatskin.datasets.curate import merge
+    from neatskin.datasets.reader import read_metadata
+
+    out = merge(args.folders, args.output, allow_mixed=args.allow_mixed)
+    sources = read_metadata(out)["merged_from"]
+    for source in sources:
+        print(f"{source['folder']}: {source['presses']} presses, press ids +{source['press_id_offset']}, "
+              f"position ids +{source['position_id_offset']}")
+    print(f"wrote {out}")
+    return 0
+
+
+def _split(args: argparse.Namespace) -> int:
+    from neatskin.datasets.curate import split
+    from neatskin.datasets.reader import read_presses
+
+    for name, folder in split(args.path, args.output, args.test_fraction, args.seed).items():
+        df = read_presses(folder)
+        print(f"{name}: {folder} ({len(df)} presses, {df['position_id'].nunique()} positions)")
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    from neatskin.datasets.curate import export
+
+    fmt = args.format or ("csv" if args.output.suffix.lower() == ".csv" else "parquet")
+    print(f"wrote {export(args.path, args.output, fmt, drop_flagged=args.drop_flagged)}")
+    return 0
+
+
+def _plot(args: argparse.Namespace) -> int:
+    from neatskin.datasets.plots import plot_press_map, plot_sensitivity_map
+
+    if args.kind in ("sensitivity", "all"):
+        print(f"wrote {plot_sensitivity_map(args.path, args.output / 'sensitivity_map.png', args.layout)}")
+    if args.kind in ("presses", "all"):
+        print(f"wrote {plot_press_map(args.path, args.output / 'press_map.png', args.layout)}")
+    return 0
