@@ -105,13 +105,18 @@ def detect_presses(signal: np.ndarray, rate_hz: float, expected: int = 1, *, uni
         return PressDetection(empty, empty, empty, np.zeros(0), expected, rate_hz, np.zeros(0))
     k = max(1, int(spike_samples)) | 1
     clean = ndimage.median_filter(force, size=k, mode="nearest")
-    baseline = _baseline(clean, rate_hz, baseline_window_s)
+    min_len, min_gap = int(round(min_press_s * rate_hz)), int(round(min_gap_s * rate_hz))
+    # pass 1: a running-minimum baseline (below the truth where the drift is convex) finds the presses;
+    # pass 2: the baseline is the smoothed trace outside them, bridged linearly across each press
+    rough = _baseline(clean, rate_hz, baseline_window_s)
+    onset, offset = _debounce(*_hysteresis(clean - rough, on_threshold_n, off_threshold_n), min_len, min_gap)
+    baseline = _bridged_baseline(clean, rate_hz, onset, offset)
     above = clean - baseline
-    onset, offset = _hysteresis(above, on_threshold_n, off_threshold_n)
-    onset, offset = _debounce(onset, offset, int(round(min_press_s * rate_hz)), int(round(min_gap_s * rate_hz)))
-    # one argmax per press (a handful per trace), not per sample
-    peak_index = np.array([a + int(np.argmax(above[a:b])) for a, b in zip(onset, offset)], dtype=np.int64)
-    peak = above[peak_index] if peak_index.size else np.zeros(0)
+    onset, offset = _debounce(*_hysteresis(above, on_threshold_n, off_threshold_n), min_len, min_gap)
+    # peak on a 5 ms average, so white noise does not bias it up; one argmax per press, not per sample
+    smooth = ndimage.uniform_filter1d(above, max(1, int(round(0.005 * rate_hz))), mode="nearest")
+    peak_index = np.array([a + int(np.argmax(smooth[a:b])) for a, b in zip(onset, offset)], dtype=np.int64)
+    peak = smooth[peak_index] if peak_index.size else np.zeros(0)
     return PressDetection(onset, offset, peak_index.astype(np.int64), peak, expected, rate_hz, baseline)
 
 
@@ -130,6 +135,30 @@ def _baseline(force: np.ndarray, rate_hz: float, window_s: float | None) -> np.n
     smooth = ndimage.uniform_filter1d(opened, max(1, size // 4), mode="nearest")
     centres = (np.arange(m) + 0.5) * block
     return np.interp(np.arange(n), centres, smooth)
+
+
+def _bridged_baseline(force: np.ndarray, rate_hz: float, onset: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    n = force.shape[0]
+    block = max(1, int(rate_hz // 500))
+    m = n // block
+    if m < 3:
+        return np.full(n, float(np.median(force)))
+    blocks = np.median(force[: m * block].reshape(m, block), axis=1)
+    smooth = ndimage.uniform_filter1d(blocks, max(1, int(round(0.05 * rate_hz / block))), mode="nearest")
+    margin = int(round(0.1 * rate_hz))  # keep 100 ms around each press out of the baseline
+    inside = np.zeros(n + 1, dtype=np.int64)
+    np.add.at(inside, np.maximum(onset - margin, 0), 1)
+    np.add.at(inside, np.minimum(offset + margin, n), -1)
+    pressed = np.cumsum(inside[:n]) > 0
+    centres = (np.arange(m) + 0.5) * block
+    free = ~pressed[(centres).astype(np.int64)]
+    if free.sum() < 2:
+        return np.full(n, float(np.median(force)))
+    # the smoothing window must not reach into a press: use only blocks whose 50 ms window is free
+    free &= ndimage.minimum_filter1d(free.astype(np.int8), max(1, int(round(0.05 * rate_hz / block))), mode="nearest") > 0
+    if free.sum() < 2:
+        return np.full(n, float(np.median(force)))
+    return np.interp(np.arange(n), centres[free], smooth[free])
 
 
 def _hysteresis(x: np.ndarray, on: float, off: float) -> tuple[np.ndarray, np.ndarray]:
