@@ -1,0 +1,572 @@
+"""MarlinDriver: exactly-once, in-order G-code delivery to Marlin over any pyserial port object.
+
+One reader thread owns the protocol: it reads replies, retires lines on `ok`, replays on
+`Resend:`, sends the next queued line the moment an `ok` frees the line (no thread hand-off per
+line), extends deadlines on `busy:`, and recovers a lost `ok` by a probe: `N<n+1> M118 E1
+neatskin-probe <n+1>`. The firmware either echoes the probe (so every line up to it ran: the
+`ok` was lost) or rejects its number with `Resend: n` (so line n never arrived and is replayed):
+no line is ever sent twice under a number the firmware has already taken. Callers block in
+`send` / `send_lines`; every wait has a deadline. Halts, resets and a dead port raise a
+MarlinError naming the last line acknowledged; after that nothing is sent but an M112 on request.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+import time
+from dataclasses import dataclass
+from os import PathLike
+from typing import Callable, Iterable
+
+from neatskin.gcode.parse import parse_line
+from neatskin.gcode.profile import PrinterProfile
+from neatskin.rig.marlin import errors as E
+from neatskin.rig.marlin.deadlines import MotionTracker
+from neatskin.rig.marlin.replies import PROBE_TAG, Kind, Position, classify, frame, parse_m114, parse_m119
+from neatskin.rig.marlin.wirelog import WireLog
+
+
+@dataclass(frozen=True)
+class DriverConfig:
+    boot_timeout_s: float = 3.0  # wait this long for `start` after opening; then go on without it
+    min_timeout_s: float = 2.0  # the least time any line may take to be acknowledged
+    busy_extension_s: float = 6.0  # a `busy:` pushes the deadline to now + this (Marlin sends one every 2 s)
+    max_busy_s: float = 900.0  # keep-alives cannot stretch one line's wait beyond this
+    probe_attempts: int = 3  # lost-ok probes per stall before NoAnswer
+    max_resends: int = 12  # the same line asked for this often -> ResendLoop
+    resend_grace_s: float = 0.02  # wait for an `ok` that old Marlin sends after `Resend:` before replaying
+    duplicate_resend_s: float = 1.0  # an identical `Resend: n` with no new error within this is a duplicate
+    poll_s: float = 0.02  # the reader's read timeout: how often deadlines are checked
+    homing_time_s: float = 60.0
+    default_feed_mm_s: float = 25.0
+
+    def __post_init__(self) -> None:
+        for name in ("boot_timeout_s", "min_timeout_s", "busy_extension_s", "max_busy_s", "poll_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"DriverConfig.{name} must be > 0")
+
+
+class _Job:
+    __slots__ = ("command", "replies", "event", "error", "rejected", "line", "batch")
+
+    def __init__(self, command: str, batch: object = None) -> None:
+        self.command = command
+        self.replies: list[str] = []
+        self.event = threading.Event()
+        self.error: BaseException | None = None
+        self.rejected: str | None = None
+        self.line: int | None = None
+        self.batch = batch
+
+
+class _Line:
+    __slots__ = ("n", "command", "data", "job", "deadline", "hard_deadline", "probe", "echoed", "m110")
+
+    def __init__(self, n, command, data, job, deadline, probe=False, m110=False, max_busy_s=900.0):
+        self.n, self.command, self.data, self.job = n, command, data, job
+        self.deadline = deadline
+        self.hard_deadline = deadline + max_busy_s
+        self.probe, self.echoed, self.m110 = probe, False, m110
+
+
+class MarlinDriver:
+    """Talk to Marlin over `port` (an unopened or open pyserial object: Serial, serial_for_url(...))."""
+
+    def __init__(self, port, *, config: DriverConfig = DriverConfig(), profile: PrinterProfile | None = None,
+                 wire_log: str | PathLike | None = None) -> None:
+        self.port = port
+        self.config = config
+        self.profile = profile
+        self.wire_log_path = wire_log
+        self._wire: WireLog | None = None
+        self._lock = threading.RLock()
+        self._wlock = threading.Lock()
+        self._reader: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._reset_state()
+
+    @classmethod
+    def open(cls, url: str, baud_rate: int = 115200, **kwargs) -> "MarlinDriver":
+        """A driver on a port name or pyserial URL (`/dev/ttyUSB0`, `/dev/pts/3`, `loop://`, `socket://h:p`)."""
+        import serial
+
+        try:
+            port = serial.serial_for_url(url, baudrate=baud_rate, timeout=0.02, do_not_open=True)
+        except (ValueError, serial.SerialException) as exc:
+            raise E.PortDead(f"cannot use port {url!r}: {exc}", port=url) from exc
+        return cls(port, **kwargs)
+
+    # ---- state --------------------------------------------------------------------------
+
+    def _reset_state(self) -> None:
+        self._next_n = 0
+        self._queue: collections.deque[_Job] = collections.deque()
+        self._inflight: list[_Line] = []
+        self._failure: E.MarlinError | None = None
+        self._session = False
+        self._booted = False
+        self._last_acked: tuple[int | None, str | None] = (None, None)
+        self._acked_jobs = 0
+        self._comm_errors = 0
+        self._served = (None, -1, 0.0)  # (n, comm_errors at serve, time)
+        self._pending_resend: int | None = None
+        self._resend_due = 0.0
+        self._swallow_ok = False
+        self._resend_counts: collections.Counter[int] = collections.Counter()
+        self._probes_in_stall = 0
+        self._motion = MotionTracker(self.profile, self.config.homing_time_s, self.config.default_feed_mm_s)
+        self._motion_end = 0.0
+        self.unsolicited: collections.deque[str] = collections.deque(maxlen=200)
+        self.actions: list[str] = []
+        self.stats = collections.Counter()
+
+    @property
+    def port_name(self) -> str:
+        return str(getattr(self.port, "name", None) or getattr(self.port, "port", None) or "<port>")
+
+    @property
+    def last_acknowledged(self) -> tuple[int | None, str | None]:
+        """(line number, command) of the last line the firmware acknowledged."""
+        return self._last_acked
+
+    # ---- connect / close ----------------------------------------------------------------
+
+    def connect(self, boot_timeout_s: float | None = None) -> "MarlinDriver":
+        """Open the port, wait for `start` (or time out cleanly), and reset the line counter (M110 N0)."""
+        import serial
+
+        self._stop_reader()
+        self._reset_state()
+        if self.wire_log_path is not None and self._wire is None:
+            self._wire = WireLog(self.wire_log_path)
+        try:
+            if not self.port.is_open:
+                self.port.open()
+            self.port.timeout = self.config.poll_s
+            self.port.reset_input_buffer()
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise E.PortDead(f"cannot open: {exc}", port=self.port_name) from exc
+        self._stop.clear()
+        self._reader = threading.Thread(target=self._run, name=f"marlin-reader {self.port_name}", daemon=True)
+        self._reader.start()
+        wait_s = self.config.boot_timeout_s if boot_timeout_s is None else boot_timeout_s
+        end = time.monotonic() + wait_s
+        while time.monotonic() < end and not self._booted and self._failure is None:
+            time.sleep(0.005)
+        if self._booted:  # let the boot banner finish before talking
+            time.sleep(min(0.05, wait_s))
+        job = _Job("M110 N0")
+        with self._lock:
+            self._raise_failure()
+            self._send_line(job, m110=True)
+        self._wait(job)
+        with self._lock:
+            self._session = True
+        return self
+
+    def reconnect(self, boot_timeout_s: float | None = None) -> "MarlinDriver":
+        """After a PrinterReset (or any failure): start a new session. The printer must be homed again."""
+        return self.connect(boot_timeout_s)
+
+    def close(self) -> None:
+        self._stop_reader()
+        try:
+            self.port.close()
+        except Exception:  # noqa: BLE001 - closing a dead port must not raise
+            pass
+        if self._wire is not None:
+            self._wire.close()
+            self._wire = None
+
+    def __enter__(self) -> "MarlinDriver":
+        return self.connect() if self._reader is None else self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _stop_reader(self) -> None:
+        if self._reader is None:
+            return
+        self._stop.set()
+        cancel = getattr(self.port, "cancel_read", None)
+        if cancel is not None:
+            try:
+                cancel()
+            except Exception:  # noqa: BLE001
+                pass
+        self._reader.join(timeout=2.0)
+        self._reader = None
+        with self._lock:
+            if self._failure is None:
+                self._failure = E.PortDead("the driver was closed", last_line=self._last_acked[0],
+                                           last_command=self._last_acked[1], port=self.port_name)
+            self._fail_jobs(self._failure)
+
+    # ---- public API ---------------------------------------------------------------------
+
+    def send(self, command: str, *, strict: bool = True) -> list[str]:
+        """Send one command and wait for its `ok`; the reply lines before the `ok` (M114 text, echoes).
+
+        strict: raise CommandRejected when Marlin refuses it (`Unknown command`, `Home XYZ First`).
+        """
+        command = _clean(command)
+        job = _Job(command)
+        with self._lock:
+            self._raise_failure()
+            self._queue.append(job)
+            self._pump(time.monotonic())
+        self._wait(job)
+        if strict and job.rejected:
+            raise E.CommandRejected(f"{job.rejected!r} in answer to N{job.line} {command!r}",
+                                    last_line=job.line, last_command=command, port=self.port_name)
+        return job.replies
+
+    def send_lines(self, lines: Iterable[str], progress: Callable[[int, int], None] | None = None,
+                   *, source: str = "<lines>") -> int:
+        """Send a program in order, exactly once each; returns the number of commands sent.
+
+        Comments and blank lines are dropped; every line is parsed first, so a syntax error
+        raises before anything is sent. progress(done, total) is called as lines are acknowledged.
+        A refused command stops the batch (CommandRejected) with the rest unsent.
+        """
+        from neatskin.gcode.parse import parse_program
+
+        text = "\n".join(lines)
+        program = parse_program(text, source=source)
+        commands = [_clean(line.raw) for line in program]
+        commands = [c for c in commands if c]
+        if not commands:
+            return 0
+        batch = object()
+        jobs = [_Job(c, batch) for c in commands]
+        with self._lock:
+            self._raise_failure()
+            start = self._acked_jobs
+            self._queue.extend(jobs)
+            self._pump(time.monotonic())
+        last = jobs[-1]
+        while not last.event.wait(0.1):
+            self._check_reader()
+            if progress is not None:
+                progress(min(self._acked_jobs - start, len(jobs)), len(jobs))
+        self._wait(last)
+        for job in jobs:
+            if job.rejected:
+                raise E.CommandRejected(f"{job.rejected!r} in answer to N{job.line} {job.command!r}",
+                                        last_line=job.line, last_command=job.command, port=self.port_name)
+        if progress is not None:
+            progress(len(jobs), len(jobs))
+        return len(jobs)
+
+    def sync(self) -> None:
+        """M400: return when every queued move has finished."""
+        self.send("M400")
+
+    def position(self) -> Position:
+        """M114, parsed."""
+        return parse_m114(self.send("M114"))
+
+    def endstops(self) -> dict[str, bool]:
+        """M119, parsed: {"x_min": False, "z_min": True, ...} (True = triggered)."""
+        return parse_m119(self.send("M119"))
+
+    def emergency_stop(self) -> None:
+        """Send M112 at once, ahead of anything queued; the session ends (EmergencyStopped)."""
+        try:
+            self._write(b"M112\n")
+        finally:
+            with self._lock:
+                if self._failure is None:
+                    n, cmd = self._last_acked
+                    self._fail(E.EmergencyStopped("M112 sent on request", last_line=n, last_command=cmd,
+                                                  port=self.port_name))
+
+    # ---- waiting --------------------------------------------------------------------------
+
+    def _wait(self, job: _Job) -> None:
+        while not job.event.wait(0.25):
+            self._check_reader()
+        if job.error is not None:
+            raise job.error
+
+    def _check_reader(self) -> None:
+        if self._reader is None or not self._reader.is_alive():
+            with self._lock:
+                if self._failure is None:
+                    n, cmd = self._last_acked
+                    self._fail(E.PortDead("the reader thread stopped", last_line=n, last_command=cmd,
+                                          port=self.port_name))
+
+    def _raise_failure(self) -> None:
+        if self._failure is not None:
+            raise self._failure
+        if self._reader is None:
+            raise E.PortDead("not connected: call connect() first", port=self.port_name)
+
+    # ---- writing (callers hold self._lock) ----------------------------------------------
+
+    def _write(self, data: bytes) -> None:
+        with self._wlock:
+            if self._wire is not None:
+                self._wire.write(">", data)
+            try:
+                self.port.write(data)
+            except Exception as exc:  # noqa: BLE001 - any port failure is a dead port
+                with self._lock:
+                    n, cmd = self._last_acked
+                    self._fail(E.PortDead(f"write failed: {exc}", last_line=n, last_command=cmd, port=self.port_name))
+                raise self._failure from exc
+
+    def _deadline(self, command: str, now: float) -> float:
+        own_s, _ = self._motion.line_time_s(command)
+        start = max(now, self._motion_end)  # a full planner delays any ok until queued motion runs out
+        self._motion_end = start + own_s
+        return self._motion_end + self.config.min_timeout_s
+
+    def _send_line(self, job: _Job | None, *, probe: bool = False, m110: bool = False) -> _Line:
+        now = time.monotonic()
+        n = self._next_n
+        self._next_n += 1
+        command = f"M118 E1 {PROBE_TAG} {n}" if probe else job.command
+        if job is not None:
+            job.line = n
+        if probe or m110:
+            deadline = max(now, self._motion_end) + self.config.min_timeout_s
+        else:
+            deadline = self._deadline(command, now)
+        line = _Line(n, command, frame(command, n), job, deadline, probe, m110, self.config.max_busy_s)
+        self._inflight.append(line)
+        self.stats["lines_sent"] += 1
+        self._write(line.data)
+        return line
+
+    def _pump(self, now: float) -> None:
+        while self._queue and not self._inflight and self._failure is None and self._pending_resend is None:
+            self._send_line(self._queue.popleft())
+
+    # ---- the reader ---------------------------------------------------------------------
+
+    def _run(self) -> None:
+        buffer = b""
+        port = self.port
+        while not self._stop.is_set():
+            try:
+                data = port.read(port.in_waiting or 1)
+            except Exception as exc:  # noqa: BLE001 - SerialException, OSError: the port is gone
+                if not self._stop.is_set():
+                    with self._lock:
+                        n, cmd = self._last_acked
+                        self._fail(E.PortDead(f"read failed: {exc}", last_line=n, last_command=cmd,
+                                              port=self.port_name))
+                return
+            now = time.monotonic()
+            with self._lock:
+                try:
+                    if data:
+                        if self._wire is not None:
+                            self._wire.write("<", data)
+                        buffer += data
+                        *complete, buffer = buffer.split(b"\n")
+                        for raw in complete:
+                            if self._failure is not None:
+                                break
+                            self._on_line(raw.decode("ascii", "replace").strip(), now)
+                    if self._failure is None:
+                        self._tick(now)
+                except E.MarlinError:
+                    pass  # recorded in self._failure; waiters were woken
+
+    def _on_line(self, text: str, now: float) -> None:
+        if not text:
+            return
+        reply = classify(text)
+        kind = reply.kind
+        head = self._inflight[0] if self._inflight else None
+        if kind is Kind.OK:
+            self._on_ok(reply, now)
+        elif kind is Kind.RESEND:
+            self._on_resend(reply.number, now)
+        elif kind is Kind.COMM_ERROR:
+            self._comm_errors += 1
+            self.stats["comm_errors"] += 1
+        elif kind in (Kind.HALTED, Kind.STOPPED):
+            self._fail_here(E.PrinterHalted, f"the printer said {text!r}")
+        elif kind is Kind.START:
+            if self._session:
+                self._fail_here(E.PrinterReset, "the printer sent 'start' (it rebooted)")
+            else:
+                self._booted = True
+                if head is not None and head.m110:  # booted under our M110: say it again
+                    self._pending_resend, self._resend_due = head.n, now
+        elif kind is Kind.BUSY:
+            self.stats["busy"] += 1
+            for line in self._inflight:
+                line.deadline = min(max(line.deadline, now + self.config.busy_extension_s), line.hard_deadline)
+        elif kind is Kind.PROBE_ECHO:
+            self._on_probe_echo(reply.number, now)
+        elif kind is Kind.WAIT:
+            pass
+        else:
+            if kind is Kind.ACTION:
+                self.actions.append(text)
+            if head is not None and head.job is not None:
+                head.job.replies.append(text)
+                if kind in (Kind.UNKNOWN_COMMAND, Kind.REJECTED):
+                    head.job.rejected = text
+            else:
+                self.unsolicited.append(text)
+
+    def _on_ok(self, reply, now: float) -> None:
+        if self._swallow_ok:  # old Marlin: `Resend: n` then `ok`; this ok acknowledges nothing
+            self._swallow_ok = False
+            self.stats["oks_swallowed"] += 1
+            return
+        if not self._inflight:
+            self.stats["stray_oks"] += 1
+            return
+        head = self._inflight[0]
+        if reply.number is not None:  # ADVANCED_OK names the line
+            if reply.number < head.n:
+                self.stats["stale_oks"] += 1
+                return
+            while self._inflight and self._inflight[0].n <= reply.number:
+                self._retire(self._inflight[0])
+        else:
+            self._retire(head)
+        self._pump(now)
+
+    def _retire(self, line: _Line) -> None:
+        self._inflight.remove(line)
+        self._probes_in_stall = 0
+        self._resend_counts.pop(line.n, None)
+        if not line.probe:
+            self._last_acked = (line.n, line.command)
+        if line.command.split(" ", 1)[0] in _SYNCHRONISING:  # its ok means the planner ran empty
+            self._motion_end = min(self._motion_end, time.monotonic())
+        job = line.job
+        if job is not None:
+            self._acked_jobs += 1
+            if job.rejected and job.batch is not None:
+                self._cancel_batch(job)
+            job.event.set()
+
+    def _cancel_batch(self, job: _Job) -> None:
+        rest = [j for j in self._queue if j.batch is job.batch]
+        self._queue = collections.deque(j for j in self._queue if j.batch is not job.batch)
+        for other in rest:
+            other.error = E.CommandRejected(f"not sent: N{job.line} {job.command!r} was refused ({job.rejected!r})",
+                                            last_line=job.line, last_command=job.command, port=self.port_name)
+            other.event.set()
+
+    def _on_resend(self, n: int, now: float) -> None:
+        self.stats["resend_requests"] += 1
+        if not self._inflight:
+            self.stats["stale_resends"] += 1
+            return
+        head = self._inflight[0]
+        if head.m110:
+            self._pending_resend, self._resend_due, self._swallow_ok = head.n, now + self.config.resend_grace_s, True
+            return
+        if n < head.n or n > self._inflight[-1].n:
+            self.stats["stale_resends"] += 1  # asks for an acknowledged line, or one not sent: nothing to replay
+            return
+        served_n, served_errors, served_at = self._served
+        if n == served_n and self._comm_errors == served_errors and now - served_at < self.config.duplicate_resend_s:
+            self.stats["duplicate_resends"] += 1
+            return
+        if self._pending_resend is not None and self._pending_resend <= n:
+            self.stats["duplicate_resends"] += 1
+            return
+        self._resend_counts[n] += 1
+        if self._resend_counts[n] > self.config.max_resends:
+            self._fail_here(E.ResendLoop, f"line N{n} was asked for {self._resend_counts[n]} times")
+            return
+        self._pending_resend, self._resend_due, self._swallow_ok = n, now + self.config.resend_grace_s, True
+        self._served = (n, self._comm_errors, now)
+
+    def _on_probe_echo(self, k: int, now: float) -> None:
+        probe = next((line for line in self._inflight if line.n == k and line.probe), None)
+        if probe is None:
+            self.stats["stale_probe_echoes"] += 1
+            return
+        self.stats["oks_recovered"] += sum(1 for line in self._inflight if line.n < k)
+        for line in [line for line in self._inflight if line.n < k]:
+            self._retire(line)  # the firmware ran the probe, so it ran every line before it
+        probe.echoed = True
+        probe.deadline = now + self.config.min_timeout_s
+
+    def _tick(self, now: float) -> None:
+        if self._pending_resend is not None and now >= self._resend_due:
+            n = self._pending_resend
+            self._pending_resend = None
+            self._swallow_ok = False
+            for line in self._inflight:
+                if line.n >= n or line.m110:
+                    self.stats["lines_resent"] += 1
+                    line.deadline = max(line.deadline, now + self.config.min_timeout_s)
+                    self._write(line.data)
+            self._served = (n, self._comm_errors, now)
+        if not self._inflight:
+            self._pump(now)
+            return
+        head = self._inflight[0]
+        if now < head.deadline or self._pending_resend is not None:
+            return
+        if head.probe and head.echoed:  # the probe ran; its own ok was lost
+            self.stats["oks_recovered"] += 1
+            self._retire(head)
+            self._pump(now)
+            return
+        if head.m110:  # M110 is idempotent: say it again
+            self._resend_counts[head.n] += 1
+            if self._resend_counts[head.n] > self.config.probe_attempts:
+                self._fail_here(E.NoAnswer, f"no answer to {head.command!r} within {self.config.min_timeout_s:g} s, "
+                                            f"{self.config.probe_attempts} times")
+                return
+            head.deadline = now + self.config.min_timeout_s
+            self._write(head.data)
+            return
+        if self._probes_in_stall >= self.config.probe_attempts:
+            self._fail_here(E.NoAnswer, f"no ok for N{head.n} {head.command!r} and no answer to "
+                                        f"{self._probes_in_stall} probes")
+            return
+        self._probes_in_stall += 1
+        self.stats["probes"] += 1
+        probe = self._send_line(None, probe=True)
+        for line in self._inflight:
+            line.deadline = max(line.deadline, probe.deadline)
+
+    # ---- failure --------------------------------------------------------------------------
+
+    def _fail_here(self, kind: type[E.MarlinError], detail: str) -> None:
+        n, cmd = self._last_acked
+        self._fail(kind(detail, last_line=n, last_command=cmd, port=self.port_name))
+
+    def _fail(self, error: E.MarlinError) -> None:
+        if self._failure is None:
+            self._failure = error
+        self._fail_jobs(self._failure)
+
+    def _fail_jobs(self, error: E.MarlinError) -> None:
+        jobs = [line.job for line in self._inflight if line.job is not None] + list(self._queue)
+        self._queue.clear()
+        self._inflight.clear()
+        for job in jobs:
+            if job.error is None:
+                job.error = error
+            job.event.set()
+
+
+_SYNCHRONISING = frozenset({"G28", "G4", "M400", "G29"})
+
+
+def _clean(command: str) -> str:
+    """Drop a comment and surrounding blanks; refuse framing the driver adds itself."""
+    text = command.split(";", 1)[0].strip()
+    if "\n" in text or "\r" in text:
+        raise ValueError(f"one command per call, got {command!r}")
+    parsed = parse_line(text) if text else None
+    if parsed is not None and (parsed.line_number is not None or parsed.checksum is not None):
+        raise ValueError(f"send commands without N.. or *.. framing (the driver adds it), got {command!r}")
+    return text

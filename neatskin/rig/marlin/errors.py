@@ -1,0 +1,65 @@
+"""The driver's failures, each a HardwareError that names the last line the printer acknowledged.
+
+After any of these the driver sends nothing more (but an M112 if asked): the probe's state is
+unknown, and a campaign must stop, re-home and resume from its own records.
+"""
+
+from __future__ import annotations
+
+from neatskin.errors import HardwareError
+
+
+class MarlinError(HardwareError):
+    """A failure on the Marlin line. `last_line` / `last_command`: the last line acknowledged."""
+
+    what = "the printer failed"
+    fix = "check the printer and its cable, reset it, home it (G28) and resume the campaign"
+
+    def __init__(self, detail: str, *, last_line: int | None = None, last_command: str | None = None,
+                 port: str | None = None) -> None:
+        self.detail = detail
+        self.last_line = last_line
+        self.last_command = last_command
+        self.port = port
+        where = f" on {port}" if port else ""
+        if last_line is None:
+            confirmed = "no line of this session was acknowledged"
+        else:
+            confirmed = f"the last line acknowledged was N{last_line} {last_command!r}"
+        super().__init__(f"{self.what}{where}: {detail}; {confirmed}; the probe's state is unknown and "
+                         f"nothing more was sent (fix: {self.fix})")
+
+
+class PrinterHalted(MarlinError):
+    what = "the printer halted"
+    fix = "read the printer's error, clear its cause, reset the printer (or M999 after a Stop), home (G28) and resume"
+
+
+class PrinterReset(MarlinError):
+    what = "the printer reset in mid-session"
+    fix = "the printer rebooted (power, USB or watchdog); call reconnect(), home (G28) and resume the campaign"
+
+
+class PortDead(MarlinError):
+    what = "the serial port died"
+    fix = "check the USB cable and the port name, then reconnect"
+
+
+class NoAnswer(MarlinError):
+    what = "the printer does not answer"
+    fix = "check that the port is the printer's, the baud rate matches the firmware, and the printer is powered"
+
+
+class ResendLoop(MarlinError):
+    what = "the line is too noisy"
+    fix = "the printer asked for the same line again and again: check the cable, lower the baud rate or add a ferrite"
+
+
+class CommandRejected(MarlinError):
+    what = "the printer refused a command"
+    fix = "correct the G-code (home with G28 before moving; use commands this firmware knows)"
+
+
+class EmergencyStopped(MarlinError):
+    what = "emergency stop (M112) was sent"
+    fix = "reset the printer, home (G28) and resume"
