@@ -91,3 +91,31 @@ def test_calibrate_prints_a_calibration_table(capsys):
     assert main(["gcode", "calibrate", "--point", "0,0,95,95,5.5", "--point", "30,0,95,125,5.5"]) == 0
     out = capsys.readouterr().out
     assert "offset_x_mm = 95.000" in out and "rotation_deg = 90.0000" in out and "rms 0.000 mm" in out
+
+
+def test_check_flags_a_phase_without_m400_and_g92(protocols_dir, tmp_path, capsys):
+    out = tmp_path / "p.gcode"
+    assert main(["gcode", "generate", str(protocols_dir / "smoke.toml"), "-o", str(out)]) == 0
+    text = out.read_text()
+    # drop the M400 that ends press 3's descend phase
+    head, tail = text.split("M118 E1 NS press=3 phase=descend\n", 1)
+    tail = tail.replace("M400\n", "", 1)
+    out.write_text(head + "M118 E1 NS press=3 phase=descend\n" + tail)
+    capsys.readouterr()
+    assert main(["gcode", "check", str(out), "--profile", str(protocols_dir / "printers" / "paper.toml")]) == 1
+    assert "phase 'press=3 phase=descend' does not end in M400" in capsys.readouterr().err
+    out.write_text("G28\nG92 X0\nG1 X10\n")
+    assert main(["gcode", "check", str(out), "--profile", str(protocols_dir / "printers" / "paper.toml")]) == 1
+    assert "redefines the coordinate system" in capsys.readouterr().err
+
+
+def test_generate_writes_positions_csv(protocols_dir, tmp_path):
+    import pandas as pd
+
+    csv = tmp_path / "positions.csv"
+    assert main(["gcode", "generate", str(protocols_dir / "smoke.toml"), "-o", str(tmp_path / "s.gcode"),
+                 "--positions", str(csv)]) == 0
+    table = pd.read_csv(csv)
+    assert list(table.columns) == ["position_id", "x_mm", "y_mm", "feature"]
+    assert table["position_id"].tolist() == list(range(6))
+    assert table["feature"].str.split(":").str[0].value_counts().to_dict() == {"channel": 3, "face": 3}

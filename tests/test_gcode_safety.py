@@ -138,3 +138,27 @@ def test_safe_names_pass(paper_layout, positions, profile):
     # every non-comment line of the text is a command the program built
     commands = [ln for ln in prog.text().splitlines() if not ln.startswith(";")]
     assert commands == list(prog.command_lines())
+
+
+from hypothesis import given, settings, strategies as st
+
+from neatskin.gcode.bounds import check_moves, check_phases
+from neatskin.gcode.parse import parse_program
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(-60, 260), st.floats(-60, 260), st.floats(-180, 180), st.floats(0, 12), st.floats(0.1, 6))
+def test_either_refused_before_text_or_every_move_in_bounds(paper_layout, profile, ox, oy, rot, z, depth):
+    """Property: a program that builds never moves outside the bed or soft limits; one that does not, fails
+    with a ConfigError before its text exists."""
+    positions = generate_positions(paper_layout, PositionSpec("paper", 8, 1))
+    try:
+        shifted = profile.with_calibration(Calibration(ox, oy, rot, z))
+        prog = build_program(paper_layout, positions, PressSpec(depth_mm=depth, repeats=1), shifted)
+    except ConfigError as exc:
+        assert exc.problems
+        return
+    lines = parse_program(prog.text())
+    assert check_moves(shifted, lines) == []
+    assert check_phases(lines) == []
+    assert depth <= paper_layout.thickness_mm - 0.5

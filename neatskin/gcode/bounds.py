@@ -92,6 +92,9 @@ def check_moves(profile: PrinterProfile, lines, source: str = "<program>") -> li
             relative = code == "G91"
         elif code == "G28":
             pos = [profile.soft_min_mm.x, profile.soft_min_mm.y, profile.soft_min_mm.z]
+        elif code == "G92":
+            problems.append(Problem(f"{line.raw.strip()!r} redefines the coordinate system", source, f"command {n}",
+                                    "remove G92: press programs rely on homed machine coordinates"))
         elif code in ("G0", "G1"):
             for k, letter in enumerate("XYZ"):
                 value = line.get(letter)
@@ -112,6 +115,35 @@ def check_moves(profile: PrinterProfile, lines, source: str = "<program>") -> li
             if f is not None and f / 60.0 > fmax:
                 problems.append(Problem(f"feed F{f:g} ({f / 60:g} mm/s) exceeds every axis maximum", source,
                                         f"command {n}", f"use F <= {fmax * 60:g}"))
+        if len(problems) > _MAX_LISTED:
+            break
+    return problems
+
+
+def check_phases(lines, source: str = "<program>") -> list[Problem]:
+    """Problems with the marked phases: every `NS press=<id> phase=<name>` marker must be followed by
+    commands ending in M400 before the next marker, phases in order travel, descend, press, lift."""
+    from neatskin.gcode.program import PHASES
+
+    problems: list[Problem] = []
+    expected = 0
+    previous = None  # (command number, marker text)
+    last_code = None
+    for n, line in enumerate(lines, start=1):
+        is_marker = line.code == "M118" and line.text.startswith("NS ")
+        if is_marker:
+            if previous is not None and last_code != "M400":
+                problems.append(Problem(f"phase '{previous[1]}' does not end in M400", source, f"command {previous[0]}",
+                                        "end every marked phase with M400 so acquisition lines up with motion"))
+            fields = dict(part.split("=", 1) for part in line.text[3:].split() if "=" in part)
+            if "phase" in fields:
+                if fields["phase"] != PHASES[expected % len(PHASES)]:
+                    problems.append(Problem(f"phase '{fields['phase']}' where '{PHASES[expected % len(PHASES)]}' "
+                                            "was expected", source, f"command {n}",
+                                            "regenerate the program; phases run travel, descend, press, lift"))
+                expected += 1
+            previous = (n, line.text[3:])
+        last_code = line.code
         if len(problems) > _MAX_LISTED:
             break
     return problems

@@ -20,6 +20,8 @@ def register(subparsers) -> None:
     gen.add_argument("-o", "--output", type=Path, required=True, help="G-code file to write")
     gen.add_argument("--no-hold", action="store_true",
                      help="leave out the G4 hold (the runner's acquisition is the hold)")
+    gen.add_argument("--positions", type=Path, metavar="FILE.csv",
+                     help="also write the positions (position_id, x_mm, y_mm, feature; sensor frame) as CSV")
     gen.set_defaults(handler=_generate)
 
     chk = sub.add_parser("check", help="parse a G-code file; with a profile, check bounds and estimate its time")
@@ -44,6 +46,11 @@ def _generate(args: argparse.Namespace) -> int:
     tmp = args.output.with_name(args.output.name + ".tmp")
     tmp.write_text(text, encoding="ascii")
     tmp.replace(args.output)
+    if args.positions is not None:
+        ps = program.positions
+        rows = ["position_id,x_mm,y_mm,feature"] + [f"{i},{x:.3f},{y:.3f},{f}" for i, x, y, f in
+                                                     zip(ps.ids, ps.x_mm, ps.y_mm, ps.features)]
+        args.positions.write_text("\n".join(rows) + "\n", encoding="utf-8")
     estimate = estimate_program_time(program.command_lines(), profile)
     print(f"wrote {args.output}: {len(program.positions)} positions, {len(program.presses)} presses, "
           f"{text.count(chr(10))} lines")
@@ -58,7 +65,7 @@ def _generate(args: argparse.Namespace) -> int:
 
 def _check(args: argparse.Namespace) -> int:
     from neatskin.errors import ConfigError
-    from neatskin.gcode.bounds import check_moves
+    from neatskin.gcode.bounds import check_moves, check_phases
     from neatskin.gcode.motion import estimate_program_time
     from neatskin.gcode.parse import parse_program
     from neatskin.gcode.profile import load_printer_profile
@@ -76,18 +83,22 @@ def _check(args: argparse.Namespace) -> int:
     print(f"{args.file}: {len(lines)} commands, {presses} presses, "
           + ", ".join(f"{code} x{n}" for code, n in sorted(codes.items())))
     if args.profile is None:
+        problems = check_phases(lines, source=str(args.file))
+        for problem in problems:
+            print(f"refused: {problem}", file=sys.stderr)
         print("no --profile given: bounds and time not checked")
-        return 0
+        return 1 if problems else 0
     profile = load_printer_profile(args.profile)
-    problems = check_moves(profile, lines, source=str(args.file))
+    problems = check_moves(profile, lines, source=str(args.file)) + check_phases(lines, source=str(args.file))
     estimate = estimate_program_time(lines, profile)
     print(f"estimated printer time on {profile.name}: {_hms(estimate.total_s)} ({estimate.moves} moves, "
           f"{estimate.path_mm / 1000:.1f} m of path)")
     if problems:
         for problem in problems:
-            print(f"out of bounds: {problem}", file=sys.stderr)
+            print(f"refused: {problem}", file=sys.stderr)
         return 1
-    print("bounds: every move inside the bed and the soft limits, feeds within the maxima")
+    print("bounds: every move inside the bed and the soft limits, feeds within the maxima; "
+          "every marked phase ends in M400")
     return 0
 
 

@@ -133,6 +133,11 @@ class MotionClock:
             return profile.homing_time_s
         if code in ("G90", "G91"):
             self.relative = code == "G91"
+        elif code == "G92":
+            for k, letter in enumerate("XYZ"):
+                value = line.get(letter)
+                if value is not None:
+                    self.pos[k] = value
         return 0.0
 
     def estimate(self) -> TimeEstimate:
@@ -141,7 +146,7 @@ class MotionClock:
 
 def estimate_program_time(lines: Iterable[GcodeLine | str], profile: PrinterProfile,
                           start_mm: tuple[float, float, float] | None = None) -> TimeEstimate:
-    """Estimate a program's run time: G0/G1 (G90/G91, modal F in mm/min), G4 P/S dwells, G28 homing."""
+    """Estimate a program's run time: G0/G1 (G90/G91, G92, modal F in mm/min), G4 P/S dwells, G28 homing."""
     clock = MotionClock(profile, start_mm)
     for line in lines:
         clock.step(line)
