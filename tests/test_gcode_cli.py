@@ -28,10 +28,11 @@ def test_protocol_problems_reported_together(protocols_dir):
     data["positions"]["strategy"] = "spiral"
     data["positions"]["cuont"] = 5
     data["press"]["repeats"] = 0
+    del data["press"]["depth_mm"]
     with pytest.raises(ConfigError) as info:
         press_spec_from_dict(data, "p.toml")
     assert {p.field for p in info.value.problems} == {"campaign.seed", "files.printer", "positions.strategy",
-                                                      "positions.cuont", "press.repeats"}
+                                                      "positions.cuont", "press.repeats", "press.depth_mm"}
     assert all(p.file == "p.toml" for p in info.value.problems)
 
 

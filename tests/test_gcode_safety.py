@@ -125,7 +125,7 @@ def test_injection_through_the_protocol_file_refused(paper_layout, positions, pr
     from neatskin.gcode.spec import build_from_spec
 
     data = {"campaign": {"name": name, "seed": 1}, "files": {"layout": "a.toml", "printer": "b.toml"},
-            "positions": {"strategy": "paper", "count": 3}, "press": {"depth_mm": 3.5}}
+            "positions": {"strategy": "paper", "count": 3}, "press": {"depth_mm": 3.5, "repeats": 1}}
     spec = press_spec_from_dict(data, "proto.toml")
     with pytest.raises(ConfigError) as info:
         build_from_spec(spec, layout=paper_layout, profile=profile)

@@ -71,6 +71,12 @@ def press_spec_from_dict(data: dict, source: str = "<memory>", base_dir: str | P
         for key in sorted(set(tab) - known):
             problems.append(Problem(f"unknown key '{key}'", source, f"{tname}.{key}",
                                     f"remove it or use one of: {', '.join(sorted(known))}"))
+    for tname, tab, key, fix in (("positions", positions, "strategy", 'set strategy = "paper", "stratified" or "grid"'),
+                                 ("positions", positions, "count", "set count to the number of distinct positions"),
+                                 ("press", press, "depth_mm", "set depth_mm (below the skin's top surface; 3.5 in the paper)"),
+                                 ("press", press, "repeats", "set repeats (presses per position; 28 in the paper)")):
+        if tab and key not in tab:
+            problems.append(Problem(f"missing '{key}'", source, f"{tname}.{key}", fix))
     pos_spec = press_spec = None
     try:
         kwargs = {k: v for k, v in positions.items() if k in POSITION_KEYS}
