@@ -1,0 +1,90 @@
+"""The `neatskin skin` command group: sensitivity maps of a skin layout as PNG and parquet."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+DEFAULT_LAYOUT = "protocols/skins/paper.toml"
+
+
+def register(subparsers) -> None:
+    skin = subparsers.add_parser("skin", help="the simulated skin: sensitivity maps",
+                                 description="The simulated skin: network solver and deformation model.")
+    commands = skin.add_subparsers(dest="skin_command", metavar="SKIN_COMMAND", required=True)
+    maps = commands.add_parser(
+        "maps", help="sensitivity maps (paper Fig. 3 and 5, and the dense deformation-model maps)",
+        description="Write the paper's simulated sensitivity maps (each channel +50 %% in turn) and the same "
+                    "maps from the deformation model on a dense grid of presses, as PNG and parquet.")
+    maps.add_argument("--layout", default=DEFAULT_LAYOUT, help=f"skin layout TOML (default {DEFAULT_LAYOUT})")
+    maps.add_argument("--out", default="out/skin-maps", help="output folder (created; default out/skin-maps)")
+    maps.add_argument("--grid-step-mm", type=float, default=0.25, help="press grid step for the dense maps")
+    maps.add_argument("--depth-mm", type=float, default=3.5, help="press depth (paper: 3.5 mm)")
+    maps.add_argument("--probe-radius-mm", type=float, default=2.75, help="flat probe radius (paper: 2.75 mm)")
+    maps.add_argument("--fidelity", choices=("deformation", "network"), default="deformation",
+                      help="skin model for the dense maps")
+    maps.add_argument("--no-progress", action="store_true", help="no progress bar")
+    maps.set_defaults(handler=maps_handler)
+
+
+def maps_handler(args: argparse.Namespace) -> int:
+    from neatskin.errors import ConfigError
+    from neatskin.layout import load_layout
+
+    for name in ("grid_step_mm", "depth_mm", "probe_radius_mm"):
+        value = getattr(args, name)
+        if not value > 0:
+            flag = "--" + name.replace("_", "-")
+            raise ConfigError(f"{flag} must be > 0, got {value}", field=flag, fix=f"pass a positive {flag}")
+    layout = load_layout(args.layout)
+    written = write_maps(layout, Path(args.out), grid_step_mm=args.grid_step_mm, depth_mm=args.depth_mm,
+                         probe_radius_mm=args.probe_radius_mm, fidelity=args.fidelity,
+                         show_progress=not args.no_progress)
+    for path in written:
+        print(path)
+    return 0
+
+
+def write_maps(layout, out_dir: Path, grid_step_mm: float = 0.25, depth_mm: float = 3.5,
+               probe_radius_mm: float = 2.75, fidelity: str = "deformation",
+               show_progress: bool = True) -> list[Path]:
+    """Compute both kinds of map and write the PNGs and one parquet file; returns the paths written."""
+    import json
+
+    import pandas as pd
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from tqdm import tqdm
+
+    from neatskin import __version__
+    from neatskin.rig.skin.maps import deformation_sensitivity, grid_positions_mm, paper_sensitivity
+    from neatskin.rig.skin.model import SkinModel
+    from neatskin.rig.skin.plots import plot_pairs, plot_z
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    reps = layout.pair_class_representatives()
+    paper = paper_sensitivity(layout)
+    model = SkinModel(layout, fidelity=fidelity, probe_radius_mm=probe_radius_mm)
+    x, y = grid_positions_mm(layout, grid_step_mm)
+    with tqdm(total=x.size, desc="dense map", unit="press", disable=not show_progress) as bar:
+        dense = deformation_sensitivity(model, x, y, depth_mm, progress=bar.update)
+    label = f"{fidelity} model, {depth_mm:g} mm press, {2 * probe_radius_mm:g} mm probe"
+    written = [
+        plot_z(layout, paper, out_dir / "paper_z.png", "paper simulation: each channel +50 % (Fig. 3)"),
+        plot_pairs(layout, paper, reps, out_dir / "paper_pairs.png", "paper simulation, per pair (Fig. 5)"),
+        plot_z(layout, dense, out_dir / f"{fidelity}_z.png", f"max dR_eq over S\n{label}"),
+        plot_pairs(layout, dense, reps, out_dir / f"{fidelity}_pairs.png", f"per pair: {label}"),
+    ]
+    frame = pd.concat([paper.to_frame(), dense.to_frame()], ignore_index=True)
+    table = pa.Table.from_pandas(frame, preserve_index=False)
+    meta = {"neatskin.layout": layout.source, "neatskin.layout_name": layout.name,
+            "neatskin.software_version": __version__, "neatskin.depth_mm": str(depth_mm),
+            "neatskin.probe_radius_mm": str(probe_radius_mm), "neatskin.grid_step_mm": str(grid_step_mm),
+            "neatskin.fidelity": fidelity,
+            "neatskin.pairs": json.dumps([p.label for p in layout.pairs])}
+    table = table.replace_schema_metadata({**(table.schema.metadata or {}), **{k.encode(): v.encode()
+                                                                                 for k, v in meta.items()}})
+    data_path = out_dir / "sensitivity_maps.parquet"
+    pq.write_table(table, data_path)
+    written.append(data_path)
+    return written

@@ -1,0 +1,102 @@
+"""Sensitivity-map figures as PNG (paper Fig. 3 and Fig. 5 style): normalised dR_eq in [-1, 1],
+channel boundaries dashed, electrodes numbered. Matplotlib with the Agg backend; no screen needed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from neatskin.layout import ElectrodePair, Layout
+from neatskin.rig.skin.maps import SensitivityMap
+
+_CMAP = "RdBu_r"
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def draw_layout(ax, layout: Layout) -> None:
+    """Channel walls as dashed lines (each channel's two sides, width apart), electrode numbers."""
+    xy = layout.xy_mm
+    for ch in layout.channels:
+        a, b = xy[ch.a], xy[ch.b]
+        unit = (b - a) / np.hypot(*(b - a))
+        normal = np.array([-unit[1], unit[0]]) * ch.width_mm / 2
+        for side in (normal, -normal):
+            ax.plot([a[0] + side[0], b[0] + side[0]], [a[1] + side[1], b[1] + side[1]],
+                    ls="--", lw=0.8, color="k")
+    for e in layout.electrodes:
+        jx, jy = xy[e.junction]
+        ax.annotate(str(e.number), (jx, jy), xytext=(0, 0), textcoords="offset points", ha="center",
+                    va="center", fontsize=8, fontweight="bold",
+                    bbox=dict(boxstyle="circle,pad=0.2", fc="gold", ec="k", lw=0.6))
+
+
+def _field_on_grid(layout: Layout, smap: SensitivityMap, values: np.ndarray, step_mm: float):
+    """Values on a regular grid: the map's own grid if it is one, else interpolated from its points."""
+    xs, ys = np.unique(smap.x_mm), np.unique(smap.y_mm)
+    if xs.size * ys.size == smap.x_mm.size and xs.size > 3:
+        order = np.lexsort((smap.x_mm, smap.y_mm))
+        return xs, ys, values[order].reshape(ys.size, xs.size)
+    from scipy.interpolate import griddata
+
+    x0, y0, x1, y1 = layout.bounds_mm
+    gx, gy = np.meshgrid(np.arange(x0, x1 + step_mm / 2, step_mm), np.arange(y0, y1 + step_mm / 2, step_mm))
+    pts = np.column_stack([smap.x_mm, smap.y_mm])
+    field = griddata(pts, values, (gx, gy), method="linear")
+    nearest = griddata(pts, values, (gx, gy), method="nearest")
+    field = np.where(np.isnan(field), nearest, field)
+    return gx[0], gy[:, 0], field
+
+
+def _panel(ax, layout: Layout, smap: SensitivityMap, values: np.ndarray, title: str, step_mm: float):
+    xs, ys, field = _field_on_grid(layout, smap, values, step_mm)
+    mesh = ax.pcolormesh(xs, ys, field, cmap=_CMAP, vmin=-1, vmax=1, shading="nearest")
+    if smap.x_mm.size < 200:  # the paper's simulated presses: black dots
+        ax.plot(smap.x_mm, smap.y_mm, "k.", ms=5)
+    draw_layout(ax, layout)
+    ax.set_title(title, fontsize=9)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    return mesh
+
+
+def plot_z(layout: Layout, smap: SensitivityMap, path: str | Path, title: str, step_mm: float = 0.25) -> Path:
+    """One map of z (paper eq. 2, Fig. 3) to a PNG file."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5.4, 4.6), dpi=120, layout="constrained")
+    mesh = _panel(ax, layout, smap, smap.z, title, step_mm)
+    fig.colorbar(mesh, ax=ax, label="normalised max dR_eq over S")
+    path = Path(path)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def plot_pairs(layout: Layout, smap: SensitivityMap, pairs: tuple[ElectrodePair, ...], path: str | Path,
+               title: str, step_mm: float = 0.25) -> Path:
+    """One panel per pair (paper Fig. 5: the symmetry class representatives), each normalised to [-1, 1]."""
+    plt = _pyplot()
+    cols = min(3, len(pairs))
+    rows = -(-len(pairs) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 3.3 * rows), dpi=110, squeeze=False,
+                             layout="constrained")
+    mesh = None
+    for ax, pair in zip(axes.flat, pairs):
+        mesh = _panel(ax, layout, smap, smap.pair_normalised(pair), f"pair {pair}", step_mm)
+    for ax in list(axes.flat)[len(pairs):]:
+        ax.axis("off")
+    fig.suptitle(title, fontsize=10)
+    fig.colorbar(mesh, ax=axes, shrink=0.8, label="normalised dR_eq")
+    path = Path(path)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
