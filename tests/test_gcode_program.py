@@ -1,7 +1,6 @@
 """Press programs: structure, markers, holds, order, determinism and the emit -> parse round trip."""
 
 from collections import Counter
-from dataclasses import replace
 
 import numpy as np
 import pytest

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from neatskin.errors import ConfigError, Problem
@@ -58,8 +58,7 @@ class PrinterProfile:
             raise ConfigError(problems=problems)
 
     def with_calibration(self, calibration: Calibration) -> "PrinterProfile":
-        from dataclasses import replace
-
+        """The same printer with a refitted calibration (checked again against the z limits)."""
         return replace(self, calibration=calibration)
 
 
@@ -115,7 +114,7 @@ def printer_profile_from_dict(data: dict, source: str = "<memory>") -> PrinterPr
     soft_min = Axes(*(number(soft, "soft_limits", f"min_{a}_mm", positive=False) for a in "xyz"))
     soft_max = Axes(*(number(soft, "soft_limits", f"max_{a}_mm", positive=False) for a in "xyz"))
     values = dict(
-        name=str(printer.get("name", path_stem(source))),
+        name=str(printer.get("name", Path(source).stem)),
         bed_x_mm=number(bed, "bed", "size_x_mm"),
         bed_y_mm=number(bed, "bed", "size_y_mm"),
         soft_min_mm=soft_min,
@@ -145,10 +144,6 @@ def printer_profile_from_dict(data: dict, source: str = "<memory>") -> PrinterPr
         raise ConfigError(problems=problems)
     values["calibration"] = Calibration(**cal_values)
     return PrinterProfile(**values)
-
-
-def path_stem(source: str) -> str:
-    return Path(source).stem
 
 
 def _check(p: PrinterProfile) -> list[Problem]:
