@@ -120,3 +120,16 @@ def test_generate_writes_positions_csv(protocols_dir, tmp_path):
     assert list(table.columns) == ["position_id", "x_mm", "y_mm", "feature"]
     assert table["position_id"].tolist() == list(range(6))
     assert table["feature"].str.split(":").str[0].value_counts().to_dict() == {"channel": 3, "face": 3}
+
+
+def test_generate_draws_the_positions_png(protocols_dir, tmp_path):
+    import matplotlib.image as mpimg
+
+    png = tmp_path / "positions.png"
+    assert main(["gcode", "generate", str(protocols_dir / "smoke.toml"), "-o", str(tmp_path / "s.gcode"),
+                 "--plot", str(png)]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    image = mpimg.imread(png)
+    assert image.shape[:2] == (720, 768)  # 6.4 x 6.0 in at 120 dpi
+    red = (image[..., 0] > 0.75) & (image[..., 1] < 0.3) & (image[..., 2] < 0.3)
+    assert red.sum() > 50  # the channel positions are drawn

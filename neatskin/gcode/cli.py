@@ -22,6 +22,7 @@ def register(subparsers) -> None:
                      help="leave out the G4 hold (the runner's acquisition is the hold)")
     gen.add_argument("--positions", type=Path, metavar="FILE.csv",
                      help="also write the positions (position_id, x_mm, y_mm, feature; sensor frame) as CSV")
+    gen.add_argument("--plot", type=Path, metavar="FILE.png", help="also draw the positions on the layout as PNG")
     gen.set_defaults(handler=_generate)
 
     chk = sub.add_parser("check", help="parse a G-code file; with a profile, check bounds and estimate its time")
@@ -51,6 +52,13 @@ def _generate(args: argparse.Namespace) -> int:
         rows = ["position_id,x_mm,y_mm,feature"] + [f"{i},{x:.3f},{y:.3f},{f}" for i, x, y, f in
                                                      zip(ps.ids, ps.x_mm, ps.y_mm, ps.features)]
         args.positions.write_text("\n".join(rows) + "\n", encoding="utf-8")
+    if args.plot is not None:
+        from neatskin.gcode.plot import plot_positions
+
+        visits = [b.position_id for b in program.presses]
+        route = [p for k, p in enumerate(visits) if k == 0 or p != visits[k - 1]]
+        plot_positions(layout, program.positions, args.plot, route=route if program.route_unordered_mm else None,
+                       title=f"{program.name}: {len(program.positions)} positions, seed {program.seed}")
     estimate = estimate_program_time(program.command_lines(), profile)
     print(f"wrote {args.output}: {len(program.positions)} positions, {len(program.presses)} presses, "
           f"{text.count(chr(10))} lines")
