@@ -116,3 +116,24 @@ def test_travel_ordering_shortens_the_route(paper_layout, profile):
     assert ordered.route_mm < 0.4 * plain.route_mm  # paper seed: 1783 mm in generated order, 251 mm ordered
     assert sorted(b.position_id for b in ordered.presses) == list(range(100))
     assert "; travel ordering: route" in ordered.text()
+
+
+@pytest.mark.parametrize("first", [0, 7, 29])
+def test_sideways_moves_only_at_safe_height_even_when_resuming(paper_layout, positions, profile, first):
+    """The probe never moves sideways below the safe height (it would drag over the skin and its fittings),
+    also when a resumed campaign sends the preamble and then starts at press `first`."""
+    prog = build(paper_layout, positions, profile, repeats=3, order="shuffled")
+    lines = list(prog.preamble) + [ln for b in prog.presses[first:] for ph in b.phases for ln in ph.lines] \
+        + list(prog.postamble)
+    safe_z = profile.calibration.surface_z_mm + profile.safe_height_mm
+    z = None  # unknown until homed
+    sideways = 0
+    for parsed in parse_program("\n".join(lines)):
+        if parsed.code == "G28":
+            z = 0.0
+        elif parsed.code in ("G0", "G1"):
+            if "X" in parsed.params or "Y" in parsed.params:
+                assert z is not None and z >= safe_z, parsed.raw
+                sideways += 1
+            z = parsed.params.get("Z", z)
+    assert sideways == len(prog.presses) - first + 1
