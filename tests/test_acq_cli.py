@@ -1,0 +1,46 @@
+"""`neatskin mux table`: the technician's switching table."""
+
+from pathlib import Path
+
+from neatskin.cli import main
+
+REPO = Path(__file__).resolve().parent.parent
+PAPER = REPO / "protocols" / "wiring" / "paper.toml"
+
+
+def test_mux_table_paper(capsys):
+    assert main(["mux", "table", str(PAPER)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    rows = [line for line in out if line[:4].strip().isdigit()]
+    assert len(rows) == 28
+    assert rows[0].split() == ["0", "1-2", "U1", "0", "1", "2", "0", "0", "0", "1", "1", "1", "1", "1", "1",
+                               "[2,", "22)", "[22,", "122)", "2.2"]
+    assert rows[27].split()[:15] == ["27", "7-8", "U7", "3", "7", "8", "1", "1", "1", "1", "1", "1", "1", "1", "0"]
+    assert "U7.INH=port0/line8" in out[1]
+    assert out[-1] == ("sweep: 3416 samples = 341.6 ms at 10000 Hz (28 x (2 break + 20 settle + 100 live)); "
+                       "98 line edges per sweep (pairs order)")
+
+
+def test_mux_table_options_and_gray_order(capsys):
+    assert main(["mux", "table", str(PAPER), "--rate-hz", "20000", "--live-samples", "40", "--settle-samples", "10",
+                 "--order", "gray"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    rows = [line.split() for line in out if line[:4].strip().isdigit()]
+    assert [r[1] for r in rows[:5]] == ["1-2", "1-3", "1-5", "1-4", "1-8"]
+    assert out[-1].startswith("sweep: 1456 samples = 72.8 ms at 20000 Hz") and out[-1].endswith("78 line edges per sweep (gray order)")
+
+
+def test_mux_table_layout_option_and_errors(tmp_path, capsys):
+    text = PAPER.read_text().replace('layout = "../skins/paper.toml"', "")
+    no_layout = tmp_path / "board.toml"
+    no_layout.write_text(text)
+    assert main(["mux", "table", str(no_layout)]) == 2
+    assert "names no layout" in capsys.readouterr().err
+    assert main(["mux", "table", str(no_layout), "--layout", str(REPO / "protocols" / "skins" / "paper.toml")]) == 0
+    capsys.readouterr()
+    no_layout.write_text(text.replace("X3 = 7, Y3 = 8", "X3 = 7, Y3 = 7"))
+    assert main(["mux", "table", str(no_layout), "--layout", str(REPO / "protocols" / "skins" / "paper.toml")]) == 2
+    err = capsys.readouterr().err
+    assert "pair with both ends on electrode 7" in err and "pair 7-8 of S is not routed" in err
+    assert main(["mux", "table", str(PAPER), "--break-samples", "1"]) == 2
+    assert "break_samples must be an integer >= 2" in capsys.readouterr().err
