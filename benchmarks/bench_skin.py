@@ -1,0 +1,130 @@
+"""Skin simulator benchmark: presses per second and accuracy, measured side by side in one run.
+
+    python benchmarks/bench_skin.py [--presses 100000] [--repeats 5]
+
+Prints (1) the batched GTH solve against a per-press numpy.linalg.pinv loop on the paper's
+layout, (2) the same on a 30 x 30 grid (sparse path), (3) the whole press -> R_eq pipeline at
+deformation and network fidelity (target: >= 100,000 presses/s for the paper's layout at
+deformation fidelity on one core), (4) the deformation integral's error against run time over
+quadrature resolutions. Runs on one core: BLAS/OpenMP threads are pinned to 1 before numpy loads.
+Times are the best of --repeats runs (the machine may be shared).
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+import argparse  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from neatskin.layout import load_layout  # noqa: E402
+from neatskin.rig.skin.deformation import PinchParams, resistance_factor  # noqa: E402
+from neatskin.rig.skin.layouts import grid_layout  # noqa: E402
+from neatskin.rig.skin.model import SkinModel  # noqa: E402
+from neatskin.rig.skin.network import equivalent_resistance  # noqa: E402
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def best_time(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def pinv_loop(layout, conductance_s):
+    """The straightforward way: per press, build the Laplacian and take its pseudo-inverse."""
+    n = layout.n_junctions
+    ends = layout.channel_ends
+    ej = layout.electrode_junctions[layout.pair_electrode_index]
+    out = np.empty((conductance_s.shape[0], ej.shape[0]))
+    for p, g in enumerate(conductance_s):
+        lap = np.zeros((n, n))
+        np.add.at(lap, (ends[:, 0], ends[:, 0]), g)
+        np.add.at(lap, (ends[:, 1], ends[:, 1]), g)
+        np.add.at(lap, (ends[:, 0], ends[:, 1]), -g)
+        np.add.at(lap, (ends[:, 1], ends[:, 0]), -g)
+        inv = np.linalg.pinv(lap)
+        out[p] = inv[ej[:, 0], ej[:, 0]] + inv[ej[:, 1], ej[:, 1]] - 2 * inv[ej[:, 0], ej[:, 1]]
+    return out
+
+
+def row(label, rate, note=""):
+    print(f"  {label:<44s} {rate:>14,.0f} presses/s  {note}")
+
+
+def solver_section(title, layout, n_batch, n_loop, repeats, rng):
+    print(f"\n{title}: {layout.n_junctions} junctions, {layout.n_channels} channels, {len(layout.pairs)} pairs")
+    g = 1.0 / (layout.channel_resistance_ohm * rng.uniform(1.0, 2.0, (n_batch, layout.n_channels)))
+    t_batch = best_time(lambda: equivalent_resistance(layout, g), repeats)
+    t_loop = best_time(lambda: pinv_loop(layout, g[:n_loop]), max(1, repeats // 2))
+    r_batch = equivalent_resistance(layout, g[:n_loop])
+    r_loop = pinv_loop(layout, g[:n_loop])
+    rate_batch, rate_loop = n_batch / t_batch, n_loop / t_loop
+    path = "dense GTH" if layout.n_junctions <= 64 else "sparse splu"
+    row(f"batched solve ({path}, {n_batch} presses)", rate_batch)
+    row(f"per-press numpy.linalg.pinv loop ({n_loop} presses)", rate_loop)
+    print(f"  ratio batched / pinv: {rate_batch / rate_loop:,.1f} x;  max relative difference "
+          f"{np.max(np.abs(r_loop / r_batch - 1)):.1e}")
+
+
+def pipeline_section(layout, n, repeats, rng):
+    print(f"\npress -> R_eq pipeline, paper layout, 3.5 mm presses at random positions ({n} presses)")
+    x, y = rng.uniform(0, 30, n), rng.uniform(0, 30, n)
+    depth = np.full(n, 3.5)
+    for fidelity in ("deformation", "network"):
+        model = SkinModel(layout, fidelity=fidelity)
+        t_total = best_time(lambda: model.pair_resistance_ohm(x, y, depth), repeats)
+        resistance = model.channel_resistance_ohm(x, y, depth)
+        t_channels = best_time(lambda: model.channel_resistance_ohm(x, y, depth), repeats)
+        t_solve = best_time(lambda: equivalent_resistance(layout, 1.0 / resistance), repeats)
+        target = "  (target >= 100,000)" if fidelity == "deformation" else ""
+        row(f"{fidelity} fidelity, end to end", n / t_total, f"channels {n / t_channels:,.0f}/s, "
+            f"solve {n / t_solve:,.0f}/s{target}")
+
+
+def quadrature_section(layout, n, repeats, rng):
+    print(f"\ndeformation integral: error against run time ({n} presses, depth uniform 0.5..5.0 mm, "
+          f"reference 64 nodes/panel)")
+    x, y = rng.uniform(-3, 33, n), rng.uniform(-3, 33, n)
+    depth = rng.uniform(0.5, 5.0, n)
+    ref = resistance_factor(layout, x, y, depth, 2.75, PinchParams(nodes_per_panel=64))
+    ref_eq = equivalent_resistance(layout, 1.0 / (ref * layout.channel_resistance_ohm))
+    print(f"  {'nodes/panel':>11s} {'nodes/channel':>13s} {'max rel err R_ch':>17s} {'max rel err R_eq':>17s} "
+          f"{'presses/s':>12s}")
+    for q in (2, 3, 4, 6, 8, 12, 16):
+        params = PinchParams(nodes_per_panel=q)
+        t = best_time(lambda: resistance_factor(layout, x, y, depth, 2.75, params), repeats)
+        f = resistance_factor(layout, x, y, depth, 2.75, params)
+        r_eq = equivalent_resistance(layout, 1.0 / (f * layout.channel_resistance_ohm))
+        mark = "  <- default" if q == PinchParams().nodes_per_panel else ""
+        print(f"  {q:>11d} {2 * 3 * q:>13d} {np.max(np.abs(f / ref - 1)):>17.1e} "
+              f"{np.max(np.abs(r_eq / ref_eq - 1)):>17.1e} {n / t:>12,.0f}{mark}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--presses", type=int, default=100_000)
+    parser.add_argument("--repeats", type=int, default=5)
+    args = parser.parse_args()
+    rng = np.random.default_rng(0)
+    paper = load_layout(REPO / "protocols" / "skins" / "paper.toml")
+    print(f"bench_skin: one core, best of {args.repeats}")
+    solver_section("network solver, paper layout", paper, args.presses, 2000, args.repeats, rng)
+    solver_section("network solver, 30 x 30 grid", grid_layout(30, 30, pitch_mm=5.0), 200, 4,
+                   max(1, args.repeats // 2), rng)
+    pipeline_section(paper, args.presses, args.repeats, rng)
+    quadrature_section(paper, min(args.presses, 20_000), args.repeats, rng)
+
+
+if __name__ == "__main__":
+    main()
