@@ -47,6 +47,16 @@ def test_cross_field_limits(paper_dict):
     assert {p.field for p in info.value.problems} == {"soft_limits.max_x_mm", "motion.press_feed_mm_s", "park.z_mm"}
 
 
+def test_field_and_cross_field_problems_in_one_report(paper_dict):
+    paper_dict["bed"]["size_y_mm"] = "big"
+    paper_dict["motion"]["travel_feed_mm_s"] = 800.0  # above the 500 mm/s x/y maximum
+    del paper_dict["soft_limits"]["min_z_mm"]  # the z checks that need it are skipped, not misreported
+    with pytest.raises(ConfigError) as info:
+        printer_profile_from_dict(paper_dict, "printer.toml")
+    assert [p.field for p in info.value.problems] == ["soft_limits.min_z_mm", "bed.size_y_mm",
+                                                      "motion.travel_feed_mm_s"]
+
+
 def test_missing_table_and_unreadable_file(paper_dict, tmp_path):
     del paper_dict["max_accel"]
     with pytest.raises(ConfigError) as info:

@@ -11,6 +11,7 @@ import math
 import tomllib
 from dataclasses import dataclass, replace
 from pathlib import Path
+from types import SimpleNamespace
 
 from neatskin.errors import ConfigError, Problem
 from neatskin.gcode.calibration import Calibration
@@ -126,9 +127,9 @@ def printer_profile_from_dict(data: dict, source: str = "<memory>") -> PrinterPr
         z_feed_mm_s=number(motion, "motion", "z_feed_mm_s"),
         press_feed_mm_s=number(motion, "motion", "press_feed_mm_s"),
         safe_height_mm=number(motion, "motion", "safe_height_mm"),
-        park_mm=Axes(number(park, "park", "x_mm", positive=False, default=soft_min.x),
-                     number(park, "park", "y_mm", positive=False, default=soft_max.y),
-                     number(park, "park", "z_mm", positive=False, default=soft_max.z)),
+        park_mm=Axes(*(number(park, "park", key, positive=False, default=default) if math.isfinite(default)
+                       or key in park else math.nan
+                       for key, default in (("x_mm", soft_min.x), ("y_mm", soft_max.y), ("z_mm", soft_max.z)))),
         calibration=None,
         baud_rate=integer(printer, "printer", "baud_rate", 115200),
         planner_buffer_size=integer(printer, "printer", "planner_buffer_size", 16),
@@ -141,44 +142,49 @@ def printer_profile_from_dict(data: dict, source: str = "<memory>") -> PrinterPr
     cal_values = {k: number(cal, "calibration", k, positive=False) for k in
                   ("offset_x_mm", "offset_y_mm", "rotation_deg", "surface_z_mm")}
     if problems:
-        raise ConfigError(problems=problems)
+        # cross-field problems among the fields that are valid, so one run reports everything
+        partial = SimpleNamespace(**{**values, "calibration": SimpleNamespace(**cal_values)})
+        raise ConfigError(problems=problems + _check(partial))
     values["calibration"] = Calibration(**cal_values)
     return PrinterProfile(**values)
 
 
-def _check(p: PrinterProfile) -> list[Problem]:
-    """Cross-field checks (each field is already a number of the right sign when loaded from TOML)."""
+def _check(p) -> list[Problem]:
+    """Cross-field checks; a comparison involving a field that failed to load (NaN) is skipped."""
     problems: list[Problem] = []
-    src = p.source
 
     def problem(where: str, message: str, fix: str) -> None:
-        problems.append(Problem(message, src, where, fix))
+        problems.append(Problem(message, p.source, where, fix))
+
+    def known(*values: float) -> bool:
+        return all(math.isfinite(v) for v in values)
 
     for axis in "xyz":
         lo, hi = getattr(p.soft_min_mm, axis), getattr(p.soft_max_mm, axis)
-        if not lo < hi:
+        if known(lo, hi) and not lo < hi:
             problem(f"soft_limits.max_{axis}_mm", f"soft limit max_{axis}_mm = {hi} is not above min_{axis}_mm = {lo}",
                     f"set max_{axis}_mm > min_{axis}_mm")
     for axis, size in (("x", p.bed_x_mm), ("y", p.bed_y_mm)):
-        if getattr(p.soft_min_mm, axis) < 0 or getattr(p.soft_max_mm, axis) > size:
-            problem(f"soft_limits.max_{axis}_mm", f"soft limits on {axis} [{getattr(p.soft_min_mm, axis)}, "
-                    f"{getattr(p.soft_max_mm, axis)}] reach outside the {size} mm bed",
+        lo, hi = getattr(p.soft_min_mm, axis), getattr(p.soft_max_mm, axis)
+        if known(lo, hi, size) and (lo < 0 or hi > size):
+            problem(f"soft_limits.max_{axis}_mm", f"soft limits on {axis} [{lo}, {hi}] reach outside the {size} mm bed",
                     f"keep the {axis} soft limits within 0..{size} (bed.size_{axis}_mm)")
     xy_max = min(p.max_feed_mm_s.x, p.max_feed_mm_s.y)
-    if p.travel_feed_mm_s > xy_max:
+    if known(xy_max, p.travel_feed_mm_s) and p.travel_feed_mm_s > xy_max:
         problem("motion.travel_feed_mm_s", f"travel feed {p.travel_feed_mm_s} mm/s exceeds the x/y maximum {xy_max} mm/s",
                 f"set travel_feed_mm_s <= {xy_max}")
     for key in ("z_feed_mm_s", "press_feed_mm_s"):
-        if getattr(p, key) > p.max_feed_mm_s.z:
-            problem(f"motion.{key}", f"{key} = {getattr(p, key)} mm/s exceeds the z maximum {p.max_feed_mm_s.z} mm/s",
+        value = getattr(p, key)
+        if known(value, p.max_feed_mm_s.z) and value > p.max_feed_mm_s.z:
+            problem(f"motion.{key}", f"{key} = {value} mm/s exceeds the z maximum {p.max_feed_mm_s.z} mm/s",
                     f"set {key} <= {p.max_feed_mm_s.z} (max_feed.z_mm_s)")
-    if p.safe_height_mm + p.calibration.surface_z_mm > p.soft_max_mm.z:
-        problem("motion.safe_height_mm", f"safe height {p.safe_height_mm} mm above the surface at z = "
-                f"{p.calibration.surface_z_mm} mm is above the z soft limit {p.soft_max_mm.z} mm",
-                "lower safe_height_mm or check calibration.surface_z_mm")
+    surface = p.calibration.surface_z_mm
+    if known(p.safe_height_mm, surface, p.soft_max_mm.z) and p.safe_height_mm + surface > p.soft_max_mm.z:
+        problem("motion.safe_height_mm", f"safe height {p.safe_height_mm} mm above the surface at z = {surface} mm "
+                f"is above the z soft limit {p.soft_max_mm.z} mm", "lower safe_height_mm or check calibration.surface_z_mm")
     for axis in "xyz":
-        value = getattr(p.park_mm, axis)
-        if not getattr(p.soft_min_mm, axis) <= value <= getattr(p.soft_max_mm, axis):
+        value, lo, hi = getattr(p.park_mm, axis), getattr(p.soft_min_mm, axis), getattr(p.soft_max_mm, axis)
+        if known(value, lo, hi) and not lo <= value <= hi:
             problem(f"park.{axis}_mm", f"park {axis} = {value} mm is outside the soft limits",
-                    f"put park.{axis}_mm inside [{getattr(p.soft_min_mm, axis)}, {getattr(p.soft_max_mm, axis)}]")
+                    f"put park.{axis}_mm inside [{lo}, {hi}]")
     return problems
