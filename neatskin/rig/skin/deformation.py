@@ -125,26 +125,30 @@ def _factor_chunk(layout, x, y, depth, radius, params):
     edges[..., -1] = active
     p_start = base[..., None] + edges[..., :-1]  # (n, C, 2 sides, panels)
     p_width = np.diff(edges, axis=-1)
+    # integrate only the sides with something left to integrate (far channels have none), laid
+    # out as (q, panels, sides) so every broadcast operand is a contiguous block
+    live = np.flatnonzero(active > 0)
+    panels = p_width.shape[-1]
+    width = np.ascontiguousarray(p_width.reshape(-1, panels)[live].T)  # (panels, m)
+    begin = np.ascontiguousarray(p_start.reshape(-1, panels)[live].T)
+    per_side = lambda v: np.broadcast_to(v[..., None], active.shape).reshape(-1)[live]  # noqa: E731
     nodes, weights = _gauss_legendre(params.nodes_per_panel)
-    # hot loop over (q, n, C, 2 sides, panels), node axis first so every broadcast operand is a
-    # contiguous block; in place, one pass per operation
-    shape = p_width.shape
-    full = lambda v: np.broadcast_to(v, shape)  # noqa: E731
-    r = nodes[:, None, None, None, None] * p_width
-    r += p_start
+    r = nodes[:, None, None] * width  # (q, panels, m), in place from here: one pass per operation
+    r += begin
     np.multiply(r, r, out=r)
-    r += full(perp2[..., None, None])
+    r += per_side(perp2)
     np.sqrt(r, out=r)
-    r -= full(a[..., None, None])
+    r -= per_side(np.broadcast_to(a, perp2.shape))
     np.multiply(r, r, out=r)  # outside the footprint r >= a, so this is (r - a)^2
-    r *= full((-1.0 / (decay * decay))[..., None, None])
+    r *= per_side(np.broadcast_to(-1.0 / (decay * decay), perp2.shape))
     np.exp(r, out=r)
-    r *= full(-p0[..., None, None])
+    r *= per_side(np.broadcast_to(-p0, perp2.shape))
     r += 1.0
     with np.errstate(divide="ignore"):
         np.reciprocal(r, out=r)
-    integral = np.tensordot(weights, r, axes=(0, 0))
-    outer = np.sum(integral * p_width, axis=(-1, -2)) + np.sum(side_len - active, axis=-1)
+    side_integral = np.zeros(active.size)
+    side_integral[live] = np.sum(np.tensordot(weights, r, axes=(0, 0)) * width, axis=0)
+    outer = np.sum(side_integral.reshape(active.shape) + (side_len - active), axis=-1)
     factor = (inner + outer) / length
     factor[~touching] = 1.0
     return factor
