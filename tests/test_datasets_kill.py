@@ -32,21 +32,30 @@ print("ready", len(done), flush=True)
 for row in rows:
     if row["press_id"] not in done:
         writer.write_press(row, {"voltage_v": np.full(200, float(row["press_id"]))})
+        print("wrote", row["press_id"], flush=True)
+print("finalizing", flush=True)
 writer.finalize()
 print("finished", flush=True)
 """ % (N_POSITIONS, REPEATS)
 
 
-def run_worker(folder, kill_after_s=None):
-    """Run the worker; kill it with SIGKILL `kill_after_s` after it is ready. Returns True if it finished."""
+def run_worker(folder, kill_after_lines=None, then_s=0.0, until_finalizing=False):
+    """Run the worker; SIGKILL it `then_s` seconds after it has printed `kill_after_lines` more lines (one per
+    durable press, then 'finalizing') or, with until_finalizing, once it starts finalizing; so kills land
+    mid-campaign and, with then_s, inside a write or inside finalize.
+    Returns True if it finished."""
     proc = subprocess.Popen([sys.executable, "-c", WORKER, str(folder), str(PROTOCOLS / "skins" / "paper.toml")],
                             stdout=subprocess.PIPE, text=True)
     assert proc.stdout.readline().startswith("ready")
-    if kill_after_s is not None:
-        time.sleep(kill_after_s)
+    if kill_after_lines is not None:
+        for _ in range(kill_after_lines):
+            line = proc.stdout.readline()
+            if not line or (until_finalizing and line.startswith("finalizing")):
+                break
+        time.sleep(then_s)
         proc.send_signal(signal.SIGKILL)
     out, _ = proc.communicate(timeout=120)
-    if kill_after_s is None:
+    if kill_after_lines is None:
         assert proc.returncode == 0
     return "finished" in out
 
@@ -62,18 +71,18 @@ def test_sigkill_at_random_points_then_resume(paper_layout, tmp_path):
     rng = np.random.default_rng(2026)
     folder = tmp_path / "killed"
     progress = []
-    for delay in rng.uniform(0.0, 0.35, size=5):
-        run_worker(folder, kill_after_s=float(delay))
-        # between kills: whatever is on disk reads cleanly, ids unique, and only durable presses are counted
-        if folder.exists() and any(folder.rglob("*.parquet")):
-            df = read_presses(folder, deduplicate=False)
-            assert df["press_id"].is_unique
-            progress.append(len(df))
-            pd.testing.assert_frame_equal(df.reset_index(drop=True),
-                                          reference[reference["press_id"].isin(df["press_id"])].reset_index(drop=True))
-        else:
-            progress.append(0)
-    assert any(0 < n < len(rows) for n in progress), f"no kill landed mid-campaign: {progress}"
+    plan = [(int(rng.integers(1, 40)), float(rng.uniform(0.0, 0.004))) for _ in range(4)]
+    plan.append((len(rows) + 1, float(rng.uniform(0.0, 0.05))))  # the rest of the presses, then into finalize
+    for k, (lines, then_s) in enumerate(plan):
+        run_worker(folder, lines, then_s, until_finalizing=k == len(plan) - 1)
+        # after each kill: what is on disk reads cleanly and equals the reference rows of those press ids
+        df = read_presses(folder)
+        progress.append(len(df))
+        pd.testing.assert_frame_equal(df, reference[reference["press_id"].isin(df["press_id"])].reset_index(drop=True))
+    # every press the worker reported durable is on disk (plus at most the one in flight): none lost
+    for k, (lines, _) in enumerate(plan[:-1]):
+        assert lines <= progress[k] - (progress[k - 1] if k else 0) <= lines + 1, progress
+    assert progress[-1] == len(rows), progress
     assert run_worker(folder) is True
 
     final = read_presses(folder, deduplicate=False)

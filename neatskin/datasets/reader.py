@@ -17,7 +17,7 @@ import pyarrow.parquet as pq
 
 from neatskin.datasets.paths import CONSOLIDATED_NAME, WAVEFORMS_DIR, part_press_id, press_parts
 from neatskin.datasets.schema import decode_metadata, parse_pair_column
-from neatskin.datasets.writer import deduplicate_sorted
+from neatskin.datasets.writer import deduplicate_sorted, read_tables
 from neatskin.errors import DataError
 from neatskin.layout import ElectrodePair
 
@@ -46,7 +46,7 @@ def read_press_table(path: str | os.PathLike, *, deduplicate: bool = True) -> pa
     files = press_files(path)
     try:
         schema = pq.read_schema(files[0])
-        table = pads.dataset([str(f) for f in files], schema=schema.remove_metadata(), format="parquet").to_table()
+        table = read_tables(files, schema.remove_metadata())
     except (OSError, pa.ArrowException) as exc:
         raise DataError(f"cannot read the presses: {exc}", file=str(path),
                         fix="run `neatskin dataset validate` on the folder to find the damaged file") from exc
