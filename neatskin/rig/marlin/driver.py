@@ -434,7 +434,8 @@ class MarlinDriver:
                 self._retire(self._inflight[0])
         else:
             self._retire(head)
-        self._pump(now)
+        # the next line goes out in _tick, after the whole chunk is read: a duplicated `ok` in the
+        # same chunk then finds nothing in flight instead of acknowledging a line just sent
 
     def _retire(self, line: _Line) -> None:
         self._inflight.remove(line)

@@ -13,6 +13,7 @@ class MarlinError(HardwareError):
     """A failure on the Marlin line. `last_line` / `last_command`: the last line acknowledged."""
 
     what = "the printer failed"
+    consequence = "the probe's state is unknown and nothing more was sent"
     fix = "check the printer and its cable, reset it, home it (G28) and resume the campaign"
 
     def __init__(self, detail: str, *, last_line: int | None = None, last_command: str | None = None,
@@ -26,8 +27,7 @@ class MarlinError(HardwareError):
             confirmed = "no line of this session was acknowledged"
         else:
             confirmed = f"the last line acknowledged was N{last_line} {last_command!r}"
-        super().__init__(f"{self.what}{where}: {detail}; {confirmed}; the probe's state is unknown and "
-                         f"nothing more was sent (fix: {self.fix})")
+        super().__init__(f"{self.what}{where}: {detail}; {confirmed}; {self.consequence} (fix: {self.fix})")
 
 
 class PrinterHalted(MarlinError):
@@ -57,6 +57,7 @@ class ResendLoop(MarlinError):
 
 class CommandRejected(MarlinError):
     what = "the printer refused a command"
+    consequence = "it did not run it; the rest of its batch was not sent"
     fix = "correct the G-code (home with G28 before moving; use commands this firmware knows)"
 
 

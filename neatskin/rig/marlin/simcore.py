@@ -1,0 +1,379 @@
+"""The simulated printer's firmware: Marlin's serial queue, command set and replies, without any I/O.
+
+`MarlinCore.receive(bytes)` takes what the host wrote; `step()` runs what can run now and says
+how long (in real seconds) until something is due; `take_output()` gives the reply bytes.
+Line numbers, checksums and resends follow Marlin 2.1's queue.cpp (a repeated line just below
+the counter is dropped silently; `marlin_version="2.0"` answers it with an error instead;
+`ok_after_resend=True` adds Marlin 1.x's `ok` after `Resend:`). Commands run in order from a
+BUFSIZE-slot queue; moves go to a planner of `planner_buffer_size` slots (a full planner delays
+the `ok`). Time is a clock object: virtual (jumps to when the motion is done; no sleeping) or
+scaled real time. Faults (faults.FaultConfig) are drawn from a seeded numpy Generator.
+"""
+
+from __future__ import annotations
+
+import collections
+import re
+import time
+
+import numpy as np
+
+from neatskin.errors import ConfigError
+from neatskin.gcode.parse import checksum, parse_line
+from neatskin.gcode.profile import PrinterProfile
+from neatskin.rig.marlin import replies as R
+from neatskin.rig.marlin.faults import FaultConfig
+from neatskin.rig.marlin.simmotion import Timeline
+
+STEPS_PER_MM = (80.0, 80.0, 400.0)
+_N = re.compile(r"N\s*(-?\d+)")
+_QUIET = frozenset({"G21", "G90", "G91", "M17", "M82", "M83", "M104", "M106", "M107", "M117", "M140", "M220", "M221"})
+
+
+class VirtualClock:
+    """Simulated seconds that jump forward to whatever the printer waits for."""
+
+    def __init__(self) -> None:
+        self.t_s = 0.0
+
+    def now(self) -> float:
+        return self.t_s
+
+    def wait_until(self, t_s: float) -> float:
+        self.t_s = max(self.t_s, t_s)
+        return 0.0
+
+
+class ScaledClock:
+    """Real time, `speed` times faster (speed=1: wall clock)."""
+
+    def __init__(self, speed: float = 1.0) -> None:
+        if speed <= 0:
+            raise ConfigError(f"time speed {speed!r} must be > 0", field="speed", fix="use e.g. 1 or 10")
+        self.speed = speed
+        self._t0 = time.monotonic()
+
+    def now(self) -> float:
+        return (time.monotonic() - self._t0) * self.speed
+
+    def wait_until(self, t_s: float) -> float:
+        return max(0.0, (t_s - self.now()) / self.speed)
+
+
+class MarlinCore:
+    def __init__(self, profile: PrinterProfile, *, seed: int = 0, faults: FaultConfig = FaultConfig(),
+                 clock=None, advanced_ok: bool = False, marlin_version: str = "2.1",
+                 ok_after_resend: bool = False, bufsize: int = 4, keepalive_s: float = 2.0) -> None:
+        self.profile = profile
+        self.faults = faults
+        self.rng = np.random.default_rng(seed)
+        self.clock = clock or VirtualClock()
+        self.advanced_ok = advanced_ok
+        self.marlin_version = marlin_version
+        self.ok_after_resend = ok_after_resend
+        self.bufsize = bufsize
+        self.keepalive_s = keepalive_s
+        self.timeline = Timeline(profile, tuple(profile.park_mm))
+        self.executed: list[tuple[int | None, str]] = []
+        self.clip_events: list[tuple[float, str, tuple[float, float, float], tuple[float, float, float]]] = []
+        self.out = bytearray()
+        self.dead = False
+        self.closed = False
+        self.resets = 0
+        self._boot()
+
+    # ---- state ----------------------------------------------------------------------------
+
+    def _boot(self) -> None:
+        self.rx = bytearray()
+        self.queue: collections.deque[tuple[int | None, str]] = collections.deque()
+        self.last_n = 0
+        self.homed = [False, False, False]
+        self.absolute = True
+        self.feed_mm_s = self.profile.travel_feed_mm_s
+        self.offset_mm = [0.0, 0.0, 0.0]  # logical = physical + offset (G92)
+        self.soft_endstops = True
+        self.halted = False
+        self._head_ready: float | None = None
+        self._last_busy = self.clock.now()
+        self._emit(R.START)
+        self._emit("echo:Marlin 2.1.2.4 (neatskin simulated printer)")
+        self._emit(f"echo: Free Memory: 4096  PlannerBufferBytes: {self.profile.planner_buffer_size * 64}")
+
+    def reset(self) -> None:
+        """Power cycle / reset button: the queue and counters are lost, the probe is unhomed."""
+        self.resets += 1
+        self.timeline.teleport(self.clock.now(), self.timeline.position_mm(self.clock.now()))
+        self._boot()
+
+    def take_output(self) -> bytes:
+        data = bytes(self.out)
+        self.out.clear()
+        return data
+
+    def _emit(self, text: str, *, is_ok: bool = False) -> None:
+        if self.dead:
+            return
+        if is_ok and self.faults.drop_ok and self.rng.random() < self.faults.drop_ok:
+            return
+        line = text.encode("ascii") + b"\n"
+        self.out += line
+        if self.faults.duplicate and self.rng.random() < self.faults.duplicate:
+            self.out += line
+
+    # ---- serial input ---------------------------------------------------------------------
+
+    def receive(self, data: bytes) -> None:
+        if self.dead:
+            return
+        self.rx += data
+        self._read_lines()
+
+    def _read_lines(self) -> None:
+        while len(self.queue) < self.bufsize and not self.dead:
+            cut = min((i for i in (self.rx.find(b"\n"), self.rx.find(b"\r")) if i >= 0), default=-1)
+            if cut < 0:
+                return
+            raw = bytes(self.rx[:cut])
+            del self.rx[: cut + 1]
+            self._accept(raw)
+
+    def _accept(self, raw: bytes) -> None:
+        faults = self.faults
+        if faults.drop_line and raw.strip() and self.rng.random() < faults.drop_line:
+            return
+        if faults.corrupt and raw.strip() and self.rng.random() < faults.corrupt:
+            raw = self._corrupt(raw)
+        text = raw.decode("ascii", "replace").strip()
+        if not text:
+            return
+        if "M112" in text:  # the emergency parser acts on raw input, ahead of the queue
+            self._kill()
+            return
+        if self.halted:
+            if "M999" in text:
+                self.halted = False
+                self._emit(R.OK, is_ok=True)
+            return
+        number = None
+        if text.startswith("N"):
+            is_m110 = "M110" in text
+            npos = text
+            if is_m110 and "N" in text[4:]:
+                npos = text[text.index("N", 4):]
+            match = _N.match(npos)
+            number = int(match.group(1)) if match else 0
+            if number != self.last_n + 1 and not is_m110:
+                if self.marlin_version >= "2.1" and self.last_n - 1 <= number <= self.last_n:
+                    return  # a repeat from a crossed resend: dropped without a word (Marlin 2.1)
+                self._line_error(R.ERR_LINE_NO)
+                return
+            star = text.rfind("*")
+            if star < 0:
+                self._line_error(R.ERR_NO_CHECKSUM)
+                return
+            digits = re.match(r"\d+", text[star + 1 :])
+            if digits is None or int(digits.group(0)) != checksum(text[:star]):
+                self._line_error(R.ERR_CHECKSUM)
+                return
+            self.last_n = number
+            head = _N.match(text)
+            text = text[head.end() : star].strip() if head else text[:star].strip()
+        self.queue.append((number, text))
+
+    def _corrupt(self, raw: bytes) -> bytes:
+        # never the leading 'N': a line that loses it is taken unnumbered, a hole in Marlin's protocol
+        start = 1 if raw.startswith(b"N") else 0
+        if len(raw) <= start:
+            return raw
+        i = int(self.rng.integers(start, len(raw)))
+        choices = [c for c in b"0123456789ABCDEFGXYZ .-" if c != raw[i]]
+        return raw[:i] + bytes([choices[int(self.rng.integers(len(choices)))]]) + raw[i + 1 :]
+
+    def _line_error(self, message: str) -> None:
+        self._emit(f"Error:{message}{self.last_n}")
+        self.rx.clear()  # Marlin empties its RX buffer before asking again
+        self._emit(f"{R.RESEND}{self.last_n + 1}")
+        if self.ok_after_resend:
+            self._emit(R.OK, is_ok=True)
+
+    def _kill(self) -> None:
+        self.queue.clear()
+        self.rx.clear()
+        self.halted = True
+        now = self.clock.now()
+        self.timeline.teleport(now, self.timeline.position_mm(now))  # steppers stop where they are
+        self._emit(f"Error:{R.ERR_KILLED}")
+
+    # ---- execution ------------------------------------------------------------------------
+
+    def step(self) -> float | None:
+        """Run queued commands; real seconds until the head command can go on, or None when idle."""
+        while self.queue and not self.dead and not self.halted:
+            wait = self._run_head()
+            if wait > 0:
+                return min(wait, self.keepalive_s / getattr(self.clock, "speed", 1.0))
+            self.queue.popleft()
+            self._head_ready = None
+            self._after_command()
+            self._read_lines()
+        return None
+
+    def _after_command(self) -> None:
+        count = len(self.executed)
+        if self.faults.reset_after is not None and count == self.faults.reset_after and self.resets == 0:
+            self.reset()
+        if self.faults.dead_after is not None and count >= self.faults.dead_after and not self.dead:
+            self.dead = True
+            self.closed = self.faults.dead_closes
+
+    def _wait(self, ready_s: float) -> float:
+        """0 when the clock has reached ready_s (virtual time jumps there), else the real seconds left."""
+        now = self.clock.now()
+        if isinstance(self.clock, VirtualClock):
+            intervals = int((ready_s - now) // self.keepalive_s) if ready_s > now else 0
+            for _ in range(min(intervals, 3)):
+                self._emit(f"echo:{R.BUSY_PROCESSING}")
+            self.clock.wait_until(ready_s)
+            return 0.0
+        left = self.clock.wait_until(ready_s)
+        if left > 0 and now - self._last_busy >= self.keepalive_s:
+            self._last_busy = now
+            self._emit(f"echo:{R.BUSY_PROCESSING}")
+        return left
+
+    def _run_head(self) -> float:
+        number, text = self.queue[0]
+        try:
+            line = parse_line(text)
+        except ConfigError:
+            line = None
+        code = line.code if line is not None else text.split(" ", 1)[0]
+        if self._head_ready is None:  # first visit: start the command, decide when it may finish
+            self._last_busy = self.clock.now()
+            self._head_ready = self._start(code, line)
+            if self._head_ready is None:
+                self._head_ready = self.clock.now()
+        if code in ("G0", "G1") and line is not None and all(self.homed):
+            wait = self._wait(self._head_ready)
+            if wait > 0:
+                return wait
+            self._move(line)
+        else:
+            wait = self._wait(self._head_ready)
+            if wait > 0:
+                return wait
+        self.executed.append((number, text))
+        if self.faults.busy_storm and self.rng.random() < self.faults.busy_storm:
+            for _ in range(int(self.rng.integers(3, 30))):
+                self._emit(f"echo:{R.BUSY_PROCESSING}")
+        self._reply(code, line, text, number)
+        return 0.0
+
+    def _start(self, code: str, line) -> float | None:
+        """Side effects at the start of a command; the time its `ok` waits for (None: at once)."""
+        now = self.clock.now()
+        tl = self.timeline
+        if code in ("G0", "G1"):
+            return tl.slot_free_s(now, self.profile.planner_buffer_size) if all(self.homed) else None
+        if code == "M400":
+            return tl.end_s
+        if code == "G4" and line is not None:
+            return max(now, tl.end_s) + (line.get("P", 0.0) or 0.0) / 1000.0 + (line.get("S", 0.0) or 0.0)
+        if code == "G28":
+            axes = [i for i, a in enumerate("XYZ") if line is not None and a in line.params] or [0, 1, 2]
+            home = list(tl.end_mm)
+            for i in axes:
+                home[i] = tuple(self.profile.soft_min_mm)[i]
+                self.homed[i] = True
+                self.offset_mm[i] = 0.0
+            return tl.add_homing(now, tuple(home), self.profile.homing_time_s * len(axes) / 3).t1_s
+        return None
+
+    def _move(self, line) -> None:
+        feed = line.get("F")
+        if feed is not None and feed > 0:
+            self.feed_mm_s = feed / 60.0
+        current = self.timeline.end_mm
+        target = list(current)
+        for i, axis in enumerate("XYZ"):
+            value = line.get(axis)
+            if value is None:
+                continue
+            logical_now = current[i] + self.offset_mm[i]
+            logical = value if self.absolute else logical_now + value
+            target[i] = logical - self.offset_mm[i]
+        clipped = tuple(self._clip(target))
+        if clipped != tuple(target):
+            self.clip_events.append((self.clock.now(), line.raw, tuple(target), clipped))
+        self.timeline.add_move(self.clock.now(), clipped, self.feed_mm_s)
+
+    def _clip(self, target: list[float]) -> list[float]:
+        p = self.profile
+        lo = [0.0, 0.0, p.soft_min_mm.z]
+        hi = [p.bed_x_mm, p.bed_y_mm, p.soft_max_mm.z]
+        if self.soft_endstops:
+            lo = [max(a, b) for a, b in zip(lo, p.soft_min_mm)]
+            hi = [min(a, b) for a, b in zip(hi, p.soft_max_mm)]
+        return [min(max(v, a), b) for v, a, b in zip(target, lo, hi)]
+
+    def _reply(self, code: str, line, text: str, number: int | None) -> None:
+        if code in ("G0", "G1") and not all(self.homed):
+            self._emit("echo:Home " + "".join(a for a, h in zip("XYZ", self.homed) if not h) + " First")
+        elif code in ("G90", "G91"):
+            self.absolute = code == "G90"
+        elif code == "G92" and line is not None:
+            here = self.timeline.end_mm
+            for i, axis in enumerate("XYZ"):
+                value = line.get(axis)
+                if value is not None:
+                    self.offset_mm[i] = value - here[i]
+        elif code == "M110" and line is not None:
+            self.last_n = int(line.get("N", 0.0) or 0)
+        elif code == "M114":
+            self._emit(self._m114())
+        elif code == "M119":
+            self._emit("Reporting endstop status")
+            here = self.timeline.position_mm(self.clock.now())
+            for i, axis in enumerate("xyz"):
+                hit = self.homed[i] and here[i] <= tuple(self.profile.soft_min_mm)[i] + 1e-9
+                self._emit(f"{axis}_min: {'TRIGGERED' if hit else 'open'}")
+        elif code == "M211":
+            if line is not None and line.get("S") is not None:
+                self.soft_endstops = bool(line.get("S"))
+            self._emit(self._m211())
+        elif code == "M118" and line is not None:
+            prefix = "echo:" if line.get("E") else ("//" if line.get("A") else "")
+            self._emit(prefix + line.text)
+        elif code in ("M84", "M18"):
+            self.homed = [False, False, False]
+        elif code == "M105":
+            self._emit("ok T:25.00 /0.00 B:25.00 /0.00 @:0 B@:0", is_ok=True)
+            return
+        elif code == "M115":
+            self._emit("FIRMWARE_NAME:Marlin 2.1.2.4 (neatskin simulated printer) SOURCE_CODE_URL:github.com/"
+                       "MarlinFirmware/Marlin PROTOCOL_VERSION:1.0 MACHINE_TYPE:NeatSkin rig EXTRUDER_COUNT:0")
+            self._emit(f"Cap:ADVANCED_OK:{int(self.advanced_ok)}")
+        elif code not in _QUIET and code not in ("G0", "G1", "G4", "G28", "M400", "M999"):
+            self._emit(f'echo:{R.UNKNOWN_COMMAND}{text}"')
+        self._ok(number)
+
+    def _ok(self, number: int | None) -> None:
+        if not self.advanced_ok:
+            self._emit(R.OK, is_ok=True)
+            return
+        free = self.profile.planner_buffer_size - self.timeline.pending(self.clock.now())
+        tag = f" N{number}" if number is not None else ""
+        self._emit(f"ok{tag} P{free} B{self.bufsize - len(self.queue)}", is_ok=True)
+
+    def _m114(self) -> str:
+        logical = [p + o for p, o in zip(self.timeline.end_mm, self.offset_mm)]
+        actual = self.timeline.position_mm(self.clock.now())
+        counts = [round(a * s) for a, s in zip(actual, STEPS_PER_MM)]
+        return (f"X:{logical[0]:.2f} Y:{logical[1]:.2f} Z:{logical[2]:.2f} E:0.00 "
+                f"Count X:{counts[0]} Y:{counts[1]} Z:{counts[2]}")
+
+    def _m211(self) -> str:
+        lo, hi = self.profile.soft_min_mm, self.profile.soft_max_mm
+        return (f"echo:Soft endstops: {'ON' if self.soft_endstops else 'OFF'}  "
+                f"Min:  X{lo.x:.2f} Y{lo.y:.2f} Z{lo.z:.2f}   Max:  X{hi.x:.2f} Y{hi.y:.2f} Z{hi.z:.2f}")

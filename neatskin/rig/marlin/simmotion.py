@@ -1,0 +1,129 @@
+"""The simulated printer's motion: a timeline of trapezoidal moves, and where the probe is at any time.
+
+Each move is planned at the profile's limits (gcode.motion: the feed and acceleration scaled
+so no axis exceeds its maximum) and starts when the previous one ends (rest to rest, as the
+gcode.motion estimates assume). `position_mm(t_s)` interpolates the trapezoid exactly, so the
+simulated skin and FSR see the press as it happens.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from dataclasses import dataclass
+
+from neatskin.gcode.motion import limited_feed_and_accel, trapezoid_time_s
+from neatskin.gcode.profile import PrinterProfile
+
+Xyz = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One move from p0_mm to p1_mm over [t0_s, t1_s]; `linear` for homing (constant speed)."""
+
+    t0_s: float
+    t1_s: float
+    p0_mm: Xyz
+    p1_mm: Xyz
+    feed_mm_s: float
+    accel_mm_s2: float
+    linear: bool = False
+
+    @property
+    def length_mm(self) -> float:
+        return math.dist(self.p0_mm, self.p1_mm)
+
+    def position_mm(self, t_s: float) -> Xyz:
+        if t_s <= self.t0_s:
+            return self.p0_mm
+        if t_s >= self.t1_s or self.length_mm == 0:
+            return self.p1_mm
+        d = self.length_mm
+        tau = t_s - self.t0_s
+        if self.linear:
+            s = d * tau / (self.t1_s - self.t0_s)
+        else:
+            s = trapezoid_distance_mm(tau, d, self.feed_mm_s, self.accel_mm_s2)
+        f = s / d
+        return tuple(a + (b - a) * f for a, b in zip(self.p0_mm, self.p1_mm))  # type: ignore[return-value]
+
+
+def trapezoid_distance_mm(t_s: float, distance_mm: float, feed_mm_s: float, accel_mm_s2: float) -> float:
+    """Distance covered t_s after starting a rest-to-rest trapezoidal move (the inverse of its timing)."""
+    a = accel_mm_s2
+    v = min(feed_mm_s, math.sqrt(a * distance_mm))
+    t_a = v / a
+    d_a = v * v / (2 * a)
+    t_c = max(0.0, (distance_mm - 2 * d_a) / v)
+    if t_s <= 0:
+        return 0.0
+    if t_s < t_a:
+        return 0.5 * a * t_s * t_s
+    if t_s < t_a + t_c:
+        return d_a + v * (t_s - t_a)
+    td = min(t_s - t_a - t_c, t_a)
+    return min(distance_mm, d_a + v * t_c + v * td - 0.5 * a * td * td)
+
+
+class Timeline:
+    """Every move the printer made, in order; `end_s` is when the last queued one finishes."""
+
+    def __init__(self, profile: PrinterProfile, start_mm: Xyz) -> None:
+        self.profile = profile
+        self.start_mm = start_mm
+        self.segments: list[Segment] = []
+        self._t0s: list[float] = []
+
+    @property
+    def end_s(self) -> float:
+        return self.segments[-1].t1_s if self.segments else 0.0
+
+    @property
+    def end_mm(self) -> Xyz:
+        return self.segments[-1].p1_mm if self.segments else self.start_mm
+
+    def pending(self, t_s: float) -> int:
+        """Moves queued and not finished at t_s (the planner's occupied slots)."""
+        count = 0
+        for segment in reversed(self.segments):
+            if segment.t1_s <= t_s:
+                break
+            count += 1
+        return count
+
+    def slot_free_s(self, t_s: float, slots: int) -> float:
+        """The earliest time >= t_s at which fewer than `slots` moves are pending."""
+        if self.pending(t_s) < slots:
+            return t_s
+        return self.segments[-slots].t1_s
+
+    def add_move(self, now_s: float, target_mm: Xyz, feed_mm_s: float) -> Segment:
+        start = self.end_mm
+        delta = tuple(b - a for a, b in zip(start, target_mm))
+        feed, accel = limited_feed_and_accel(delta, feed_mm_s, self.profile)
+        length = math.sqrt(sum(d * d for d in delta))
+        t0 = max(now_s, self.end_s)
+        duration = trapezoid_time_s(length, feed, accel) if length > 0 else 0.0
+        return self._append(Segment(t0, t0 + duration, start, target_mm, feed, accel))
+
+    def add_homing(self, now_s: float, home_mm: Xyz, duration_s: float) -> Segment:
+        t0 = max(now_s, self.end_s)
+        return self._append(Segment(t0, t0 + duration_s, self.end_mm, home_mm, 1.0, 1.0, linear=True))
+
+    def teleport(self, now_s: float, position_mm: Xyz) -> None:
+        """A reset (power cycle): the probe stays where it was, nothing is queued any more."""
+        here = self.position_mm(now_s)
+        self.segments = [Segment(now_s, now_s, here, position_mm, 1.0, 1.0, linear=True)]
+        self._t0s = [now_s]
+
+    def _append(self, segment: Segment) -> Segment:
+        self.segments.append(segment)
+        self._t0s.append(segment.t0_s)
+        return segment
+
+    def position_mm(self, t_s: float) -> Xyz:
+        i = bisect.bisect_right(self._t0s, t_s) - 1
+        if i < 0:
+            return self.segments[0].p0_mm if self.segments else self.start_mm
+        return self.segments[i].position_mm(t_s)

@@ -1,0 +1,210 @@
+"""SimulatedPrinter: the simulated Marlin printer, served on a real pseudo-terminal or in-process.
+
+`start_pty()` returns a `/dev/pts/N` path that any host (our driver through pyserial, Printrun,
+a terminal) opens like a USB port; a thread serves it. `serial()` returns a pyserial-compatible
+object for in-process use without a pty. Both wrap one MarlinCore (simcore.py) under a lock,
+so `probe_position()`, `now_s()` and `executed` may be read from any thread while it runs.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+from neatskin.gcode.profile import PrinterProfile
+from neatskin.rig.marlin.faults import FaultConfig
+from neatskin.rig.marlin.pty import PtyPair, open_pty, read_available, write_all
+from neatskin.rig.marlin.simcore import MarlinCore, ScaledClock, VirtualClock
+
+
+class SimulatedPrinter:
+    """A Marlin printer in software. time_mode "virtual" (no sleeping) or "scaled" (real time x speed)."""
+
+    def __init__(self, profile: PrinterProfile, seed: int = 0, faults: FaultConfig = FaultConfig(), *,
+                 time_mode: str = "virtual", speed: float = 1.0, advanced_ok: bool = False,
+                 marlin_version: str = "2.1", ok_after_resend: bool = False) -> None:
+        if time_mode not in ("virtual", "scaled"):
+            raise ValueError(f"time_mode must be 'virtual' or 'scaled', got {time_mode!r}")
+        clock = VirtualClock() if time_mode == "virtual" else ScaledClock(speed)
+        self.profile = profile
+        self.time_mode = time_mode
+        self.core = MarlinCore(profile, seed=seed, faults=faults, clock=clock, advanced_ok=advanced_ok,
+                               marlin_version=marlin_version, ok_after_resend=ok_after_resend)
+        self.lock = threading.Condition(threading.RLock())
+        self._pty: PtyPair | None = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+
+    # ---- what the rest of the rig reads --------------------------------------------------
+
+    def now_s(self) -> float:
+        """The printer's clock (virtual seconds, or scaled real seconds since it started)."""
+        with self.lock:
+            return self.core.clock.now()
+
+    def probe_position(self, t_s: float | None = None) -> tuple[float, float, float]:
+        """Where the probe is (x, y, z) in printer mm at time t_s on the printer's clock (default: now)."""
+        with self.lock:
+            return self.core.timeline.position_mm(self.core.clock.now() if t_s is None else t_s)
+
+    @property
+    def executed(self) -> list[tuple[int | None, str]]:
+        """(line number, command) of every command the firmware executed, in order."""
+        with self.lock:
+            return list(self.core.executed)
+
+    @property
+    def clip_events(self) -> list:
+        with self.lock:
+            return list(self.core.clip_events)
+
+    def reset(self) -> None:
+        """Press the reset button: `start` is sent, counters and homing are lost."""
+        with self.lock:
+            self.core.reset()
+            self.lock.notify_all()
+
+    # ---- transports ----------------------------------------------------------------------
+
+    def start_pty(self) -> str:
+        """Serve on a new raw pseudo-terminal from a thread; returns the path a host opens."""
+        if self._pty is not None:
+            return self._pty.path
+        self._pty = open_pty()  # the boot banner waits in the pty for a host that does not flush it
+        self._thread = threading.Thread(target=self._serve, name=f"sim-printer {self._pty.path}", daemon=True)
+        self._thread.start()
+        return self._pty.path
+
+    def _serve(self) -> None:
+        pty = self._pty
+        assert pty is not None
+        while not self._stop.is_set():
+            with self.lock:
+                wait = self.core.step()
+                out = self.core.take_output()
+                closed = self.core.closed
+            try:
+                if out:
+                    write_all(pty.master_fd, out)
+                if closed:
+                    break
+                data = read_available(pty.master_fd, 0.05 if wait is None else min(wait, 0.05))
+            except OSError:
+                break
+            if data:
+                with self.lock:
+                    self.core.receive(data)
+        pty.close()
+
+    def serial(self) -> "SimSerial":
+        """A pyserial-compatible port object talking to this printer in-process (no pty)."""
+        return SimSerial(self)
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+        if self._pty is not None:
+            self._pty.close()
+            self._pty = None
+
+    def __enter__(self) -> "SimulatedPrinter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+class SimSerial:
+    """The subset of pyserial's Serial that hosts use: open/close, read/write, timeout, in_waiting."""
+
+    def __init__(self, printer: SimulatedPrinter) -> None:
+        self._printer = printer
+        self._buffer = bytearray()
+        self.timeout: float | None = 1.0
+        self.is_open = False
+        self.name = self.port = "sim://marlin"
+        self.baudrate = printer.profile.baud_rate
+        self._cancel = False
+
+    def open(self) -> None:
+        self.is_open = True
+
+    def close(self) -> None:
+        self.is_open = False
+        with self._printer.lock:
+            self._printer.lock.notify_all()
+
+    def _check(self) -> None:
+        import serial
+
+        if not self.is_open:
+            raise serial.PortNotOpenError()
+        if self._printer.core.closed:
+            raise serial.SerialException("the simulated printer closed the port")
+
+    def _pull(self) -> float | None:
+        wait = self._printer.core.step()
+        self._buffer += self._printer.core.take_output()
+        return wait
+
+    def write(self, data: bytes) -> int:
+        with self._printer.lock:
+            self._check()
+            self._printer.core.receive(bytes(data))
+            self._pull()
+            self._printer.lock.notify_all()
+        return len(data)
+
+    @property
+    def in_waiting(self) -> int:
+        with self._printer.lock:
+            self._check()
+            self._pull()
+            return len(self._buffer)
+
+    def read(self, size: int = 1) -> bytes:
+        end = None if self.timeout is None else time.monotonic() + self.timeout
+        lock = self._printer.lock
+        with lock:
+            while True:
+                self._check()
+                wait = self._pull()
+                if len(self._buffer) >= size or (self._buffer and self.timeout == 0) or self._cancel:
+                    break
+                left = None if end is None else end - time.monotonic()
+                if left is not None and left <= 0:
+                    break
+                lock.wait(min(x for x in (left, wait, 0.05) if x is not None))
+            self._cancel = False
+            data = bytes(self._buffer[:size])
+            del self._buffer[:size]
+            return data
+
+    def reset_input_buffer(self) -> None:
+        with self._printer.lock:
+            self._pull()
+            self._buffer.clear()
+
+    def cancel_read(self) -> None:
+        with self._printer.lock:
+            self._cancel = True
+            self._printer.lock.notify_all()
+
+    def flush(self) -> None:
+        pass
+
+    def fileno(self) -> int:  # pragma: no cover - hosts that select() need a real pty: use start_pty()
+        raise OSError("the in-process simulated port has no file descriptor; use start_pty()")
+
+
+def sim_printer_for_tests(profile_path: str | os.PathLike | None = None, **kwargs) -> SimulatedPrinter:
+    """A simulated printer on the repository's paper profile (or the given one)."""
+    from pathlib import Path
+
+    from neatskin.gcode.profile import load_printer_profile
+
+    path = Path(profile_path) if profile_path else Path(__file__).resolve().parents[3] / "protocols/printers/paper.toml"
+    return SimulatedPrinter(load_printer_profile(path), **kwargs)
