@@ -1,0 +1,400 @@
+"""The paper's model: a one-hidden-layer tanh network trained by Levenberg-Marquardt (MATLAB trainlm style).
+
+`LMNetworkRegressor` is a scikit-learn estimator: n_features-n_hidden-n_outputs, tanh hidden
+layer, linear outputs (28-5-2 = 157 weights for the paper's skin), inputs and targets scaled
+to [0, 1], trained by our own vectorised Levenberg-Marquardt loop:
+
+- analytic Jacobian of the residuals w.r.t. every weight, shape (n_samples * n_outputs, n_weights);
+- step dw solving (J^T J + mu I) dw = -J^T e; mu x mu_dec after a step that lowers the
+  training error, x mu_inc (and retry with the same Jacobian) after one that does not;
+- stop after `max_fail` epochs in a row without a better validation error (the best
+  validation weights are kept), when the gradient norm falls below `min_grad`, when mu
+  exceeds `mu_max`, or after `max_epochs`;
+- `n_restarts` restarts, each with its own Nguyen-Widrow-like initial weights and its own
+  random validation subset; the restart with the lowest validation MSE wins.
+
+`fit_with_scipy_lm` solves the same least-squares problem (same scaling, same initial
+weights, same training rows) with `scipy.optimize.least_squares(method="lm")`; tests and the
+benchmark hold our loop to it.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg.lapack import dposv as _posv
+from sklearn.base import BaseEstimator, RegressorMixin
+from sklearn.utils import check_random_state
+from sklearn.utils.validation import check_is_fitted, validate_data
+from threadpoolctl import threadpool_limits
+
+
+def n_weights(n_inputs: int, n_hidden: int, n_outputs: int) -> int:
+    """Number of weights (biases included) of an n_inputs-n_hidden-n_outputs network."""
+    return n_hidden * (n_inputs + 1) + n_outputs * (n_hidden + 1)
+
+
+# ---------------------------------------------------------------- pure network maths
+
+
+def _split_weights(w: np.ndarray, n_inputs: int, n_hidden: int, n_outputs: int):
+    """Views of the flat weight vector: hidden (h, in+1) and output (out, h+1), bias last."""
+    k = n_hidden * (n_inputs + 1)
+    return w[:k].reshape(n_hidden, n_inputs + 1), w[k:].reshape(n_outputs, n_hidden + 1)
+
+
+def forward(w: np.ndarray, x: np.ndarray, n_hidden: int, n_outputs: int) -> tuple[np.ndarray, np.ndarray]:
+    """Hidden activations (n, h) and outputs (n, out) for scaled inputs x (n, in)."""
+    w1, w2 = _split_weights(w, x.shape[1], n_hidden, n_outputs)
+    hidden = np.tanh(x @ w1[:, :-1].T + w1[:, -1])
+    return hidden, hidden @ w2[:, :-1].T + w2[:, -1]
+
+
+def residual_jacobian(w: np.ndarray, x: np.ndarray, hidden: np.ndarray, n_outputs: int) -> np.ndarray:
+    """d(outputs)/d(weights) for every sample and output: (n * out, n_weights), rows sample-major."""
+    n, n_inputs = x.shape
+    n_hidden = hidden.shape[1]
+    _, w2 = _split_weights(w, n_inputs, n_hidden, n_outputs)
+    # d y_k / d hidden pre-activation j = w2[k, j] * (1 - tanh^2)
+    a = (1.0 - hidden * hidden)[:, None, :] * w2[None, :, :-1]  # (n, out, h)
+    jac = np.zeros((n, n_outputs, n_weights(n_inputs, n_hidden, n_outputs)))
+    k = n_hidden * (n_inputs + 1)
+    first = jac[:, :, :k].reshape(n, n_outputs, n_hidden, n_inputs + 1)
+    first[..., :-1] = a[..., None] * x[:, None, None, :]
+    first[..., -1] = a
+    second = jac[:, :, k:].reshape(n, n_outputs, n_outputs, n_hidden + 1)
+    outs = np.arange(n_outputs)
+    second[:, outs, outs, :-1] = hidden[:, None, :]
+    second[:, outs, outs, -1] = 1.0
+    return jac.reshape(n * n_outputs, -1)
+
+
+def input_outer_products(x: np.ndarray) -> np.ndarray:
+    """Upper-triangle products x1_i * x1_l of the bias-augmented inputs, (n, m(m+1)/2); fixed per fit."""
+    x1 = np.column_stack([x, np.ones(len(x))])
+    iu, ju = np.triu_indices(x1.shape[1])
+    return x1[:, iu] * x1[:, ju]
+
+
+def normal_equations(
+    w: np.ndarray, x: np.ndarray, x_products: np.ndarray, hidden: np.ndarray, err: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """J^T J and J^T e of the residuals without forming J, from the network's block structure.
+
+    Equal to `J.T @ J` and `J.T @ err.ravel()` with J = residual_jacobian(...), at a fraction of
+    the cost: the hidden-hidden block is one product of the per-sample hidden-unit couplings
+    (upper triangle) with the fixed input outer products `x_products`.
+    """
+    n, n_inputs = x.shape
+    n_hidden, n_outputs = hidden.shape[1], err.shape[1]
+    m = n_inputs + 1
+    _, w2 = _split_weights(w, n_inputs, n_hidden, n_outputs)
+    x1 = np.column_stack([x, np.ones(n)])
+    h1 = np.column_stack([hidden, np.ones(n)])
+    a = (1.0 - hidden * hidden)[:, None, :] * w2[None, :, :-1]  # (n, out, h)
+    k = n_hidden * m
+    size = n_weights(n_inputs, n_hidden, n_outputs)
+    jtj = np.empty((size, size))
+    # hidden-hidden block: sum_n (sum_k a_kj a_kj') x1_i x1_i'
+    jh, jh2 = np.triu_indices(n_hidden)
+    coupling = np.einsum("nkj,nkl->njl", a, a)[:, jh, jh2]  # (n, pairs of hidden units)
+    packed = coupling.T @ x_products  # (hidden pairs, input pairs)
+    iu, ju = np.triu_indices(m)
+    block = np.empty((len(jh), m, m))
+    block[:, iu, ju] = packed
+    block[:, ju, iu] = packed
+    b11 = np.empty((n_hidden, n_hidden, m, m))
+    b11[jh, jh2] = block
+    b11[jh2, jh] = block.transpose(0, 2, 1)
+    jtj[:k, :k] = b11.transpose(0, 2, 1, 3).reshape(k, k)
+    # hidden-output block: sum_n a_kj x1_i h1_m for output k
+    ah = (a[:, :, :, None] * h1[:, None, None, :]).reshape(n, -1)
+    b12 = (x1.T @ ah).reshape(m, n_outputs, n_hidden, n_hidden + 1)
+    b12 = b12.transpose(2, 0, 1, 3).reshape(k, n_outputs * (n_hidden + 1))
+    jtj[:k, k:] = b12
+    jtj[k:, :k] = b12.T
+    # output-output block: block diagonal, one h1^T h1 per output
+    hh = h1.T @ h1
+    jtj[k:, k:] = np.kron(np.eye(n_outputs), hh)
+    g1 = np.einsum("nkj,nk->nj", a, err).T @ x1  # (h, m)
+    g2 = err.T @ h1  # (out, h + 1)
+    return jtj, np.concatenate([g1.ravel(), g2.ravel()])
+
+
+def initial_weights(
+    n_inputs: int, n_hidden: int, n_outputs: int, rng: np.random.Generator
+) -> np.ndarray:
+    """Nguyen-Widrow-like start for inputs in [0, 1]: hidden units spread over the input box.
+
+    Each hidden unit's input weights have norm 0.7 * h^(1/in) (Nguyen & Widrow's magnitude) in a
+    random direction, and its bias puts the unit's active region at a random point of the box;
+    output weights are uniform in [-0.5, 0.5].
+    """
+    beta = 0.7 * n_hidden ** (1.0 / max(n_inputs, 1))
+    w_in = rng.uniform(-1.0, 1.0, (n_hidden, n_inputs))
+    norms = np.linalg.norm(w_in, axis=1, keepdims=True)
+    w_in = beta * w_in / np.where(norms > 0, norms, 1.0)
+    centre = rng.uniform(0.0, 1.0, (n_hidden, n_inputs))
+    b_in = -np.sum(w_in * centre, axis=1)
+    w_out = rng.uniform(-0.5, 0.5, (n_outputs, n_hidden + 1))
+    return np.concatenate([np.column_stack([w_in, b_in]).ravel(), w_out.ravel()])
+
+
+@dataclass(frozen=True)
+class LMRun:
+    """One Levenberg-Marquardt training run: best weights and how it went."""
+
+    weights: np.ndarray
+    train_mse: float
+    val_mse: float
+    n_epochs: int
+    stop_reason: str
+
+
+def train_lm(
+    w0: np.ndarray,
+    x_train: np.ndarray,
+    y_train: np.ndarray,
+    x_val: np.ndarray,
+    y_val: np.ndarray,
+    n_hidden: int,
+    *,
+    mu: float = 1e-3,
+    mu_dec: float = 0.1,
+    mu_inc: float = 10.0,
+    mu_max: float = 1e10,
+    max_fail: int = 6,
+    max_epochs: int = 1000,
+    min_grad: float = 1e-7,
+) -> LMRun:
+    """MATLAB-trainlm-style Levenberg-Marquardt on scaled data; returns the best-validation weights.
+
+    Runs with one BLAS thread: on 157 x 157 systems, thread wake-ups cost more than they save
+    (cholesky measured x5 slower with two busy threads).
+    """
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _train_lm(
+            w0, x_train, y_train, x_val, y_val, n_hidden, mu=mu, mu_dec=mu_dec, mu_inc=mu_inc,
+            mu_max=mu_max, max_fail=max_fail, max_epochs=max_epochs, min_grad=min_grad,
+        )
+
+
+def _train_lm(w0, x_train, y_train, x_val, y_val, n_hidden, *, mu, mu_dec, mu_inc, mu_max, max_fail, max_epochs, min_grad) -> LMRun:
+    n_outputs = y_train.shape[1]
+    w = w0.astype(float, copy=True)
+    eye = np.eye(w.size)
+
+    def sse(weights: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+        hidden, out = forward(weights, x, n_hidden, n_outputs)
+        err = out - y
+        return float(np.einsum("ij,ij->", err, err)), hidden, err
+
+    x_products = input_outer_products(x_train)
+    train_sse, hidden, err = sse(w, x_train, y_train)
+    val_sse = sse(w, x_val, y_val)[0]
+    best_w, best_val, fails = w.copy(), val_sse, 0
+    n_train, n_val = y_train.size, max(y_val.size, 1)
+    stop, epoch = "max_epochs", 0
+    for epoch in range(1, max_epochs + 1):
+        jtj, jte = normal_equations(w, x_train, x_products, hidden, err)
+        if np.sqrt(jte @ jte) * 2.0 / n_train < min_grad:
+            stop = "min_grad"
+            break
+        while mu <= mu_max:
+            _, step, info = _posv(jtj + mu * eye, -jte, lower=1, overwrite_a=1, overwrite_b=1)
+            if info != 0:  # not positive definite at this damping: damp more
+                mu *= mu_inc
+                continue
+            candidate = w + step
+            cand_sse, cand_hidden, cand_err = sse(candidate, x_train, y_train)
+            if cand_sse < train_sse:
+                w, train_sse, hidden, err = candidate, cand_sse, cand_hidden, cand_err
+                mu = max(mu * mu_dec, 1e-20)
+                break
+            mu *= mu_inc
+        if mu > mu_max:
+            stop = "mu_max"
+            break
+        val_sse = sse(w, x_val, y_val)[0]
+        if val_sse < best_val:
+            best_w, best_val, fails = w.copy(), val_sse, 0
+        else:
+            fails += 1
+            if fails >= max_fail:
+                stop = "max_fail"
+                break
+    best_train = sse(best_w, x_train, y_train)[0]
+    return LMRun(best_w, best_train / n_train, best_val / n_val, epoch, stop)
+
+
+# ---------------------------------------------------------------- scaling
+
+
+def minmax_fit(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-column minimum and range for scaling to [0, 1]; a constant column gets range 1 (maps to 0)."""
+    low = a.min(axis=0)
+    span = a.max(axis=0) - low
+    span = np.where(np.isfinite(span) & (span > 0), span, 1.0)
+    return low, span
+
+
+# ---------------------------------------------------------------- estimator
+
+
+class LMNetworkRegressor(RegressorMixin, BaseEstimator):
+    """The paper's n_features-n_hidden-n_outputs tanh network trained by Levenberg-Marquardt.
+
+    Parameters follow MATLAB's trainlm defaults. `val_fraction` is the share of the rows
+    given to `fit` held out (per restart, at random) to stop training and to pick the best
+    restart; the paper's 95/3/2 split gives 3/98 of the rows that reach `fit`.
+
+    Fitted attributes: `weights_` (flat, `n_weights_` long), `n_weights_`, `val_mse_` and
+    `n_epochs_` (per restart), `best_restart_`, `stop_reasons_`, `fit_time_s_`, `n_features_in_`.
+    """
+
+    def __init__(
+        self,
+        n_hidden: int = 5,
+        n_restarts: int = 10,
+        val_fraction: float = 3 / 98,
+        max_epochs: int = 1000,
+        mu: float = 1e-3,
+        mu_dec: float = 0.1,
+        mu_inc: float = 10.0,
+        mu_max: float = 1e10,
+        max_fail: int = 6,
+        min_grad: float = 1e-7,
+        random_state=None,
+    ):
+        self.n_hidden = n_hidden
+        self.n_restarts = n_restarts
+        self.val_fraction = val_fraction
+        self.max_epochs = max_epochs
+        self.mu = mu
+        self.mu_dec = mu_dec
+        self.mu_inc = mu_inc
+        self.mu_max = mu_max
+        self.max_fail = max_fail
+        self.min_grad = min_grad
+        self.random_state = random_state
+
+    def __sklearn_tags__(self):
+        tags = super().__sklearn_tags__()
+        tags.target_tags.multi_output = True
+        tags.target_tags.single_output = True
+        return tags
+
+    def _check_params(self) -> None:
+        if int(self.n_hidden) < 1 or int(self.n_restarts) < 1 or int(self.max_epochs) < 0:
+            raise ValueError("n_hidden and n_restarts must be >= 1 and max_epochs >= 0")
+        if not 0.0 <= float(self.val_fraction) < 1.0:
+            raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction!r}")
+        if not (self.mu > 0 and 0 < self.mu_dec < 1 < self.mu_inc and self.mu_max > self.mu):
+            raise ValueError("need mu > 0, 0 < mu_dec < 1 < mu_inc and mu_max > mu")
+
+    def fit(self, X, y):
+        self._check_params()
+        X, y = validate_data(self, X, y, multi_output=True, y_numeric=True, dtype=np.float64)
+        start = time.perf_counter()
+        self._y_1d = y.ndim == 1
+        y2 = y.reshape(len(y), -1).astype(np.float64)
+        self.x_min_, self.x_span_ = minmax_fit(X)
+        self.y_min_, self.y_span_ = minmax_fit(y2)
+        xs = (X - self.x_min_) / self.x_span_
+        ys = (y2 - self.y_min_) / self.y_span_
+        n = len(xs)
+        n_val = int(round(self.val_fraction * n)) if n >= 3 else 0
+        n_val = min(n_val, n - 1)
+        seeds = check_random_state(self.random_state).randint(0, 2**31 - 1, size=int(self.n_restarts))
+        runs = [self._fit_one(xs, ys, n_val, int(seed)) for seed in seeds]
+
+        self.val_mse_ = np.array([r.val_mse for r in runs])
+        self.n_epochs_ = np.array([r.n_epochs for r in runs])
+        self.stop_reasons_ = [r.stop_reason for r in runs]
+        self.best_restart_ = int(np.argmin(self.val_mse_))
+        self.weights_ = runs[self.best_restart_].weights
+        self.n_outputs_ = ys.shape[1]
+        self.n_weights_ = self.weights_.size
+        self.fit_time_s_ = time.perf_counter() - start
+        return self
+
+    def _fit_one(self, xs: np.ndarray, ys: np.ndarray, n_val: int, seed: int) -> LMRun:
+        """One restart: its own validation rows and initial weights, both from `seed`."""
+        rng = np.random.default_rng(seed)
+        order = rng.permutation(len(xs))
+        val, train = order[:n_val], order[n_val:]
+        if n_val == 0:  # too few rows to hold any out: validate on the training rows
+            val = train
+        w0 = initial_weights(xs.shape[1], int(self.n_hidden), ys.shape[1], rng)
+        return train_lm(
+            w0, xs[train], ys[train], xs[val], ys[val], int(self.n_hidden),
+            mu=self.mu, mu_dec=self.mu_dec, mu_inc=self.mu_inc, mu_max=self.mu_max,
+            max_fail=int(self.max_fail), max_epochs=int(self.max_epochs), min_grad=self.min_grad,
+        )
+
+    def predict(self, X):
+        check_is_fitted(self, "weights_")
+        X = validate_data(self, X, reset=False, dtype=np.float64)
+        xs = (X - self.x_min_) / self.x_span_
+        _, out = forward(self.weights_, xs, int(self.n_hidden), self.n_outputs_)
+        pred = out * self.y_span_ + self.y_min_
+        return pred.ravel() if self._y_1d else pred
+
+
+# ---------------------------------------------------------------- scipy reference
+
+
+@dataclass(frozen=True)
+class ScipyLMResult:
+    weights: np.ndarray
+    train_mse: float
+    val_mse: float
+    n_evaluations: int
+    fit_time_s: float
+
+
+def fit_with_scipy_lm(
+    x_train: np.ndarray,
+    y_train: np.ndarray,
+    x_val: np.ndarray,
+    y_val: np.ndarray,
+    w0: np.ndarray,
+    n_hidden: int,
+    *,
+    analytic_jacobian: bool = False,
+    max_nfev: int | None = None,
+) -> ScipyLMResult:
+    """The same problem solved by `scipy.optimize.least_squares(method="lm")` (MINPACK).
+
+    Inputs are already scaled to [0, 1]; w0 is the same start our loop uses. MINPACK runs to
+    its own convergence on the training rows (it has no validation stop); the validation MSE
+    is reported for comparison. With `analytic_jacobian=False` (scipy's default) MINPACK
+    differentiates by finite differences, as a plain `least_squares(method="lm")` call does.
+    """
+    from scipy.optimize import least_squares
+
+    n_outputs = y_train.shape[1]
+
+    def residuals(w: np.ndarray) -> np.ndarray:
+        return (forward(w, x_train, n_hidden, n_outputs)[1] - y_train).ravel()
+
+    def jacobian(w: np.ndarray) -> np.ndarray:
+        hidden, _ = forward(w, x_train, n_hidden, n_outputs)
+        return residual_jacobian(w, x_train, hidden, n_outputs)
+
+    start = time.perf_counter()
+    with threadpool_limits(limits=1, user_api="blas"):  # same footing as train_lm
+        result = least_squares(
+            residuals, w0, jac=jacobian if analytic_jacobian else "2-point", method="lm", max_nfev=max_nfev
+        )
+    elapsed = time.perf_counter() - start
+    val_err = forward(result.x, x_val, n_hidden, n_outputs)[1] - y_val
+    return ScipyLMResult(
+        result.x,
+        float(np.mean(result.fun**2)),
+        float(np.mean(val_err**2)),
+        int(result.nfev),
+        elapsed,
+    )
