@@ -34,7 +34,7 @@ class DaqConfig:
     voltage_gain: float = 0.5  # AI volts per volt across the pair (isolation amplifier / monitor divider)
     current_gain_v_per_a: float = 1_000.0  # galvanostat current monitor: 1 V per mA
     ao_v_per_a: float = 1_000.0  # galvanostat control input: AO volts per amp commanded
-    compliance_v: float = 15.0  # the galvanostat's output voltage limit
+    compliance_v: float = 50.0  # the galvanostat's output voltage limit (HA-151B class; set your instrument's)
     adc_bits: int = 16
     channel_names: tuple[str, ...] = CHANNELS
     device: str = "Dev1"

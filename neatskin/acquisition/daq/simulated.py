@@ -181,7 +181,7 @@ class SimulatedDAQ(Daq):
             s = (c ** 2 * sin2).sum(axis=-1)
             dc_v2 = noise.voltage_offset_v ** 2
             dc_i2 = noise.current_offset_a ** 2
-            mean = r * np.sqrt((v0 ** 2 / 2 + sigma_v2 + dc_v2) / (amp ** 2 / 2 + sigma_i2 + dc_i2))
+            mean = np.sqrt((v0 ** 2 / 2 + sigma_v2 + dc_v2) / (amp ** 2 / 2 + sigma_i2 + dc_i2))  # RMS rectifies
             rel_var = (4.0 / (window * n_win) ** 2 * s * rel_lin
                        + 2.0 * (c ** 2).sum() / (window * n_win) ** 2 * (sigma_v2 ** 2 / v0 ** 4 + sigma_i2 ** 2 / amp ** 4))
             blocks = max(1, n_live // window)
