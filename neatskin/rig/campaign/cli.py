@@ -1,0 +1,88 @@
+"""`neatskin campaign run|resume|check`: a protocol in, a campaign dataset (and its baseline report) out."""
+
+from __future__ import annotations
+
+import argparse
+from datetime import datetime
+from pathlib import Path
+
+
+def register(subparsers) -> None:
+    campaign = subparsers.add_parser("campaign", help="run, resume or check a press campaign")
+    sub = campaign.add_subparsers(dest="campaign_command", metavar="ACTION", required=True)
+
+    run = sub.add_parser("run", help="run a campaign from a protocol file")
+    run.add_argument("protocol", type=Path, help="protocol TOML, e.g. protocols/paper.toml")
+    rig = run.add_mutually_exclusive_group()
+    rig.add_argument("--dry-run", action="store_true",
+                     help="simulated printer (on a pseudo-terminal) and simulated skin and DAQ; no hardware")
+    rig.add_argument("--port", help="the printer's serial port, e.g. /dev/ttyUSB0 (real rig)")
+    run.add_argument("--daq", default="ni", choices=("ni", "simulated"), help="DAQ backend of a real run")
+    run.add_argument("--out", type=Path, help="campaign folder (default: runs/<name>-<date>-<time>)")
+    run.add_argument("--limit", type=int, help="stop after this many presses (the campaign stays resumable)")
+    run.add_argument("--no-report", action="store_true", help="skip the baseline report at the end")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    run.set_defaults(handler=_run)
+
+    resume = sub.add_parser("resume", help="finish an interrupted campaign, no press lost or duplicated")
+    resume.add_argument("folder", type=Path)
+    resume.add_argument("--port", help="serial port of a real run (default: as recorded)")
+    resume.add_argument("--no-report", action="store_true")
+    resume.add_argument("--quiet", action="store_true")
+    resume.set_defaults(handler=_resume)
+
+    check = sub.add_parser("check", help="validate a protocol and print its plan and time estimate, moving nothing")
+    check.add_argument("protocol", type=Path)
+    check.set_defaults(handler=_check)
+
+
+def _summary(result) -> str:
+    ratio = result.printer_time_s / result.wall_s if result.wall_s > 0 else float("inf")
+    state = "interrupted (resume with: neatskin campaign resume " + str(result.folder) + ")" \
+        if result.completed < result.planned else "complete"
+    return (f"campaign {state}: {result.completed}/{result.planned} presses in {result.folder} "
+            f"({result.written_now} written now, {result.flagged} flagged); wall {result.wall_s:.1f} s, "
+            f"estimated rig time {result.printer_time_s / 3600:.2f} h ({ratio:.0f}x)")
+
+
+def _run(args: argparse.Namespace) -> int:
+    from neatskin.errors import ConfigError
+    from neatskin.rig.campaign.protocol import load_protocol
+    from neatskin.rig.campaign.runner import run_campaign
+
+    protocol = load_protocol(args.protocol)
+    if not args.dry_run and not args.port:
+        raise ConfigError("choose the rig: --dry-run (simulated, no hardware) or --port PORT (the real printer)",
+                          field="--dry-run/--port", fix=f"e.g. neatskin campaign run {args.protocol} --dry-run")
+    out = args.out or Path("runs") / f"{protocol.name}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
+    result = run_campaign(protocol, out, dry_run=args.dry_run, port=args.port, daq_kind=args.daq,
+                          progress=not args.quiet, limit=args.limit, report=not args.no_report)
+    print(_summary(result))
+    return 130 if result.interrupted else 0
+
+
+def _resume(args: argparse.Namespace) -> int:
+    from neatskin.rig.campaign.runner import resume_campaign
+
+    kwargs = {"progress": not args.quiet, "report": not args.no_report}
+    if args.port:
+        kwargs.update(dry_run=False, port=args.port)
+    result = resume_campaign(args.folder, **kwargs)
+    print(_summary(result))
+    return 130 if result.interrupted else 0
+
+
+def _check(args: argparse.Namespace) -> int:
+    from neatskin.rig.campaign.protocol import load_protocol
+    from neatskin.rig.campaign.runner import build_plan
+
+    protocol = load_protocol(args.protocol)
+    plan = build_plan(protocol)
+    positions = len({b.position_id for b in plan.program.presses})
+    print(f"{protocol.path}: ok")
+    print(f"  {plan.n_presses} presses ({positions} positions), layout {protocol.layout.name} "
+          f"({protocol.layout.n_channels} channels, {len(protocol.layout.pairs)} pairs)")
+    print(f"  sweep {plan.sweep.n_samples} samples = {plan.sweep.duration_s * 1000:.1f} ms, "
+          f"{plan.n_sweeps} sweeps recorded per press, hold {plan.hold_s} s")
+    print(f"  estimated rig time {plan.printer_time_s / 3600:.2f} h")
+    return 0

@@ -1,0 +1,90 @@
+"""From a press's record to its dataset row: baseline and pressed sweeps by motion sync, FSR labels, flags.
+
+Pure functions of the record: the baseline is every sweep that ended before the probe reached
+the surface (the `contact` mark), the pressed value every sweep that lies inside the hold
+(`hold_start` .. `hold_end`). The FSR labels the press (onset, offset, peak) and catches a
+press the G-code commanded that never touched the skin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from neatskin.acquisition.estimates import PairEstimates, flag_names
+from neatskin.acquisition.fsr import PressDetection, detect_presses
+
+
+@dataclass(frozen=True)
+class PressValues:
+    resistance_ohm: np.ndarray  # (pairs,) pressed
+    baseline_ohm: np.ndarray  # (pairs,)
+    delta_r_ohm: np.ndarray  # (pairs,)
+    flags: tuple[str, ...]
+    n_baseline: int
+    n_pressed: int
+
+
+def _mean_over(estimates: PairEstimates, use: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pair mean of the sweeps selected by `use` (sweeps, pairs) and the OR of their flags."""
+    count = use.sum(axis=0)
+    r = np.where(use, estimates.resistance_ohm, 0.0)
+    with np.errstate(invalid="ignore"):
+        total = r.sum(axis=0)
+        inf = (use & np.isinf(estimates.resistance_ohm)).any(axis=0)
+    mean = np.where(inf, np.inf, total / np.maximum(count, 1))
+    flags = np.bitwise_or.reduce(np.where(use, estimates.flags, 0).astype(np.uint8), axis=0)
+    return np.where(count > 0, mean, np.nan), flags
+
+
+def press_values(estimates: PairEstimates, marks: dict[str, int], pair_labels: list[str]) -> PressValues:
+    start, stop = estimates.windows[..., 0], estimates.windows[..., 1]
+    baseline_use = stop <= marks["contact"]
+    pressed_use = (start >= marks["hold_start"]) & (stop <= marks["hold_end"])
+    r_b, f_b = _mean_over(estimates, baseline_use)
+    r_p, f_p = _mean_over(estimates, pressed_use)
+    flags: list[str] = []
+    if not baseline_use.any():
+        flags.append("no_baseline_sweep")
+    if not pressed_use.any():
+        flags.append("no_pressed_sweep")
+    both_open = np.isinf(r_b) & np.isinf(r_p)
+    with np.errstate(invalid="ignore"):
+        delta = np.where(both_open, 0.0, r_p - r_b)
+    for label, bits in zip(pair_labels, f_b | f_p):
+        for name in flag_names(int(bits)):
+            flags.append(f"{name}:{label}")
+    return PressValues(r_p, r_b, delta, tuple(flags), int(baseline_use.any(axis=1).sum()),
+                       int(pressed_use.all(axis=1).sum()))
+
+
+@dataclass(frozen=True)
+class FsrLabel:
+    onset_s: float | None
+    offset_s: float | None
+    peak_n: float | None
+    flags: tuple[str, ...]
+
+    @property
+    def missed(self) -> bool:
+        return "fsr_missed" in self.flags
+
+
+def fsr_label(fsr_v: np.ndarray | None, rate_hz: float, fsr_model, first_sample: int,
+              marks: dict[str, int]) -> FsrLabel:
+    """Onset, offset (s after the recording began) and peak force of the press; flags when it is not one press."""
+    if fsr_v is None:
+        return FsrLabel(None, None, None, ())
+    detection: PressDetection = detect_presses(fsr_v, rate_hz, expected=1, units="v", fsr=fsr_model)
+    flags = []
+    if detection.n_presses == 0:
+        return FsrLabel(None, None, None, ("fsr_missed",))
+    if detection.n_presses > 1:
+        flags.append(f"fsr_multiple:{detection.n_presses}")
+    k = int(np.argmax(detection.peak_force_n))
+    onset, offset = int(detection.onset[k]), int(detection.offset[k])
+    hold_start = marks["hold_start"] - first_sample
+    if not onset <= hold_start < offset:
+        flags.append("fsr_not_at_hold")
+    return FsrLabel(onset / rate_hz, offset / rate_hz, float(detection.peak_force_n[k]), tuple(flags))

@@ -1,0 +1,201 @@
+"""Per-press recording: one hardware-timed acquisition of whole sweeps spanning a press, with motion-sync marks.
+
+The runner calls `begin` when the probe is parked above the target (after the travel phase's
+M400), `mark(name)` after each later M400 (contact, hold start, hold end, lifted), and `end`
+after the lift. Both recorders return the same `PressRecord`; the rest of the pipeline
+(demodulation, FSR detection, features) never knows which rig it came from.
+
+- `SimulatedRecorder` (dry run): the printer runs on a virtual clock, so the acquisition is
+  computed after the motion from the printer's own trajectory; its sample clock is keyed by
+  the press (press_id * PRESS_SLOT_S), and its random draws by (seed, press_id), so a resumed
+  campaign records bit for bit what an uninterrupted one would have.
+- `ThreadedRecorder` (real rig): the DAQ's finite acquisition runs in a thread while the
+  printer moves; marks are host times mapped onto the sample clock.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from neatskin.acquisition.demod import demodulate
+from neatskin.acquisition.estimates import PairEstimates
+from neatskin.errors import HardwareError
+
+PRESS_SLOT_S = 1000.0  # each press owns [press_id * slot, (press_id + 1) * slot) of the dry run's sample clock
+STREAM_DAQ = 1
+STREAM_PLACEMENT = 2
+STREAM_FSR = 3
+
+
+@dataclass
+class PressRecord:
+    """What one press recorded: per-sweep pair estimates, the FSR trace, motion-sync marks (sample indices)."""
+
+    estimates: PairEstimates
+    first_sample: int
+    n_samples: int
+    rate_hz: float
+    marks: dict[str, int]
+    fsr_v: np.ndarray | None = None
+    waveforms: dict[str, np.ndarray] | None = field(default=None, repr=False)
+
+
+class DryProbe:
+    """The simulated skin and force as the DAQ sees them: probe state from the printer's trajectory.
+
+    The trajectory is sampled on a grid relative to the press's start and interpolated, so the
+    values depend only on the press, not on how long the printer has been running.
+    """
+
+    def __init__(self, skin, calibration, position_at: Callable[[float], tuple[float, float, float]],
+                 grid_step_s: float = 0.005, placement_error: Callable[[int], tuple[float, float]] | None = None):
+        self.skin = skin
+        self.calibration = calibration
+        self.position_at = position_at
+        self.grid_step_s = grid_step_s
+        self.placement_error = placement_error
+        self._baseline = np.asarray(skin.baseline_pair_resistance_ohm, dtype=float)
+        self._daq_t0 = 0.0
+        self._grid_t = np.zeros(1)
+        self._grid = np.zeros((1, 3))
+
+    def load(self, press_id: int, printer_t0_s: float, daq_t0_s: float, duration_s: float) -> None:
+        """Sample the printer's trajectory over [t0, t0 + duration] for this press."""
+        n = int(np.ceil(duration_s / self.grid_step_s)) + 2
+        rel = np.arange(n) * self.grid_step_s
+        xyz = np.array([self.position_at(printer_t0_s + r) for r in rel], dtype=float)
+        sx, sy = self.calibration.to_sensor(xyz[:, 0], xyz[:, 1])
+        depth = self.calibration.surface_z_mm - xyz[:, 2]
+        grid = np.stack([np.asarray(sx, float), np.asarray(sy, float), depth], axis=1)
+        if self.placement_error is not None:
+            dx, dy = self.placement_error(press_id)
+            grid[:, 0] += dx
+            grid[:, 1] += dy
+        self._grid = np.round(grid, 6)  # 1 nm: the G-code's resolution is 1 um
+        self._grid_t = rel
+        self._daq_t0 = daq_t0_s
+
+    def state(self, times_s: np.ndarray) -> np.ndarray:
+        rel = np.asarray(times_s, dtype=float) - self._daq_t0
+        return np.stack([np.interp(rel, self._grid_t, self._grid[:, k]) for k in range(3)], axis=-1)
+
+    def pair_resistance_ohm(self, times_s: np.ndarray) -> np.ndarray:
+        state = self.state(times_s)
+        out = np.broadcast_to(self._baseline, (len(state), self._baseline.size)).copy()
+        touching = state[:, 2] > 0
+        if touching.any():
+            unique, inverse = np.unique(state[touching], axis=0, return_inverse=True)
+            r = self.skin.pair_resistance_ohm(unique[:, 0], unique[:, 1], unique[:, 2])
+            out[touching] = r[inverse.reshape(-1)]
+        return out
+
+    def force_n(self, times_s: np.ndarray) -> np.ndarray:
+        depth = self.state(times_s)[:, 2]
+        return np.asarray(self.skin.contact_force_n(np.maximum(depth, 0.0)), dtype=float).reshape(-1)
+
+
+class SimulatedRecorder:
+    """Dry-run recorder: computes the press's acquisition from the simulated printer's trajectory."""
+
+    def __init__(self, daq, sweep, probe: DryProbe, clock: Callable[[], float], *, seed: int, signal: str,
+                 method: str, window: int, fsr_enabled: bool, keep_waveforms: bool) -> None:
+        self.daq, self.sweep, self.probe, self.clock = daq, sweep, probe, clock
+        self.seed, self.signal, self.method, self.window = seed, signal, method, window
+        self.fsr_enabled, self.keep_waveforms = fsr_enabled, keep_waveforms
+        self._press: int | None = None
+
+    def begin(self, press_id: int, n_sweeps: int) -> None:
+        self._press, self._n_sweeps = press_id, n_sweeps
+        self._t0 = self.clock()
+        self._marks: dict[str, float] = {}
+
+    def mark(self, name: str) -> None:
+        self._marks[name] = self.clock()
+
+    def end(self) -> PressRecord:
+        if self._press is None:
+            raise RuntimeError("end() without begin()")
+        press_id, n_sweeps, sweep = self._press, self._n_sweeps, self.sweep
+        rate = sweep.rate_hz
+        duration = n_sweeps * sweep.duration_s
+        daq_t0 = press_id * PRESS_SLOT_S
+        self.probe.load(press_id, self._t0, daq_t0, duration)
+        rng = np.random.default_rng([self.seed, press_id, STREAM_DAQ])
+        first = int(round(daq_t0 * rate))
+        n = n_sweeps * sweep.n_samples
+        waveforms = fsr_v = None
+        if self.signal == "waveforms":
+            acq = self.daq.acquire(sweep, n_sweeps, rng=rng, start_time_s=daq_t0)
+            estimates = demodulate(acq, sweep, method=self.method, window=self.window)
+            fsr_v = acq.fsr_v if self.fsr_enabled else None
+            if self.keep_waveforms:
+                waveforms = {"voltage_v": acq.voltage_v.astype(np.float32), "current_a": acq.current_a.astype(np.float32),
+                             "fsr_v": acq.fsr_v.astype(np.float32)}
+        else:
+            estimates = self.daq.estimate_sweep(sweep, rng, daq_t0, method=self.method, window=self.window,
+                                                n_sweeps=n_sweeps)
+            if self.fsr_enabled:
+                fsr_v = self._fsr_trace(first, n, press_id)
+        marks = {k: first + int(round((t - self._t0) * rate)) for k, t in self._marks.items()}
+        self._press = None
+        return PressRecord(estimates, first, n, rate, marks, fsr_v, waveforms)
+
+    def _fsr_trace(self, first: int, n: int, press_id: int) -> np.ndarray:
+        """The FSR channel alone (the features-only scene generates no V and I waveforms)."""
+        rate = self.sweep.rate_hz
+        times = (first + np.arange(n)) / rate
+        volts = self.daq.fsr.volts(self.probe.force_n(times))
+        if self.daq.noise.fsr_noise_v > 0:
+            rng = np.random.default_rng([self.seed, press_id, STREAM_FSR])
+            volts = volts + rng.standard_normal(n) * self.daq.noise.fsr_noise_v
+        return volts
+
+
+class ThreadedRecorder:
+    """Real-rig recorder: the DAQ records in a thread while the printer moves."""
+
+    def __init__(self, daq, sweep, *, method: str, window: int, fsr_enabled: bool, keep_waveforms: bool,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.daq, self.sweep, self.clock = daq, sweep, clock
+        self.method, self.window = method, window
+        self.fsr_enabled, self.keep_waveforms = fsr_enabled, keep_waveforms
+
+    def begin(self, press_id: int, n_sweeps: int) -> None:
+        self._result: list = []
+        self._marks: dict[str, float] = {}
+
+        def work() -> None:
+            try:
+                self._result.append(self.daq.acquire(self.sweep, n_sweeps))
+            except BaseException as exc:  # surfaced in end()
+                self._result.append(exc)
+
+        self._thread = threading.Thread(target=work, name=f"daq-press-{press_id}", daemon=True)
+        self._t0 = self.clock()
+        self._thread.start()
+
+    def mark(self, name: str) -> None:
+        self._marks[name] = self.clock()
+
+    def end(self, timeout_s: float = 120.0) -> PressRecord:
+        self._thread.join(timeout_s)
+        if self._thread.is_alive() or not self._result:
+            raise HardwareError(f"the DAQ did not finish its acquisition within {timeout_s:.0f} s "
+                                "(check the device and its sample clock)")
+        acq = self._result[0]
+        if isinstance(acq, BaseException):
+            raise HardwareError(f"DAQ acquisition failed: {acq}") from acq
+        estimates = demodulate(acq, self.sweep, method=self.method, window=self.window)
+        first = int(acq.sample_index[0])
+        marks = {k: first + int(round((t - self._t0) * acq.rate_hz)) for k, t in self._marks.items()}
+        waveforms = None
+        if self.keep_waveforms:
+            waveforms = {"voltage_v": acq.voltage_v.astype(np.float32), "current_a": acq.current_a.astype(np.float32),
+                         "fsr_v": acq.fsr_v.astype(np.float32)}
+        return PressRecord(estimates, first, acq.n_samples, acq.rate_hz, marks,
+                           acq.fsr_v if self.fsr_enabled else None, waveforms)

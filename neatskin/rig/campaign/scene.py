@@ -1,0 +1,117 @@
+"""Rigs a campaign runs against: the dry run's simulated printer (on a pseudo-terminal) and skin, or the real rig.
+
+Each builder imports only what its rig needs: a dry run never imports nidaqmx, a real run never
+builds a simulator. Both return a `Rig` whose driver, recorder and clock the runner uses the
+same way.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from neatskin.errors import HardwareError
+
+
+@dataclass
+class Rig:
+    kind: str  # "dry-run" | "real"
+    driver: object  # neatskin.rig.marlin.driver.MarlinDriver
+    recorder: object  # SimulatedRecorder | ThreadedRecorder
+    fsr_model: object
+    description: dict
+    closers: list[Callable[[], None]] = field(default_factory=list)
+    skin: object | None = None  # the simulated skin (dry run only)
+    daq: object | None = None
+
+    def close(self) -> None:
+        for close in reversed(self.closers):
+            try:
+                close()
+            except Exception:  # closing must not mask the error that got us here
+                pass
+
+
+def daq_config(protocol):
+    from neatskin.acquisition.daq.base import DaqConfig
+
+    return DaqConfig(rate_hz=protocol.acquisition.rate_hz, amplitude_a=protocol.excitation.amplitude_a,
+                     frequency_hz=protocol.excitation.frequency_hz)
+
+
+def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 10.0, wire_log=None, printer_faults=None) -> Rig:
+    """The simulated printer on a real pty (reached through pyserial), the simulated skin and DAQ."""
+    from neatskin.acquisition.daq.simulated import NoiseModel, SimulatedDAQ
+    from neatskin.rig.campaign.recorder import STREAM_PLACEMENT, DryProbe, SimulatedRecorder
+    from neatskin.rig.marlin.driver import MarlinDriver
+    from neatskin.rig.marlin.simprinter import SimulatedPrinter
+    from neatskin.rig.skin.model import SkinModel, placement_error_mm
+
+    scene = protocol.scene
+    probe_radius = protocol.press.press.probe_diameter_mm / 2
+    skin = SkinModel(protocol.layout, fidelity=scene.fidelity, probe_radius_mm=probe_radius,
+                     placement_sigma_mm=scene.placement_error_mm)
+    kwargs = {} if printer_faults is None else {"faults": printer_faults}
+    printer = SimulatedPrinter(protocol.printer, seed=protocol.seed, time_mode="virtual", **kwargs)
+    closers: list[Callable[[], None]] = []
+    try:
+        pty_path = printer.start_pty()
+        closers.append(printer.stop)
+        driver = MarlinDriver.open(pty_path, protocol.printer.baud_rate, wire_log=wire_log)
+        closers.append(driver.close)
+        driver.connect(boot_timeout_s=connect_timeout_s)
+    except Exception:
+        for close in reversed(closers):
+            close()
+        raise
+
+    calibration = protocol.printer.calibration
+    placement = None
+    if scene.placement_error_mm > 0:
+        def placement(press_id: int) -> tuple[float, float]:
+            rng = np.random.default_rng([protocol.seed, press_id, STREAM_PLACEMENT])
+            dx, dy = placement_error_mm(0.0, 0.0, scene.placement_error_mm, rng)
+            return float(np.asarray(dx).reshape(-1)[0]), float(np.asarray(dy).reshape(-1)[0])
+
+    probe = DryProbe(skin, calibration, printer.probe_position, placement_error=placement)
+    noise = NoiseModel() if scene.noise else NoiseModel.none()
+    daq = SimulatedDAQ(daq_config(protocol), probe.pair_resistance_ohm, probe.force_n, noise=noise)
+    recorder = SimulatedRecorder(daq, sweep, probe, printer.now_s, seed=protocol.seed, signal=scene.signal,
+                                 method=protocol.acquisition.demodulation, window=protocol.acquisition.window,
+                                 fsr_enabled=protocol.fsr_enabled, keep_waveforms=protocol.record_waveforms)
+    description = {"kind": "dry-run", "printer": "simulated Marlin on " + pty_path, "daq": "simulated",
+                   "skin": {"fidelity": scene.fidelity, "signal": scene.signal, "noise": scene.noise,
+                            "placement_error_mm": scene.placement_error_mm, "probe_radius_mm": probe_radius}}
+    return Rig("dry-run", driver, recorder, daq.fsr, description, closers, skin=skin, daq=daq)
+
+
+def build_real_rig(protocol, sweep, *, port: str, daq_kind: str = "ni", baud_rate: int | None = None,
+                   connect_timeout_s: float = 30.0, wire_log=None) -> Rig:
+    """The printer on a serial port and the DAQ; errors are HardwareErrors raised before any motion."""
+    from neatskin.acquisition.daq import open_daq
+    from neatskin.acquisition.fsr import FsrModel
+    from neatskin.rig.campaign.recorder import ThreadedRecorder
+    from neatskin.rig.marlin.driver import MarlinDriver
+
+    closers: list[Callable[[], None]] = []
+    try:
+        daq = open_daq(daq_kind, daq_config(protocol))
+        closers.append(daq.close)
+        driver = MarlinDriver.open(port, baud_rate or protocol.printer.baud_rate, wire_log=wire_log)
+        closers.append(driver.close)
+        driver.connect(boot_timeout_s=connect_timeout_s)
+    except HardwareError:
+        for close in reversed(closers):
+            close()
+        raise
+    except Exception as exc:
+        for close in reversed(closers):
+            close()
+        raise HardwareError(f"cannot open the rig ({port}, DAQ {daq_kind}): {exc}") from exc
+    recorder = ThreadedRecorder(daq, sweep, method=protocol.acquisition.demodulation,
+                                window=protocol.acquisition.window, fsr_enabled=protocol.fsr_enabled,
+                                keep_waveforms=protocol.record_waveforms)
+    description = {"kind": "real", "printer": port, "daq": daq_kind}
+    return Rig("real", driver, recorder, FsrModel(), description, closers, daq=daq)
