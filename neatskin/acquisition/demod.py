@@ -108,27 +108,26 @@ def _rms(v: np.ndarray, i: np.ndarray, window: int, open_circuit: np.ndarray) ->
 
 def _lockin(v, i, index, samples_per_period: float, open_circuit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     whole = round(samples_per_period)
-    if abs(samples_per_period - whole) < 1e-9:  # keep the phase exact for large sample indices
-        phase = 2 * np.pi * (index % whole) / whole
+    if abs(samples_per_period - whole) < 1e-9:  # exact phase for large indices, from a table
+        table = 2 * np.pi * np.arange(whole) / whole
+        ref = np.stack([np.cos(table), np.sin(table)])[:, index % whole]
     else:
         phase = 2 * np.pi * index / samples_per_period
-    ref_c, ref_s = np.cos(phase), np.sin(phase)
-    vc, vs = (v * ref_c).sum(-1), (v * ref_s).sum(-1)
-    ic, is_ = (i * ref_c).sum(-1), (i * ref_s).sum(-1)
-    den = ic * ic + is_ * is_
-    r = _safe_ratio(vc * ic + vs * is_, den)  # Re(Zv / Zi)
-    period = max(1, int(round(samples_per_period)))
+        ref = np.stack([np.cos(phase), np.sin(phase)])
+    # products[a, b] = signal a (V, I) times reference b (cos, sin): one pass over the samples
+    products = np.stack([v, i])[:, None] * ref[None]  # (2, 2, sweeps, pairs, N)
+    period = max(1, int(whole))
     n = v.shape[-1]
     blocks = n // period
+    cut = blocks * period
+    block_sums = products[..., :cut].reshape(products.shape[:-1] + (blocks, period)).sum(-1)
+    totals = block_sums.sum(-1) + products[..., cut:].sum(-1)
+    (vc, vs), (ic, is_) = totals
+    r = _safe_ratio(vc * ic + vs * is_, ic * ic + is_ * is_)  # Re(Zv / Zi)
     if blocks > 1:
-        shape = v.shape[:-1] + (blocks, period)
-        cut = blocks * period
-        bv_c = (v[..., :cut] * ref_c[..., :cut]).reshape(shape).sum(-1)
-        bv_s = (v[..., :cut] * ref_s[..., :cut]).reshape(shape).sum(-1)
-        bi_c = (i[..., :cut] * ref_c[..., :cut]).reshape(shape).sum(-1)
-        bi_s = (i[..., :cut] * ref_s[..., :cut]).reshape(shape).sum(-1)
+        (bvc, bvs), (bic, bis) = block_sums
         with np.errstate(invalid="ignore"):
-            rb = _safe_ratio(bv_c * bi_c + bv_s * bi_s, bi_c * bi_c + bi_s * bi_s)
+            rb = _safe_ratio(bvc * bic + bvs * bis, bic * bic + bis * bis)
             u = rb.std(axis=-1, ddof=1) / np.sqrt(blocks)
     else:
         u = np.zeros(r.shape)

@@ -128,7 +128,7 @@ def _baseline(force: np.ndarray, rate_hz: float, window_s: float | None) -> np.n
     m = n // block
     if m < 3:
         return np.full(n, float(np.median(force)))
-    blocks = np.median(force[: m * block].reshape(m, block), axis=1)
+    blocks = force[: m * block].reshape(m, block).mean(axis=1)  # spikes are already median-filtered out
     size = max(3, int(round(window_s * rate_hz / block)) | 1)
     opened = ndimage.maximum_filter1d(ndimage.minimum_filter1d(blocks, size, mode="nearest"), size, mode="nearest")
     # smooth the staircase of the opening, then back to the sample grid
@@ -143,7 +143,7 @@ def _bridged_baseline(force: np.ndarray, rate_hz: float, onset: np.ndarray, offs
     m = n // block
     if m < 3:
         return np.full(n, float(np.median(force)))
-    blocks = np.median(force[: m * block].reshape(m, block), axis=1)
+    blocks = force[: m * block].reshape(m, block).mean(axis=1)  # spikes are already median-filtered out
     smooth = ndimage.uniform_filter1d(blocks, max(1, int(round(0.05 * rate_hz / block))), mode="nearest")
     margin = int(round(0.1 * rate_hz))  # keep 100 ms around each press out of the baseline
     inside = np.zeros(n + 1, dtype=np.int64)

@@ -105,45 +105,69 @@ class SimulatedDAQ(Daq):
         n = n_sweeps * sweep.n_samples
         index = start + np.arange(n, dtype=np.int64)
         t = index / cfg.rate_hz
-        pair = np.tile(sweep.pair_of_sample, n_sweeps)
-        sweep_of = np.repeat(np.arange(n_sweeps), sweep.n_samples)
-        connected = pair >= 0
+        pair, sweep_of, connected, transient = self._static(sweep, n_sweeps)
         if self.resistance_sampling == "per_pair":
             r_slot = self._slot_resistance(sweep, n_sweeps, start)
-            r = np.where(connected, r_slot[sweep_of, np.maximum(pair, 0)], np.inf)
+            r = r_slot[sweep_of, pair]
         else:
             r_all = np.asarray(self.pair_resistance_ohm(t), dtype=float)
-            r = np.where(connected, r_all[np.arange(n), np.maximum(pair, 0)], np.inf) * (1 + noise.drift_per_s * t)
-        command = cfg.amplitude_a * np.sin(2 * np.pi * cfg.frequency_hz * t)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            i_max = np.where(np.isfinite(r) & (r > 0), cfg.compliance_v / r, np.where(r > 0, 0.0, np.inf))
-        current = np.where(connected, np.clip(command, -i_max, i_max), 0.0)
-        finite = np.isfinite(r)
-        voltage = np.where(finite, current * np.where(finite, r, 0.0),
-                           np.where(connected, cfg.compliance_v * np.sign(command), 0.0))
+            r = r_all[np.arange(n), pair] * (1 + noise.drift_per_s * t)
+        command = cfg.amplitude_a * _sine(index, cfg.samples_per_period) * connected
+        physical = np.empty((n, 3))
+        if np.all(np.isfinite(r)) and np.all(r >= 0) and float(np.max(r)) * cfg.amplitude_a <= cfg.compliance_v:
+            current = command  # the common case: the galvanostat drives the full sine
+            np.multiply(current, r, out=physical[:, 0])
+        else:
+            finite = np.isfinite(r) & (r >= 0)
+            with np.errstate(divide="ignore"):
+                i_max = np.where(finite, cfg.compliance_v / np.where(finite, r, 1.0), 0.0)
+            i_max = np.where(finite & (r == 0), np.inf, i_max)
+            current = np.clip(command, -i_max, i_max)
+            physical[:, 0] = np.where(finite, current * np.where(finite, r, 0.0),
+                                      cfg.compliance_v * np.sign(command))
+        physical[:, 1] = current
         if noise.transient_v:
-            since = (np.tile(np.arange(sweep.n_samples), n_sweeps) - np.tile(_switch_sample(sweep), n_sweeps))
-            voltage = voltage + np.where(connected, noise.transient_v * np.exp(-since / noise.transient_tau_samples), 0)
-        voltage = voltage + np.where(connected, noise.voltage_offset_v, 0.0)
-        current = current + np.where(connected, noise.current_offset_a, 0.0)
-        fsr_v = self.fsr.volts(np.asarray(self.force_n(t), dtype=float))
-        physical = np.stack([voltage, current, fsr_v], axis=1)
+            physical[:, 0] += transient
+        if noise.voltage_offset_v:
+            physical[:, 0] += noise.voltage_offset_v * connected
+        if noise.current_offset_a:
+            physical[:, 1] += noise.current_offset_a * connected
+        physical[:, 2] = self.fsr.volts(np.asarray(self.force_n(t), dtype=float))
         std = np.array([noise.voltage_noise_v, noise.current_noise_a, noise.fsr_noise_v])
         if np.any(std > 0):
-            physical = physical + rng.standard_normal((n, 3)) * std
-        samples = self._digitise(physical)
-        return Acquisition(samples, index, cfg, n_sweeps)
+            physical += rng.standard_normal((n, 3)) * std
+        return Acquisition(self._digitise(physical), index, cfg, n_sweeps)
+
+    def _static(self, sweep: Sweep, n_sweeps: int):
+        """Per-sample arrays that depend only on the sweep (cached for the last sweep used)."""
+        key = (id(sweep), n_sweeps, self.noise.transient_v, self.noise.transient_tau_samples)
+        cached = getattr(self, "_static_cache", None)
+        if cached is not None and cached[0] == key and cached[1] is sweep:
+            return cached[2]
+        pair_raw = np.tile(sweep.pair_of_sample, n_sweeps)
+        connected = (pair_raw >= 0).astype(float)
+        pair = np.maximum(pair_raw, 0)
+        sweep_of = np.repeat(np.arange(n_sweeps), sweep.n_samples)
+        since = np.tile(np.arange(sweep.n_samples) - _switch_sample(sweep), n_sweeps)
+        transient = self.noise.transient_v * np.exp(-np.maximum(since, 0) / self.noise.transient_tau_samples) * connected
+        value = (pair, sweep_of, connected, transient)
+        self._static_cache = (key, sweep, value)
+        return value
 
     def _digitise(self, physical: np.ndarray) -> np.ndarray:
+        """Physical units -> AI volts, clipped to the ranges and rounded to the ADC step, -> physical (in place)."""
         cfg = self.config
-        ai = physical / cfg.to_physical
-        ranges = np.array([cfg.voltage_range_v, cfg.current_range_v, cfg.fsr_range_v])
+        physical /= cfg.to_physical
         if self.noise.clip:
-            ai = np.clip(ai, -ranges, ranges)
+            ranges = np.array([cfg.voltage_range_v, cfg.current_range_v, cfg.fsr_range_v])
+            np.clip(physical, -ranges, ranges, out=physical)
         if self.noise.quantise:
             lsb = cfg.lsb_ai_v
-            ai = np.round(ai / lsb) * lsb
-        return ai * cfg.to_physical
+            physical /= lsb
+            np.round(physical, out=physical)
+            physical *= lsb
+        physical *= cfg.to_physical
+        return physical
 
     # ---- features-only path -----------------------------------------------------------
 
@@ -203,6 +227,14 @@ class SimulatedDAQ(Daq):
         lsb_phys = cfg.lsb_ai_v * cfg.to_physical
         q = lsb_phys ** 2 / 12 if noise.quantise else np.zeros(3)
         return noise.voltage_noise_v ** 2 + float(q[0]), noise.current_noise_a ** 2 + float(q[1])
+
+
+def _sine(index: np.ndarray, samples_per_period: float) -> np.ndarray:
+    """sin(2 pi index / samples_per_period), from a table when a period is a whole number of samples."""
+    whole = round(samples_per_period)
+    if abs(samples_per_period - whole) < 1e-9:
+        return np.sin(2 * np.pi * np.arange(whole) / whole)[index % whole]
+    return np.sin(2 * np.pi * index / samples_per_period)
 
 
 def _switch_sample(sweep: Sweep) -> np.ndarray:
