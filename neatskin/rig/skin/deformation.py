@@ -17,13 +17,16 @@ Model (documented with its parameters in docs/skin.md):
 - Channel resistance R = rho / (w h) * integral ds / (1 - p(r(s))) = R0 * F with the factor
       F = (1 / L) * integral_0^L ds / (1 - p(r(s))).
   Under the probe the integrand is the constant 1 / (1 - p0): that part is exact. Outside it the
-  integrand is analytic on each side of the probe footprint, so each side is split into two
-  panels ([edge, edge + l] and the rest) integrated by Gauss-Legendre with `nodes_per_panel`
-  nodes: the error falls exponentially with the node count (table in docs/skin.md, measured
-  against a 48-node reference in tests/test_skin_deformation.py and benchmarks/bench_skin.py).
+  integrand is analytic on each side of the probe footprint (split where the probe edge crosses
+  the channel, or at its nearest point), so each side is cut into panels at 0.5 l and 2 l from
+  the edge, up to where r - a = 6.1 l (beyond it p < 1e-16 and the stretch counts exactly its
+  length); each panel gets Gauss-Legendre with `nodes_per_panel` nodes, and the error falls
+  exponentially with the node count (table in docs/skin.md; held against QUADPACK in
+  tests/test_skin_deformation.py, against a 64-node reference in benchmarks/bench_skin.py).
   A channel pinched shut over any length has F = inf (conductance 0).
 
-Everything is vectorised over presses x channels x nodes; presses are processed in chunks.
+Everything is vectorised over presses x channels x nodes; presses are processed in chunks, and
+only channel sides within reach of the pinch are integrated.
 """
 
 from __future__ import annotations

@@ -5,8 +5,9 @@ Fidelities:
 - "deformation": each channel's resistance is the integral of rho / A(s) along it under the
   pinch profile of `deformation.py` (Gauss-Legendre, `PinchParams.nodes_per_panel`).
 - "network": a closed-form factor per channel (the pinch at the channel point nearest the probe,
-  applied over one probe diameter: `deformation.nearest_point_factor`). About 20x cheaper; its
-  error against the deformation model is measured in tests/test_skin_model.py and docs/skin.md.
+  applied over one probe diameter: `deformation.nearest_point_factor`). About 6x cheaper per
+  channel; its error against the deformation model is measured in tests/test_skin_model.py and
+  stated in docs/skin.md (rms 6 % of the largest change, worst ~50 %).
 
 Rig effects, each off by default: fluid resistivity drift with temperature (`temperature_c`),
 probe placement error (`placement_sigma_mm`, applied by the runner through
