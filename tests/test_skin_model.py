@@ -18,7 +18,8 @@ def test_baseline_is_the_exact_rationals_times_pouillet(model, paper_layout):
     r_channel = 0.5 * 0.015 / (2e-3 * 1e-3)  # rho L / A = 3750 ohm
     base = model.baseline_pair_resistance_ohm
     assert base.shape == (28,)
-    for pair, frac in {(1, 2): 17 / 24, (1, 3): 5 / 6, (1, 4): 29 / 24, (1, 5): 1.0, (2, 4): 5 / 4, (2, 6): 3 / 2}.items():
+    fractions = {(1, 2): 17 / 24, (1, 3): 5 / 6, (1, 4): 29 / 24, (1, 5): 1.0, (2, 4): 5 / 4, (2, 6): 3 / 2}
+    for pair, frac in fractions.items():
         assert base[paper_layout.pairs.index(ElectrodePair(*pair))] == pytest.approx(frac * r_channel, rel=1e-12)
 
 
@@ -117,8 +118,16 @@ def test_hysteresis_lags_on_unloading(paper_layout, model):
     unloading = sticky.pair_resistance_ohm(7.5, 0.0, 2.0, peak_depth_mm=3.5)[0]
     as_if = sticky.pair_resistance_ohm(7.5, 0.0, 2.0 + 0.2 * 1.5)[0]
     assert np.array_equal(unloading, as_if) and np.all(unloading >= loading) and np.any(unloading > loading)
-    assert np.array_equal(model.pair_resistance_ohm(7.5, 0.0, 2.0, peak_depth_mm=3.5), model.pair_resistance_ohm(7.5, 0.0, 2.0))
+    elastic = model.pair_resistance_ohm(7.5, 0.0, 2.0)
+    assert np.array_equal(model.pair_resistance_ohm(7.5, 0.0, 2.0, peak_depth_mm=3.5), elastic)
     assert sticky.contact_force_n(2.0, loading=False)[0] == pytest.approx(0.8 * sticky.contact_force_n(2.0)[0])
+
+
+def test_non_finite_press_is_refused_naming_the_press(model):
+    with pytest.raises(ValueError, match=r"depth_mm must be finite; press 1 has depth_mm = nan"):
+        model.pair_resistance_ohm([1.0, 2.0], [1.0, 2.0], [3.5, np.nan])
+    with pytest.raises(ValueError, match="x_mm"):
+        model.channel_resistance_ohm(np.inf, 1.0, 3.5)
 
 
 @pytest.mark.parametrize("kwargs, words", [

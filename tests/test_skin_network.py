@@ -312,3 +312,17 @@ def test_foster_theorem(net):
     idx = {e.junction: k for k, e in enumerate(layout.electrodes)}
     r_edge = np.array([r[idx[a], idx[b]] for a, b in ends])
     assert np.sum(g * r_edge) == pytest.approx(layout.n_junctions - 1, rel=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(networks(), st.data())
+def test_sparse_path_agrees_with_dense_on_random_networks(net, data):
+    layout, g = net
+    g = np.clip(g, 1e-3, 1e3)  # 6 decades: the sparse path is normwise, not relatively, accurate
+    shut = data.draw(st.lists(st.integers(0, layout.n_channels - 1), max_size=3))
+    g[shut] = 0.0
+    dense = equivalent_resistance(layout, g, method="dense")
+    sparse = equivalent_resistance(layout, g, method="sparse")
+    assert np.array_equal(np.isinf(dense), np.isinf(sparse)) and not np.any(np.isnan(sparse))
+    finite = np.isfinite(dense)
+    assert np.allclose(sparse[finite], dense[finite], rtol=1e-9, atol=0)

@@ -165,4 +165,8 @@ def _as_presses(x_mm, y_mm, depth_mm) -> tuple[np.ndarray, np.ndarray, np.ndarra
     x, y, depth = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, float)) for v in (x_mm, y_mm, depth_mm)))
     if x.ndim != 1:
         raise ValueError(f"x_mm, y_mm, depth_mm must be scalars or 1-D arrays of presses, got shape {x.shape}")
+    for name, value in (("x_mm", x), ("y_mm", y), ("depth_mm", depth)):
+        if not np.all(np.isfinite(value)):
+            bad = int(np.flatnonzero(~np.isfinite(value))[0])
+            raise ValueError(f"{name} must be finite; press {bad} has {name} = {value[bad]}")
     return x, y, depth

@@ -29,6 +29,7 @@ from neatskin.layout import Layout
 
 DENSE_MAX_JUNCTIONS = 64
 _DENSE_CHUNK_PRESSES = 4096
+_DENSE_CHUNK_ELEMENTS = 4_000_000  # ~32 MB per (junctions, junctions, presses) work array
 
 
 def equivalent_resistance(layout: Layout, conductance_s: np.ndarray, method: str = "auto") -> np.ndarray:
@@ -51,8 +52,9 @@ def equivalent_resistance(layout: Layout, conductance_s: np.ndarray, method: str
         method = "dense" if layout.n_junctions <= DENSE_MAX_JUNCTIONS else "sparse"
     if method == "dense":
         out = np.empty((g.shape[0], len(layout.pairs)))
-        for start in range(0, g.shape[0], _DENSE_CHUNK_PRESSES):
-            stop = start + _DENSE_CHUNK_PRESSES
+        chunk = max(1, min(_DENSE_CHUNK_PRESSES, _DENSE_CHUNK_ELEMENTS // layout.n_junctions**2))
+        for start in range(0, g.shape[0], chunk):
+            stop = start + chunk
             out[start:stop] = _dense_chunk(layout, g[start:stop])
     elif method == "sparse":
         out = _sparse(layout, g)
