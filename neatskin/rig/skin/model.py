@@ -135,7 +135,8 @@ class SkinModel:
 
         Sneddon's flat circular punch on an elastic half-space, F = 2 a E d / (1 - nu^2), times a
         bonded-layer correction kappa(a/T) = 1 + 1.33 (a/T) + 1.33 (a/T)^3 that interpolates between
-        the half-space (kappa -> 1) and the thin incompressible layer (kappa ~ (a/T)^3) limits.
+        the half-space (kappa -> 1) and the thin incompressible layer (kappa ~ (a/T)^3) limits; the
+        coefficients are this model's choice, not a fit to published tables (Hayes et al. 1972).
         Linear elasticity at strains up to d/T ~ 0.6 and an approximate kappa: take it as +-30 %.
         For the paper's press (a = 2.75 mm, T = 5.5 mm, d = 3.5 mm, E = 70 kPa) F ~ 3.2 N.
         With hysteresis, the unloading branch (loading=False) is (1 - h) times the loading one."""
