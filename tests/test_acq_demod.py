@@ -190,3 +190,34 @@ def test_features_only_path_flags_dc_offset_like_the_waveform_path(sweep):
     fast = daq.estimate_sweep(sweep, np.random.default_rng(0))
     np.testing.assert_array_equal(fast.flags, wave.flags)
     assert np.count_nonzero(fast.flags) > 5
+
+
+def test_same_rng_same_samples_and_rng_required(sweep):
+    from neatskin.errors import ConfigError
+    daq = SimulatedDAQ(DaqConfig(), constant(R_TRUE))
+    a = daq.acquire(sweep, 2, rng=np.random.default_rng(42), start_time_s=5.0)
+    b = daq.acquire(sweep, 2, rng=np.random.default_rng(42), start_time_s=5.0)
+    np.testing.assert_array_equal(a.samples, b.samples)
+    assert a.sample_index[0] == 50_000
+    with pytest.raises(ConfigError, match="needs an explicit rng"):
+        daq.acquire(sweep)
+
+
+def test_skin_callable_of_the_wrong_shape_refused(sweep):
+    from neatskin.errors import ConfigError
+    daq = SimulatedDAQ(DaqConfig(), lambda t: np.ones((len(t), 27)))
+    with pytest.raises(ConfigError, match=r"returned shape \(28, 27\), expected \(28, 28\)"):
+        daq.acquire(sweep, rng=np.random.default_rng(0))
+
+
+def test_per_sample_resistance_follows_a_ramp(sweep):
+    # R rising 2 % per second, evaluated at every sample: the lock-in reads the live window's mean,
+    # i.e. R at its midpoint (exact for a linear ramp, up to the sin^2 weighting over whole periods)
+    ramp = lambda t: R_TRUE[None, :] * (1 + 0.02 * t[:, None])
+    per_sample = SimulatedDAQ(DaqConfig(), ramp, noise=NoiseModel.none(), resistance_sampling="per_sample")
+    est = demodulate(per_sample.acquire(sweep, rng=np.random.default_rng(0)), sweep, "lockin")
+    mid_s = (sweep.live_windows.mean(axis=1) - 0.5) / 10_000.0
+    np.testing.assert_allclose(est.resistance_ohm[0], R_TRUE * (1 + 0.02 * mid_s), rtol=3e-6)
+    per_pair = SimulatedDAQ(DaqConfig(), ramp, noise=NoiseModel.none())
+    est2 = demodulate(per_pair.acquire(sweep, rng=np.random.default_rng(0)), sweep, "lockin")
+    np.testing.assert_allclose(est2.resistance_ohm, est.resistance_ohm, rtol=1e-5)

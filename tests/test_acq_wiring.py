@@ -137,3 +137,36 @@ def test_pairs_come_from_the_layout(tmp_path, paper_layout):
     w = sequential_wiring(small)
     assert (w.n_chips, w.n_pairs) == (2, 6)
     assert load_wiring(_write(tmp_path, wiring_to_toml(w)), small).routes == w.routes
+
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+
+@settings(max_examples=30, deadline=None)
+@given(data=st.data())
+def test_any_board_that_routes_every_pair_once_loads_and_sweeps_soundly(tmp_path_factory, paper_layout, data):
+    """Shuffle which chip and address carry which pair, and which end sits on X: always valid, always sound."""
+    import tomllib
+    from neatskin.acquisition.sequence import build_sweep, check_sweep
+    n = len(paper_layout.pairs)
+    n_chips = data.draw(st.integers(7, 9))
+    slots = data.draw(st.permutations(range(4 * n_chips)))[:n]
+    swap = data.draw(st.lists(st.booleans(), min_size=n, max_size=n))
+    lines = data.draw(st.permutations(range(32)))[: 2 + n_chips]
+    chips = [{"name": f"U{c + 1}", "inhibit": f"port0/line{lines[2 + c]}", "pins": {}} for c in range(n_chips)]
+    for p, pair in enumerate(paper_layout.pairs):
+        c, k = divmod(slots[p], 4)
+        x, y = (pair.j, pair.i) if swap[p] else (pair.i, pair.j)
+        chips[c]["pins"].update({f"X{k}": x, f"Y{k}": y})
+    pins = lambda d: "{ " + ", ".join(f"{k} = {v}" for k, v in d.items()) + " }"
+    text = f'[lines]\nA = "port0/line{lines[0]}"\nB = "port0/line{lines[1]}"\n' + "".join(
+        f'\n[[chips]]\nname = "{ch["name"]}"\ninhibit = "{ch["inhibit"]}"\npins = {pins(ch["pins"])}\n' for ch in chips)
+    tomllib.loads(text)
+    path = tmp_path_factory.mktemp("board") / "board.toml"
+    path.write_text(text)
+    w = load_wiring(path, paper_layout)
+    for p, route in enumerate(w.routes):
+        assert (route.chip, route.address) == divmod(slots[p], 4)
+    for order in ("pairs", "gray"):
+        sweep = build_sweep(w, order=order)
+        assert check_sweep(sweep) == [] and sorted(sweep.order.tolist()) == list(range(n))

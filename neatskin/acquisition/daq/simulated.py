@@ -100,7 +100,10 @@ class SimulatedDAQ(Daq):
         if abs(sweep.rate_hz - cfg.rate_hz) > 1e-9:
             raise ConfigError(f"sweep built at {sweep.rate_hz} Hz, DAQ configured at {cfg.rate_hz} Hz",
                               field="rate_hz", fix="build the sweep with the DAQ's rate")
-        rng = rng if rng is not None else np.random.default_rng()
+        if not isinstance(rng, np.random.Generator):
+            raise ConfigError("the simulated DAQ needs an explicit rng (numpy.random.Generator)", field="rng",
+                              fix="pass rng=numpy.random.default_rng(seed), keyed by (seed, press) so a resumed "
+                                  "campaign draws the same numbers")
         start = self._start(start_time_s)
         n = n_sweeps * sweep.n_samples
         index = start + np.arange(n, dtype=np.int64)
@@ -199,7 +202,7 @@ class SimulatedDAQ(Daq):
             blocks = max(1, n_live // max(1, int(round(cfg.samples_per_period))))
         else:
             t_live = windows[..., :1] + np.arange(n_live)  # (sweeps, pairs, N) global index
-            sin2 = np.sin(2 * np.pi * cfg.frequency_hz * t_live / cfg.rate_hz) ** 2
+            sin2 = _sine(t_live, cfg.samples_per_period) ** 2
             c = demod.window_counts(n_live, window)
             n_win = n_live - window + 1
             s = (c ** 2 * sin2).sum(axis=-1)
