@@ -170,7 +170,7 @@ class RowEncoder:
         missing = [c for c in BASE_COLUMNS if c not in row and c not in NULLABLE_COLUMNS and c != "flags"]
         if missing:
             raise DataError(f"press row lacks {', '.join(missing)}", field=missing[0], fix="give every fixed column")
-        flat: dict[str, Any] = {}
+        arrays: list[pa.Array] = []
         for f in BASE_FIELDS:
             value = row.get(f.name)
             if f.name in ("started_at", "finished_at"):
@@ -186,12 +186,14 @@ class RowEncoder:
                 value = int(value)
             else:
                 value = float(value)
-            flat[f.name] = value
-        flat.update(zip(self.pair_names, self._pair_values(row).tolist()))
-        try:
-            return pa.Table.from_pylist([flat], schema=self.schema)
-        except (pa.ArrowInvalid, pa.ArrowTypeError, OverflowError) as exc:
-            raise DataError(f"press row does not fit the schema: {exc}", fix="check the row's types") from exc
+            try:
+                arrays.append(pa.array([value], f.type))
+            except (pa.ArrowInvalid, pa.ArrowTypeError, OverflowError) as exc:
+                raise DataError(f"'{f.name}' = {value!r} does not fit {f.type}: {exc}", field=f.name,
+                                fix=f"give a value of type {f.type}") from exc
+        pair_values = pa.array(self._pair_values(row), pa.float64())
+        arrays.extend(pair_values.slice(k, 1) for k in range(len(pair_values)))
+        return pa.Table.from_arrays(arrays, schema=self.schema)
 
     def _pair_values(self, row: Mapping[str, Any]) -> np.ndarray:
         if "R_ohm" in row or "dR_ohm" in row:

@@ -112,7 +112,9 @@ class CampaignWriter:
         if waveforms:
             self._write_waveforms(press_id, int(row["position_id"]), waveforms)
         path = self._parts_dir / part_name(press_id)
-        write_durably(path, lambda handle: pq.write_table(table, handle), fsync=self.fsync, dir_fd=self._dir_fd)
+        # one-row files: column statistics and dictionaries cost time and help no reader
+        write_durably(path, lambda handle: pq.write_table(table, handle, write_statistics=False, use_dictionary=False),
+                      fsync=self.fsync, dir_fd=self._dir_fd)
         self._completed.add(press_id)
         self._written[press_id] = table
         return path
