@@ -100,3 +100,15 @@ def test_cli_maps_bad_input_names_the_problem(tmp_path, capsys):
     assert "missing.toml" in capsys.readouterr().err
     assert main(["skin", "maps", "--grid-step-mm", "0", "--out", str(tmp_path)]) == 2
     assert "--grid-step-mm" in capsys.readouterr().err
+
+
+def test_cli_press_prints_every_pair(capsys, paper_layout):
+    assert main(["skin", "press", "--x-mm", "7.5", "--y-mm", "0", "--depth-mm", "3.5"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("press at (7.5, 0) mm, depth 3.5 mm, force 3.25 N")
+    rows = {line.split()[0]: [float(v) for v in line.split()[1:]] for line in lines[2:]}
+    assert list(rows) == [p.label for p in paper_layout.pairs]
+    assert rows["1-2"][0] == pytest.approx(17 / 24 * 3750, abs=1e-3)
+    assert max(rows, key=lambda k: rows[k][2]) == "1-8"  # the press sits on channel 8-1
+    assert main(["skin", "press", "--x-mm", "nan", "--y-mm", "0"]) == 2
+    assert "--x-mm" in capsys.readouterr().err

@@ -25,6 +25,43 @@ def register(subparsers) -> None:
                       help="skin model for the dense maps")
     maps.add_argument("--no-progress", action="store_true", help="no progress bar")
     maps.set_defaults(handler=maps_handler)
+    press = commands.add_parser(
+        "press", help="R_eq of every pair for one press (baseline, pressed, change)",
+        description="Print the baseline, pressed and changed R_eq of every electrode pair for one press.")
+    press.add_argument("--layout", default=DEFAULT_LAYOUT, help=f"skin layout TOML (default {DEFAULT_LAYOUT})")
+    press.add_argument("--x-mm", type=float, required=True)
+    press.add_argument("--y-mm", type=float, required=True)
+    press.add_argument("--depth-mm", type=float, default=3.5, help="press depth (paper: 3.5 mm)")
+    press.add_argument("--probe-radius-mm", type=float, default=2.75, help="flat probe radius (paper: 2.75 mm)")
+    press.add_argument("--fidelity", choices=("deformation", "network"), default="deformation")
+    press.set_defaults(handler=press_handler)
+
+
+def press_handler(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from neatskin.errors import ConfigError
+    from neatskin.layout import load_layout
+    from neatskin.rig.skin.model import SkinModel
+
+    for name in ("x_mm", "y_mm", "depth_mm", "probe_radius_mm"):
+        value = getattr(args, name)
+        flag = "--" + name.replace("_", "-")
+        if not np.isfinite(value) or (name == "probe_radius_mm" and value <= 0):
+            raise ConfigError(f"{flag} must be a finite number{' > 0' if name == 'probe_radius_mm' else ''}, "
+                              f"got {value}", field=flag, fix=f"pass a valid {flag}")
+    layout = load_layout(args.layout)
+    model = SkinModel(layout, fidelity=args.fidelity, probe_radius_mm=args.probe_radius_mm)
+    base = model.baseline_pair_resistance_ohm
+    pressed = model.pair_resistance_ohm(args.x_mm, args.y_mm, args.depth_mm)[0]
+    force = model.contact_force_n(args.depth_mm)[0]
+    print(f"press at ({args.x_mm:g}, {args.y_mm:g}) mm, depth {args.depth_mm:g} mm, force {force:.2f} N, "
+          f"{args.fidelity} model, layout {layout.name}")
+    print(f"{'pair':>6s} {'R0_ohm':>12s} {'R_ohm':>12s} {'dR_ohm':>12s} {'dR_pct':>8s}")
+    with np.errstate(invalid="ignore"):
+        for pair, r0, r in zip(layout.pairs, base, pressed):
+            print(f"{pair.label:>6s} {r0:12.3f} {r:12.3f} {r - r0:12.3f} {100 * (r / r0 - 1):8.3f}")
+    return 0
 
 
 def maps_handler(args: argparse.Namespace) -> int:
