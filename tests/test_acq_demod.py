@@ -221,3 +221,18 @@ def test_per_sample_resistance_follows_a_ramp(sweep):
     per_pair = SimulatedDAQ(DaqConfig(), ramp, noise=NoiseModel.none())
     est2 = demodulate(per_pair.acquire(sweep, rng=np.random.default_rng(0)), sweep, "lockin")
     np.testing.assert_allclose(est2.resistance_ohm, est.resistance_ohm, rtol=1e-5)
+
+
+def test_estimator_moments_closed_form(sweep):
+    from neatskin.acquisition.daq.simulated import effective_noise_var, estimator_moments
+    cfg = DaqConfig()
+    noise = NoiseModel(voltage_noise_v=0.3, current_noise_a=3e-5, quantise=False)
+    r = R_TRUE[None, :]
+    mean, std, blocks = estimator_moments(r, sweep, cfg, noise, "lockin")
+    assert effective_noise_var(cfg, noise) == (0.3 ** 2, 3e-5 ** 2) and blocks == 10
+    np.testing.assert_allclose(mean, r)
+    np.testing.assert_allclose(std, r * np.sqrt(2 / 100 * ((0.3 / (r * 0.002)) ** 2 + (3e-5 / 0.002) ** 2)))
+    mean_rms, std_rms, blocks_rms = estimator_moments(r, sweep, cfg, noise, "rms", 10)
+    # rectification bias sigma_v^2 / V0^2 - sigma_i^2 / A^2 (to first order), and a slightly larger spread
+    np.testing.assert_allclose(mean_rms / r - 1, (0.3 / (r * 0.002)) ** 2 - (3e-5 / 0.002) ** 2, rtol=0.05)
+    assert np.all(std_rms > std) and np.all(std_rms < 1.1 * std) and blocks_rms == 10

@@ -192,27 +192,8 @@ class SimulatedDAQ(Daq):
         if not exact.all():
             acq = self.acquire(sweep, n_sweeps, rng=rng, start_time_s=start_time_s)
             return demod.demodulate(acq, sweep, method=method, window=window)
-        sigma_v2, sigma_i2 = self.effective_noise_var()
+        mean, std, blocks = estimator_moments(r, sweep, cfg, noise, method, window, start)
         v0 = r * amp
-        n_live = sweep.timing.live_samples
-        rel_lin = sigma_v2 / v0 ** 2 + sigma_i2 / amp ** 2
-        if method == "lockin":
-            mean = r
-            rel_var = 2.0 / n_live * rel_lin
-            blocks = max(1, n_live // max(1, int(round(cfg.samples_per_period))))
-        else:
-            t_live = windows[..., :1] + np.arange(n_live)  # (sweeps, pairs, N) global index
-            sin2 = _sine(t_live, cfg.samples_per_period) ** 2
-            c = demod.window_counts(n_live, window)
-            n_win = n_live - window + 1
-            s = (c ** 2 * sin2).sum(axis=-1)
-            dc_v2 = noise.voltage_offset_v ** 2
-            dc_i2 = noise.current_offset_a ** 2
-            mean = np.sqrt((v0 ** 2 / 2 + sigma_v2 + dc_v2) / (amp ** 2 / 2 + sigma_i2 + dc_i2))  # RMS rectifies
-            rel_var = (4.0 / (window * n_win) ** 2 * s * rel_lin
-                       + 2.0 * (c ** 2).sum() / (window * n_win) ** 2 * (sigma_v2 ** 2 / v0 ** 4 + sigma_i2 ** 2 / amp ** 4))
-            blocks = max(1, n_live // window)
-        std = r * np.sqrt(rel_var)
         resistance = mean + std * rng.standard_normal(r.shape)
         # the demodulator's uncertainty is std / sqrt(blocks) of `blocks` block estimates: a chi spread
         spread = np.sqrt(rng.chisquare(max(blocks - 1, 1), r.shape) / max(blocks - 1, 1)) if blocks > 1 else 1.0
@@ -225,11 +206,49 @@ class SimulatedDAQ(Daq):
         return PairEstimates(resistance, uncertainty, flags, windows, method)
 
     def effective_noise_var(self) -> tuple[float, float]:
-        """Variance of the white noise on V and I (physical units), quantisation (lsb^2 / 12) included."""
-        cfg, noise = self.config, self.noise
-        lsb_phys = cfg.lsb_ai_v * cfg.to_physical
-        q = lsb_phys ** 2 / 12 if noise.quantise else np.zeros(3)
-        return noise.voltage_noise_v ** 2 + float(q[0]), noise.current_noise_a ** 2 + float(q[1])
+        return effective_noise_var(self.config, self.noise)
+
+
+def effective_noise_var(config: DaqConfig, noise: NoiseModel) -> tuple[float, float]:
+    """Variance of the white noise on V and I (physical units), quantisation (lsb^2 / 12) included."""
+    lsb_phys = config.lsb_ai_v * config.to_physical
+    q = lsb_phys ** 2 / 12 if noise.quantise else np.zeros(3)
+    return noise.voltage_noise_v ** 2 + float(q[0]), noise.current_noise_a ** 2 + float(q[1])
+
+
+def estimator_moments(resistance_ohm: np.ndarray, sweep: Sweep, config: DaqConfig, noise: NoiseModel,
+                      method: str = "lockin", window: int = 10, start_sample: int = 0
+                      ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Mean and std of one sweep's estimate of each pair under the noise model, and the demodulator's block count.
+
+    resistance_ohm: (sweeps, pairs) true values (finite, unclipped). Pure: the analytic statistics the
+    features-only path draws from (docs/acquisition.md gives the formulas).
+    """
+    from neatskin.acquisition import demod
+
+    r = np.asarray(resistance_ohm, dtype=float)
+    amp = config.amplitude_a
+    sigma_v2, sigma_i2 = effective_noise_var(config, noise)
+    v0 = r * amp
+    n_live = sweep.timing.live_samples
+    rel_lin = sigma_v2 / v0 ** 2 + sigma_i2 / amp ** 2
+    if method == "lockin":
+        mean = r
+        rel_var = 2.0 / n_live * rel_lin
+        blocks = max(1, n_live // max(1, int(round(config.samples_per_period))))
+    else:
+        n_sweeps = r.shape[0]
+        first = start_sample + np.arange(n_sweeps)[:, None] * sweep.n_samples + sweep.live_windows[None, :, 0]
+        sin2 = _sine(first[..., None] + np.arange(n_live), config.samples_per_period) ** 2
+        c = demod.window_counts(n_live, window)
+        n_win = n_live - window + 1
+        s = (c ** 2 * sin2).sum(axis=-1)
+        dc_v2, dc_i2 = noise.voltage_offset_v ** 2, noise.current_offset_a ** 2
+        mean = np.sqrt((v0 ** 2 / 2 + sigma_v2 + dc_v2) / (amp ** 2 / 2 + sigma_i2 + dc_i2))  # RMS rectifies
+        rel_var = (4.0 / (window * n_win) ** 2 * s * rel_lin
+                   + 2.0 * (c ** 2).sum() / (window * n_win) ** 2 * (sigma_v2 ** 2 / v0 ** 4 + sigma_i2 ** 2 / amp ** 4))
+        blocks = max(1, n_live // window)
+    return mean, r * np.sqrt(rel_var), blocks
 
 
 def _sine(index: np.ndarray, samples_per_period: float) -> np.ndarray:
