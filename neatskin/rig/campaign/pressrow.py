@@ -72,8 +72,10 @@ class FsrLabel:
 
 
 def fsr_label(fsr_v: np.ndarray | None, rate_hz: float, fsr_model, first_sample: int,
-              marks: dict[str, int]) -> FsrLabel:
-    """Onset, offset (s after the recording began) and peak force of the press; flags when it is not one press."""
+              marks: dict[str, int], sample_rate_hz: float) -> FsrLabel:
+    """Onset, offset (s after the recording began) and peak force of the press; flags when it is not one press.
+
+    rate_hz is the FSR trace's rate, sample_rate_hz the DAQ's (the marks are DAQ sample indices)."""
     if fsr_v is None:
         return FsrLabel(None, None, None, ())
     detection: PressDetection = detect_presses(fsr_v, rate_hz, expected=1, units="v", fsr=fsr_model)
@@ -84,7 +86,7 @@ def fsr_label(fsr_v: np.ndarray | None, rate_hz: float, fsr_model, first_sample:
         flags.append(f"fsr_multiple:{detection.n_presses}")
     k = int(np.argmax(detection.peak_force_n))
     onset, offset = int(detection.onset[k]), int(detection.offset[k])
-    hold_start = marks["hold_start"] - first_sample
+    hold_start = (marks["hold_start"] - first_sample) * rate_hz / sample_rate_hz
     if not onset <= hold_start < offset:
         flags.append("fsr_not_at_hold")
     return FsrLabel(onset / rate_hz, offset / rate_hz, float(detection.peak_force_n[k]), tuple(flags))

@@ -30,6 +30,7 @@ PRESS_SLOT_S = 1000.0  # each press owns [press_id * slot, (press_id + 1) * slot
 STREAM_DAQ = 1
 STREAM_PLACEMENT = 2
 STREAM_FSR = 3
+FSR_DECIMATION = 10  # features-only scene: the FSR trace at rate / 10
 
 
 @dataclass
@@ -43,46 +44,76 @@ class PressRecord:
     marks: dict[str, int]
     fsr_v: np.ndarray | None = None
     waveforms: dict[str, np.ndarray] | None = field(default=None, repr=False)
+    fsr_rate_hz: float | None = None  # rate of fsr_v (the DAQ rate unless decimated)
+
+
+def trajectory_mm(segments, times_s: np.ndarray) -> np.ndarray:
+    """Probe position (times, 3) along a printer's move segments (rest-to-rest trapezoids), vectorised.
+
+    `segments` are the simulated printer's moves in time order (t0_s, t1_s, p0_mm, p1_mm,
+    feed_mm_s, accel_mm_s2, linear); between moves the probe rests where the last one ended.
+    """
+    times_s = np.asarray(times_s, dtype=float)
+    out = np.empty(times_s.shape + (3,))
+    if not segments:
+        out[:] = np.nan
+        return out
+    t0s = np.array([seg.t0_s for seg in segments])
+    index = np.searchsorted(t0s, times_s, side="right") - 1
+    out[index < 0] = segments[0].p0_mm
+    for k in np.unique(index[index >= 0]):
+        seg = segments[k]
+        mask = index == k
+        p0, p1 = np.asarray(seg.p0_mm, float), np.asarray(seg.p1_mm, float)
+        length = float(np.linalg.norm(p1 - p0))
+        tau = np.clip(times_s[mask] - seg.t0_s, 0.0, None)
+        duration = seg.t1_s - seg.t0_s
+        if length == 0 or duration <= 0:
+            frac = np.ones_like(tau)
+        elif seg.linear:
+            frac = np.minimum(tau / duration, 1.0)
+        else:
+            a = seg.accel_mm_s2
+            v = min(seg.feed_mm_s, float(np.sqrt(a * length)))
+            t_a, d_a = v / a, v * v / (2 * a)
+            t_c = max(0.0, (length - 2 * d_a) / v)
+            td = np.clip(tau - t_a - t_c, 0.0, t_a)
+            dist = np.where(tau < t_a, 0.5 * a * tau * tau,
+                            np.where(tau < t_a + t_c, d_a + v * (tau - t_a), d_a + v * t_c + v * td - 0.5 * a * td * td))
+            frac = np.minimum(dist, length) / length
+        out[mask] = p0 + frac[:, None] * (p1 - p0)
+    return out
 
 
 class DryProbe:
-    """The simulated skin and force as the DAQ sees them: probe state from the printer's trajectory.
+    """The simulated skin and force as the DAQ sees them, at the probe state the simulated printer's
+    trajectory gives at each sample time (sensor frame, depth below the skin surface)."""
 
-    The trajectory is sampled on a grid relative to the press's start and interpolated, so the
-    values depend only on the press, not on how long the printer has been running.
-    """
-
-    def __init__(self, skin, calibration, position_at: Callable[[float], tuple[float, float, float]],
-                 grid_step_s: float = 0.005, placement_error: Callable[[int], tuple[float, float]] | None = None):
+    def __init__(self, skin, calibration, segments_between: Callable[[float, float], list],
+                 placement_error: Callable[[int], tuple[float, float]] | None = None):
         self.skin = skin
         self.calibration = calibration
-        self.position_at = position_at
-        self.grid_step_s = grid_step_s
+        self.segments_between = segments_between
         self.placement_error = placement_error
         self._baseline = np.asarray(skin.baseline_pair_resistance_ohm, dtype=float)
-        self._daq_t0 = 0.0
-        self._grid_t = np.zeros(1)
-        self._grid = np.zeros((1, 3))
+        self._segments: list = []
+        self._offset = (0.0, 0.0)
+        self._printer_t0 = self._daq_t0 = 0.0
 
     def load(self, press_id: int, printer_t0_s: float, daq_t0_s: float, duration_s: float) -> None:
-        """Sample the printer's trajectory over [t0, t0 + duration] for this press."""
-        n = int(np.ceil(duration_s / self.grid_step_s)) + 2
-        rel = np.arange(n) * self.grid_step_s
-        xyz = np.array([self.position_at(printer_t0_s + r) for r in rel], dtype=float)
-        sx, sy = self.calibration.to_sensor(xyz[:, 0], xyz[:, 1])
-        depth = self.calibration.surface_z_mm - xyz[:, 2]
-        grid = np.stack([np.asarray(sx, float), np.asarray(sy, float), depth], axis=1)
-        if self.placement_error is not None:
-            dx, dy = self.placement_error(press_id)
-            grid[:, 0] += dx
-            grid[:, 1] += dy
-        self._grid = np.round(grid, 6)  # 1 nm: the G-code's resolution is 1 um
-        self._grid_t = rel
-        self._daq_t0 = daq_t0_s
+        """Take the printer's moves over [t0, t0 + duration] for this press."""
+        self._segments = self.segments_between(printer_t0_s, printer_t0_s + duration_s)
+        self._printer_t0, self._daq_t0 = printer_t0_s, daq_t0_s
+        self._offset = self.placement_error(press_id) if self.placement_error is not None else (0.0, 0.0)
 
     def state(self, times_s: np.ndarray) -> np.ndarray:
-        rel = np.asarray(times_s, dtype=float) - self._daq_t0
-        return np.stack([np.interp(rel, self._grid_t, self._grid[:, k]) for k in range(3)], axis=-1)
+        """(times, 3): sensor x, y and depth below the surface (mm), rounded to 1 nm (G-code resolution is 1 um)."""
+        printer_t = (np.asarray(times_s, dtype=float) - self._daq_t0) + self._printer_t0
+        xyz = trajectory_mm(self._segments, printer_t)
+        sx, sy = self.calibration.to_sensor(xyz[:, 0], xyz[:, 1])
+        state = np.stack([np.asarray(sx, float) + self._offset[0], np.asarray(sy, float) + self._offset[1],
+                          self.calibration.surface_z_mm - xyz[:, 2]], axis=1)
+        return np.round(state, 6)
 
     def pair_resistance_ohm(self, times_s: np.ndarray) -> np.ndarray:
         state = self.state(times_s)
@@ -143,12 +174,15 @@ class SimulatedRecorder:
                 fsr_v = self._fsr_trace(first, n, press_id)
         marks = {k: first + int(round((t - self._t0) * rate)) for k, t in self._marks.items()}
         self._press = None
-        return PressRecord(estimates, first, n, rate, marks, fsr_v, waveforms)
+        fsr_rate = rate if self.signal == "waveforms" else rate / FSR_DECIMATION
+        return PressRecord(estimates, first, n, rate, marks, fsr_v, waveforms, fsr_rate)
 
     def _fsr_trace(self, first: int, n: int, press_id: int) -> np.ndarray:
-        """The FSR channel alone (the features-only scene generates no V and I waveforms)."""
+        """The FSR channel alone, every FSR_DECIMATION-th sample (the features-only scene generates no V and I
+        waveforms; the press detector needs the force's shape, not its 10 kHz detail)."""
         rate = self.sweep.rate_hz
-        times = (first + np.arange(n)) / rate
+        times = (first + np.arange(0, n, FSR_DECIMATION)) / rate
+        n = times.size
         volts = self.daq.fsr.volts(self.probe.force_n(times))
         if self.daq.noise.fsr_noise_v > 0:
             rng = np.random.default_rng([self.seed, press_id, STREAM_FSR])
@@ -198,4 +232,4 @@ class ThreadedRecorder:
             waveforms = {"voltage_v": acq.voltage_v.astype(np.float32), "current_a": acq.current_a.astype(np.float32),
                          "fsr_v": acq.fsr_v.astype(np.float32)}
         return PressRecord(estimates, first, acq.n_samples, acq.rate_hz, marks,
-                           acq.fsr_v if self.fsr_enabled else None, waveforms)
+                           acq.fsr_v if self.fsr_enabled else None, waveforms, acq.rate_hz)

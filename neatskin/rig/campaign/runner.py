@@ -244,7 +244,8 @@ def _run_press(protocol, plan, rig, block, pair_labels):
             elif phase.name == "lift":
                 recorder.mark("lifted")
         record = recorder.end()
-        label = fsr_label(record.fsr_v, record.rate_hz, rig.fsr_model, record.first_sample, record.marks)
+        label = fsr_label(record.fsr_v, record.fsr_rate_hz, rig.fsr_model, record.first_sample, record.marks,
+                          record.rate_hz)
         if not label.missed or attempt == MAX_PRESS_ATTEMPTS - 1:
             break
         extra_flags.append(f"fsr_retry:{attempt + 1}")
@@ -279,7 +280,7 @@ def write_physical_limit(folder: Path, protocol: Protocol, plan: Plan, rig) -> P
     depth = np.full(ids.shape, protocol.press.press.depth_mm)
     jac = rig.skin.jacobian_mm(x, y, depth)  # (positions, pairs, 2) ohm / mm
     std = _dr_noise_std_ohm(protocol, plan, rig, x, y, depth)
-    crb = cramer_rao_bound_mm(jac, noise_std=std)
+    crb = np.array([cramer_rao_bound_mm(jac[k:k + 1], noise_std=std[k])[0] for k in range(len(ids))])
     table = pa.Table.from_pandas(pd.DataFrame({"position_id": ids.astype(np.int32), "x_mm": x, "y_mm": y,
                                                "crb_mm": crb}), preserve_index=False)
     return write_table_durably(folder / "physical_limit.parquet", table)

@@ -41,7 +41,7 @@ def daq_config(protocol):
                      frequency_hz=protocol.excitation.frequency_hz)
 
 
-def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 10.0, wire_log=None, printer_faults=None) -> Rig:
+def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=None, printer_faults=None) -> Rig:
     """The simulated printer on a real pty (reached through pyserial), the simulated skin and DAQ."""
     from neatskin.acquisition.daq.simulated import NoiseModel, SimulatedDAQ
     from neatskin.rig.campaign.recorder import STREAM_PLACEMENT, DryProbe, SimulatedRecorder
@@ -75,7 +75,15 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 10.0, wire_log=
             dx, dy = placement_error_mm(0.0, 0.0, scene.placement_error_mm, rng)
             return float(np.asarray(dx).reshape(-1)[0]), float(np.asarray(dy).reshape(-1)[0])
 
-    probe = DryProbe(skin, calibration, printer.probe_position, placement_error=placement)
+    def segments_between(t0_s: float, t1_s: float) -> list:
+        with printer.lock:
+            segments = printer.core.timeline.segments
+            k = len(segments)
+            while k > 0 and segments[k - 1].t1_s > t0_s:
+                k -= 1
+            return list(segments[max(k - 1, 0):])  # the move the probe rests after, and every later one
+
+    probe = DryProbe(skin, calibration, segments_between, placement_error=placement)
     noise = NoiseModel() if scene.noise else NoiseModel.none()
     daq = SimulatedDAQ(daq_config(protocol), probe.pair_resistance_ohm, probe.force_n, noise=noise)
     recorder = SimulatedRecorder(daq, sweep, probe, printer.now_s, seed=protocol.seed, signal=scene.signal,
