@@ -10,6 +10,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from neatskin.datasets.reader import feature_matrix, read_metadata, read_presses, read_waveforms
 from neatskin.datasets.schema import BASE_COLUMNS, pair_columns, press_schema
@@ -242,3 +243,27 @@ def test_timestamps_accept_epoch_seconds_and_naive_utc(paper_layout, tmp_path):
     df = read_presses(tmp_path)
     assert df["started_at"][0] == pd.Timestamp("2026-03-01T12:00:00.000250", tz="UTC")
     assert df["finished_at"][0] == pd.Timestamp("2026-03-01T12:00:01", tz="UTC")
+
+
+def test_out_of_range_value_names_the_field(paper_layout, tmp_path):
+    writer = CampaignWriter(tmp_path, paper_layout.pairs, META, fsync=False)
+    row = synthetic_rows(paper_layout, 1, 1)[0]
+    with pytest.raises(DataError) as err:
+        writer.write_press({**row, "position_id": 2**40})
+    assert err.value.field == "position_id" and "int32" in str(err.value)
+    with pytest.raises(DataError) as err:
+        writer.write_press({**row, "started_at": "yesterday"})
+    assert err.value.field == "started_at"
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.floats(allow_nan=False, width=64), min_size=56, max_size=56), st.integers(0, 10**9))
+def test_pair_values_round_trip_bit_for_bit(paper_layout, tmp_path_factory, values, press_id):
+    folder = tmp_path_factory.mktemp("prop")
+    row = synthetic_rows(paper_layout, 1, 1)[0]
+    row.update(press_id=press_id, R_ohm=np.array(values[:28]), dR_ohm=np.array(values[28:]))
+    write_all(folder, paper_layout, [row])
+    got = pq.read_table(folder / "presses.parquet")
+    assert got.column("press_id").to_pylist() == [press_id]
+    back = np.array([got.column(c)[0].as_py() for c in got.column_names[13:]])
+    np.testing.assert_array_equal(back.view(np.int64), np.array(values).view(np.int64))  # -0.0 and inf too
