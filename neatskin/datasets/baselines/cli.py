@@ -1,0 +1,43 @@
+"""The `neatskin baselines` command: evaluate the regression baselines on a dataset and write the report."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "baselines",
+        help="fit the paper's LM network and scikit-learn baselines on a dataset; write report.md, table, plots",
+        description="Predict press positions from the pair resistance changes with every baseline model; print "
+        "error against fit and predict time, and write report.md, baselines.csv/.parquet and PNG plots.",
+    )
+    parser.add_argument("dataset", help="campaign folder, merged dataset folder, or a presses .parquet file")
+    parser.add_argument("--split", choices=("grouped", "random", "both"), default="grouped",
+                        help="grouped: k-fold over positions (honest, default); random: the paper's 95/3/2 by row")
+    parser.add_argument("--models", default=None,
+                        help="comma-separated: ridge,knn,kernel_ridge,extra_trees,mlp,lm_network (default: all)")
+    parser.add_argument("--out", default=None, help="output folder (default: the dataset folder)")
+    parser.add_argument("--flagged", choices=("drop", "keep", "refuse"), default="drop",
+                        help="what to do with presses that carry flags (default: drop them)")
+    parser.add_argument("--folds", type=int, default=5, help="folds over positions for the grouped split")
+    parser.add_argument("--seed", type=int, default=0, help="seed for splits and model initialisation")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.set_defaults(handler=handler)
+
+
+def handler(args: argparse.Namespace) -> int:
+    from neatskin.datasets.baselines.report import run_baselines
+
+    models = [m.strip() for m in args.models.split(",") if m.strip()] if args.models else None
+    run_baselines(
+        args.dataset,
+        split=args.split,
+        models=models,
+        out=args.out,
+        flagged=args.flagged,
+        random_state=args.seed,
+        n_splits=args.folds,
+        progress=not args.no_progress,
+    )
+    return 0
