@@ -14,7 +14,8 @@ def grid_layout(nx: int, ny: int, pitch_mm: float = 15.0, width_mm: float = 2.0,
     """An nx x ny grid of junctions `pitch_mm` apart with a channel between each pair of neighbours.
 
     electrodes: grid nodes (i, j) carrying electrodes 1, 2, ...; default the paper's pattern on the
-    boundary: bottom middle, then anticlockwise through the corners and edge middles. grid_layout(3, 3)
+    boundary: bottom middle, then anticlockwise through the corners and edge middles (nodes that
+    coincide on small grids count once). grid_layout(3, 3)
     is the paper's skin (same geometry, channel order may differ from protocols/skins/paper.toml).
     """
     if nx < 2 or ny < 2:
@@ -32,6 +33,9 @@ def grid_layout(nx: int, ny: int, pitch_mm: float = 15.0, width_mm: float = 2.0,
         mx, my = (nx - 1) // 2, (ny - 1) // 2
         electrodes = [(mx, 0), (nx - 1, 0), (nx - 1, my), (nx - 1, ny - 1), (mx, ny - 1), (0, ny - 1),
                       (0, my), (0, 0)]
+        electrodes = list(dict.fromkeys(electrodes))  # small grids: middles coincide with corners
+    if len(set(map(tuple, electrodes))) != len(electrodes):
+        raise ValueError(f"two electrodes on the same grid node: {electrodes}")
     elec = tuple(Electrode(k + 1, idx[tuple(e)]) for k, e in enumerate(electrodes))
     return Layout(f"grid-{nx}x{ny}", junctions, tuple(channels), elec, resistivity_ohm_m=resistivity_ohm_m,
                   thickness_mm=thickness_mm, channel_depth_mm=channel_depth_mm, source=f"<grid_layout {nx}x{ny}>")

@@ -46,6 +46,8 @@ def equivalent_resistance(layout: Layout, conductance_s: np.ndarray, method: str
     if g.ndim != 2 or g.shape[1] != layout.n_channels:
         raise ValueError(f"conductance_s must have shape (presses, {layout.n_channels}) for layout "
                          f"'{layout.name}', got {np.shape(conductance_s)}")
+    if len(set(layout.electrode_junctions.tolist())) != layout.n_electrodes:
+        raise ValueError(f"layout '{layout.name}' has two electrodes on one junction; give each its own junction")
     if not np.all(np.isfinite(g)) or np.any(g < 0):
         raise ValueError("conductance_s must be finite and >= 0 (0 = channel pinched shut)")
     if method == "auto":
