@@ -44,3 +44,21 @@ def test_mux_table_layout_option_and_errors(tmp_path, capsys):
     assert "pair with both ends on electrode 7" in err and "pair 7-8 of S is not routed" in err
     assert main(["mux", "table", str(PAPER), "--break-samples", "1"]) == 2
     assert "break_samples must be an integer >= 2" in capsys.readouterr().err
+
+
+def test_mux_table_from_a_protocol(tmp_path, capsys):
+    protocol = tmp_path / "p.toml"
+    protocol.write_text(f'[files]\nwiring = "{PAPER}"\n[acquisition]\nrate_hz = 10000.0\nsettle_samples = 10\n'
+                        'live_samples = 50\n[press]\nhold_s = 1.0\n')
+    assert main(["mux", "table", "--protocol", str(protocol)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[-2].startswith("sweep: 1736 samples = 173.6 ms at 10000 Hz (28 x (2 break + 10 settle + 50 live))")
+    # (1.0 - 0.005) // 0.1736 = 5
+    assert out[-1] == "a 1 s hold: every pair is measured at least 5 times inside it, whatever the sweep's phase"
+    assert main(["mux", "table", "--protocol", str(protocol), "--live-samples", "100", "--hold-s", "0.3"]) == 0
+    assert capsys.readouterr().out.splitlines()[-1].endswith("at least 0 times inside it, whatever the sweep's phase"
+                                                           "  <- too short for a pressed value")
+    protocol.write_text('[acquisition]\nlive_samples = "many"\n')
+    assert main(["mux", "table", "--protocol", str(protocol)]) == 2
+    err = capsys.readouterr().err
+    assert "[acquisition.live_samples]: live_samples has the wrong type: 'many'" in err

@@ -25,9 +25,12 @@ def register(subparsers) -> None:
                        help=f"wiring file (default: {DEFAULT_WIRING})")
     table.add_argument("--layout", type=Path, default=None,
                        help="skin layout (default: the wiring file's `layout` key)")
-    table.add_argument("--rate-hz", type=float, default=10_000.0, help="sample clock (default 10000)")
-    table.add_argument("--live-samples", type=int, default=100, help="measured samples per pair (default 100)")
-    table.add_argument("--settle-samples", type=int, default=20, help="discarded samples per pair (default 20)")
+    table.add_argument("--protocol", type=Path, default=None,
+                       help="campaign protocol: take the wiring, rate, settle/live samples and hold from it")
+    table.add_argument("--rate-hz", type=float, default=None, help="sample clock (default 10000)")
+    table.add_argument("--live-samples", type=int, default=None, help="measured samples per pair (default 100)")
+    table.add_argument("--settle-samples", type=int, default=None, help="discarded samples per pair (default 20)")
+    table.add_argument("--hold-s", type=float, default=None, help="press hold: say how many whole sweeps fit in it")
     table.add_argument("--break-samples", type=int, default=2, help="all-inhibited samples per switch (default 2)")
     table.add_argument("--order", choices=("pairs", "gray"), default="pairs",
                        help="visiting order: layout order, or Gray-coded addresses (fewer line edges)")
@@ -35,13 +38,47 @@ def register(subparsers) -> None:
 
 
 def table_handler(args: argparse.Namespace) -> int:
-    print(mux_table(args.wiring, args.layout, args.rate_hz, args.live_samples, args.settle_samples,
-                    args.break_samples, args.order), end="")
+    settings = {"rate_hz": 10_000.0, "live_samples": 100, "settle_samples": 20, "hold_s": None, "wiring": None}
+    if args.protocol is not None:
+        settings.update(protocol_settings(args.protocol))
+    for key in ("rate_hz", "live_samples", "settle_samples", "hold_s", "wiring"):
+        if getattr(args, key) is not None:  # the command line wins over the protocol
+            settings[key] = getattr(args, key)
+    print(mux_table(settings["wiring"], args.layout, settings["rate_hz"], settings["live_samples"],
+                    settings["settle_samples"], args.break_samples, args.order, settings["hold_s"]), end="")
     return 0
 
 
+def protocol_settings(path: Path) -> dict:
+    """The few protocol keys the table needs ([files].wiring, [acquisition], [press].hold_s), read without
+    the campaign loader (acquisition does not import rig); the campaign loader validates the rest."""
+    import tomllib
+
+    from neatskin.errors import ConfigError
+
+    try:
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError(f"cannot read protocol: {exc.strerror}", file=str(path), fix="check the path") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"not valid TOML: {exc}", file=str(path), field="<syntax>", fix="correct the TOML") from exc
+    out: dict = {}
+    wanted = (("files", "wiring", str), ("acquisition", "rate_hz", (int, float)), ("acquisition", "live_samples", int),
+              ("acquisition", "settle_samples", int), ("press", "hold_s", (int, float)))
+    for table, key, kind in wanted:
+        value = data.get(table, {}).get(key)
+        if value is None:
+            continue
+        if isinstance(value, bool) or not isinstance(value, kind):
+            raise ConfigError(f"{key} has the wrong type: {value!r}", file=str(path), field=f"{table}.{key}",
+                              fix=f"set {table}.{key} to a {'path' if kind is str else 'number'}")
+        out[key] = (Path(path).parent / value) if key == "wiring" else value
+    return out
+
+
 def mux_table(wiring_path: Path | None = None, layout_path: Path | None = None, rate_hz: float = 10_000.0,
-              live_samples: int = 100, settle_samples: int = 20, break_samples: int = 2, order: str = "pairs") -> str:
+              live_samples: int = 100, settle_samples: int = 20, break_samples: int = 2, order: str = "pairs",
+              hold_s: float | None = None) -> str:
     """The table as text (the CLI prints it)."""
     from neatskin.errors import ConfigError
     from neatskin.layout import load_layout
@@ -84,4 +121,11 @@ def mux_table(wiring_path: Path | None = None, layout_path: Path | None = None, 
     out += ["", f"sweep: {sweep.n_samples} samples = {sweep.duration_s * 1e3:.1f} ms at {rate_hz:g} Hz "
             f"({wiring.n_pairs} x ({break_samples} break + {settle_samples} settle + {live_samples} live)); "
             f"{sweep.line_transitions()} line edges per sweep ({order} order)"]
+    if hold_s is not None:
+        # live windows of one pair recur every sweep; at least floor((hold - live) / sweep) lie wholly inside
+        # any hold of that length, whatever the sweep's phase against the press
+        live_s = live_samples / rate_hz
+        times = max(0, int((hold_s - live_s) // sweep.duration_s))
+        out.append(f"a {hold_s:g} s hold: every pair is measured at least {times} time{'s' if times != 1 else ''} "
+                   "inside it, whatever the sweep's phase" + ("  <- too short for a pressed value" if times < 1 else ""))
     return "\n".join(out) + "\n"
