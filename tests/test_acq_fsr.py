@@ -91,3 +91,26 @@ def test_property_count_matches_commanded(n, seed):
     t, force = trace(onsets, duration_s=7.5, seed=seed)
     det = detect_presses(force, RATE, expected=max(n, 1))
     assert det.n_presses == n
+
+
+def test_steep_linear_drift_and_decimated_trace():
+    onsets = [1.0, 2.5, 4.0, 6.2]
+    t, force = trace(onsets, seed=3)
+    force = force + 1.5 * t / 8.0  # 1.5 N of drift, six times the off threshold
+    det = detect_presses(force, RATE, expected=4)
+    assert det.n_presses == 4 and det.ok
+    np.testing.assert_allclose(det.peak_force_n, 3.0, atol=0.05)  # measured above the drifting baseline
+    # the campaign's features-only scene keeps the FSR at 1 kHz: same presses, same onsets
+    det_1k = detect_presses(force[::10], RATE / 10, expected=4)
+    assert det_1k.n_presses == 4
+    np.testing.assert_allclose(det_1k.onset / (RATE / 10), np.array(onsets) + 0.1 / 6, atol=0.01)
+
+
+def test_bad_thresholds_refused():
+    from neatskin.errors import ConfigError
+    with pytest.raises(ConfigError, match="off_threshold_n < on_threshold_n"):
+        detect_presses(np.zeros(100), RATE, on_threshold_n=0.2, off_threshold_n=0.3)
+    with pytest.raises(ConfigError, match="units must be 'n' or 'v'"):
+        detect_presses(np.zeros(100), RATE, units="lbf")
+    empty = detect_presses(np.zeros(0), RATE)
+    assert empty.n_presses == 0 and empty.flags == ("missed",)
