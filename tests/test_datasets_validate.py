@@ -155,3 +155,19 @@ def test_several_problems_at_once_and_check_raises(paper_layout, tmp_path):
     with pytest.raises(DataError) as err:
         check_dataset(tmp_path)
     assert len(err.value.problems) == 29 and "fix:" in str(err.value)
+
+
+def test_orphan_and_misplaced_waveform_parts(paper_layout, tmp_path):
+    rows = make_campaign(tmp_path, paper_layout, finalize=False)
+    with CampaignWriter(tmp_path, paper_layout.pairs, {"seed": 9, "layout": LAYOUT_REF}, fsync=False) as writer:
+        writer.finalize()
+    wave = pa.table({"press_id": [3], "sample": [0], "voltage_v": [0.5]})
+    (tmp_path / "waveforms" / "position_id=1").mkdir(parents=True)
+    pq.write_table(wave, tmp_path / "waveforms" / "position_id=1" / "part-000003.parquet")  # press 3: position 1
+    assert rows[3]["position_id"] == 1 and validate_dataset(tmp_path) == []
+    (tmp_path / "waveforms" / "position_id=4").mkdir()
+    pq.write_table(wave, tmp_path / "waveforms" / "position_id=4" / "part-000004.parquet")  # press 4 is at 1
+    pq.write_table(wave, tmp_path / "waveforms" / "position_id=4" / "part-000099.parquet")  # no press 99
+    problems = validate_dataset(tmp_path)
+    assert sorted(p.field for p in problems) == ["position_id", "press_id"]
+    assert all("1 waveform part(s)" in p.message for p in problems)

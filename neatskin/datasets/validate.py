@@ -14,6 +14,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from neatskin.datasets.manifest import MANIFEST_NAME, read_manifest, resolve_manifest_path
+from neatskin.datasets.paths import waveform_parts
 from neatskin.datasets.reader import press_files
 from neatskin.datasets.schema import BASE_FIELDS, decode_metadata, press_schema
 from neatskin.errors import ConfigError, DataError, Problem
@@ -65,6 +66,8 @@ def validate_dataset(path: str | os.PathLike, *, layout: Layout | None = None,
     problems += _schema_problems(tables, expected)
     rows = pd.concat([_frame(file, table) for file, table in tables], ignore_index=True)
     problems += _content_problems(rows, expected, layout, allow_flagged)
+    if path.is_dir() and "press_id" in rows and "position_id" in rows:
+        problems += _waveform_problems(path, rows)
     if manifest is not None:
         problems += _manifest_problems(manifest, manifest_file, metadata, rows, pairs, layout)
     return problems
@@ -199,6 +202,27 @@ def _content_problems(rows: pd.DataFrame, expected: pa.Schema, layout: Layout | 
                 f"press ids {_ids(rows.loc[flagged, 'press_id'])})", _where([Path(f) for f in files]), "flags",
                 "inspect them; drop them with `neatskin dataset export --drop-flagged`, or accept them with "
                 "--allow-flagged"))
+    return problems
+
+
+def _waveform_problems(folder: Path, rows: pd.DataFrame) -> list[Problem]:
+    """Waveform parts must belong to a press of the dataset and sit in that press's position partition."""
+    position_of = dict(zip(rows["press_id"].astype(int), rows["position_id"].astype(int)))
+    orphans, misplaced = [], []
+    for press_id, part in waveform_parts(folder).items():
+        if press_id not in position_of:
+            orphans.append(part)
+        elif part.parent.name != f"position_id={position_of[press_id]}":
+            misplaced.append(part)
+    problems = []
+    if orphans:
+        problems.append(Problem(f"{len(orphans)} waveform part(s) of presses that are not in the dataset",
+                                _where(orphans), "press_id",
+                                "resume the campaign (it deletes orphans and presses them again) or delete the parts"))
+    if misplaced:
+        problems.append(Problem(f"{len(misplaced)} waveform part(s) in another press's position_id partition",
+                                _where(misplaced), "position_id",
+                                "move each part to waveforms/position_id=<its press's position_id>/"))
     return problems
 
 
