@@ -236,3 +236,36 @@ def test_estimator_moments_closed_form(sweep):
     # rectification bias sigma_v^2 / V0^2 - sigma_i^2 / A^2 (to first order), and a slightly larger spread
     np.testing.assert_allclose(mean_rms / r - 1, (0.3 / (r * 0.002)) ** 2 - (3e-5 / 0.002) ** 2, rtol=0.05)
     assert np.all(std_rms > std) and np.all(std_rms < 1.1 * std) and blocks_rms == 10
+
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+
+@settings(max_examples=25, deadline=None)
+@given(r=st.lists(st.floats(0.0, 9_500.0), min_size=28, max_size=28), start=st.integers(0, 10 ** 9),
+       method=st.sampled_from(["rms", "lockin"]))
+def test_ideal_instrument_recovers_any_resistance(sweep, r, start, method):
+    """Any resistance in range (a dead short included), any start on the sample clock: exact, unflagged."""
+    r = np.array(r)
+    daq = SimulatedDAQ(DaqConfig(), constant(r), noise=NoiseModel.none())
+    est = demodulate(daq.acquire(sweep, rng=np.random.default_rng(0), start_time_s=start / 10_000.0), sweep, method)
+    np.testing.assert_allclose(est.resistance_ohm[0], r, rtol=1e-9, atol=1e-9)
+    assert np.all(est.flags == 0) and est.windows[0, 0, 0] == start + 22
+
+
+def test_bad_method_and_window_refused(sweep):
+    from neatskin.errors import ConfigError
+    daq = SimulatedDAQ(DaqConfig(), constant(R_TRUE))
+    acq = daq.acquire(sweep, rng=np.random.default_rng(0))
+    with pytest.raises(ConfigError, match="unknown demodulation 'fft'"):
+        demodulate(acq, sweep, "fft")
+    with pytest.raises(ConfigError, match="RMS window 101 does not fit the live window of 100 samples"):
+        demodulate(acq, sweep, "rms", 101)
+    other = build_sweep(load_wiring(PAPER, _layout()), SweepTiming(live_samples=50))
+    with pytest.raises(ConfigError, match="demodulate with the sweep it was acquired with"):
+        demodulate(acq, other)
+
+
+def _layout():
+    from neatskin.layout import load_layout
+    return load_layout(PAPER.parent.parent / "skins" / "paper.toml")

@@ -12,7 +12,7 @@ Both use each pair's live window only (settle samples discarded), vectorised ove
 Flags: OPEN_CIRCUIT when the current RMS is below open_fraction of the excitation's RMS
 (resistance and uncertainty = +inf, no division by zero); CLIPPED when any live V or I
 sample reaches the AI range; DC_OFFSET when the mean of V or I exceeds DC_OFFSET_SHARE of
-its RMS (the RMS estimate is then biased; the lock-in is not).
+its AC RMS and one ADC step (the RMS estimate is then biased; the lock-in is not).
 """
 
 from __future__ import annotations
@@ -72,17 +72,18 @@ def demodulate(acq: Acquisition, sweep: Sweep, method: str = "lockin", window: i
     lsb = cfg.lsb_ai_v * cfg.to_physical
     clipped = (np.abs(v) >= cfg.voltage_limit_v - lsb[0]).any(-1) | (np.abs(i) >= cfg.current_limit_a - lsb[1]).any(-1)
     flags[clipped] |= np.uint8(PairFlag.CLIPPED)
-    dc = _dc_offset(v) | _dc_offset(i)
+    dc = _dc_offset(v, lsb[0]) | _dc_offset(i, lsb[1])
     flags[dc & ~open_circuit] |= np.uint8(PairFlag.DC_OFFSET)
     r = np.where(open_circuit, np.inf, r)
     u = np.where(open_circuit, np.inf, u)
     return PairEstimates(r, u, flags, windows, method)
 
 
-def _dc_offset(x: np.ndarray) -> np.ndarray:
+def _dc_offset(x: np.ndarray, lsb: float) -> np.ndarray:
+    """|mean| above DC_OFFSET_SHARE of the AC RMS, and above one ADC step (an offset below it is not measurable)."""
     mean = x.mean(axis=-1)
     ac = np.sqrt(np.maximum((x * x).mean(axis=-1) - mean ** 2, 0.0))
-    return np.abs(mean) > DC_OFFSET_SHARE * ac
+    return np.abs(mean) > np.maximum(DC_OFFSET_SHARE * ac, lsb)
 
 
 def _safe_ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:

@@ -23,7 +23,7 @@ from functools import cached_property
 
 import numpy as np
 
-from neatskin.errors import ConfigError
+from neatskin.errors import ConfigError, Problem
 from neatskin.acquisition.wiring import ADDRESSES_PER_CHIP, Wiring
 
 ORDERS = ("pairs", "gray")
@@ -48,7 +48,6 @@ class SweepTiming:
                 problems.append((name, f"{name} must be an integer >= {low}, got {value!r}",
                                  f"set {name} >= {low}" + (" (break-before-make needs 2)" if low == 2 else "")))
         if problems:
-            from neatskin.errors import Problem
             raise ConfigError(problems=[Problem(m, "<sweep timing>", f, x) for f, m, x in problems])
 
     @property

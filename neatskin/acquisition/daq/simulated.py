@@ -200,8 +200,9 @@ class SimulatedDAQ(Daq):
         uncertainty = std * spread
         flags = np.zeros(r.shape, dtype=np.uint8)
         dc_share = demod.DC_OFFSET_SHARE  # the demodulator's rule, on the noise-free means
-        dc = (abs(noise.voltage_offset_v) > dc_share * v0 / np.sqrt(2)) | (
-            abs(noise.current_offset_a) > dc_share * amp / np.sqrt(2))
+        lsb = cfg.lsb_ai_v * cfg.to_physical
+        dc = (abs(noise.voltage_offset_v) > np.maximum(dc_share * v0 / np.sqrt(2), lsb[0])) | (
+            abs(noise.current_offset_a) > max(dc_share * amp / np.sqrt(2), lsb[1]))
         flags[dc] |= np.uint8(PairFlag.DC_OFFSET)
         return PairEstimates(resistance, uncertainty, flags, windows, method)
 
