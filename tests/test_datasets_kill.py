@@ -43,21 +43,24 @@ def run_worker(folder, kill_after_lines=None, then_s=0.0, until_finalizing=False
     """Run the worker; SIGKILL it `then_s` seconds after it has printed `kill_after_lines` more lines (one per
     durable press, then 'finalizing') or, with until_finalizing, once it starts finalizing; so kills land
     mid-campaign and, with then_s, inside a write or inside finalize.
-    Returns True if it finished."""
+    Returns (presses it reported durable, whether it finished)."""
     proc = subprocess.Popen([sys.executable, "-c", WORKER, str(folder), str(PROTOCOLS / "skins" / "paper.toml")],
                             stdout=subprocess.PIPE, text=True)
     assert proc.stdout.readline().startswith("ready")
+    seen = []
     if kill_after_lines is not None:
         for _ in range(kill_after_lines):
             line = proc.stdout.readline()
+            seen.append(line)
             if not line or (until_finalizing and line.startswith("finalizing")):
                 break
         time.sleep(then_s)
         proc.send_signal(signal.SIGKILL)
     out, _ = proc.communicate(timeout=120)
+    lines = "".join(seen).splitlines() + out.splitlines()
     if kill_after_lines is None:
         assert proc.returncode == 0
-    return "finished" in out
+    return sum(line.startswith("wrote") for line in lines), "finished" in lines
 
 
 def test_sigkill_at_random_points_then_resume(paper_layout, tmp_path):
@@ -70,20 +73,22 @@ def test_sigkill_at_random_points_then_resume(paper_layout, tmp_path):
 
     rng = np.random.default_rng(2026)
     folder = tmp_path / "killed"
-    progress = []
+    progress, reported = [], []
     plan = [(int(rng.integers(1, 40)), float(rng.uniform(0.0, 0.004))) for _ in range(4)]
     plan.append((len(rows) + 1, float(rng.uniform(0.0, 0.05))))  # the rest of the presses, then into finalize
     for k, (lines, then_s) in enumerate(plan):
-        run_worker(folder, lines, then_s, until_finalizing=k == len(plan) - 1)
+        reported.append(run_worker(folder, lines, then_s, until_finalizing=k == len(plan) - 1)[0])
         # after each kill: what is on disk reads cleanly and equals the reference rows of those press ids
         df = read_presses(folder)
         progress.append(len(df))
         pd.testing.assert_frame_equal(df, reference[reference["press_id"].isin(df["press_id"])].reset_index(drop=True))
-    # every press the worker reported durable is on disk (plus at most the one in flight): none lost
+    # every press a worker reported durable is on disk, plus at most the one it was killed before reporting
     for k, (lines, _) in enumerate(plan[:-1]):
-        assert lines <= progress[k] - (progress[k - 1] if k else 0) <= lines + 1, progress
+        new = progress[k] - (progress[k - 1] if k else 0)
+        assert reported[k] <= new <= reported[k] + 1, (progress, reported)
+        assert new >= lines, (progress, reported)
     assert progress[-1] == len(rows), progress
-    assert run_worker(folder) is True
+    assert run_worker(folder)[1] is True
 
     final = read_presses(folder, deduplicate=False)
     assert final["press_id"].tolist() == list(range(len(rows)))
