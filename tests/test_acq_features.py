@@ -98,3 +98,17 @@ def test_press_features_uses_baseline_after_when_none_before(sweep):
     feats = press_features(est, 0, 2 * sweep.n_samples)
     assert np.all(feats.n_pressed == 2) and np.all(feats.n_baseline == 2)
     assert np.all(feats.baseline_samples[:, 0] >= 2 * sweep.n_samples)
+
+
+def test_fsr_spikes_and_noise_in_the_simulated_daq_do_not_break_the_label(sweep):
+    noise = NoiseModel(fsr_noise_v=0.02, fsr_spike_rate_hz=20.0, fsr_spike_v=3.0)
+    daq = SimulatedDAQ(DaqConfig(), skin, force, noise=noise)
+    acq = daq.acquire(sweep, 8, rng=np.random.default_rng(2))
+    fsr = acq.fsr_v
+    jumps = np.abs(np.diff(fsr)) > 1.0
+    assert jumps.sum() >= 40  # ~55 spikes, each two edges, were injected
+    feats, det, _ = features_from_acquisition(acq, sweep, "lockin", margin_s=0.01)
+    assert det.ok and det.n_presses == 1
+    assert det.onset[0] / 1e4 == pytest.approx(T_ON + 0.02 * 0.5 / 4, abs=2e-3)
+    np.testing.assert_allclose(det.peak_force_n, 4.0, rtol=0.05)
+    assert np.all(np.abs(feats.delta_r_ohm - R0 * CHANGE) < 0.002 * R0)

@@ -9,7 +9,7 @@ Waveform path, per sample n at t = index / rate_hz (vectorised, no loop per samp
   v = i R (R times the fluid drift 1 + drift_per_s * t) + a switching transient
       transient_v * exp(-k / transient_tau_samples) k samples after the switch closes
   + DC offsets, white noise, range clipping and ADC quantisation in AI volts;
-  fsr = Vcc F / (F + k / Rm) + noise, clipped and quantised.
+  fsr = Vcc F / (F + k / Rm) + noise (+ optional single-sample spikes), clipped and quantised.
 By default R is evaluated once per pair per sweep, at the middle of its live window
 (resistance_sampling="per_pair"); "per_sample" evaluates it at every sample.
 
@@ -50,10 +50,12 @@ class NoiseModel:
     transient_v: float = 0.2  # charge injection at each switch
     transient_tau_samples: float = 2.0
     drift_per_s: float = 0.0  # fluid resistivity drift, relative per second
+    fsr_spike_rate_hz: float = 0.0  # single-sample spikes on the FSR channel (cable knocks, EMI)
+    fsr_spike_v: float = 2.0  # their size: +-uniform(0.5, 1) x this
 
     @classmethod
     def none(cls) -> "NoiseModel":
-        return cls(0.0, 0.0, 0.0, 0.0, 0.0, False, False, 0.0, 2.0, 0.0)
+        return cls(0.0, 0.0, 0.0, 0.0, 0.0, False, False, 0.0, 2.0, 0.0, 0.0)
 
 
 def _no_force(times_s: np.ndarray) -> np.ndarray:
@@ -139,6 +141,10 @@ class SimulatedDAQ(Daq):
         std = np.array([noise.voltage_noise_v, noise.current_noise_a, noise.fsr_noise_v])
         if np.any(std > 0):
             physical += rng.standard_normal((n, 3)) * std
+        if noise.fsr_spike_rate_hz > 0:
+            k = rng.poisson(noise.fsr_spike_rate_hz * n / cfg.rate_hz)
+            where = rng.integers(0, n, k)
+            physical[where, 2] += rng.choice([-1.0, 1.0], k) * rng.uniform(0.5, 1.0, k) * noise.fsr_spike_v
         return Acquisition(self._digitise(physical), index, cfg, n_sweeps)
 
     def _static(self, sweep: Sweep, n_sweeps: int):
