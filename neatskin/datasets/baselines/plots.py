@@ -77,6 +77,7 @@ def plot_error_ellipses(
             ax.add_patch(Ellipse(m, 2 * ell.std_axes_mm[g, 0], 2 * ell.std_axes_mm[g, 1],
                                  angle=np.degrees(ell.angle_rad[g]), color="tab:green", alpha=0.45))
             ax.plot([t[0], m[0]], [t[1], m[1]], color="black" if hit else "tab:red", lw=0.8)
+            ax.plot(m[0], m[1], ".", color="tab:green", ms=3)
         ax.set_aspect("equal")
         ax.set_title(f"{r.model} ({r.split}): {r.errors.mean_error_mm:.2f} mm", fontsize=9)
         ax.set_xlabel("x (mm)")

@@ -1,0 +1,211 @@
+"""Baselines on datasets: clear DataErrors, extreme-but-legal data, the report files, the CLI."""
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+
+from neatskin.cli import main
+from neatskin.datasets.baselines.dataset import load_baseline_data
+from neatskin.datasets.baselines.evaluate import evaluate_model
+from neatskin.datasets.baselines.models import MODEL_NAMES, make_model, make_models
+from neatskin.datasets.baselines.report import run_baselines
+from neatskin.datasets.baselines.synthetic import synthetic_presses
+from neatskin.errors import DataError
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def write_dataset(folder: Path, df: pd.DataFrame, layout: bool = False, crb_mm: float | None = None) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    df.to_parquet(folder / "presses.parquet", index=False)
+    if layout:
+        (folder / "manifest.json").write_text(json.dumps(
+            {"layout": {"path": str(REPO / "protocols" / "skins" / "paper.toml")}, "status": "complete"}))
+    if crb_mm is not None:
+        pos = df.drop_duplicates("position_id")
+        pd.DataFrame({"position_id": pos["position_id"], "x_mm": pos["x_mm"], "y_mm": pos["y_mm"],
+                      "crb_mm": np.full(len(pos), crb_mm)}).to_parquet(folder / "physical_limit.parquet")
+    return folder
+
+
+def small_table(n_positions=12, repeats=4, seed=0) -> pd.DataFrame:
+    df = synthetic_presses(n_positions, repeats, seed=seed)
+    df.insert(0, "campaign", "synthetic")
+    return df
+
+
+# ---------------------------------------------------------------- refusals
+
+
+def test_nan_in_a_pair_column_is_one_data_error_naming_file_column_and_fix(tmp_path):
+    df = small_table()
+    df.loc[5, "dR_ohm_2_6"] = np.nan
+    folder = write_dataset(tmp_path / "ds", df)
+    with pytest.raises(DataError) as info:
+        run_baselines(folder, models=["ridge"], progress=False, echo=False)
+    err = info.value
+    assert len(err.problems) == 1
+    assert err.field == "dR_ohm_2_6"
+    assert str(folder) in err.file
+    assert "press_id [5]" in str(err) and "fix:" in str(err)
+    assert not (folder / "report.md").exists()
+
+
+def test_missing_pair_column_against_the_manifest_layout_is_a_data_error(tmp_path):
+    df = small_table().drop(columns=["dR_ohm_3_7"])
+    folder = write_dataset(tmp_path / "ds", df, layout=True)
+    with pytest.raises(DataError) as info:
+        load_baseline_data(folder)
+    assert info.value.field == "dR_ohm_3_7"
+    assert "1 of 28 missing" in str(info.value)
+
+
+def test_missing_position_column_is_a_data_error(tmp_path):
+    folder = write_dataset(tmp_path / "ds", small_table().drop(columns=["y_mm"]))
+    with pytest.raises(DataError) as info:
+        load_baseline_data(folder)
+    assert info.value.field == "y_mm"
+
+
+def test_flagged_presses_are_dropped_refused_or_kept(tmp_path):
+    df = small_table()
+    df.at[3, "dR_ohm_1_2"] = np.inf  # a cut-off pair, flagged by the campaign
+    df.at[3, "flags"] = ["open_circuit"]
+    folder = write_dataset(tmp_path / "ds", df)
+    data = load_baseline_data(folder)
+    assert data.n_flagged_dropped == 1 and len(data.y) == len(df) - 1
+    with pytest.raises(DataError, match="1 flagged presses"):
+        load_baseline_data(folder, flagged="refuse")
+    with pytest.raises(DataError) as info:
+        load_baseline_data(folder, flagged="keep")
+    assert info.value.field == "dR_ohm_1_2"
+
+
+def test_merged_datasets_group_positions_per_campaign(tmp_path):
+    a, b = small_table(seed=1), small_table(seed=2)
+    b["campaign"] = "second"
+    b["press_id"] += len(a)
+    data = load_baseline_data(write_dataset(tmp_path / "ds", pd.concat([a, b], ignore_index=True)))
+    assert len(np.unique(data.groups)) == 24  # same position ids, different campaigns
+
+
+# ---------------------------------------------------------------- extreme but legal
+
+
+def extreme(kind: str):
+    df = small_table(n_positions=3 if kind == "few_positions" else 12, repeats=4)
+    X = df.filter(like="dR_ohm").to_numpy().copy()
+    y = df[["x_mm", "y_mm"]].to_numpy()
+    if kind == "dead_electrode":
+        X[:, [0, 1, 2, 3, 4, 5, 6]] = 0.0  # electrode 1 never conducts: all its pairs constant
+    if kind == "scales_1e6_apart":
+        X[:, ::2] *= 1e6
+        X[:, 1::2] *= 1e-6
+    return X, y, df["position_id"].to_numpy()
+
+
+@pytest.mark.parametrize("kind", ["dead_electrode", "scales_1e6_apart", "few_positions"])
+@pytest.mark.parametrize("name", MODEL_NAMES)
+def test_extreme_but_legal_data_gives_finite_predictions(kind, name):
+    X, y, groups = extreme(kind)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # convergence warnings on 12 rows are expected
+        model = make_model(name, random_state=0)
+        if name == "lm_network":
+            model.set_params(n_restarts=2)
+        result = evaluate_model(name, model, X, y, groups, "grouped")
+    assert np.isfinite(result.y_pred_mm).all()
+    assert result.errors.n == len(y)
+    assert np.isfinite(result.errors.mean_error_mm)
+
+
+def test_too_few_training_rows_is_refused_clearly():
+    X, y = np.random.rand(4, 28), np.random.rand(4, 2)
+    with pytest.raises(DataError, match="training presses"):
+        evaluate_model("knn", make_model("knn"), X, y, np.array([0, 0, 1, 1]), "grouped")
+
+
+def test_make_models_names_and_unknown_model():
+    assert tuple(make_models()) == MODEL_NAMES
+    with pytest.raises(DataError, match="unknown model"):
+        make_models(["ridge", "svm"])
+
+
+# ---------------------------------------------------------------- the report
+
+
+def test_report_writes_table_files_and_plots(tmp_path):
+    folder = write_dataset(tmp_path / "ds", small_table(10, 4), layout=True, crb_mm=0.5)
+    report = run_baselines(folder, split="both", models=["ridge", "knn", "lm_network"], progress=False, echo=False)
+    table = report.table
+    assert table[["model", "split"]].values.tolist() == [
+        ["ridge", "grouped"], ["knn", "grouped"], ["lm_network", "grouped"],
+        ["ridge", "random"], ["knn", "random"], ["lm_network", "random"]]
+    assert (table.loc[table.split == "grouped", "n_test"] == 40).all()  # every press predicted out of fold
+    assert (table.loc[table.split == "random", "n_test"] == 1).all()  # 2 % of 40 rounds to 1
+    np.testing.assert_allclose(table["mse_per_coordinate_mm2"], table["mse_mm2"] / 2)
+    np.testing.assert_allclose(table["rms_over_crb"], table["rms_error_mm"] / 0.5)
+    assert report.bound_rms_mm == pytest.approx(0.5)
+    assert (table["fit_time_s"] > 0).all() and (table["predict_time_per_sample_us"] > 0).all()
+    back = pq.read_table(folder / "baselines.parquet").to_pandas()
+    pd.testing.assert_frame_equal(back, table)
+    assert pd.read_csv(folder / "baselines.csv")["model"].tolist() == table["model"].tolist()
+    for name in ("baselines_error_vs_time.png", "baselines_ellipses_grouped.png", "baselines_ellipses_random.png"):
+        assert (folder / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    text = (folder / "report.md").read_text()
+    assert "2.03 mm" in text and "82 %" in text and "3.32 mm²" in text and "95 % train / 3 % validation / 2 % test" in text
+    assert "Cramér-Rao" in text
+
+
+def test_report_is_deterministic_for_a_seed(tmp_path):
+    folder = write_dataset(tmp_path / "ds", small_table(8, 3))
+    a = run_baselines(folder, models=["lm_network", "extra_trees"], out=tmp_path / "a", progress=False, echo=False)
+    b = run_baselines(folder, models=["lm_network", "extra_trees"], out=tmp_path / "b", progress=False, echo=False)
+    cols = ["mean_error_mm", "mse_mm2", "within_probe_pct"]
+    pd.testing.assert_frame_equal(a.table[cols], b.table[cols])
+
+
+def test_cli_baselines_prints_the_table_and_writes_into_out(tmp_path, capsys):
+    folder = write_dataset(tmp_path / "ds", small_table(8, 3))
+    rc = main(["baselines", str(folder), "--models", "ridge,knn", "--split", "random", "--out", str(tmp_path / "o"),
+               "--no-progress"])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "ridge" in out and "knn" in out and "random" in out
+    assert (tmp_path / "o" / "report.md").is_file()
+    assert not (folder / "report.md").exists()
+
+
+def test_cli_errors_are_one_line_and_exit_2(tmp_path, capsys):
+    df = small_table(8, 3)
+    df.loc[0, "x_mm"] = np.nan
+    folder = write_dataset(tmp_path / "ds", df)
+    assert main(["baselines", str(folder), "--models", "ridge", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "[x_mm]" in err and str(folder) in err
+    assert main(["baselines", str(folder), "--models", "ridge,svm"]) == 2
+
+
+@pytest.fixture(scope="module")
+def smoke_dry_run(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("smoke") / "run"
+    rc = main(["campaign", "run", str(REPO / "protocols" / "smoke.toml"), "--dry-run", "--out", str(folder),
+               "--quiet", "--no-report"])
+    assert rc == 0
+    return folder
+
+
+def test_on_a_dry_run_dataset_the_grouped_folds_keep_positions_apart(smoke_dry_run):
+    from neatskin.datasets.baselines.evaluate import grouped_folds
+
+    data = load_baseline_data(smoke_dry_run)
+    assert data.X.shape == (12, 28) and data.layout is not None and data.physical_limit is not None
+    for train, test in grouped_folds(data.groups):
+        assert not set(data.groups[train]) & set(data.groups[test])
+    report = run_baselines(smoke_dry_run, models=["ridge", "lm_network"], progress=False, echo=False)
+    assert report.bound_rms_mm is not None and np.isfinite(report.table["mean_error_mm"]).all()
