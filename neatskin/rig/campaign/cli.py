@@ -19,6 +19,8 @@ def register(subparsers) -> None:
     rig.add_argument("--port", help="the printer's serial port, e.g. /dev/ttyUSB0 (real rig)")
     run.add_argument("--daq", default="ni", choices=("ni", "simulated"), help="DAQ backend of a real run")
     run.add_argument("--out", type=Path, help="campaign folder (default: runs/<name>-<date>-<time>)")
+    run.add_argument("--connect-timeout", type=float, default=None, metavar="S",
+                     help="seconds to wait for the printer's boot banner (real rig default 5)")
     run.add_argument("--limit", type=int, help="stop after this many presses (the campaign stays resumable)")
     run.add_argument("--no-report", action="store_true", help="skip the baseline report at the end")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -56,7 +58,8 @@ def _run(args: argparse.Namespace) -> int:
                           field="--dry-run/--port", fix=f"e.g. neatskin campaign run {args.protocol} --dry-run")
     out = args.out or Path("runs") / f"{protocol.name}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
     result = run_campaign(protocol, out, dry_run=args.dry_run, port=args.port, daq_kind=args.daq,
-                          progress=not args.quiet, limit=args.limit, report=not args.no_report)
+                          progress=not args.quiet, limit=args.limit, report=not args.no_report,
+                          connect_timeout_s=args.connect_timeout)
     print(_summary(result))
     return 130 if result.interrupted else 0
 

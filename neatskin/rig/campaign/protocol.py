@@ -161,8 +161,11 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
     for reader in (campaign, files, excitation_t, acq, fsr, record, scene_t):
         problems.extend(reader.problems)
 
-    layout = wiring = printer = press = None
     layout, wiring, printer, press = _load_components(data, source, file_paths, problems)
+    if None not in (layout, printer, press):  # the press program's checks: bounds after calibration, depth, feeds
+        from neatskin.gcode.spec import build_from_spec
+
+        _collect(problems, lambda: build_from_spec(press, layout=layout, profile=printer))
 
     if problems:
         raise ConfigError(problems=problems)

@@ -99,7 +99,8 @@ def _check_folder(folder: Path, resume: bool) -> None:
 
 def run_campaign(protocol: Protocol, folder: str | Path, *, dry_run: bool = True, port: str | None = None,
                  daq_kind: str = "ni", resume: bool = False, progress: bool = True, limit: int | None = None,
-                 report: bool = True, printer_faults=None) -> CampaignResult:
+                 report: bool = True, printer_faults=None, connect_timeout_s: float | None = None
+                 ) -> CampaignResult:
     """Run (or resume) a campaign into `folder`; returns what was done."""
     from neatskin.datasets.manifest import create_manifest, read_manifest, update_manifest, utc_now_iso
     from neatskin.datasets.writer import CampaignWriter
@@ -108,8 +109,8 @@ def run_campaign(protocol: Protocol, folder: str | Path, *, dry_run: bool = True
     wall0 = time.perf_counter()
     _check_folder(folder, resume)
     plan = build_plan(protocol)  # every check that needs no hardware happens here, before any motion
-    rig = _open_rig(protocol, plan, dry_run=dry_run, port=port, daq_kind=daq_kind, folder=folder,
-                    printer_faults=printer_faults)
+    rig = _open_rig(protocol, plan, dry_run=dry_run, port=port, daq_kind=daq_kind,
+                    printer_faults=printer_faults, connect_timeout_s=connect_timeout_s)
     try:
         folder.mkdir(parents=True, exist_ok=True)
         refs = _copy_inputs(protocol, folder)
@@ -144,11 +145,11 @@ def run_campaign(protocol: Protocol, folder: str | Path, *, dry_run: bool = True
         if status == "complete":
             _finish_program(rig, plan)
             writer.finalize()
-            if rig.skin is not None:
-                write_physical_limit(folder, protocol, plan, rig)
         writer.close()
         update_manifest(folder, status=status, finished_at=utc_now_iso(),
                         counts={"completed": completed, "flagged": flagged})
+        if status == "complete" and rig.skin is not None:
+            write_physical_limit(folder, protocol, plan, rig)
     finally:
         rig.close()
     result = CampaignResult(folder, plan.n_presses, completed, written, flagged, interrupted,
@@ -160,15 +161,16 @@ def run_campaign(protocol: Protocol, folder: str | Path, *, dry_run: bool = True
     return result
 
 
-def _open_rig(protocol, plan, *, dry_run, port, daq_kind, folder, printer_faults):
+def _open_rig(protocol, plan, *, dry_run, port, daq_kind, printer_faults, connect_timeout_s):
     from neatskin.rig.campaign.scene import build_dry_rig, build_real_rig
 
+    timeout = {} if connect_timeout_s is None else {"connect_timeout_s": connect_timeout_s}
     if dry_run:
-        return build_dry_rig(protocol, plan.sweep, printer_faults=printer_faults)
+        return build_dry_rig(protocol, plan.sweep, printer_faults=printer_faults, **timeout)
     if not port:
         raise ConfigError("a real run needs the printer's serial port", field="--port",
                           fix="pass --port /dev/ttyUSB0 (or --dry-run for the simulated rig)")
-    return build_real_rig(protocol, plan.sweep, port=port, daq_kind=daq_kind)
+    return build_real_rig(protocol, plan.sweep, port=port, daq_kind=daq_kind, **timeout)
 
 
 class _StopRequest:

@@ -96,7 +96,7 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
 
 
 def build_real_rig(protocol, sweep, *, port: str, daq_kind: str = "ni", baud_rate: int | None = None,
-                   connect_timeout_s: float = 30.0, wire_log=None) -> Rig:
+                   connect_timeout_s: float = 5.0, wire_log=None) -> Rig:
     """The printer on a serial port and the DAQ; errors are HardwareErrors raised before any motion."""
     from neatskin.acquisition.daq import open_daq
     from neatskin.acquisition.fsr import FsrModel
@@ -104,12 +104,12 @@ def build_real_rig(protocol, sweep, *, port: str, daq_kind: str = "ni", baud_rat
     from neatskin.rig.marlin.driver import MarlinDriver
 
     closers: list[Callable[[], None]] = []
-    try:
-        daq = open_daq(daq_kind, daq_config(protocol))
-        closers.append(daq.close)
+    try:  # the printer first: a port that does not answer is the commonest set-up mistake
         driver = MarlinDriver.open(port, baud_rate or protocol.printer.baud_rate, wire_log=wire_log)
         closers.append(driver.close)
         driver.connect(boot_timeout_s=connect_timeout_s)
+        daq = open_daq(daq_kind, daq_config(protocol))
+        closers.append(daq.close)
     except HardwareError:
         for close in reversed(closers):
             close()
@@ -117,7 +117,7 @@ def build_real_rig(protocol, sweep, *, port: str, daq_kind: str = "ni", baud_rat
     except Exception as exc:
         for close in reversed(closers):
             close()
-        raise HardwareError(f"cannot open the rig ({port}, DAQ {daq_kind}): {exc}") from exc
+        raise HardwareError(f"cannot open the rig (printer on {port}, DAQ {daq_kind}): {exc}") from exc
     recorder = ThreadedRecorder(daq, sweep, method=protocol.acquisition.demodulation,
                                 window=protocol.acquisition.window, fsr_enabled=protocol.fsr_enabled,
                                 keep_waveforms=protocol.record_waveforms)

@@ -1,0 +1,95 @@
+"""Campaigns end to end: the smoke protocol as a dry run through a real pseudo-terminal, read back without the toolkit."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+
+from neatskin.rig.campaign.protocol import load_protocol
+from neatskin.rig.campaign.runner import run_campaign
+from neatskin.rig.skin.network import equivalent_resistance
+
+from conftest import PROTOCOLS
+
+
+@pytest.fixture(scope="module")
+def smoke_run(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("smoke") / "campaign"
+    protocol = load_protocol(PROTOCOLS / "smoke.toml")
+    result = run_campaign(protocol, folder, dry_run=True, progress=False, report=False)
+    return protocol, result, folder
+
+
+def test_smoke_campaign_completes(smoke_run):
+    protocol, result, folder = smoke_run
+    assert (result.planned, result.completed, result.written_now, result.interrupted) == (12, 12, 12, False)
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert manifest["status"] == "complete"
+    assert manifest["counts"]["completed"] == 12 and manifest["seed"] == 7
+    assert manifest["rig"]["kind"] == "dry-run" and manifest["rig"]["printer"].startswith("simulated Marlin on /dev/pts/")
+    for key in ("layout", "wiring", "printer", "protocol"):
+        assert (folder / manifest[key]["path"]).is_file()
+
+
+def test_dataset_reads_back_without_the_toolkit(smoke_run):
+    protocol, _, folder = smoke_run
+    pairs = [f"{p.i}_{p.j}" for p in protocol.layout.pairs]
+    df = pd.read_parquet(folder / "presses.parquet")
+    table = pq.read_table(folder / "presses.parquet")
+    assert len(df) == table.num_rows == 12
+    for column in ("campaign", "press_id", "position_id", "repeat", "x_mm", "y_mm", "depth_mm", "started_at",
+                   "finished_at", "fsr_onset_s", "fsr_offset_s", "fsr_peak_n", "flags"):
+        assert column in df.columns
+    assert [c for c in df.columns if c.startswith("dR_ohm_")] == [f"dR_ohm_{p}" for p in pairs]
+    assert [c for c in df.columns if c.startswith("R_ohm_")] == [f"R_ohm_{p}" for p in pairs]
+    assert sorted(df.press_id) == list(range(12))
+    assert df.groupby("position_id").size().tolist() == [2] * 6
+    assert (df.depth_mm == 3.5).all() and (df.campaign == "smoke").all()
+    assert all(len(f) == 0 for f in df["flags"]), df["flags"].tolist()
+    assert (df.fsr_peak_n > 0.5).all() and (df.fsr_offset_s > df.fsr_onset_s).all()
+    metadata = table.schema.metadata
+    assert json.loads(metadata[b"neatskin.seed"]) == 7
+
+
+def test_waveforms_recorded_per_position(smoke_run):
+    _, _, folder = smoke_run
+    waves = pq.read_table(folder / "waveforms").to_pandas()
+    assert sorted(waves.press_id.unique()) == list(range(12))
+    assert {"voltage_v", "current_a", "fsr_v"} <= set(waves.columns)
+    per_press = waves.groupby("press_id").size()
+    assert per_press.nunique() == 1 and per_press.iloc[0] > 10_000
+
+
+def test_largest_dr_pair_is_the_pressed_channels(smoke_run):
+    """For presses on a channel, the pair whose dR is largest is the pair that sees that channel most:
+    the one the network solver picks when only that channel's resistance rises."""
+    protocol, _, folder = smoke_run
+    layout = protocol.layout
+    from neatskin.rig.campaign.runner import build_plan
+
+    features = {b.position_id: b.feature for b in build_plan(protocol).program.presses}
+    df = pd.read_parquet(folder / "presses.parquet")
+    dr_cols = [c for c in df.columns if c.startswith("dR_ohm_")]
+    names = [c.name for c in layout.channels]
+    checked = 0
+    for _, row in df.iterrows():
+        feature = features[row.position_id]
+        if not feature.startswith("channel:"):
+            continue
+        k = names.index(feature.split(":", 1)[1])
+        g = 1.0 / np.tile(layout.channel_resistance_ohm, (2, 1))
+        g[1, k] /= 1.5
+        r = equivalent_resistance(layout, g)
+        expected = int(np.argmax(r[1] - r[0]))
+        assert int(np.argmax(row[dr_cols].to_numpy(float))) == expected, (feature, row.x_mm, row.y_mm)
+        checked += 1
+    assert checked >= 4  # the smoke protocol's stratified positions put half its presses on channels
+
+
+def test_physical_limit_written_for_the_dry_run(smoke_run):
+    _, _, folder = smoke_run
+    limit = pd.read_parquet(folder / "physical_limit.parquet")
+    assert sorted(limit.position_id) == list(range(6))
+    assert np.isfinite(limit.crb_mm).all() and (limit.crb_mm > 0).all()
