@@ -131,3 +131,15 @@ def test_bad_parameters_raise_value_error(bad):
 @parametrize_with_checks([LMNetworkRegressor(n_restarts=2, max_epochs=50, random_state=0)])
 def test_sklearn_estimator_checks(estimator, check):
     check(estimator)
+
+
+def test_restart_problem_reproduces_the_restart_it_names():
+    rng = np.random.default_rng(11)
+    X = rng.random((90, 4))
+    y = np.column_stack([np.sin(3 * X[:, 0]), X[:, 1] * X[:, 3]])
+    model = LMNetworkRegressor(n_restarts=3, val_fraction=0.2, random_state=5).fit(X, y)
+    for k in range(3):
+        p = model.restart_problem(X, y, restart=k)
+        assert len(p["x_val"]) == 18 and len(p["x_train"]) == 72
+        run = train_lm(p["w0"], p["x_train"], p["y_train"], p["x_val"], p["y_val"], 5)
+        assert run.val_mse == pytest.approx(model.val_mse_[k], rel=1e-12)

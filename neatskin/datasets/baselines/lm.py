@@ -308,6 +308,8 @@ class LMNetworkRegressor(RegressorMixin, BaseEstimator):
         n_val = int(round(self.val_fraction * n)) if n >= 3 else 0
         n_val = min(n_val, n - 1)
         seeds = check_random_state(self.random_state).randint(0, 2**31 - 1, size=int(self.n_restarts))
+        self.restart_seeds_ = seeds
+        self.n_val_ = n_val
         runs = [self._fit_one(xs, ys, n_val, int(seed)) for seed in seeds]
 
         self.val_mse_ = np.array([r.val_mse for r in runs])
@@ -320,14 +322,32 @@ class LMNetworkRegressor(RegressorMixin, BaseEstimator):
         self.fit_time_s_ = time.perf_counter() - start
         return self
 
-    def _fit_one(self, xs: np.ndarray, ys: np.ndarray, n_val: int, seed: int) -> LMRun:
-        """One restart: its own validation rows and initial weights, both from `seed`."""
+    def _restart_setup(self, n_rows: int, n_inputs: int, n_outputs: int, n_val: int, seed: int):
+        """(train rows, val rows, initial weights) of one restart, all drawn from its seed."""
         rng = np.random.default_rng(seed)
-        order = rng.permutation(len(xs))
+        order = rng.permutation(n_rows)
         val, train = order[:n_val], order[n_val:]
         if n_val == 0:  # too few rows to hold any out: validate on the training rows
             val = train
-        w0 = initial_weights(xs.shape[1], int(self.n_hidden), ys.shape[1], rng)
+        return train, val, initial_weights(n_inputs, int(self.n_hidden), n_outputs, rng)
+
+    def restart_problem(self, X, y, restart: int = 0) -> dict[str, np.ndarray]:
+        """The scaled least-squares problem restart `restart` of the last fit solved (same X, y as fit).
+
+        Keys x_train, y_train, x_val, y_val, w0: what `fit_with_scipy_lm` needs to solve the
+        same problem from the same start.
+        """
+        check_is_fitted(self, "weights_")
+        X = np.asarray(X, dtype=float)
+        y2 = np.asarray(y, dtype=float).reshape(len(X), -1)
+        xs, ys = (X - self.x_min_) / self.x_span_, (y2 - self.y_min_) / self.y_span_
+        train, val, w0 = self._restart_setup(len(xs), xs.shape[1], ys.shape[1], self.n_val_,
+                                             int(self.restart_seeds_[restart]))
+        return {"x_train": xs[train], "y_train": ys[train], "x_val": xs[val], "y_val": ys[val], "w0": w0}
+
+    def _fit_one(self, xs: np.ndarray, ys: np.ndarray, n_val: int, seed: int) -> LMRun:
+        """One restart: its own validation rows and initial weights, both from `seed`."""
+        train, val, w0 = self._restart_setup(len(xs), xs.shape[1], ys.shape[1], n_val, seed)
         return train_lm(
             w0, xs[train], ys[train], xs[val], ys[val], int(self.n_hidden),
             mu=self.mu, mu_dec=self.mu_dec, mu_inc=self.mu_inc, mu_max=self.mu_max,
