@@ -40,6 +40,7 @@ class Scene:
     signal: str  # "features" | "waveforms"
     noise: bool
     placement_error_mm: float
+    surface_error_mm: float = 0.0  # the real skin surface lies this far below the calibrated one
 
 
 @dataclass(frozen=True)
@@ -153,6 +154,7 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
     signal = scene_t.choice("signal", ("features", "waveforms"), "features")
     noise = scene_t.boolean("noise", True)
     placement = scene_t.number("placement_error_mm", 0.0, minimum=0.0, unit="mm")
+    surface_error = scene_t.number("surface_error_mm", 0.0, unit="mm")
     if signal == "features" and waveforms:
         scene_t.problems.append(Problem("record.waveforms = true needs the waveforms to be simulated", source,
                                         "scene.signal", "set scene.signal = \"waveforms\" or record.waveforms = false"))
@@ -176,7 +178,7 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
         excitation=Excitation(amplitude, frequency),
         acquisition=AcquisitionSettings(rate, settle, live, demod, window),
         fsr_enabled=fsr_enabled, record_waveforms=waveforms,
-        scene=Scene(fidelity, signal, noise, placement), raw=data,
+        scene=Scene(fidelity, signal, noise, placement, surface_error), raw=data,
     )
 
 

@@ -90,8 +90,9 @@ class DryProbe:
     trajectory gives at each sample time (sensor frame, depth below the skin surface)."""
 
     def __init__(self, skin, calibration, segments_between: Callable[[float, float], list],
-                 placement_error: Callable[[int], tuple[float, float]] | None = None):
+                 placement_error: Callable[[int], tuple[float, float]] | None = None, surface_error_mm: float = 0.0):
         self.skin = skin
+        self.surface_z_mm = calibration.surface_z_mm - surface_error_mm
         self.calibration = calibration
         self.segments_between = segments_between
         self.placement_error = placement_error
@@ -112,7 +113,7 @@ class DryProbe:
         xyz = trajectory_mm(self._segments, printer_t)
         sx, sy = self.calibration.to_sensor(xyz[:, 0], xyz[:, 1])
         state = np.stack([np.asarray(sx, float) + self._offset[0], np.asarray(sy, float) + self._offset[1],
-                          self.calibration.surface_z_mm - xyz[:, 2]], axis=1)
+                          self.surface_z_mm - xyz[:, 2]], axis=1)
         return np.round(state, 6)
 
     def pair_resistance_ohm(self, times_s: np.ndarray) -> np.ndarray:

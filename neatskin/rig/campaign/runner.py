@@ -109,10 +109,17 @@ def run_campaign(protocol: Protocol, folder: str | Path, *, dry_run: bool = True
     wall0 = time.perf_counter()
     _check_folder(folder, resume)
     plan = build_plan(protocol)  # every check that needs no hardware happens here, before any motion
-    rig = _open_rig(protocol, plan, dry_run=dry_run, port=port, daq_kind=daq_kind,
-                    printer_faults=printer_faults, connect_timeout_s=connect_timeout_s)
+    created = not folder.exists()
+    folder.mkdir(parents=True, exist_ok=True)
     try:
-        folder.mkdir(parents=True, exist_ok=True)
+        rig = _open_rig(protocol, plan, dry_run=dry_run, port=port, daq_kind=daq_kind,
+                        printer_faults=printer_faults, connect_timeout_s=connect_timeout_s,
+                        wire_log=folder / WIRE_LOG)
+    except BaseException:
+        if created:  # a rig that cannot be opened leaves nothing behind
+            shutil.rmtree(folder, ignore_errors=True)
+        raise
+    try:
         refs = _copy_inputs(protocol, folder)
         pair_labels = [p.label for p in protocol.layout.pairs]
         metadata = {"campaign": protocol.name, "protocol": refs["protocol"], "layout": refs["layout"],
@@ -161,16 +168,16 @@ def run_campaign(protocol: Protocol, folder: str | Path, *, dry_run: bool = True
     return result
 
 
-def _open_rig(protocol, plan, *, dry_run, port, daq_kind, printer_faults, connect_timeout_s):
+def _open_rig(protocol, plan, *, dry_run, port, daq_kind, printer_faults, connect_timeout_s, wire_log):
     from neatskin.rig.campaign.scene import build_dry_rig, build_real_rig
 
     timeout = {} if connect_timeout_s is None else {"connect_timeout_s": connect_timeout_s}
     if dry_run:
-        return build_dry_rig(protocol, plan.sweep, printer_faults=printer_faults, **timeout)
+        return build_dry_rig(protocol, plan.sweep, printer_faults=printer_faults, wire_log=wire_log, **timeout)
     if not port:
         raise ConfigError("a real run needs the printer's serial port", field="--port",
                           fix="pass --port /dev/ttyUSB0 (or --dry-run for the simulated rig)")
-    return build_real_rig(protocol, plan.sweep, port=port, daq_kind=daq_kind, **timeout)
+    return build_real_rig(protocol, plan.sweep, port=port, daq_kind=daq_kind, wire_log=wire_log, **timeout)
 
 
 class _StopRequest:

@@ -83,7 +83,8 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
                 k -= 1
             return list(segments[max(k - 1, 0):])  # the move the probe rests after, and every later one
 
-    probe = DryProbe(skin, calibration, segments_between, placement_error=placement)
+    probe = DryProbe(skin, calibration, segments_between, placement_error=placement,
+                     surface_error_mm=scene.surface_error_mm)
     noise = NoiseModel() if scene.noise else NoiseModel.none()
     daq = SimulatedDAQ(daq_config(protocol), probe.pair_resistance_ohm, probe.force_n, noise=noise)
     recorder = SimulatedRecorder(daq, sweep, probe, printer.now_s, seed=protocol.seed, signal=scene.signal,
@@ -91,7 +92,8 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
                                  fsr_enabled=protocol.fsr_enabled, keep_waveforms=protocol.record_waveforms)
     description = {"kind": "dry-run", "printer": "simulated Marlin on " + pty_path, "daq": "simulated",
                    "skin": {"fidelity": scene.fidelity, "signal": scene.signal, "noise": scene.noise,
-                            "placement_error_mm": scene.placement_error_mm, "probe_radius_mm": probe_radius}}
+                            "placement_error_mm": scene.placement_error_mm, "surface_error_mm": scene.surface_error_mm,
+                            "probe_radius_mm": probe_radius}}
     return Rig("dry-run", driver, recorder, daq.fsr, description, closers, skin=skin, daq=daq)
 
 

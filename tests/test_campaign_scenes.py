@@ -1,0 +1,150 @@
+"""Scenes: a run builds and imports only what its protocol asks for; missed presses are retried and flagged;
+a protocol without an FSR says so; Ctrl-C leaves a resumable campaign with the probe lifted."""
+
+import json
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from neatskin.rig.campaign.protocol import load_protocol
+from neatskin.rig.campaign.runner import resume_campaign, run_campaign
+from neatskin.rig.marlin.wirelog import read_wire_log
+
+from conftest import PROTOCOLS
+
+
+def make_protocol(tmp_path, *replacements, name="scene.toml"):
+    root = tmp_path / "protocols"
+    if not root.exists():
+        for sub in ("skins", "wiring", "printers"):
+            shutil.copytree(PROTOCOLS / sub, root / sub)
+    text = (PROTOCOLS / "smoke.toml").read_text()
+    for old, new in replacements:
+        assert old in text, old
+        text = text.replace(old, new)
+    path = root / name
+    path.write_text(text)
+    return path
+
+
+FEATURES = (("waveforms = true", "waveforms = false"), ('signal = "waveforms"', 'signal = "features"'))
+
+
+def test_features_scene_generates_no_waveforms(tmp_path, monkeypatch):
+    from neatskin.acquisition.daq.simulated import SimulatedDAQ
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a features-only scene must not generate waveforms")
+
+    monkeypatch.setattr(SimulatedDAQ, "acquire", refuse)
+    path = make_protocol(tmp_path, *FEATURES, ("repeats = 2", "repeats = 1"))
+    result = run_campaign(load_protocol(path), tmp_path / "run", progress=False, report=False)
+    assert result.completed == 6
+    assert not (tmp_path / "run" / "waveforms").exists()
+
+
+def test_network_scene_skips_the_deformation_integral(tmp_path, monkeypatch):
+    import neatskin.rig.skin.model as model
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a network-fidelity scene must not integrate the deformation")
+
+    monkeypatch.setattr(model, "resistance_factor", refuse)
+    path = make_protocol(tmp_path, *FEATURES, ("repeats = 2", "repeats = 1"),
+                         ('fidelity = "deformation"', 'fidelity = "network"'))
+    result = run_campaign(load_protocol(path), tmp_path / "run", progress=False, report=False)
+    df = pd.read_parquet(tmp_path / "run" / "presses.parquet")
+    assert result.completed == 6 and (df.filter(like="dR_ohm_").abs().max(axis=1) > 100).all()
+
+
+def test_missed_press_is_retried_then_flagged(tmp_path):
+    """The skin lies 5 mm below where the printer was calibrated: a 3.5 mm press never touches it."""
+    path = make_protocol(tmp_path, *FEATURES, ("repeats = 2", "repeats = 1"),
+                         ("surface_error_mm = 0.0", "surface_error_mm = 5.0"))
+    run_campaign(load_protocol(path), tmp_path / "run", progress=False, report=False)
+    df = pd.read_parquet(tmp_path / "run" / "presses.parquet")
+    for flags in df["flags"]:
+        assert list(flags[:3]) == ["fsr_retry:1", "fsr_retry:2", "fsr_missed"]
+    assert df.fsr_peak_n.isna().all()
+    assert np.abs(df.filter(like="dR_ohm_").to_numpy()).max() < 5.0  # nothing pressed: noise only
+    log = read_wire_log(tmp_path / "run" / "wire.log")
+    sent = b"".join(data for direction, data in log if direction == ">").decode()
+    assert sent.count("phase=press") == 3 * 6  # every press sent three times
+
+
+def test_protocol_without_fsr_says_so(tmp_path):
+    path = make_protocol(tmp_path, *FEATURES, ("repeats = 2", "repeats = 1"), ("[fsr]\nenabled = true", "[fsr]\nenabled = false"))
+    run_campaign(load_protocol(path), tmp_path / "run", progress=False, report=False)
+    manifest = json.loads((tmp_path / "run" / "manifest.json").read_text())
+    assert manifest["labels"].startswith("motion sync only")
+    df = pd.read_parquet(tmp_path / "run" / "presses.parquet")
+    assert df.fsr_peak_n.isna().all() and (df.filter(like="dR_ohm_").abs().max(axis=1) > 100).all()
+
+
+PROBE_MODULES = ("nidaqmx", "neatskin.acquisition.daq.nidaqmx_backend", "neatskin.rig.skin.model",
+                 "neatskin.rig.marlin.simprinter", "neatskin.acquisition.daq.simulated")
+
+
+def _modules_after(args, cwd):
+    code = ("import sys\nfrom neatskin.cli import main\ncode = main(%r)\n"
+            "print(sorted(m for m in %r if m in sys.modules))" % (args, PROBE_MODULES))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=cwd, timeout=120)
+    return out
+
+
+def test_dry_run_never_imports_nidaqmx(tmp_path):
+    path = make_protocol(tmp_path, *FEATURES, ("repeats = 2", "repeats = 1"))
+    out = _modules_after(["campaign", "run", str(path), "--dry-run", "--out", str(tmp_path / "run"),
+                          "--no-report", "--quiet"], tmp_path)
+    loaded = eval(out.stdout.strip().splitlines()[-1])
+    assert "nidaqmx" not in loaded and "neatskin.acquisition.daq.nidaqmx_backend" not in loaded
+    assert "neatskin.rig.skin.model" in loaded  # the probe works: the dry run did build its simulator
+
+
+@pytest.mark.timeout(120)
+def test_real_run_never_builds_a_simulator(tmp_path):
+    """The printer is a separate `neatskin sim printer` process; the run fails on the missing NI DAQ."""
+    sim = subprocess.Popen([sys.executable, "-m", "neatskin", "sim", "printer"], stdout=subprocess.PIPE, text=True)
+    try:
+        port = sim.stdout.readline().strip()
+        assert port.startswith("/dev/")
+        out = _modules_after(["campaign", "run", str(PROTOCOLS / "smoke.toml"), "--port", port, "--daq", "ni",
+                              "--out", str(tmp_path / "run"), "--no-report", "--quiet", "--connect-timeout", "0.3"],
+                             tmp_path)
+    finally:
+        sim.send_signal(signal.SIGINT)
+        sim.wait(10)
+    loaded = eval(out.stdout.strip().splitlines()[-1])
+    assert [m for m in loaded if m != "nidaqmx"] == [], loaded
+    assert "neatskin: error:" in out.stderr
+
+
+@pytest.mark.timeout(180)
+def test_ctrl_c_stops_after_the_press_in_flight_and_resumes(tmp_path):
+    path = make_protocol(tmp_path, *FEATURES, ("repeats = 2", "repeats = 40"))
+    folder = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "neatskin", "campaign", "run", str(path), "--dry-run",
+                             "--out", str(folder), "--no-report", "--quiet"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and len(list((folder / "presses").glob("part-*.parquet"))) < 3:
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    assert "interrupted" in stdout and "resume" in stdout
+    manifest = json.loads((folder / "manifest.json").read_text())
+    done = len(list((folder / "presses").glob("part-*.parquet")))
+    assert manifest["status"] == "interrupted" and manifest["counts"]["completed"] == done < 240
+    sent = [data for direction, data in read_wire_log(folder / "wire.log") if direction == ">"]
+    assert b"phase=lift" in sent[-4] or b"phase=lift" in b"".join(sent[-6:])  # the last press finished with its lift
+    assert b"G0 Z" in b"".join(sent[-3:])  # and the probe was sent up to the safe height after it
+    result = resume_campaign(folder, progress=False, report=False)
+    rows = pd.read_parquet(folder / "presses.parquet")
+    assert result.completed == 240 and rows.press_id.is_unique and len(rows) == 240
