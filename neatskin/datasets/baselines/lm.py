@@ -79,19 +79,21 @@ def input_outer_products(x: np.ndarray) -> np.ndarray:
 
 
 def normal_equations(
-    w: np.ndarray, x: np.ndarray, x_products: np.ndarray, hidden: np.ndarray, err: np.ndarray
+    w: np.ndarray, x: np.ndarray, x_products: np.ndarray, hidden: np.ndarray, err: np.ndarray,
+    x_bias: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """J^T J and J^T e of the residuals without forming J, from the network's block structure.
 
     Equal to `J.T @ J` and `J.T @ err.ravel()` with J = residual_jacobian(...), at a fraction of
     the cost: the hidden-hidden block is one product of the per-sample hidden-unit couplings
-    (upper triangle) with the fixed input outer products `x_products`.
+    (upper triangle) with the fixed input outer products `x_products`. `x_bias` is x with a
+    column of ones appended (computed when not given; the training loop passes it once).
     """
     n, n_inputs = x.shape
     n_hidden, n_outputs = hidden.shape[1], err.shape[1]
     m = n_inputs + 1
     _, w2 = _split_weights(w, n_inputs, n_hidden, n_outputs)
-    x1 = np.column_stack([x, np.ones(n)])
+    x1 = x_bias if x_bias is not None else np.column_stack([x, np.ones(n)])
     h1 = np.column_stack([hidden, np.ones(n)])
     a = (1.0 - hidden * hidden)[:, None, :] * w2[None, :, :-1]  # (n, out, h)
     k = n_hidden * m
@@ -99,7 +101,9 @@ def normal_equations(
     jtj = np.empty((size, size))
     # hidden-hidden block: sum_n (sum_k a_kj a_kj') x1_i x1_i'
     jh, jh2 = np.triu_indices(n_hidden)
-    coupling = np.einsum("nkj,nkl->njl", a, a)[:, jh, jh2]  # (n, pairs of hidden units)
+    coupling = a[:, 0, jh] * a[:, 0, jh2]  # (n, pairs of hidden units), summed over outputs
+    for out in range(1, n_outputs):
+        coupling += a[:, out, jh] * a[:, out, jh2]
     packed = coupling.T @ x_products  # (hidden pairs, input pairs)
     iu, ju = np.triu_indices(m)
     block = np.empty((len(jh), m, m))
@@ -192,13 +196,14 @@ def _train_lm(w0, x_train, y_train, x_val, y_val, n_hidden, *, mu, mu_dec, mu_in
         return float(np.einsum("ij,ij->", err, err)), hidden, err
 
     x_products = input_outer_products(x_train)
+    x_bias = np.column_stack([x_train, np.ones(len(x_train))])
     train_sse, hidden, err = sse(w, x_train, y_train)
     val_sse = sse(w, x_val, y_val)[0]
     best_w, best_val, fails = w.copy(), val_sse, 0
     n_train, n_val = y_train.size, max(y_val.size, 1)
     stop, epoch = "max_epochs", 0
     for epoch in range(1, max_epochs + 1):
-        jtj, jte = normal_equations(w, x_train, x_products, hidden, err)
+        jtj, jte = normal_equations(w, x_train, x_products, hidden, err, x_bias)
         if np.sqrt(jte @ jte) * 2.0 / n_train < min_grad:
             stop = "min_grad"
             break

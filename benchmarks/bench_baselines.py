@@ -1,0 +1,125 @@
+"""Benchmark: every baseline's error and fit time on a paper-sized dataset, and our LM loop against scipy's lm.
+
+Usage:
+    python benchmarks/bench_baselines.py [DATASET] [--scipy-max-nfev N] [--skip-scipy] [--seed S]
+
+DATASET is a campaign folder (e.g. a dry run of protocols/paper.toml); without it a synthetic
+2,800 x 28 table (100 positions x 28 repeats, see neatskin.datasets.baselines.synthetic) is used.
+
+Part 1: each model fit once on the paper's split (95 % + 3 % rows train, 2 % test) and once on a
+grouped hold-out (20 % of positions); mean error and fit time.
+Part 2 (targets: the LM network with 10 restarts fits in < 5 s, and >= 10x faster than
+`scipy.optimize.least_squares(method="lm")` at equal or lower validation loss): our 10-restart
+fit, then restart 0's exact problem (same scaled rows, same start) solved by our loop alone
+and by MINPACK (finite-difference Jacobian, as a plain least_squares call; and the analytic one).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+import warnings
+
+import numpy as np
+from sklearn.model_selection import GroupShuffleSplit
+
+from neatskin.datasets.baselines.evaluate import paper_split
+from neatskin.datasets.baselines.lm import LMNetworkRegressor, fit_with_scipy_lm, forward, train_lm
+from neatskin.datasets.baselines.metrics import position_errors
+from neatskin.datasets.baselines.models import make_models
+
+
+def load(dataset: str | None):
+    if dataset is None:
+        from neatskin.datasets.baselines.synthetic import synthetic_presses
+
+        df = synthetic_presses(100, 28, noise_ohm=1.0, seed=0)
+        return "synthetic 100 positions x 28 repeats", df.filter(like="dR_ohm").to_numpy(), \
+            df[["x_mm", "y_mm"]].to_numpy(), df["position_id"].to_numpy()
+    from neatskin.datasets.baselines.dataset import load_baseline_data
+
+    data = load_baseline_data(dataset)
+    return dataset, data.X, data.y, data.groups
+
+
+def part_models(X, y, groups, seed):
+    train, val, test = paper_split(len(y), seed)
+    random_train = np.concatenate([train, val])
+    g_train, g_test = next(GroupShuffleSplit(1, test_size=0.2, random_state=seed).split(X, y, groups))
+    print(f"{'model':<13} {'fit s (paper split)':>20} {'err mm, random':>15} {'err mm, grouped':>16} {'pred us/row':>12}")
+    for name, model in make_models(random_state=seed, n_features=X.shape[1]).items():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            t0 = time.perf_counter()
+            model.fit(X[random_train], y[random_train])
+            fit_s = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            pred = model.predict(X[test])
+            pred_us = 1e6 * (time.perf_counter() - t0) / len(test)
+            err_random = position_errors(y[test], pred).mean_error_mm
+            model.fit(X[g_train], y[g_train])
+            err_grouped = position_errors(y[g_test], model.predict(X[g_test])).mean_error_mm
+        print(f"{name:<13} {fit_s:>20.3f} {err_random:>15.3f} {err_grouped:>16.3f} {pred_us:>12.1f}")
+
+
+def part_lm_vs_scipy(X, y, seed, max_nfev, skip_scipy):
+    train, val, test = paper_split(len(y), seed)
+    rows = np.concatenate([train, val])
+    model = LMNetworkRegressor(random_state=seed)
+    t0 = time.perf_counter()
+    model.fit(X[rows], y[rows])
+    fit10_s = time.perf_counter() - t0
+    print(f"\nLMNetworkRegressor, 10 restarts on {len(rows)} rows: fit {fit10_s:.2f} s "
+          f"(target < 5 s), epochs per restart {model.n_epochs_.tolist()}")
+    print(f"  validation MSE (scaled) per restart: min {model.val_mse_.min():.3e}, max {model.val_mse_.max():.3e}")
+
+    p = model.restart_problem(X[rows], y[rows], restart=0)
+    n_out = p["y_train"].shape[1]
+    xs_test = (X[test] - model.x_min_) / model.x_span_
+    ys_test = (y[test] - model.y_min_) / model.y_span_
+
+    def test_mse(w):
+        return float(np.mean((forward(w, xs_test, model.n_hidden, n_out)[1] - ys_test) ** 2))
+
+    t0 = time.perf_counter()
+    ours = train_lm(p["w0"], p["x_train"], p["y_train"], p["x_val"], p["y_val"], model.n_hidden)
+    ours_s = time.perf_counter() - t0
+    print(f"\nrestart 0's problem ({len(p['x_train'])} train rows, {len(p['x_val'])} val rows, same start):")
+    print(f"{'solver':<34} {'time s':>8} {'train MSE':>10} {'val MSE':>10} {'test MSE':>10}")
+    print(f"{'ours (trainlm loop), 1 restart':<34} {ours_s:>8.2f} {ours.train_mse:>10.3e} {ours.val_mse:>10.3e} "
+          f"{test_mse(ours.weights):>10.3e}  ({ours.n_epochs} epochs, stop: {ours.stop_reason})")
+    best = model.val_mse_.min()
+    print(f"{'ours, best of 10 restarts':<34} {fit10_s:>8.2f} {'':>10} {best:>10.3e} {test_mse(model.weights_):>10.3e}")
+    if skip_scipy:
+        return
+    for analytic in (False, True):
+        label = "scipy lm, " + ("analytic Jacobian" if analytic else "finite differences")
+        ref = fit_with_scipy_lm(p["x_train"], p["y_train"], p["x_val"], p["y_val"], p["w0"], model.n_hidden,
+                                analytic_jacobian=analytic, max_nfev=max_nfev)
+        print(f"{label:<34} {ref.fit_time_s:>8.2f} {ref.train_mse:>10.3e} {ref.val_mse:>10.3e} "
+              f"{test_mse(ref.weights):>10.3e}  ({ref.n_evaluations} evaluations)")
+        print(f"  ratio scipy time / ours: {ref.fit_time_s / ours_s:.1f}x per restart, "
+              f"{ref.fit_time_s / fit10_s:.1f}x against our whole 10-restart fit; "
+              f"val MSE ours(1) / scipy = {ours.val_mse / ref.val_mse:.2f}, "
+              f"ours(best of 10) / scipy = {best / ref.val_mse:.2f} (on different validation rows)")
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("dataset", nargs="?", default=None)
+    parser.add_argument("--scipy-max-nfev", type=int, default=None)
+    parser.add_argument("--skip-scipy", action="store_true")
+    parser.add_argument("--skip-models", action="store_true")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    label, X, y, groups = load(args.dataset)
+    print(f"dataset: {label}: {X.shape[0]} presses x {X.shape[1]} features, {len(np.unique(groups))} positions")
+    if not args.skip_models:
+        part_models(X, y, groups, args.seed)
+    part_lm_vs_scipy(X, y, args.seed, args.scipy_max_nfev, args.skip_scipy)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
