@@ -18,7 +18,7 @@ def test_paper_protocol_sections(protocols_dir):
     assert (spec.positions.strategy, spec.positions.count, spec.positions.seed) == ("paper", 100, 2019)
     p = spec.press
     assert (p.depth_mm, p.repeats, p.order, p.hold_s, p.probe_diameter_mm, p.travel_ordering) == \
-        (3.5, 28, "position", 0.5, 5.5, False)
+        (3.5, 28, "position", 1.2, 5.5, False)
 
 
 def test_protocol_problems_reported_together(protocols_dir):
