@@ -1,0 +1,92 @@
+"""Benchmark: the paper campaign as a dry run, wall time against the rig time its G-code takes, per scene.
+
+Runs protocols/paper.toml (2,800 presses) in several scenes side by side and prints, for each,
+the wall time, presses per second, the ratio to the estimated rig time, and the error the
+scene costs: the RMS difference of its dR from the most faithful scene's (deformation model,
+full waveforms) on the same presses, relative to the RMS of dR.
+
+    python benchmarks/bench_campaign.py                 # all 2,800 presses per scene
+    python benchmarks/bench_campaign.py --presses 280   # a quicker look
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from neatskin.rig.campaign.protocol import load_protocol
+from neatskin.rig.campaign.runner import run_campaign
+
+REPO = Path(__file__).resolve().parent.parent
+SCENES = {
+    # name: (fidelity, signal, record waveforms)
+    "deformation + waveforms (reference)": ("deformation", "waveforms", False),
+    "deformation + features": ("deformation", "features", False),
+    "network + features": ("network", "features", False),
+    "deformation + waveforms, recorded": ("deformation", "waveforms", True),
+}
+
+
+def scene_protocol(root: Path, fidelity: str, signal: str, record: bool) -> Path:
+    text = (REPO / "protocols" / "paper.toml").read_text()
+    text = text.replace('fidelity = "deformation"', f'fidelity = "{fidelity}"')
+    text = text.replace('signal = "features"', f'signal = "{signal}"')
+    text = text.replace("waveforms = false", f"waveforms = {'true' if record else 'false'}")
+    path = root / f"paper-{fidelity}-{signal}-{int(record)}.toml"
+    path.write_text(text)
+    return path
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--presses", type=int, default=None, help="presses per scene (default: the whole campaign)")
+    parser.add_argument("--recorded-presses", type=int, default=280,
+                        help="presses for the scene that also writes every sample (default 280; it extrapolates)")
+    args = parser.parse_args()
+    work = Path(tempfile.mkdtemp(prefix="bench-campaign-"))
+    try:
+        for sub in ("skins", "wiring", "printers"):
+            shutil.copytree(REPO / "protocols" / sub, work / sub)
+        rows, frames = [], {}
+        for name, (fidelity, signal, record) in SCENES.items():
+            protocol = load_protocol(scene_protocol(work, fidelity, signal, record))
+            limit = args.recorded_presses if record else args.presses
+            folder = work / f"run-{len(rows)}"
+            t0 = time.perf_counter()
+            result = run_campaign(protocol, folder, dry_run=True, progress=False, report=False, limit=limit)
+            wall = time.perf_counter() - t0
+            n = result.completed
+            rig_s = result.printer_time_s * n / result.planned
+            from neatskin.datasets.reader import read_presses
+
+            df = read_presses(folder).sort_values("press_id").set_index("press_id")
+            frames[name] = df.filter(like="dR_ohm_")
+            size_mb = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file()) / 1e6
+            rows.append({"scene": name, "presses": n, "wall_s": wall, "presses_per_s": n / wall,
+                         "rig_time_h": rig_s / 3600, "x_faster_than_rig": rig_s / wall,
+                         "full_campaign_wall_s": wall * result.planned / n, "disk_mb": size_mb})
+        ref = frames[next(iter(SCENES))]
+        for row in rows:
+            dr = frames[row["scene"]].reindex(ref.index).dropna()
+            common = ref.loc[dr.index]
+            row["dR_error_rel"] = float(np.sqrt(((dr - common) ** 2).to_numpy().mean() /
+                                                (common ** 2).to_numpy().mean()))
+        table = pd.DataFrame(rows)
+        pd.set_option("display.width", 200)
+        print(table.to_string(index=False, float_format=lambda v: f"{v:,.3g}"))
+        base = table.iloc[0]
+        for _, row in table.iloc[1:].iterrows():
+            print(f"{row.scene}: {base.full_campaign_wall_s / row.full_campaign_wall_s:.2f}x the reference's speed, "
+                  f"dR error {row.dR_error_rel:.2e} of the dR scale")
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
