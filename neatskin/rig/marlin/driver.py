@@ -40,6 +40,7 @@ class DriverConfig:
     poll_s: float = 0.02  # the reader's read timeout: how often deadlines are checked
     homing_time_s: float = 60.0
     default_feed_mm_s: float = 25.0
+    motion_time_scale: float = 1.0  # real seconds per second of motion: 0 for a virtual-time simulated printer
 
     def __post_init__(self) -> None:
         for name in ("boot_timeout_s", "min_timeout_s", "busy_extension_s", "max_busy_s", "poll_s"):
@@ -61,13 +62,14 @@ class _Job:
 
 
 class _Line:
-    __slots__ = ("n", "command", "data", "job", "deadline", "hard_deadline", "probe", "echoed", "m110")
+    __slots__ = ("n", "command", "data", "job", "deadline", "hard_deadline", "probe", "echoed", "m110", "released")
 
     def __init__(self, n, command, data, job, deadline, probe=False, m110=False, max_busy_s=900.0):
         self.n, self.command, self.data, self.job = n, command, data, job
         self.deadline = deadline
         self.hard_deadline = deadline + max_busy_s
         self.probe, self.echoed, self.m110 = probe, False, m110
+        self.released = False  # its caller was told it is acknowledged
 
 
 class MarlinDriver:
@@ -109,6 +111,9 @@ class MarlinDriver:
         self._last_acked: tuple[int | None, str | None] = (None, None)
         self._acked_jobs = 0
         self._comm_errors = 0
+        self._fw_last_line: tuple[int, int] | None = None  # (Last Line: L, comm error count when said)
+        self._history: dict[int, _Line] = {}  # recently acknowledged lines, for a firmware that never took them
+        self._stale_streak = 0
         self._served = (None, -1, 0.0)  # (n, comm_errors at serve, time)
         self._pending_resend: int | None = None
         self._resend_due = 0.0
@@ -320,6 +325,7 @@ class MarlinDriver:
 
     def _deadline(self, command: str, now: float) -> float:
         own_s, _ = self._motion.line_time_s(command)
+        own_s *= self.config.motion_time_scale
         start = max(now, self._motion_end)  # a full planner delays any ok until queued motion runs out
         self._motion_end = start + own_s
         return self._motion_end + self.config.min_timeout_s
@@ -353,6 +359,8 @@ class MarlinDriver:
         while not self._stop.is_set():
             try:
                 data = port.read(port.in_waiting or 1)
+                if data and port.in_waiting:  # the rest of a burst that woke us: handle it as one chunk
+                    data += port.read(port.in_waiting)
             except Exception as exc:  # noqa: BLE001 - SerialException, OSError: the port is gone
                 if not self._stop.is_set():
                     with self._lock:
@@ -389,6 +397,7 @@ class MarlinDriver:
             self._on_resend(reply.number, now)
         elif kind is Kind.COMM_ERROR:
             self._comm_errors += 1
+            self._fw_last_line = (reply.number, self._comm_errors)
             self.stats["comm_errors"] += 1
         elif kind in (Kind.HALTED, Kind.STOPPED):
             self._fail_here(E.PrinterHalted, f"the printer said {text!r}")
@@ -432,6 +441,10 @@ class MarlinDriver:
                 return
             while self._inflight and self._inflight[0].n <= reply.number:
                 self._retire(self._inflight[0])
+        elif head.probe and not head.echoed:
+            # the firmware echoes a probe before its ok: this ok is a duplicate of an earlier one
+            self.stats["stray_oks"] += 1
+            return
         else:
             self._retire(head)
         # the next line goes out in _tick, after the whole chunk is read: a duplicated `ok` in the
@@ -440,6 +453,12 @@ class MarlinDriver:
     def _retire(self, line: _Line) -> None:
         self._inflight.remove(line)
         self._probes_in_stall = 0
+        self._stale_streak = 0
+        self._history[line.n] = line
+        self._history.pop(line.n - 128, None)
+        if line.released:  # acknowledged again after a rewind: its caller already went on
+            return
+        line.released = True
         self._resend_counts.pop(line.n, None)
         if not line.probe:
             self._last_acked = (line.n, line.command)
@@ -469,9 +488,25 @@ class MarlinDriver:
         if head.m110:
             self._pending_resend, self._resend_due, self._swallow_ok = head.n, now + self.config.resend_grace_s, True
             return
-        if n < head.n or n > self._inflight[-1].n:
-            self.stats["stale_resends"] += 1  # asks for an acknowledged line, or one not sent: nothing to replay
+        fresh = self._fw_last_line is not None and self._fw_last_line[0] == n - 1 \
+            and self._fw_last_line[1] > self._served[1]
+        if n > self._inflight[-1].n:  # it has every line in flight: nothing to replay
+            self.stats["stale_resends"] += 1
+            while fresh and self._inflight and self._inflight[0].probe:
+                self._retire(self._inflight[0])  # a probe it took (its echo went missing) is done
             return
+        if n < head.n:
+            if fresh and all(m in self._history for m in range(n, head.n)):
+                # the firmware says it never took lines we counted as acknowledged (a duplicated ok):
+                # they are replayed under their own numbers, so nothing runs twice
+                self.stats["rewinds"] += 1
+                self._inflight[:0] = [self._history.pop(m) for m in range(n, head.n)]
+            else:
+                self.stats["stale_resends"] += 1
+                self._stale_streak += 1
+                if self._stale_streak > self.config.max_resends:
+                    self._fail_here(E.ResendLoop, f"the printer keeps asking for N{n}, acknowledged before")
+                return
         served_n, served_errors, served_at = self._served
         if n == served_n and self._comm_errors == served_errors and now - served_at < self.config.duplicate_resend_s:
             self.stats["duplicate_resends"] += 1
@@ -534,7 +569,13 @@ class MarlinDriver:
             return
         self._probes_in_stall += 1
         self.stats["probes"] += 1
-        probe = self._send_line(None, probe=True)
+        pending = next((line for line in self._inflight if line.probe), None)
+        if pending is not None:  # the probe itself went missing: say it again under its number
+            pending.deadline = max(now, self._motion_end) + self.config.min_timeout_s
+            self._write(pending.data)
+            probe = pending
+        else:
+            probe = self._send_line(None, probe=True)
         for line in self._inflight:
             line.deadline = max(line.deadline, probe.deadline)
 
