@@ -382,9 +382,15 @@ def _validate(layout: Layout) -> list[Problem]:
         problem("electrodes", "duplicate electrode numbers", "give every electrode its own number")
     if len(numbers) < 2:
         problem("electrodes", "a layout needs at least 2 electrodes", "add electrodes")
+    on_junction: dict[int, int] = {}
     for k, e in enumerate(layout.electrodes):
         if not 0 <= e.junction < n:
             problem(f"electrodes[{k}].junction", f"electrode {e.number} is on a missing junction", "use an existing junction")
+        elif e.junction in on_junction:
+            problem(f"electrodes[{k}].junction", f"electrodes {on_junction[e.junction]} and {e.number} share "
+                    f"junction '{layout.junctions[e.junction].name}'", "put each electrode on its own junction")
+        else:
+            on_junction[e.junction] = e.number
     if problems or n == 0:
         return problems
     # connectivity: every junction reachable from the first one through channels

@@ -86,3 +86,14 @@ def test_several_mistakes_are_reported_at_once():
     with pytest.raises(ConfigError) as info:
         layout_from_dict(data, source="x.toml")
     assert {p.field for p in info.value.problems} == {"channels[0].to", "electrodes[0].junction"}
+
+
+def test_layout_built_in_code_is_validated_too(paper_layout):
+    from dataclasses import replace
+
+    from neatskin.layout import Electrode
+
+    twins = paper_layout.electrodes[:-1] + (Electrode(9, paper_layout.electrodes[0].junction),)
+    with pytest.raises(ConfigError) as info:
+        replace(paper_layout, electrodes=twins)
+    assert "share junction" in str(info.value)
