@@ -19,6 +19,7 @@ def test_position_errors_on_a_tiny_hand_computed_case():
     assert e.n == 4
     assert e.mean_error_mm == pytest.approx(2.1875)
     assert e.std_error_mm == pytest.approx(np.sqrt(np.mean((np.array([5, 1, 0, 2.75]) - 2.1875) ** 2)))
+    assert e.median_error_mm == pytest.approx((1 + 2.75) / 2)
     assert e.mse_mm2 == pytest.approx(33.5625 / 4)
     assert e.mse_per_coordinate_mm2 == pytest.approx(33.5625 / 8)  # MATLAB mse over 2 x n targets
     assert e.within_probe_share == pytest.approx(3 / 4)  # 2.75 mm exactly counts as within (paper: <=)

@@ -83,6 +83,7 @@ class ModelResult:
             "n_folds": self.n_folds,
             "mean_error_mm": e.mean_error_mm,
             "std_error_mm": e.std_error_mm,
+            "median_error_mm": e.median_error_mm,
             "mse_mm2": e.mse_mm2,
             "mse_per_coordinate_mm2": e.mse_per_coordinate_mm2,
             "within_probe_pct": 100.0 * e.within_probe_share,

@@ -23,6 +23,7 @@ class PositionErrors:
     n: int
     mean_error_mm: float
     std_error_mm: float
+    median_error_mm: float
     mse_mm2: float
     mse_per_coordinate_mm2: float
     within_probe_share: float
@@ -45,6 +46,7 @@ def position_errors(
         n=int(err.size),
         mean_error_mm=float(err.mean()),
         std_error_mm=float(err.std()),
+        median_error_mm=float(np.median(err)),
         mse_mm2=float(sq.mean()),
         mse_per_coordinate_mm2=float(sq.sum() / (err.size * y_true_mm.shape[1])),
         within_probe_share=float(np.mean(err <= probe_radius_mm)),
