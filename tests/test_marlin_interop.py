@@ -1,0 +1,41 @@
+"""Interoperation: Printrun's printcore, a third-party Marlin host, drives the simulated printer's pty unchanged."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from neatskin.gcode.profile import load_printer_profile
+from neatskin.rig.marlin.faults import FaultConfig
+from neatskin.rig.marlin.simprinter import SimulatedPrinter
+
+printcore_module = pytest.importorskip(
+    "printrun.printcore", reason="Printrun is not installed: pip install printrun (the `test` extra has it)")
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("faults", [FaultConfig(), FaultConfig(corrupt=0.05)])
+def test_printcore_streams_a_program_through_the_pty(protocols_dir, faults):
+    from printrun import gcoder
+
+    sim = SimulatedPrinter(load_printer_profile(protocols_dir / "printers" / "paper.toml"), seed=11, faults=faults)
+    path = sim.start_pty()
+    host = printcore_module.printcore(path, 115200)
+    program = ["G28"] + [f"G1 X{10 + i} Y{20 + 2 * i} F6000" for i in range(60)] + ["M400"]
+    try:
+        end = time.monotonic() + 10
+        while not host.online and time.monotonic() < end:
+            time.sleep(0.02)
+        assert host.online
+        host.startprint(gcoder.LightGCode(program))
+        end = time.monotonic() + 30
+        while host.printing and time.monotonic() < end:
+            time.sleep(0.02)
+        assert not host.printing
+    finally:
+        host.disconnect()
+        sim.stop()
+    ran = [text for _, text in sim.executed if not text.startswith(("M105", "M110"))]
+    assert ran == program
+    assert sim.probe_position(sim.now_s()) == (69.0, 138.0, 0.0)

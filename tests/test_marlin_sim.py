@@ -1,0 +1,204 @@
+"""The simulated printer: Marlin's exact replies, the line protocol, homing, limits, the planner and the motion clock."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+import serial
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from neatskin.gcode.motion import limited_feed_and_accel, trapezoid_time_s
+from neatskin.gcode.parse import checksum
+from neatskin.gcode.profile import load_printer_profile
+from neatskin.rig.marlin import errors as E
+from neatskin.rig.marlin.driver import DriverConfig, MarlinDriver
+from neatskin.rig.marlin.pty import read_available, write_all
+from neatskin.rig.marlin.simcore import MarlinCore
+from neatskin.rig.marlin.simmotion import trapezoid_distance_mm
+from neatskin.rig.marlin.simprinter import SimulatedPrinter
+
+CONFIG = DriverConfig(boot_timeout_s=0.05, min_timeout_s=0.5, poll_s=0.01, motion_time_scale=0.0)
+
+
+@pytest.fixture(scope="module")
+def profile(protocols_dir):
+    return load_printer_profile(protocols_dir / "printers" / "paper.toml")
+
+
+def framed(n: int, command: str) -> bytes:
+    body = f"N{n} {command}"
+    return f"{body}*{checksum(body)}\n".encode()
+
+
+def talk(core: MarlinCore, data: bytes) -> bytes:
+    core.receive(data)
+    core.step()
+    return core.take_output()
+
+
+def fresh(profile, **kw) -> MarlinCore:
+    core = MarlinCore(profile, **kw)
+    core.take_output()
+    return core
+
+
+def test_boot_banner_starts_with_start(profile):
+    core = MarlinCore(profile)
+    assert core.take_output().split(b"\n")[0] == b"start"
+
+
+def test_line_protocol_replies_are_marlins(profile):
+    core = fresh(profile)
+    assert talk(core, framed(1, "M105")) == b"ok T:25.00 /0.00 B:25.00 /0.00 @:0 B@:0\n"
+    assert talk(core, b"N2 M105*1\n") == b"Error:checksum mismatch, Last Line: 1\nResend: 2\n"
+    assert talk(core, b"N2 M105\n") == b"Error:No Checksum with line number, Last Line: 1\nResend: 2\n"
+    assert talk(core, framed(3, "M105")) == b"Error:Line Number is not Last Line Number+1, Last Line: 1\nResend: 2\n"
+    assert talk(core, framed(1, "M105")) == b""  # Marlin 2.1 drops a repeat just below the counter
+    assert talk(core, framed(2, "G21")) == b"ok\n"
+    assert talk(core, b"G91\n") == b"ok\n"  # unnumbered lines need no checksum
+    assert talk(core, framed(0, "M110 N0")) == b"ok\n"
+    assert talk(core, framed(1, "G999 X1")) == b'echo:Unknown command: "G999 X1"\nok\n'
+    assert [t for _, t in core.executed] == ["M105", "G21", "G91", "M110 N0", "G999 X1"]
+
+
+def test_marlin_2_0_answers_a_repeat_and_1_x_adds_ok_after_resend(profile):
+    core = fresh(profile, marlin_version="2.0", ok_after_resend=True)
+    talk(core, framed(1, "M105"))
+    assert talk(core, framed(1, "M105")) == (b"Error:Line Number is not Last Line Number+1, Last Line: 1\n"
+                                             b"Resend: 2\nok\n")
+
+
+def test_homing_limits_m114_m119_m211_m118(profile):
+    core = fresh(profile)
+    assert talk(core, b"G1 X10\n") == b"echo:Home XYZ First\nok\n"
+    assert talk(core, b"G28 X\n") == b"echo:busy: processing\n" * 3 + b"ok\n"  # a third of 25 s
+    assert talk(core, b"G1 X10\n") == b"echo:Home YZ First\nok\n"
+    assert talk(core, b"G28\n") == b"echo:busy: processing\n" * 3 + b"ok\n"  # 25 s of homing, virtual
+    assert talk(core, b"M119\n") == b"Reporting endstop status\nx_min: TRIGGERED\ny_min: TRIGGERED\nz_min: TRIGGERED\nok\n"
+    assert talk(core, b"G1 X300 Y-5 Z12 F6000\n") == b"ok\n"  # outside the soft limits: clipped, as Marlin
+    assert talk(core, b"M114\n") == b"X:220.00 Y:0.00 Z:12.00 E:0.00 Count X:0 Y:0 Z:0\nok\n"
+    assert core.clip_events[-1][2:] == ((300.0, -5.0, 12.0), (220.0, 0.0, 12.0))
+    assert talk(core, b"M211\n") == (b"echo:Soft endstops: ON  Min:  X0.00 Y0.00 Z0.00   "
+                                     b"Max:  X220.00 Y220.00 Z250.00\nok\n")
+    assert talk(core, b"M118 E1 NS press=3 phase=press\n") == b"echo:NS press=3 phase=press\nok\n"
+    assert talk(core, b"M118 A1 action:pause\n") == b"//action:pause\nok\n"
+    assert talk(core, b"G92 X0\nM114\n").startswith(b"ok\nX:0.00 Y:0.00 Z:12.00")
+
+
+def test_m112_halts_until_m999(profile):
+    core = fresh(profile)
+    assert talk(core, framed(1, "M112")) == b"Error:Printer halted. kill() called!\n"
+    assert talk(core, framed(1, "M105")) == b""
+    assert talk(core, b"M999\n") == b"ok\n"
+
+
+def test_advanced_ok_reports_line_planner_and_buffer(profile):
+    core = fresh(profile, advanced_ok=True)
+    # B counts the command being acknowledged as still in Marlin's ring buffer
+    assert talk(core, framed(1, "G28")).endswith(b"ok N1 P16 B3\n")
+    assert talk(core, framed(2, "G1 X50 F6000")) == b"ok N2 P15 B3\n"
+
+
+def test_motion_clock_and_probe_position_follow_the_trapezoid(profile):
+    core = fresh(profile)
+    talk(core, b"G28\n")
+    t_home = core.clock.now()
+    assert t_home == pytest.approx(profile.homing_time_s)
+    talk(core, b"G1 X100 F6000\nM400\n")
+    feed, accel = limited_feed_and_accel((100.0, 0.0, 0.0), 100.0, profile)
+    duration = trapezoid_time_s(100.0, feed, accel)
+    assert core.clock.now() == pytest.approx(t_home + duration)
+    tl = core.timeline
+    assert tl.position_mm(t_home) == (0.0, 0.0, 0.0)
+    assert tl.position_mm(t_home + duration / 2)[0] == pytest.approx(50.0)  # symmetric profile: halfway at half time
+    v = min(feed, math.sqrt(accel * 100.0))
+    t_a = v / accel
+    assert tl.position_mm(t_home + t_a)[0] == pytest.approx(v * v / (2 * accel))
+    assert tl.position_mm(t_home + duration + 5) == (100.0, 0.0, 0.0)
+
+
+def test_full_planner_delays_the_ok_until_a_slot_frees(profile):
+    core = fresh(profile)
+    talk(core, b"G28\n")
+    t0 = core.clock.now()
+    for i in range(profile.planner_buffer_size):
+        talk(core, f"G1 X{10 * (i % 2 + 1)} F6000\n".encode())
+    assert core.clock.now() == t0  # 16 slots: every ok at once, no time passes
+    assert core.timeline.pending(t0) == 16
+    talk(core, b"G1 X30 F6000\n")
+    assert core.clock.now() == pytest.approx(core.timeline.segments[1].t1_s)  # waited for the first move
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(0.01, 300), st.floats(1, 300), st.floats(10, 5000), st.floats(0, 1))
+def test_trapezoid_distance_inverts_the_timing(distance, feed, accel, share):
+    total = trapezoid_time_s(distance, feed, accel)
+    assert trapezoid_distance_mm(total, distance, feed, accel) == pytest.approx(distance, rel=1e-9, abs=1e-9)
+    a, b = sorted((share * total, min(total, share * total + total / 7)))
+    assert trapezoid_distance_mm(a, distance, feed, accel) <= trapezoid_distance_mm(b, distance, feed, accel) + 1e-12
+
+
+@pytest.mark.timeout(20)
+def test_raw_bytes_on_a_real_pty(profile):
+    sim = SimulatedPrinter(profile)
+    path = sim.start_pty()
+    port = serial.Serial(path, 115200, timeout=0.5)
+    try:
+        port.reset_input_buffer()
+        port.write(framed(1, "M110 N0") + b"N1 G28*99\n")
+        got = b""
+        end = time.monotonic() + 5
+        while not got.endswith(b"ok\n") and time.monotonic() < end:
+            got += port.read(port.in_waiting or 1)
+        # as in Marlin, a line is checked when it is read, ahead of running the queue (the M110 here)
+        assert got.split(b"PlannerBufferBytes: 1024\n")[-1] == b"Error:checksum mismatch, Last Line: 0\nResend: 1\nok\n"
+    finally:
+        port.close()
+        sim.stop()
+
+
+@pytest.mark.timeout(20)
+@pytest.mark.parametrize("transport", ["pty", "in-process"])
+def test_driver_against_the_sim(profile, transport):
+    sim = SimulatedPrinter(profile)
+    port = serial.serial_for_url(sim.start_pty(), do_not_open=True) if transport == "pty" else sim.serial()
+    driver = MarlinDriver(port, config=CONFIG)
+    try:
+        driver.connect()
+        with pytest.raises(E.CommandRejected, match="Home XYZ First"):
+            driver.send("G1 X10")
+        driver.send("G28")
+        driver.send_lines(["G1 X100 Y50 Z10 F6000", "G1 Z2 F300", "M400"])
+        assert sim.probe_position() == (100.0, 50.0, 2.0)
+        pos = driver.position()
+        assert (pos.x_mm, pos.y_mm, pos.z_mm) == (100.0, 50.0, 2.0)
+        assert pos.count == (8000, 4000, 800)
+        assert driver.send("M118 E1 NS press=3 phase=press") == ["echo:NS press=3 phase=press"]
+        sim.reset()
+        with pytest.raises(E.PrinterReset):
+            driver.send("M105")
+        driver.reconnect(boot_timeout_s=0.05)
+        with pytest.raises(E.CommandRejected, match="Home XYZ First"):
+            driver.send("G1 X1")  # homing was lost with the reset
+    finally:
+        driver.close()
+        sim.stop()
+
+
+@pytest.mark.timeout(20)
+def test_scaled_time_really_waits_and_keeps_alive(profile):
+    sim = SimulatedPrinter(profile, time_mode="scaled", speed=10.0)
+    driver = MarlinDriver(sim.serial(), config=DriverConfig(boot_timeout_s=0.05, min_timeout_s=1.0, poll_s=0.01))
+    try:
+        driver.connect()
+        start = time.monotonic()
+        driver.send("G4 S5")  # 5 s at 10x: half a second, with a keep-alive every 2 printer seconds
+        elapsed = time.monotonic() - start
+        assert 0.45 <= elapsed < 2.0
+        assert driver.stats["busy"] >= 1
+        assert sim.now_s() >= 5.0
+    finally:
+        driver.close()
