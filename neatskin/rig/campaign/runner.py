@@ -164,7 +164,7 @@ def run_campaign(protocol: Protocol, folder: str | Path, *, dry_run: bool = True
     if report and status == "complete":
         from neatskin.datasets.baselines.report import run_baselines
 
-        run_baselines(folder)
+        run_baselines(folder, split="both", progress=progress)
     return result
 
 
