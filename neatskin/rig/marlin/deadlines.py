@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 from neatskin.errors import ConfigError
 from neatskin.gcode.motion import move_time_s, trapezoid_time_s
-from neatskin.gcode.parse import parse_line
+from neatskin.gcode.parse import GcodeLine, parse_line
 from neatskin.gcode.profile import PrinterProfile
 
 
@@ -37,10 +37,10 @@ class MotionTracker:
         if self.profile is not None:
             self.homing_time_s = max(self.homing_time_s, self.profile.homing_time_s * 2)
 
-    def line_time_s(self, command: str) -> tuple[float, bool]:
+    def line_time_s(self, command: "str | GcodeLine") -> tuple[float, bool]:
         """(seconds the command itself may take, whether it first waits for queued motion)."""
         try:
-            line = parse_line(command)
+            line = parse_line(command) if isinstance(command, str) else command
         except ConfigError:
             return 0.0, True
         if line is None:

@@ -49,10 +49,11 @@ class DriverConfig:
 
 
 class _Job:
-    __slots__ = ("command", "replies", "event", "error", "rejected", "line", "batch")
+    __slots__ = ("command", "replies", "event", "error", "rejected", "line", "batch", "parsed")
 
-    def __init__(self, command: str, batch: object = None) -> None:
+    def __init__(self, command: str, batch: object = None, parsed=None) -> None:
         self.command = command
+        self.parsed = parsed  # the GcodeLine, when the caller parsed it already
         self.replies: list[str] = []
         self.event = threading.Event()
         self.error: BaseException | None = None
@@ -239,12 +240,12 @@ class MarlinDriver:
 
         text = "\n".join(lines)
         program = parse_program(text, source=source)
-        commands = [_clean(line.raw) for line in program]
-        commands = [c for c in commands if c]
-        if not commands:
+        cleaned = [(_clean(line.raw), line) for line in program]
+        cleaned = [(c, line) for c, line in cleaned if c]
+        if not cleaned:
             return 0
         batch = object()
-        jobs = [_Job(c, batch) for c in commands]
+        jobs = [_Job(c, batch, line) for c, line in cleaned]
         with self._lock:
             self._raise_failure()
             start = self._acked_jobs
@@ -323,7 +324,7 @@ class MarlinDriver:
                     self._fail(E.PortDead(f"write failed: {exc}", last_line=n, last_command=cmd, port=self.port_name))
                 raise self._failure from exc
 
-    def _deadline(self, command: str, now: float) -> float:
+    def _deadline(self, command, now: float) -> float:
         own_s, _ = self._motion.line_time_s(command)
         own_s *= self.config.motion_time_scale
         start = max(now, self._motion_end)  # a full planner delays any ok until queued motion runs out
@@ -340,7 +341,7 @@ class MarlinDriver:
         if probe or m110:
             deadline = max(now, self._motion_end) + self.config.min_timeout_s
         else:
-            deadline = self._deadline(command, now)
+            deadline = self._deadline(job.parsed or command, now)
         line = _Line(n, command, frame(command, n), job, deadline, probe, m110, self.config.max_busy_s)
         self._inflight.append(line)
         self.stats["lines_sent"] += 1

@@ -1,0 +1,216 @@
+"""Marlin driver throughput over a pseudo-terminal, beside the pty's own round-trip limit.
+
+Run: .venv/bin/python benchmarks/bench_marlin.py [--lines 3000]
+
+Rows, all measured in this run over the same kind of pty, one line in flight:
+  echo limit       a bare host loop (pyserial write, read to "ok\\n") against a bare peer that
+                   answers every line with "ok" at once: the round trip of the pty itself.
+  driver vs echo   MarlinDriver.send_lines against the same bare peer: the driver's own cost.
+  bare vs sim      the bare host loop against the simulated printer: the simulator's cost.
+  driver vs sim    MarlinDriver.send_lines against the simulated printer (virtual time).
+  sim core only    the simulator's firmware model with no I/O at all (MarlinCore in-process).
+The target: driver vs sim >= 80 % of the echo limit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import threading
+import time
+from pathlib import Path
+
+import serial
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+from neatskin.gcode.parse import checksum  # noqa: E402
+from neatskin.gcode.profile import load_printer_profile  # noqa: E402
+from neatskin.rig.marlin.driver import DriverConfig, MarlinDriver  # noqa: E402
+from neatskin.rig.marlin.pty import open_pty, read_available, write_all  # noqa: E402
+from neatskin.rig.marlin.simcore import MarlinCore  # noqa: E402
+from neatskin.rig.marlin.simprinter import SimulatedPrinter  # noqa: E402
+
+CONFIG = DriverConfig(boot_timeout_s=0.05, motion_time_scale=0.0)
+
+
+class EchoPeer:
+    """Answers every complete line with `ok` at once; nothing else."""
+
+    def __init__(self) -> None:
+        self.pty = open_pty()
+        self.path = self.pty.path
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        pending = b""
+        while not self._stop.is_set():
+            try:
+                pending += read_available(self.pty.master_fd, 0.05)
+            except OSError:
+                return
+            count = pending.count(b"\n")
+            if count:
+                pending = pending[pending.rfind(b"\n") + 1 :]
+                write_all(self.pty.master_fd, b"ok\n" * count)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=1)
+        self.pty.close()
+
+
+ECHO_SCRIPT = """
+import sys
+from neatskin.rig.marlin.pty import open_pty, read_available, write_all
+pty = open_pty()
+print(pty.path, flush=True)
+pending = b""
+while True:
+    pending += read_available(pty.master_fd, 0.5)
+    count = pending.count(b"\\n")
+    if count:
+        pending = pending[pending.rfind(b"\\n") + 1:]
+        write_all(pty.master_fd, b"ok\\n" * count)
+"""
+
+
+class PeerProcess:
+    """A peer in its own process (its own GIL), as a real printer is: the echo peer or `neatskin sim printer`."""
+
+    def __init__(self, kind: str) -> None:
+        import subprocess
+
+        if kind == "echo":
+            argv = [sys.executable, "-c", ECHO_SCRIPT]
+        else:
+            argv = [sys.executable, "-m", "neatskin", "sim", "printer", "--time", "virtual"]
+        self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, cwd=REPO)
+        self.path = self.proc.stdout.readline().strip()
+
+    def stop(self) -> None:
+        self.proc.terminate()
+        self.proc.wait(timeout=5)
+
+
+def framed_lines(n: int) -> list[bytes]:
+    out = []
+    for i in range(n):
+        body = f"N{i + 1} G1 X{10 + i % 100} Y{20 + i % 50} F6000"
+        out.append(f"{body}*{checksum(body)}\n".encode())
+    return out
+
+
+def bare_host(path: str, lines: list[bytes], preamble: list[bytes] = ()) -> float:
+    """Lines per second of the simplest possible host loop (no parsing, no recovery)."""
+    port = serial.Serial(path, 115200, timeout=1.0)
+    try:
+        port.reset_input_buffer()
+        for line in preamble:
+            port.write(line)
+            _read_ok(port)
+        start = time.perf_counter()
+        for line in lines:
+            port.write(line)
+            _read_ok(port)
+        return len(lines) / (time.perf_counter() - start)
+    finally:
+        port.close()
+
+
+def _read_ok(port) -> None:
+    got = b""
+    while not got.endswith(b"ok\n"):
+        chunk = port.read(port.in_waiting or 1)
+        if not chunk:
+            raise RuntimeError("no ok within 1 s")
+        got += chunk
+
+
+def driver_rate(port, commands: list[str], warmup: list[str]) -> float:
+    driver = MarlinDriver(port, config=CONFIG)
+    try:
+        driver.connect()
+        for command in warmup:
+            driver.send(command)
+        start = time.perf_counter()
+        driver.send_lines(commands)
+        return len(commands) / (time.perf_counter() - start)
+    finally:
+        driver.close()
+
+
+def core_rate(profile, commands: list[str]) -> float:
+    core = MarlinCore(profile)
+    core.receive(b"G28\n")
+    core.step()
+    core.take_output()
+    lines = [f"N{i + 1} {c}*{checksum(f'N{i + 1} {c}')}\n".encode() for i, c in enumerate(commands)]
+    core.receive(b"N0 M110 N0*125\n")
+    core.step()
+    start = time.perf_counter()
+    for line in lines:
+        core.receive(line)
+        core.step()
+        core.take_output()
+    return len(lines) / (time.perf_counter() - start)
+
+
+def rates_limit(rows: dict[str, float]) -> float:
+    return rows["echo limit (bare host, bare peer) | peer in its own process"]
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--lines", type=int, default=3000)
+    parser.add_argument("--repeats", type=int, default=3, help="best of this many runs per row")
+    args = parser.parse_args()
+    profile = load_printer_profile(REPO / "protocols" / "printers" / "paper.toml")
+    commands = [f"G1 X{10 + i % 100} Y{20 + i % 50} F6000" for i in range(args.lines)]
+    rows: dict[str, float] = {}
+
+    def best(fn) -> float:
+        return max(fn() for _ in range(args.repeats))
+
+    def with_peer(kind: str, fn, process: bool):
+        def run() -> float:
+            if process:
+                peer = PeerProcess(kind)
+            else:
+                peer = EchoPeer() if kind == "echo" else SimulatedPrinter(profile)
+                if kind != "echo":
+                    peer.path = peer.start_pty()
+            try:
+                return fn(peer.path)
+            finally:
+                peer.stop()
+        return run
+
+    lines = framed_lines(args.lines)
+    hello = [b"N0 M110 N0*125\n", b"G28\n"]
+    for process in (True, False):
+        where = "peer in its own process" if process else "peer in this process (shares the GIL)"
+        rows[f"echo limit (bare host, bare peer) | {where}"] = best(with_peer("echo", lambda p: bare_host(p, lines), process))
+        rows[f"driver vs echo peer | {where}"] = best(with_peer(
+            "echo", lambda p: driver_rate(serial.serial_for_url(p, do_not_open=True), commands, []), process))
+        rows[f"bare host vs sim printer | {where}"] = best(with_peer("sim", lambda p: bare_host(p, lines, hello), process))
+        rows[f"driver vs sim printer | {where}"] = best(with_peer(
+            "sim", lambda p: driver_rate(serial.serial_for_url(p, do_not_open=True), commands, ["G28"]), process))
+    rows["sim core only (no I/O)"] = best(lambda: core_rate(profile, commands))
+    print(f"{args.lines} lines, one in flight, best of {args.repeats}; ratio = rate / echo limit of the same group")
+    print(f"{'':62s} {'lines/s':>9s} {'us/line':>8s} {'ratio':>6s}")
+    for name, rate in rows.items():
+        group = name.split(" | ")[-1]
+        limit = rows.get(f"echo limit (bare host, bare peer) | {group}", rates_limit(rows))
+        print(f"{name:62s} {rate:9.0f} {1e6 / rate:8.1f} {rate / limit:6.2f}")
+    limit = rows["echo limit (bare host, bare peer) | peer in its own process"]
+    ratio = rows["driver vs sim printer | peer in its own process"] / limit
+    print(f"target: driver vs sim printer >= 0.80 of the echo limit: {'met' if ratio >= 0.8 else 'NOT met'} ({ratio:.2f})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
