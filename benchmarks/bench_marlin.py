@@ -159,6 +159,42 @@ def core_rate(profile, commands: list[str]) -> float:
     return len(lines) / (time.perf_counter() - start)
 
 
+def step_costs(profile) -> dict[str, float]:
+    """Microseconds per call of each step the driver takes per line (in isolation, this process)."""
+    import timeit
+
+    from neatskin.gcode.parse import parse_line
+    from neatskin.rig.marlin.deadlines import MotionTracker
+    from neatskin.rig.marlin.replies import classify, frame
+
+    tracker = MotionTracker(profile)
+    tracker.line_time_s("G28")
+    parsed = parse_line("G1 X10 Y20 F6000")
+    event = threading.Event()
+    peer = EchoPeer()
+    port = serial.Serial(peer.path, 115200, timeout=1.0)
+    line = framed_lines(1)[0]
+    lock = threading.RLock()
+
+    def round_trip() -> None:
+        port.write(line)
+        _read_ok(port)
+
+    steps = {
+        "classify a reply line": lambda: classify("ok"),
+        "frame N<n> <cmd>*<cs>": lambda: frame("G1 X10 Y20 F6000", 1234),
+        "deadline from the motion model": lambda: tracker.line_time_s(parsed),
+        "parse a G-code line (send_lines, once)": lambda: parse_line("G1 X10 Y20 F6000"),
+        "threading.Event.set + RLock": lambda: (lock.acquire(), event.set(), lock.release()),
+        "pyserial write + read ok (bare round trip)": round_trip,
+    }
+    try:
+        return {name: timeit.timeit(fn, number=2000) / 2000 * 1e6 for name, fn in steps.items()}
+    finally:
+        port.close()
+        peer.stop()
+
+
 def rates_limit(rows: dict[str, float]) -> float:
     return rows["echo limit (bare host, bare peer) | peer in its own process"]
 
@@ -206,6 +242,11 @@ def main() -> int:
         group = name.split(" | ")[-1]
         limit = rows.get(f"echo limit (bare host, bare peer) | {group}", rates_limit(rows))
         print(f"{name:62s} {rate:9.0f} {1e6 / rate:8.1f} {rate / limit:6.2f}")
+    print()
+    print("where a line's time goes (us per call, measured alone in this process):")
+    for name, us in step_costs(profile).items():
+        print(f"  {name:48s} {us:7.2f}")
+    print(f"  {'sim firmware model per line (MarlinCore)':48s} {1e6 / rows['sim core only (no I/O)']:7.2f}")
     limit = rows["echo limit (bare host, bare peer) | peer in its own process"]
     ratio = rows["driver vs sim printer | peer in its own process"] / limit
     print(f"target: driver vs sim printer >= 0.80 of the echo limit: {'met' if ratio >= 0.8 else 'NOT met'} ({ratio:.2f})")

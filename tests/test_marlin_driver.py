@@ -303,6 +303,22 @@ def test_silent_printer_raises_no_answer_naming_the_last_line(run):
 
 
 @pytest.mark.timeout(20)
+def test_connect_to_a_silent_port_raises_no_answer():
+    config = DriverConfig(boot_timeout_s=0.1, min_timeout_s=0.3, poll_s=0.01, probe_attempts=2)
+    peer = ScriptedPeer([(b"N0 M110 N0*125\n", b"")] * 3)  # M110 is idempotent: said again, then given up
+    driver = MarlinDriver(serial.serial_for_url(peer.path, do_not_open=True), config=config)
+    try:
+        with pytest.raises(E.NoAnswer) as info:
+            driver.connect()
+        assert info.value.last_line is None and "no line of this session was acknowledged" in str(info.value)
+        peer.check()
+        assert peer.extra_lines() == []
+    finally:
+        driver.close()
+        peer.close()
+
+
+@pytest.mark.timeout(20)
 def test_unknown_command_is_refused_and_numbering_goes_on(run):
     peer, driver = run([BOOT, HELLO, (cs(1, "G999"), b'echo:Unknown command: "G999"\nok\n'),
                         (cs(2, "G1 X1"), b"echo:Home XYZ First\nok\n"), (cs(3, "M105"), b"ok\n")])

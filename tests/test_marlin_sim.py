@@ -118,6 +118,11 @@ def test_motion_clock_and_probe_position_follow_the_trapezoid(profile):
     t_a = v / accel
     assert tl.position_mm(t_home + t_a)[0] == pytest.approx(v * v / (2 * accel))
     assert tl.position_mm(t_home + duration + 5) == (100.0, 0.0, 0.0)
+    sim = SimulatedPrinter(profile)
+    sim.core = core
+    # the move the probe last rested after, and every later one
+    assert [seg.p1_mm for seg in sim.segments(t_home + 1)] == [(0.0, 0.0, 0.0), (100.0, 0.0, 0.0)]
+    assert [seg.p1_mm for seg in sim.segments(t_home + duration + 1)] == [(100.0, 0.0, 0.0)]
 
 
 def test_full_planner_delays_the_ok_until_a_slot_frees(profile):

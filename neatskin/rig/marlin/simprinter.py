@@ -48,6 +48,15 @@ class SimulatedPrinter:
         with self.lock:
             return self.core.timeline.position_mm(self.core.clock.now() if t_s is None else t_s)
 
+    def segments(self, t0_s: float = 0.0) -> list:
+        """The moves (simmotion.Segment) from the one the probe rests after at t0_s onwards, in order."""
+        with self.lock:
+            segments = self.core.timeline.segments
+            k = len(segments)
+            while k > 0 and segments[k - 1].t1_s > t0_s:
+                k -= 1
+            return list(segments[max(k - 1, 0):])
+
     @property
     def executed(self) -> list[tuple[int | None, str]]:
         """(line number, command) of every command the firmware executed, in order."""
