@@ -115,3 +115,15 @@ def test_grouped_split_with_too_few_positions_is_a_data_error():
         split_folds("grouped", np.zeros(10, int))
     with pytest.raises(DataError, match="unknown split"):
         split_folds("by_row", np.arange(10))
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**16), k=st.floats(0.01, 100.0))
+def test_crb_scales_with_the_noise_and_never_grows_with_more_pairs(seed, k):
+    rng = np.random.default_rng(seed)
+    jac = rng.normal(size=(4, 6, 2))
+    std = rng.uniform(0.1, 1.0, 6)
+    bound = cramer_rao_bound_mm(jac, noise_std=std)
+    np.testing.assert_allclose(cramer_rao_bound_mm(jac, noise_std=k * std), k * bound, rtol=1e-9)
+    fewer = cramer_rao_bound_mm(jac[:, :4], noise_std=std[:4])
+    assert (bound <= fewer * (1 + 1e-12)).all()
