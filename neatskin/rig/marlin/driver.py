@@ -73,6 +73,8 @@ class MarlinDriver(LineProtocol):
         self._pending_resend: int | None = None
         self._resend_due = 0.0
         self._swallow_ok = False
+        self._ok_follows_resend = False  # learned: Marlin 1.x sends `ok` after `Resend:`, 2.x does not
+        self._resends_without_ok = 0
         self._resend_counts: collections.Counter[int] = collections.Counter()
         self._probes_in_stall = 0
         self._motion = MotionTracker(self.profile, self.config.homing_time_s, self.config.default_feed_mm_s)

@@ -189,6 +189,7 @@ class LineProtocol:
     def _on_ok(self, reply, now: float) -> None:
         if self._swallow_ok:  # old Marlin: `Resend: n` then `ok`; this ok acknowledges nothing
             self._swallow_ok = False
+            self._ok_follows_resend = True
             self.stats["oks_swallowed"] += 1
             return
         if not self._inflight:
@@ -239,6 +240,12 @@ class LineProtocol:
                                             last_line=job.line, last_command=job.command, port=self.port_name)
             other.event.set()
 
+    def _grace_s(self) -> float:
+        """Wait for an `ok` after `Resend:` until the firmware has shown, three times, that it sends none."""
+        if self._ok_follows_resend or self._resends_without_ok < 3:
+            return self.config.resend_grace_s
+        return 0.0
+
     def _on_resend(self, n: int, now: float) -> None:
         self.stats["resend_requests"] += 1
         if not self._inflight:
@@ -246,7 +253,7 @@ class LineProtocol:
             return
         head = self._inflight[0]
         if head.m110:
-            self._pending_resend, self._resend_due, self._swallow_ok = head.n, now + self.config.resend_grace_s, True
+            self._pending_resend, self._resend_due, self._swallow_ok = head.n, now + self._grace_s(), True
             return
         fresh = self._fw_last_line is not None and self._fw_last_line[0] == n - 1 \
             and self._fw_last_line[1] > self._served[1]
@@ -278,7 +285,7 @@ class LineProtocol:
         if self._resend_counts[n] > self.config.max_resends:
             self._fail_here(E.ResendLoop, f"line N{n} was asked for {self._resend_counts[n]} times")
             return
-        self._pending_resend, self._resend_due, self._swallow_ok = n, now + self.config.resend_grace_s, True
+        self._pending_resend, self._resend_due, self._swallow_ok = n, now + self._grace_s(), True
         self._served = (n, self._comm_errors, now)
 
     def _on_probe_echo(self, k: int, now: float) -> None:
@@ -296,6 +303,8 @@ class LineProtocol:
         if self._pending_resend is not None and now >= self._resend_due:
             n = self._pending_resend
             self._pending_resend = None
+            if self._swallow_ok:
+                self._resends_without_ok += 1
             self._swallow_ok = False
             for line in self._inflight:
                 if line.n >= n or line.m110:
