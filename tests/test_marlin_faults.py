@@ -79,7 +79,7 @@ def test_realistic_rates_every_command_exactly_once_in_order(seed):
 
 @pytest.mark.timeout(150)
 @pytest.mark.parametrize(("variant", "n"), [
-    ({}, 1000),
+    ({}, 800),
     ({"marlin_version": "2.0"}, 300),  # a repeated line is answered with an error, not dropped
     ({"ok_after_resend": True, "marlin_version": "2.0"}, 300),  # Marlin 1.x: `Resend:` then `ok`
     ({"advanced_ok": True}, 300),  # `ok N.. P.. B..`
