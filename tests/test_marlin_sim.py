@@ -207,3 +207,47 @@ def test_scaled_time_really_waits_and_keeps_alive(profile):
         assert sim.now_s() >= 5.0
     finally:
         driver.close()
+
+
+@pytest.mark.timeout(20)
+def test_driver_over_socket_url(profile):
+    """socket:// goes through pyserial's own read/write (no file descriptor fast path)."""
+    import socket
+    import threading
+
+    sim = SimulatedPrinter(profile)
+    server = socket.create_server(("127.0.0.1", 0))
+    stop = threading.Event()
+
+    def serve() -> None:
+        conn, _ = server.accept()
+        conn.settimeout(0.02)
+        with conn:
+            while not stop.is_set():
+                try:
+                    data = conn.recv(4096)
+                    if not data:
+                        return
+                except TimeoutError:
+                    data = b""
+                with sim.lock:
+                    sim.core.receive(data)
+                    sim.core.step()
+                    out = sim.core.take_output()
+                if out:
+                    conn.sendall(out)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    driver = MarlinDriver.open(f"socket://127.0.0.1:{server.getsockname()[1]}", config=CONFIG)
+    try:
+        driver.connect()
+        driver.send("G28")
+        driver.send_lines([f"G1 X{i} Y{2 * i} F6000" for i in range(1, 51)] + ["M400"])
+        assert driver.position().y_mm == 100.0
+        assert [t for _, t in sim.executed][-3:] == ["G1 X50 Y100 F6000", "M400", "M114"]
+    finally:
+        driver.close()
+        stop.set()
+        thread.join(timeout=2)
+        server.close()
