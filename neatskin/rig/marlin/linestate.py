@@ -30,6 +30,7 @@ class DriverConfig:
     resend_grace_s: float = 0.02  # wait for an `ok` that old Marlin sends after `Resend:` before replaying
     duplicate_resend_s: float = 1.0  # an identical `Resend: n` with no new error within this is a duplicate
     poll_s: float = 0.02  # the reader's read timeout: how often deadlines are checked
+    write_timeout_s: float = 5.0  # a write that finds no room for this long: PortDead
     homing_time_s: float = 60.0
     default_feed_mm_s: float = 25.0
     motion_time_scale: float = 1.0  # real seconds per second of motion: 0 for a virtual-time simulated printer
@@ -84,12 +85,26 @@ def _posix_fd(port) -> int | None:
     return None
 
 
+def _write_fd(fd: int, data: bytes, timeout_s: float) -> None:
+    """All of data to a non-blocking descriptor, waiting for room at most timeout_s in all."""
+    view = memoryview(data)
+    end = time.monotonic() + timeout_s
+    while view:
+        try:
+            view = view[os.write(fd, view):]
+        except BlockingIOError:
+            left = end - time.monotonic()
+            if left <= 0 or not select.select([], [fd], [], left)[1]:
+                raise TimeoutError(f"the port took no data for {timeout_s:g} s (the printer is not reading)")
+
+
 class LineProtocol:
     """The protocol state machine; MarlinDriver supplies the port, the lock and the state it resets."""
 
     # ---- writing (callers hold self._lock) ----------------------------------------------
 
     def _write(self, data: bytes) -> None:
+        error = None
         with self._wlock:
             if self._wire is not None:
                 self._wire.write(">", data)
@@ -98,14 +113,14 @@ class LineProtocol:
                 if fd is None:
                     self.port.write(data)
                 else:
-                    view = memoryview(data)
-                    while view:
-                        view = view[os.write(fd, view):]
+                    _write_fd(fd, data, self.config.write_timeout_s)
             except Exception as exc:  # noqa: BLE001 - any port failure is a dead port
-                with self._lock:
-                    n, cmd = self._last_acked
-                    self._fail(E.PortDead(f"write failed: {exc}", last_line=n, last_command=cmd, port=self.port_name))
-                raise self._failure from exc
+                error = exc
+        if error is not None:  # outside the write lock: the state lock is always taken first
+            with self._lock:
+                n, cmd = self._last_acked
+                self._fail(E.PortDead(f"write failed: {error}", last_line=n, last_command=cmd, port=self.port_name))
+            raise self._failure from error
 
     def _deadline(self, command, now: float) -> float:
         own_s, _ = self._motion.line_time_s(command)
