@@ -88,6 +88,8 @@ class PeerProcess:
             argv = [sys.executable, "-c", ECHO_SCRIPT]
         else:
             argv = [sys.executable, "-m", "neatskin", "sim", "printer", "--time", "virtual"]
+            if kind == "sim-advanced-ok":
+                argv.append("--advanced-ok")
         self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, cwd=REPO)
         self.path = self.proc.stdout.readline().strip()
 
@@ -130,8 +132,8 @@ def _read_ok(port) -> None:
         got += chunk
 
 
-def driver_rate(port, commands: list[str], warmup: list[str]) -> float:
-    driver = MarlinDriver(port, config=CONFIG)
+def driver_rate(port, commands: list[str], warmup: list[str], config: DriverConfig = CONFIG) -> float:
+    driver = MarlinDriver(port, config=config)
     try:
         driver.connect()
         for command in warmup:
@@ -235,6 +237,10 @@ def main() -> int:
         rows[f"bare host vs sim printer | {where}"] = best(with_peer("sim", lambda p: bare_host(p, lines, hello), process))
         rows[f"driver vs sim printer | {where}"] = best(with_peer(
             "sim", lambda p: driver_rate(serial.serial_for_url(p, do_not_open=True), commands, ["G28"]), process))
+    pipelined = DriverConfig(boot_timeout_s=0.05, motion_time_scale=0.0, max_in_flight=4)
+    rows["driver vs sim, ok N P B, up to 4 in flight | peer in its own process"] = best(with_peer(
+        "sim-advanced-ok", lambda p: driver_rate(serial.serial_for_url(p, do_not_open=True), commands, ["G28"],
+                                                 pipelined), True))
     rows["sim core only (no I/O)"] = best(lambda: core_rate(profile, commands))
     print(f"{args.lines} lines, one in flight, best of {args.repeats}; ratio = rate / echo limit of the same group")
     print(f"{'':62s} {'lines/s':>9s} {'us/line':>8s} {'ratio':>6s}")

@@ -353,6 +353,18 @@ def test_advanced_ok_reports_are_read(run):
 
 
 @pytest.mark.timeout(20)
+def test_pipelining_starts_only_after_ok_names_its_line(run):
+    config = DriverConfig(boot_timeout_s=0.5, min_timeout_s=0.4, poll_s=0.01, max_in_flight=4)
+    peer, driver = run([BOOT, (b"N0 M110 N0*125\n", b"ok N0 P16 B3\n"),
+                        (cs(1, "G1 X1"), b""), (cs(2, "G1 X2"), b""),  # three lines out before any ok
+                        (cs(3, "G1 X3"), b"ok N1 P15 B3\nok N2 P14 B2\nok N3 P13 B1\n")], config=config)
+    driver.connect()
+    driver.send_lines(["G1 X1", "G1 X2", "G1 X3"])
+    peer.check()
+    assert driver.stats["max_in_flight"] == 3
+
+
+@pytest.mark.timeout(20)
 def test_no_banner_times_out_cleanly_and_m119_parses(run):
     peer, driver = run([HELLO, (cs(1, "M119"), b"Reporting endstop status\nx_min: open\ny_min: open\n"
                                                b"z_min: TRIGGERED\nok\n")])

@@ -8,6 +8,8 @@ printer acknowledged, and the printer's log is a prefix of the program ending at
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import serial
@@ -48,10 +50,10 @@ def executed_program(sim) -> list[str]:
             and text != "G28"]
 
 
-def run(faults: FaultConfig, n: int, seed: int, **sim_kw):
+def run(faults: FaultConfig, n: int, seed: int, config: DriverConfig = QUICK, **sim_kw):
     sim = sim_printer_for_tests(seed=seed, faults=faults, **sim_kw)
     path = sim.start_pty()
-    driver = MarlinDriver(serial.serial_for_url(path, do_not_open=True), config=QUICK)
+    driver = MarlinDriver(serial.serial_for_url(path, do_not_open=True), config=config)
     lines = program(n, seed)
     error = None
     try:
@@ -91,6 +93,17 @@ def test_extreme_rates_every_command_exactly_once_in_order(variant, n):
     assert executed_program(sim) == expected
     stats = driver.stats
     assert stats["lines_resent"] > 20 and stats["probes"] > 10 and stats["busy"] > 20
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("preset", ["realistic", "extreme"])
+def test_pipelined_with_advanced_ok_every_command_exactly_once_in_order(preset):
+    config = replace(QUICK, max_in_flight=4)
+    sim, driver, expected, error = run(FaultConfig.preset(preset), 1000 if preset == "realistic" else 300,
+                                       seed=9, config=config, advanced_ok=True)
+    assert error is None, error
+    assert executed_program(sim) == expected
+    assert driver.stats["max_in_flight"] >= 3
 
 
 def _check_prefix(sim, expected, error):

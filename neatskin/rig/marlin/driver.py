@@ -73,6 +73,7 @@ class MarlinDriver(LineProtocol):
         self._pending_resend: int | None = None
         self._resend_due = 0.0
         self._swallow_ok = False
+        self._advanced_ok_seen = False
         self._ok_follows_resend = False  # learned: Marlin 1.x sends `ok` after `Resend:`, 2.x does not
         self._resends_without_ok = 0
         self._resend_counts: collections.Counter[int] = collections.Counter()

@@ -31,6 +31,8 @@ class DriverConfig:
     duplicate_resend_s: float = 1.0  # an identical `Resend: n` with no new error within this is a duplicate
     poll_s: float = 0.02  # the reader's read timeout: how often deadlines are checked
     write_timeout_s: float = 5.0  # a write that finds no room for this long: PortDead
+    max_in_flight: int = 1  # >1 pipelines lines, only once the firmware's `ok N.. P.. B..` names them
+    rx_buffer_bytes: int = 127  # Marlin's RX_BUFFER_SIZE less one: bytes in flight never exceed it
     homing_time_s: float = 60.0
     default_feed_mm_s: float = 25.0
     motion_time_scale: float = 1.0  # real seconds per second of motion: 0 for a virtual-time simulated printer
@@ -143,12 +145,25 @@ class LineProtocol:
         line = _Line(n, command, frame(command, n), job, deadline, probe, m110, self.config.max_busy_s)
         self._inflight.append(line)
         self.stats["lines_sent"] += 1
+        self.stats["max_in_flight"] = max(self.stats["max_in_flight"], len(self._inflight))
         self._write(line.data)
         return line
 
     def _pump(self, now: float) -> None:
-        while self._queue and not self._inflight and self._failure is None and self._pending_resend is None:
+        while self._queue and self._failure is None and self._pending_resend is None and self._room_for(self._queue[0]):
             self._send_line(self._queue.popleft())
+
+    def _room_for(self, job: _Job) -> bool:
+        """One line in flight; more (up to max_in_flight, within Marlin's RX buffer) only once the
+        firmware's `ok N..` names its lines, and never past a probe or an M110."""
+        if not self._inflight:
+            return True
+        if self.config.max_in_flight <= 1 or not self._advanced_ok_seen:
+            return False
+        if len(self._inflight) >= self.config.max_in_flight or any(l.probe or l.m110 for l in self._inflight):
+            return False
+        in_flight = sum(len(line.data) for line in self._inflight)
+        return in_flight + len(job.command) + 16 <= self.config.rx_buffer_bytes
 
     # ---- the reader ---------------------------------------------------------------------
 
@@ -244,6 +259,7 @@ class LineProtocol:
             return
         head = self._inflight[0]
         if reply.number is not None:  # ADVANCED_OK names the line
+            self._advanced_ok_seen = True
             if reply.number < head.n:
                 self.stats["stale_oks"] += 1
                 return
