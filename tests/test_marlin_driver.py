@@ -332,6 +332,17 @@ def test_unknown_command_is_refused_and_numbering_goes_on(run):
 
 
 @pytest.mark.timeout(20)
+def test_host_action_and_echo_lines_are_kept(run):
+    peer, driver = run([BOOT, HELLO, (cs(1, "M118 A1 action:pause"), b"//action:pause\nok\n"),
+                        (cs(2, "M118 E1 NS press=3 phase=press"), b"echo:NS press=3 phase=press\nok\n")])
+    driver.connect()
+    assert driver.send("M118 A1 action:pause") == ["//action:pause"]
+    assert driver.actions == ["//action:pause"]
+    assert driver.send("M118 E1 NS press=3 phase=press") == ["echo:NS press=3 phase=press"]
+    peer.check()
+
+
+@pytest.mark.timeout(20)
 def test_refused_line_in_a_batch_stops_the_rest(run):
     peer, driver = run([BOOT, HELLO, (cs(1, "G1 X1"), b"echo:Home XYZ First\nok\n")])
     driver.connect()
