@@ -253,6 +253,10 @@ def main() -> int:
     for name, us in step_costs(profile).items():
         print(f"  {name:48s} {us:7.2f}")
     print(f"  {'sim firmware model per line (MarlinCore)':48s} {1e6 / rows['sim core only (no I/O)']:7.2f}")
+    group = "peer in its own process"
+    print(f"driver / bare host against the same peer: echo peer "
+          f"{rows[f'driver vs echo peer | {group}'] / rows[f'echo limit (bare host, bare peer) | {group}']:.2f}, "
+          f"sim printer {rows[f'driver vs sim printer | {group}'] / rows[f'bare host vs sim printer | {group}']:.2f}")
     limit = rows["echo limit (bare host, bare peer) | peer in its own process"]
     ratio = rows["driver vs sim printer | peer in its own process"] / limit
     print(f"target: driver vs sim printer >= 0.80 of the echo limit: {'met' if ratio >= 0.8 else 'NOT met'} ({ratio:.2f})")
