@@ -76,12 +76,7 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
             return float(np.asarray(dx).reshape(-1)[0]), float(np.asarray(dy).reshape(-1)[0])
 
     def segments_between(t0_s: float, t1_s: float) -> list:
-        with printer.lock:
-            segments = printer.core.timeline.segments
-            k = len(segments)
-            while k > 0 and segments[k - 1].t1_s > t0_s:
-                k -= 1
-            return list(segments[max(k - 1, 0):])  # the move the probe rests after, and every later one
+        return printer.segments(t0_s)
 
     probe = DryProbe(skin, calibration, segments_between, placement_error=placement,
                      surface_error_mm=scene.surface_error_mm)
