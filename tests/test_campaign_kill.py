@@ -68,3 +68,20 @@ def test_sigkill_then_resume_equals_uninterrupted(kill_protocol, reference, tmp_
     assert rows.press_id.is_unique and len(rows) == len(reference)
     pd.testing.assert_frame_equal(rows.sort_values("press_id").reset_index(drop=True),
                                   reference.sort_values("press_id").reset_index(drop=True), check_exact=True)
+
+
+@pytest.mark.timeout(240)
+@pytest.mark.parametrize("preset", ["realistic"])  # extreme rates: tests/test_marlin_faults.py, on shorter programs
+def test_a_noisy_serial_line_changes_nothing_recorded(kill_protocol, reference, tmp_path, preset):
+    """Corrupted bytes, lost oks, dropped lines, duplicated replies and busy storms on the pty: every G-code
+    line still runs exactly once, so the dataset equals the one recorded over a clean line."""
+    from neatskin.rig.marlin.faults import FaultConfig
+    from neatskin.rig.marlin.wirelog import read_wire_log
+
+    folder = tmp_path / "run"
+    run_campaign(load_protocol(kill_protocol), folder, dry_run=True, progress=False, report=False,
+                 printer_faults=FaultConfig.parse(preset))
+    received = b"".join(data for direction, data in read_wire_log(folder / "wire.log") if direction == "<")
+    assert b"Resend:" in received or b"rs " in received  # the faults did happen
+    pd.testing.assert_frame_equal(_rows(folder).sort_values("press_id").reset_index(drop=True),
+                                  reference.sort_values("press_id").reset_index(drop=True), check_exact=True)

@@ -45,7 +45,7 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
     """The simulated printer on a real pty (reached through pyserial), the simulated skin and DAQ."""
     from neatskin.acquisition.daq.simulated import NoiseModel, SimulatedDAQ
     from neatskin.rig.campaign.recorder import STREAM_PLACEMENT, DryProbe, SimulatedRecorder
-    from neatskin.rig.marlin.driver import MarlinDriver
+    from neatskin.rig.marlin.driver import DriverConfig, MarlinDriver
     from neatskin.rig.marlin.simprinter import SimulatedPrinter
     from neatskin.rig.skin.model import SkinModel, placement_error_mm
 
@@ -59,7 +59,9 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
     try:
         pty_path = printer.start_pty()
         closers.append(printer.stop)
-        driver = MarlinDriver.open(pty_path, protocol.printer.baud_rate, wire_log=wire_log)
+        # the printer's clock is virtual: its moves take no wall time, so deadlines need no motion allowance
+        driver = MarlinDriver.open(pty_path, protocol.printer.baud_rate, wire_log=wire_log,
+                                   config=DriverConfig(motion_time_scale=0.0))
         closers.append(driver.close)
         driver.connect(boot_timeout_s=connect_timeout_s)
     except Exception:
