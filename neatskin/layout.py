@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import itertools
 import math
-import tomllib
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -190,18 +189,9 @@ class Layout:
 
 def load_layout(path: str | Path) -> Layout:
     """Load and validate a layout TOML file; every error names the file and the field."""
-    path = Path(path)
-    source = str(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"cannot read layout file: {exc.strerror}", file=source,
-                          fix="check the path (relative paths are resolved from the protocol file's folder)") from exc
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"not valid TOML: {exc}", file=source, fix="correct the TOML syntax at that line") from exc
-    return layout_from_dict(data, source=source)
+    from neatskin.tomlfile import read_toml
+
+    return layout_from_dict(read_toml(path, "layout file"), source=str(path))
 
 
 def layout_from_dict(data: dict, source: str = "<memory>") -> Layout:

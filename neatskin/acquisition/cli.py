@@ -52,16 +52,10 @@ def table_handler(args: argparse.Namespace) -> int:
 def protocol_settings(path: Path) -> dict:
     """The few protocol keys the table needs ([files].wiring, [acquisition], [press].hold_s), read without
     the campaign loader (acquisition does not import rig); the campaign loader validates the rest."""
-    import tomllib
-
     from neatskin.errors import ConfigError
+    from neatskin.tomlfile import read_toml
 
-    try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"cannot read protocol: {exc.strerror}", file=str(path), fix="check the path") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"not valid TOML: {exc}", file=str(path), field="<syntax>", fix="correct the TOML") from exc
+    data = read_toml(path, "protocol", fix="check the path")
     out: dict = {}
     wanted = (("files", "wiring", str), ("acquisition", "rate_hz", (int, float)), ("acquisition", "live_samples", int),
               ("acquisition", "settle_samples", int), ("press", "hold_s", (int, float)))

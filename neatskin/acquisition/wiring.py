@@ -26,13 +26,13 @@ from __future__ import annotations
 
 import math
 import re
-import tomllib
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
 from neatskin.errors import ConfigError, Problem, raise_problems
 from neatskin.layout import ElectrodePair, Layout
+from neatskin.tomlfile import read_toml
 
 ADDRESSES_PER_CHIP = 4
 _PIN_RE = re.compile(r"^([XY])([0-9]+)$")
@@ -130,7 +130,7 @@ def wiring_to_toml(wiring: Wiring, layout_ref: str | None = None, header: str = 
 def wiring_layout_path(path: str | Path) -> Path | None:
     """The layout a wiring file names (its `layout` key, relative to the file), or None."""
     path = Path(path)
-    data = _read_toml(path)
+    data = read_toml(path, "wiring file", fix="check the path (protocols/wiring/*.toml)")
     ref = data.get("layout")
     if ref is None:
         return None
@@ -140,22 +140,10 @@ def wiring_layout_path(path: str | Path) -> Path | None:
     return (path.parent / ref).resolve()
 
 
-def _read_toml(path: Path) -> dict:
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"cannot read wiring file: {exc.strerror}", file=str(path),
-                          fix="check the path (protocols/wiring/*.toml)") from exc
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"not valid TOML: {exc}", file=str(path), field="<syntax>", fix="correct the TOML syntax at that line") from exc
-
-
 def load_wiring(path: str | Path, layout: Layout) -> Wiring:
     """Load a wiring file and check it against the layout; every mistake is one Problem in one ConfigError."""
     path = Path(path)
-    data = _read_toml(path)
+    data = read_toml(path, "wiring file", fix="check the path (protocols/wiring/*.toml)")
     wiring = wiring_from_dict(data, layout, source=str(path))
     return wiring
 

@@ -8,13 +8,13 @@
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, replace
 from pathlib import Path
 from types import SimpleNamespace
 
 from neatskin.errors import ConfigError, Problem
 from neatskin.gcode.calibration import Calibration
+from neatskin.tomlfile import read_toml
 
 
 @dataclass(frozen=True)
@@ -65,16 +65,7 @@ class PrinterProfile:
 
 def load_printer_profile(path: str | Path) -> PrinterProfile:
     """Load and validate a printer profile TOML; every problem in the file in one ConfigError."""
-    path = Path(path)
-    source = str(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"cannot read printer profile: {exc.strerror}", file=source,
-                          fix="check the path (relative paths are resolved from the protocol file's folder)") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"not valid TOML: {exc}", file=source, fix="correct the TOML syntax at that line") from exc
-    return printer_profile_from_dict(data, source)
+    return printer_profile_from_dict(read_toml(path, "printer profile"), str(path))
 
 
 def printer_profile_from_dict(data: dict, source: str = "<memory>") -> PrinterProfile:

@@ -8,7 +8,6 @@ returns a frozen `GcodeSpec`; every problem in those sections is reported in one
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,6 +16,7 @@ from neatskin.gcode.positions import PositionSpec, generate_positions
 from neatskin.gcode.profile import PrinterProfile, load_printer_profile
 from neatskin.gcode.program import PressProgram, PressSpec, build_program
 from neatskin.layout import Layout, load_layout
+from neatskin.tomlfile import read_toml
 
 POSITION_KEYS = {"strategy", "count", "seed", "min_spacing_mm", "electrode_keep_out_mm", "keep_out",
                  "channel_fraction", "grid_shape"}
@@ -101,14 +101,7 @@ def press_spec_from_dict(data: dict, source: str = "<memory>", base_dir: str | P
 
 
 def load_gcode_spec(path: str | Path) -> GcodeSpec:
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"cannot read protocol: {exc.strerror}", file=str(path), fix="check the path") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"not valid TOML: {exc}", file=str(path), fix="correct the TOML syntax at that line") from exc
-    return press_spec_from_dict(data, str(path))
+    return press_spec_from_dict(read_toml(path, "protocol", fix="check the path"), str(path))
 
 
 def build_from_spec(spec: GcodeSpec, *, hold_in_gcode: bool = False, layout: Layout | None = None,

@@ -7,12 +7,12 @@ each with its file, field and fix, before anything moves.
 from __future__ import annotations
 
 import hashlib
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 from neatskin.errors import ConfigError, Problem
 from neatskin.rig.campaign.fields import TableReader
+from neatskin.tomlfile import read_toml
 
 KNOWN_SECTIONS = ("campaign", "files", "positions", "press", "excitation", "acquisition", "fsr", "record", "scene")
 
@@ -80,13 +80,7 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
     copies kept in the campaign folder)."""
     path = Path(path)
     source = str(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"cannot read protocol file: {exc.strerror}", file=source,
-                          fix="check the path, e.g. protocols/paper.toml") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"not valid TOML: {exc}", file=source, fix="correct the TOML syntax at that line") from exc
+    data = read_toml(path, "protocol file", fix="check the path, e.g. protocols/paper.toml")
 
     problems: list[Problem] = []
     for section in data:
