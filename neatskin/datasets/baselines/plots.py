@@ -22,23 +22,25 @@ def _pyplot():
 def plot_error_vs_time(results: list[ModelResult], path: Path, bound_rms_mm: float | None = None) -> Path:
     """Mean Euclidean error (with std bars) against mean fit time per fit, one marker per model and split."""
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(7, 4.5))
+    fig, ax = plt.subplots(figsize=(9, 4.8))
     markers = {"grouped": "o", "random": "s"}
+    models = list(dict.fromkeys(r.model for r in results))
+    colours = {m: f"C{i % 10}" for i, m in enumerate(models)}
     for r in results:
-        ax.errorbar(r.fit_time_s, r.errors.mean_error_mm, yerr=r.errors.std_error_mm,
+        ax.errorbar(r.fit_time_s, r.errors.mean_error_mm, yerr=r.errors.std_error_mm, color=colours[r.model],
                     fmt=markers.get(r.split, "o"), capsize=3, label=f"{r.model} ({r.split})")
         ax.annotate(r.model, (r.fit_time_s, r.errors.mean_error_mm), textcoords="offset points",
                     xytext=(5, 5), fontsize=8)
     ax.axhline(PROBE_RADIUS_MM, color="grey", ls=":", lw=1, label="probe radius 2.75 mm")
     ax.axhline(2.03, color="tab:red", ls="--", lw=1, label="paper, real skin: 2.03 mm")
     if bound_rms_mm is not None and np.isfinite(bound_rms_mm):
-        ax.axhline(bound_rms_mm, color="black", ls="-.", lw=1, label=f"Cramér-Rao bound (RMS) {bound_rms_mm:.2f} mm")
+        ax.axhline(bound_rms_mm, color="black", ls="-.", lw=1, label=f"Cramér-Rao bound (RMS) {bound_rms_mm:.3g} mm")
     ax.set_xscale("log")
     ax.set_xlabel("fit time per fit (s, log)")
     ax.set_ylabel("mean Euclidean error (mm), bars: std")
     ax.set_ylim(bottom=0)
-    ax.set_title("Position error against fit time")
-    ax.legend(fontsize=7, loc="best")
+    ax.set_title("Position error against fit time (circles: grouped split, squares: random split)")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
