@@ -233,12 +233,12 @@ def test_bad_conductance_input_is_refused(paper_layout):
         equivalent_resistance(paper_layout, -np.ones((1, 12)))
     with pytest.raises(ValueError, match="finite"):
         equivalent_resistance(paper_layout, np.full((1, 12), np.nan))
+    from neatskin.errors import ConfigError
     from neatskin.layout import Electrode, Layout
 
-    shared = Layout("shared", paper_layout.junctions, paper_layout.channels, (Electrode(1, 0), Electrode(2, 0)),
-                    1.0, 5.0, 2.0)
-    with pytest.raises(ValueError, match="two electrodes on one junction"):
-        equivalent_resistance(shared, np.ones(12))
+    with pytest.raises(ConfigError, match="share junction"):  # such a layout cannot even be built
+        Layout("shared", paper_layout.junctions, paper_layout.channels, (Electrode(1, 0), Electrode(2, 0)),
+               1.0, 5.0, 2.0)
     with pytest.raises(ValueError, match="method"):
         equivalent_resistance(paper_layout, np.ones((1, 12)), method="pinv")
 
