@@ -11,7 +11,7 @@ from neatskin.rig.marlin.faults import FaultConfig
 from neatskin.rig.marlin.simprinter import SimulatedPrinter
 
 printcore_module = pytest.importorskip(
-    "printrun.printcore", reason="Printrun is not installed: pip install printrun (the `test` extra has it)")
+    "printrun.printcore", reason="Printrun is not installed: pip install --no-deps printrun==2.2.0 (as the README's test command does)")
 
 
 @pytest.mark.timeout(60)
