@@ -332,3 +332,20 @@ def test_sparse_path_agrees_with_dense_on_random_networks(net, data):
     assert np.array_equal(np.isinf(dense), np.isinf(sparse)) and not np.any(np.isnan(sparse))
     finite = np.isfinite(dense)
     assert np.allclose(sparse[finite], dense[finite], rtol=1e-9, atol=0)
+
+
+def test_auto_keeps_stiff_grids_on_the_exact_path():
+    """A 10 x 10 grid (sparse by size) with a 1e12 near-short: auto must give the dense path's answer,
+    which the Fraction reference and ngspice confirm; the sparse LU alone is off by ~1e-3 there."""
+    from neatskin.rig.skin.layouts import grid_layout
+    from neatskin.rig.skin.network import DENSE_MAX_JUNCTIONS
+
+    layout = grid_layout(10, 10)
+    assert layout.n_junctions > DENSE_MAX_JUNCTIONS
+    g = np.random.default_rng(3).uniform(1.0, 2.0, (2, layout.n_channels))
+    g[:, 57] *= 1e12
+    dense = equivalent_resistance(layout, g, method="dense")
+    np.testing.assert_array_equal(equivalent_resistance(layout, g), dense)
+    ordinary = np.random.default_rng(4).uniform(1.0, 2.0, (1, layout.n_channels))
+    np.testing.assert_allclose(equivalent_resistance(layout, ordinary),
+                               equivalent_resistance(layout, ordinary, method="dense"), rtol=1e-10)
