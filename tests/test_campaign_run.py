@@ -93,3 +93,22 @@ def test_physical_limit_written_for_the_dry_run(smoke_run):
     limit = pd.read_parquet(folder / "physical_limit.parquet")
     assert sorted(limit.position_id) == list(range(6))
     assert np.isfinite(limit.crb_mm).all() and (limit.crb_mm > 0).all()
+
+
+def test_a_pandas_round_trip_still_validates(smoke_run, tmp_path):
+    """A curator reads presses.parquet with pandas and writes it back unchanged: still a valid dataset
+    (pandas writes large_string and, for all-empty flag lists, list<null>)."""
+    import shutil
+
+    from neatskin.datasets.validate import validate_dataset
+
+    _, _, folder = smoke_run
+    copy = tmp_path / "copy"
+    shutil.copytree(folder, copy)
+    pd.read_parquet(folder / "presses.parquet").to_parquet(copy / "presses.parquet", index=False)
+    assert validate_dataset(copy) == []
+    df = pd.read_parquet(copy / "presses.parquet")
+    df.loc[3, "dR_ohm_1_2"] = np.nan
+    df.to_parquet(copy / "presses.parquet", index=False)
+    problems = validate_dataset(copy)
+    assert len(problems) == 1 and problems[0].field == "dR_ohm_1_2" and "NaN" in problems[0].message

@@ -123,10 +123,25 @@ def _schema_problems(tables: list[tuple[Path, pa.Table]], expected: pa.Schema) -
             grouped[(", ".join(extra), f"unexpected column(s): {', '.join(extra)}",
                      "drop these columns, or check that the manifest names the campaign's layout")].append(file)
         for field in table.schema:
-            if field.name in want and field.type != want[field.name]:
+            if field.name in want and not _equivalent_type(field.type, want[field.name]):
                 grouped[(field.name, f"column '{field.name}' has type {field.type}, expected {want[field.name]}",
                          f"cast the column to {want[field.name]}")].append(file)
     return [Problem(message, _where(files), column, fix) for (column, message, fix), files in grouped.items()]
+
+
+def _equivalent_type(have: pa.DataType, want: pa.DataType) -> bool:
+    """Types that hold the same values: what pandas writes back (large_string for string, a list of nulls
+    for a flags column whose lists are all empty, timestamps in ns) is as good as the schema's own."""
+    if have == want:
+        return True
+    if pa.types.is_string(want) or pa.types.is_large_string(want):
+        return pa.types.is_string(have) or pa.types.is_large_string(have)
+    if pa.types.is_list(want) and (pa.types.is_list(have) or pa.types.is_large_list(have)):
+        item = have.value_type
+        return pa.types.is_null(item) or _equivalent_type(item, want.value_type)
+    if pa.types.is_timestamp(want) and pa.types.is_timestamp(have):
+        return (have.tz is None) == (want.tz is None)
+    return False
 
 
 def _frame(file: Path, table: pa.Table) -> pd.DataFrame:
