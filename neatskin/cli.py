@@ -47,8 +47,8 @@ def main(argv: list[str] | None = None) -> int:
     except NeatskinError as exc:
         print(f"neatskin: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("neatskin: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        print(f"neatskin: interrupted{': ' + str(exc) if str(exc) else ''}", file=sys.stderr)
         return 130
     return int(result or 0)
 

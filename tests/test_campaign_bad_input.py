@@ -141,3 +141,29 @@ def test_existing_folder_is_not_overwritten(tmp_path):
         run_campaign(load_protocol(PROTOCOLS / "smoke.toml"), out, dry_run=True, progress=False, report=False)
     assert "resume" in info.value.problems[0].fix
     assert (out / "presses.parquet").read_bytes() == b"precious"
+
+
+def test_port_that_does_not_exist(tmp_path, capsys):
+    out = tmp_path / "run"
+    code = main(["campaign", "run", str(PROTOCOLS / "smoke.toml"), "--port", "/dev/ttyNOPE", "--out", str(out),
+                 "--quiet", "--no-report"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("neatskin: error:") == 1
+    assert "no serial port '/dev/ttyNOPE'" in err and "nothing was sent" in err and "ls /dev/ttyUSB*" in err
+    assert not out.exists()
+
+
+def test_resume_refuses_changed_inputs(tmp_path):
+    """A seed edited in the campaign's own copy of the protocol would mix two campaigns: refused, nothing moves."""
+    from neatskin.errors import DataError
+    from neatskin.rig.campaign.runner import resume_campaign
+
+    folder = tmp_path / "run"
+    run_campaign(load_protocol(PROTOCOLS / "smoke.toml"), folder, dry_run=True, progress=False, report=False, limit=3)
+    parts = sorted((folder / "presses").glob("part-*.parquet"))
+    edit(folder / "inputs" / "protocol.toml", "seed = 7", "seed = 8")
+    with pytest.raises(DataError) as info:
+        resume_campaign(folder, progress=False, report=False)
+    problem = info.value.problems[0]
+    assert problem.field == "protocol" and "not the file this campaign started with" in problem.message
+    assert sorted((folder / "presses").glob("part-*.parquet")) == parts

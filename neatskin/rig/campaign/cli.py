@@ -39,12 +39,13 @@ def register(subparsers) -> None:
 
 
 def _summary(result) -> str:
-    ratio = result.printer_time_s / result.wall_s if result.wall_s > 0 else float("inf")
+    rig_s = result.printer_time_s * result.written_now / result.planned if result.planned else 0.0
+    ratio = rig_s / result.wall_s if result.wall_s > 0 else float("inf")
     state = "interrupted (resume with: neatskin campaign resume " + str(result.folder) + ")" \
         if result.completed < result.planned else "complete"
     return (f"campaign {state}: {result.completed}/{result.planned} presses in {result.folder} "
             f"({result.written_now} written now, {result.flagged} flagged); wall {result.wall_s:.1f} s, "
-            f"estimated rig time {result.printer_time_s / 3600:.2f} h ({ratio:.0f}x)")
+            f"the rig would take {rig_s / 3600:.2f} h for these presses ({ratio:.0f}x)")
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -164,7 +164,11 @@ def run_campaign(protocol: Protocol, folder: str | Path, *, dry_run: bool = True
     if report and status == "complete":
         from neatskin.datasets.baselines.report import run_baselines
 
-        run_baselines(folder, split="both", progress=progress)
+        try:
+            run_baselines(folder, split="both", progress=progress)
+        except KeyboardInterrupt:
+            raise KeyboardInterrupt(f"the campaign's data is complete in {folder}; only its baseline report was "
+                                    f"stopped: make it with neatskin baselines {folder}") from None
     return result
 
 
@@ -322,6 +326,25 @@ def _typical_phases_s(plan, protocol) -> np.ndarray:
     return np.median(phase_durations_s(plan.program, protocol.printer), axis=0)
 
 
+def _check_inputs_unchanged(folder: Path, manifest: dict) -> None:
+    """The copies in inputs/ must be the files the campaign started with: a changed seed, layout or
+    calibration would mix two campaigns in one dataset."""
+    problems = []
+    for key in ("protocol", "layout", "wiring", "printer"):
+        ref = manifest.get(key)
+        if not isinstance(ref, dict) or "sha256" not in ref:
+            continue
+        path = folder / ref["path"]
+        actual = file_sha256(path) if path.is_file() else "missing"
+        if actual != ref["sha256"]:
+            problems.append(Problem(f"{ref['path']} is not the file this campaign started with (sha256 {actual[:12]}, "
+                                    f"recorded {ref['sha256'][:12]})", str(path), key,
+                                    "restore the original file; to run changed settings, start a new campaign "
+                                    "with a new --out folder"))
+    if problems:
+        raise DataError(problems=problems)
+
+
 def resume_campaign(folder: str | Path, **kwargs) -> CampaignResult:
     """Finish a campaign from its folder: the protocol and files it ran with are the copies in inputs/."""
     from neatskin.datasets.manifest import read_manifest
@@ -331,11 +354,13 @@ def resume_campaign(folder: str | Path, **kwargs) -> CampaignResult:
         manifest = read_manifest(folder)
     except DataError:
         raise
+    if manifest.get("status") == "complete":
+        report = "" if (folder / "report.md").exists() else f"; for its baseline report: neatskin baselines {folder}"
+        raise DataError(f"campaign {folder} is already complete: every press is on disk", file=str(folder / "manifest.json"),
+                        field="status", fix=f"nothing to resume{report}")
+    _check_inputs_unchanged(folder, manifest)
     protocol = load_protocol(folder / INPUTS_DIR / "protocol.toml",
                              file_overrides={k: folder / INPUTS_DIR / f"{k}.toml" for k in ("layout", "wiring", "printer")})
-    if manifest.get("status") == "complete":
-        raise DataError(f"campaign {folder} is already complete", file=str(folder / "manifest.json"),
-                        field="status", fix="nothing to resume; start a new campaign with a new --out folder")
     rig_kind = (manifest.get("rig") or {}).get("kind", "dry-run")
     kwargs.setdefault("dry_run", rig_kind == "dry-run")
     return run_campaign(protocol, folder, resume=True, **kwargs)

@@ -46,8 +46,12 @@ class MarlinDriver(LineProtocol):
     @classmethod
     def open(cls, url: str, baud_rate: int = 115200, **kwargs) -> "MarlinDriver":
         """A driver on a port name or pyserial URL (`/dev/ttyUSB0`, `/dev/pts/3`, `loop://`, `socket://h:p`)."""
+        import os
+
         import serial
 
+        if "://" not in url and not os.path.exists(url):
+            raise E.PortMissing("the device does not exist", port=url)
         try:
             port = serial.serial_for_url(url, baudrate=baud_rate, timeout=0.02, do_not_open=True)
         except (ValueError, serial.SerialException) as exc:

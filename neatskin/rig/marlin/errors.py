@@ -45,6 +45,19 @@ class PortDead(MarlinError):
     fix = "check the USB cable and the port name, then reconnect"
 
 
+class PortMissing(PortDead):
+    """The port never opened: no such device. Nothing was sent, so the probe has not moved."""
+
+    what = "no serial port"
+    consequence = "nothing was sent"
+    fix = "check the port name (ls /dev/ttyUSB* /dev/ttyACM*) and that the printer is plugged in and powered"
+
+    def __init__(self, detail: str, *, port: str | None = None, **kwargs) -> None:
+        MarlinError.__init__(self, detail, port=port)
+        # a port that never opened has no session: say only what is wrong and how to fix it
+        Exception.__init__(self, f"{self.what} {port!r}: {detail}; {self.consequence} (fix: {self.fix})")
+
+
 class NoAnswer(MarlinError):
     what = "the printer does not answer"
     fix = "check that the port is the printer's, the baud rate matches the firmware, and the printer is powered"
