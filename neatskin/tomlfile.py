@@ -8,8 +8,8 @@ from pathlib import Path
 from neatskin.errors import ConfigError
 
 
-def read_toml(path: str | Path, what: str, fix: str = "check the path (relative paths are resolved from the "
-              "protocol file's folder)") -> dict:
+def read_toml(path: str | Path, what: str, fix: str = "check the path (the paths in a protocol's [files] are "
+              "relative to the protocol file's folder; on the command line, to the current folder)") -> dict:
     """Parse a TOML file; a missing file or a syntax error is one ConfigError naming the file (and the line)."""
     path = Path(path)
     try:

@@ -8,6 +8,7 @@ returns a frozen `GcodeSpec`; every problem in those sections is reported in one
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -69,8 +70,10 @@ def press_spec_from_dict(data: dict, source: str = "<memory>", base_dir: str | P
             paths[key] = (base / value) if not Path(value).is_absolute() else Path(value)
     for tname, tab, known in (("positions", positions, POSITION_KEYS), ("press", press, PRESS_KEYS)):
         for key in sorted(set(tab) - known):
+            close = difflib.get_close_matches(key, sorted(known), n=1)
             problems.append(Problem(f"unknown key '{key}'", source, f"{tname}.{key}",
-                                    f"remove it or use one of: {', '.join(sorted(known))}"))
+                                    f"did you mean '{close[0]}'?" if close
+                                    else f"remove it or use one of: {', '.join(sorted(known))}"))
     for tname, tab, key, fix in (("positions", positions, "strategy", 'set strategy = "paper", "stratified" or "grid"'),
                                  ("positions", positions, "count", "set count to the number of distinct positions"),
                                  ("press", press, "depth_mm", "set depth_mm (below the skin's top surface; 3.5 in the paper)"),
