@@ -81,13 +81,21 @@ def plot_error_ellipses(
             ax.plot([t[0], m[0]], [t[1], m[1]], color="black" if hit else "tab:red", lw=0.8)
             ax.plot(m[0], m[1], ".", color="tab:green", ms=3)
         ax.set_aspect("equal")
-        ax.set_title(f"{r.model} ({r.split}): {r.errors.mean_error_mm:.2f} mm", fontsize=9)
+        # one view for every panel: the pressed area and a probe diameter around it, so panels compare;
+        # a mean prediction that lands outside is drawn to the edge and counted in the title
+        lo = ell.true_mm.min(axis=0) - 2 * PROBE_RADIUS_MM
+        hi = ell.true_mm.max(axis=0) + 2 * PROBE_RADIUS_MM
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
+        outside = int(np.sum(np.any((ell.mean_pred_mm[keep] < lo) | (ell.mean_pred_mm[keep] > hi), axis=1)))
+        note = f", {outside} mean(s) off the view" if outside else ""
+        ax.set_title(f"{r.model} ({r.split}): {r.errors.mean_error_mm:.2f} mm{note}", fontsize=9)
         ax.set_xlabel("x (mm)")
         ax.set_ylabel("y (mm)")
-        ax.autoscale_view()
     for ax in axes.ravel()[n:]:
         ax.axis("off")
-    fig.suptitle("Mean prediction per position, 1-std ellipse (green), probe radius (blue); red: mean outside probe",
+    fig.suptitle("Per position: probe radius at the true position (blue), mean prediction (green dot) with its 1-std "
+                 "ellipse (green);\nline from truth to mean: black inside the probe radius, red outside",
                  fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
