@@ -251,3 +251,20 @@ def test_driver_over_socket_url(profile):
         stop.set()
         thread.join(timeout=2)
         server.close()
+
+
+def test_vectorised_positions_equal_the_timeline(protocols_dir):
+    """positions_mm (the dry run's DAQ clock) gives what Timeline.position_mm gives, time by time."""
+    import numpy as np
+
+    from neatskin.gcode.profile import load_printer_profile
+    from neatskin.rig.marlin.simmotion import Timeline, positions_mm
+
+    timeline = Timeline(load_printer_profile(protocols_dir / "printers" / "paper.toml"), (0.0, 0.0, 0.0))
+    timeline.add_homing(0.0, (0.0, 0.0, 10.0), 2.0)
+    for target, feed in (((100.0, 100.0, 15.5), 100.0), ((100.0, 100.0, 5.5), 5.0), ((100.0, 100.0, 2.0), 2.0),
+                         ((100.0, 100.0, 2.0), 2.0), ((130.0, 95.0, 15.5), 50.0)):
+        timeline.add_move(timeline.end_s + 0.25, target, feed)
+    times = np.sort(np.random.default_rng(5).uniform(-1.0, timeline.end_s + 1.0, 2000))
+    expected = np.array([timeline.position_mm(t) for t in times])
+    np.testing.assert_allclose(positions_mm(timeline.segments, times), expected, rtol=0, atol=1e-9)

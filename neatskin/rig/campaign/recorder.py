@@ -25,6 +25,7 @@ import numpy as np
 from neatskin.acquisition.demod import demodulate
 from neatskin.acquisition.estimates import PairEstimates
 from neatskin.errors import HardwareError
+from neatskin.rig.marlin.simmotion import positions_mm
 
 PRESS_SLOT_S = 1000.0  # each press owns [press_id * slot, (press_id + 1) * slot) of the dry run's sample clock
 STREAM_DAQ = 1
@@ -45,44 +46,6 @@ class PressRecord:
     fsr_v: np.ndarray | None = None
     waveforms: dict[str, np.ndarray] | None = field(default=None, repr=False)
     fsr_rate_hz: float | None = None  # rate of fsr_v (the DAQ rate unless decimated)
-
-
-def trajectory_mm(segments, times_s: np.ndarray) -> np.ndarray:
-    """Probe position (times, 3) along a printer's move segments (rest-to-rest trapezoids), vectorised.
-
-    `segments` are the simulated printer's moves in time order (t0_s, t1_s, p0_mm, p1_mm,
-    feed_mm_s, accel_mm_s2, linear); between moves the probe rests where the last one ended.
-    """
-    times_s = np.asarray(times_s, dtype=float)
-    out = np.empty(times_s.shape + (3,))
-    if not segments:
-        out[:] = np.nan
-        return out
-    t0s = np.array([seg.t0_s for seg in segments])
-    index = np.searchsorted(t0s, times_s, side="right") - 1
-    out[index < 0] = segments[0].p0_mm
-    for k in np.unique(index[index >= 0]):
-        seg = segments[k]
-        mask = index == k
-        p0, p1 = np.asarray(seg.p0_mm, float), np.asarray(seg.p1_mm, float)
-        length = float(np.linalg.norm(p1 - p0))
-        tau = np.clip(times_s[mask] - seg.t0_s, 0.0, None)
-        duration = seg.t1_s - seg.t0_s
-        if length == 0 or duration <= 0:
-            frac = np.ones_like(tau)
-        elif seg.linear:
-            frac = np.minimum(tau / duration, 1.0)
-        else:
-            a = seg.accel_mm_s2
-            v = min(seg.feed_mm_s, float(np.sqrt(a * length)))
-            t_a, d_a = v / a, v * v / (2 * a)
-            t_c = max(0.0, (length - 2 * d_a) / v)
-            td = np.clip(tau - t_a - t_c, 0.0, t_a)
-            dist = np.where(tau < t_a, 0.5 * a * tau * tau,
-                            np.where(tau < t_a + t_c, d_a + v * (tau - t_a), d_a + v * t_c + v * td - 0.5 * a * td * td))
-            frac = np.minimum(dist, length) / length
-        out[mask] = p0 + frac[:, None] * (p1 - p0)
-    return out
 
 
 class DryProbe:
@@ -110,7 +73,7 @@ class DryProbe:
     def state(self, times_s: np.ndarray) -> np.ndarray:
         """(times, 3): sensor x, y and depth below the surface (mm), rounded to 1 nm (G-code resolution is 1 um)."""
         printer_t = (np.asarray(times_s, dtype=float) - self._daq_t0) + self._printer_t0
-        xyz = trajectory_mm(self._segments, printer_t)
+        xyz = positions_mm(self._segments, printer_t)
         sx, sy = self.calibration.to_sensor(xyz[:, 0], xyz[:, 1])
         state = np.stack([np.asarray(sx, float) + self._offset[0], np.asarray(sy, float) + self._offset[1],
                           self.surface_z_mm - xyz[:, 2]], axis=1)

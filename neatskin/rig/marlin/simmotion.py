@@ -12,6 +12,8 @@ import bisect
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from neatskin.gcode.motion import limited_feed_and_accel, trapezoid_time_s
 from neatskin.gcode.profile import PrinterProfile
 
@@ -127,3 +129,39 @@ class Timeline:
         if i < 0:
             return self.segments[0].p0_mm if self.segments else self.start_mm
         return self.segments[i].position_mm(t_s)
+
+
+def positions_mm(segments, times_s: np.ndarray) -> np.ndarray:
+    """Probe position (times, 3) along `segments` (in time order), vectorised over many times:
+    `Segment.position_mm` / `Timeline.position_mm` for a whole acquisition's sample clock at once.
+    Between moves the probe rests where the last one ended."""
+    times_s = np.asarray(times_s, dtype=float)
+    out = np.empty(times_s.shape + (3,))
+    if not segments:
+        out[:] = np.nan
+        return out
+    t0s = np.array([seg.t0_s for seg in segments])
+    index = np.searchsorted(t0s, times_s, side="right") - 1
+    out[index < 0] = segments[0].p0_mm
+    for k in np.unique(index[index >= 0]):
+        seg = segments[k]
+        mask = index == k
+        p0, p1 = np.asarray(seg.p0_mm, float), np.asarray(seg.p1_mm, float)
+        length = float(np.linalg.norm(p1 - p0))
+        tau = np.clip(times_s[mask] - seg.t0_s, 0.0, None)
+        duration = seg.t1_s - seg.t0_s
+        if length == 0 or duration <= 0:
+            frac = np.ones_like(tau)
+        elif seg.linear:
+            frac = np.minimum(tau / duration, 1.0)
+        else:
+            a = seg.accel_mm_s2
+            v = min(seg.feed_mm_s, float(np.sqrt(a * length)))
+            t_a, d_a = v / a, v * v / (2 * a)
+            t_c = max(0.0, (length - 2 * d_a) / v)
+            td = np.clip(tau - t_a - t_c, 0.0, t_a)
+            dist = np.where(tau < t_a, 0.5 * a * tau * tau,
+                            np.where(tau < t_a + t_c, d_a + v * (tau - t_a), d_a + v * t_c + v * td - 0.5 * a * td * td))
+            frac = np.minimum(dist, length) / length
+        out[mask] = p0 + frac[:, None] * (p1 - p0)
+    return out
