@@ -167,3 +167,13 @@ def test_resume_refuses_changed_inputs(tmp_path):
     problem = info.value.problems[0]
     assert problem.field == "protocol" and "not the file this campaign started with" in problem.message
     assert sorted((folder / "presses").glob("part-*.parquet")) == parts
+
+
+def test_depth_beyond_the_skin_is_one_error(protocols):
+    """Too deep is the depth's fault, not the calibration's: one problem, naming press.depth_mm."""
+    path = protocols / "smoke.toml"
+    edit(path, "depth_mm = 3.5", "depth_mm = 8.0")
+    with pytest.raises(ConfigError) as info:
+        load_protocol(path)
+    assert [p.field for p in info.value.problems] == ["press.depth_mm"]
+    assert "set depth_mm <= 5" in info.value.problems[0].fix

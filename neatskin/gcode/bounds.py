@@ -44,7 +44,7 @@ def check_press_plan(profile: PrinterProfile, printer_x_mm: np.ndarray, printer_
         problems.append(Problem(f"safe travel height z = {z_safe:g} mm is above the z soft limit "
                                 f"{profile.soft_max_mm.z:g} mm", profile.source, "motion.safe_height_mm",
                                 "lower safe_height_mm or check calibration.surface_z_mm"))
-    if z_press < profile.soft_min_mm.z:
+    if z_press < profile.soft_min_mm.z and 0 < depth_mm <= limit:  # a depth past the skin is reported above
         problems.append(Problem(f"press depth reaches z = {z_press:g} mm, below the z soft limit "
                                 f"{profile.soft_min_mm.z:g} mm", profile.source, "calibration.surface_z_mm",
                                 "re-measure surface_z_mm (the skin's top surface in printer z) or lower depth_mm"))
