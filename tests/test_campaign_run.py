@@ -112,3 +112,20 @@ def test_a_pandas_round_trip_still_validates(smoke_run, tmp_path):
     df.to_parquet(copy / "presses.parquet", index=False)
     problems = validate_dataset(copy)
     assert len(problems) == 1 and problems[0].field == "dR_ohm_1_2" and "NaN" in problems[0].message
+
+
+def test_dataset_info_says_whether_the_dataset_is_valid(smoke_run, tmp_path, capsys):
+    import shutil
+
+    from neatskin.cli import main
+
+    _, _, folder = smoke_run
+    assert main(["dataset", "info", str(folder)]) == 0
+    assert "validation            valid" in capsys.readouterr().out
+    copy = tmp_path / "copy"
+    shutil.copytree(folder, copy)
+    df = pd.read_parquet(copy / "presses.parquet")
+    df.loc[0, "x_mm"] = np.nan
+    df.to_parquet(copy / "presses.parquet", index=False)
+    assert main(["dataset", "info", str(copy)]) == 0
+    assert "1 problem(s), e.g. 1 NaN/null value(s) in 'x_mm'" in capsys.readouterr().out

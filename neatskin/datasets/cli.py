@@ -58,7 +58,12 @@ def register(subparsers) -> None:
 def _info(args: argparse.Namespace) -> int:
     from neatskin.datasets.curate import describe, format_description
 
+    from neatskin.datasets.validate import validate_dataset
+
     info = describe(args.path)
+    problems = validate_dataset(args.path, allow_flagged=True)
+    info["validation"] = "valid" if not problems else (
+        f"{len(problems)} problem(s), e.g. {problems[0].message} (details: neatskin dataset validate {args.path})")
     print(json.dumps(info, indent=2, default=str) if args.json else format_description(info))
     return 0
 
