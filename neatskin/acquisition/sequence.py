@@ -135,7 +135,7 @@ def build_sweep(wiring: Wiring, timing: SweepTiming = SweepTiming(), order: str 
     n_slots = len(visit)
     chip = np.array([r.chip for r in wiring.routes], dtype=np.intp)
     address = np.array([r.address for r in wiring.routes], dtype=np.intp)
-    b, s, live = timing.break_samples, timing.settle_samples, timing.live_samples
+    b, s = timing.break_samples, timing.settle_samples
     slot_len = timing.slot_samples
     n = n_slots * slot_len
     slot_of_sample = np.repeat(np.arange(n_slots), slot_len)

@@ -52,12 +52,12 @@ class DryProbe:
     """The simulated skin and force as the DAQ sees them, at the probe state the simulated printer's
     trajectory gives at each sample time (sensor frame, depth below the skin surface)."""
 
-    def __init__(self, skin, calibration, segments_between: Callable[[float, float], list],
+    def __init__(self, skin, calibration, segments_from: Callable[[float], list],
                  placement_error: Callable[[int], tuple[float, float]] | None = None, surface_error_mm: float = 0.0):
         self.skin = skin
         self.surface_z_mm = calibration.surface_z_mm - surface_error_mm
         self.calibration = calibration
-        self.segments_between = segments_between
+        self.segments_from = segments_from  # the printer's moves from the one the probe rests after at t
         self.placement_error = placement_error
         self._baseline = np.asarray(skin.baseline_pair_resistance_ohm, dtype=float)
         self._segments: list = []
@@ -65,8 +65,8 @@ class DryProbe:
         self._printer_t0 = self._daq_t0 = 0.0
 
     def load(self, press_id: int, printer_t0_s: float, daq_t0_s: float, duration_s: float) -> None:
-        """Take the printer's moves over [t0, t0 + duration] for this press."""
-        self._segments = self.segments_between(printer_t0_s, printer_t0_s + duration_s)
+        """Take the printer's moves from t0 on for this press (the recording spans [t0, t0 + duration])."""
+        self._segments = self.segments_from(printer_t0_s)
         self._printer_t0, self._daq_t0 = printer_t0_s, daq_t0_s
         self._offset = self.placement_error(press_id) if self.placement_error is not None else (0.0, 0.0)
 

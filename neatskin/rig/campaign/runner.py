@@ -102,7 +102,7 @@ def run_campaign(protocol: Protocol, folder: str | Path, *, dry_run: bool = True
                  report: bool = True, printer_faults=None, connect_timeout_s: float | None = None
                  ) -> CampaignResult:
     """Run (or resume) a campaign into `folder`; returns what was done."""
-    from neatskin.datasets.manifest import create_manifest, read_manifest, update_manifest, utc_now_iso
+    from neatskin.datasets.manifest import create_manifest, update_manifest, utc_now_iso
     from neatskin.datasets.writer import CampaignWriter
 
     folder = Path(folder)
@@ -350,10 +350,7 @@ def resume_campaign(folder: str | Path, **kwargs) -> CampaignResult:
     from neatskin.datasets.manifest import read_manifest
 
     folder = Path(folder)
-    try:
-        manifest = read_manifest(folder)
-    except DataError:
-        raise
+    manifest = read_manifest(folder)
     if manifest.get("status") == "complete":
         report = "" if (folder / "report.md").exists() else f"; for its baseline report: neatskin baselines {folder}"
         raise DataError(f"campaign {folder} is already complete: every press is on disk", file=str(folder / "manifest.json"),

@@ -77,10 +77,7 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
             dx, dy = placement_error_mm(0.0, 0.0, scene.placement_error_mm, rng)
             return float(np.asarray(dx).reshape(-1)[0]), float(np.asarray(dy).reshape(-1)[0])
 
-    def segments_between(t0_s: float, t1_s: float) -> list:
-        return printer.segments(t0_s)
-
-    probe = DryProbe(skin, calibration, segments_between, placement_error=placement,
+    probe = DryProbe(skin, calibration, printer.segments, placement_error=placement,
                      surface_error_mm=scene.surface_error_mm)
     noise = NoiseModel() if scene.noise else NoiseModel.none()
     daq = SimulatedDAQ(daq_config(protocol), probe.pair_resistance_ohm, probe.force_n, noise=noise)
