@@ -20,7 +20,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from neatskin.acquisition.daq.base import DaqConfig  # noqa: E402
-from neatskin.acquisition.daq.simulated import NoiseModel, SimulatedDAQ  # noqa: E402
+from neatskin.sim.daq import NoiseModel, SimulatedDAQ  # noqa: E402
 from neatskin.acquisition.demod import demodulate  # noqa: E402
 from neatskin.acquisition.features import features_from_acquisition  # noqa: E402
 from neatskin.acquisition.sequence import SweepTiming, build_sweep  # noqa: E402

@@ -4,7 +4,7 @@ Usage:
     python benchmarks/bench_baselines.py [DATASET] [--scipy-max-nfev N] [--skip-scipy] [--seed S]
 
 DATASET is a campaign folder (e.g. a dry run of protocols/paper.toml); without it a synthetic
-2,800 x 28 table (100 positions x 28 repeats, see neatskin.datasets.baselines.synthetic) is used.
+2,800 x 28 table (100 positions x 28 repeats, see neatskin.skin.synthetic) is used.
 
 Part 1: each model fit once on the paper's split (95 % + 3 % rows train, 2 % test) and once on a
 grouped hold-out (20 % of positions); mean error and fit time.
@@ -19,25 +19,27 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from pathlib import Path
 import warnings
 
 import numpy as np
 from sklearn.model_selection import GroupShuffleSplit
 
-from neatskin.datasets.baselines.evaluate import paper_split
-from neatskin.datasets.baselines.lm import LMNetworkRegressor, fit_with_scipy_lm, forward, train_lm
-from neatskin.datasets.baselines.metrics import position_errors
-from neatskin.datasets.baselines.models import make_models
+from neatskin.baselines.evaluate import paper_split
+from neatskin.baselines.lm import LMNetworkRegressor, fit_with_scipy_lm, forward, train_lm
+from neatskin.baselines.metrics import position_errors
+from neatskin.baselines.models import make_models
 
 
 def load(dataset: str | None):
     if dataset is None:
-        from neatskin.datasets.baselines.synthetic import synthetic_presses
+        from neatskin.layout import load_layout
+        from neatskin.skin.synthetic import synthetic_presses
 
-        df = synthetic_presses(100, 28, noise_ohm=1.0, seed=0)
+        df = synthetic_presses(load_layout(Path(__file__).resolve().parents[1] / "protocols/skins/paper.toml"), 100, 28, noise_ohm=1.0, seed=0)
         return "synthetic 100 positions x 28 repeats", df.filter(like="dR_ohm").to_numpy(), \
             df[["x_mm", "y_mm"]].to_numpy(), df["position_id"].to_numpy()
-    from neatskin.datasets.baselines.dataset import load_baseline_data
+    from neatskin.baselines.dataset import load_baseline_data
 
     data = load_baseline_data(dataset)
     return dataset, data.X, data.y, data.groups

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from neatskin.rig.campaign.protocol import load_protocol
-from neatskin.rig.campaign.runner import run_campaign
+from neatskin.rig.protocol import load_protocol
+from neatskin.rig.runner import run_campaign
 
 REPO = Path(__file__).resolve().parent.parent
 SCENES = {

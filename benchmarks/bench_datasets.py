@@ -20,7 +20,7 @@ import numpy as np
 
 from neatskin.datasets.manifest import create_manifest
 from neatskin.datasets.reader import read_presses
-from neatskin.datasets.synthetic import synthetic_rows
+from neatskin.skin.synthetic import synthetic_rows
 from neatskin.datasets.validate import validate_dataset
 from neatskin.datasets.writer import CampaignWriter
 from neatskin.layout import load_layout

@@ -27,10 +27,10 @@ sys.path.insert(0, str(REPO))
 
 from neatskin.gcode.parse import checksum  # noqa: E402
 from neatskin.gcode.profile import load_printer_profile  # noqa: E402
-from neatskin.rig.marlin.driver import DriverConfig, MarlinDriver  # noqa: E402
-from neatskin.rig.marlin.pty import open_pty, read_available, write_all  # noqa: E402
-from neatskin.rig.marlin.simcore import MarlinCore  # noqa: E402
-from neatskin.rig.marlin.simprinter import SimulatedPrinter  # noqa: E402
+from neatskin.marlin.driver import DriverConfig, MarlinDriver  # noqa: E402
+from neatskin.sim.pty import open_pty, read_available, write_all  # noqa: E402
+from neatskin.sim.firmware import MarlinCore  # noqa: E402
+from neatskin.sim.printer import SimulatedPrinter  # noqa: E402
 
 CONFIG = DriverConfig(boot_timeout_s=0.05, motion_time_scale=0.0)
 
@@ -65,7 +65,7 @@ class EchoPeer:
 
 ECHO_SCRIPT = """
 import sys
-from neatskin.rig.marlin.pty import open_pty, read_available, write_all
+from neatskin.sim.pty import open_pty, read_available, write_all
 pty = open_pty()
 print(pty.path, flush=True)
 pending = b""
@@ -166,8 +166,8 @@ def step_costs(profile) -> dict[str, float]:
     import timeit
 
     from neatskin.gcode.parse import parse_line
-    from neatskin.rig.marlin.deadlines import MotionTracker
-    from neatskin.rig.marlin.replies import classify, frame
+    from neatskin.marlin.deadlines import MotionTracker
+    from neatskin.marlin.replies import classify, frame
 
     tracker = MotionTracker(profile)
     tracker.line_time_s("G28")

@@ -24,10 +24,10 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from neatskin.layout import load_layout  # noqa: E402
-from neatskin.rig.skin.deformation import PinchParams, resistance_factor  # noqa: E402
-from neatskin.rig.skin.layouts import grid_layout  # noqa: E402
-from neatskin.rig.skin.model import SkinModel  # noqa: E402
-from neatskin.rig.skin.network import equivalent_resistance  # noqa: E402
+from neatskin.skin.deformation import PinchParams, resistance_factor  # noqa: E402
+from neatskin.skin.layouts import grid_layout  # noqa: E402
+from neatskin.skin.model import SkinModel  # noqa: E402
+from neatskin.skin.network import equivalent_resistance  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 

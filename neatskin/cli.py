@@ -14,13 +14,14 @@ from neatskin import __version__
 from neatskin.errors import NeatskinError
 
 COMMAND_MODULES = (
-    "neatskin.rig.skin.cli",
+    "neatskin.skin.cli",
     "neatskin.gcode.cli",
-    "neatskin.rig.marlin.cli",
+    "neatskin.marlin.cli",
+    "neatskin.sim.cli",
     "neatskin.acquisition.cli",
-    "neatskin.rig.campaign.cli",
+    "neatskin.rig.cli",
     "neatskin.datasets.cli",
-    "neatskin.datasets.baselines.cli",
+    "neatskin.baselines.cli",
 )
 
 

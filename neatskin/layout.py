@@ -147,6 +147,16 @@ class Layout:
         area_m2 = np.array([c.area_mm2 for c in self.channels]) * 1e-6
         return self.resistivity_ohm_m * length_m / area_m2
 
+    def distance_to_channels_mm(self, xy_mm: np.ndarray) -> np.ndarray:
+        """(points, 2) -> (points, channels): distance from each point to each channel's centre-line segment."""
+        pts = np.asarray(xy_mm, dtype=float).reshape(-1, 2)
+        a = self.xy_mm[self.channel_ends[:, 0]]
+        b = self.xy_mm[self.channel_ends[:, 1]]
+        ab = b - a
+        t = np.einsum("pcj,cj->pc", pts[:, None, :] - a[None], ab) / np.sum(ab * ab, axis=1)
+        closest = a[None] + np.clip(t, 0.0, 1.0)[..., None] * ab[None]
+        return np.linalg.norm(pts[:, None, :] - closest, axis=2)
+
     @cached_property
     def bounds_mm(self) -> tuple[float, float, float, float]:
         """(x_min, y_min, x_max, y_max) of the junctions."""
@@ -189,8 +199,9 @@ class Layout:
 
 def load_layout(path: str | Path) -> Layout:
     """Load and validate a layout TOML file; every error names the file and the field."""
-    from neatskin.tomlfile import read_toml
+    from neatskin.tomlfile import read_toml, resolve_path
 
+    path = resolve_path(path)
     return layout_from_dict(read_toml(path, "layout file"), source=str(path))
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from neatskin.acquisition.daq.base import DaqConfig
-from neatskin.acquisition.daq.simulated import NoiseModel, SimulatedDAQ
+from neatskin.sim.daq import NoiseModel, SimulatedDAQ
 from neatskin.acquisition.demod import demodulate, window_counts
 from neatskin.acquisition.estimates import PairFlag, flag_names
 from neatskin.acquisition.sequence import SweepTiming, build_sweep
@@ -224,7 +224,7 @@ def test_per_sample_resistance_follows_a_ramp(sweep):
 
 
 def test_estimator_moments_closed_form(sweep):
-    from neatskin.acquisition.daq.simulated import effective_noise_var, estimator_moments
+    from neatskin.sim.daq import effective_noise_var, estimator_moments
     cfg = DaqConfig()
     noise = NoiseModel(voltage_noise_v=0.3, current_noise_a=3e-5, quantise=False)
     r = R_TRUE[None, :]

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from neatskin.acquisition.daq.base import DaqConfig
-from neatskin.acquisition.daq.simulated import NoiseModel, SimulatedDAQ
+from neatskin.sim.daq import NoiseModel, SimulatedDAQ
 from neatskin.acquisition.estimates import PairFlag
 from neatskin.acquisition.features import features_from_acquisition, press_features
 from neatskin.acquisition.sequence import build_sweep

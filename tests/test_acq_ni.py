@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from neatskin.acquisition.daq import DaqConfig, open_daq
+from neatskin.acquisition.daq import DaqConfig
+from neatskin.rig.assembly import open_daq
 from neatskin.acquisition.daq.nidaqmx_backend import IDLE_TAIL_SAMPLES, line_bits, pack_lines, plan_acquisition
 from neatskin.acquisition.demod import demodulate
 from neatskin.acquisition.sequence import build_sweep

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
-from neatskin.datasets.baselines.lm import (
+from neatskin.baselines.lm import (
     LMNetworkRegressor,
     fit_with_scipy_lm,
     forward,

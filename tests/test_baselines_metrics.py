@@ -5,9 +5,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from neatskin.datasets.baselines.crb import cramer_rao_bound_mm
-from neatskin.datasets.baselines.evaluate import grouped_folds, paper_split, split_folds
-from neatskin.datasets.baselines.metrics import error_ellipses, position_errors
+from neatskin.baselines.crb import cramer_rao_bound_mm
+from neatskin.baselines.evaluate import grouped_folds, paper_split, split_folds
+from neatskin.baselines.metrics import error_ellipses, position_errors
 from neatskin.errors import DataError
 
 

@@ -10,11 +10,12 @@ import pyarrow.parquet as pq
 import pytest
 
 from neatskin.cli import main
-from neatskin.datasets.baselines.dataset import load_baseline_data
-from neatskin.datasets.baselines.evaluate import evaluate_model
-from neatskin.datasets.baselines.models import MODEL_NAMES, make_model, make_models
-from neatskin.datasets.baselines.report import run_baselines
-from neatskin.datasets.baselines.synthetic import synthetic_presses
+from neatskin.baselines.dataset import load_baseline_data
+from neatskin.baselines.evaluate import evaluate_model
+from neatskin.baselines.models import MODEL_NAMES, make_model, make_models
+from neatskin.baselines.report import run_baselines
+from neatskin.layout import load_layout
+from neatskin.skin.synthetic import synthetic_presses
 from neatskin.errors import DataError
 
 REPO = Path(__file__).resolve().parent.parent
@@ -34,7 +35,7 @@ def write_dataset(folder: Path, df: pd.DataFrame, layout: bool = False, crb_mm: 
 
 
 def small_table(n_positions=12, repeats=4, seed=0) -> pd.DataFrame:
-    df = synthetic_presses(n_positions, repeats, seed=seed)
+    df = synthetic_presses(load_layout(REPO / "protocols" / "skins" / "paper.toml"), n_positions, repeats, seed=seed)
     df.insert(0, "campaign", "synthetic")
     return df
 
@@ -201,7 +202,7 @@ def smoke_dry_run(tmp_path_factory):
 
 
 def test_on_a_dry_run_dataset_the_grouped_folds_keep_positions_apart(smoke_dry_run):
-    from neatskin.datasets.baselines.evaluate import grouped_folds
+    from neatskin.baselines.evaluate import grouped_folds
 
     data = load_baseline_data(smoke_dry_run)
     assert data.X.shape == (12, 28) and data.layout is not None and data.physical_limit is not None

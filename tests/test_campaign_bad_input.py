@@ -8,8 +8,8 @@ import pytest
 
 from neatskin.cli import main
 from neatskin.errors import ConfigError, HardwareError
-from neatskin.rig.campaign.protocol import load_protocol
-from neatskin.rig.campaign.runner import run_campaign
+from neatskin.rig.protocol import load_protocol
+from neatskin.rig.runner import run_campaign
 
 from conftest import PROTOCOLS
 
@@ -85,7 +85,7 @@ def test_out_of_bounds_refused_before_motion(protocols, tmp_path):
 def test_short_hold_refused(protocols):
     edit(protocols / "smoke.toml", "hold_s = 1.2", "hold_s = 0.3")
     protocol = load_protocol(protocols / "smoke.toml")
-    from neatskin.rig.campaign.runner import build_plan
+    from neatskin.rig.runner import build_plan
 
     with pytest.raises(ConfigError) as info:
         build_plan(protocol)
@@ -116,7 +116,7 @@ def test_missing_daq_is_one_clear_error(tmp_path, capsys):
     except ImportError:
         pass
     from neatskin.gcode.profile import load_printer_profile
-    from neatskin.rig.marlin.simprinter import SimulatedPrinter
+    from neatskin.sim.printer import SimulatedPrinter
 
     printer = SimulatedPrinter(load_printer_profile(PROTOCOLS / "printers" / "paper.toml"))
     port = printer.start_pty()
@@ -156,7 +156,7 @@ def test_port_that_does_not_exist(tmp_path, capsys):
 def test_resume_refuses_changed_inputs(tmp_path):
     """A seed edited in the campaign's own copy of the protocol would mix two campaigns: refused, nothing moves."""
     from neatskin.errors import DataError
-    from neatskin.rig.campaign.runner import resume_campaign
+    from neatskin.rig.runner import resume_campaign
 
     folder = tmp_path / "run"
     run_campaign(load_protocol(PROTOCOLS / "smoke.toml"), folder, dry_run=True, progress=False, report=False, limit=3)

@@ -12,8 +12,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from neatskin.rig.campaign.protocol import load_protocol
-from neatskin.rig.campaign.runner import resume_campaign, run_campaign
+from neatskin.rig.protocol import load_protocol
+from neatskin.rig.runner import resume_campaign, run_campaign
 
 from conftest import PROTOCOLS
 
@@ -75,8 +75,8 @@ def test_sigkill_then_resume_equals_uninterrupted(kill_protocol, reference, tmp_
 def test_a_noisy_serial_line_changes_nothing_recorded(kill_protocol, reference, tmp_path, preset):
     """Corrupted bytes, lost oks, dropped lines, duplicated replies and busy storms on the pty: every G-code
     line still runs exactly once, so the dataset equals the one recorded over a clean line."""
-    from neatskin.rig.marlin.faults import FaultConfig
-    from neatskin.rig.marlin.wirelog import read_wire_log
+    from neatskin.sim.faults import FaultConfig
+    from neatskin.marlin.wirelog import read_wire_log
 
     folder = tmp_path / "run"
     run_campaign(load_protocol(kill_protocol), folder, dry_run=True, progress=False, report=False,

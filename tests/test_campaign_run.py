@@ -7,9 +7,9 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
-from neatskin.rig.campaign.protocol import load_protocol
-from neatskin.rig.campaign.runner import run_campaign
-from neatskin.rig.skin.network import equivalent_resistance
+from neatskin.rig.protocol import load_protocol
+from neatskin.rig.runner import run_campaign
+from neatskin.skin.network import equivalent_resistance
 
 from conftest import PROTOCOLS
 
@@ -67,7 +67,7 @@ def test_largest_dr_pair_is_the_pressed_channels(smoke_run):
     the one the network solver picks when only that channel's resistance rises."""
     protocol, _, folder = smoke_run
     layout = protocol.layout
-    from neatskin.rig.campaign.runner import build_plan
+    from neatskin.rig.runner import build_plan
 
     features = {b.position_id: b.feature for b in build_plan(protocol).program.presses}
     df = pd.read_parquet(folder / "presses.parquet")

@@ -12,9 +12,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from neatskin.rig.campaign.protocol import load_protocol
-from neatskin.rig.campaign.runner import resume_campaign, run_campaign
-from neatskin.rig.marlin.wirelog import read_wire_log
+from neatskin.rig.protocol import load_protocol
+from neatskin.rig.runner import resume_campaign, run_campaign
+from neatskin.marlin.wirelog import read_wire_log
 
 from conftest import PROTOCOLS
 
@@ -37,7 +37,7 @@ FEATURES = (("waveforms = true", "waveforms = false"), ('signal = "waveforms"', 
 
 
 def test_features_scene_generates_no_waveforms(tmp_path, monkeypatch):
-    from neatskin.acquisition.daq.simulated import SimulatedDAQ
+    from neatskin.sim.daq import SimulatedDAQ
 
     def refuse(*args, **kwargs):
         raise AssertionError("a features-only scene must not generate waveforms")
@@ -50,7 +50,7 @@ def test_features_scene_generates_no_waveforms(tmp_path, monkeypatch):
 
 
 def test_network_scene_skips_the_deformation_integral(tmp_path, monkeypatch):
-    import neatskin.rig.skin.model as model
+    import neatskin.skin.model as model
 
     def refuse(*args, **kwargs):
         raise AssertionError("a network-fidelity scene must not integrate the deformation")
@@ -87,8 +87,8 @@ def test_protocol_without_fsr_says_so(tmp_path):
     assert df.fsr_peak_n.isna().all() and (df.filter(like="dR_ohm_").abs().max(axis=1) > 100).all()
 
 
-PROBE_MODULES = ("nidaqmx", "neatskin.acquisition.daq.nidaqmx_backend", "neatskin.rig.skin.model",
-                 "neatskin.rig.marlin.simprinter", "neatskin.acquisition.daq.simulated")
+PROBE_MODULES = ("nidaqmx", "neatskin.acquisition.daq.nidaqmx_backend", "neatskin.skin.model",
+                 "neatskin.sim.printer", "neatskin.sim.daq")
 
 
 def _modules_after(args, cwd):
@@ -104,7 +104,7 @@ def test_dry_run_never_imports_nidaqmx(tmp_path):
                           "--no-report", "--quiet"], tmp_path)
     loaded = eval(out.stdout.strip().splitlines()[-1])
     assert "nidaqmx" not in loaded and "neatskin.acquisition.daq.nidaqmx_backend" not in loaded
-    assert "neatskin.rig.skin.model" in loaded  # the probe works: the dry run did build its simulator
+    assert "neatskin.skin.model" in loaded  # the probe works: the dry run did build its simulator
 
 
 @pytest.mark.timeout(120)
@@ -121,7 +121,7 @@ def test_real_run_never_builds_a_simulator(tmp_path):
         sim.send_signal(signal.SIGINT)
         sim.wait(10)
     loaded = eval(out.stdout.strip().splitlines()[-1])
-    simulators = {"neatskin.rig.skin.model", "neatskin.rig.marlin.simprinter", "neatskin.acquisition.daq.simulated"}
+    simulators = {"neatskin.skin.model", "neatskin.sim.printer", "neatskin.sim.daq"}
     assert not simulators & set(loaded), loaded
     assert "neatskin.acquisition.daq.nidaqmx_backend" in loaded  # the probe works: the real run reached its DAQ
     assert "neatskin: error:" in out.stderr and "nidaqmx" in out.stderr

@@ -11,7 +11,7 @@ import pytest
 
 from neatskin.datasets import cli
 from neatskin.datasets.manifest import create_manifest, update_manifest
-from neatskin.datasets.synthetic import synthetic_rows
+from neatskin.skin.synthetic import synthetic_rows
 from neatskin.datasets.writer import CampaignWriter
 from neatskin.errors import DataError
 

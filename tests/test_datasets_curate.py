@@ -13,7 +13,7 @@ from neatskin.datasets.curate import describe, export, merge, split, split_posit
 from neatskin.datasets.manifest import create_manifest, update_manifest
 from neatskin.datasets.plots import plot_press_map, plot_sensitivity_map, sensitivity_by_position
 from neatskin.datasets.reader import read_metadata, read_presses
-from neatskin.datasets.synthetic import synthetic_rows
+from neatskin.skin.synthetic import synthetic_rows
 from neatskin.datasets.validate import validate_dataset
 from neatskin.datasets.writer import CampaignWriter
 from neatskin.errors import DataError

@@ -12,7 +12,7 @@ import pandas as pd
 
 from neatskin.datasets.reader import read_presses, read_waveforms
 from neatskin.datasets.writer import CampaignWriter
-from neatskin.datasets.synthetic import synthetic_rows
+from neatskin.skin.synthetic import synthetic_rows
 
 from conftest import PROTOCOLS
 
@@ -23,7 +23,7 @@ WORKER = r"""
 import sys, numpy as np
 from neatskin.layout import load_layout
 from neatskin.datasets.writer import CampaignWriter
-from neatskin.datasets.synthetic import synthetic_rows
+from neatskin.skin.synthetic import synthetic_rows
 layout = load_layout(sys.argv[2])
 rows = synthetic_rows(layout, %d, %d, seed=11)
 writer = CampaignWriter(sys.argv[1], layout.pairs, {"seed": 11, "protocol": {"name": "kill"}}, fsync=True)

@@ -7,7 +7,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from neatskin.datasets.manifest import create_manifest, update_manifest
-from neatskin.datasets.synthetic import synthetic_rows
+from neatskin.skin.synthetic import synthetic_rows
 from neatskin.datasets.validate import check_dataset, validate_dataset
 from neatskin.datasets.writer import CampaignWriter
 from neatskin.errors import DataError

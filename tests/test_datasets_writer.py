@@ -14,7 +14,7 @@ from hypothesis import given, settings, strategies as st
 
 from neatskin.datasets.reader import feature_matrix, read_metadata, read_presses, read_waveforms
 from neatskin.datasets.schema import BASE_COLUMNS, pair_columns, press_schema
-from neatskin.datasets.synthetic import synthetic_rows
+from neatskin.skin.synthetic import synthetic_rows
 from neatskin.datasets.writer import CampaignWriter
 from neatskin.errors import DataError
 

@@ -13,10 +13,10 @@ import pytest
 import serial
 
 from neatskin.errors import HardwareError
-from neatskin.rig.marlin import errors as E
-from neatskin.rig.marlin.driver import DriverConfig, MarlinDriver
-from neatskin.rig.marlin.testing import ScriptedPeer
-from neatskin.rig.marlin.wirelog import read_wire_log
+from neatskin.marlin import errors as E
+from neatskin.marlin.driver import DriverConfig, MarlinDriver
+from neatskin.sim.scripted import ScriptedPeer
+from neatskin.marlin.wirelog import read_wire_log
 
 FAST = DriverConfig(boot_timeout_s=0.5, min_timeout_s=0.4, busy_extension_s=0.6, poll_s=0.01)
 

@@ -16,11 +16,11 @@ import serial
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from neatskin.rig.marlin import errors as E
-from neatskin.rig.marlin.driver import DriverConfig, MarlinDriver
-from neatskin.rig.marlin.faults import FaultConfig
-from neatskin.rig.marlin.replies import PROBE_TAG
-from neatskin.rig.marlin.simprinter import sim_printer_for_tests
+from neatskin.marlin import errors as E
+from neatskin.marlin.driver import DriverConfig, MarlinDriver
+from neatskin.sim.faults import FaultConfig
+from neatskin.marlin.replies import PROBE_TAG
+from neatskin.sim.printer import sim_printer_for_tests
 
 QUICK = DriverConfig(boot_timeout_s=0.1, min_timeout_s=0.12, busy_extension_s=0.5, poll_s=0.01,
                      probe_attempts=8, max_resends=40, motion_time_scale=0.0)

@@ -7,8 +7,8 @@ import time
 import pytest
 
 from neatskin.gcode.profile import load_printer_profile
-from neatskin.rig.marlin.faults import FaultConfig
-from neatskin.rig.marlin.simprinter import SimulatedPrinter
+from neatskin.sim.faults import FaultConfig
+from neatskin.sim.printer import SimulatedPrinter
 
 printcore_module = pytest.importorskip(
     "printrun.printcore", reason="Printrun is not installed: pip install --no-deps printrun==2.2.0 (as the README's test command does)")

@@ -13,12 +13,12 @@ from hypothesis import strategies as st
 from neatskin.gcode.motion import limited_feed_and_accel, trapezoid_time_s
 from neatskin.gcode.parse import checksum
 from neatskin.gcode.profile import load_printer_profile
-from neatskin.rig.marlin import errors as E
-from neatskin.rig.marlin.driver import DriverConfig, MarlinDriver
-from neatskin.rig.marlin.pty import read_available, write_all
-from neatskin.rig.marlin.simcore import MarlinCore
-from neatskin.rig.marlin.simmotion import trapezoid_distance_mm
-from neatskin.rig.marlin.simprinter import SimulatedPrinter
+from neatskin.marlin import errors as E
+from neatskin.marlin.driver import DriverConfig, MarlinDriver
+from neatskin.sim.pty import read_available, write_all
+from neatskin.sim.firmware import MarlinCore
+from neatskin.sim.motion import trapezoid_distance_mm
+from neatskin.sim.printer import SimulatedPrinter
 
 CONFIG = DriverConfig(boot_timeout_s=0.05, min_timeout_s=0.5, poll_s=0.01, motion_time_scale=0.0)
 
@@ -258,7 +258,7 @@ def test_vectorised_positions_equal_the_timeline(protocols_dir):
     import numpy as np
 
     from neatskin.gcode.profile import load_printer_profile
-    from neatskin.rig.marlin.simmotion import Timeline, positions_mm
+    from neatskin.sim.motion import Timeline, positions_mm
 
     timeline = Timeline(load_printer_profile(protocols_dir / "printers" / "paper.toml"), (0.0, 0.0, 0.0))
     timeline.add_homing(0.0, (0.0, 0.0, 10.0), 2.0)

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from neatskin.rig.skin.deformation import PinchParams, nearest_point_factor, pinch_fraction, resistance_factor
-from neatskin.rig.skin.layouts import grid_layout
+from neatskin.skin.deformation import PinchParams, nearest_point_factor, pinch_fraction, resistance_factor
+from neatskin.skin.layouts import grid_layout
 
 PROBE_MM = 2.75
 

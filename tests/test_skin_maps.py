@@ -9,8 +9,8 @@ import pytest
 
 from neatskin.cli import main
 from neatskin.layout import ElectrodePair
-from neatskin.rig.skin.maps import deformation_sensitivity, grid_positions_mm, paper_sensitivity
-from neatskin.rig.skin.model import SkinModel
+from neatskin.skin.maps import deformation_sensitivity, grid_positions_mm, paper_sensitivity
+from neatskin.skin.model import SkinModel
 
 
 @pytest.fixture(scope="module")

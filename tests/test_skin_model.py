@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from neatskin.layout import ElectrodePair
-from neatskin.rig.skin.model import SkinModel, placement_error_mm
+from neatskin.skin.model import SkinModel, placement_error_mm
 
 
 @pytest.fixture(scope="module")

@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from neatskin.layout import ElectrodePair
-from neatskin.rig.skin.layouts import graph_layout, grid_layout
-from neatskin.rig.skin.network import equivalent_resistance
+from neatskin.skin.layouts import graph_layout, grid_layout
+from neatskin.skin.network import equivalent_resistance
 
 
 # ---- exact reference: Fraction Gaussian elimination of the grounded Laplacian --------------
@@ -337,8 +337,8 @@ def test_sparse_path_agrees_with_dense_on_random_networks(net, data):
 def test_auto_keeps_stiff_grids_on_the_exact_path():
     """A 10 x 10 grid (sparse by size) with a 1e12 near-short: auto must give the dense path's answer,
     which the Fraction reference and ngspice confirm; the sparse LU alone is off by ~1e-3 there."""
-    from neatskin.rig.skin.layouts import grid_layout
-    from neatskin.rig.skin.network import DENSE_MAX_JUNCTIONS
+    from neatskin.skin.layouts import grid_layout
+    from neatskin.skin.network import DENSE_MAX_JUNCTIONS
 
     layout = grid_layout(10, 10)
     assert layout.n_junctions > DENSE_MAX_JUNCTIONS

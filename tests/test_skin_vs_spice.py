@@ -22,8 +22,8 @@ import subprocess
 import numpy as np
 import pytest
 
-from neatskin.rig.skin.layouts import grid_layout
-from neatskin.rig.skin.network import equivalent_resistance
+from neatskin.skin.layouts import grid_layout
+from neatskin.skin.network import equivalent_resistance
 
 NGSPICE = shutil.which("ngspice")
 pytestmark = pytest.mark.skipif(NGSPICE is None, reason="ngspice not on PATH (apt-get install ngspice)")

@@ -5,16 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import neatskin
+from neatskin.tomlfile import resolve_path
 
 DEFAULT_WIRING = Path("protocols") / "wiring" / "paper.toml"
-
-
-def _repo_default(relative: Path) -> Path:
-    """A path relative to the working directory, else to the repository holding the package."""
-    if relative.exists():
-        return relative
-    return Path(neatskin.__file__).resolve().parent.parent / relative
 
 
 def register(subparsers) -> None:
@@ -55,6 +48,7 @@ def protocol_settings(path: Path) -> dict:
     from neatskin.errors import ConfigError
     from neatskin.tomlfile import read_toml
 
+    path = resolve_path(path)
     data = read_toml(path, "protocol", fix="check the path")
     out: dict = {}
     wanted = (("files", "wiring", str), ("acquisition", "rate_hz", (int, float)), ("acquisition", "live_samples", int),
@@ -79,7 +73,7 @@ def mux_table(wiring_path: Path | None = None, layout_path: Path | None = None, 
     from neatskin.acquisition.sequence import SweepTiming, build_sweep, check_sweep
     from neatskin.acquisition.wiring import load_wiring, wiring_layout_path
 
-    wiring_path = wiring_path or _repo_default(DEFAULT_WIRING)
+    wiring_path = wiring_path or resolve_path(DEFAULT_WIRING)
     layout_path = layout_path or wiring_layout_path(wiring_path)
     if layout_path is None:
         raise ConfigError("the wiring file names no layout", file=str(wiring_path), field="layout",

@@ -32,7 +32,7 @@ from pathlib import Path
 
 from neatskin.errors import ConfigError, Problem, raise_problems
 from neatskin.layout import ElectrodePair, Layout
-from neatskin.tomlfile import read_toml
+from neatskin.tomlfile import read_toml, resolve_path
 
 ADDRESSES_PER_CHIP = 4
 _PIN_RE = re.compile(r"^([XY])([0-9]+)$")
@@ -129,7 +129,7 @@ def wiring_to_toml(wiring: Wiring, layout_ref: str | None = None, header: str = 
 
 def wiring_layout_path(path: str | Path) -> Path | None:
     """The layout a wiring file names (its `layout` key, relative to the file), or None."""
-    path = Path(path)
+    path = resolve_path(path)
     data = read_toml(path, "wiring file", fix="check the path (protocols/wiring/*.toml)")
     ref = data.get("layout")
     if ref is None:
@@ -142,7 +142,7 @@ def wiring_layout_path(path: str | Path) -> Path | None:
 
 def load_wiring(path: str | Path, layout: Layout) -> Wiring:
     """Load a wiring file and check it against the layout; every mistake is one Problem in one ConfigError."""
-    path = Path(path)
+    path = resolve_path(path)
     data = read_toml(path, "wiring file", fix="check the path (protocols/wiring/*.toml)")
     wiring = wiring_from_dict(data, layout, source=str(path))
     return wiring

@@ -114,7 +114,7 @@ def generate_positions(layout: Layout, spec: PositionSpec) -> PositionSet:
 def classify(layout: Layout, x_mm, y_mm) -> tuple[str, ...]:
     """The feature under each point: the nearest channel whose strip contains it, else the face, else none."""
     pts = np.column_stack([np.asarray(x_mm, float).ravel(), np.asarray(y_mm, float).ravel()])
-    dist = channel_distance_mm(layout, pts)  # (points, channels)
+    dist = layout.distance_to_channels_mm(pts)  # (points, channels)
     half_width = np.array([c.width_mm / 2 for c in layout.channels])
     on = dist <= half_width + 1e-9
     nearest = np.where(on, dist, np.inf).argmin(axis=1)
@@ -131,16 +131,6 @@ def classify(layout: Layout, x_mm, y_mm) -> tuple[str, ...]:
         else:
             labels.append("none")
     return tuple(labels)
-
-
-def channel_distance_mm(layout: Layout, pts: np.ndarray) -> np.ndarray:
-    """Distance from each point to each channel's centre-line segment, shape (points, channels)."""
-    a = layout.xy_mm[layout.channel_ends[:, 0]]
-    b = layout.xy_mm[layout.channel_ends[:, 1]]
-    ab = b - a
-    t = np.einsum("pcj,cj->pc", pts[:, None, :] - a[None], ab) / np.sum(ab * ab, axis=1)
-    closest = a[None] + np.clip(t, 0, 1)[..., None] * ab[None]
-    return np.linalg.norm(pts[:, None, :] - closest, axis=2)
 
 
 # ---- sampling ----------------------------------------------------------------------------
@@ -180,7 +170,7 @@ def _in_face(layout: Layout, rng: np.random.Generator, face: int, n: int) -> np.
         if len(out) >= n:
             break
         cand = lo + rng.random((max(2 * n, 16), 2)) * (hi - lo)
-        keep = poly.contains_points(cand) & np.all(channel_distance_mm(layout, cand) > half_width, axis=1)
+        keep = poly.contains_points(cand) & np.all(layout.distance_to_channels_mm(cand) > half_width, axis=1)
         out = np.vstack([out, cand[keep]])
     if len(out) < n:
         raise ConfigError(f"face {face} has no room off the channels", field="positions",

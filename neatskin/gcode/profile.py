@@ -14,7 +14,7 @@ from types import SimpleNamespace
 
 from neatskin.errors import ConfigError, Problem
 from neatskin.gcode.calibration import Calibration
-from neatskin.tomlfile import read_toml
+from neatskin.tomlfile import read_toml, resolve_path
 
 
 @dataclass(frozen=True)
@@ -65,6 +65,7 @@ class PrinterProfile:
 
 def load_printer_profile(path: str | Path) -> PrinterProfile:
     """Load and validate a printer profile TOML; every problem in the file in one ConfigError."""
+    path = resolve_path(path)
     return printer_profile_from_dict(read_toml(path, "printer profile"), str(path))
 
 

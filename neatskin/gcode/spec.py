@@ -17,7 +17,7 @@ from neatskin.gcode.positions import PositionSpec, generate_positions
 from neatskin.gcode.profile import PrinterProfile, load_printer_profile
 from neatskin.gcode.program import PressProgram, PressSpec, build_program
 from neatskin.layout import Layout, load_layout
-from neatskin.tomlfile import read_toml
+from neatskin.tomlfile import read_toml, resolve_path
 
 POSITION_KEYS = {"strategy", "count", "seed", "min_spacing_mm", "electrode_keep_out_mm", "keep_out",
                  "channel_fraction", "grid_shape"}
@@ -104,6 +104,7 @@ def press_spec_from_dict(data: dict, source: str = "<memory>", base_dir: str | P
 
 
 def load_gcode_spec(path: str | Path) -> GcodeSpec:
+    path = resolve_path(path)
     return press_spec_from_dict(read_toml(path, "protocol", fix="check the path"), str(path))
 
 

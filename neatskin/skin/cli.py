@@ -42,7 +42,7 @@ def press_handler(args: argparse.Namespace) -> int:
 
     from neatskin.errors import ConfigError
     from neatskin.layout import load_layout
-    from neatskin.rig.skin.model import SkinModel
+    from neatskin.skin.model import SkinModel
 
     for name in ("x_mm", "y_mm", "depth_mm", "probe_radius_mm"):
         value = getattr(args, name)
@@ -94,9 +94,9 @@ def write_maps(layout, out_dir: Path, grid_step_mm: float = 0.25, depth_mm: floa
     from tqdm import tqdm
 
     from neatskin import __version__
-    from neatskin.rig.skin.maps import deformation_sensitivity, grid_positions_mm, paper_sensitivity
-    from neatskin.rig.skin.model import SkinModel
-    from neatskin.rig.skin.plots import plot_pairs, plot_z
+    from neatskin.skin.maps import deformation_sensitivity, grid_positions_mm, paper_sensitivity
+    from neatskin.skin.model import SkinModel
+    from neatskin.skin.plots import plot_pairs, plot_z
 
     out_dir.mkdir(parents=True, exist_ok=True)
     reps = layout.pair_class_representatives()

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from neatskin.datasets.baselines.evaluate import ModelResult
-from neatskin.datasets.baselines.metrics import PROBE_RADIUS_MM, error_ellipses
+from neatskin.baselines.evaluate import ModelResult
+from neatskin.baselines.metrics import PROBE_RADIUS_MM, error_ellipses
 
 
 def _pyplot():

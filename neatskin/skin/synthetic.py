@@ -1,9 +1,10 @@
-"""Synthetic press rows for tests, benchmarks and examples: a small resistor-network stand-in for a
-campaign, so the dataset tools can be exercised without the rig (the real physics lives in rig.skin).
+"""Synthetic press rows and tables for tests, benchmarks and examples, on the exact network solver.
 
-A press at (x, y) raises each channel's resistance by `touch` (the paper's +50 %) times a Gaussian of the
-distance from the probe to the channel's centre line; pair resistances follow from the network's
-Laplacian. Deterministic for a given seed and press id.
+A press at (x, y) raises each channel's resistance by `touch` (the paper's +50 %) times a Gaussian
+of the distance from the probe to the channel's centre line (`Layout.distance_to_channels_mm`);
+pair resistances come from the exact solver (`skin.network.equivalent_resistance`). This is a
+stand-in campaign for exercising the dataset and baseline tools without the rig, not the
+deformation model (`skin.model`). Deterministic for a given seed and press id.
 """
 
 from __future__ import annotations
@@ -12,37 +13,15 @@ import datetime as _dt
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from neatskin.layout import Layout
+from neatskin.skin.network import equivalent_resistance
 
 
 def pair_resistance_ohm(layout: Layout, channel_resistance_ohm: np.ndarray) -> np.ndarray:
-    """(n, channels) channel resistances -> (n, pairs) equivalent resistances, via the Laplacian's
-    pseudo-inverse (R_ij = L+_ii + L+_jj - 2 L+_ij)."""
-    g = 1.0 / np.atleast_2d(channel_resistance_ohm)
-    n_j = layout.n_junctions
-    a, b = layout.channel_ends[:, 0], layout.channel_ends[:, 1]
-    lap = np.zeros((g.shape[0], n_j, n_j))
-    rows = np.arange(g.shape[0])[:, None]
-    np.add.at(lap, (rows, a, a), g)
-    np.add.at(lap, (rows, b, b), g)
-    np.add.at(lap, (rows, a, b), -g)
-    np.add.at(lap, (rows, b, a), -g)
-    pinv = np.linalg.pinv(lap)
-    jn = layout.electrode_junctions[layout.pair_electrode_index]  # (pairs, 2) junction indices
-    i, j = jn[:, 0], jn[:, 1]
-    return pinv[:, i, i] + pinv[:, j, j] - 2.0 * pinv[:, i, j]
-
-
-def distance_to_channels_mm(layout: Layout, xy_mm: np.ndarray) -> np.ndarray:
-    """(n, 2) points -> (n, channels) distance to each channel's centre line segment."""
-    p0 = layout.xy_mm[layout.channel_ends[:, 0]]
-    p1 = layout.xy_mm[layout.channel_ends[:, 1]]
-    seg = p1 - p0
-    rel = xy_mm[:, None, :] - p0[None]
-    t = np.clip(np.sum(rel * seg, axis=2) / np.sum(seg * seg, axis=1), 0.0, 1.0)
-    nearest = p0[None] + t[..., None] * seg[None]
-    return np.linalg.norm(xy_mm[:, None, :] - nearest, axis=2)
+    """(n, channels) channel resistances -> (n, pairs) equivalent resistances (exact solver)."""
+    return equivalent_resistance(layout, 1.0 / np.atleast_2d(channel_resistance_ohm))
 
 
 def synthetic_positions_mm(layout: Layout, n_positions: int, seed: int) -> np.ndarray:
@@ -66,7 +45,7 @@ def synthetic_rows(layout: Layout, n_positions: int, repeats: int, *, seed: int 
     CampaignWriter.write_press; R_ohm and dR_ohm given as arrays in layout.pairs order."""
     xy = synthetic_positions_mm(layout, n_positions, seed)
     base_ch = layout.channel_resistance_ohm
-    factor = 1.0 + touch * np.exp(-0.5 * (distance_to_channels_mm(layout, xy) / spread_mm) ** 2)
+    factor = 1.0 + touch * np.exp(-0.5 * (layout.distance_to_channels_mm(xy) / spread_mm) ** 2)
     baseline = pair_resistance_ohm(layout, base_ch[None])[0]
     pressed = pair_resistance_ohm(layout, base_ch[None] * factor)  # (positions, pairs)
     start = start or _dt.datetime(2026, 1, 1, tzinfo=_dt.timezone.utc)
@@ -85,3 +64,17 @@ def synthetic_rows(layout: Layout, n_positions: int, repeats: int, *, seed: int 
                 "flags": [], "R_ohm": r, "dR_ohm": r - baseline,
             })
     return rows
+
+
+def synthetic_presses(layout: Layout, n_positions: int = 100, repeats: int = 28, *, noise_ohm: float = 1.0,
+                      seed: int = 0, depth_mm: float = 3.5) -> pd.DataFrame:
+    """The same presses as a table in the dataset contract's columns (R_ohm_i_j, dR_ohm_i_j per pair)."""
+    rows = synthetic_rows(layout, n_positions, repeats, seed=seed, depth_mm=depth_mm, noise_ohm=noise_ohm)
+    table: dict[str, Any] = {key: [row[key] for row in rows]
+                             for key in ("press_id", "position_id", "repeat", "x_mm", "y_mm", "depth_mm", "flags")}
+    r = np.array([row["R_ohm"] for row in rows])
+    d_r = np.array([row["dR_ohm"] for row in rows])
+    for p, pair in enumerate(layout.pairs):
+        table[f"R_ohm_{pair.i}_{pair.j}"] = r[:, p]
+        table[f"dR_ohm_{pair.i}_{pair.j}"] = d_r[:, p]
+    return pd.DataFrame(table)

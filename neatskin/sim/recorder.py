@@ -1,51 +1,26 @@
-"""Per-press recording: one hardware-timed acquisition of whole sweeps spanning a press, with motion-sync marks.
+"""The dry run's probe and recorder: the simulated skin sampled along the simulated printer's trajectory.
 
-The runner calls `begin` when the probe is parked above the target (after the travel phase's
-M400), `mark(name)` after each later M400 (contact, hold start, hold end, lifted), and `end`
-after the lift. Both recorders return the same `PressRecord`; the rest of the pipeline
-(demodulation, FSR detection, features) never knows which rig it came from.
-
-- `SimulatedRecorder` (dry run): the printer runs on a virtual clock, so the acquisition is
-  computed after the motion from the printer's own trajectory; its sample clock is keyed by
-  the press (press_id * PRESS_SLOT_S), and its random draws by (seed, press_id), so a resumed
-  campaign records bit for bit what an uninterrupted one would have.
-- `ThreadedRecorder` (real rig): the DAQ's finite acquisition runs in a thread while the
-  printer moves; marks are host times mapped onto the sample clock.
+The printer runs on a virtual clock, so the acquisition is computed after the motion from the
+printer's own trajectory; its sample clock is keyed by the press (press_id * PRESS_SLOT_S), and
+its random draws by (seed, press_id), so a resumed campaign records bit for bit what an
+uninterrupted one would have.
 """
 
 from __future__ import annotations
 
-import threading
-import time
-from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
 from neatskin.acquisition.demod import demodulate
-from neatskin.acquisition.estimates import PairEstimates
-from neatskin.errors import HardwareError
-from neatskin.rig.marlin.simmotion import positions_mm
+from neatskin.acquisition.record import PressRecord
+from neatskin.sim.motion import positions_mm
 
 PRESS_SLOT_S = 1000.0  # each press owns [press_id * slot, (press_id + 1) * slot) of the dry run's sample clock
 STREAM_DAQ = 1
 STREAM_PLACEMENT = 2
 STREAM_FSR = 3
 FSR_DECIMATION = 10  # features-only scene: the FSR trace at rate / 10
-
-
-@dataclass
-class PressRecord:
-    """What one press recorded: per-sweep pair estimates, the FSR trace, motion-sync marks (sample indices)."""
-
-    estimates: PairEstimates
-    first_sample: int
-    n_samples: int
-    rate_hz: float
-    marks: dict[str, int]
-    fsr_v: np.ndarray | None = None
-    waveforms: dict[str, np.ndarray] | None = field(default=None, repr=False)
-    fsr_rate_hz: float | None = None  # rate of fsr_v (the DAQ rate unless decimated)
 
 
 class DryProbe:
@@ -152,48 +127,3 @@ class SimulatedRecorder:
             rng = np.random.default_rng([self.seed, press_id, STREAM_FSR])
             volts = volts + rng.standard_normal(n) * self.daq.noise.fsr_noise_v
         return volts
-
-
-class ThreadedRecorder:
-    """Real-rig recorder: the DAQ records in a thread while the printer moves."""
-
-    def __init__(self, daq, sweep, *, method: str, window: int, fsr_enabled: bool, keep_waveforms: bool,
-                 clock: Callable[[], float] = time.monotonic) -> None:
-        self.daq, self.sweep, self.clock = daq, sweep, clock
-        self.method, self.window = method, window
-        self.fsr_enabled, self.keep_waveforms = fsr_enabled, keep_waveforms
-
-    def begin(self, press_id: int, n_sweeps: int) -> None:
-        self._result: list = []
-        self._marks: dict[str, float] = {}
-
-        def work() -> None:
-            try:
-                self._result.append(self.daq.acquire(self.sweep, n_sweeps))
-            except BaseException as exc:  # surfaced in end()
-                self._result.append(exc)
-
-        self._thread = threading.Thread(target=work, name=f"daq-press-{press_id}", daemon=True)
-        self._t0 = self.clock()
-        self._thread.start()
-
-    def mark(self, name: str) -> None:
-        self._marks[name] = self.clock()
-
-    def end(self, timeout_s: float = 120.0) -> PressRecord:
-        self._thread.join(timeout_s)
-        if self._thread.is_alive() or not self._result:
-            raise HardwareError(f"the DAQ did not finish its acquisition within {timeout_s:.0f} s "
-                                "(check the device and its sample clock)")
-        acq = self._result[0]
-        if isinstance(acq, BaseException):
-            raise HardwareError(f"DAQ acquisition failed: {acq}") from acq
-        estimates = demodulate(acq, self.sweep, method=self.method, window=self.window)
-        first = int(acq.sample_index[0])
-        marks = {k: first + int(round((t - self._t0) * acq.rate_hz)) for k, t in self._marks.items()}
-        waveforms = None
-        if self.keep_waveforms:
-            waveforms = {"voltage_v": acq.voltage_v.astype(np.float32), "current_a": acq.current_a.astype(np.float32),
-                         "fsr_v": acq.fsr_v.astype(np.float32)}
-        return PressRecord(estimates, first, acq.n_samples, acq.rate_hz, marks,
-                           acq.fsr_v if self.fsr_enabled else None, waveforms, acq.rate_hz)

@@ -15,9 +15,9 @@ from typing import Iterable
 import numpy as np
 import pandas as pd
 
-from neatskin.datasets.baselines.dataset import PHYSICAL_LIMIT_NAME, BaselineData, load_baseline_data
-from neatskin.datasets.baselines.evaluate import PAPER_FRACTIONS, SPLITS, ModelResult, evaluate_model
-from neatskin.datasets.baselines.models import DESCRIPTIONS, MODEL_NAMES, make_models
+from neatskin.baselines.dataset import PHYSICAL_LIMIT_NAME, BaselineData, load_baseline_data
+from neatskin.baselines.evaluate import PAPER_FRACTIONS, SPLITS, ModelResult, evaluate_model
+from neatskin.baselines.models import DESCRIPTIONS, MODEL_NAMES, make_models
 from neatskin.errors import DataError
 
 PAPER_REAL_SKIN = {"mean_error_mm": 2.03, "std_error_mm": 0.26, "mse_mm2": 3.32, "within_probe_pct": 82.0}
@@ -140,7 +140,7 @@ def run_baselines(
     """
     from tqdm.auto import tqdm
 
-    from neatskin.datasets.baselines.plots import plot_error_ellipses, plot_error_vs_time
+    from neatskin.baselines.plots import plot_error_ellipses, plot_error_vs_time
 
     splits = SPLITS if split == "both" else ((split,) if isinstance(split, str) else tuple(split))
     for s in splits:

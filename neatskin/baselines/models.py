@@ -19,7 +19,7 @@ from sklearn.neural_network import MLPRegressor
 from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 
-from neatskin.datasets.baselines.lm import LMNetworkRegressor
+from neatskin.baselines.lm import LMNetworkRegressor
 from neatskin.errors import DataError
 
 MODEL_NAMES = ("ridge", "knn", "kernel_ridge", "extra_trees", "mlp", "lm_network")

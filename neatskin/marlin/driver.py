@@ -20,11 +20,11 @@ from typing import Callable, Iterable
 
 from neatskin.gcode.parse import parse_line
 from neatskin.gcode.profile import PrinterProfile
-from neatskin.rig.marlin import errors as E
-from neatskin.rig.marlin.deadlines import MotionTracker
-from neatskin.rig.marlin.linestate import DriverConfig, LineProtocol, _Job, _Line  # noqa: F401 (re-exported)
-from neatskin.rig.marlin.replies import Position, parse_m114, parse_m119
-from neatskin.rig.marlin.wirelog import WireLog
+from neatskin.marlin import errors as E
+from neatskin.marlin.deadlines import MotionTracker
+from neatskin.marlin.linestate import DriverConfig, LineProtocol, _Job, _Line  # noqa: F401 (re-exported)
+from neatskin.marlin.replies import Position, parse_m114, parse_m119
+from neatskin.marlin.wirelog import WireLog
 
 
 class MarlinDriver(LineProtocol):

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from neatskin.errors import ConfigError, Problem
-from neatskin.rig.campaign.fields import TableReader
-from neatskin.tomlfile import read_toml
+from neatskin.config import TableReader
+from neatskin.tomlfile import read_toml, resolve_path
 
 KNOWN_SECTIONS = ("campaign", "files", "positions", "press", "excitation", "acquisition", "fsr", "record", "scene")
 
@@ -78,7 +78,7 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
 
     file_overrides replaces the layout, wiring or printer file the protocol names (resume uses the
     copies kept in the campaign folder)."""
-    path = Path(path)
+    path = resolve_path(path)
     source = str(path)
     data = read_toml(path, "protocol file", fix="check the path, e.g. protocols/paper.toml")
 

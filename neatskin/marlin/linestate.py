@@ -16,8 +16,8 @@ import threading
 import time
 from dataclasses import dataclass
 
-from neatskin.rig.marlin import errors as E
-from neatskin.rig.marlin.replies import PROBE_TAG, Kind, classify, frame
+from neatskin.marlin import errors as E
+from neatskin.marlin.replies import PROBE_TAG, Kind, classify, frame
 
 @dataclass(frozen=True)
 class DriverConfig:

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from neatskin.errors import ConfigError, DataError, Problem
-from neatskin.rig.campaign.protocol import Protocol, file_sha256, load_protocol
+from neatskin.rig.protocol import Protocol, file_sha256, load_protocol
 
 INPUTS_DIR = "inputs"
 WIRE_LOG = "wire.log"
@@ -162,7 +162,7 @@ def run_campaign(protocol: Protocol, folder: str | Path, *, dry_run: bool = True
     result = CampaignResult(folder, plan.n_presses, completed, written, flagged, interrupted,
                             time.perf_counter() - wall0, plan.printer_time_s)
     if report and status == "complete":
-        from neatskin.datasets.baselines.report import run_baselines
+        from neatskin.baselines.report import run_baselines
 
         try:
             run_baselines(folder, split="both", progress=progress)
@@ -173,7 +173,7 @@ def run_campaign(protocol: Protocol, folder: str | Path, *, dry_run: bool = True
 
 
 def _open_rig(protocol, plan, *, dry_run, port, daq_kind, printer_faults, connect_timeout_s, wire_log):
-    from neatskin.rig.campaign.scene import build_dry_rig, build_real_rig
+    from neatskin.rig.assembly import build_dry_rig, build_real_rig
 
     timeout = {} if connect_timeout_s is None else {"connect_timeout_s": connect_timeout_s}
     if dry_run:
@@ -238,7 +238,7 @@ def _hold_lines(hold_s: float) -> tuple[str, ...]:
 
 
 def _run_press(protocol, plan, rig, block, pair_labels):
-    from neatskin.rig.campaign.pressrow import fsr_label, press_values
+    from neatskin.rig.pressrow import fsr_label, press_values
 
     driver, recorder = rig.driver, rig.recorder
     extra_flags: list[str] = []
@@ -282,7 +282,7 @@ def write_physical_limit(folder: Path, protocol: Protocol, plan: Plan, rig) -> P
     """Per position, the Cramér-Rao bound on the position error that the simulated skin and noise allow."""
     import pandas as pd
 
-    from neatskin.datasets.baselines.crb import cramer_rao_bound_mm
+    from neatskin.baselines.crb import cramer_rao_bound_mm
     from neatskin.datasets.writer import write_table_durably
     import pyarrow as pa
 
@@ -302,7 +302,7 @@ def write_physical_limit(folder: Path, protocol: Protocol, plan: Plan, rig) -> P
 def _dr_noise_std_ohm(protocol, plan, rig, x, y, depth) -> np.ndarray:
     """Std of one press's dR per pair (positions, pairs): the estimator noise of the baseline and pressed sweeps
     that a press averages, drawn from the simulated DAQ's features path at the unpressed and pressed states."""
-    from neatskin.acquisition.daq.simulated import SimulatedDAQ
+    from neatskin.sim.daq import SimulatedDAQ
 
     sweep, draws = plan.sweep, 64
     pressed = rig.skin.pair_resistance_ohm(x, y, depth)

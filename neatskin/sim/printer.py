@@ -13,9 +13,10 @@ import threading
 import time
 
 from neatskin.gcode.profile import PrinterProfile
-from neatskin.rig.marlin.faults import FaultConfig
-from neatskin.rig.marlin.pty import PtyPair, open_pty, read_available, write_all
-from neatskin.rig.marlin.simcore import MarlinCore, ScaledClock, VirtualClock
+from neatskin.tomlfile import resolve_path
+from neatskin.sim.faults import FaultConfig
+from neatskin.sim.pty import PtyPair, open_pty, read_available, write_all
+from neatskin.sim.firmware import MarlinCore, ScaledClock, VirtualClock
 
 
 class SimulatedPrinter:
@@ -215,5 +216,5 @@ def sim_printer_for_tests(profile_path: str | os.PathLike | None = None, **kwarg
 
     from neatskin.gcode.profile import load_printer_profile
 
-    path = Path(profile_path) if profile_path else Path(__file__).resolve().parents[3] / "protocols/printers/paper.toml"
+    path = Path(profile_path) if profile_path else resolve_path("protocols/printers/paper.toml")
     return SimulatedPrinter(load_printer_profile(path), **kwargs)

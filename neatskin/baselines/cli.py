@@ -27,7 +27,7 @@ def register(subparsers) -> None:
 
 
 def handler(args: argparse.Namespace) -> int:
-    from neatskin.datasets.baselines.report import run_baselines
+    from neatskin.baselines.report import run_baselines
 
     models = [m.strip() for m in args.models.split(",") if m.strip()] if args.models else None
     run_baselines(

@@ -14,8 +14,8 @@ from typing import Callable
 import numpy as np
 
 from neatskin.layout import ElectrodePair, Layout
-from neatskin.rig.skin.model import SkinModel
-from neatskin.rig.skin.network import equivalent_resistance
+from neatskin.skin.model import SkinModel
+from neatskin.skin.network import equivalent_resistance
 
 
 @dataclass(frozen=True)

@@ -12,13 +12,16 @@ from typing import Callable
 
 import numpy as np
 
-from neatskin.errors import HardwareError
+from neatskin.acquisition.daq.base import Daq, DaqConfig
+from neatskin.errors import ConfigError, HardwareError
+
+DAQ_KINDS = ("simulated", "ni")
 
 
 @dataclass
 class Rig:
     kind: str  # "dry-run" | "real"
-    driver: object  # neatskin.rig.marlin.driver.MarlinDriver
+    driver: object  # neatskin.marlin.driver.MarlinDriver
     recorder: object  # SimulatedRecorder | ThreadedRecorder
     fsr_model: object
     description: dict
@@ -34,20 +37,38 @@ class Rig:
                 pass
 
 
-def daq_config(protocol):
-    from neatskin.acquisition.daq.base import DaqConfig
+def open_daq(kind: str, config: DaqConfig = DaqConfig(), **kwargs) -> Daq:
+    """A configured backend by name. kwargs go to SimulatedDAQ (pair_resistance_ohm, force_n, noise, fsr, ...);
+    the NI backend (HardwareError if nidaqmx or the device is missing) takes none."""
+    if kind == "simulated":
+        from neatskin.sim.daq import SimulatedDAQ
 
+        if "pair_resistance_ohm" not in kwargs:
+            raise ConfigError("the simulated DAQ needs pair_resistance_ohm(times_s) -> (times, pairs)",
+                              field="pair_resistance_ohm", fix="pass the skin model's pair resistance callable")
+        return SimulatedDAQ(config, **kwargs)
+    if kind == "ni":
+        if kwargs:
+            raise ConfigError(f"the NI backend takes no {', '.join(sorted(kwargs))}", field="daq",
+                              fix="pass only a DaqConfig")
+        from neatskin.acquisition.daq.nidaqmx_backend import NiDAQ
+
+        return NiDAQ(config)
+    raise ConfigError(f"unknown DAQ kind {kind!r}", field="daq", fix=f"use one of {', '.join(DAQ_KINDS)}")
+
+
+def daq_config(protocol):
     return DaqConfig(rate_hz=protocol.acquisition.rate_hz, amplitude_a=protocol.excitation.amplitude_a,
                      frequency_hz=protocol.excitation.frequency_hz)
 
 
 def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=None, printer_faults=None) -> Rig:
     """The simulated printer on a real pty (reached through pyserial), the simulated skin and DAQ."""
-    from neatskin.acquisition.daq.simulated import NoiseModel, SimulatedDAQ
-    from neatskin.rig.campaign.recorder import STREAM_PLACEMENT, DryProbe, SimulatedRecorder
-    from neatskin.rig.marlin.driver import DriverConfig, MarlinDriver
-    from neatskin.rig.marlin.simprinter import SimulatedPrinter
-    from neatskin.rig.skin.model import SkinModel, placement_error_mm
+    from neatskin.sim.daq import NoiseModel, SimulatedDAQ
+    from neatskin.sim.recorder import STREAM_PLACEMENT, DryProbe, SimulatedRecorder
+    from neatskin.marlin.driver import DriverConfig, MarlinDriver
+    from neatskin.sim.printer import SimulatedPrinter
+    from neatskin.skin.model import SkinModel, placement_error_mm
 
     scene = protocol.scene
     probe_radius = protocol.press.press.probe_diameter_mm / 2
@@ -94,10 +115,9 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
 def build_real_rig(protocol, sweep, *, port: str, daq_kind: str = "ni", baud_rate: int | None = None,
                    connect_timeout_s: float = 5.0, wire_log=None) -> Rig:
     """The printer on a serial port and the DAQ; errors are HardwareErrors raised before any motion."""
-    from neatskin.acquisition.daq import open_daq
     from neatskin.acquisition.fsr import FsrModel
-    from neatskin.rig.campaign.recorder import ThreadedRecorder
-    from neatskin.rig.marlin.driver import MarlinDriver
+    from neatskin.rig.recorder import ThreadedRecorder
+    from neatskin.marlin.driver import MarlinDriver
 
     closers: list[Callable[[], None]] = []
     try:  # the printer first: a port that does not answer is the commonest set-up mistake

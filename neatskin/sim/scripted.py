@@ -14,7 +14,7 @@ import threading
 import time
 from typing import Callable, Sequence
 
-from neatskin.rig.marlin.pty import open_pty, read_available, write_all
+from neatskin.sim.pty import open_pty, read_available, write_all
 
 Step = tuple[bytes | Callable[[bytes], bool] | None, bytes | list[bytes | float]]
 

@@ -24,8 +24,8 @@ from functools import cached_property
 import numpy as np
 
 from neatskin.layout import Layout
-from neatskin.rig.skin.deformation import PinchParams, nearest_point_factor, resistance_factor
-from neatskin.rig.skin.network import equivalent_resistance
+from neatskin.skin.deformation import PinchParams, nearest_point_factor, resistance_factor
+from neatskin.skin.network import equivalent_resistance
 
 FIDELITIES = ("deformation", "network")
 

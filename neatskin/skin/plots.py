@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from neatskin.layout import ElectrodePair, Layout
-from neatskin.rig.skin.maps import SensitivityMap
+from neatskin.skin.maps import SensitivityMap
 
 _CMAP = "RdBu_r"
 

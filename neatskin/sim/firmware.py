@@ -21,9 +21,9 @@ import numpy as np
 from neatskin.errors import ConfigError
 from neatskin.gcode.parse import checksum, parse_line
 from neatskin.gcode.profile import PrinterProfile
-from neatskin.rig.marlin import replies as R
-from neatskin.rig.marlin.faults import FaultConfig
-from neatskin.rig.marlin.simmotion import Timeline
+from neatskin.marlin import replies as R
+from neatskin.sim.faults import FaultConfig
+from neatskin.sim.motion import Timeline
 
 STEPS_PER_MM = (80.0, 80.0, 400.0)
 _N = re.compile(r"N\s*(-?\d+)")

@@ -18,7 +18,7 @@ import numpy as np
 from sklearn.base import BaseEstimator, clone
 from sklearn.model_selection import GroupKFold
 
-from neatskin.datasets.baselines.metrics import PositionErrors, position_errors
+from neatskin.baselines.metrics import PositionErrors, position_errors
 from neatskin.errors import DataError
 
 PAPER_FRACTIONS = (0.95, 0.03, 0.02)

@@ -50,8 +50,8 @@ def _summary(result) -> str:
 
 def _run(args: argparse.Namespace) -> int:
     from neatskin.errors import ConfigError
-    from neatskin.rig.campaign.protocol import load_protocol
-    from neatskin.rig.campaign.runner import run_campaign
+    from neatskin.rig.protocol import load_protocol
+    from neatskin.rig.runner import run_campaign
 
     protocol = load_protocol(args.protocol)
     if not args.dry_run and not args.port:
@@ -66,7 +66,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _resume(args: argparse.Namespace) -> int:
-    from neatskin.rig.campaign.runner import resume_campaign
+    from neatskin.rig.runner import resume_campaign
 
     kwargs = {"progress": not args.quiet, "report": not args.no_report}
     if args.port:
@@ -77,8 +77,8 @@ def _resume(args: argparse.Namespace) -> int:
 
 
 def _check(args: argparse.Namespace) -> int:
-    from neatskin.rig.campaign.protocol import load_protocol
-    from neatskin.rig.campaign.runner import build_plan
+    from neatskin.rig.protocol import load_protocol
+    from neatskin.rig.runner import build_plan
 
     protocol = load_protocol(args.protocol)
     plan = build_plan(protocol)

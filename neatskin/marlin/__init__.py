@@ -1,0 +1,1 @@
+"""The host side of Marlin's serial protocol: line protocol, driver, replies grammar, wire log."""

@@ -1,1 +1,0 @@
-"""Campaigns: protocol files, scenes, and the runner (real rig or dry run)."""

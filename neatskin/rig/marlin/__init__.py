@@ -1,1 +1,0 @@
-"""Marlin host protocol: serial driver and simulated printer."""

@@ -1,1 +1,0 @@
-"""The simulated skin: network physics, deformation model, sensitivity maps."""

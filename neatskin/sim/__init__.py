@@ -1,0 +1,8 @@
+"""The simulated devices of the dry run, behind the same interfaces as the real ones.
+
+firmware (the Marlin firmware model: line protocol, modal G-code, motion clock, faults), motion
+(the printer's trajectory), printer (that firmware served on a real pseudo-terminal), pty,
+faults, scripted (scripted serial peers for tests), daq (the simulated DAQ sampling a skin),
+recorder (the dry probe and recorder), cli (`neatskin sim printer`). Uses skin, gcode and
+acquisition; never rig.
+"""
