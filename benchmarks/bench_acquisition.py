@@ -20,12 +20,12 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from neatskin.acquisition.daq.base import DaqConfig  # noqa: E402
-from neatskin.sim.daq import NoiseModel, SimulatedDAQ  # noqa: E402
 from neatskin.acquisition.demod import demodulate  # noqa: E402
 from neatskin.acquisition.features import features_from_acquisition  # noqa: E402
 from neatskin.acquisition.sequence import SweepTiming, build_sweep  # noqa: E402
 from neatskin.acquisition.wiring import load_wiring  # noqa: E402
 from neatskin.layout import load_layout  # noqa: E402
+from neatskin.sim.daq import NoiseModel, SimulatedDAQ  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 R_TRUE = np.linspace(2_000.0, 8_000.0, 28)
@@ -48,8 +48,10 @@ def constant(t):
 
 def accuracy_table(wiring, n_sweeps: int, repeats: int) -> None:
     print(f"resistance error vs live window ({n_sweeps} sweeps x 28 pairs, noise: 20 mV, 2 uA, 50 mV offset)")
-    print(f"{'method':>8} {'window':>6} {'live':>5} {'sweep ms':>8} {'rel RMSE ppm':>12} {'bias ppm':>9} "
-          f"{'demod Msamp/s':>13} {'x real time':>11}")
+    print(
+        f"{'method':>8} {'window':>6} {'live':>5} {'sweep ms':>8} {'rel RMSE ppm':>12} {'bias ppm':>9} "
+        f"{'demod Msamp/s':>13} {'x real time':>11}"
+    )
     for live in (20, 50, 100, 200, 500):
         sweep = build_sweep(wiring, SweepTiming(live_samples=live))
         daq = SimulatedDAQ(DaqConfig(), constant, noise=BENCH_NOISE)
@@ -61,9 +63,11 @@ def accuracy_table(wiring, n_sweeps: int, repeats: int) -> None:
             rel = est.resistance_ohm / R_TRUE - 1
             seconds = best_time(lambda: demodulate(acq, sweep, method, window), repeats)
             rate = acq.n_samples / seconds
-            print(f"{method:>8} {window:>6} {live:>5} {sweep.duration_s * 1e3:>8.1f} "
-                  f"{1e6 * np.sqrt(np.mean(rel ** 2)):>12.1f} {1e6 * rel.mean():>9.1f} "
-                  f"{rate * 3 / 1e6:>13.1f} {rate / 1e4:>11.0f}")
+            print(
+                f"{method:>8} {window:>6} {live:>5} {sweep.duration_s * 1e3:>8.1f} "
+                f"{1e6 * np.sqrt(np.mean(rel**2)):>12.1f} {1e6 * rel.mean():>9.1f} "
+                f"{rate * 3 / 1e6:>13.1f} {rate / 1e4:>11.0f}"
+            )
 
 
 def pipeline_table(wiring, presses: int, repeats: int) -> None:
@@ -101,11 +105,15 @@ def pipeline_table(wiring, presses: int, repeats: int) -> None:
     # features-only path: estimates straight from the noise model, no waveform, no FSR trace
     daq = SimulatedDAQ(DaqConfig(), skin, force)
     rng = np.random.default_rng(0)
-    seconds = best_time(lambda: [daq.estimate_sweep(sweep, rng, k * press_s, "lockin", n_sweeps=n_sweeps)
-                                 for k in range(presses)], repeats)
+    seconds = best_time(
+        lambda: [daq.estimate_sweep(sweep, rng, k * press_s, "lockin", n_sweeps=n_sweeps) for k in range(presses)],
+        repeats,
+    )
     rows.append(("features-only lockin", {"estimate": seconds}, seconds, presses * press_s, float("nan")))
-    print(f"\nwhole pipeline per press ({presses} presses x {n_sweeps} sweeps = {presses * press_s:.1f} s of signal, "
-          "10 kHz x 3 channels)")
+    print(
+        f"\nwhole pipeline per press ({presses} presses x {n_sweeps} sweeps = {presses * press_s:.1f} s of signal, "
+        "10 kHz x 3 channels)"
+    )
     print(f"{'path':>22} {'ms/press':>9} {'x real time':>11} {'dR RMSE ohm':>11}  where the time goes")
     for label, timings, total, real, err in rows:
         split = ", ".join(f"{k} {100 * v / total:.0f} %" for k, v in timings.items())

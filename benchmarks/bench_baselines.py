@@ -19,8 +19,8 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 import warnings
+from pathlib import Path
 
 import numpy as np
 from sklearn.model_selection import GroupShuffleSplit
@@ -36,9 +36,19 @@ def load(dataset: str | None):
         from neatskin.layout import load_layout
         from neatskin.skin.synthetic import synthetic_presses
 
-        df = synthetic_presses(load_layout(Path(__file__).resolve().parents[1] / "protocols/skins/paper.toml"), 100, 28, noise_ohm=1.0, seed=0)
-        return "synthetic 100 positions x 28 repeats", df.filter(like="dR_ohm").to_numpy(), \
-            df[["x_mm", "y_mm"]].to_numpy(), df["position_id"].to_numpy()
+        df = synthetic_presses(
+            load_layout(Path(__file__).resolve().parents[1] / "protocols/skins/paper.toml"),
+            100,
+            28,
+            noise_ohm=1.0,
+            seed=0,
+        )
+        return (
+            "synthetic 100 positions x 28 repeats",
+            df.filter(like="dR_ohm").to_numpy(),
+            df[["x_mm", "y_mm"]].to_numpy(),
+            df["position_id"].to_numpy(),
+        )
     from neatskin.baselines.dataset import load_baseline_data
 
     data = load_baseline_data(dataset)
@@ -49,7 +59,9 @@ def part_models(X, y, groups, seed):
     train, val, test = paper_split(len(y), seed)
     random_train = np.concatenate([train, val])
     g_train, g_test = next(GroupShuffleSplit(1, test_size=0.2, random_state=seed).split(X, y, groups))
-    print(f"{'model':<13} {'fit s (paper split)':>20} {'err mm, random':>15} {'err mm, grouped':>16} {'pred us/row':>12}")
+    print(
+        f"{'model':<13} {'fit s (paper split)':>20} {'err mm, random':>15} {'err mm, grouped':>16} {'pred us/row':>12}"
+    )
     for name, model in make_models(random_state=seed, n_features=X.shape[1]).items():
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -72,8 +84,10 @@ def part_lm_vs_scipy(X, y, seed, max_nfev, skip_scipy):
     t0 = time.perf_counter()
     model.fit(X[rows], y[rows])
     fit10_s = time.perf_counter() - t0
-    print(f"\nLMNetworkRegressor, 10 restarts on {len(rows)} rows: fit {fit10_s:.2f} s "
-          f"(target < 5 s), epochs per restart {model.n_epochs_.tolist()}")
+    print(
+        f"\nLMNetworkRegressor, 10 restarts on {len(rows)} rows: fit {fit10_s:.2f} s "
+        f"(target < 5 s), epochs per restart {model.n_epochs_.tolist()}"
+    )
     print(f"  validation MSE (scaled) per restart: min {model.val_mse_.min():.3e}, max {model.val_mse_.max():.3e}")
 
     p = model.restart_problem(X[rows], y[rows], restart=0)
@@ -89,22 +103,36 @@ def part_lm_vs_scipy(X, y, seed, max_nfev, skip_scipy):
     ours_s = time.perf_counter() - t0
     print(f"\nrestart 0's problem ({len(p['x_train'])} train rows, {len(p['x_val'])} val rows, same start):")
     print(f"{'solver':<34} {'time s':>8} {'train MSE':>10} {'val MSE':>10} {'test MSE':>10}")
-    print(f"{'ours (trainlm loop), 1 restart':<34} {ours_s:>8.2f} {ours.train_mse:>10.3e} {ours.val_mse:>10.3e} "
-          f"{test_mse(ours.weights):>10.3e}  ({ours.n_epochs} epochs, stop: {ours.stop_reason})")
+    print(
+        f"{'ours (trainlm loop), 1 restart':<34} {ours_s:>8.2f} {ours.train_mse:>10.3e} {ours.val_mse:>10.3e} "
+        f"{test_mse(ours.weights):>10.3e}  ({ours.n_epochs} epochs, stop: {ours.stop_reason})"
+    )
     best = model.val_mse_.min()
     print(f"{'ours, best of 10 restarts':<34} {fit10_s:>8.2f} {'':>10} {best:>10.3e} {test_mse(model.weights_):>10.3e}")
     if skip_scipy:
         return
     for analytic in (False, True):
         label = "scipy lm, " + ("analytic Jacobian" if analytic else "finite differences")
-        ref = fit_with_scipy_lm(p["x_train"], p["y_train"], p["x_val"], p["y_val"], p["w0"], model.n_hidden,
-                                analytic_jacobian=analytic, max_nfev=max_nfev)
-        print(f"{label:<34} {ref.fit_time_s:>8.2f} {ref.train_mse:>10.3e} {ref.val_mse:>10.3e} "
-              f"{test_mse(ref.weights):>10.3e}  ({ref.n_evaluations} evaluations)")
-        print(f"  ratio scipy time / ours: {ref.fit_time_s / ours_s:.1f}x per restart, "
-              f"{ref.fit_time_s / fit10_s:.1f}x against our whole 10-restart fit; "
-              f"val MSE ours(1) / scipy = {ours.val_mse / ref.val_mse:.2f}, "
-              f"ours(best of 10) / scipy = {best / ref.val_mse:.2f} (on different validation rows)")
+        ref = fit_with_scipy_lm(
+            p["x_train"],
+            p["y_train"],
+            p["x_val"],
+            p["y_val"],
+            p["w0"],
+            model.n_hidden,
+            analytic_jacobian=analytic,
+            max_nfev=max_nfev,
+        )
+        print(
+            f"{label:<34} {ref.fit_time_s:>8.2f} {ref.train_mse:>10.3e} {ref.val_mse:>10.3e} "
+            f"{test_mse(ref.weights):>10.3e}  ({ref.n_evaluations} evaluations)"
+        )
+        print(
+            f"  ratio scipy time / ours: {ref.fit_time_s / ours_s:.1f}x per restart, "
+            f"{ref.fit_time_s / fit10_s:.1f}x against our whole 10-restart fit; "
+            f"val MSE ours(1) / scipy = {ours.val_mse / ref.val_mse:.2f}, "
+            f"ours(best of 10) / scipy = {best / ref.val_mse:.2f} (on different validation rows)"
+        )
 
 
 def main(argv=None) -> int:

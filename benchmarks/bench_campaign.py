@@ -46,8 +46,12 @@ def scene_protocol(root: Path, fidelity: str, signal: str, record: bool) -> Path
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--presses", type=int, default=None, help="presses per scene (default: the whole campaign)")
-    parser.add_argument("--recorded-presses", type=int, default=280,
-                        help="presses for the scene that also writes every sample (default 280; it extrapolates)")
+    parser.add_argument(
+        "--recorded-presses",
+        type=int,
+        default=280,
+        help="presses for the scene that also writes every sample (default 280; it extrapolates)",
+    )
     args = parser.parse_args()
     work = Path(tempfile.mkdtemp(prefix="bench-campaign-"))
     try:
@@ -68,22 +72,32 @@ def main() -> None:
             df = read_presses(folder).sort_values("press_id").set_index("press_id")
             frames[name] = df.filter(like="dR_ohm_")
             size_mb = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file()) / 1e6
-            rows.append({"scene": name, "presses": n, "wall_s": wall, "presses_per_s": n / wall,
-                         "rig_time_h": rig_s / 3600, "x_faster_than_rig": rig_s / wall,
-                         "full_campaign_wall_s": wall * result.planned / n, "disk_mb": size_mb})
+            rows.append(
+                {
+                    "scene": name,
+                    "presses": n,
+                    "wall_s": wall,
+                    "presses_per_s": n / wall,
+                    "rig_time_h": rig_s / 3600,
+                    "x_faster_than_rig": rig_s / wall,
+                    "full_campaign_wall_s": wall * result.planned / n,
+                    "disk_mb": size_mb,
+                }
+            )
         ref = frames[next(iter(SCENES))]
         for row in rows:
             dr = frames[row["scene"]].reindex(ref.index).dropna()
             common = ref.loc[dr.index]
-            row["dR_error_rel"] = float(np.sqrt(((dr - common) ** 2).to_numpy().mean() /
-                                                (common ** 2).to_numpy().mean()))
+            row["dR_error_rel"] = float(np.sqrt(((dr - common) ** 2).to_numpy().mean() / (common**2).to_numpy().mean()))
         table = pd.DataFrame(rows)
         pd.set_option("display.width", 200)
         print(table.to_string(index=False, float_format=lambda v: f"{v:,.3g}"))
         base = table.iloc[0]
         for _, row in table.iloc[1:].iterrows():
-            print(f"{row.scene}: {base.full_campaign_wall_s / row.full_campaign_wall_s:.2f}x the reference's speed, "
-                  f"dR error {row.dR_error_rel:.2e} of the dR scale")
+            print(
+                f"{row.scene}: {base.full_campaign_wall_s / row.full_campaign_wall_s:.2f}x the reference's speed, "
+                f"dR error {row.dR_error_rel:.2e} of the dR scale"
+            )
     finally:
         shutil.rmtree(work, ignore_errors=True)
 

@@ -20,23 +20,32 @@ import numpy as np
 
 from neatskin.datasets.manifest import create_manifest
 from neatskin.datasets.reader import read_presses
-from neatskin.skin.synthetic import synthetic_rows
 from neatskin.datasets.validate import validate_dataset
 from neatskin.datasets.writer import CampaignWriter
 from neatskin.layout import load_layout
+from neatskin.skin.synthetic import synthetic_rows
 
 REPO = Path(__file__).resolve().parent.parent
 
 
 def run_case(root: Path, name: str, layout, rows, *, fsync: bool, waveform_samples: int) -> dict:
     folder = root / name
-    create_manifest(folder, seed=0, layout={"path": str(REPO / "protocols" / "skins" / "paper.toml")},
-                    counts={"planned": len(rows), "completed": len(rows)}, status="complete", fsync=fsync)
+    create_manifest(
+        folder,
+        seed=0,
+        layout={"path": str(REPO / "protocols" / "skins" / "paper.toml")},
+        counts={"planned": len(rows), "completed": len(rows)},
+        status="complete",
+        fsync=fsync,
+    )
     rng = np.random.default_rng(0)
     waveforms = None
     if waveform_samples:
-        waveforms = {"voltage_v": rng.normal(size=waveform_samples), "current_a": rng.normal(size=waveform_samples),
-                     "fsr_v": rng.normal(size=waveform_samples)}
+        waveforms = {
+            "voltage_v": rng.normal(size=waveform_samples),
+            "current_a": rng.normal(size=waveform_samples),
+            "fsr_v": rng.normal(size=waveform_samples),
+        }
     t0 = time.perf_counter()
     with CampaignWriter(folder, layout.pairs, {"seed": 0}, fsync=fsync) as writer:
         for row in rows:
@@ -47,9 +56,18 @@ def run_case(root: Path, name: str, layout, rows, *, fsync: bool, waveform_sampl
     read_s = _timed(lambda: read_presses(folder))
     validate_s = _timed(lambda: validate_dataset(folder))
     size_mb = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file()) / 1e6
-    return {"case": name, "presses": len(rows), "write_s": t1 - t0, "ms_per_press": 1e3 * (t1 - t0) / len(rows),
-            "presses_per_s": len(rows) / (t1 - t0), "finalize_s": finalize_s, "read_parts_s": parts_read_s,
-            "read_final_s": read_s, "validate_s": validate_s, "size_mb": size_mb}
+    return {
+        "case": name,
+        "presses": len(rows),
+        "write_s": t1 - t0,
+        "ms_per_press": 1e3 * (t1 - t0) / len(rows),
+        "presses_per_s": len(rows) / (t1 - t0),
+        "finalize_s": finalize_s,
+        "read_parts_s": parts_read_s,
+        "read_final_s": read_s,
+        "validate_s": validate_s,
+        "size_mb": size_mb,
+    }
 
 
 def _timed(fn) -> float:
@@ -61,14 +79,21 @@ def _timed(fn) -> float:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--presses", type=int, default=2800)
-    parser.add_argument("--waveform-samples", type=int, default=5600,
-                        help="samples per signal per press in the waveform case (28 pairs x 2 sweeps x 100)")
-    parser.add_argument("--folder", type=Path, help="where to write (default: a temp folder on the same disk "
-                                                    "as /tmp); fsync cost depends on the disk")
+    parser.add_argument(
+        "--waveform-samples",
+        type=int,
+        default=5600,
+        help="samples per signal per press in the waveform case (28 pairs x 2 sweeps x 100)",
+    )
+    parser.add_argument(
+        "--folder",
+        type=Path,
+        help="where to write (default: a temp folder on the same disk as /tmp); fsync cost depends on the disk",
+    )
     args = parser.parse_args(argv)
     layout = load_layout(REPO / "protocols" / "skins" / "paper.toml")
     repeats = 28
-    rows = synthetic_rows(layout, -(-args.presses // repeats), repeats, seed=0)[:args.presses]
+    rows = synthetic_rows(layout, -(-args.presses // repeats), repeats, seed=0)[: args.presses]
     root = Path(tempfile.mkdtemp(prefix="bench-datasets-", dir=args.folder))
     try:
         results = [
@@ -78,17 +103,23 @@ def main(argv: list[str] | None = None) -> int:
         ]
     finally:
         shutil.rmtree(root, ignore_errors=True)
-    header = (f"{'case':<20}{'presses':>8}{'write s':>9}{'ms/press':>10}{'presses/s':>11}{'finalize s':>11}"
-              f"{'read parts s':>13}{'read final s':>13}{'validate s':>11}{'MB':>8}")
+    header = (
+        f"{'case':<20}{'presses':>8}{'write s':>9}{'ms/press':>10}{'presses/s':>11}{'finalize s':>11}"
+        f"{'read parts s':>13}{'read final s':>13}{'validate s':>11}{'MB':>8}"
+    )
     print(header)
     for r in results:
-        print(f"{r['case']:<20}{r['presses']:>8}{r['write_s']:>9.2f}{r['ms_per_press']:>10.2f}"
-              f"{r['presses_per_s']:>11.0f}{r['finalize_s']:>11.2f}{r['read_parts_s']:>13.2f}"
-              f"{r['read_final_s']:>13.2f}{r['validate_s']:>11.2f}{r['size_mb']:>8.1f}")
+        print(
+            f"{r['case']:<20}{r['presses']:>8}{r['write_s']:>9.2f}{r['ms_per_press']:>10.2f}"
+            f"{r['presses_per_s']:>11.0f}{r['finalize_s']:>11.2f}{r['read_parts_s']:>13.2f}"
+            f"{r['read_final_s']:>13.2f}{r['validate_s']:>11.2f}{r['size_mb']:>8.1f}"
+        )
     base = results[0]["ms_per_press"]
     print(f"\nfsync cost: durable / no-fsync = {base / results[1]['ms_per_press']:.2f} x per press")
-    print(f"waveforms ({args.waveform_samples} samples x 3 signals): {results[2]['ms_per_press'] / base:.2f} x "
-          f"the per-press cost of features only")
+    print(
+        f"waveforms ({args.waveform_samples} samples x 3 signals): {results[2]['ms_per_press'] / base:.2f} x "
+        f"the per-press cost of features only"
+    )
     total = results[0]["write_s"] + results[0]["finalize_s"]
     print(f"writer share of the 60 s dry-run budget (features only): {total:.1f} s = {100 * total / 60:.0f} %")
     return 0

@@ -45,8 +45,12 @@ def main() -> None:
     stages = []
     t, positions = best_of(args.repeats, lambda: generate_positions(layout, spec.positions))
     stages.append(("positions (100, paper strategy)", t))
-    t, program = best_of(args.repeats, lambda: build_program(layout, positions, spec.press, profile, name=spec.name,
-                                                             seed=spec.seed, hold_in_gcode=True))
+    t, program = best_of(
+        args.repeats,
+        lambda: build_program(
+            layout, positions, spec.press, profile, name=spec.name, seed=spec.seed, hold_in_gcode=True
+        ),
+    )
     stages.append(("program: bounds + 2,800 press blocks", t))
     t, text = best_of(args.repeats, program.text)
     stages.append(("emit text", t))
@@ -61,28 +65,38 @@ def main() -> None:
     total = sum(s for _, s in stages)
 
     ordered_spec = replace(spec.press, travel_ordering=True)
-    t_ord, ordered = best_of(args.repeats, lambda: build_program(layout, positions, ordered_spec, profile,
-                                                                 name=spec.name, seed=spec.seed, hold_in_gcode=True))
+    t_ord, ordered = best_of(
+        args.repeats,
+        lambda: build_program(
+            layout, positions, ordered_spec, profile, name=spec.name, seed=spec.seed, hold_in_gcode=True
+        ),
+    )
     ordered_estimate = estimate_program_time(ordered.command_lines(), profile)
 
-    print(f"paper campaign: {len(program.positions)} positions x {spec.press.repeats} repeats = "
-          f"{len(program.presses)} presses, {len(text.splitlines())} lines, {len(text) / 1e6:.2f} MB")
+    print(
+        f"paper campaign: {len(program.positions)} positions x {spec.press.repeats} repeats = "
+        f"{len(program.presses)} presses, {len(text.splitlines())} lines, {len(text) / 1e6:.2f} MB"
+    )
     print(f"{'stage':<40} {'wall time (best of ' + str(args.repeats) + ')':>26}")
     for name, seconds in stages:
         print(f"{name:<40} {seconds * 1e3:>23.1f} ms")
     print(f"{'generate (positions + program + text)':<40} {generation * 1e3:>23.1f} ms")
     print(f"{'generate + validate':<40} {total * 1e3:>23.1f} ms")
     print()
-    print(f"estimated printer time: {estimate.total_s:,.0f} s = {estimate.total_s / 3600:.2f} h "
-          f"(motion {estimate.motion_s:,.0f} s, G4 holds {estimate.dwell_s:,.0f} s, homing {estimate.homing_s:.0f} s)")
+    print(
+        f"estimated printer time: {estimate.total_s:,.0f} s = {estimate.total_s / 3600:.2f} h "
+        f"(motion {estimate.motion_s:,.0f} s, G4 holds {estimate.dwell_s:,.0f} s, homing {estimate.homing_s:.0f} s)"
+    )
     print(f"ratio printer time / (generate + validate): {estimate.total_s / total:,.0f} x")
     print(f"ratio printer time / generate alone:        {estimate.total_s / generation:,.0f} x")
     print()
     saved = ordered.route_unordered_mm - ordered.route_mm
-    print(f"travel ordering (nearest neighbour + 2-opt, {t_ord * 1e3:.1f} ms to build): xy route between positions "
-          f"{ordered.route_unordered_mm:.0f} mm -> {ordered.route_mm:.0f} mm ({100 * saved / ordered.route_unordered_mm:.0f} % "
-          f"shorter); printer time {estimate.total_s:,.0f} s -> {ordered_estimate.total_s:,.0f} s "
-          f"({estimate.total_s - ordered_estimate.total_s:.1f} s saved)")
+    print(
+        f"travel ordering (nearest neighbour + 2-opt, {t_ord * 1e3:.1f} ms to build): xy route between positions "
+        f"{ordered.route_unordered_mm:.0f} mm -> {ordered.route_mm:.0f} mm ({100 * saved / ordered.route_unordered_mm:.0f} % "
+        f"shorter); printer time {estimate.total_s:,.0f} s -> {ordered_estimate.total_s:,.0f} s "
+        f"({estimate.total_s - ordered_estimate.total_s:.1f} s saved)"
+    )
 
 
 if __name__ == "__main__":

@@ -28,9 +28,9 @@ sys.path.insert(0, str(REPO))
 from neatskin.gcode.parse import checksum  # noqa: E402
 from neatskin.gcode.profile import load_printer_profile  # noqa: E402
 from neatskin.marlin.driver import DriverConfig, MarlinDriver  # noqa: E402
-from neatskin.sim.pty import open_pty, read_available, write_all  # noqa: E402
 from neatskin.sim.firmware import MarlinCore  # noqa: E402
 from neatskin.sim.printer import SimulatedPrinter  # noqa: E402
+from neatskin.sim.pty import open_pty, read_available, write_all  # noqa: E402
 
 CONFIG = DriverConfig(boot_timeout_s=0.05, motion_time_scale=0.0)
 
@@ -225,22 +225,35 @@ def main() -> int:
                 return fn(peer.path)
             finally:
                 peer.stop()
+
         return run
 
     lines = framed_lines(args.lines)
     hello = [b"N0 M110 N0*125\n", b"G28\n"]
     for process in (True, False):
         where = "peer in its own process" if process else "peer in this process (shares the GIL)"
-        rows[f"echo limit (bare host, bare peer) | {where}"] = best(with_peer("echo", lambda p: bare_host(p, lines), process))
-        rows[f"driver vs echo peer | {where}"] = best(with_peer(
-            "echo", lambda p: driver_rate(serial.serial_for_url(p, do_not_open=True), commands, []), process))
-        rows[f"bare host vs sim printer | {where}"] = best(with_peer("sim", lambda p: bare_host(p, lines, hello), process))
-        rows[f"driver vs sim printer | {where}"] = best(with_peer(
-            "sim", lambda p: driver_rate(serial.serial_for_url(p, do_not_open=True), commands, ["G28"]), process))
+        rows[f"echo limit (bare host, bare peer) | {where}"] = best(
+            with_peer("echo", lambda p: bare_host(p, lines), process)
+        )
+        rows[f"driver vs echo peer | {where}"] = best(
+            with_peer("echo", lambda p: driver_rate(serial.serial_for_url(p, do_not_open=True), commands, []), process)
+        )
+        rows[f"bare host vs sim printer | {where}"] = best(
+            with_peer("sim", lambda p: bare_host(p, lines, hello), process)
+        )
+        rows[f"driver vs sim printer | {where}"] = best(
+            with_peer(
+                "sim", lambda p: driver_rate(serial.serial_for_url(p, do_not_open=True), commands, ["G28"]), process
+            )
+        )
     pipelined = DriverConfig(boot_timeout_s=0.05, motion_time_scale=0.0, max_in_flight=4)
-    rows["driver vs sim, ok N P B, up to 4 in flight | peer in its own process"] = best(with_peer(
-        "sim-advanced-ok", lambda p: driver_rate(serial.serial_for_url(p, do_not_open=True), commands, ["G28"],
-                                                 pipelined), True))
+    rows["driver vs sim, ok N P B, up to 4 in flight | peer in its own process"] = best(
+        with_peer(
+            "sim-advanced-ok",
+            lambda p: driver_rate(serial.serial_for_url(p, do_not_open=True), commands, ["G28"], pipelined),
+            True,
+        )
+    )
     rows["sim core only (no I/O)"] = best(lambda: core_rate(profile, commands))
     print(f"{args.lines} lines, one in flight, best of {args.repeats}; ratio = rate / echo limit of the same group")
     print(f"{'':62s} {'lines/s':>9s} {'us/line':>8s} {'ratio':>6s}")
@@ -254,12 +267,16 @@ def main() -> int:
         print(f"  {name:48s} {us:7.2f}")
     print(f"  {'sim firmware model per line (MarlinCore)':48s} {1e6 / rows['sim core only (no I/O)']:7.2f}")
     group = "peer in its own process"
-    print(f"driver / bare host against the same peer: echo peer "
-          f"{rows[f'driver vs echo peer | {group}'] / rows[f'echo limit (bare host, bare peer) | {group}']:.2f}, "
-          f"sim printer {rows[f'driver vs sim printer | {group}'] / rows[f'bare host vs sim printer | {group}']:.2f}")
+    print(
+        f"driver / bare host against the same peer: echo peer "
+        f"{rows[f'driver vs echo peer | {group}'] / rows[f'echo limit (bare host, bare peer) | {group}']:.2f}, "
+        f"sim printer {rows[f'driver vs sim printer | {group}'] / rows[f'bare host vs sim printer | {group}']:.2f}"
+    )
     limit = rows["echo limit (bare host, bare peer) | peer in its own process"]
     ratio = rows["driver vs sim printer | peer in its own process"] / limit
-    print(f"target: driver vs sim printer >= 0.80 of the echo limit: {'met' if ratio >= 0.8 else 'NOT met'} ({ratio:.2f})")
+    print(
+        f"target: driver vs sim printer >= 0.80 of the echo limit: {'met' if ratio >= 0.8 else 'NOT met'} ({ratio:.2f})"
+    )
     return 0
 
 

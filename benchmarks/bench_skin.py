@@ -73,8 +73,10 @@ def solver_section(title, layout, n_batch, n_loop, repeats, rng):
     path = "dense GTH" if layout.n_junctions <= 64 else "sparse splu"
     row(f"batched solve ({path}, {n_batch} presses)", rate_batch)
     row(f"per-press numpy.linalg.pinv loop ({n_loop} presses)", rate_loop)
-    print(f"  ratio batched / pinv: {rate_batch / rate_loop:,.1f} x;  max relative difference "
-          f"{np.max(np.abs(r_loop / r_batch - 1)):.1e}")
+    print(
+        f"  ratio batched / pinv: {rate_batch / rate_loop:,.1f} x;  max relative difference "
+        f"{np.max(np.abs(r_loop / r_batch - 1)):.1e}"
+    )
 
 
 def pipeline_section(layout, n, repeats, rng):
@@ -88,27 +90,36 @@ def pipeline_section(layout, n, repeats, rng):
         t_channels = best_time(lambda: model.channel_resistance_ohm(x, y, depth), repeats)
         t_solve = best_time(lambda: equivalent_resistance(layout, 1.0 / resistance), repeats)
         target = "  (target >= 100,000)" if fidelity == "deformation" else ""
-        row(f"{fidelity} fidelity, end to end", n / t_total, f"channels {n / t_channels:,.0f}/s, "
-            f"solve {n / t_solve:,.0f}/s{target}")
+        row(
+            f"{fidelity} fidelity, end to end",
+            n / t_total,
+            f"channels {n / t_channels:,.0f}/s, solve {n / t_solve:,.0f}/s{target}",
+        )
 
 
 def quadrature_section(layout, n, repeats, rng):
-    print(f"\ndeformation integral: error against run time ({n} presses, depth uniform 0.5..5.0 mm, "
-          f"reference 64 nodes/panel)")
+    print(
+        f"\ndeformation integral: error against run time ({n} presses, depth uniform 0.5..5.0 mm, "
+        f"reference 64 nodes/panel)"
+    )
     x, y = rng.uniform(-3, 33, n), rng.uniform(-3, 33, n)
     depth = rng.uniform(0.5, 5.0, n)
     ref = resistance_factor(layout, x, y, depth, 2.75, PinchParams(nodes_per_panel=64))
     ref_eq = equivalent_resistance(layout, 1.0 / (ref * layout.channel_resistance_ohm))
-    print(f"  {'nodes/panel':>11s} {'nodes/channel':>13s} {'max rel err R_ch':>17s} {'max rel err R_eq':>17s} "
-          f"{'presses/s':>12s}")
+    print(
+        f"  {'nodes/panel':>11s} {'nodes/channel':>13s} {'max rel err R_ch':>17s} {'max rel err R_eq':>17s} "
+        f"{'presses/s':>12s}"
+    )
     for q in (2, 3, 4, 6, 8, 12, 16):
         params = PinchParams(nodes_per_panel=q)
         t = best_time(lambda: resistance_factor(layout, x, y, depth, 2.75, params), repeats)
         f = resistance_factor(layout, x, y, depth, 2.75, params)
         r_eq = equivalent_resistance(layout, 1.0 / (f * layout.channel_resistance_ohm))
         mark = "  <- default" if q == PinchParams().nodes_per_panel else ""
-        print(f"  {q:>11d} {2 * 3 * q:>13d} {np.max(np.abs(f / ref - 1)):>17.1e} "
-              f"{np.max(np.abs(r_eq / ref_eq - 1)):>17.1e} {n / t:>12,.0f}{mark}")
+        print(
+            f"  {q:>11d} {2 * 3 * q:>13d} {np.max(np.abs(f / ref - 1)):>17.1e} "
+            f"{np.max(np.abs(r_eq / ref_eq - 1)):>17.1e} {n / t:>12,.0f}{mark}"
+        )
 
 
 def main() -> None:
@@ -120,8 +131,9 @@ def main() -> None:
     paper = load_layout(REPO / "protocols" / "skins" / "paper.toml")
     print(f"bench_skin: one core, best of {args.repeats}")
     solver_section("network solver, paper layout", paper, args.presses, 2000, args.repeats, rng)
-    solver_section("network solver, 30 x 30 grid", grid_layout(30, 30, pitch_mm=5.0), 200, 4,
-                   max(1, args.repeats // 2), rng)
+    solver_section(
+        "network solver, 30 x 30 grid", grid_layout(30, 30, pitch_mm=5.0), 200, 4, max(1, args.repeats // 2), rng
+    )
     pipeline_section(paper, args.presses, args.repeats, rng)
     quadrature_section(paper, min(args.presses, 20_000), args.repeats, rng)
 

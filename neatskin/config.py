@@ -27,8 +27,16 @@ class TableReader:
         self._seen.add(key)
         return self.table.get(key, default)
 
-    def number(self, key: str, default: float | None = None, *, minimum: float | None = None,
-               maximum: float | None = None, positive: bool = False, unit: str = "") -> float | None:
+    def number(
+        self,
+        key: str,
+        default: float | None = None,
+        *,
+        minimum: float | None = None,
+        maximum: float | None = None,
+        positive: bool = False,
+        unit: str = "",
+    ) -> float | None:
         value = self._get(key, default)
         hint = f"set {key} to a number{' in ' + unit if unit else ''}"
         if value is None:
@@ -68,8 +76,11 @@ class TableReader:
     def choice(self, key: str, options: tuple[str, ...], default: str | None = None) -> str | None:
         value = self._get(key, default)
         if value not in options:
-            self._problem(key, f"'{key}' = {value!r} is not one of {', '.join(options)}",
-                          f"set {key} to one of: {', '.join(repr(o) for o in options)}")
+            self._problem(
+                key,
+                f"'{key}' = {value!r} is not one of {', '.join(options)}",
+                f"set {key} to one of: {', '.join(repr(o) for o in options)}",
+            )
             return None
         return value
 
@@ -84,5 +95,9 @@ class TableReader:
         for key in self.table:
             if key not in self._seen:
                 close = difflib.get_close_matches(key, sorted(self._seen), n=1)
-                fix = f"did you mean '{close[0]}'?" if close else f"remove it; known keys: {', '.join(sorted(self._seen))}"
+                fix = (
+                    f"did you mean '{close[0]}'?"
+                    if close
+                    else f"remove it; known keys: {', '.join(sorted(self._seen))}"
+                )
                 self._problem(key, f"unknown key '{key}'", fix)

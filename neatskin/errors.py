@@ -11,9 +11,9 @@ validator can report every mistake in a file at once.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from os import PathLike
-from typing import Iterable
 
 
 @dataclass(frozen=True)

@@ -214,7 +214,9 @@ def layout_from_dict(data: dict, source: str = "<memory>") -> Layout:
 
     skin = data.get("skin")
     if not isinstance(skin, dict):
-        problem("skin", "missing [skin] table", "add [skin] with name, thickness_mm, channel_depth_mm, resistivity_ohm_m")
+        problem(
+            "skin", "missing [skin] table", "add [skin] with name, thickness_mm, channel_depth_mm, resistivity_ohm_m"
+        )
         skin = {}
     defaults = data.get("channel_defaults", {})
 
@@ -275,8 +277,11 @@ def layout_from_dict(data: dict, source: str = "<memory>") -> Layout:
         for key in ("from", "to"):
             ref = raw.get(key)
             if ref not in by_name:
-                problem(f"{where}.{key}", f"unknown junction {ref!r}",
-                        f"use one of the junction names: {', '.join(by_name) or '(none defined)'}")
+                problem(
+                    f"{where}.{key}",
+                    f"unknown junction {ref!r}",
+                    f"use one of the junction names: {', '.join(by_name) or '(none defined)'}",
+                )
             else:
                 ends.append(by_name[ref])
         if len(ends) != 2:
@@ -284,12 +289,17 @@ def layout_from_dict(data: dict, source: str = "<memory>") -> Layout:
         a, b = ends
         name = raw.get("name", f"{junctions[a].name}-{junctions[b].name}")
         if a == b:
-            problem(f"{where}", f"channel '{name}' starts and ends at the same junction", "connect two different junctions")
+            problem(
+                f"{where}", f"channel '{name}' starts and ends at the same junction", "connect two different junctions"
+            )
             continue
         key = frozenset((a, b))
         if key in seen_ends:
-            problem(f"{where}", f"duplicate channel: '{name}' joins the same junctions as '{seen_ends[key]}'",
-                    "remove one of the two channels")
+            problem(
+                f"{where}",
+                f"duplicate channel: '{name}' joins the same junctions as '{seen_ends[key]}'",
+                "remove one of the two channels",
+            )
             continue
         seen_ends[key] = name
         straight = math.dist((junctions[a].x_mm, junctions[a].y_mm), (junctions[b].x_mm, junctions[b].y_mm))
@@ -303,7 +313,9 @@ def layout_from_dict(data: dict, source: str = "<memory>") -> Layout:
     electrodes: list[Electrode] = []
     raw_electrodes = data.get("electrodes")
     if not isinstance(raw_electrodes, list) or len(raw_electrodes) < 2:
-        problem("electrodes", "fewer than 2 [[electrodes]] entries", "add [[electrodes]] tables with number and junction")
+        problem(
+            "electrodes", "fewer than 2 [[electrodes]] entries", "add [[electrodes]] tables with number and junction"
+        )
         raw_electrodes = raw_electrodes if isinstance(raw_electrodes, list) else []
     numbers: set[int] = set()
     used_junctions: dict[int, int] = {}
@@ -311,19 +323,29 @@ def layout_from_dict(data: dict, source: str = "<memory>") -> Layout:
         where = f"electrodes[{k}]"
         num = raw.get("number")
         if isinstance(num, bool) or not isinstance(num, int) or num < 1:
-            problem(f"{where}.number", f"electrode number must be a positive integer, got {num!r}", "number electrodes 1, 2, ...")
+            problem(
+                f"{where}.number",
+                f"electrode number must be a positive integer, got {num!r}",
+                "number electrodes 1, 2, ...",
+            )
             continue
         if num in numbers:
             problem(f"{where}.number", f"duplicate electrode number {num}", "give every electrode its own number")
             continue
         ref = raw.get("junction")
         if ref not in by_name:
-            problem(f"{where}.junction", f"electrode {num} is on a missing junction {ref!r}",
-                    f"use one of the junction names: {', '.join(by_name) or '(none defined)'}")
+            problem(
+                f"{where}.junction",
+                f"electrode {num} is on a missing junction {ref!r}",
+                f"use one of the junction names: {', '.join(by_name) or '(none defined)'}",
+            )
             continue
         if by_name[ref] in used_junctions:
-            problem(f"{where}.junction", f"electrodes {used_junctions[by_name[ref]]} and {num} share junction '{ref}'",
-                    "put each electrode on its own junction")
+            problem(
+                f"{where}.junction",
+                f"electrodes {used_junctions[by_name[ref]]} and {num} share junction '{ref}'",
+                "put each electrode on its own junction",
+            )
             continue
         numbers.add(num)
         used_junctions[by_name[ref]] = num
@@ -359,8 +381,11 @@ def _validate(layout: Layout) -> list[Problem]:
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
             problem(f"skin.{key}", f"must be a positive finite number, got {value!r}", f"set {key} > 0")
     if layout.channel_depth_mm >= layout.thickness_mm:
-        problem("skin.channel_depth_mm", f"channel depth {layout.channel_depth_mm} mm is not inside the "
-                f"{layout.thickness_mm} mm skin", "set channel_depth_mm below thickness_mm")
+        problem(
+            "skin.channel_depth_mm",
+            f"channel depth {layout.channel_depth_mm} mm is not inside the {layout.thickness_mm} mm skin",
+            "set channel_depth_mm below thickness_mm",
+        )
     n = len(layout.junctions)
     names = [j.name for j in layout.junctions]
     if len(set(names)) != len(names):
@@ -386,10 +411,18 @@ def _validate(layout: Layout) -> list[Problem]:
     on_junction: dict[int, int] = {}
     for k, e in enumerate(layout.electrodes):
         if not 0 <= e.junction < n:
-            problem(f"electrodes[{k}].junction", f"electrode {e.number} is on a missing junction", "use an existing junction")
+            problem(
+                f"electrodes[{k}].junction",
+                f"electrode {e.number} is on a missing junction",
+                "use an existing junction",
+            )
         elif e.junction in on_junction:
-            problem(f"electrodes[{k}].junction", f"electrodes {on_junction[e.junction]} and {e.number} share "
-                    f"junction '{layout.junctions[e.junction].name}'", "put each electrode on its own junction")
+            problem(
+                f"electrodes[{k}].junction",
+                f"electrodes {on_junction[e.junction]} and {e.number} share "
+                f"junction '{layout.junctions[e.junction].name}'",
+                "put each electrode on its own junction",
+            )
         else:
             on_junction[e.junction] = e.number
     if problems or n == 0:
@@ -410,9 +443,12 @@ def _validate(layout: Layout) -> list[Problem]:
         components.setdefault(find(u), []).append(layout.junctions[u].name)
     if len(components) > 1:
         groups = sorted(components.values(), key=len)
-        problem("channels", f"the network is disconnected: junctions {', '.join(groups[0])} are not joined to "
-                f"{', '.join(groups[-1][:4])}{'...' if len(groups[-1]) > 4 else ''}",
-                "add channels so every junction is reachable, or remove the stray junctions")
+        problem(
+            "channels",
+            f"the network is disconnected: junctions {', '.join(groups[0])} are not joined to "
+            f"{', '.join(groups[-1][:4])}{'...' if len(groups[-1]) > 4 else ''}",
+            "add channels so every junction is reachable, or remove the stray junctions",
+        )
     return problems
 
 

@@ -9,7 +9,6 @@ from pathlib import Path
 
 from neatskin.errors import ConfigError
 
-
 PACKAGED_FOLDER = "protocols"
 
 
@@ -30,8 +29,12 @@ def resolve_path(path: str | Path) -> Path:
     return packaged if packaged.exists() else given
 
 
-def read_toml(path: str | Path, what: str, fix: str = "check the path (the paths in a protocol's [files] are "
-              "relative to the protocol file's folder; on the command line, to the current folder)") -> dict:
+def read_toml(
+    path: str | Path,
+    what: str,
+    fix: str = "check the path (the paths in a protocol's [files] are "
+    "relative to the protocol file's folder; on the command line, to the current folder)",
+) -> dict:
     """Parse a TOML file; a missing file or a syntax error is one ConfigError naming the file (and the line)."""
     path = resolve_path(path)
     try:
@@ -41,5 +44,6 @@ def read_toml(path: str | Path, what: str, fix: str = "check the path (the paths
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"not valid TOML: {exc}", file=str(path), field="<syntax>",
-                          fix="correct the TOML syntax at that line") from exc
+        raise ConfigError(
+            f"not valid TOML: {exc}", file=str(path), field="<syntax>", fix="correct the TOML syntax at that line"
+        ) from exc

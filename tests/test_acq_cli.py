@@ -13,21 +13,61 @@ def test_mux_table_paper(capsys):
     out = capsys.readouterr().out.splitlines()
     rows = [line for line in out if line[:4].strip().isdigit()]
     assert len(rows) == 28
-    assert rows[0].split() == ["0", "1-2", "U1", "0", "1", "2", "0", "0", "0", "1", "1", "1", "1", "1", "1",
-                               "[2,", "22)", "[22,", "122)", "2.2"]
+    assert rows[0].split() == [
+        "0",
+        "1-2",
+        "U1",
+        "0",
+        "1",
+        "2",
+        "0",
+        "0",
+        "0",
+        "1",
+        "1",
+        "1",
+        "1",
+        "1",
+        "1",
+        "[2,",
+        "22)",
+        "[22,",
+        "122)",
+        "2.2",
+    ]
     assert rows[27].split()[:15] == ["27", "7-8", "U7", "3", "7", "8", "1", "1", "1", "1", "1", "1", "1", "1", "0"]
     assert "U7.INH=port0/line8" in out[1]
-    assert out[-1] == ("sweep: 3416 samples = 341.6 ms at 10000 Hz (28 x (2 break + 20 settle + 100 live)); "
-                       "98 line edges per sweep (pairs order)")
+    assert out[-1] == (
+        "sweep: 3416 samples = 341.6 ms at 10000 Hz (28 x (2 break + 20 settle + 100 live)); "
+        "98 line edges per sweep (pairs order)"
+    )
 
 
 def test_mux_table_options_and_gray_order(capsys):
-    assert main(["mux", "table", str(PAPER), "--rate-hz", "20000", "--live-samples", "40", "--settle-samples", "10",
-                 "--order", "gray"]) == 0
+    assert (
+        main(
+            [
+                "mux",
+                "table",
+                str(PAPER),
+                "--rate-hz",
+                "20000",
+                "--live-samples",
+                "40",
+                "--settle-samples",
+                "10",
+                "--order",
+                "gray",
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out.splitlines()
     rows = [line.split() for line in out if line[:4].strip().isdigit()]
     assert [r[1] for r in rows[:5]] == ["1-2", "1-3", "1-5", "1-4", "1-8"]
-    assert out[-1].startswith("sweep: 1456 samples = 72.8 ms at 20000 Hz") and out[-1].endswith("78 line edges per sweep (gray order)")
+    assert out[-1].startswith("sweep: 1456 samples = 72.8 ms at 20000 Hz") and out[-1].endswith(
+        "78 line edges per sweep (gray order)"
+    )
 
 
 def test_mux_table_layout_option_and_errors(tmp_path, capsys):
@@ -48,16 +88,21 @@ def test_mux_table_layout_option_and_errors(tmp_path, capsys):
 
 def test_mux_table_from_a_protocol(tmp_path, capsys):
     protocol = tmp_path / "p.toml"
-    protocol.write_text(f'[files]\nwiring = "{PAPER}"\n[acquisition]\nrate_hz = 10000.0\nsettle_samples = 10\n'
-                        'live_samples = 50\n[press]\nhold_s = 1.0\n')
+    protocol.write_text(
+        f'[files]\nwiring = "{PAPER}"\n[acquisition]\nrate_hz = 10000.0\nsettle_samples = 10\n'
+        "live_samples = 50\n[press]\nhold_s = 1.0\n"
+    )
     assert main(["mux", "table", "--protocol", str(protocol)]) == 0
     out = capsys.readouterr().out.splitlines()
     assert out[-2].startswith("sweep: 1736 samples = 173.6 ms at 10000 Hz (28 x (2 break + 10 settle + 50 live))")
     # (1.0 - 0.005) // 0.1736 = 5
     assert out[-1] == "a 1 s hold: every pair is measured at least 5 times inside it, whatever the sweep's phase"
     assert main(["mux", "table", "--protocol", str(protocol), "--live-samples", "100", "--hold-s", "0.3"]) == 0
-    assert capsys.readouterr().out.splitlines()[-1].endswith("at least 0 times inside it, whatever the sweep's phase"
-                                                           "  <- too short for a pressed value")
+    assert (
+        capsys.readouterr()
+        .out.splitlines()[-1]
+        .endswith("at least 0 times inside it, whatever the sweep's phase  <- too short for a pressed value")
+    )
     protocol.write_text('[acquisition]\nlive_samples = "many"\n')
     assert main(["mux", "table", "--protocol", str(protocol)]) == 2
     err = capsys.readouterr().err

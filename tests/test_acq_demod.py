@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from neatskin.acquisition.daq.base import DaqConfig
-from neatskin.sim.daq import NoiseModel, SimulatedDAQ
 from neatskin.acquisition.demod import demodulate, window_counts
 from neatskin.acquisition.estimates import PairFlag, flag_names
 from neatskin.acquisition.sequence import SweepTiming, build_sweep
 from neatskin.acquisition.wiring import load_wiring
+from neatskin.sim.daq import NoiseModel, SimulatedDAQ
 
 PAPER = Path(__file__).resolve().parent.parent / "protocols" / "wiring" / "paper.toml"
 R_TRUE = np.linspace(2_000.0, 8_000.0, 28)  # ohm, inside the default +-10 V range at 2 mA
@@ -67,7 +67,7 @@ def _relative_errors(sweep, noise, n_sweeps, seed):
 
 def test_lockin_tighter_than_rms_at_a_fixed_seed(sweep):
     err = _relative_errors(sweep, NOISY, 10, seed=7)
-    rmse = {m: float(np.sqrt(np.mean(e ** 2))) for m, e in err.items()}
+    rmse = {m: float(np.sqrt(np.mean(e**2))) for m, e in err.items()}
     assert rmse["lockin"] < 0.95 * rmse["rms"]
     assert rmse["lockin"] < 0.007  # 2/N (sigma_v^2/V0^2 + sigma_i^2/I0^2) ~ 0.0055 on average
 
@@ -78,7 +78,7 @@ def test_lockin_tighter_than_rms_over_many_seeds(sweep):
     all_err = {"rms": [], "lockin": []}
     for seed in range(40):
         err = _relative_errors(sweep, NOISY, 5, seed)
-        rmse = {m: np.sqrt(np.mean(e ** 2)) for m, e in err.items()}
+        rmse = {m: np.sqrt(np.mean(e**2)) for m, e in err.items()}
         wins += rmse["lockin"] < rmse["rms"]
         for m in err:
             all_err[m].append(err[m])
@@ -89,14 +89,14 @@ def test_lockin_tighter_than_rms_over_many_seeds(sweep):
     # RMS rectifies noise: biased upward by sigma_v^2/V0^2 - sigma_i^2/I0^2 (~1.2e-3 here); lock-in is unbiased
     assert abs(lockin.mean()) < 2e-4
     assert 8e-4 < rms.mean() < 1.6e-3
-    assert np.sqrt(np.mean(lockin ** 2)) < 0.97 * np.sqrt(np.mean(rms ** 2))
+    assert np.sqrt(np.mean(lockin**2)) < 0.97 * np.sqrt(np.mean(rms**2))
 
 
 def test_dc_offset_flagged_and_only_biases_rms(sweep):
     err = _relative_errors(sweep, NoiseModel(voltage_offset_v=0.3), 2, seed=3)
     assert np.max(np.abs(err["lockin"])) < 3e-4
     # rms^2 picks up offset^2: R reads high by ~offset^2 / V0^2 (0.35 % at 2 kohm, 0.035 % at 8 kohm)
-    expected = np.sqrt(1 + 0.3 ** 2 / ((R_TRUE * 0.002) ** 2 / 2)) - 1
+    expected = np.sqrt(1 + 0.3**2 / ((R_TRUE * 0.002) ** 2 / 2)) - 1
     np.testing.assert_allclose(err["rms"].mean(axis=0), expected, rtol=0.1)
     daq = SimulatedDAQ(DaqConfig(), constant(R_TRUE), noise=NoiseModel(voltage_offset_v=0.3))
     est = demodulate(daq.acquire(sweep, rng=np.random.default_rng(0)), sweep)
@@ -194,6 +194,7 @@ def test_features_only_path_flags_dc_offset_like_the_waveform_path(sweep):
 
 def test_same_rng_same_samples_and_rng_required(sweep):
     from neatskin.errors import ConfigError
+
     daq = SimulatedDAQ(DaqConfig(), constant(R_TRUE))
     a = daq.acquire(sweep, 2, rng=np.random.default_rng(42), start_time_s=5.0)
     b = daq.acquire(sweep, 2, rng=np.random.default_rng(42), start_time_s=5.0)
@@ -205,6 +206,7 @@ def test_same_rng_same_samples_and_rng_required(sweep):
 
 def test_skin_callable_of_the_wrong_shape_refused(sweep):
     from neatskin.errors import ConfigError
+
     daq = SimulatedDAQ(DaqConfig(), lambda t: np.ones((len(t), 27)))
     with pytest.raises(ConfigError, match=r"returned shape \(28, 27\), expected \(28, 28\)"):
         daq.acquire(sweep, rng=np.random.default_rng(0))
@@ -225,11 +227,12 @@ def test_per_sample_resistance_follows_a_ramp(sweep):
 
 def test_estimator_moments_closed_form(sweep):
     from neatskin.sim.daq import effective_noise_var, estimator_moments
+
     cfg = DaqConfig()
     noise = NoiseModel(voltage_noise_v=0.3, current_noise_a=3e-5, quantise=False)
     r = R_TRUE[None, :]
     mean, std, blocks = estimator_moments(r, sweep, cfg, noise, "lockin")
-    assert effective_noise_var(cfg, noise) == (0.3 ** 2, 3e-5 ** 2) and blocks == 10
+    assert effective_noise_var(cfg, noise) == (0.3**2, 3e-5**2) and blocks == 10
     np.testing.assert_allclose(mean, r)
     np.testing.assert_allclose(std, r * np.sqrt(2 / 100 * ((0.3 / (r * 0.002)) ** 2 + (3e-5 / 0.002) ** 2)))
     mean_rms, std_rms, blocks_rms = estimator_moments(r, sweep, cfg, noise, "rms", 10)
@@ -238,12 +241,16 @@ def test_estimator_moments_closed_form(sweep):
     assert np.all(std_rms > std) and np.all(std_rms < 1.1 * std) and blocks_rms == 10
 
 
-from hypothesis import given, settings, strategies as st  # noqa: E402
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st
 
 
 @settings(max_examples=25, deadline=None)
-@given(r=st.lists(st.floats(0.0, 9_500.0), min_size=28, max_size=28), start=st.integers(0, 10 ** 9),
-       method=st.sampled_from(["rms", "lockin"]))
+@given(
+    r=st.lists(st.floats(0.0, 9_500.0), min_size=28, max_size=28),
+    start=st.integers(0, 10**9),
+    method=st.sampled_from(["rms", "lockin"]),
+)
 def test_ideal_instrument_recovers_any_resistance(sweep, r, start, method):
     """Any resistance in range (a dead short included), any start on the sample clock: exact, unflagged."""
     r = np.array(r)
@@ -255,6 +262,7 @@ def test_ideal_instrument_recovers_any_resistance(sweep, r, start, method):
 
 def test_bad_method_and_window_refused(sweep):
     from neatskin.errors import ConfigError
+
     daq = SimulatedDAQ(DaqConfig(), constant(R_TRUE))
     acq = daq.acquire(sweep, rng=np.random.default_rng(0))
     with pytest.raises(ConfigError, match="unknown demodulation 'fft'"):
@@ -268,4 +276,5 @@ def test_bad_method_and_window_refused(sweep):
 
 def _layout():
     from neatskin.layout import load_layout
+
     return load_layout(PAPER.parent.parent / "skins" / "paper.toml")

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from neatskin.acquisition.daq.base import DaqConfig
-from neatskin.sim.daq import NoiseModel, SimulatedDAQ
 from neatskin.acquisition.estimates import PairFlag
 from neatskin.acquisition.features import features_from_acquisition, press_features
 from neatskin.acquisition.sequence import build_sweep
 from neatskin.acquisition.wiring import load_wiring
+from neatskin.sim.daq import NoiseModel, SimulatedDAQ
 
 PAPER = Path(__file__).resolve().parent.parent / "protocols" / "wiring" / "paper.toml"
 R0 = np.linspace(2_000.0, 6_000.0, 28)
@@ -82,8 +82,9 @@ def test_open_pair_under_press_is_inf_not_nan(sweep):
         return r
 
     daq = SimulatedDAQ(DaqConfig(), cut, force, noise=NoiseModel.none())
-    feats, det, est = features_from_acquisition(daq.acquire(sweep, 8, rng=np.random.default_rng(0)), sweep,
-                                                margin_s=0.01)
+    feats, det, est = features_from_acquisition(
+        daq.acquire(sweep, 8, rng=np.random.default_rng(0)), sweep, margin_s=0.01
+    )
     assert feats.delta_r_ohm[5] == np.inf and feats.resistance_ohm[5] == np.inf
     assert feats.flags[5] & PairFlag.OPEN_CIRCUIT
     assert not np.isnan(feats.delta_r_ohm).any() and not np.isnan(feats.uncertainty_ohm).any()

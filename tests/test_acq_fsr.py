@@ -2,15 +2,15 @@
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from neatskin.acquisition.fsr import FsrModel, detect_presses
 
 RATE = 10_000.0
 
 
-def trace(onsets_s, duration_s=8.0, peak_n=3.0, hold_s=0.5, ramp_s=0.1, noise_n=0.05, spikes=40,
-          drift_n=0.3, seed=0):
+def trace(onsets_s, duration_s=8.0, peak_n=3.0, hold_s=0.5, ramp_s=0.1, noise_n=0.05, spikes=40, drift_n=0.3, seed=0):
     """Force: trapezoid presses on a drifting baseline, white noise and single-sample spikes."""
     rng = np.random.default_rng(seed)
     t = np.arange(int(duration_s * RATE)) / RATE
@@ -108,6 +108,7 @@ def test_steep_linear_drift_and_decimated_trace():
 
 def test_bad_thresholds_refused():
     from neatskin.errors import ConfigError
+
     with pytest.raises(ConfigError, match="off_threshold_n < on_threshold_n"):
         detect_presses(np.zeros(100), RATE, on_threshold_n=0.2, off_threshold_n=0.3)
     with pytest.raises(ConfigError, match="units must be 'n' or 'v'"):

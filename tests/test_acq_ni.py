@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from neatskin.acquisition.daq import DaqConfig
-from neatskin.rig.assembly import open_daq
 from neatskin.acquisition.daq.nidaqmx_backend import IDLE_TAIL_SAMPLES, line_bits, pack_lines, plan_acquisition
 from neatskin.acquisition.demod import demodulate
 from neatskin.acquisition.sequence import build_sweep
 from neatskin.acquisition.wiring import load_wiring, sequential_wiring
 from neatskin.errors import ConfigError, HardwareError
+from neatskin.rig.assembly import open_daq
 
 PAPER = Path(__file__).resolve().parent.parent / "protocols" / "wiring" / "paper.toml"
 
@@ -31,7 +31,10 @@ def test_plan_is_exact(wiring):
     assert (plan.n_data, plan.n_samples) == (n, n + IDLE_TAIL_SAMPLES)
     assert plan.clock_source == "/Dev1/ai/SampleClock"
     assert [(c.physical, c.name, c.min_v, c.max_v) for c in plan.ai] == [
-        ("Dev1/ai0", "voltage_v", -10.0, 10.0), ("Dev1/ai1", "current_a", -10.0, 10.0), ("Dev1/ai2", "fsr_v", -10.0, 10.0)]
+        ("Dev1/ai0", "voltage_v", -10.0, 10.0),
+        ("Dev1/ai1", "current_a", -10.0, 10.0),
+        ("Dev1/ai2", "fsr_v", -10.0, 10.0),
+    ]
     assert plan.do_channel == ",".join(f"Dev1/port0/line{k}" for k in range(9))
     # 2 mA at 1 V/mA: a 2 V sine, 10 samples per period, phase from the global index (start 10000 = whole periods)
     np.testing.assert_allclose(plan.ao_data_v[:10], 2.0 * np.sin(2 * np.pi * np.arange(10) / 10), atol=1e-12)
@@ -61,6 +64,7 @@ def test_lines_off_port0_refused(paper_layout):
 
 def test_rate_beyond_the_device_refused(wiring):
     from neatskin.acquisition.sequence import SweepTiming
+
     sweep = build_sweep(wiring, SweepTiming(rate_hz=100_000.0))
     with pytest.raises(ConfigError, match="exceed the USB-6229"):
         plan_acquisition(DaqConfig(rate_hz=100_000.0), sweep)
@@ -74,8 +78,11 @@ def test_missing_nidaqmx_is_a_clear_hardware_error(monkeypatch):
 
 def test_toolkit_imports_without_nidaqmx():
     import subprocess
-    code = ("import sys, neatskin.acquisition.daq, neatskin.acquisition.demod, neatskin.acquisition.features, "
-            "neatskin.acquisition.cli; assert 'nidaqmx' not in sys.modules")
+
+    code = (
+        "import sys, neatskin.acquisition.daq, neatskin.acquisition.demod, neatskin.acquisition.features, "
+        "neatskin.acquisition.cli; assert 'nidaqmx' not in sys.modules"
+    )
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
@@ -90,7 +97,8 @@ def fake_nidaqmx(board_ohm, devices=("Dev1",)):
     constants = types.SimpleNamespace(
         AcquisitionType=types.SimpleNamespace(FINITE="FINITE"),
         LineGrouping=types.SimpleNamespace(CHAN_FOR_ALL_LINES="ALL"),
-        TerminalConfiguration=types.SimpleNamespace(DIFF="DIFF"))
+        TerminalConfiguration=types.SimpleNamespace(DIFF="DIFF"),
+    )
 
     class Channels:
         def __init__(self, task, kind):
@@ -99,6 +107,7 @@ def fake_nidaqmx(board_ohm, devices=("Dev1",)):
         def __getattr__(self, name):
             def add(physical, **kw):
                 calls.append((self.task.name, name, physical, kw))
+
             return add
 
     class Timing:
@@ -163,8 +172,11 @@ def fake_nidaqmx(board_ohm, devices=("Dev1",)):
     mod.constants = constants
     mod.stream_readers = types.SimpleNamespace(AnalogMultiChannelReader=Reader)
     mod.stream_writers = types.SimpleNamespace(AnalogSingleChannelWriter=Writer, DigitalSingleChannelWriter=Writer)
-    mod.system = types.SimpleNamespace(System=types.SimpleNamespace(
-        local=lambda: types.SimpleNamespace(devices=[types.SimpleNamespace(name=d) for d in devices])))
+    mod.system = types.SimpleNamespace(
+        System=types.SimpleNamespace(
+            local=lambda: types.SimpleNamespace(devices=[types.SimpleNamespace(name=d) for d in devices])
+        )
+    )
     return mod, calls
 
 

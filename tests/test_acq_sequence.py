@@ -4,7 +4,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from neatskin.acquisition.sequence import SweepTiming, build_sweep, check_sweep, visiting_order
 from neatskin.acquisition.wiring import load_wiring
@@ -77,6 +78,7 @@ def test_check_sweep_catches_violations(wiring):
     bad = sweep.lines.copy()
     bad[50, 3] = False  # enable a second chip while chip 0 is live
     from dataclasses import replace
+
     assert any("two chips" in s for s in check_sweep(replace(sweep, lines=bad)))
     bad = sweep.lines.copy()
     bad[121, 0] = not bad[121, 0]  # address edge while pair 0 is still live
@@ -84,7 +86,9 @@ def test_check_sweep_catches_violations(wiring):
 
 
 @settings(max_examples=25, deadline=None)
-@given(settle=st.integers(0, 30), live=st.integers(1, 60), brk=st.integers(2, 5), order=st.sampled_from(["pairs", "gray"]))
+@given(
+    settle=st.integers(0, 30), live=st.integers(1, 60), brk=st.integers(2, 5), order=st.sampled_from(["pairs", "gray"])
+)
 def test_any_timing_is_sound(wiring, settle, live, brk, order):
     sweep = build_sweep(wiring, SweepTiming(10_000.0, settle, live, brk), order)
     assert check_sweep(sweep) == []

@@ -129,8 +129,10 @@ def test_not_toml_and_missing_file(tmp_path, paper_layout):
 
 def test_pairs_come_from_the_layout(tmp_path, paper_layout):
     # a 4-electrode layout needs 6 pairs -> 2 chips; nothing is hard-coded to 28
-    from neatskin.layout import layout_from_dict
     import tomllib
+
+    from neatskin.layout import layout_from_dict
+
     data = tomllib.loads((PAPER.parent.parent / "skins" / "paper.toml").read_text())
     data["electrodes"] = [e for e in data["electrodes"] if e["number"] in (1, 3, 5, 7)]
     small = layout_from_dict(data)
@@ -139,7 +141,8 @@ def test_pairs_come_from_the_layout(tmp_path, paper_layout):
     assert load_wiring(_write(tmp_path, wiring_to_toml(w)), small).routes == w.routes
 
 
-from hypothesis import given, settings, strategies as st  # noqa: E402
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st
 
 
 @settings(max_examples=30, deadline=None)
@@ -147,7 +150,9 @@ from hypothesis import given, settings, strategies as st  # noqa: E402
 def test_any_board_that_routes_every_pair_once_loads_and_sweeps_soundly(tmp_path_factory, paper_layout, data):
     """Shuffle which chip and address carry which pair, and which end sits on X: always valid, always sound."""
     import tomllib
+
     from neatskin.acquisition.sequence import build_sweep, check_sweep
+
     n = len(paper_layout.pairs)
     n_chips = data.draw(st.integers(7, 9))
     slots = data.draw(st.permutations(range(4 * n_chips)))[:n]
@@ -160,7 +165,8 @@ def test_any_board_that_routes_every_pair_once_loads_and_sweeps_soundly(tmp_path
         chips[c]["pins"].update({f"X{k}": x, f"Y{k}": y})
     pins = lambda d: "{ " + ", ".join(f"{k} = {v}" for k, v in d.items()) + " }"
     text = f'[lines]\nA = "port0/line{lines[0]}"\nB = "port0/line{lines[1]}"\n' + "".join(
-        f'\n[[chips]]\nname = "{ch["name"]}"\ninhibit = "{ch["inhibit"]}"\npins = {pins(ch["pins"])}\n' for ch in chips)
+        f'\n[[chips]]\nname = "{ch["name"]}"\ninhibit = "{ch["inhibit"]}"\npins = {pins(ch["pins"])}\n' for ch in chips
+    )
     tomllib.loads(text)
     path = tmp_path_factory.mktemp("board") / "board.toml"
     path.write_text(text)

@@ -65,12 +65,14 @@ def test_crb_hand_value_and_correlated_noise():
 
 
 def test_crb_singular_fisher_is_inf_never_nan():
-    jac = np.array([
-        [[1.0, 0.0], [2.0, 0.0]],  # nothing sees y
-        [[0.0, 0.0], [0.0, 0.0]],  # dead position
-        [[np.inf, 1.0], [0.0, 1.0]],  # a pair cut off: its row carries nothing
-        [[1.0, 0.0], [0.0, 1.0]],
-    ])
+    jac = np.array(
+        [
+            [[1.0, 0.0], [2.0, 0.0]],  # nothing sees y
+            [[0.0, 0.0], [0.0, 0.0]],  # dead position
+            [[np.inf, 1.0], [0.0, 1.0]],  # a pair cut off: its row carries nothing
+            [[1.0, 0.0], [0.0, 1.0]],
+        ]
+    )
     bound = cramer_rao_bound_mm(jac, noise_std=np.array([1.0, 1.0]))
     assert not np.isnan(bound).any()
     assert np.isinf(bound[:3]).all()

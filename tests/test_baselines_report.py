@@ -9,14 +9,14 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
-from neatskin.cli import main
 from neatskin.baselines.dataset import load_baseline_data
 from neatskin.baselines.evaluate import evaluate_model
 from neatskin.baselines.models import MODEL_NAMES, make_model, make_models
 from neatskin.baselines.report import run_baselines
+from neatskin.cli import main
+from neatskin.errors import DataError
 from neatskin.layout import load_layout
 from neatskin.skin.synthetic import synthetic_presses
-from neatskin.errors import DataError
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -25,12 +25,19 @@ def write_dataset(folder: Path, df: pd.DataFrame, layout: bool = False, crb_mm: 
     folder.mkdir(parents=True, exist_ok=True)
     df.to_parquet(folder / "presses.parquet", index=False)
     if layout:
-        (folder / "manifest.json").write_text(json.dumps(
-            {"layout": {"path": str(REPO / "protocols" / "skins" / "paper.toml")}, "status": "complete"}))
+        (folder / "manifest.json").write_text(
+            json.dumps({"layout": {"path": str(REPO / "protocols" / "skins" / "paper.toml")}, "status": "complete"})
+        )
     if crb_mm is not None:
         pos = df.drop_duplicates("position_id")
-        pd.DataFrame({"position_id": pos["position_id"], "x_mm": pos["x_mm"], "y_mm": pos["y_mm"],
-                      "crb_mm": np.full(len(pos), crb_mm)}).to_parquet(folder / "physical_limit.parquet")
+        pd.DataFrame(
+            {
+                "position_id": pos["position_id"],
+                "x_mm": pos["x_mm"],
+                "y_mm": pos["y_mm"],
+                "crb_mm": np.full(len(pos), crb_mm),
+            }
+        ).to_parquet(folder / "physical_limit.parquet")
     return folder
 
 
@@ -145,8 +152,13 @@ def test_report_writes_table_files_and_plots(tmp_path):
     report = run_baselines(folder, split="both", models=["ridge", "knn", "lm_network"], progress=False, echo=False)
     table = report.table
     assert table[["model", "split"]].values.tolist() == [
-        ["ridge", "grouped"], ["knn", "grouped"], ["lm_network", "grouped"],
-        ["ridge", "random"], ["knn", "random"], ["lm_network", "random"]]
+        ["ridge", "grouped"],
+        ["knn", "grouped"],
+        ["lm_network", "grouped"],
+        ["ridge", "random"],
+        ["knn", "random"],
+        ["lm_network", "random"],
+    ]
     assert (table.loc[table.split == "grouped", "n_test"] == 40).all()  # every press predicted out of fold
     assert (table.loc[table.split == "random", "n_test"] == 1).all()  # 2 % of 40 rounds to 1
     np.testing.assert_allclose(table["mse_per_coordinate_mm2"], table["mse_mm2"] / 2)
@@ -159,7 +171,9 @@ def test_report_writes_table_files_and_plots(tmp_path):
     for name in ("baselines_error_vs_time.png", "baselines_ellipses_grouped.png", "baselines_ellipses_random.png"):
         assert (folder / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     text = (folder / "report.md").read_text()
-    assert "2.03 mm" in text and "82 %" in text and "3.32 mm²" in text and "95 % train / 3 % validation / 2 % test" in text
+    assert (
+        "2.03 mm" in text and "82 %" in text and "3.32 mm²" in text and "95 % train / 3 % validation / 2 % test" in text
+    )
     assert "Cramér-Rao" in text
 
 
@@ -173,8 +187,19 @@ def test_report_is_deterministic_for_a_seed(tmp_path):
 
 def test_cli_baselines_prints_the_table_and_writes_into_out(tmp_path, capsys):
     folder = write_dataset(tmp_path / "ds", small_table(8, 3))
-    rc = main(["baselines", str(folder), "--models", "ridge,knn", "--split", "random", "--out", str(tmp_path / "o"),
-               "--no-progress"])
+    rc = main(
+        [
+            "baselines",
+            str(folder),
+            "--models",
+            "ridge,knn",
+            "--split",
+            "random",
+            "--out",
+            str(tmp_path / "o"),
+            "--no-progress",
+        ]
+    )
     assert rc == 0
     out = capsys.readouterr().out
     assert "ridge" in out and "knn" in out and "random" in out
@@ -195,8 +220,18 @@ def test_cli_errors_are_one_line_and_exit_2(tmp_path, capsys):
 @pytest.fixture(scope="module")
 def smoke_dry_run(tmp_path_factory):
     folder = tmp_path_factory.mktemp("smoke") / "run"
-    rc = main(["campaign", "run", str(REPO / "protocols" / "smoke.toml"), "--dry-run", "--out", str(folder),
-               "--quiet", "--no-report"])
+    rc = main(
+        [
+            "campaign",
+            "run",
+            str(REPO / "protocols" / "smoke.toml"),
+            "--dry-run",
+            "--out",
+            str(folder),
+            "--quiet",
+            "--no-report",
+        ]
+    )
     assert rc == 0
     return folder
 

@@ -5,13 +5,12 @@ import shutil
 import tty
 
 import pytest
+from conftest import PROTOCOLS
 
 from neatskin.cli import main
 from neatskin.errors import ConfigError, HardwareError
 from neatskin.rig.protocol import load_protocol
 from neatskin.rig.runner import run_campaign
-
-from conftest import PROTOCOLS
 
 
 @pytest.fixture
@@ -29,20 +28,23 @@ def edit(path, old, new):
     path.write_text(text.replace(old, new))
 
 
-@pytest.mark.parametrize("old, new, field, words", [
-    ("depth_mm = 3.5", "depth_mm = 9.0", "press.depth_mm", "thickness"),
-    ("amplitude_a = 0.002", "amplitude_a = -0.002", "excitation.amplitude_a", "positive"),
-    ("rate_hz = 10000.0", "rate_hz = 1500.0", "excitation.frequency_hz", "Nyquist"),
-    ("window = 10", "window = 500", "acquisition.window", "live window"),
-    ('demodulation = "rms"', 'demodulation = "fft"', "acquisition.demodulation", "not one of"),
-    ('fidelity = "deformation"', 'fidelity = "exact"', "scene.fidelity", "not one of"),
-    ("[fsr]\nenabled = true", "[fsr]\nenabled = \"yes\"", "fsr.enabled", "true or false"),
-    ('layout = "skins/paper.toml"', 'layout = "skins/nope.toml"', "files.layout", "does not exist"),
-    ("live_samples = 100", "live_sample = 100", "acquisition.live_sample", "did you mean 'live_samples'"),
-    ("repeats = 2", "repeats = 0", "press.repeats", ""),
-    ('strategy = "stratified"', 'strategy = "spiral"', "positions.strategy", ""),
-    ("seed = 7", "seed = -1", "campaign.seed", ""),
-])
+@pytest.mark.parametrize(
+    "old, new, field, words",
+    [
+        ("depth_mm = 3.5", "depth_mm = 9.0", "press.depth_mm", "thickness"),
+        ("amplitude_a = 0.002", "amplitude_a = -0.002", "excitation.amplitude_a", "positive"),
+        ("rate_hz = 10000.0", "rate_hz = 1500.0", "excitation.frequency_hz", "Nyquist"),
+        ("window = 10", "window = 500", "acquisition.window", "live window"),
+        ('demodulation = "rms"', 'demodulation = "fft"', "acquisition.demodulation", "not one of"),
+        ('fidelity = "deformation"', 'fidelity = "exact"', "scene.fidelity", "not one of"),
+        ("[fsr]\nenabled = true", '[fsr]\nenabled = "yes"', "fsr.enabled", "true or false"),
+        ('layout = "skins/paper.toml"', 'layout = "skins/nope.toml"', "files.layout", "does not exist"),
+        ("live_samples = 100", "live_sample = 100", "acquisition.live_sample", "did you mean 'live_samples'"),
+        ("repeats = 2", "repeats = 0", "press.repeats", ""),
+        ('strategy = "stratified"', 'strategy = "spiral"', "positions.strategy", ""),
+        ("seed = 7", "seed = -1", "campaign.seed", ""),
+    ],
+)
 def test_each_protocol_mistake_is_named(protocols, old, new, field, words):
     path = protocols / "smoke.toml"
     edit(path, old, new)
@@ -99,8 +101,16 @@ def test_serial_port_that_never_answers(tmp_path):
     out = tmp_path / "run"
     try:
         with pytest.raises(HardwareError):
-            run_campaign(load_protocol(PROTOCOLS / "smoke.toml"), out, dry_run=False, port=os.ttyname(slave),
-                         daq_kind="ni", progress=False, report=False, connect_timeout_s=0.2)
+            run_campaign(
+                load_protocol(PROTOCOLS / "smoke.toml"),
+                out,
+                dry_run=False,
+                port=os.ttyname(slave),
+                daq_kind="ni",
+                progress=False,
+                report=False,
+                connect_timeout_s=0.2,
+            )
     finally:
         os.close(master)
         os.close(slave)
@@ -112,6 +122,7 @@ def test_missing_daq_is_one_clear_error(tmp_path, capsys):
     pytest.importorskip("serial")
     try:
         import nidaqmx  # noqa: F401
+
         pytest.skip("nidaqmx is installed here: the missing-DAQ path cannot be shown")
     except ImportError:
         pass
@@ -122,8 +133,23 @@ def test_missing_daq_is_one_clear_error(tmp_path, capsys):
     port = printer.start_pty()
     out = tmp_path / "run"
     try:
-        code = main(["campaign", "run", str(PROTOCOLS / "smoke.toml"), "--port", port, "--daq", "ni",
-                     "--out", str(out), "--no-report", "--quiet", "--connect-timeout", "0.2"])
+        code = main(
+            [
+                "campaign",
+                "run",
+                str(PROTOCOLS / "smoke.toml"),
+                "--port",
+                port,
+                "--daq",
+                "ni",
+                "--out",
+                str(out),
+                "--no-report",
+                "--quiet",
+                "--connect-timeout",
+                "0.2",
+            ]
+        )
     finally:
         printer.stop()
     err = capsys.readouterr().err
@@ -145,8 +171,19 @@ def test_existing_folder_is_not_overwritten(tmp_path):
 
 def test_port_that_does_not_exist(tmp_path, capsys):
     out = tmp_path / "run"
-    code = main(["campaign", "run", str(PROTOCOLS / "smoke.toml"), "--port", "/dev/ttyNOPE", "--out", str(out),
-                 "--quiet", "--no-report"])
+    code = main(
+        [
+            "campaign",
+            "run",
+            str(PROTOCOLS / "smoke.toml"),
+            "--port",
+            "/dev/ttyNOPE",
+            "--out",
+            str(out),
+            "--quiet",
+            "--no-report",
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 2 and err.count("neatskin: error:") == 1
     assert "no serial port '/dev/ttyNOPE'" in err and "nothing was sent" in err and "ls /dev/ttyUSB*" in err

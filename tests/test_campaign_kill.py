@@ -11,11 +11,10 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from conftest import PROTOCOLS
 
 from neatskin.rig.protocol import load_protocol
 from neatskin.rig.runner import resume_campaign, run_campaign
-
-from conftest import PROTOCOLS
 
 WALL_CLOCK = ["started_at", "finished_at"]
 
@@ -49,9 +48,23 @@ def _rows(folder: Path) -> pd.DataFrame:
 @pytest.mark.parametrize("run", range(3))
 def test_sigkill_then_resume_equals_uninterrupted(kill_protocol, reference, tmp_path, run):
     folder = tmp_path / "campaign"
-    proc = subprocess.Popen([sys.executable, "-m", "neatskin", "campaign", "run", str(kill_protocol), "--dry-run",
-                             "--out", str(folder), "--no-report", "--quiet"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "neatskin",
+            "campaign",
+            "run",
+            str(kill_protocol),
+            "--dry-run",
+            "--out",
+            str(folder),
+            "--no-report",
+            "--quiet",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
     # wait until some presses are durable, then kill at a random moment
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and not list((folder / "presses").glob("part-*.parquet")):
@@ -66,8 +79,11 @@ def test_sigkill_then_resume_equals_uninterrupted(kill_protocol, reference, tmp_
     assert result.completed == len(reference) and result.written_now == len(reference) - done_before
     rows = _rows(folder)
     assert rows.press_id.is_unique and len(rows) == len(reference)
-    pd.testing.assert_frame_equal(rows.sort_values("press_id").reset_index(drop=True),
-                                  reference.sort_values("press_id").reset_index(drop=True), check_exact=True)
+    pd.testing.assert_frame_equal(
+        rows.sort_values("press_id").reset_index(drop=True),
+        reference.sort_values("press_id").reset_index(drop=True),
+        check_exact=True,
+    )
 
 
 @pytest.mark.timeout(240)
@@ -75,13 +91,22 @@ def test_sigkill_then_resume_equals_uninterrupted(kill_protocol, reference, tmp_
 def test_a_noisy_serial_line_changes_nothing_recorded(kill_protocol, reference, tmp_path, preset):
     """Corrupted bytes, lost oks, dropped lines, duplicated replies and busy storms on the pty: every G-code
     line still runs exactly once, so the dataset equals the one recorded over a clean line."""
-    from neatskin.sim.faults import FaultConfig
     from neatskin.marlin.wirelog import read_wire_log
+    from neatskin.sim.faults import FaultConfig
 
     folder = tmp_path / "run"
-    run_campaign(load_protocol(kill_protocol), folder, dry_run=True, progress=False, report=False,
-                 printer_faults=FaultConfig.parse(preset))
+    run_campaign(
+        load_protocol(kill_protocol),
+        folder,
+        dry_run=True,
+        progress=False,
+        report=False,
+        printer_faults=FaultConfig.parse(preset),
+    )
     received = b"".join(data for direction, data in read_wire_log(folder / "wire.log") if direction == "<")
     assert b"Resend:" in received or b"rs " in received  # the faults did happen
-    pd.testing.assert_frame_equal(_rows(folder).sort_values("press_id").reset_index(drop=True),
-                                  reference.sort_values("press_id").reset_index(drop=True), check_exact=True)
+    pd.testing.assert_frame_equal(
+        _rows(folder).sort_values("press_id").reset_index(drop=True),
+        reference.sort_values("press_id").reset_index(drop=True),
+        check_exact=True,
+    )

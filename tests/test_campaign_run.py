@@ -6,12 +6,11 @@ import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
+from conftest import PROTOCOLS
 
 from neatskin.rig.protocol import load_protocol
 from neatskin.rig.runner import run_campaign
 from neatskin.skin.network import equivalent_resistance
-
-from conftest import PROTOCOLS
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +27,9 @@ def test_smoke_campaign_completes(smoke_run):
     manifest = json.loads((folder / "manifest.json").read_text())
     assert manifest["status"] == "complete"
     assert manifest["counts"]["completed"] == 12 and manifest["seed"] == 7
-    assert manifest["rig"]["kind"] == "dry-run" and manifest["rig"]["printer"].startswith("simulated Marlin on /dev/pts/")
+    assert manifest["rig"]["kind"] == "dry-run" and manifest["rig"]["printer"].startswith(
+        "simulated Marlin on /dev/pts/"
+    )
     for key in ("layout", "wiring", "printer", "protocol"):
         assert (folder / manifest[key]["path"]).is_file()
 
@@ -39,8 +40,21 @@ def test_dataset_reads_back_without_the_toolkit(smoke_run):
     df = pd.read_parquet(folder / "presses.parquet")
     table = pq.read_table(folder / "presses.parquet")
     assert len(df) == table.num_rows == 12
-    for column in ("campaign", "press_id", "position_id", "repeat", "x_mm", "y_mm", "depth_mm", "started_at",
-                   "finished_at", "fsr_onset_s", "fsr_offset_s", "fsr_peak_n", "flags"):
+    for column in (
+        "campaign",
+        "press_id",
+        "position_id",
+        "repeat",
+        "x_mm",
+        "y_mm",
+        "depth_mm",
+        "started_at",
+        "finished_at",
+        "fsr_onset_s",
+        "fsr_offset_s",
+        "fsr_peak_n",
+        "flags",
+    ):
         assert column in df.columns
     assert [c for c in df.columns if c.startswith("dR_ohm_")] == [f"dR_ohm_{p}" for p in pairs]
     assert [c for c in df.columns if c.startswith("R_ohm_")] == [f"R_ohm_{p}" for p in pairs]

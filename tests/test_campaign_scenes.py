@@ -11,12 +11,11 @@ import time
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import PROTOCOLS
 
+from neatskin.marlin.wirelog import read_wire_log
 from neatskin.rig.protocol import load_protocol
 from neatskin.rig.runner import resume_campaign, run_campaign
-from neatskin.marlin.wirelog import read_wire_log
-
-from conftest import PROTOCOLS
 
 
 def make_protocol(tmp_path, *replacements, name="scene.toml"):
@@ -56,8 +55,9 @@ def test_network_scene_skips_the_deformation_integral(tmp_path, monkeypatch):
         raise AssertionError("a network-fidelity scene must not integrate the deformation")
 
     monkeypatch.setattr(model, "resistance_factor", refuse)
-    path = make_protocol(tmp_path, *FEATURES, ("repeats = 2", "repeats = 1"),
-                         ('fidelity = "deformation"', 'fidelity = "network"'))
+    path = make_protocol(
+        tmp_path, *FEATURES, ("repeats = 2", "repeats = 1"), ('fidelity = "deformation"', 'fidelity = "network"')
+    )
     result = run_campaign(load_protocol(path), tmp_path / "run", progress=False, report=False)
     df = pd.read_parquet(tmp_path / "run" / "presses.parquet")
     assert result.completed == 6 and (df.filter(like="dR_ohm_").abs().max(axis=1) > 100).all()
@@ -65,8 +65,9 @@ def test_network_scene_skips_the_deformation_integral(tmp_path, monkeypatch):
 
 def test_missed_press_is_retried_then_flagged(tmp_path):
     """The skin lies 5 mm below where the printer was calibrated: a 3.5 mm press never touches it."""
-    path = make_protocol(tmp_path, *FEATURES, ("repeats = 2", "repeats = 1"),
-                         ("surface_error_mm = 0.0", "surface_error_mm = 5.0"))
+    path = make_protocol(
+        tmp_path, *FEATURES, ("repeats = 2", "repeats = 1"), ("surface_error_mm = 0.0", "surface_error_mm = 5.0")
+    )
     run_campaign(load_protocol(path), tmp_path / "run", progress=False, report=False)
     df = pd.read_parquet(tmp_path / "run" / "presses.parquet")
     for flags in df["flags"]:
@@ -79,7 +80,9 @@ def test_missed_press_is_retried_then_flagged(tmp_path):
 
 
 def test_protocol_without_fsr_says_so(tmp_path):
-    path = make_protocol(tmp_path, *FEATURES, ("repeats = 2", "repeats = 1"), ("[fsr]\nenabled = true", "[fsr]\nenabled = false"))
+    path = make_protocol(
+        tmp_path, *FEATURES, ("repeats = 2", "repeats = 1"), ("[fsr]\nenabled = true", "[fsr]\nenabled = false")
+    )
     run_campaign(load_protocol(path), tmp_path / "run", progress=False, report=False)
     manifest = json.loads((tmp_path / "run" / "manifest.json").read_text())
     assert manifest["labels"].startswith("motion sync only")
@@ -87,21 +90,29 @@ def test_protocol_without_fsr_says_so(tmp_path):
     assert df.fsr_peak_n.isna().all() and (df.filter(like="dR_ohm_").abs().max(axis=1) > 100).all()
 
 
-PROBE_MODULES = ("nidaqmx", "neatskin.acquisition.daq.nidaqmx_backend", "neatskin.skin.model",
-                 "neatskin.sim.printer", "neatskin.sim.daq")
+PROBE_MODULES = (
+    "nidaqmx",
+    "neatskin.acquisition.daq.nidaqmx_backend",
+    "neatskin.skin.model",
+    "neatskin.sim.printer",
+    "neatskin.sim.daq",
+)
 
 
 def _modules_after(args, cwd):
-    code = ("import sys\nfrom neatskin.cli import main\ncode = main(%r)\n"
-            "print(sorted(m for m in %r if m in sys.modules))" % (args, PROBE_MODULES))
+    code = (
+        "import sys\nfrom neatskin.cli import main\ncode = main(%r)\n"
+        "print(sorted(m for m in %r if m in sys.modules))" % (args, PROBE_MODULES)
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=cwd, timeout=120)
     return out
 
 
 def test_dry_run_never_imports_nidaqmx(tmp_path):
     path = make_protocol(tmp_path, *FEATURES, ("repeats = 2", "repeats = 1"))
-    out = _modules_after(["campaign", "run", str(path), "--dry-run", "--out", str(tmp_path / "run"),
-                          "--no-report", "--quiet"], tmp_path)
+    out = _modules_after(
+        ["campaign", "run", str(path), "--dry-run", "--out", str(tmp_path / "run"), "--no-report", "--quiet"], tmp_path
+    )
     loaded = eval(out.stdout.strip().splitlines()[-1])
     assert "nidaqmx" not in loaded and "neatskin.acquisition.daq.nidaqmx_backend" not in loaded
     assert "neatskin.skin.model" in loaded  # the probe works: the dry run did build its simulator
@@ -114,9 +125,24 @@ def test_real_run_never_builds_a_simulator(tmp_path):
     try:
         port = sim.stdout.readline().strip()
         assert port.startswith("/dev/")
-        out = _modules_after(["campaign", "run", str(PROTOCOLS / "smoke.toml"), "--port", port, "--daq", "ni",
-                              "--out", str(tmp_path / "run"), "--no-report", "--quiet", "--connect-timeout", "0.3"],
-                             tmp_path)
+        out = _modules_after(
+            [
+                "campaign",
+                "run",
+                str(PROTOCOLS / "smoke.toml"),
+                "--port",
+                port,
+                "--daq",
+                "ni",
+                "--out",
+                str(tmp_path / "run"),
+                "--no-report",
+                "--quiet",
+                "--connect-timeout",
+                "0.3",
+            ],
+            tmp_path,
+        )
     finally:
         sim.send_signal(signal.SIGINT)
         sim.wait(10)
@@ -131,9 +157,24 @@ def test_real_run_never_builds_a_simulator(tmp_path):
 def test_ctrl_c_stops_after_the_press_in_flight_and_resumes(tmp_path):
     path = make_protocol(tmp_path, *FEATURES, ("repeats = 2", "repeats = 40"))
     folder = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "neatskin", "campaign", "run", str(path), "--dry-run",
-                             "--out", str(folder), "--no-report", "--quiet"], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "neatskin",
+            "campaign",
+            "run",
+            str(path),
+            "--dry-run",
+            "--out",
+            str(folder),
+            "--no-report",
+            "--quiet",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and len(list((folder / "presses").glob("part-*.parquet"))) < 3:
         time.sleep(0.02)

@@ -8,14 +8,13 @@ import sys
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import PROTOCOLS, REPO
 
 from neatskin.datasets import cli
 from neatskin.datasets.manifest import create_manifest, update_manifest
-from neatskin.skin.synthetic import synthetic_rows
 from neatskin.datasets.writer import CampaignWriter
 from neatskin.errors import DataError
-
-from conftest import PROTOCOLS, REPO
+from neatskin.skin.synthetic import synthetic_rows
 
 LAYOUT_REF = {"path": str(PROTOCOLS / "skins" / "paper.toml"), "name": "neatskin-paper"}
 
@@ -29,8 +28,14 @@ def run(argv):
 
 def make(folder, layout, seed=0, positions=8, repeats=2):
     rows = synthetic_rows(layout, positions, repeats, seed=seed, campaign=folder.name)
-    create_manifest(folder, fsync=False, campaign=folder.name, seed=seed, layout=LAYOUT_REF,
-                    counts={"planned": len(rows), "completed": len(rows)})
+    create_manifest(
+        folder,
+        fsync=False,
+        campaign=folder.name,
+        seed=seed,
+        layout=LAYOUT_REF,
+        counts={"planned": len(rows), "completed": len(rows)},
+    )
     with CampaignWriter(folder, layout.pairs, {"seed": seed}, fsync=False) as writer:
         for row in rows:
             writer.write_press(row)
@@ -57,8 +62,22 @@ def test_merge_split_export_plot(paper_layout, tmp_path, capsys):
     make(tmp_path / "b", paper_layout, seed=2)
     assert run(["dataset", "merge", str(tmp_path / "a"), str(tmp_path / "b"), "-o", str(tmp_path / "m")]) == 0
     assert "position ids +8" in capsys.readouterr().out
-    assert run(["dataset", "split", str(tmp_path / "m"), "-o", str(tmp_path / "s"), "--test-fraction", "0.25",
-                "--seed", "3"]) == 0
+    assert (
+        run(
+            [
+                "dataset",
+                "split",
+                str(tmp_path / "m"),
+                "-o",
+                str(tmp_path / "s"),
+                "--test-fraction",
+                "0.25",
+                "--seed",
+                "3",
+            ]
+        )
+        == 0
+    )
     assert "(8 presses, 4 positions)" in capsys.readouterr().out
     train = pd.read_parquet(tmp_path / "s" / "train" / "presses.parquet")
     test = pd.read_parquet(tmp_path / "s" / "test" / "presses.parquet")
@@ -75,8 +94,10 @@ def test_merge_of_mixed_layouts_is_a_data_error(paper_layout, tmp_path):
     update_manifest(tmp_path / "b", fsync=False, layout={**LAYOUT_REF, "name": "other"})
     with pytest.raises(DataError, match="allow-mixed"):
         run(["dataset", "merge", str(tmp_path / "a"), str(tmp_path / "b"), "-o", str(tmp_path / "m")])
-    assert run(["dataset", "merge", str(tmp_path / "a"), str(tmp_path / "b"), "-o", str(tmp_path / "m"),
-                "--allow-mixed"]) == 0
+    assert (
+        run(["dataset", "merge", str(tmp_path / "a"), str(tmp_path / "b"), "-o", str(tmp_path / "m"), "--allow-mixed"])
+        == 0
+    )
 
 
 def test_real_command_exit_status(paper_layout, tmp_path):
@@ -87,10 +108,20 @@ def test_real_command_exit_status(paper_layout, tmp_path):
     with CampaignWriter(folder, paper_layout.pairs, {}, fsync=False) as writer:
         for row in rows:
             writer.write_press(row)
-    result = subprocess.run([sys.executable, "-m", "neatskin", "dataset", "validate", str(folder)], cwd=REPO,
-                            capture_output=True, text=True, timeout=120)
+    result = subprocess.run(
+        [sys.executable, "-m", "neatskin", "dataset", "validate", str(folder)],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert result.returncode == 1
     assert result.stderr.count("NaN/null value(s) in 'dR_ohm_") == 28 and "28 problem(s)" in result.stderr
-    missing = subprocess.run([sys.executable, "-m", "neatskin", "dataset", "info", str(tmp_path / "none")],
-                             cwd=REPO, capture_output=True, text=True, timeout=120)
+    missing = subprocess.run(
+        [sys.executable, "-m", "neatskin", "dataset", "info", str(tmp_path / "none")],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert missing.returncode == 2 and "no such dataset" in missing.stderr

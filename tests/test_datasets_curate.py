@@ -7,30 +7,38 @@ import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
-from hypothesis import given, settings, strategies as st
+from conftest import PROTOCOLS
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from neatskin.datasets.curate import describe, export, merge, split, split_positions
 from neatskin.datasets.manifest import create_manifest, update_manifest
 from neatskin.datasets.plots import plot_press_map, plot_sensitivity_map, sensitivity_by_position
 from neatskin.datasets.reader import read_metadata, read_presses
-from neatskin.skin.synthetic import synthetic_rows
 from neatskin.datasets.validate import validate_dataset
 from neatskin.datasets.writer import CampaignWriter
 from neatskin.errors import DataError
-
-from conftest import PROTOCOLS
+from neatskin.skin.synthetic import synthetic_rows
 
 LAYOUT_REF = {"path": str(PROTOCOLS / "skins" / "paper.toml"), "name": "neatskin-paper"}
 
 
-def campaign(folder, layout, n_positions=6, repeats=3, seed=0, name="c", layout_ref=LAYOUT_REF, wiring="paper-wiring",
-             flagged=()):
+def campaign(
+    folder, layout, n_positions=6, repeats=3, seed=0, name="c", layout_ref=LAYOUT_REF, wiring="paper-wiring", flagged=()
+):
     rows = synthetic_rows(layout, n_positions, repeats, seed=seed, campaign=name)
     for k in flagged:
         rows[k]["flags"] = ["fsr_missed"]
     n = len(rows)
-    create_manifest(folder, fsync=False, campaign=name, seed=seed, layout=layout_ref, wiring={"name": wiring},
-                    counts={"planned": n, "completed": n})
+    create_manifest(
+        folder,
+        fsync=False,
+        campaign=name,
+        seed=seed,
+        layout=layout_ref,
+        wiring={"name": wiring},
+        counts={"planned": n, "completed": n},
+    )
     with CampaignWriter(folder, layout.pairs, {"seed": seed, "layout": layout_ref}, fsync=False) as writer:
         for row in rows:
             writer.write_press(row)
@@ -65,8 +73,10 @@ def test_merge_rekeys_and_keeps_provenance(paper_layout, tmp_path):
     assert df["campaign"].tolist() == ["a"] * 18 + ["b"] * 8
     np.testing.assert_array_equal(df.loc[18:, "dR_ohm_2_6"], [r["dR_ohm"][10] for r in b])
     meta = read_metadata(out)
-    assert [(s["press_id_offset"], s["position_id_offset"], s["presses"]) for s in meta["merged_from"]] == \
-        [(0, 0, 18), (18, 6, 8)]
+    assert [(s["press_id_offset"], s["position_id_offset"], s["presses"]) for s in meta["merged_from"]] == [
+        (0, 0, 18),
+        (18, 6, 8),
+    ]
     assert meta["merged_from"][1]["manifest"]["campaign"] == "b"
     assert validate_dataset(out) == []
 
@@ -154,11 +164,16 @@ def test_export_csv_and_parquet(paper_layout, tmp_path):
 
 
 def test_sensitivity_by_position_exact():
-    df = pd.DataFrame({
-        "position_id": [0, 0, 1, 1, 2], "x_mm": [1.0, 1.0, 2.0, 2.0, 3.0], "y_mm": [0.0, 0.0, 5.0, 5.0, 9.0],
-        "flags": [[], [], [], [], ["clipped"]],
-        "dR_ohm_1_2": [10.0, 30.0, -4.0, -8.0, 999.0], "dR_ohm_1_3": [5.0, 5.0, -2.0, -2.0, 999.0],
-    })
+    df = pd.DataFrame(
+        {
+            "position_id": [0, 0, 1, 1, 2],
+            "x_mm": [1.0, 1.0, 2.0, 2.0, 3.0],
+            "y_mm": [0.0, 0.0, 5.0, 5.0, 9.0],
+            "flags": [[], [], [], [], ["clipped"]],
+            "dR_ohm_1_2": [10.0, 30.0, -4.0, -8.0, 999.0],
+            "dR_ohm_1_3": [5.0, 5.0, -2.0, -2.0, 999.0],
+        }
+    )
     sens = sensitivity_by_position(df)
     assert sens["position_id"].tolist() == [0, 1]  # the flagged press is left out
     assert sens["z"].tolist() == [1.0, -0.1]  # max(20, 5) = 20 -> 1; max(-6, -2) = -2 -> -0.1
@@ -169,7 +184,7 @@ def test_synthetic_map_is_high_on_periphery_low_in_quadrants(paper_layout, tmp_p
     campaign(tmp_path, paper_layout, 60, 1, seed=5)
     sens = sensitivity_by_position(read_presses(tmp_path))
     x, y = sens["x_mm"].to_numpy(), sens["y_mm"].to_numpy()
-    on_edge = (np.minimum(np.minimum(x, 30 - x), np.minimum(y, 30 - y)) < 0.5)
+    on_edge = np.minimum(np.minimum(x, 30 - x), np.minimum(y, 30 - y)) < 0.5
     centre = np.array([np.hypot(x - cx, y - cy) < 3 for cx in (7.5, 22.5) for cy in (7.5, 22.5)]).any(axis=0)
     assert on_edge.sum() > 3 and centre.sum() > 0
     assert sens["z"][on_edge].min() > sens["z"][centre].max()

@@ -1,7 +1,6 @@
 """SIGKILL at random instants while a real process writes presses (fsync on) and finalizes; resume after
 each kill; the result has every press exactly once and equals an uninterrupted write."""
 
-import os
 import signal
 import subprocess
 import sys
@@ -9,12 +8,11 @@ import time
 
 import numpy as np
 import pandas as pd
+from conftest import PROTOCOLS
 
 from neatskin.datasets.reader import read_presses, read_waveforms
 from neatskin.datasets.writer import CampaignWriter
 from neatskin.skin.synthetic import synthetic_rows
-
-from conftest import PROTOCOLS
 
 N_POSITIONS, REPEATS = 40, 4  # 160 presses
 META = {"seed": 11, "protocol": {"name": "kill"}}
@@ -44,8 +42,11 @@ def run_worker(folder, kill_after_lines=None, then_s=0.0, until_finalizing=False
     durable press, then 'finalizing') or, with until_finalizing, once it starts finalizing; so kills land
     mid-campaign and, with then_s, inside a write or inside finalize.
     Returns (presses it reported durable, whether it finished)."""
-    proc = subprocess.Popen([sys.executable, "-c", WORKER, str(folder), str(PROTOCOLS / "skins" / "paper.toml")],
-                            stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", WORKER, str(folder), str(PROTOCOLS / "skins" / "paper.toml")],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     assert proc.stdout.readline().startswith("ready")
     seen = []
     if kill_after_lines is not None:

@@ -5,22 +5,22 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
+from conftest import PROTOCOLS
 
 from neatskin.datasets.manifest import create_manifest, update_manifest
-from neatskin.skin.synthetic import synthetic_rows
 from neatskin.datasets.validate import check_dataset, validate_dataset
 from neatskin.datasets.writer import CampaignWriter
 from neatskin.errors import DataError
-
-from conftest import PROTOCOLS
+from neatskin.skin.synthetic import synthetic_rows
 
 LAYOUT_REF = {"path": str(PROTOCOLS / "skins" / "paper.toml"), "name": "neatskin-paper"}
 
 
 def make_campaign(folder, layout, rows=None, finalize=True):
     rows = rows if rows is not None else synthetic_rows(layout, 5, 3, seed=9, campaign="val")
-    create_manifest(folder, fsync=False, campaign="val", seed=9, layout=LAYOUT_REF,
-                    counts={"planned": 15, "completed": len(rows)})
+    create_manifest(
+        folder, fsync=False, campaign="val", seed=9, layout=LAYOUT_REF, counts={"planned": 15, "completed": len(rows)}
+    )
     with CampaignWriter(folder, layout.pairs, {"seed": 9, "layout": LAYOUT_REF}, fsync=False) as writer:
         for row in rows:
             writer.write_press(row)
@@ -61,8 +61,10 @@ def test_missing_pair_column(paper_layout, tmp_path):
 
 def test_wrong_column_type(paper_layout, tmp_path):
     make_campaign(tmp_path, paper_layout)
-    rewrite(tmp_path, lambda t: t.set_column(t.schema.get_field_index("repeat"), "repeat",
-                                             pc.cast(t.column("repeat"), pa.float64())))
+    rewrite(
+        tmp_path,
+        lambda t: t.set_column(t.schema.get_field_index("repeat"), "repeat", pc.cast(t.column("repeat"), pa.float64())),
+    )
     p = only(validate_dataset(tmp_path))
     assert p.field == "repeat" and "double" in p.message and "int32" in p.message
 
@@ -84,6 +86,7 @@ def test_duplicate_press_id(paper_layout, tmp_path):
         k = extra.schema.get_field_index("dR_ohm_1_2")
         extra = extra.set_column(k, extra.schema.field(k), pa.array([123.0]))
         return pa.concat_tables([t, extra])
+
     rewrite(tmp_path, duplicate)
     update_manifest(tmp_path, fsync=False)
     p = only(validate_dataset(tmp_path))

@@ -10,16 +10,22 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from neatskin.datasets.reader import feature_matrix, read_metadata, read_presses, read_waveforms
 from neatskin.datasets.schema import BASE_COLUMNS, pair_columns, press_schema
-from neatskin.skin.synthetic import synthetic_rows
 from neatskin.datasets.writer import CampaignWriter
 from neatskin.errors import DataError
+from neatskin.skin.synthetic import synthetic_rows
 
-META = {"seed": 7, "protocol": {"name": "unit"}, "layout": {"path": "skins/paper.toml"}, "wiring": "w.toml",
-        "started_at": "2026-11-22T07:00:00+00:00"}
+META = {
+    "seed": 7,
+    "protocol": {"name": "unit"},
+    "layout": {"path": "skins/paper.toml"},
+    "wiring": "w.toml",
+    "started_at": "2026-11-22T07:00:00+00:00",
+}
 
 
 def expected_frame(rows, pairs):
@@ -72,8 +78,10 @@ def test_round_trip_without_the_toolkit(paper_layout, tmp_path):
         for col in want.columns:
             if col in ("flags", "started_at", "finished_at"):
                 continue
-            np.testing.assert_array_equal(got[col].to_numpy(dtype=float if col != "campaign" else object),
-                                          want[col].to_numpy(dtype=float if col != "campaign" else object))
+            np.testing.assert_array_equal(
+                got[col].to_numpy(dtype=float if col != "campaign" else object),
+                want[col].to_numpy(dtype=float if col != "campaign" else object),
+            )
         assert [list(f) for f in got["flags"]][5] == ["fsr_missed", "retried"]
         assert pd.isna(got["fsr_peak_n"][6])
     stamps = pd.to_datetime(by_pandas["started_at"], utc=True)
@@ -143,8 +151,9 @@ def test_finalize_is_idempotent_and_removes_parts(paper_layout, tmp_path):
     assert reopened.finalize().read_bytes() == first
     df = read_presses(tmp_path)
     assert df["press_id"].tolist() == list(range(10))
-    pd.testing.assert_frame_equal(df.drop(columns=["flags"]),
-                                  read_presses(tmp_path / "presses.parquet").drop(columns=["flags"]))
+    pd.testing.assert_frame_equal(
+        df.drop(columns=["flags"]), read_presses(tmp_path / "presses.parquet").drop(columns=["flags"])
+    )
 
 
 def test_kill_during_finalize_loses_nothing(paper_layout, tmp_path):
@@ -164,7 +173,7 @@ def test_kill_during_finalize_loses_nothing(paper_layout, tmp_path):
     writer = CampaignWriter(folder, paper_layout.pairs, META, fsync=False)
     assert not (folder / ".presses.parquet.dead.tmp").exists()
     parts = sorted((folder / "presses").iterdir())
-    consolidated = (folder / "presses.parquet")
+    consolidated = folder / "presses.parquet"
     writer.finalize()
     for p in parts[3:]:
         pq.write_table(pq.read_table(consolidated).slice(int(p.name[5:11]), 1), p)  # restore 2 parts
@@ -206,8 +215,10 @@ def test_waveforms_partitioned_by_position_and_orphans_removed(paper_layout, tmp
     assert wf["press_id"].unique().tolist() == [3] and wf["position_id"].unique().tolist() == [1]
     np.testing.assert_array_equal(wf["voltage_v"], signals[3]["voltage_v"])
     np.testing.assert_array_equal(wf["sample"], np.arange(50))
-    everything = duckdb.sql(f"SELECT count(*), count(DISTINCT press_id) FROM "
-                            f"read_parquet('{tmp_path}/waveforms/*/*.parquet', hive_partitioning=true)").fetchall()[0]
+    everything = duckdb.sql(
+        f"SELECT count(*), count(DISTINCT press_id) FROM "
+        f"read_parquet('{tmp_path}/waveforms/*/*.parquet', hive_partitioning=true)"
+    ).fetchall()[0]
     assert everything == (300, 6)
 
 
@@ -238,7 +249,7 @@ def test_feature_matrix_and_metadata(paper_layout, tmp_path):
 def test_timestamps_accept_epoch_seconds_and_naive_utc(paper_layout, tmp_path):
     row = synthetic_rows(paper_layout, 1, 1)[0]
     row["started_at"] = dt.datetime(2026, 3, 1, 12, 0, 0, 250)
-    row["finished_at"] = dt.datetime(2026, 3, 1, 12, 0, 1, tzinfo=dt.timezone.utc).timestamp()
+    row["finished_at"] = dt.datetime(2026, 3, 1, 12, 0, 1, tzinfo=dt.UTC).timestamp()
     write_all(tmp_path, paper_layout, [row])
     df = read_presses(tmp_path)
     assert df["started_at"][0] == pd.Timestamp("2026-03-01T12:00:00.000250", tz="UTC")

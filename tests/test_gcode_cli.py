@@ -17,8 +17,14 @@ def test_paper_protocol_sections(protocols_dir):
     assert spec.printer_path == protocols_dir / "printers" / "paper.toml"
     assert (spec.positions.strategy, spec.positions.count, spec.positions.seed) == ("paper", 100, 2019)
     p = spec.press
-    assert (p.depth_mm, p.repeats, p.order, p.hold_s, p.probe_diameter_mm, p.travel_ordering) == \
-        (3.5, 28, "position", 1.2, 5.5, False)
+    assert (p.depth_mm, p.repeats, p.order, p.hold_s, p.probe_diameter_mm, p.travel_ordering) == (
+        3.5,
+        28,
+        "position",
+        1.2,
+        5.5,
+        False,
+    )
 
 
 def test_protocol_problems_reported_together(protocols_dir):
@@ -31,8 +37,14 @@ def test_protocol_problems_reported_together(protocols_dir):
     del data["press"]["depth_mm"]
     with pytest.raises(ConfigError) as info:
         press_spec_from_dict(data, "p.toml")
-    assert {p.field for p in info.value.problems} == {"campaign.seed", "files.printer", "positions.strategy",
-                                                      "positions.cuont", "press.repeats", "press.depth_mm"}
+    assert {p.field for p in info.value.problems} == {
+        "campaign.seed",
+        "files.printer",
+        "positions.strategy",
+        "positions.cuont",
+        "press.repeats",
+        "press.depth_mm",
+    }
     assert all(p.file == "p.toml" for p in info.value.problems)
 
 
@@ -114,8 +126,20 @@ def test_generate_writes_positions_csv(protocols_dir, tmp_path):
     import pandas as pd
 
     csv = tmp_path / "positions.csv"
-    assert main(["gcode", "generate", str(protocols_dir / "smoke.toml"), "-o", str(tmp_path / "s.gcode"),
-                 "--positions", str(csv)]) == 0
+    assert (
+        main(
+            [
+                "gcode",
+                "generate",
+                str(protocols_dir / "smoke.toml"),
+                "-o",
+                str(tmp_path / "s.gcode"),
+                "--positions",
+                str(csv),
+            ]
+        )
+        == 0
+    )
     table = pd.read_csv(csv)
     assert list(table.columns) == ["position_id", "x_mm", "y_mm", "feature"]
     assert table["position_id"].tolist() == list(range(6))
@@ -126,8 +150,20 @@ def test_generate_draws_the_positions_png(protocols_dir, tmp_path):
     import matplotlib.image as mpimg
 
     png = tmp_path / "positions.png"
-    assert main(["gcode", "generate", str(protocols_dir / "smoke.toml"), "-o", str(tmp_path / "s.gcode"),
-                 "--plot", str(png)]) == 0
+    assert (
+        main(
+            [
+                "gcode",
+                "generate",
+                str(protocols_dir / "smoke.toml"),
+                "-o",
+                str(tmp_path / "s.gcode"),
+                "--plot",
+                str(png),
+            ]
+        )
+        == 0
+    )
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     image = mpimg.imread(png)
     assert image.shape[:2] == (720, 768)  # 6.4 x 6.0 in at 120 dpi

@@ -57,23 +57,25 @@ def test_program_estimate_counts_dwell_and_homing(profile):
 
 
 def test_phase_durations_by_hand(profile, paper_layout):
+    from neatskin.gcode.motion import phase_durations_s
     from neatskin.gcode.positions import PositionSet
     from neatskin.gcode.program import PressSpec, build_program
-    from neatskin.gcode.motion import phase_durations_s
 
     ps = PositionSet((10.0,), (0.0,), ("channel:J00-J10",))
-    prog = build_program(paper_layout, ps, PressSpec(depth_mm=3.5, repeats=2, hold_s=0.5), profile,
-                         hold_in_gcode=True)
+    prog = build_program(paper_layout, ps, PressSpec(depth_mm=3.5, repeats=2, hold_s=0.5), profile, hold_in_gcode=True)
     d = phase_durations_s(prog, profile)
     # after G28 the probe is at (0, 0, 0): up 15.5 mm at Z limits, then 105 x 95 mm of travel at 100 mm/s
     up = 0.05 + (15.5 - 0.25) / 5 + 0.05
-    xy = 2 * 0.2 + (((105.0 ** 2 + 95.0 ** 2) ** 0.5) - 20.0) / 100.0
-    descend = 0.05 + 9.75 / 5 + 0.05          # 10 mm at 5 mm/s, 100 mm/s^2
-    press = 0.02 + 3.46 / 2 + 0.02 + 0.5      # 3.5 mm at 2 mm/s, then the 0.5 s hold
-    lift = 0.05 + 13.25 / 5 + 0.05            # 13.5 mm back up
+    xy = 2 * 0.2 + (((105.0**2 + 95.0**2) ** 0.5) - 20.0) / 100.0
+    descend = 0.05 + 9.75 / 5 + 0.05  # 10 mm at 5 mm/s, 100 mm/s^2
+    press = 0.02 + 3.46 / 2 + 0.02 + 0.5  # 3.5 mm at 2 mm/s, then the 0.5 s hold
+    lift = 0.05 + 13.25 / 5 + 0.05  # 13.5 mm back up
     assert d.shape == (2, 4)
     assert d[0] == pytest.approx([up + xy, descend, press, lift], abs=1e-9)
     assert d[1] == pytest.approx([0.0, descend, press, lift], abs=1e-9)
     total = estimate_program_time(prog.command_lines(), profile).total_s
-    assert total == pytest.approx(d.sum() + profile.homing_time_s
-                                  + estimate_program_time(prog.postamble, profile, start_mm=(105.0, 95.0, 15.5)).total_s)
+    assert total == pytest.approx(
+        d.sum()
+        + profile.homing_time_s
+        + estimate_program_time(prog.postamble, profile, start_mm=(105.0, 95.0, 15.5)).total_s
+    )

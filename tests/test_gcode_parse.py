@@ -1,7 +1,8 @@
 """G-code line parsing: commands, parameters, comments, Marlin host framing and checksums."""
 
 import pytest
-from hypothesis import given, strategies as st
+from hypothesis import given
+from hypothesis import strategies as st
 
 from neatskin.gcode.parse import GcodeSyntaxError, checksum, frame_line, parse_line, parse_program
 

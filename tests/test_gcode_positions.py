@@ -5,7 +5,8 @@ from collections import Counter
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from neatskin.errors import ConfigError
 from neatskin.gcode.positions import PositionSpec, generate_positions
@@ -20,23 +21,42 @@ def grid_layout(n: int, pitch_mm: float = 10.0, width_mm: float = 2.0):
     channels += [{"from": names[i, j], "to": names[i, j + 1]} for i in range(n) for j in range(n - 1)]
     boundary = [names[i, j] for (i, j) in names if i in (0, n - 1) or j in (0, n - 1)]
     electrodes = [{"number": k + 1, "junction": name} for k, name in enumerate(boundary)]
-    return layout_from_dict({"skin": {"name": f"grid{n}", "thickness_mm": 5.5, "channel_depth_mm": 2.0,
-                                      "resistivity_ohm_m": 0.5},
-                             "channel_defaults": {"width_mm": width_mm, "height_mm": 1.0},
-                             "junctions": junctions, "channels": channels, "electrodes": electrodes})
+    return layout_from_dict(
+        {
+            "skin": {"name": f"grid{n}", "thickness_mm": 5.5, "channel_depth_mm": 2.0, "resistivity_ohm_m": 0.5},
+            "channel_defaults": {"width_mm": width_mm, "height_mm": 1.0},
+            "junctions": junctions,
+            "channels": channels,
+            "electrodes": electrodes,
+        }
+    )
 
 
 def triangle_layout():
     """A square with one diagonal: two triangular faces, a 21.2 mm channel."""
-    j = [{"name": "a", "x_mm": 0, "y_mm": 0}, {"name": "b", "x_mm": 15, "y_mm": 0},
-         {"name": "c", "x_mm": 15, "y_mm": 15}, {"name": "d", "x_mm": 0, "y_mm": 15}]
-    ch = [{"from": "a", "to": "b"}, {"from": "b", "to": "c"}, {"from": "c", "to": "d"}, {"from": "d", "to": "a"},
-          {"from": "a", "to": "c"}]
+    j = [
+        {"name": "a", "x_mm": 0, "y_mm": 0},
+        {"name": "b", "x_mm": 15, "y_mm": 0},
+        {"name": "c", "x_mm": 15, "y_mm": 15},
+        {"name": "d", "x_mm": 0, "y_mm": 15},
+    ]
+    ch = [
+        {"from": "a", "to": "b"},
+        {"from": "b", "to": "c"},
+        {"from": "c", "to": "d"},
+        {"from": "d", "to": "a"},
+        {"from": "a", "to": "c"},
+    ]
     el = [{"number": k + 1, "junction": n} for k, n in enumerate("abcd")]
-    return layout_from_dict({"skin": {"name": "tri", "thickness_mm": 5.5, "channel_depth_mm": 2.0,
-                                      "resistivity_ohm_m": 0.5},
-                             "channel_defaults": {"width_mm": 2.0, "height_mm": 1.0},
-                             "junctions": j, "channels": ch, "electrodes": el})
+    return layout_from_dict(
+        {
+            "skin": {"name": "tri", "thickness_mm": 5.5, "channel_depth_mm": 2.0, "resistivity_ohm_m": 0.5},
+            "channel_defaults": {"width_mm": 2.0, "height_mm": 1.0},
+            "junctions": j,
+            "channels": ch,
+            "electrodes": el,
+        }
+    )
 
 
 def on_channel_or_in_face(layout, x, y) -> bool:
@@ -142,14 +162,17 @@ def test_impossible_spacing_is_a_config_error(paper_layout):
         generate_positions(paper_layout, PositionSpec("paper", 100, 3, min_spacing_mm=20.0))
 
 
-@pytest.mark.parametrize("kwargs, field", [
-    ({"strategy": "spiral"}, "positions.strategy"),
-    ({"count": 0}, "positions.count"),
-    ({"seed": -1}, "positions.seed"),
-    ({"min_spacing_mm": -1.0}, "positions.min_spacing_mm"),
-    ({"channel_fraction": 1.5}, "positions.channel_fraction"),
-    ({"keep_out": ((1.0, 2.0),)}, "positions.keep_out[0]"),
-])
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        ({"strategy": "spiral"}, "positions.strategy"),
+        ({"count": 0}, "positions.count"),
+        ({"seed": -1}, "positions.seed"),
+        ({"min_spacing_mm": -1.0}, "positions.min_spacing_mm"),
+        ({"channel_fraction": 1.5}, "positions.channel_fraction"),
+        ({"keep_out": ((1.0, 2.0),)}, "positions.keep_out[0]"),
+    ],
+)
 def test_bad_spec_fields(kwargs, field):
     with pytest.raises(ConfigError) as info:
         PositionSpec(**kwargs)

@@ -33,8 +33,13 @@ def test_every_bad_field_at_once(paper_dict):
     with pytest.raises(ConfigError) as info:
         printer_profile_from_dict(paper_dict, "printer.toml")
     fields = {p.field for p in info.value.problems}
-    assert fields == {"bed.size_x_mm", "max_feed.z_mm_s", "motion.press_feed_mm_s", "printer.baud_rate",
-                      "calibration.rotation_deg"}
+    assert fields == {
+        "bed.size_x_mm",
+        "max_feed.z_mm_s",
+        "motion.press_feed_mm_s",
+        "printer.baud_rate",
+        "calibration.rotation_deg",
+    }
     assert all(p.file == "printer.toml" and p.fix for p in info.value.problems)
 
 
@@ -53,8 +58,11 @@ def test_field_and_cross_field_problems_in_one_report(paper_dict):
     del paper_dict["soft_limits"]["min_z_mm"]  # the z checks that need it are skipped, not misreported
     with pytest.raises(ConfigError) as info:
         printer_profile_from_dict(paper_dict, "printer.toml")
-    assert [p.field for p in info.value.problems] == ["soft_limits.min_z_mm", "bed.size_y_mm",
-                                                      "motion.travel_feed_mm_s"]
+    assert [p.field for p in info.value.problems] == [
+        "soft_limits.min_z_mm",
+        "bed.size_y_mm",
+        "motion.travel_feed_mm_s",
+    ]
 
 
 def test_missing_table_and_unreadable_file(paper_dict, tmp_path):

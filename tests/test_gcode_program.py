@@ -45,8 +45,12 @@ def test_press_block_phases_exact_lines(paper_layout, positions, profile):
     px, py = (f"{v:.3f}".rstrip("0").rstrip(".") for v in (positions.x_mm[1] + 95.0, positions.y_mm[1] + 95.0))
     assert [p.name for p in block.phases] == ["travel", "descend", "press", "lift"]
     assert [p.acquire for p in block.phases] == ["baseline", None, "pressed", None]
-    assert block.phase("travel").lines == ("M118 E1 NS press=4 phase=travel", "G0 Z15.5 F300",
-                                           f"G0 X{px} Y{py} F6000", "M400")
+    assert block.phase("travel").lines == (
+        "M118 E1 NS press=4 phase=travel",
+        "G0 Z15.5 F300",
+        f"G0 X{px} Y{py} F6000",
+        "M400",
+    )
     assert block.phase("descend").lines == ("M118 E1 NS press=4 phase=descend", "G1 Z5.5 F300", "M400")
     assert block.phase("press").lines == ("M118 E1 NS press=4 phase=press", "G1 Z2 F120", "G4 P500", "M400")
     assert block.phase("lift").lines == ("M118 E1 NS press=4 phase=lift", "G0 Z15.5 F300", "M400")
@@ -68,8 +72,9 @@ def test_preamble_and_postamble(paper_layout, positions, profile):
 def test_round_trip_emit_parse_same_moves(paper_layout, profile):
     positions = generate_positions(paper_layout, PositionSpec("paper", 25, 3))
     rotated = profile.with_calibration(Calibration(110.0, 60.0, 30.0, 7.25))
-    prog = build_program(paper_layout, positions, PressSpec(depth_mm=3.5, repeats=2, hold_s=0.25), rotated,
-                         seed=1, hold_in_gcode=True)
+    prog = build_program(
+        paper_layout, positions, PressSpec(depth_mm=3.5, repeats=2, hold_s=0.25), rotated, seed=1, hold_in_gcode=True
+    )
     lines = parse_program(prog.text())
     xy_moves = [(ln.params["X"], ln.params["Y"]) for ln in lines if ln.code == "G0" and "X" in ln.params]
     press_z = [ln.params["Z"] for ln in lines if ln.code == "G1" and ln.params.get("F") == 120.0]
@@ -123,8 +128,11 @@ def test_sideways_moves_only_at_safe_height_even_when_resuming(paper_layout, pos
     """The probe never moves sideways below the safe height (it would drag over the skin and its fittings),
     also when a resumed campaign sends the preamble and then starts at press `first`."""
     prog = build(paper_layout, positions, profile, repeats=3, order="shuffled")
-    lines = list(prog.preamble) + [ln for b in prog.presses[first:] for ph in b.phases for ln in ph.lines] \
+    lines = (
+        list(prog.preamble)
+        + [ln for b in prog.presses[first:] for ph in b.phases for ln in ph.lines]
         + list(prog.postamble)
+    )
     safe_z = profile.calibration.surface_z_mm + profile.safe_height_mm
     z = None  # unknown until homed
     sideways = 0

@@ -49,15 +49,17 @@ def test_position_off_the_bed_names_press_and_limit(paper_layout, profile, no_te
     shifted = profile.with_calibration(Calibration(-5.0, 95.0, 0.0, 5.5))
     err = refuse(paper_layout, ps, shifted)
     assert [p.field for p in err.problems] == ["press 0", "press 1"]
-    assert "press 0 (position 0) goes to printer x = -3.000 mm, outside the bed and soft limits [0, 220] mm" \
-        in str(err)
+    assert "press 0 (position 0) goes to printer x = -3.000 mm, outside the bed and soft limits [0, 220] mm" in str(err)
 
 
-@pytest.mark.parametrize("calibration, axis", [
-    (Calibration(200.0, 95.0, 0.0, 5.5), "x"),     # beyond x max 220
-    (Calibration(95.0, 200.0, 0.0, 5.5), "y"),     # beyond y max 220
-    (Calibration(95.0, 10.0, 180.0, 5.5), "y"),    # rotated off the bed's front edge
-])
+@pytest.mark.parametrize(
+    "calibration, axis",
+    [
+        (Calibration(200.0, 95.0, 0.0, 5.5), "x"),  # beyond x max 220
+        (Calibration(95.0, 200.0, 0.0, 5.5), "y"),  # beyond y max 220
+        (Calibration(95.0, 10.0, 180.0, 5.5), "y"),  # rotated off the bed's front edge
+    ],
+)
 def test_every_axis_out_of_bounds_refused(paper_layout, positions, profile, no_text, calibration, axis):
     err = refuse(paper_layout, positions, profile.with_calibration(calibration))
     assert f"printer {axis} = " in str(err)
@@ -124,8 +126,12 @@ def test_injection_in_layout_and_printer_names_refused(paper_layout, positions, 
 def test_injection_through_the_protocol_file_refused(paper_layout, positions, profile, name):
     from neatskin.gcode.spec import build_from_spec
 
-    data = {"campaign": {"name": name, "seed": 1}, "files": {"layout": "a.toml", "printer": "b.toml"},
-            "positions": {"strategy": "paper", "count": 3}, "press": {"depth_mm": 3.5, "repeats": 1}}
+    data = {
+        "campaign": {"name": name, "seed": 1},
+        "files": {"layout": "a.toml", "printer": "b.toml"},
+        "positions": {"strategy": "paper", "count": 3},
+        "press": {"depth_mm": 3.5, "repeats": 1},
+    }
     spec = press_spec_from_dict(data, "proto.toml")
     with pytest.raises(ConfigError) as info:
         build_from_spec(spec, layout=paper_layout, profile=profile)
@@ -140,7 +146,8 @@ def test_safe_names_pass(paper_layout, positions, profile):
     assert commands == list(prog.command_lines())
 
 
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from neatskin.gcode.bounds import check_moves, check_phases
 from neatskin.gcode.parse import parse_program

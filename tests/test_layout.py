@@ -3,11 +3,10 @@
 import tomllib
 
 import pytest
+from conftest import PROTOCOLS
 
 from neatskin.errors import ConfigError
 from neatskin.layout import ElectrodePair, layout_from_dict
-
-from conftest import PROTOCOLS
 
 
 def paper_dict():

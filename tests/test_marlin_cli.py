@@ -16,9 +16,25 @@ REPO = Path(__file__).resolve().parent.parent
 
 @pytest.mark.timeout(60)
 def test_sim_printer_then_printer_send(tmp_path, capsys):
-    proc = subprocess.Popen([sys.executable, "-m", "neatskin", "sim", "printer", "--time", "virtual",
-                             "--faults", "corrupt=0.05,drop_ok=0.02", "--seed", "3"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "neatskin",
+            "sim",
+            "printer",
+            "--time",
+            "virtual",
+            "--faults",
+            "corrupt=0.05,drop_ok=0.02",
+            "--seed",
+            "3",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+    )
     try:
         path = proc.stdout.readline().strip()
         assert path.startswith("/dev/pts/")
@@ -26,8 +42,23 @@ def test_sim_printer_then_printer_send(tmp_path, capsys):
         moves = [f"G1 X{x} Y{y} F6000" for x, y in [(10, 10), (60, 10), (60, 60), (10, 60)] * 25]
         program.write_text("; a square, 25 times\nG28\n" + "\n".join(moves) + "\nM400\n")
         log = tmp_path / "wire.log"
-        assert main(["printer", "send", "--port", path, "--boot-timeout-s", "0.1", "--no-progress",
-                     "--wire-log", str(log), str(program)]) == 0
+        assert (
+            main(
+                [
+                    "printer",
+                    "send",
+                    "--port",
+                    path,
+                    "--boot-timeout-s",
+                    "0.1",
+                    "--no-progress",
+                    "--wire-log",
+                    str(log),
+                    str(program),
+                ]
+            )
+            == 0
+        )
         assert capsys.readouterr().out.startswith("sent 102 lines to /dev/pts/")
         assert b"N1 G28*18" in log.read_bytes()
     finally:

@@ -15,8 +15,8 @@ import serial
 from neatskin.errors import HardwareError
 from neatskin.marlin import errors as E
 from neatskin.marlin.driver import DriverConfig, MarlinDriver
-from neatskin.sim.scripted import ScriptedPeer
 from neatskin.marlin.wirelog import read_wire_log
+from neatskin.sim.scripted import ScriptedPeer
 
 FAST = DriverConfig(boot_timeout_s=0.5, min_timeout_s=0.4, busy_extension_s=0.6, poll_s=0.01)
 
@@ -50,13 +50,17 @@ def run():
 @pytest.mark.timeout(20)
 def test_literal_framing_and_normal_exchange(run, tmp_path):
     log = tmp_path / "wire.log"
-    peer, driver = run([
-        BOOT, HELLO,
-        (b"N1 G28*18\n", b"echo:busy: processing\nok\n"),
-        (b"N2 G1 X10 Y20 F3000*77\n", b"ok\n"),
-        (b"N3 M114*36\n", b"X:10.00 Y:20.00 Z:0.00 E:0.00 Count X:800 Y:1600 Z:0\nok\n"),
-        (b"N4 M400*35\n", b"ok\n"),
-    ], wire_log=log)
+    peer, driver = run(
+        [
+            BOOT,
+            HELLO,
+            (b"N1 G28*18\n", b"echo:busy: processing\nok\n"),
+            (b"N2 G1 X10 Y20 F3000*77\n", b"ok\n"),
+            (b"N3 M114*36\n", b"X:10.00 Y:20.00 Z:0.00 E:0.00 Count X:800 Y:1600 Z:0\nok\n"),
+            (b"N4 M400*35\n", b"ok\n"),
+        ],
+        wire_log=log,
+    )
     driver.connect()
     assert driver.send("G28") == []
     assert driver.send("G1 X10 Y20 F3000 ; travel") == []
@@ -73,19 +77,25 @@ def test_literal_framing_and_normal_exchange(run, tmp_path):
 
 
 @pytest.mark.timeout(20)
-@pytest.mark.parametrize("error", [
-    b"Error:checksum mismatch, Last Line: 1\n",
-    b"Error:Line Number is not Last Line Number+1, Last Line: 1\n",
-    b"Error:No Checksum with line number, Last Line: 1\n",
-])
+@pytest.mark.parametrize(
+    "error",
+    [
+        b"Error:checksum mismatch, Last Line: 1\n",
+        b"Error:Line Number is not Last Line Number+1, Last Line: 1\n",
+        b"Error:No Checksum with line number, Last Line: 1\n",
+    ],
+)
 def test_each_communication_error_is_replayed_once(run, error):
-    peer, driver = run([
-        BOOT, HELLO,
-        (cs(1, "G28"), b"ok\n"),
-        (cs(2, "G1 X5"), error + b"Resend: 2\n"),
-        (cs(2, "G1 X5"), b"ok\n"),
-        (cs(3, "M400"), b"ok\n"),
-    ])
+    peer, driver = run(
+        [
+            BOOT,
+            HELLO,
+            (cs(1, "G28"), b"ok\n"),
+            (cs(2, "G1 X5"), error + b"Resend: 2\n"),
+            (cs(2, "G1 X5"), b"ok\n"),
+            (cs(3, "M400"), b"ok\n"),
+        ]
+    )
     driver.connect()
     driver.send("G28")
     driver.send("G1 X5")
@@ -98,13 +108,16 @@ def test_each_communication_error_is_replayed_once(run, error):
 @pytest.mark.timeout(20)
 def test_resend_followed_by_ok_old_marlin_does_not_acknowledge_the_replayed_line(run):
     # Marlin 1.x: "Resend: 2" then "ok"; that ok must not count for the replayed N2.
-    peer, driver = run([
-        BOOT, HELLO,
-        (cs(1, "G28"), b"ok\n"),
-        (cs(2, "G1 X5"), b"Error:checksum mismatch, Last Line: 1\nResend: 2\nok\n"),
-        (cs(2, "G1 X5"), [0.3, b"ok\n"]),
-        (cs(3, "M400"), b"ok\n"),
-    ])
+    peer, driver = run(
+        [
+            BOOT,
+            HELLO,
+            (cs(1, "G28"), b"ok\n"),
+            (cs(2, "G1 X5"), b"Error:checksum mismatch, Last Line: 1\nResend: 2\nok\n"),
+            (cs(2, "G1 X5"), [0.3, b"ok\n"]),
+            (cs(3, "M400"), b"ok\n"),
+        ]
+    )
     driver.connect()
     driver.send("G28")
     driver.send("G1 X5")
@@ -116,11 +129,14 @@ def test_resend_followed_by_ok_old_marlin_does_not_acknowledge_the_replayed_line
 
 @pytest.mark.timeout(20)
 def test_rs_short_form_and_resend_without_error_line(run):
-    peer, driver = run([
-        BOOT, HELLO,
-        (cs(1, "M105"), b"rs 1\n"),
-        (cs(1, "M105"), b"ok T:25.00 /0.00\n"),
-    ])
+    peer, driver = run(
+        [
+            BOOT,
+            HELLO,
+            (cs(1, "M105"), b"rs 1\n"),
+            (cs(1, "M105"), b"ok T:25.00 /0.00\n"),
+        ]
+    )
     driver.connect()
     assert driver.send("M105") == []
     peer.check()
@@ -128,13 +144,16 @@ def test_rs_short_form_and_resend_without_error_line(run):
 
 @pytest.mark.timeout(20)
 def test_duplicate_resend_is_ignored(run):
-    peer, driver = run([
-        BOOT, HELLO,
-        (cs(1, "G28"), b"ok\n"),
-        (cs(2, "G1 X5"), b"Error:checksum mismatch, Last Line: 1\nResend: 2\nResend: 2\n"),
-        (cs(2, "G1 X5"), [0.2, b"ok\n"]),
-        (cs(3, "M400"), b"ok\n"),
-    ])
+    peer, driver = run(
+        [
+            BOOT,
+            HELLO,
+            (cs(1, "G28"), b"ok\n"),
+            (cs(2, "G1 X5"), b"Error:checksum mismatch, Last Line: 1\nResend: 2\nResend: 2\n"),
+            (cs(2, "G1 X5"), [0.2, b"ok\n"]),
+            (cs(3, "M400"), b"ok\n"),
+        ]
+    )
     driver.connect()
     driver.send("G28")
     driver.send("G1 X5")
@@ -146,11 +165,14 @@ def test_duplicate_resend_is_ignored(run):
 
 @pytest.mark.timeout(20)
 def test_stale_resend_for_an_acknowledged_line_is_ignored(run):
-    peer, driver = run([
-        BOOT, HELLO,
-        (cs(1, "G28"), b"ok\n"),
-        (cs(2, "M114"), b"Resend: 1\nX:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0\nok\n"),
-    ])
+    peer, driver = run(
+        [
+            BOOT,
+            HELLO,
+            (cs(1, "G28"), b"ok\n"),
+            (cs(2, "M114"), b"Resend: 1\nX:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0\nok\n"),
+        ]
+    )
     driver.connect()
     driver.send("G28")
     assert driver.position().x_mm == 0.0
@@ -177,8 +199,14 @@ def test_resend_loop_is_capped(run):
 def test_busy_keepalives_extend_the_deadline_without_a_probe(run):
     busy = b"echo:busy: processing\n"
     # 1.2 s of keep-alives, three times FAST.min_timeout_s
-    peer, driver = run([BOOT, HELLO, (cs(1, "G4 P10"), [busy, 0.3, busy, 0.3, busy, 0.3, busy, 0.3, b"ok\n"]),
-                        (cs(2, "M400"), b"ok\n")])
+    peer, driver = run(
+        [
+            BOOT,
+            HELLO,
+            (cs(1, "G4 P10"), [busy, 0.3, busy, 0.3, busy, 0.3, busy, 0.3, b"ok\n"]),
+            (cs(2, "M400"), b"ok\n"),
+        ]
+    )
     driver.connect()
     driver.send("G4 P10")
     driver.send("M400")
@@ -188,9 +216,14 @@ def test_busy_keepalives_extend_the_deadline_without_a_probe(run):
 
 
 @pytest.mark.timeout(20)
-@pytest.mark.parametrize("text", [b"Error:Printer halted. kill() called!\n",
-                                  b"Error:Printer stopped due to errors. Fix the error and use M999 to restart. "
-                                  b"(Temperature is reset. Set it after restarting)\n"])
+@pytest.mark.parametrize(
+    "text",
+    [
+        b"Error:Printer halted. kill() called!\n",
+        b"Error:Printer stopped due to errors. Fix the error and use M999 to restart. "
+        b"(Temperature is reset. Set it after restarting)\n",
+    ],
+)
 def test_halt_raises_names_last_line_and_sends_nothing_more(run, text):
     peer, driver = run([BOOT, HELLO, (cs(1, "G28"), b"ok\n"), (cs(2, "G1 X5"), text)])
     driver.connect()
@@ -210,13 +243,16 @@ def test_halt_raises_names_last_line_and_sends_nothing_more(run, text):
 
 @pytest.mark.timeout(20)
 def test_start_in_mid_session_is_a_reset_and_reconnect_starts_over(run):
-    peer, driver = run([
-        BOOT, HELLO,
-        (cs(1, "G28"), b"ok\n"),
-        (cs(2, "G1 X5"), b"start\necho:Marlin 2.1.2.4\n"),
-        HELLO,
-        (cs(1, "M105"), b"ok T:25.0 /0.0\n"),
-    ])
+    peer, driver = run(
+        [
+            BOOT,
+            HELLO,
+            (cs(1, "G28"), b"ok\n"),
+            (cs(2, "G1 X5"), b"start\necho:Marlin 2.1.2.4\n"),
+            HELLO,
+            (cs(1, "M105"), b"ok T:25.0 /0.0\n"),
+        ]
+    )
     driver.connect()
     driver.send("G28")
     with pytest.raises(E.PrinterReset) as info:
@@ -231,13 +267,16 @@ def test_start_in_mid_session_is_a_reset_and_reconnect_starts_over(run):
 @pytest.mark.timeout(20)
 def test_lost_ok_is_recovered_by_probe_without_sending_the_line_twice(run):
     probe = "M118 E1 neatskin-probe 3"
-    peer, driver = run([
-        BOOT, HELLO,
-        (cs(1, "G28"), b"ok\n"),
-        (cs(2, "M105"), b""),  # executed, but its ok is lost
-        (cs(3, probe), b"echo:neatskin-probe 3\nok\n"),
-        (cs(4, "M400"), b"ok\n"),
-    ])
+    peer, driver = run(
+        [
+            BOOT,
+            HELLO,
+            (cs(1, "G28"), b"ok\n"),
+            (cs(2, "M105"), b""),  # executed, but its ok is lost
+            (cs(3, probe), b"echo:neatskin-probe 3\nok\n"),
+            (cs(4, "M400"), b"ok\n"),
+        ]
+    )
     driver.connect()
     driver.send("G28")
     driver.send("M105")
@@ -250,15 +289,18 @@ def test_lost_ok_is_recovered_by_probe_without_sending_the_line_twice(run):
 @pytest.mark.timeout(20)
 def test_lost_line_is_replayed_after_the_probe_is_refused(run):
     probe = "M118 E1 neatskin-probe 3"
-    peer, driver = run([
-        BOOT, HELLO,
-        (cs(1, "G28"), b"ok\n"),
-        (cs(2, "M105"), b""),  # the line never reached the firmware
-        (cs(3, probe), b"Error:Line Number is not Last Line Number+1, Last Line: 1\nResend: 2\n"),
-        (cs(2, "M105"), b"ok\n"),
-        (cs(3, probe), b"echo:neatskin-probe 3\nok\n"),
-        (cs(4, "M400"), b"ok\n"),
-    ])
+    peer, driver = run(
+        [
+            BOOT,
+            HELLO,
+            (cs(1, "G28"), b"ok\n"),
+            (cs(2, "M105"), b""),  # the line never reached the firmware
+            (cs(3, probe), b"Error:Line Number is not Last Line Number+1, Last Line: 1\nResend: 2\n"),
+            (cs(2, "M105"), b"ok\n"),
+            (cs(3, probe), b"echo:neatskin-probe 3\nok\n"),
+            (cs(4, "M400"), b"ok\n"),
+        ]
+    )
     driver.connect()
     driver.send("G28")
     driver.send("M105")
@@ -270,13 +312,16 @@ def test_lost_line_is_replayed_after_the_probe_is_refused(run):
 @pytest.mark.timeout(20)
 def test_late_ok_during_probe_is_counted_once(run):
     probe = "M118 E1 neatskin-probe 3"
-    peer, driver = run([
-        BOOT, HELLO,
-        (cs(1, "G28"), b"ok\n"),
-        (cs(2, "G4 P1"), b""),  # a command that outlives its deadline
-        (cs(3, probe), b"ok\necho:neatskin-probe 3\nok\n"),
-        (cs(4, "M400"), b"ok\n"),
-    ])
+    peer, driver = run(
+        [
+            BOOT,
+            HELLO,
+            (cs(1, "G28"), b"ok\n"),
+            (cs(2, "G4 P1"), b""),  # a command that outlives its deadline
+            (cs(3, probe), b"ok\necho:neatskin-probe 3\nok\n"),
+            (cs(4, "M400"), b"ok\n"),
+        ]
+    )
     driver.connect()
     driver.send("G28")
     driver.send("G4 P1")
@@ -290,9 +335,17 @@ def test_late_ok_during_probe_is_counted_once(run):
 def test_silent_printer_raises_no_answer_naming_the_last_line(run):
     config = DriverConfig(boot_timeout_s=0.3, min_timeout_s=0.3, poll_s=0.01, probe_attempts=2)
     # the probe that went unanswered is said again under its own number, never a new one
-    peer, driver = run([BOOT, HELLO, (cs(1, "G28"), b"ok\n"), (cs(2, "M105"), b""),
-                        (cs(3, "M118 E1 neatskin-probe 3"), b""), (cs(3, "M118 E1 neatskin-probe 3"), b"")],
-                       config=config)
+    peer, driver = run(
+        [
+            BOOT,
+            HELLO,
+            (cs(1, "G28"), b"ok\n"),
+            (cs(2, "M105"), b""),
+            (cs(3, "M118 E1 neatskin-probe 3"), b""),
+            (cs(3, "M118 E1 neatskin-probe 3"), b""),
+        ],
+        config=config,
+    )
     driver.connect()
     driver.send("G28")
     with pytest.raises(E.NoAnswer) as info:
@@ -320,8 +373,15 @@ def test_connect_to_a_silent_port_raises_no_answer():
 
 @pytest.mark.timeout(20)
 def test_unknown_command_is_refused_and_numbering_goes_on(run):
-    peer, driver = run([BOOT, HELLO, (cs(1, "G999"), b'echo:Unknown command: "G999"\nok\n'),
-                        (cs(2, "G1 X1"), b"echo:Home XYZ First\nok\n"), (cs(3, "M105"), b"ok\n")])
+    peer, driver = run(
+        [
+            BOOT,
+            HELLO,
+            (cs(1, "G999"), b'echo:Unknown command: "G999"\nok\n'),
+            (cs(2, "G1 X1"), b"echo:Home XYZ First\nok\n"),
+            (cs(3, "M105"), b"ok\n"),
+        ]
+    )
     driver.connect()
     with pytest.raises(E.CommandRejected, match="Unknown command"):
         driver.send("G999")
@@ -333,8 +393,14 @@ def test_unknown_command_is_refused_and_numbering_goes_on(run):
 
 @pytest.mark.timeout(20)
 def test_host_action_and_echo_lines_are_kept(run):
-    peer, driver = run([BOOT, HELLO, (cs(1, "M118 A1 action:pause"), b"//action:pause\nok\n"),
-                        (cs(2, "M118 E1 NS press=3 phase=press"), b"echo:NS press=3 phase=press\nok\n")])
+    peer, driver = run(
+        [
+            BOOT,
+            HELLO,
+            (cs(1, "M118 A1 action:pause"), b"//action:pause\nok\n"),
+            (cs(2, "M118 E1 NS press=3 phase=press"), b"echo:NS press=3 phase=press\nok\n"),
+        ]
+    )
     driver.connect()
     assert driver.send("M118 A1 action:pause") == ["//action:pause"]
     assert driver.actions == ["//action:pause"]
@@ -354,8 +420,14 @@ def test_refused_line_in_a_batch_stops_the_rest(run):
 
 @pytest.mark.timeout(20)
 def test_advanced_ok_reports_are_read(run):
-    peer, driver = run([BOOT, (b"N0 M110 N0*125\n", b"ok N0 P16 B3\n"),
-                        (cs(1, "G28"), b"ok N0 P16 B3\nok N1 P16 B3\n"), (cs(2, "M400"), b"ok N2 P16 B3\n")])
+    peer, driver = run(
+        [
+            BOOT,
+            (b"N0 M110 N0*125\n", b"ok N0 P16 B3\n"),
+            (cs(1, "G28"), b"ok N0 P16 B3\nok N1 P16 B3\n"),
+            (cs(2, "M400"), b"ok N2 P16 B3\n"),
+        ]
+    )
     driver.connect()
     driver.send("G28")  # the stale "ok N0" is not taken for N1
     driver.send("M400")
@@ -366,9 +438,16 @@ def test_advanced_ok_reports_are_read(run):
 @pytest.mark.timeout(20)
 def test_pipelining_starts_only_after_ok_names_its_line(run):
     config = DriverConfig(boot_timeout_s=0.5, min_timeout_s=0.4, poll_s=0.01, max_in_flight=4)
-    peer, driver = run([BOOT, (b"N0 M110 N0*125\n", b"ok N0 P16 B3\n"),
-                        (cs(1, "G1 X1"), b""), (cs(2, "G1 X2"), b""),  # three lines out before any ok
-                        (cs(3, "G1 X3"), b"ok N1 P15 B3\nok N2 P14 B2\nok N3 P13 B1\n")], config=config)
+    peer, driver = run(
+        [
+            BOOT,
+            (b"N0 M110 N0*125\n", b"ok N0 P16 B3\n"),
+            (cs(1, "G1 X1"), b""),
+            (cs(2, "G1 X2"), b""),  # three lines out before any ok
+            (cs(3, "G1 X3"), b"ok N1 P15 B3\nok N2 P14 B2\nok N3 P13 B1\n"),
+        ],
+        config=config,
+    )
     driver.connect()
     driver.send_lines(["G1 X1", "G1 X2", "G1 X3"])
     peer.check()
@@ -377,8 +456,9 @@ def test_pipelining_starts_only_after_ok_names_its_line(run):
 
 @pytest.mark.timeout(20)
 def test_no_banner_times_out_cleanly_and_m119_parses(run):
-    peer, driver = run([HELLO, (cs(1, "M119"), b"Reporting endstop status\nx_min: open\ny_min: open\n"
-                                               b"z_min: TRIGGERED\nok\n")])
+    peer, driver = run(
+        [HELLO, (cs(1, "M119"), b"Reporting endstop status\nx_min: open\ny_min: open\nz_min: TRIGGERED\nok\n")]
+    )
     driver.connect(boot_timeout_s=0.2)
     assert driver.endstops() == {"x_min": False, "y_min": False, "z_min": True}
     peer.check()

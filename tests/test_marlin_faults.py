@@ -18,12 +18,19 @@ from hypothesis import strategies as st
 
 from neatskin.marlin import errors as E
 from neatskin.marlin.driver import DriverConfig, MarlinDriver
-from neatskin.sim.faults import FaultConfig
 from neatskin.marlin.replies import PROBE_TAG
+from neatskin.sim.faults import FaultConfig
 from neatskin.sim.printer import sim_printer_for_tests
 
-QUICK = DriverConfig(boot_timeout_s=0.1, min_timeout_s=0.12, busy_extension_s=0.5, poll_s=0.01,
-                     probe_attempts=8, max_resends=40, motion_time_scale=0.0)
+QUICK = DriverConfig(
+    boot_timeout_s=0.1,
+    min_timeout_s=0.12,
+    busy_extension_s=0.5,
+    poll_s=0.01,
+    probe_attempts=8,
+    max_resends=40,
+    motion_time_scale=0.0,
+)
 
 
 def program(n: int, seed: int) -> list[str]:
@@ -46,8 +53,7 @@ def program(n: int, seed: int) -> list[str]:
 
 def executed_program(sim) -> list[str]:
     """The printer's own log without the driver's handshake and lost-ok probes."""
-    return [text for n, text in sim.executed if not text.startswith("M110") and PROBE_TAG not in text
-            and text != "G28"]
+    return [text for n, text in sim.executed if not text.startswith("M110") and PROBE_TAG not in text and text != "G28"]
 
 
 def run(faults: FaultConfig, n: int, seed: int, config: DriverConfig = QUICK, **sim_kw):
@@ -80,12 +86,15 @@ def test_realistic_rates_every_command_exactly_once_in_order(seed):
 
 
 @pytest.mark.timeout(150)
-@pytest.mark.parametrize(("variant", "n"), [
-    ({}, 800),
-    ({"marlin_version": "2.0"}, 200),  # a repeated line is answered with an error, not dropped
-    ({"ok_after_resend": True, "marlin_version": "2.0"}, 200),  # Marlin 1.x: `Resend:` then `ok`
-    ({"advanced_ok": True}, 200),  # `ok N.. P.. B..`
-])
+@pytest.mark.parametrize(
+    ("variant", "n"),
+    [
+        ({}, 800),
+        ({"marlin_version": "2.0"}, 200),  # a repeated line is answered with an error, not dropped
+        ({"ok_after_resend": True, "marlin_version": "2.0"}, 200),  # Marlin 1.x: `Resend:` then `ok`
+        ({"advanced_ok": True}, 200),  # `ok N.. P.. B..`
+    ],
+)
 def test_extreme_rates_every_command_exactly_once_in_order(variant, n):
     faults = FaultConfig.preset("extreme")
     sim, driver, expected, error = run(faults, n, seed=7, **variant)
@@ -99,8 +108,9 @@ def test_extreme_rates_every_command_exactly_once_in_order(variant, n):
 @pytest.mark.parametrize("preset", ["realistic", "extreme"])
 def test_pipelined_with_advanced_ok_every_command_exactly_once_in_order(preset):
     config = replace(QUICK, max_in_flight=4)
-    sim, driver, expected, error = run(FaultConfig.preset(preset), 1000 if preset == "realistic" else 300,
-                                       seed=9, config=config, advanced_ok=True)
+    sim, driver, expected, error = run(
+        FaultConfig.preset(preset), 1000 if preset == "realistic" else 300, seed=9, config=config, advanced_ok=True
+    )
     assert error is None, error
     assert executed_program(sim) == expected
     assert driver.stats["max_in_flight"] >= 3
@@ -154,14 +164,23 @@ def test_fault_spec_parsing_and_errors():
 
 @pytest.mark.timeout(120)
 @settings(max_examples=5, deadline=None, suppress_health_check=list(HealthCheck))
-@given(seed=st.integers(0, 2**16), corrupt=st.floats(0, 0.1), drop_line=st.floats(0, 0.05),
-       drop_ok=st.floats(0, 0.05), duplicate=st.floats(0, 0.05), busy_storm=st.floats(0, 0.05),
-       version=st.sampled_from([{}, {"marlin_version": "2.0"}, {"advanced_ok": True},
-                                {"marlin_version": "2.0", "ok_after_resend": True}]))
-def test_any_fault_mix_in_process_runs_each_command_once(seed, corrupt, drop_line, drop_ok, duplicate, busy_storm,
-                                                         version):
-    faults = FaultConfig(corrupt=corrupt, drop_line=drop_line, drop_ok=drop_ok, duplicate=duplicate,
-                         busy_storm=busy_storm)
+@given(
+    seed=st.integers(0, 2**16),
+    corrupt=st.floats(0, 0.1),
+    drop_line=st.floats(0, 0.05),
+    drop_ok=st.floats(0, 0.05),
+    duplicate=st.floats(0, 0.05),
+    busy_storm=st.floats(0, 0.05),
+    version=st.sampled_from(
+        [{}, {"marlin_version": "2.0"}, {"advanced_ok": True}, {"marlin_version": "2.0", "ok_after_resend": True}]
+    ),
+)
+def test_any_fault_mix_in_process_runs_each_command_once(
+    seed, corrupt, drop_line, drop_ok, duplicate, busy_storm, version
+):
+    faults = FaultConfig(
+        corrupt=corrupt, drop_line=drop_line, drop_ok=drop_ok, duplicate=duplicate, busy_storm=busy_storm
+    )
     sim = sim_printer_for_tests(seed=seed, faults=faults, **version)
     driver = MarlinDriver(sim.serial(), config=QUICK)
     lines = program(100, seed)

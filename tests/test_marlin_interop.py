@@ -11,7 +11,9 @@ from neatskin.sim.faults import FaultConfig
 from neatskin.sim.printer import SimulatedPrinter
 
 printcore_module = pytest.importorskip(
-    "printrun.printcore", reason="Printrun is not installed: pip install --no-deps printrun==2.2.0 (as the README's test command does)")
+    "printrun.printcore",
+    reason="Printrun is not installed: pip install --no-deps printrun==2.2.0 (as the README's test command does)",
+)
 
 
 @pytest.mark.timeout(60)

@@ -15,7 +15,6 @@ from neatskin.gcode.parse import checksum
 from neatskin.gcode.profile import load_printer_profile
 from neatskin.marlin import errors as E
 from neatskin.marlin.driver import DriverConfig, MarlinDriver
-from neatskin.sim.pty import read_available, write_all
 from neatskin.sim.firmware import MarlinCore
 from neatskin.sim.motion import trapezoid_distance_mm
 from neatskin.sim.printer import SimulatedPrinter
@@ -67,8 +66,9 @@ def test_line_protocol_replies_are_marlins(profile):
 def test_marlin_2_0_answers_a_repeat_and_1_x_adds_ok_after_resend(profile):
     core = fresh(profile, marlin_version="2.0", ok_after_resend=True)
     talk(core, framed(1, "M105"))
-    assert talk(core, framed(1, "M105")) == (b"Error:Line Number is not Last Line Number+1, Last Line: 1\n"
-                                             b"Resend: 2\nok\n")
+    assert talk(core, framed(1, "M105")) == (
+        b"Error:Line Number is not Last Line Number+1, Last Line: 1\nResend: 2\nok\n"
+    )
 
 
 def test_homing_limits_m114_m119_m211_m118(profile):
@@ -77,12 +77,15 @@ def test_homing_limits_m114_m119_m211_m118(profile):
     assert talk(core, b"G28 X\n") == b"echo:busy: processing\n" * 3 + b"ok\n"  # a third of 25 s
     assert talk(core, b"G1 X10\n") == b"echo:Home YZ First\nok\n"
     assert talk(core, b"G28\n") == b"echo:busy: processing\n" * 3 + b"ok\n"  # 25 s of homing, virtual
-    assert talk(core, b"M119\n") == b"Reporting endstop status\nx_min: TRIGGERED\ny_min: TRIGGERED\nz_min: TRIGGERED\nok\n"
+    assert (
+        talk(core, b"M119\n") == b"Reporting endstop status\nx_min: TRIGGERED\ny_min: TRIGGERED\nz_min: TRIGGERED\nok\n"
+    )
     assert talk(core, b"G1 X300 Y-5 Z12 F6000\n") == b"ok\n"  # outside the soft limits: clipped, as Marlin
     assert talk(core, b"M114\n") == b"X:220.00 Y:0.00 Z:12.00 E:0.00 Count X:0 Y:0 Z:0\nok\n"
     assert core.clip_events[-1][2:] == ((300.0, -5.0, 12.0), (220.0, 0.0, 12.0))
-    assert talk(core, b"M211\n") == (b"echo:Soft endstops: ON  Min:  X0.00 Y0.00 Z0.00   "
-                                     b"Max:  X220.00 Y220.00 Z250.00\nok\n")
+    assert talk(core, b"M211\n") == (
+        b"echo:Soft endstops: ON  Min:  X0.00 Y0.00 Z0.00   Max:  X220.00 Y220.00 Z250.00\nok\n"
+    )
     assert talk(core, b"M118 E1 NS press=3 phase=press\n") == b"echo:NS press=3 phase=press\nok\n"
     assert talk(core, b"M118 A1 action:pause\n") == b"//action:pause\nok\n"
     assert talk(core, b"G92 X0\nM114\n").startswith(b"ok\nX:0.00 Y:0.00 Z:12.00")
@@ -262,8 +265,13 @@ def test_vectorised_positions_equal_the_timeline(protocols_dir):
 
     timeline = Timeline(load_printer_profile(protocols_dir / "printers" / "paper.toml"), (0.0, 0.0, 0.0))
     timeline.add_homing(0.0, (0.0, 0.0, 10.0), 2.0)
-    for target, feed in (((100.0, 100.0, 15.5), 100.0), ((100.0, 100.0, 5.5), 5.0), ((100.0, 100.0, 2.0), 2.0),
-                         ((100.0, 100.0, 2.0), 2.0), ((130.0, 95.0, 15.5), 50.0)):
+    for target, feed in (
+        ((100.0, 100.0, 15.5), 100.0),
+        ((100.0, 100.0, 5.5), 5.0),
+        ((100.0, 100.0, 2.0), 2.0),
+        ((100.0, 100.0, 2.0), 2.0),
+        ((130.0, 95.0, 15.5), 50.0),
+    ):
         timeline.add_move(timeline.end_s + 0.25, target, feed)
     times = np.sort(np.random.default_rng(5).uniform(-1.0, timeline.end_s + 1.0, 2000))
     expected = np.array([timeline.position_mm(t) for t in times])

@@ -49,8 +49,11 @@ def test_every_channel_change_is_seen_by_some_pair(paper_layout, paper_map):
 def test_paper_map_z_is_normalised_and_periphery_beats_centre(paper_layout, paper_map):
     z = paper_map.z
     assert np.max(np.abs(z)) == 1.0
-    inner = [k for k, c in enumerate(paper_layout.channels)
-             if paper_layout.junctions[c.a].name == "J11" or paper_layout.junctions[c.b].name == "J11"]
+    inner = [
+        k
+        for k, c in enumerate(paper_layout.channels)
+        if paper_layout.junctions[c.a].name == "J11" or paper_layout.junctions[c.b].name == "J11"
+    ]
     outer = [k for k in range(12) if k not in inner]
     assert np.all(z[outer] == pytest.approx(1.0)) and np.all(z[inner] < 0.6)
 
@@ -77,12 +80,28 @@ def test_pairs_with_equal_paths_see_larger_regions(paper_layout, dense_map):
 
 def test_cli_maps_writes_pngs_and_parquet(tmp_path, paper_layout, protocols_dir, capsys):
     out = tmp_path / "maps"
-    code = main(["skin", "maps", "--layout", str(protocols_dir / "skins" / "paper.toml"), "--out", str(out),
-                 "--grid-step-mm", "1.0", "--no-progress"])
+    code = main(
+        [
+            "skin",
+            "maps",
+            "--layout",
+            str(protocols_dir / "skins" / "paper.toml"),
+            "--out",
+            str(out),
+            "--grid-step-mm",
+            "1.0",
+            "--no-progress",
+        ]
+    )
     assert code == 0
     names = sorted(p.name for p in out.iterdir())
-    assert names == ["deformation_pairs.png", "deformation_z.png", "paper_pairs.png", "paper_z.png",
-                     "sensitivity_maps.parquet"]
+    assert names == [
+        "deformation_pairs.png",
+        "deformation_z.png",
+        "paper_pairs.png",
+        "paper_z.png",
+        "sensitivity_maps.parquet",
+    ]
     for png in out.glob("*.png"):
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
     frame = pd.read_parquet(out / "sensitivity_maps.parquet")

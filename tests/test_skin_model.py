@@ -130,11 +130,17 @@ def test_non_finite_press_is_refused_naming_the_press(model):
         model.channel_resistance_ohm(np.inf, 1.0, 3.5)
 
 
-@pytest.mark.parametrize("kwargs, words", [
-    ({"fidelity": "fem"}, "fidelity"), ({"probe_radius_mm": 0.0}, "probe_radius_mm"),
-    ({"hysteresis_fraction": 1.0}, "hysteresis_fraction"), ({"poisson_ratio": 0.5}, "poisson_ratio"),
-    ({"temperature_c": 80.0}, "temperature_c"), ({"placement_sigma_mm": -1.0}, "placement_sigma_mm"),
-])
+@pytest.mark.parametrize(
+    "kwargs, words",
+    [
+        ({"fidelity": "fem"}, "fidelity"),
+        ({"probe_radius_mm": 0.0}, "probe_radius_mm"),
+        ({"hysteresis_fraction": 1.0}, "hysteresis_fraction"),
+        ({"poisson_ratio": 0.5}, "poisson_ratio"),
+        ({"temperature_c": 80.0}, "temperature_c"),
+        ({"placement_sigma_mm": -1.0}, "placement_sigma_mm"),
+    ],
+)
 def test_bad_model_parameters_are_refused(paper_layout, kwargs, words):
     with pytest.raises(ValueError, match=words):
         SkinModel(paper_layout, **kwargs)

@@ -13,7 +13,6 @@ from neatskin.layout import ElectrodePair
 from neatskin.skin.layouts import graph_layout, grid_layout
 from neatskin.skin.network import equivalent_resistance
 
-
 # ---- exact reference: Fraction Gaussian elimination of the grounded Laplacian --------------
 
 
@@ -82,8 +81,14 @@ def pinv_pair_resistance(layout, g):
 
 # ---- the paper's network -------------------------------------------------------------------
 
-PAPER_RATIONALS = {(1, 2): Fraction(17, 24), (1, 3): Fraction(5, 6), (1, 4): Fraction(29, 24),
-                   (1, 5): Fraction(1), (2, 4): Fraction(5, 4), (2, 6): Fraction(3, 2)}
+PAPER_RATIONALS = {
+    (1, 2): Fraction(17, 24),
+    (1, 3): Fraction(5, 6),
+    (1, 4): Fraction(29, 24),
+    (1, 5): Fraction(1),
+    (2, 4): Fraction(5, 4),
+    (2, 6): Fraction(3, 2),
+}
 
 
 @pytest.mark.parametrize("method", ["dense", "sparse"])
@@ -117,8 +122,11 @@ def test_single_press_vector_shape(paper_layout):
 def test_exact_reference_twelve_decades_and_near_short(seed):
     rng = np.random.default_rng(seed)
     n = int(rng.integers(4, 10))
-    layout = graph_layout(n, random_connected_edges(rng, n, int(rng.integers(0, 10))),
-                          sorted(rng.choice(n, size=int(rng.integers(2, n + 1)), replace=False).tolist()))
+    layout = graph_layout(
+        n,
+        random_connected_edges(rng, n, int(rng.integers(0, 10))),
+        sorted(rng.choice(n, size=int(rng.integers(2, n + 1)), replace=False).tolist()),
+    )
     g = 10.0 ** rng.uniform(-6, 6, (3, layout.n_channels))  # 12 decades
     g[1, rng.integers(layout.n_channels)] = g[1].max() * 1e12  # near-short
     g[2, rng.integers(layout.n_channels)] = g[2].min() * 1e-12  # near-open
@@ -214,11 +222,21 @@ def _paper_without_corner(layout, keep_channels):
     drop = next(e.junction for e in layout.electrodes if e.number == 2)
     new_index = {j: k for k, j in enumerate(j for j in range(layout.n_junctions) if j != drop)}
     junctions = tuple(j for k, j in enumerate(layout.junctions) if k != drop)
-    channels = tuple(Channel(c.name, new_index[c.a], new_index[c.b], c.length_mm, c.width_mm, c.height_mm)
-                     for k, c in enumerate(layout.channels) if k in keep_channels)
+    channels = tuple(
+        Channel(c.name, new_index[c.a], new_index[c.b], c.length_mm, c.width_mm, c.height_mm)
+        for k, c in enumerate(layout.channels)
+        if k in keep_channels
+    )
     electrodes = tuple(Electrode(e.number, new_index[e.junction]) for e in layout.electrodes if e.number != 2)
-    return Layout("paper-minus-2", junctions, channels, electrodes, layout.resistivity_ohm_m,
-                  layout.thickness_mm, layout.channel_depth_mm)
+    return Layout(
+        "paper-minus-2",
+        junctions,
+        channels,
+        electrodes,
+        layout.resistivity_ohm_m,
+        layout.thickness_mm,
+        layout.channel_depth_mm,
+    )
 
 
 def test_everything_shut_is_all_inf_never_nan(paper_layout):
@@ -237,8 +255,9 @@ def test_bad_conductance_input_is_refused(paper_layout):
     from neatskin.layout import Electrode, Layout
 
     with pytest.raises(ConfigError, match="share junction"):  # such a layout cannot even be built
-        Layout("shared", paper_layout.junctions, paper_layout.channels, (Electrode(1, 0), Electrode(2, 0)),
-               1.0, 5.0, 2.0)
+        Layout(
+            "shared", paper_layout.junctions, paper_layout.channels, (Electrode(1, 0), Electrode(2, 0)), 1.0, 5.0, 2.0
+        )
     with pytest.raises(ValueError, match="method"):
         equivalent_resistance(paper_layout, np.ones((1, 12)), method="pinv")
 
@@ -277,10 +296,15 @@ def test_symmetry_under_electrode_renumbering(net):
     from neatskin.layout import Electrode, Layout
 
     m = layout.n_electrodes
-    flipped = Layout(layout.name, layout.junctions, layout.channels,
-                     tuple(sorted((Electrode(m + 1 - e.number, e.junction) for e in layout.electrodes),
-                                  key=lambda e: e.number)),
-                     layout.resistivity_ohm_m, layout.thickness_mm, layout.channel_depth_mm)
+    flipped = Layout(
+        layout.name,
+        layout.junctions,
+        layout.channels,
+        tuple(sorted((Electrode(m + 1 - e.number, e.junction) for e in layout.electrodes), key=lambda e: e.number)),
+        layout.resistivity_ohm_m,
+        layout.thickness_mm,
+        layout.channel_depth_mm,
+    )
     r = _matrix(layout, equivalent_resistance(layout, g))
     r_flipped = _matrix(flipped, equivalent_resistance(flipped, g))
     # R_ij computed with i and j in swapped roles (i < j becomes j' < i')
@@ -347,5 +371,6 @@ def test_auto_keeps_stiff_grids_on_the_exact_path():
     dense = equivalent_resistance(layout, g, method="dense")
     np.testing.assert_array_equal(equivalent_resistance(layout, g), dense)
     ordinary = np.random.default_rng(4).uniform(1.0, 2.0, (1, layout.n_channels))
-    np.testing.assert_allclose(equivalent_resistance(layout, ordinary),
-                               equivalent_resistance(layout, ordinary, method="dense"), rtol=1e-10)
+    np.testing.assert_allclose(
+        equivalent_resistance(layout, ordinary), equivalent_resistance(layout, ordinary, method="dense"), rtol=1e-10
+    )

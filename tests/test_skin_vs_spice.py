@@ -45,7 +45,9 @@ def _netlist(layout, g: np.ndarray) -> tuple[str, list[tuple[int, int, str]]]:
 
             for c, (u, v) in enumerate(ends):
                 if g[p, c] > 0:
-                    lines.append(f"R{p}k{k}c{c} {node(u)} {node(v)} {float(1.0 / g[p, c])!r}")  # repr: the shortest exact decimal
+                    lines.append(
+                        f"R{p}k{k}c{c} {node(u)} {node(v)} {float(1.0 / g[p, c])!r}"
+                    )  # repr: the shortest exact decimal
             lines.append(f"I{p}k{k} 0 {node(a)} DC 1")  # 1 A from ground (b) into a
             probes.append((p, k, f"v({node(a)})"))
     lines += [".op", ".end", ""]
@@ -59,7 +61,7 @@ def _read_raw(path) -> dict[str, float]:
     n_var = int(next(line for line in lines if line.startswith("No. Variables:")).split(":")[1])
     first = lines.index("Variables:") + 1
     names = [lines[first + v].split("\t")[2].lower() for v in range(n_var)]
-    values = np.frombuffer(data[start + 8:start + 8 + 8 * n_var], dtype=np.float64)
+    values = np.frombuffer(data[start + 8 : start + 8 + 8 * n_var], dtype=np.float64)
     return dict(zip(names, values.tolist()))
 
 
@@ -91,8 +93,14 @@ def test_paper_rationals_match_ngspice(paper_layout, tmp_path):
     ours = equivalent_resistance(paper_layout, g)
     assert _max_rel(ours, spice) < 1e-12
     pairs = [(p.i, p.j) for p in paper_layout.pairs]
-    for (i, j), ratio in {(1, 2): 17 / 24, (1, 3): 5 / 6, (1, 4): 29 / 24, (1, 5): 1.0,
-                          (2, 4): 5 / 4, (2, 6): 3 / 2}.items():
+    for (i, j), ratio in {
+        (1, 2): 17 / 24,
+        (1, 3): 5 / 6,
+        (1, 4): 29 / 24,
+        (1, 5): 1.0,
+        (2, 4): 5 / 4,
+        (2, 6): 3 / 2,
+    }.items():
         assert spice[pairs.index((i, j))] == pytest.approx(ratio * R0, rel=1e-12)
 
 
@@ -118,11 +126,14 @@ def test_grid_10x10_sparse_path_matches_ngspice(tmp_path):
     assert _max_rel(equivalent_resistance(layout, g, method="dense"), spice) < 1e-9
 
 
-@pytest.mark.parametrize(("factor", "base", "tol"), [
-    (1e6, 1e-6, 1e-7),     # near-short, 1 ohm in 1 Mohm: ngspice ~4e-9
-    (1e12, 1e-6, 3e-2),    # near-short, 1 uohm in 1 Mohm: ngspice ~4e-3, its LU's limit, not neatskin's
-    (1e-12, 1e-3, 1e-11),  # near-open, 1 Pohm in 1 kohm: ngspice ~5e-14
-])
+@pytest.mark.parametrize(
+    ("factor", "base", "tol"),
+    [
+        (1e6, 1e-6, 1e-7),  # near-short, 1 ohm in 1 Mohm: ngspice ~4e-9
+        (1e12, 1e-6, 3e-2),  # near-short, 1 uohm in 1 Mohm: ngspice ~4e-3, its LU's limit, not neatskin's
+        (1e-12, 1e-3, 1e-11),  # near-open, 1 Pohm in 1 kohm: ngspice ~5e-14
+    ],
+)
 def test_stiff_single_channel_matches_ngspice(paper_layout, tmp_path, factor, base, tol):
     n = paper_layout.n_channels
     g = base * 10.0 ** np.random.default_rng(9).uniform(-1, 1, (n, n))

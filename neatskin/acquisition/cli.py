@@ -14,19 +14,27 @@ def register(subparsers) -> None:
     mux = subparsers.add_parser("mux", help="mux board: wiring checks and the switching table")
     sub = mux.add_subparsers(dest="mux_command", metavar="COMMAND", required=True)
     table = sub.add_parser("table", help="print, for each pair in sweep order, chip, address, line states and windows")
-    table.add_argument("wiring", nargs="?", type=Path, default=None,
-                       help=f"wiring file (default: {DEFAULT_WIRING})")
-    table.add_argument("--layout", type=Path, default=None,
-                       help="skin layout (default: the wiring file's `layout` key)")
-    table.add_argument("--protocol", type=Path, default=None,
-                       help="campaign protocol: take the wiring, rate, settle/live samples and hold from it")
+    table.add_argument("wiring", nargs="?", type=Path, default=None, help=f"wiring file (default: {DEFAULT_WIRING})")
+    table.add_argument(
+        "--layout", type=Path, default=None, help="skin layout (default: the wiring file's `layout` key)"
+    )
+    table.add_argument(
+        "--protocol",
+        type=Path,
+        default=None,
+        help="campaign protocol: take the wiring, rate, settle/live samples and hold from it",
+    )
     table.add_argument("--rate-hz", type=float, default=None, help="sample clock (default 10000)")
     table.add_argument("--live-samples", type=int, default=None, help="measured samples per pair (default 100)")
     table.add_argument("--settle-samples", type=int, default=None, help="discarded samples per pair (default 20)")
     table.add_argument("--hold-s", type=float, default=None, help="press hold: say how many whole sweeps fit in it")
     table.add_argument("--break-samples", type=int, default=2, help="all-inhibited samples per switch (default 2)")
-    table.add_argument("--order", choices=("pairs", "gray"), default="pairs",
-                       help="visiting order: layout order, or Gray-coded addresses (fewer line edges)")
+    table.add_argument(
+        "--order",
+        choices=("pairs", "gray"),
+        default="pairs",
+        help="visiting order: layout order, or Gray-coded addresses (fewer line edges)",
+    )
     table.set_defaults(handler=table_handler)
 
 
@@ -37,8 +45,19 @@ def table_handler(args: argparse.Namespace) -> int:
     for key in ("rate_hz", "live_samples", "settle_samples", "hold_s", "wiring"):
         if getattr(args, key) is not None:  # the command line wins over the protocol
             settings[key] = getattr(args, key)
-    print(mux_table(settings["wiring"], args.layout, settings["rate_hz"], settings["live_samples"],
-                    settings["settle_samples"], args.break_samples, args.order, settings["hold_s"]), end="")
+    print(
+        mux_table(
+            settings["wiring"],
+            args.layout,
+            settings["rate_hz"],
+            settings["live_samples"],
+            settings["settle_samples"],
+            args.break_samples,
+            args.order,
+            settings["hold_s"],
+        ),
+        end="",
+    )
     return 0
 
 
@@ -51,33 +70,53 @@ def protocol_settings(path: Path) -> dict:
     path = resolve_path(path)
     data = read_toml(path, "protocol", fix="check the path")
     out: dict = {}
-    wanted = (("files", "wiring", str), ("acquisition", "rate_hz", (int, float)), ("acquisition", "live_samples", int),
-              ("acquisition", "settle_samples", int), ("press", "hold_s", (int, float)))
+    wanted = (
+        ("files", "wiring", str),
+        ("acquisition", "rate_hz", (int, float)),
+        ("acquisition", "live_samples", int),
+        ("acquisition", "settle_samples", int),
+        ("press", "hold_s", (int, float)),
+    )
     for table, key, kind in wanted:
         value = data.get(table, {}).get(key)
         if value is None:
             continue
         if isinstance(value, bool) or not isinstance(value, kind):
-            raise ConfigError(f"{key} has the wrong type: {value!r}", file=str(path), field=f"{table}.{key}",
-                              fix=f"set {table}.{key} to a {'path' if kind is str else 'number'}")
+            raise ConfigError(
+                f"{key} has the wrong type: {value!r}",
+                file=str(path),
+                field=f"{table}.{key}",
+                fix=f"set {table}.{key} to a {'path' if kind is str else 'number'}",
+            )
         out[key] = (Path(path).parent / value) if key == "wiring" else value
     return out
 
 
-def mux_table(wiring_path: Path | None = None, layout_path: Path | None = None, rate_hz: float = 10_000.0,
-              live_samples: int = 100, settle_samples: int = 20, break_samples: int = 2, order: str = "pairs",
-              hold_s: float | None = None) -> str:
+def mux_table(
+    wiring_path: Path | None = None,
+    layout_path: Path | None = None,
+    rate_hz: float = 10_000.0,
+    live_samples: int = 100,
+    settle_samples: int = 20,
+    break_samples: int = 2,
+    order: str = "pairs",
+    hold_s: float | None = None,
+) -> str:
     """The table as text (the CLI prints it)."""
-    from neatskin.errors import ConfigError
-    from neatskin.layout import load_layout
     from neatskin.acquisition.sequence import SweepTiming, build_sweep, check_sweep
     from neatskin.acquisition.wiring import load_wiring, wiring_layout_path
+    from neatskin.errors import ConfigError
+    from neatskin.layout import load_layout
 
     wiring_path = wiring_path or resolve_path(DEFAULT_WIRING)
     layout_path = layout_path or wiring_layout_path(wiring_path)
     if layout_path is None:
-        raise ConfigError("the wiring file names no layout", file=str(wiring_path), field="layout",
-                          fix='add layout = "../skins/<skin>.toml" to it, or pass --layout FILE')
+        raise ConfigError(
+            "the wiring file names no layout",
+            file=str(wiring_path),
+            field="layout",
+            fix='add layout = "../skins/<skin>.toml" to it, or pass --layout FILE',
+        )
     layout = load_layout(layout_path)
     wiring = load_wiring(wiring_path, layout)
     timing = SweepTiming(rate_hz, settle_samples, live_samples, break_samples)
@@ -86,16 +125,19 @@ def mux_table(wiring_path: Path | None = None, layout_path: Path | None = None, 
     if issues:  # cannot happen for a sequence built here; a guard for edits to the builder
         raise ConfigError("; ".join(issues), file=str(wiring_path), fix="report this as a bug")
     inhibit_names = [f"{name}.INH" for name in wiring.chip_names]
-    out = [f"wiring {wiring_path} (layout {layout.name}: {layout.n_electrodes} electrodes, {wiring.n_pairs} pairs, "
-           f"{wiring.n_chips} chips)",
-           "lines: " + ", ".join(f"{label}={line}" for label, line in
-                                 zip(["A", "B", *inhibit_names], wiring.line_names)),
-           "line states while the pair is live: A B then each chip's inhibit (1 = inhibited); "
-           "every switch first inhibits all chips for "
-           f"{break_samples} samples and changes A/B halfway",
-           ""]
-    header = f"{'step':>4} {'pair':>5} {'chip':>4} {'addr':>4} {'X':>2} {'Y':>2}  {'A B INH':<{4 + 2 * wiring.n_chips}}" \
-             f" {'settle (discarded)':>18} {'live (measured)':>16} {'live at ms':>10}"
+    out = [
+        f"wiring {wiring_path} (layout {layout.name}: {layout.n_electrodes} electrodes, {wiring.n_pairs} pairs, "
+        f"{wiring.n_chips} chips)",
+        "lines: " + ", ".join(f"{label}={line}" for label, line in zip(["A", "B", *inhibit_names], wiring.line_names)),
+        "line states while the pair is live: A B then each chip's inhibit (1 = inhibited); "
+        "every switch first inhibits all chips for "
+        f"{break_samples} samples and changes A/B halfway",
+        "",
+    ]
+    header = (
+        f"{'step':>4} {'pair':>5} {'chip':>4} {'addr':>4} {'X':>2} {'Y':>2}  {'A B INH':<{4 + 2 * wiring.n_chips}}"
+        f" {'settle (discarded)':>18} {'live (measured)':>16} {'live at ms':>10}"
+    )
     out.append(header)
     for step, p in enumerate(sweep.order):
         route = wiring.routes[p]
@@ -103,17 +145,24 @@ def mux_table(wiring_path: Path | None = None, layout_path: Path | None = None, 
         bits = " ".join("1" if b else "0" for b in row)
         s0, s1 = sweep.settle_windows[p]
         l0, l1 = sweep.live_windows[p]
-        out.append(f"{step:>4} {layout.pairs[p].label:>5} {wiring.chip_names[route.chip]:>4} {route.address:>4} "
-                   f"{route.x_electrode:>2} {route.y_electrode:>2}  {bits:<{4 + 2 * wiring.n_chips}} "
-                   f"{f'[{s0}, {s1})':>18} {f'[{l0}, {l1})':>16} {1e3 * l0 / rate_hz:>10.1f}")
-    out += ["", f"sweep: {sweep.n_samples} samples = {sweep.duration_s * 1e3:.1f} ms at {rate_hz:g} Hz "
-            f"({wiring.n_pairs} x ({break_samples} break + {settle_samples} settle + {live_samples} live)); "
-            f"{sweep.line_transitions()} line edges per sweep ({order} order)"]
+        out.append(
+            f"{step:>4} {layout.pairs[p].label:>5} {wiring.chip_names[route.chip]:>4} {route.address:>4} "
+            f"{route.x_electrode:>2} {route.y_electrode:>2}  {bits:<{4 + 2 * wiring.n_chips}} "
+            f"{f'[{s0}, {s1})':>18} {f'[{l0}, {l1})':>16} {1e3 * l0 / rate_hz:>10.1f}"
+        )
+    out += [
+        "",
+        f"sweep: {sweep.n_samples} samples = {sweep.duration_s * 1e3:.1f} ms at {rate_hz:g} Hz "
+        f"({wiring.n_pairs} x ({break_samples} break + {settle_samples} settle + {live_samples} live)); "
+        f"{sweep.line_transitions()} line edges per sweep ({order} order)",
+    ]
     if hold_s is not None:
         # live windows of one pair recur every sweep; at least floor((hold - live) / sweep) lie wholly inside
         # any hold of that length, whatever the sweep's phase against the press
         live_s = live_samples / rate_hz
         times = max(0, int((hold_s - live_s) // sweep.duration_s))
-        out.append(f"a {hold_s:g} s hold: every pair is measured at least {times} time{'s' if times != 1 else ''} "
-                   "inside it, whatever the sweep's phase" + ("  <- too short for a pressed value" if times < 1 else ""))
+        out.append(
+            f"a {hold_s:g} s hold: every pair is measured at least {times} time{'s' if times != 1 else ''} "
+            "inside it, whatever the sweep's phase" + ("  <- too short for a pressed value" if times < 1 else "")
+        )
     return "\n".join(out) + "\n"

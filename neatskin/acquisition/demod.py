@@ -19,10 +19,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from neatskin.errors import ConfigError
 from neatskin.acquisition.daq.base import Acquisition
 from neatskin.acquisition.estimates import PairEstimates, PairFlag
 from neatskin.acquisition.sequence import Sweep
+from neatskin.errors import ConfigError
 
 METHODS = ("rms", "lockin")
 DC_OFFSET_SHARE = 0.05
@@ -31,10 +31,15 @@ OPEN_FRACTION = 0.05
 
 def check_method(method: str, window: int, sweep: Sweep) -> None:
     if method not in METHODS:
-        raise ConfigError(f"unknown demodulation {method!r}", field="demodulation", fix=f"use one of {', '.join(METHODS)}")
+        raise ConfigError(
+            f"unknown demodulation {method!r}", field="demodulation", fix=f"use one of {', '.join(METHODS)}"
+        )
     if method == "rms" and not (isinstance(window, (int, np.integer)) and 1 <= window <= sweep.timing.live_samples):
-        raise ConfigError(f"RMS window {window!r} does not fit the live window of {sweep.timing.live_samples} samples",
-                          field="window", fix="set 1 <= window <= live_samples (10 = one 1 kHz period at 10 kHz)")
+        raise ConfigError(
+            f"RMS window {window!r} does not fit the live window of {sweep.timing.live_samples} samples",
+            field="window",
+            fix="set 1 <= window <= live_samples (10 = one 1 kHz period at 10 kHz)",
+        )
 
 
 def window_counts(n: int, window: int) -> np.ndarray:
@@ -46,13 +51,17 @@ def window_counts(n: int, window: int) -> np.ndarray:
 def live_rows(acq: Acquisition, sweep: Sweep) -> np.ndarray:
     """(sweeps, pairs, live_samples) row indices of every live sample in the acquisition."""
     if acq.n_samples != acq.n_sweeps * sweep.n_samples:
-        raise ConfigError(f"the acquisition has {acq.n_samples} samples, not {acq.n_sweeps} sweeps of "
-                          f"{sweep.n_samples}", field="sweep", fix="demodulate with the sweep it was acquired with")
+        raise ConfigError(
+            f"the acquisition has {acq.n_samples} samples, not {acq.n_sweeps} sweeps of {sweep.n_samples}",
+            field="sweep",
+            fix="demodulate with the sweep it was acquired with",
+        )
     return np.arange(acq.n_sweeps)[:, None, None] * sweep.n_samples + sweep.live_sample_index[None]
 
 
-def demodulate(acq: Acquisition, sweep: Sweep, method: str = "lockin", window: int = 10,
-               open_fraction: float = OPEN_FRACTION) -> PairEstimates:
+def demodulate(
+    acq: Acquisition, sweep: Sweep, method: str = "lockin", window: int = 10, open_fraction: float = OPEN_FRACTION
+) -> PairEstimates:
     """Resistance per (sweep, pair) from an acquisition of whole sweeps."""
     check_method(method, window, sweep)
     cfg = acq.config
@@ -82,7 +91,7 @@ def demodulate(acq: Acquisition, sweep: Sweep, method: str = "lockin", window: i
 def _dc_offset(x: np.ndarray, lsb: float) -> np.ndarray:
     """|mean| above DC_OFFSET_SHARE of the AC RMS, and above one ADC step (an offset below it is not measurable)."""
     mean = x.mean(axis=-1)
-    ac = np.sqrt(np.maximum((x * x).mean(axis=-1) - mean ** 2, 0.0))
+    ac = np.sqrt(np.maximum((x * x).mean(axis=-1) - mean**2, 0.0))
     return np.abs(mean) > np.maximum(DC_OFFSET_SHARE * ac, lsb)
 
 

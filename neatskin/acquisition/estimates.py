@@ -65,7 +65,7 @@ class PairEstimates:
         return [[flag_names(f) for f in row] for row in self.flags]
 
     @staticmethod
-    def concatenate(parts: list["PairEstimates"]) -> "PairEstimates":
+    def concatenate(parts: list[PairEstimates]) -> PairEstimates:
         """Stack the sweeps of several estimates (same pairs, same method)."""
         return PairEstimates(
             np.concatenate([p.resistance_ohm for p in parts]),

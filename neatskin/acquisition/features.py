@@ -47,7 +47,7 @@ def _group(est: PairEstimates, use: np.ndarray):
     with np.errstate(invalid="ignore"):
         finite_r = np.where(use & np.isfinite(est.resistance_ohm), r, 0.0)
     mean = np.where(open_any, np.inf, finite_r.sum(axis=0) / np.maximum(n, 1))
-    u2 = np.where(use & np.isfinite(est.uncertainty_ohm), est.uncertainty_ohm ** 2, 0.0).sum(axis=0)
+    u2 = np.where(use & np.isfinite(est.uncertainty_ohm), est.uncertainty_ohm**2, 0.0).sum(axis=0)
     u = np.sqrt(u2) / np.maximum(n, 1)
     flags = np.bitwise_or.reduce(np.where(use, est.flags, 0).astype(np.uint8), axis=0)
     starts = np.where(use, est.windows[..., 0], np.iinfo(np.int64).max).min(axis=0)
@@ -56,8 +56,9 @@ def _group(est: PairEstimates, use: np.ndarray):
     return mean, u, flags, span, n
 
 
-def press_features(estimates: PairEstimates, onset_sample: int, offset_sample: int,
-                   margin_samples: int = 0) -> PressFeatures:
+def press_features(
+    estimates: PairEstimates, onset_sample: int, offset_sample: int, margin_samples: int = 0
+) -> PressFeatures:
     """dR per pair for one press [onset_sample, offset_sample) from estimates of the sweeps around it."""
     start, stop = estimates.windows[..., 0], estimates.windows[..., 1]
     pressed = (start >= onset_sample + margin_samples) & (stop <= offset_sample - margin_samples)
@@ -76,13 +77,20 @@ def press_features(estimates: PairEstimates, onset_sample: int, offset_sample: i
     delta = np.where(missing, 0.0, delta)
     r_p = np.where(n_p == 0, 0.0, r_p)
     r_b = np.where(n_b == 0, 0.0, r_b)
-    u = np.where(missing, np.inf, np.sqrt(u_p ** 2 + u_b ** 2))
+    u = np.where(missing, np.inf, np.sqrt(u_p**2 + u_b**2))
     return PressFeatures(delta, r_p, r_b, u, flags, span_p, span_b, n_p, n_b)
 
 
-def features_from_acquisition(acq: Acquisition, sweep: Sweep, method: str = "lockin", window: int = 10,
-                              expected: int = 1, fsr: FsrModel = FsrModel(), margin_s: float = 0.0,
-                              **detect_kwargs) -> tuple[PressFeatures, PressDetection, PairEstimates]:
+def features_from_acquisition(
+    acq: Acquisition,
+    sweep: Sweep,
+    method: str = "lockin",
+    window: int = 10,
+    expected: int = 1,
+    fsr: FsrModel = FsrModel(),
+    margin_s: float = 0.0,
+    **detect_kwargs,
+) -> tuple[PressFeatures, PressDetection, PairEstimates]:
     """Demodulate, detect the press on the FSR channel, and return its features with what they came from.
 
     With several presses detected the one with the highest peak is used (the detection's flags

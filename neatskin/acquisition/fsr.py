@@ -30,8 +30,9 @@ class FsrModel:
         for name in ("vcc_v", "rm_ohm", "k_ohm_n"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
-                raise ConfigError(f"{name} must be > 0, got {value!r}", file="<fsr model>", field=name,
-                                  fix=f"set {name} > 0")
+                raise ConfigError(
+                    f"{name} must be > 0, got {value!r}", file="<fsr model>", field=name, fix=f"set {name} > 0"
+                )
 
     @property
     def knee_n(self) -> float:
@@ -83,10 +84,20 @@ class PressDetection:
         return (self.offset - self.onset) / self.rate_hz
 
 
-def detect_presses(signal: np.ndarray, rate_hz: float, expected: int = 1, *, units: str = "n",
-                   fsr: FsrModel | None = None, on_threshold_n: float = 0.5, off_threshold_n: float = 0.25,
-                   min_press_s: float = 0.05, min_gap_s: float = 0.05, spike_samples: int = 7,
-                   baseline_window_s: float | None = None) -> PressDetection:
+def detect_presses(
+    signal: np.ndarray,
+    rate_hz: float,
+    expected: int = 1,
+    *,
+    units: str = "n",
+    fsr: FsrModel | None = None,
+    on_threshold_n: float = 0.5,
+    off_threshold_n: float = 0.25,
+    min_press_s: float = 0.05,
+    min_gap_s: float = 0.05,
+    spike_samples: int = 7,
+    baseline_window_s: float | None = None,
+) -> PressDetection:
     """Find the presses on a force trace (newtons, or FSR volts with units="v").
 
     baseline_window_s must exceed the longest press (default: the whole trace's length / 2,
@@ -95,8 +106,11 @@ def detect_presses(signal: np.ndarray, rate_hz: float, expected: int = 1, *, uni
     if units not in ("n", "v"):
         raise ConfigError(f"units must be 'n' or 'v', got {units!r}", field="units", fix="use 'n' or 'v'")
     if not 0 < off_threshold_n < on_threshold_n:
-        raise ConfigError("thresholds need 0 < off_threshold_n < on_threshold_n", field="off_threshold_n",
-                          fix="set off below on for hysteresis")
+        raise ConfigError(
+            "thresholds need 0 < off_threshold_n < on_threshold_n",
+            field="off_threshold_n",
+            fix="set off below on for hysteresis",
+        )
     x = np.asarray(signal, dtype=float)
     force = (fsr or FsrModel()).newtons(x) if units == "v" else x
     n = force.shape[0]
@@ -155,7 +169,9 @@ def _bridged_baseline(force: np.ndarray, rate_hz: float, onset: np.ndarray, offs
     if free.sum() < 2:
         return np.full(n, float(np.median(force)))
     # the smoothing window must not reach into a press: use only blocks whose 50 ms window is free
-    free &= ndimage.minimum_filter1d(free.astype(np.int8), max(1, int(round(0.05 * rate_hz / block))), mode="nearest") > 0
+    free &= (
+        ndimage.minimum_filter1d(free.astype(np.int8), max(1, int(round(0.05 * rate_hz / block))), mode="nearest") > 0
+    )
     if free.sum() < 2:
         return np.full(n, float(np.median(force)))
     return np.interp(np.arange(n), centres[free], smooth[free])

@@ -30,7 +30,6 @@ class PressRecord:
     fsr_rate_hz: float | None = None  # rate of fsr_v (the DAQ rate unless decimated)
 
 
-
 class Recorder(Protocol):
     """One hardware-timed acquisition of whole sweeps spanning a press, with motion-sync marks."""
 

@@ -23,8 +23,8 @@ from functools import cached_property
 
 import numpy as np
 
-from neatskin.errors import ConfigError, Problem
 from neatskin.acquisition.wiring import ADDRESSES_PER_CHIP, Wiring
+from neatskin.errors import ConfigError, Problem
 
 ORDERS = ("pairs", "gray")
 
@@ -45,8 +45,13 @@ class SweepTiming:
         for name, low in (("settle_samples", 0), ("live_samples", 1), ("break_samples", 2)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-                problems.append((name, f"{name} must be an integer >= {low}, got {value!r}",
-                                 f"set {name} >= {low}" + (" (break-before-make needs 2)" if low == 2 else "")))
+                problems.append(
+                    (
+                        name,
+                        f"{name} must be an integer >= {low}, got {value!r}",
+                        f"set {name} >= {low}" + (" (break-before-make needs 2)" if low == 2 else ""),
+                    )
+                )
         if problems:
             raise ConfigError(problems=[Problem(m, "<sweep timing>", f, x) for f, m, x in problems])
 
@@ -171,7 +176,9 @@ def check_sweep(sweep: Sweep) -> list[str]:
     guarded = all_inhibited & np.roll(all_inhibited, 1)
     bad = np.flatnonzero(addr_change & ~guarded)
     if bad.size:
-        issues.append(f"address changes without every chip inhibited before and during it at samples {bad[:5].tolist()}")
+        issues.append(
+            f"address changes without every chip inhibited before and during it at samples {bad[:5].tolist()}"
+        )
     visits = np.bincount(sweep.pair_of_sample[sweep.pair_of_sample >= 0], minlength=sweep.n_pairs)
     starts = np.count_nonzero(np.diff(np.concatenate([[-1], sweep.pair_of_sample, [-1]])) != 0)
     if np.any(visits != sweep.timing.settle_samples + sweep.timing.live_samples):

@@ -65,18 +65,34 @@ class Wiring:
     def __post_init__(self) -> None:
         n_chips = len(self.chip_names)
         if len(self.inhibit_lines) != n_chips:
-            raise ConfigError("one inhibit line per chip is needed", file=self.source, field="chips",
-                              fix="give every chip an inhibit line")
+            raise ConfigError(
+                "one inhibit line per chip is needed",
+                file=self.source,
+                field="chips",
+                fix="give every chip an inhibit line",
+            )
         if len(self.routes) != len(self.pairs) or any(r.pair_index != p for p, r in enumerate(self.routes)):
-            raise ConfigError("routes must list every pair of S once, in layout.pairs order", file=self.source,
-                              field="chips", fix="route every pair of the layout exactly once")
+            raise ConfigError(
+                "routes must list every pair of S once, in layout.pairs order",
+                file=self.source,
+                field="chips",
+                fix="route every pair of the layout exactly once",
+            )
         if len(set(self.line_names)) != len(self.line_names):
-            raise ConfigError("a digital line is used twice", file=self.source, field="lines",
-                              fix="give A, B and every inhibit its own line")
+            raise ConfigError(
+                "a digital line is used twice",
+                file=self.source,
+                field="lines",
+                fix="give A, B and every inhibit its own line",
+            )
         slots = {(r.chip, r.address) for r in self.routes}
         if len(slots) != len(self.routes) or any(not 0 <= r.chip < n_chips for r in self.routes):
-            raise ConfigError("two pairs share one chip address", file=self.source, field="chips",
-                              fix="route each pair on its own chip address")
+            raise ConfigError(
+                "two pairs share one chip address",
+                file=self.source,
+                field="chips",
+                fix="route each pair on its own chip address",
+            )
 
     @property
     def n_chips(self) -> int:
@@ -103,10 +119,17 @@ def sequential_wiring(layout: Layout, lines: tuple[str, ...] | None = None, sour
     pairs = layout.pairs
     n_chips = math.ceil(len(pairs) / ADDRESSES_PER_CHIP)
     lines = lines or tuple(f"port0/line{k}" for k in range(2 + n_chips))
-    routes = tuple(Route(p, p // ADDRESSES_PER_CHIP, p % ADDRESSES_PER_CHIP, pair.i, pair.j)
-                   for p, pair in enumerate(pairs))
-    return Wiring(tuple(f"U{c + 1}" for c in range(n_chips)), (lines[0], lines[1]), tuple(lines[2:2 + n_chips]),
-                  routes, pairs, source=source)
+    routes = tuple(
+        Route(p, p // ADDRESSES_PER_CHIP, p % ADDRESSES_PER_CHIP, pair.i, pair.j) for p, pair in enumerate(pairs)
+    )
+    return Wiring(
+        tuple(f"U{c + 1}" for c in range(n_chips)),
+        (lines[0], lines[1]),
+        tuple(lines[2 : 2 + n_chips]),
+        routes,
+        pairs,
+        source=source,
+    )
 
 
 def wiring_to_toml(wiring: Wiring, layout_ref: str | None = None, header: str = "") -> str:
@@ -119,8 +142,13 @@ def wiring_to_toml(wiring: Wiring, layout_ref: str | None = None, header: str = 
         pins = []
         for r in sorted((r for r in wiring.routes if r.chip == c), key=lambda r: r.address):
             pins += [f"X{r.address} = {r.x_electrode}", f"Y{r.address} = {r.y_electrode}"]
-        out += ["", "[[chips]]", f'name = "{name}"', f'inhibit = "{wiring.inhibit_lines[c]}"',
-                "pins = { " + ", ".join(pins) + " }"]
+        out += [
+            "",
+            "[[chips]]",
+            f'name = "{name}"',
+            f'inhibit = "{wiring.inhibit_lines[c]}"',
+            "pins = { " + ", ".join(pins) + " }",
+        ]
     return "\n".join(out) + "\n"
 
 
@@ -135,8 +163,12 @@ def wiring_layout_path(path: str | Path) -> Path | None:
     if ref is None:
         return None
     if not isinstance(ref, str) or not ref:
-        raise ConfigError(f"'layout' must be a path string, got {ref!r}", file=str(path), field="layout",
-                          fix='write layout = "../skins/paper.toml" (relative to the wiring file)')
+        raise ConfigError(
+            f"'layout' must be a path string, got {ref!r}",
+            file=str(path),
+            field="layout",
+            fix='write layout = "../skins/paper.toml" (relative to the wiring file)',
+        )
     return (path.parent / ref).resolve()
 
 
@@ -161,13 +193,19 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
 
     def line(value: object, field: str) -> str:
         if not isinstance(value, str) or not _LINE_RE.match(value.strip()):
-            problem(field, f"digital line {value!r} is not of the form 'portN/lineM'",
-                    'write the DAQ line, e.g. "port0/line3"')
+            problem(
+                field,
+                f"digital line {value!r} is not of the form 'portN/lineM'",
+                'write the DAQ line, e.g. "port0/line3"',
+            )
             return f"<bad:{field}>"
         value = value.strip()
         if value in line_owner:
-            problem(field, f"digital line '{value}' is already used by {line_owner[value]}",
-                    "give A, B and every chip's inhibit its own line")
+            problem(
+                field,
+                f"digital line '{value}' is already used by {line_owner[value]}",
+                "give A, B and every chip's inhibit its own line",
+            )
         else:
             line_owner[value] = field
         return value
@@ -188,8 +226,11 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
     n_pairs = len(layout.pairs)
     if len(chips) * ADDRESSES_PER_CHIP < n_pairs:
         need = math.ceil(n_pairs / ADDRESSES_PER_CHIP)
-        problem("chips", f"{len(chips)} chips route at most {len(chips) * ADDRESSES_PER_CHIP} pairs, "
-                f"the layout has {n_pairs}", f"wire {need} chips ({need - len(chips)} more)")
+        problem(
+            "chips",
+            f"{len(chips)} chips route at most {len(chips) * ADDRESSES_PER_CHIP} pairs, the layout has {n_pairs}",
+            f"wire {need} chips ({need - len(chips)} more)",
+        )
 
     names: list[str] = []
     inhibits: list[str] = []
@@ -202,7 +243,9 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
             continue
         name = chip.get("name", f"U{c + 1}")
         if not isinstance(name, str) or not name:
-            problem(f"{where}.name", f"chip name must be text, got {name!r}", 'name the chip as on the board, e.g. "U1"')
+            problem(
+                f"{where}.name", f"chip name must be text, got {name!r}", 'name the chip as on the board, e.g. "U1"'
+            )
             name = f"U{c + 1}"
         if name in names:
             problem(f"{where}.name", f"chip name '{name}' is used twice", "give every chip its own name")
@@ -219,23 +262,36 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
             field = f"{where}.pins.{pin}"
             m = _PIN_RE.match(pin)
             if not m or not 0 <= int(m.group(2)) < ADDRESSES_PER_CHIP:
-                problem(field, f"chip '{name}' has no pin '{pin}'",
-                        f"use X0..X{ADDRESSES_PER_CHIP - 1} and Y0..Y{ADDRESSES_PER_CHIP - 1}")
+                problem(
+                    field,
+                    f"chip '{name}' has no pin '{pin}'",
+                    f"use X0..X{ADDRESSES_PER_CHIP - 1} and Y0..Y{ADDRESSES_PER_CHIP - 1}",
+                )
                 continue
             if isinstance(value, list):
                 if len(value) > 1:
-                    problem(field, f"two electrodes on one pin: {pin} of chip '{name}' is wired to electrodes "
-                            f"{', '.join(map(str, value))}", f"wire exactly one electrode to {pin}")
+                    problem(
+                        field,
+                        f"two electrodes on one pin: {pin} of chip '{name}' is wired to electrodes "
+                        f"{', '.join(map(str, value))}",
+                        f"wire exactly one electrode to {pin}",
+                    )
                     continue
                 value = value[0] if value else None
             if isinstance(value, bool) or not isinstance(value, int):
-                problem(field, f"pin {pin} of chip '{name}' must name an electrode number, got {value!r}",
-                        f"write {pin} = <electrode number>")
+                problem(
+                    field,
+                    f"pin {pin} of chip '{name}' must name an electrode number, got {value!r}",
+                    f"write {pin} = <electrode number>",
+                )
                 continue
             if value not in electrodes:
-                problem(field, f"electrode {value} on pin {pin} of chip '{name}' is not in the layout "
-                        f"(electrodes {', '.join(map(str, sorted(electrodes)))})",
-                        "use an electrode number of the layout")
+                problem(
+                    field,
+                    f"electrode {value} on pin {pin} of chip '{name}' is not in the layout "
+                    f"(electrodes {', '.join(map(str, sorted(electrodes)))})",
+                    "use an electrode number of the layout",
+                )
                 continue
             on_pin[(m.group(1), int(m.group(2)))] = value
         for k in range(ADDRESSES_PER_CHIP):
@@ -245,28 +301,47 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
             field = f"{where}.pins.X{k}/Y{k}"
             if x is None or y is None:
                 wired, missing = ("X", "Y") if y is None else ("Y", "X")
-                problem(field, f"address {k} of chip '{name}' has {wired}{k} wired but not {missing}{k}",
-                        f"wire {missing}{k} to the pair's other electrode, or free {wired}{k}")
+                problem(
+                    field,
+                    f"address {k} of chip '{name}' has {wired}{k} wired but not {missing}{k}",
+                    f"wire {missing}{k} to the pair's other electrode, or free {wired}{k}",
+                )
                 continue
             if x == y:
-                problem(field, f"pair with both ends on electrode {x}: X{k} and Y{k} of chip '{name}' "
-                        "are on the same electrode", f"wire X{k} and Y{k} to the two different electrodes of a pair")
+                problem(
+                    field,
+                    f"pair with both ends on electrode {x}: X{k} and Y{k} of chip '{name}' are on the same electrode",
+                    f"wire X{k} and Y{k} to the two different electrodes of a pair",
+                )
                 continue
             key = (min(x, y), max(x, y))
             p = pair_index[key]
             if p in routed:
                 oc, ok, ofield = routed[p]
-                problem(field, f"pair {key[0]}-{key[1]} is routed twice: chip '{name}' address {k} and "
-                        f"{ofield}", "route every pair once: free one of the two addresses")
+                problem(
+                    field,
+                    f"pair {key[0]}-{key[1]} is routed twice: chip '{name}' address {k} and {ofield}",
+                    "route every pair once: free one of the two addresses",
+                )
                 continue
             routed[p] = (c, k, field)
             routes.append(Route(p, c, k, x, y))
     if chips and len(chips) * ADDRESSES_PER_CHIP >= n_pairs:
         for p, pair in enumerate(layout.pairs):
             if p not in routed:
-                problem("chips", f"pair {pair.label} of S is not routed by any chip",
-                        f"wire electrodes {pair.i} and {pair.j} to Xk and Yk of a free chip address")
+                problem(
+                    "chips",
+                    f"pair {pair.label} of S is not routed by any chip",
+                    f"wire electrodes {pair.i} and {pair.j} to Xk and Yk of a free chip address",
+                )
     raise_problems(problems)
     layout_ref = data.get("layout") if isinstance(data.get("layout"), str) else None
-    return Wiring(tuple(names), address_lines, tuple(inhibits), tuple(sorted(routes, key=lambda r: r.pair_index)),
-                  layout.pairs, source=source, layout_path=layout_ref)
+    return Wiring(
+        tuple(names),
+        address_lines,
+        tuple(inhibits),
+        tuple(sorted(routes, key=lambda r: r.pair_index)),
+        layout.pairs,
+        source=source,
+        layout_path=layout_ref,
+    )

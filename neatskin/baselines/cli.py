@@ -13,13 +13,24 @@ def register(subparsers) -> None:
         "error against fit and predict time, and write report.md, baselines.csv/.parquet and PNG plots.",
     )
     parser.add_argument("dataset", help="campaign folder, merged dataset folder, or a presses .parquet file")
-    parser.add_argument("--split", choices=("grouped", "random", "both"), default="grouped",
-                        help="grouped: k-fold over positions (honest, default); random: the paper's 95/3/2 by row")
-    parser.add_argument("--models", default=None,
-                        help="comma-separated: ridge,knn,kernel_ridge,extra_trees,mlp,lm_network (default: all)")
+    parser.add_argument(
+        "--split",
+        choices=("grouped", "random", "both"),
+        default="grouped",
+        help="grouped: k-fold over positions (honest, default); random: the paper's 95/3/2 by row",
+    )
+    parser.add_argument(
+        "--models",
+        default=None,
+        help="comma-separated: ridge,knn,kernel_ridge,extra_trees,mlp,lm_network (default: all)",
+    )
     parser.add_argument("--out", default=None, help="output folder (default: the dataset folder)")
-    parser.add_argument("--flagged", choices=("drop", "keep", "refuse"), default="drop",
-                        help="what to do with presses that carry flags (default: drop them)")
+    parser.add_argument(
+        "--flagged",
+        choices=("drop", "keep", "refuse"),
+        default="drop",
+        help="what to do with presses that carry flags (default: drop them)",
+    )
     parser.add_argument("--folds", type=int, default=5, help="folds over positions for the grouped split")
     parser.add_argument("--seed", type=int, default=0, help="seed for splits and model initialisation")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

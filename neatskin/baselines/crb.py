@@ -19,28 +19,43 @@ def fisher_information(
     """F = J^T C^-1 J for every position: jacobian (n, pairs, 2) -> (n, 2, 2)."""
     jac = np.asarray(jacobian, dtype=float)
     if jac.ndim != 3 or jac.shape[2] != 2:
-        raise DataError(f"the Jacobian must be (positions, pairs, 2), got shape {jac.shape}",
-                        field="jacobian", fix="stack d feature / d(x, y) per position")
+        raise DataError(
+            f"the Jacobian must be (positions, pairs, 2), got shape {jac.shape}",
+            field="jacobian",
+            fix="stack d feature / d(x, y) per position",
+        )
     if (noise_cov is None) == (noise_std is None):
-        raise DataError("give exactly one of noise_cov (pairs, pairs) and noise_std (pairs,)",
-                        field="noise", fix="pass the measurement noise once")
+        raise DataError(
+            "give exactly one of noise_cov (pairs, pairs) and noise_std (pairs,)",
+            field="noise",
+            fix="pass the measurement noise once",
+        )
     pairs = jac.shape[1]
     if noise_std is not None:
         std = np.broadcast_to(np.asarray(noise_std, float), (pairs,))
         if np.any(~np.isfinite(std)) or np.any(std <= 0):
-            raise DataError("noise_std must be finite and > 0 for every pair", field="noise_std",
-                            fix="a noise-free pair has no finite bound; give its real noise floor")
+            raise DataError(
+                "noise_std must be finite and > 0 for every pair",
+                field="noise_std",
+                fix="a noise-free pair has no finite bound; give its real noise floor",
+            )
         weighted = jac / std[None, :, None] ** 2
         return np.einsum("npa,npb->nab", jac, weighted)
     cov = np.asarray(noise_cov, float)
     if cov.shape != (pairs, pairs) or not np.all(np.isfinite(cov)):
-        raise DataError(f"noise_cov must be a finite ({pairs}, {pairs}) matrix, got {cov.shape}",
-                        field="noise_cov", fix="one row and column per electrode pair")
+        raise DataError(
+            f"noise_cov must be a finite ({pairs}, {pairs}) matrix, got {cov.shape}",
+            field="noise_cov",
+            fix="one row and column per electrode pair",
+        )
     try:
         chol = np.linalg.cholesky(cov)
     except np.linalg.LinAlgError as exc:
-        raise DataError("noise_cov is not positive definite", field="noise_cov",
-                        fix="add the per-pair noise variance on the diagonal") from exc
+        raise DataError(
+            "noise_cov is not positive definite",
+            field="noise_cov",
+            fix="add the per-pair noise variance on the diagonal",
+        ) from exc
     whitened = np.linalg.solve(chol[None], jac)  # L^-1 J, so F = (L^-1 J)^T (L^-1 J)
     return np.einsum("npa,npb->nab", whitened, whitened)
 

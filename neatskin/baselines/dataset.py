@@ -63,26 +63,41 @@ def check_table(df: pd.DataFrame, source: str, expected_pairs: list[str] | None 
     """The dR pair columns to learn from, after refusing missing columns and non-finite values."""
     for column in ("x_mm", "y_mm", "position_id"):
         if column not in df.columns:
-            raise DataError(f"missing column {column!r}", file=source, field=column,
-                            fix="the baselines need x_mm, y_mm and position_id per press; re-export the dataset")
+            raise DataError(
+                f"missing column {column!r}",
+                file=source,
+                field=column,
+                fix="the baselines need x_mm, y_mm and position_id per press; re-export the dataset",
+            )
     found = sorted((c for c in df.columns if c.startswith("dR_ohm_")), key=_pair_sort_key)
     wanted = expected_pairs or found
     if not wanted:
-        raise DataError("no dR_ohm_<i>_<j> pair columns", file=source, field="dR_ohm_*",
-                        fix="the dataset must hold one resistance-change column per electrode pair")
+        raise DataError(
+            "no dR_ohm_<i>_<j> pair columns",
+            file=source,
+            field="dR_ohm_*",
+            fix="the dataset must hold one resistance-change column per electrode pair",
+        )
     missing = [c for c in wanted if c not in df.columns]
     if missing:
-        raise DataError(f"missing pair column {missing[0]!r} ({len(missing)} of {len(wanted)} missing)",
-                        file=source, field=missing[0],
-                        fix="every electrode pair of the layout needs its dR_ohm column; re-run or re-export the campaign")
+        raise DataError(
+            f"missing pair column {missing[0]!r} ({len(missing)} of {len(wanted)} missing)",
+            file=source,
+            field=missing[0],
+            fix="every electrode pair of the layout needs its dR_ohm column; re-run or re-export the campaign",
+        )
     for column in ("x_mm", "y_mm", *wanted):
         values = pd.to_numeric(df[column], errors="coerce").to_numpy(dtype=float)
         bad = ~np.isfinite(values)
         if bad.any():
             rows = df.index[bad]
             ids = df["press_id"].to_numpy()[bad][:5].tolist() if "press_id" in df.columns else rows[:5].tolist()
-            raise DataError(f"{int(bad.sum())} NaN or infinite values (press_id {ids})", file=source, field=column,
-                            fix="flag those presses (they are dropped by default) or drop them with the dataset tools")
+            raise DataError(
+                f"{int(bad.sum())} NaN or infinite values (press_id {ids})",
+                file=source,
+                field=column,
+                fix="flag those presses (they are dropped by default) or drop them with the dataset tools",
+            )
     return wanted
 
 
@@ -105,14 +120,22 @@ def load_baseline_data(dataset: str | Path, flagged: str = "drop") -> BaselineDa
     if "flags" in df.columns:
         is_flagged = np.array([len(f) > 0 if f is not None else False for f in df["flags"]], dtype=bool)
         if is_flagged.any() and flagged == "refuse":
-            raise DataError(f"{int(is_flagged.sum())} flagged presses", file=source, field="flags",
-                            fix="drop them (the default, flagged='drop') or keep them explicitly")
+            raise DataError(
+                f"{int(is_flagged.sum())} flagged presses",
+                file=source,
+                field="flags",
+                fix="drop them (the default, flagged='drop') or keep them explicitly",
+            )
         if flagged == "drop":
             df = df[~is_flagged]
             dropped = int(is_flagged.sum())
     if len(df) == 0:
-        raise DataError("no presses left to learn from" + (f" after dropping {dropped} flagged" if dropped else ""),
-                        file=source, field="flags", fix="record presses without flags, or pass flagged='keep'")
+        raise DataError(
+            "no presses left to learn from" + (f" after dropping {dropped} flagged" if dropped else ""),
+            file=source,
+            field="flags",
+            fix="record presses without flags, or pass flagged='keep'",
+        )
     pairs = check_table(df, source, expected)
     groups = df["position_id"].to_numpy()
     if "campaign" in df.columns and df["campaign"].nunique() > 1:  # merged: ids repeat across campaigns
@@ -122,8 +145,12 @@ def load_baseline_data(dataset: str | Path, flagged: str = "drop") -> BaselineDa
     if limit_path.is_file():
         limit = pd.read_parquet(limit_path)
         if "crb_mm" not in limit.columns:
-            raise DataError("missing column 'crb_mm'", file=str(limit_path), field="crb_mm",
-                            fix="write position_id, x_mm, y_mm, crb_mm (see cramer_rao_bound_mm)")
+            raise DataError(
+                "missing column 'crb_mm'",
+                file=str(limit_path),
+                field="crb_mm",
+                fix="write position_id, x_mm, y_mm, crb_mm (see cramer_rao_bound_mm)",
+            )
     return BaselineData(
         source=source,
         X=df[pairs].to_numpy(dtype=np.float64),

@@ -29,20 +29,26 @@ MIN_TRAIN_ROWS = 6
 def paper_split(n_rows: int, random_state: int | None = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Row indices (train, val, test) in the paper's 95/3/2 proportions (val and test rounded, >= 1 each)."""
     if n_rows < 3:
-        raise DataError(f"{n_rows} presses cannot be split 95/3/2", field="rows",
-                        fix="record more presses (the paper used 2,800)")
+        raise DataError(
+            f"{n_rows} presses cannot be split 95/3/2", field="rows", fix="record more presses (the paper used 2,800)"
+        )
     order = np.random.default_rng(random_state).permutation(n_rows)
     n_test = max(1, int(round(PAPER_FRACTIONS[2] * n_rows)))
     n_val = max(1, int(round(PAPER_FRACTIONS[1] * n_rows)))
-    return order[n_test + n_val:], order[n_test:n_test + n_val], order[:n_test]
+    return order[n_test + n_val :], order[n_test : n_test + n_val], order[:n_test]
 
 
-def grouped_folds(groups: np.ndarray, n_splits: int = 5, random_state: int | None = 0) -> list[tuple[np.ndarray, np.ndarray]]:
+def grouped_folds(
+    groups: np.ndarray, n_splits: int = 5, random_state: int | None = 0
+) -> list[tuple[np.ndarray, np.ndarray]]:
     """(train, test) row indices of a k-fold over groups (positions); k = min(n_splits, n_groups)."""
     n_groups = len(np.unique(groups))
     if n_groups < 2:
-        raise DataError(f"a grouped split needs at least 2 positions, the dataset has {n_groups}",
-                        field="position_id", fix="record more positions, or use --split random")
+        raise DataError(
+            f"a grouped split needs at least 2 positions, the dataset has {n_groups}",
+            field="position_id",
+            fix="record more positions, or use --split random",
+        )
     k = min(n_splits, n_groups)
     splitter = GroupKFold(n_splits=k, shuffle=True, random_state=random_state)
     dummy = np.zeros(len(groups))
@@ -98,8 +104,12 @@ def check_arrays(X: np.ndarray, y: np.ndarray, source: str = "<arrays>") -> None
         bad = ~np.isfinite(a)
         if bad.any():
             col = int(np.argmax(bad.any(axis=0)))
-            raise DataError(f"{int(bad.sum())} non-finite {name} (first in column {col})", file=source,
-                            field=f"{name}[:, {col}]", fix="drop or repair those presses before fitting")
+            raise DataError(
+                f"{int(bad.sum())} non-finite {name} (first in column {col})",
+                file=source,
+                field=f"{name}[:, {col}]",
+                fix="drop or repair those presses before fitting",
+            )
 
 
 def evaluate_model(
@@ -120,8 +130,11 @@ def evaluate_model(
     fit_s, predict_s, n_pred, n_train = 0.0, 0.0, 0, 0
     for train, test in folds:
         if len(train) < MIN_TRAIN_ROWS:
-            raise DataError(f"only {len(train)} training presses in a fold", field="rows",
-                            fix=f"record at least {MIN_TRAIN_ROWS} presses per fold")
+            raise DataError(
+                f"only {len(train)} training presses in a fold",
+                field="rows",
+                fix=f"record at least {MIN_TRAIN_ROWS} presses per fold",
+            )
         model = clone(estimator)
         start = time.perf_counter()
         model.fit(X[train], y[train])
@@ -133,8 +146,11 @@ def evaluate_model(
         n_pred += len(test)
         n_train += len(train)
     if not np.isfinite(pred[tested]).all():
-        raise DataError(f"model {name} predicted non-finite positions", field=name,
-                        fix="report this dataset: every baseline should give finite predictions")
+        raise DataError(
+            f"model {name} predicted non-finite positions",
+            field=name,
+            fix="report this dataset: every baseline should give finite predictions",
+        )
     return ModelResult(
         model=name,
         split=split,

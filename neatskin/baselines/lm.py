@@ -79,7 +79,11 @@ def input_outer_products(x: np.ndarray) -> np.ndarray:
 
 
 def normal_equations(
-    w: np.ndarray, x: np.ndarray, x_products: np.ndarray, hidden: np.ndarray, err: np.ndarray,
+    w: np.ndarray,
+    x: np.ndarray,
+    x_products: np.ndarray,
+    hidden: np.ndarray,
+    err: np.ndarray,
     x_bias: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """J^T J and J^T e of the residuals without forming J, from the network's block structure.
@@ -127,9 +131,7 @@ def normal_equations(
     return jtj, np.concatenate([g1.ravel(), g2.ravel()])
 
 
-def initial_weights(
-    n_inputs: int, n_hidden: int, n_outputs: int, rng: np.random.Generator
-) -> np.ndarray:
+def initial_weights(n_inputs: int, n_hidden: int, n_outputs: int, rng: np.random.Generator) -> np.ndarray:
     """Nguyen-Widrow-like start for inputs in [0, 1]: hidden units spread over the input box.
 
     Each hidden unit's input weights have norm 0.7 * h^(1/in) (Nguyen & Widrow's magnitude) in a
@@ -180,12 +182,25 @@ def train_lm(
     """
     with threadpool_limits(limits=1, user_api="blas"):
         return _train_lm(
-            w0, x_train, y_train, x_val, y_val, n_hidden, mu=mu, mu_dec=mu_dec, mu_inc=mu_inc,
-            mu_max=mu_max, max_fail=max_fail, max_epochs=max_epochs, min_grad=min_grad,
+            w0,
+            x_train,
+            y_train,
+            x_val,
+            y_val,
+            n_hidden,
+            mu=mu,
+            mu_dec=mu_dec,
+            mu_inc=mu_inc,
+            mu_max=mu_max,
+            max_fail=max_fail,
+            max_epochs=max_epochs,
+            min_grad=min_grad,
         )
 
 
-def _train_lm(w0, x_train, y_train, x_val, y_val, n_hidden, *, mu, mu_dec, mu_inc, mu_max, max_fail, max_epochs, min_grad) -> LMRun:
+def _train_lm(
+    w0, x_train, y_train, x_val, y_val, n_hidden, *, mu, mu_dec, mu_inc, mu_max, max_fail, max_epochs, min_grad
+) -> LMRun:
     n_outputs = y_train.shape[1]
     w = w0.astype(float, copy=True)
     eye = np.eye(w.size)
@@ -346,17 +361,28 @@ class LMNetworkRegressor(RegressorMixin, BaseEstimator):
         X = np.asarray(X, dtype=float)
         y2 = np.asarray(y, dtype=float).reshape(len(X), -1)
         xs, ys = (X - self.x_min_) / self.x_span_, (y2 - self.y_min_) / self.y_span_
-        train, val, w0 = self._restart_setup(len(xs), xs.shape[1], ys.shape[1], self.n_val_,
-                                             int(self.restart_seeds_[restart]))
+        train, val, w0 = self._restart_setup(
+            len(xs), xs.shape[1], ys.shape[1], self.n_val_, int(self.restart_seeds_[restart])
+        )
         return {"x_train": xs[train], "y_train": ys[train], "x_val": xs[val], "y_val": ys[val], "w0": w0}
 
     def _fit_one(self, xs: np.ndarray, ys: np.ndarray, n_val: int, seed: int) -> LMRun:
         """One restart: its own validation rows and initial weights, both from `seed`."""
         train, val, w0 = self._restart_setup(len(xs), xs.shape[1], ys.shape[1], n_val, seed)
         return train_lm(
-            w0, xs[train], ys[train], xs[val], ys[val], int(self.n_hidden),
-            mu=self.mu, mu_dec=self.mu_dec, mu_inc=self.mu_inc, mu_max=self.mu_max,
-            max_fail=int(self.max_fail), max_epochs=int(self.max_epochs), min_grad=self.min_grad,
+            w0,
+            xs[train],
+            ys[train],
+            xs[val],
+            ys[val],
+            int(self.n_hidden),
+            mu=self.mu,
+            mu_dec=self.mu_dec,
+            mu_inc=self.mu_inc,
+            mu_max=self.mu_max,
+            max_fail=int(self.max_fail),
+            max_epochs=int(self.max_epochs),
+            min_grad=self.min_grad,
         )
 
     def predict(self, X):

@@ -7,7 +7,7 @@ shrinks towards zero, its targets too. The paper's LM network scales both to [0,
 
 from __future__ import annotations
 
-from typing import Iterable
+from collections.abc import Iterable
 
 from sklearn.base import BaseEstimator
 from sklearn.compose import TransformedTargetRegressor
@@ -55,8 +55,7 @@ def make_model(name: str, random_state: int | None = 0, n_features: int = 28) ->
         return make_pipeline(StandardScaler(), _scaled_target(mlp))
     if name == "lm_network":
         return LMNetworkRegressor(n_hidden=5, n_restarts=10, val_fraction=3 / 98, random_state=random_state)
-    raise DataError(f"unknown model {name!r}", field="models",
-                    fix=f"choose from {', '.join(MODEL_NAMES)}")
+    raise DataError(f"unknown model {name!r}", field="models", fix=f"choose from {', '.join(MODEL_NAMES)}")
 
 
 def make_models(

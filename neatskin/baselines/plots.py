@@ -27,10 +27,18 @@ def plot_error_vs_time(results: list[ModelResult], path: Path, bound_rms_mm: flo
     models = list(dict.fromkeys(r.model for r in results))
     colours = {m: f"C{i % 10}" for i, m in enumerate(models)}
     for r in results:
-        ax.errorbar(r.fit_time_s, r.errors.mean_error_mm, yerr=r.errors.std_error_mm, color=colours[r.model],
-                    fmt=markers.get(r.split, "o"), capsize=3, label=f"{r.model} ({r.split})")
-        ax.annotate(r.model, (r.fit_time_s, r.errors.mean_error_mm), textcoords="offset points",
-                    xytext=(5, 5), fontsize=8)
+        ax.errorbar(
+            r.fit_time_s,
+            r.errors.mean_error_mm,
+            yerr=r.errors.std_error_mm,
+            color=colours[r.model],
+            fmt=markers.get(r.split, "o"),
+            capsize=3,
+            label=f"{r.model} ({r.split})",
+        )
+        ax.annotate(
+            r.model, (r.fit_time_s, r.errors.mean_error_mm), textcoords="offset points", xytext=(5, 5), fontsize=8
+        )
     ax.axhline(PROBE_RADIUS_MM, color="grey", ls=":", lw=1, label="probe radius 2.75 mm")
     ax.axhline(2.03, color="tab:red", ls="--", lw=1, label="paper, real skin: 2.03 mm")
     if bound_rms_mm is not None and np.isfinite(bound_rms_mm):
@@ -76,8 +84,16 @@ def plot_error_ellipses(
             t, m = ell.true_mm[g], ell.mean_pred_mm[g]
             hit = ell.centre_error_mm[g] <= PROBE_RADIUS_MM
             ax.add_patch(Circle(t, PROBE_RADIUS_MM, fill=False, color="tab:blue", lw=0.6))
-            ax.add_patch(Ellipse(m, 2 * ell.std_axes_mm[g, 0], 2 * ell.std_axes_mm[g, 1],
-                                 angle=np.degrees(ell.angle_rad[g]), color="tab:green", alpha=0.45))
+            ax.add_patch(
+                Ellipse(
+                    m,
+                    2 * ell.std_axes_mm[g, 0],
+                    2 * ell.std_axes_mm[g, 1],
+                    angle=np.degrees(ell.angle_rad[g]),
+                    color="tab:green",
+                    alpha=0.45,
+                )
+            )
             ax.plot([t[0], m[0]], [t[1], m[1]], color="black" if hit else "tab:red", lw=0.8)
             ax.plot(m[0], m[1], ".", color="tab:green", ms=3)
         ax.set_aspect("equal")
@@ -94,9 +110,11 @@ def plot_error_ellipses(
         ax.set_ylabel("y (mm)")
     for ax in axes.ravel()[n:]:
         ax.axis("off")
-    fig.suptitle("Per position: probe radius at the true position (blue), mean prediction (green dot) with its 1-std "
-                 "ellipse (green);\nline from truth to mean: black inside the probe radius, red outside",
-                 fontsize=9)
+    fig.suptitle(
+        "Per position: probe radius at the true position (blue), mean prediction (green dot) with its 1-std "
+        "ellipse (green);\nline from truth to mean: black inside the probe radius, red outside",
+        fontsize=9,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

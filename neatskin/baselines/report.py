@@ -8,9 +8,9 @@ table also gives each model's RMS error against the RMS bound.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
 import pandas as pd
@@ -54,23 +54,33 @@ def results_table(results: Iterable[ModelResult], bound: float | None) -> pd.Dat
 
 def format_table(table: pd.DataFrame) -> str:
     """A fixed-width text table, one row per model and split."""
-    header = (f"{'model':<13} {'split':<8} {'mean err mm':>14} {'median':>7} {'RMS mm':>7} {'MSE mm2':>8} {'MSE/coord':>9} "
-              f"{'<=2.75mm':>8} {'fit s':>8} {'pred us/row':>11}")
+    header = (
+        f"{'model':<13} {'split':<8} {'mean err mm':>14} {'median':>7} {'RMS mm':>7} {'MSE mm2':>8} {'MSE/coord':>9} "
+        f"{'<=2.75mm':>8} {'fit s':>8} {'pred us/row':>11}"
+    )
     if "rms_over_crb" in table.columns:
         header += f" {'RMS/CRB':>8}"
     lines = [header, "-" * len(header)]
     for row in table.itertuples(index=False):
-        line = (f"{row.model:<13} {row.split:<8} {row.mean_error_mm:>6.2f} ± {row.std_error_mm:<5.2f} "
-                f"{row.median_error_mm:>7.2f} {row.rms_error_mm:>7.2f} {row.mse_mm2:>8.2f} {row.mse_per_coordinate_mm2:>9.2f} "
-                f"{row.within_probe_pct:>7.1f}% {row.fit_time_s:>8.3f} {row.predict_time_per_sample_us:>11.1f}")
+        line = (
+            f"{row.model:<13} {row.split:<8} {row.mean_error_mm:>6.2f} ± {row.std_error_mm:<5.2f} "
+            f"{row.median_error_mm:>7.2f} {row.rms_error_mm:>7.2f} {row.mse_mm2:>8.2f} {row.mse_per_coordinate_mm2:>9.2f} "
+            f"{row.within_probe_pct:>7.1f}% {row.fit_time_s:>8.3f} {row.predict_time_per_sample_us:>11.1f}"
+        )
         if "rms_over_crb" in table.columns:
             line += f" {row.rms_over_crb:>8.2f}"
         lines.append(line)
     return "\n".join(lines)
 
 
-def _markdown(data: BaselineData, table: pd.DataFrame, bound: float | None, splits: tuple[str, ...],
-              files: dict[str, Path], random_state: int | None) -> str:
+def _markdown(
+    data: BaselineData,
+    table: pd.DataFrame,
+    bound: float | None,
+    splits: tuple[str, ...],
+    files: dict[str, Path],
+    random_state: int | None,
+) -> str:
     t, v, s = (int(100 * f) for f in PAPER_FRACTIONS)
     lines = [
         "# Baseline report",
@@ -81,12 +91,16 @@ def _markdown(data: BaselineData, table: pd.DataFrame, bound: float | None, spli
         "Splits:",
     ]
     if "grouped" in splits:
-        lines.append("- `grouped`: k-fold over positions (no position in both training and test rows); every press "
-                     "is predicted once, by the model that never saw its position. This is the honest error for a new press position.")
+        lines.append(
+            "- `grouped`: k-fold over positions (no position in both training and test rows); every press "
+            "is predicted once, by the model that never saw its position. This is the honest error for a new press position."
+        )
     if "random" in splits:
-        lines.append(f"- `random`: the paper's split by row, {t} % train / {v} % validation / {s} % test; models fit on "
-                     "train + validation (the LM network holds out its own 3/98 for early stopping and restart choice). "
-                     "Repeats of a test position are in training, so this error is optimistic.")
+        lines.append(
+            f"- `random`: the paper's split by row, {t} % train / {v} % validation / {s} % test; models fit on "
+            "train + validation (the LM network holds out its own 3/98 for early stopping and restart choice). "
+            "Repeats of a test position are in training, so this error is optimistic."
+        )
     lines += [
         "",
         "Columns: mean Euclidean error ± its std (mm); median Euclidean error (mm; robust to a few wild extrapolations); RMS error = sqrt(MSE); `MSE mm2` = mean of dx²+dy²; "

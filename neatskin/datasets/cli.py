@@ -11,8 +11,11 @@ from pathlib import Path
 
 
 def register(subparsers) -> None:
-    parser = subparsers.add_parser("dataset", help="validate, describe, merge, split, export and plot datasets",
-                                   description=__doc__.splitlines()[0])
+    parser = subparsers.add_parser(
+        "dataset",
+        help="validate, describe, merge, split, export and plot datasets",
+        description=__doc__.splitlines()[0],
+    )
     sub = parser.add_subparsers(dest="dataset_command", metavar="ACTION", required=True)
 
     info = sub.add_parser("info", help="summarise a campaign folder or press parquet file")
@@ -20,8 +23,10 @@ def register(subparsers) -> None:
     info.add_argument("--json", action="store_true", help="print JSON instead of a table")
     info.set_defaults(handler=_info)
 
-    val = sub.add_parser("validate", help="check schema, NaNs, duplicates, bounds, flags and the manifest; "
-                                          "exit status 1 when anything is wrong")
+    val = sub.add_parser(
+        "validate",
+        help="check schema, NaNs, duplicates, bounds, flags and the manifest; exit status 1 when anything is wrong",
+    )
     val.add_argument("path", type=Path, help="campaign folder or .parquet file")
     val.add_argument("--layout", type=Path, help="skin layout TOML (default: the one the manifest names)")
     val.add_argument("--allow-flagged", action="store_true", help="do not count flagged presses as problems")
@@ -57,13 +62,17 @@ def register(subparsers) -> None:
 
 def _info(args: argparse.Namespace) -> int:
     from neatskin.datasets.curate import describe, format_description
-
     from neatskin.datasets.validate import validate_dataset
 
     info = describe(args.path)
     problems = validate_dataset(args.path, allow_flagged=True)
-    info["validation"] = "valid" if not problems else (
-        f"{len(problems)} problem(s), e.g. {problems[0].message} (details: neatskin dataset validate {args.path})")
+    info["validation"] = (
+        "valid"
+        if not problems
+        else (
+            f"{len(problems)} problem(s), e.g. {problems[0].message} (details: neatskin dataset validate {args.path})"
+        )
+    )
     print(json.dumps(info, indent=2, default=str) if args.json else format_description(info))
     return 0
 
@@ -90,8 +99,10 @@ def _merge(args: argparse.Namespace) -> int:
     out = merge(args.folders, args.output, allow_mixed=args.allow_mixed)
     sources = read_metadata(out)["merged_from"]
     for source in sources:
-        print(f"{source['folder']}: {source['presses']} presses, press ids +{source['press_id_offset']}, "
-              f"position ids +{source['position_id_offset']}")
+        print(
+            f"{source['folder']}: {source['presses']} presses, press ids +{source['press_id_offset']}, "
+            f"position ids +{source['position_id_offset']}"
+        )
     print(f"wrote {out}")
     return 0
 

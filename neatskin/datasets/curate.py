@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -49,8 +50,11 @@ def _absolute_refs(folder: Path, manifest: dict[str, Any]) -> dict[str, Any]:
 
 def _empty_output(out: Path) -> None:
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise DataError("the output folder exists and is not empty", file=str(out),
-                        fix="choose a new folder; curation never overwrites data")
+        raise DataError(
+            "the output folder exists and is not empty",
+            file=str(out),
+            fix="choose a new folder; curation never overwrites data",
+        )
 
 
 def _flagged_mask(table: pa.Table) -> np.ndarray:
@@ -94,15 +98,18 @@ def describe(path: str | os.PathLike) -> dict[str, Any]:
         "depth_mm": sorted(float(d) for d in df["depth_mm"].unique()),
         "started_at": str(df["started_at"].min()) if len(df) else None,
         "finished_at": str(df["finished_at"].max()) if len(df) else None,
-        "most_sensitive_pairs": [c.removeprefix("dR_ohm_").replace("_", "-")
-                                 for c in mean_dr.abs().sort_values(ascending=False).index[:3]],
+        "most_sensitive_pairs": [
+            c.removeprefix("dR_ohm_").replace("_", "-") for c in mean_dr.abs().sort_values(ascending=False).index[:3]
+        ],
         "status": manifest.get("status"),
         "seed": manifest.get("seed", meta.get("seed")),
         "layout": manifest.get("layout", meta.get("layout")),
         "software_version": meta.get("software_version"),
-        "files": {"consolidated": (path / CONSOLIDATED_NAME).is_file() if path.is_dir() else True,
-                  "press_parts": len(press_parts(path)) if path.is_dir() else 0,
-                  "waveform_parts": len(waveform_parts(path)) if path.is_dir() else 0},
+        "files": {
+            "consolidated": (path / CONSOLIDATED_NAME).is_file() if path.is_dir() else True,
+            "press_parts": len(press_parts(path)) if path.is_dir() else 0,
+            "waveform_parts": len(waveform_parts(path)) if path.is_dir() else 0,
+        },
     }
 
 
@@ -134,35 +141,59 @@ def merge(folders: Sequence[str | os.PathLike], out: str | os.PathLike, *, allow
     first_folder, first_table, first_meta, first_manifest = loaded[0]
     for folder, table, meta, manifest in loaded[1:]:
         if table.schema.names != first_table.schema.names:
-            raise DataError(f"its electrode pairs differ from those of {first_folder}", file=str(folder),
-                            field="pairs", fix="only campaigns measuring the same pairs can share one table")
+            raise DataError(
+                f"its electrode pairs differ from those of {first_folder}",
+                file=str(folder),
+                field="pairs",
+                fix="only campaigns measuring the same pairs can share one table",
+            )
         for key in ("layout", "wiring"):
             a = first_manifest.get(key, first_meta.get(key))
             b = manifest.get(key, meta.get(key))
             if not allow_mixed and a is not None and b is not None and not same_file_ref(a, b):
-                raise DataError(f"{key} {b!r} differs from {a!r} of {first_folder}", file=str(folder), field=key,
-                                fix="merge only campaigns on one skin and wiring, or pass --allow-mixed")
+                raise DataError(
+                    f"{key} {b!r} differs from {a!r} of {first_folder}",
+                    file=str(folder),
+                    field=key,
+                    fix="merge only campaigns on one skin and wiring, or pass --allow-mixed",
+                )
     tables, provenance = [], []
     press_offset = position_offset = 0
     for folder, table, meta, manifest in loaded:
         ids = table.column("press_id")
         pos = table.column("position_id")
-        shifted = table.set_column(table.schema.get_field_index("press_id"), table.schema.field("press_id"),
-                                   pc.add(ids, pa.scalar(press_offset, pa.int64())))
-        shifted = shifted.set_column(shifted.schema.get_field_index("position_id"),
-                                     shifted.schema.field("position_id"),
-                                     pc.add(pos, pa.scalar(position_offset, pa.int32())))
+        shifted = table.set_column(
+            table.schema.get_field_index("press_id"),
+            table.schema.field("press_id"),
+            pc.add(ids, pa.scalar(press_offset, pa.int64())),
+        )
+        shifted = shifted.set_column(
+            shifted.schema.get_field_index("position_id"),
+            shifted.schema.field("position_id"),
+            pc.add(pos, pa.scalar(position_offset, pa.int32())),
+        )
         tables.append(shifted.replace_schema_metadata(None))
-        provenance.append({"folder": str(folder.resolve()), "presses": table.num_rows,
-                           "press_id_offset": press_offset, "position_id_offset": position_offset,
-                           "metadata": {k: v for k, v in meta.items() if k != "pairs"}, "manifest": manifest})
+        provenance.append(
+            {
+                "folder": str(folder.resolve()),
+                "presses": table.num_rows,
+                "press_id_offset": press_offset,
+                "position_id_offset": position_offset,
+                "metadata": {k: v for k, v in meta.items() if k != "pairs"},
+                "manifest": manifest,
+            }
+        )
         if table.num_rows:
             press_offset += int(pc.max(ids).as_py()) + 1
             position_offset += int(pc.max(pos).as_py()) + 1
     merged = pa.concat_tables(tables)
     refs = _absolute_refs(first_folder, first_manifest)
-    metadata = {"pairs": first_meta.get("pairs"), "software_version": first_meta.get("software_version"),
-                "merged_from": provenance, **{k: v for k, v in refs.items()}}
+    metadata = {
+        "pairs": first_meta.get("pairs"),
+        "software_version": first_meta.get("software_version"),
+        "merged_from": provenance,
+        **{k: v for k, v in refs.items()},
+    }
     manifest = {"kind": "merge", "allow_mixed": allow_mixed, "sources": [p["folder"] for p in provenance], **refs}
     seeds = {json.dumps(m.get("seed", meta.get("seed"))) for _, _, meta, m in loaded}
     if len(seeds) == 1:
@@ -178,18 +209,23 @@ def split_positions(position_ids: np.ndarray, test_fraction: float, seed: int) -
     positions (at least one in each set)."""
     unique = np.unique(position_ids)
     if not 0.0 < test_fraction < 1.0:
-        raise DataError(f"test_fraction must be between 0 and 1, got {test_fraction}", field="test_fraction",
-                        fix="use e.g. 0.2")
+        raise DataError(
+            f"test_fraction must be between 0 and 1, got {test_fraction}", field="test_fraction", fix="use e.g. 0.2"
+        )
     if unique.size < 2:
-        raise DataError(f"a split by position needs at least 2 positions, the data has {unique.size}",
-                        field="position_id", fix="press more positions")
+        raise DataError(
+            f"a split by position needs at least 2 positions, the data has {unique.size}",
+            field="position_id",
+            fix="press more positions",
+        )
     n_test = int(np.clip(round(test_fraction * unique.size), 1, unique.size - 1))
     order = np.random.default_rng(seed).permutation(unique)
     return np.sort(order[n_test:]), np.sort(order[:n_test])
 
 
-def split(path: str | os.PathLike, out: str | os.PathLike, test_fraction: float = 0.2, seed: int = 0
-          ) -> dict[str, Path]:
+def split(
+    path: str | os.PathLike, out: str | os.PathLike, test_fraction: float = 0.2, seed: int = 0
+) -> dict[str, Path]:
     """Write out/train and out/test, split BY POSITION: every repeat of a position lands in the same set."""
     path, out = Path(path), Path(out)
     _empty_output(out)
@@ -201,10 +237,19 @@ def split(path: str | os.PathLike, out: str | os.PathLike, test_fraction: float 
     result = {}
     for name, ids in (("train", train_ids), ("test", test_ids)):
         part = table.filter(pa.array(np.isin(positions, ids)))
-        info = {"name": name, "source": str(path.resolve()), "test_fraction": test_fraction, "seed": seed,
-                "position_ids": ids.tolist()}
-        manifest = {"kind": "split", "split": info, "campaign": source_manifest.get("campaign"),
-                    **_absolute_refs(path, source_manifest)}
+        info = {
+            "name": name,
+            "source": str(path.resolve()),
+            "test_fraction": test_fraction,
+            "seed": seed,
+            "position_ids": ids.tolist(),
+        }
+        manifest = {
+            "kind": "split",
+            "split": info,
+            "campaign": source_manifest.get("campaign"),
+            **_absolute_refs(path, source_manifest),
+        }
         if "seed" in source_manifest or "seed" in meta:
             manifest["seed"] = source_manifest.get("seed", meta.get("seed"))
         result[name] = _write_campaign(out / name, part, {**meta, "split": info}, manifest)
@@ -214,8 +259,9 @@ def split(path: str | os.PathLike, out: str | os.PathLike, test_fraction: float 
 # ---- export --------------------------------------------------------------------------------------
 
 
-def export(path: str | os.PathLike, out: str | os.PathLike, format: str = "parquet", *,
-           drop_flagged: bool = False) -> Path:
+def export(
+    path: str | os.PathLike, out: str | os.PathLike, format: str = "parquet", *, drop_flagged: bool = False
+) -> Path:
     """One file: parquet (schema metadata kept) or CSV (flags joined by ';', ISO 8601 UTC timestamps, the
     metadata in a `<out>.metadata.json` sidecar since CSV has nowhere to keep it)."""
     if format not in EXPORT_FORMATS:

@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import os
 import secrets
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable, IO
+from typing import IO
 
 TEMP_SUFFIX = ".tmp"
 
@@ -30,8 +31,9 @@ def fsync_dir(folder: Path) -> None:
         os.close(fd)
 
 
-def write_durably(path: Path, write: Callable[[IO[bytes]], None], *, fsync: bool = True,
-                  dir_fd: int | None = None) -> Path:
+def write_durably(
+    path: Path, write: Callable[[IO[bytes]], None], *, fsync: bool = True, dir_fd: int | None = None
+) -> Path:
     """Write `path` through `write(file)` so that it is either absent/old or complete, never partial.
 
     With fsync=True the data and the rename are on disk when this returns. `dir_fd` (an open descriptor

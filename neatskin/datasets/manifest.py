@@ -26,7 +26,7 @@ MANIFEST_VERSION = 1
 
 
 def utc_now_iso() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="microseconds")
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="microseconds")
 
 
 def manifest_path(folder: str | os.PathLike) -> Path:
@@ -37,13 +37,20 @@ def write_manifest(folder: str | os.PathLike, manifest: dict[str, Any], *, fsync
     """Replace the folder's manifest.json atomically with `manifest`."""
     status = manifest.get("status")
     if status is not None and status not in STATUSES:
-        raise DataError(f"unknown status {status!r}", file=str(manifest_path(folder)), field="status",
-                        fix=f"use one of {', '.join(STATUSES)}")
+        raise DataError(
+            f"unknown status {status!r}",
+            file=str(manifest_path(folder)),
+            field="status",
+            fix=f"use one of {', '.join(STATUSES)}",
+        )
     try:
         text = json.dumps(manifest, indent=2, sort_keys=True, default=str, allow_nan=False)
     except ValueError as exc:
-        raise DataError(f"manifest holds a value JSON cannot store: {exc}", file=str(manifest_path(folder)),
-                        fix="replace NaN/inf values by null") from exc
+        raise DataError(
+            f"manifest holds a value JSON cannot store: {exc}",
+            file=str(manifest_path(folder)),
+            fix="replace NaN/inf values by null",
+        ) from exc
     Path(folder).mkdir(parents=True, exist_ok=True)
     return write_bytes_durably(manifest_path(folder), (text + "\n").encode(), fsync=fsync)
 
@@ -54,13 +61,19 @@ def read_manifest(folder: str | os.PathLike) -> dict[str, Any]:
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError as exc:
-        raise DataError("no manifest.json in the campaign folder", file=str(path),
-                        fix="point at a campaign folder written by `neatskin campaign run`") from exc
+        raise DataError(
+            "no manifest.json in the campaign folder",
+            file=str(path),
+            fix="point at a campaign folder written by `neatskin campaign run`",
+        ) from exc
     try:
         data = json.loads(text)
     except ValueError as exc:
-        raise DataError(f"manifest.json is not valid JSON: {exc}", file=str(path),
-                        fix="restore the manifest from a backup or rewrite it with update_manifest") from exc
+        raise DataError(
+            f"manifest.json is not valid JSON: {exc}",
+            file=str(path),
+            fix="restore the manifest from a backup or rewrite it with update_manifest",
+        ) from exc
     if not isinstance(data, dict):
         raise DataError("manifest.json must hold a JSON object", file=str(path), fix="rewrite the manifest")
     return data

@@ -1,10 +1,10 @@
 """The campaign folder's layout: file names and how to list the durable parts in it.
 
-    CAMPAIGN/
-      manifest.json                      protocol as run, provenance, status, counts
-      presses.parquet                    all presses, one row each (after finalize)
-      presses/part-000042.parquet        one durable part per press while the campaign runs
-      waveforms/position_id=7/part-000042.parquet   raw samples of press 42 (hive-partitioned)
+CAMPAIGN/
+  manifest.json                      protocol as run, provenance, status, counts
+  presses.parquet                    all presses, one row each (after finalize)
+  presses/part-000042.parquet        one durable part per press while the campaign runs
+  waveforms/position_id=7/part-000042.parquet   raw samples of press 42 (hive-partitioned)
 """
 
 from __future__ import annotations

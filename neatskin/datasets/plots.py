@@ -47,8 +47,12 @@ def layout_for(path: str | os.PathLike, layout: Layout | str | os.PathLike | Non
     manifest = read_manifest(path if path.is_dir() else path.parent)
     layout_path = resolve_manifest_path(path if path.is_dir() else path.parent, manifest, "layout")
     if layout_path is None:
-        raise DataError("the manifest names no layout", file=str(path / "manifest.json"), field="layout",
-                        fix="pass --layout protocols/skins/<skin>.toml")
+        raise DataError(
+            "the manifest names no layout",
+            file=str(path / "manifest.json"),
+            field="layout",
+            fix="pass --layout protocols/skins/<skin>.toml",
+        )
     return load_layout(layout_path)
 
 
@@ -59,8 +63,13 @@ def _draw_channels(ax, layout: Layout) -> None:
         direction = (b - a) / np.linalg.norm(b - a)
         normal = np.array([-direction[1], direction[0]]) * ch.width_mm / 2
         for side in (normal, -normal):
-            ax.plot([a[0] + side[0], b[0] + side[0]], [a[1] + side[1], b[1] + side[1]],
-                    linestyle="--", color="black", linewidth=0.8)
+            ax.plot(
+                [a[0] + side[0], b[0] + side[0]],
+                [a[1] + side[1], b[1] + side[1]],
+                linestyle="--",
+                color="black",
+                linewidth=0.8,
+            )
 
 
 def _figure():
@@ -88,8 +97,12 @@ def _finish(plt, fig, ax, layout: Layout, out: Path, title: str) -> Path:
     return out
 
 
-def plot_sensitivity_map(path: str | os.PathLike, out: str | os.PathLike,
-                         layout: Layout | str | os.PathLike | None = None, grid_step_mm: float = 0.25) -> Path:
+def plot_sensitivity_map(
+    path: str | os.PathLike,
+    out: str | os.PathLike,
+    layout: Layout | str | os.PathLike | None = None,
+    grid_step_mm: float = 0.25,
+) -> Path:
     """Paper Fig. 8: normalised max-over-pairs mean dR per pressed position, interpolated linearly between
     positions (blank outside their convex hull), pressed positions as dots, channel boundaries dashed."""
     from scipy.interpolate import griddata
@@ -99,8 +112,9 @@ def plot_sensitivity_map(path: str | os.PathLike, out: str | os.PathLike,
     sens = sensitivity_by_position(df)
     plt, fig, ax = _figure()
     x0, y0, x1, y1 = layout.bounds_mm
-    gx, gy = np.meshgrid(np.arange(x0, x1 + grid_step_mm / 2, grid_step_mm),
-                         np.arange(y0, y1 + grid_step_mm / 2, grid_step_mm))
+    gx, gy = np.meshgrid(
+        np.arange(x0, x1 + grid_step_mm / 2, grid_step_mm), np.arange(y0, y1 + grid_step_mm / 2, grid_step_mm)
+    )
     points = sens[["x_mm", "y_mm"]].to_numpy(float)
     z = sens["z"].to_numpy(float)
     ok = np.isfinite(z)
@@ -112,26 +126,40 @@ def plot_sensitivity_map(path: str | os.PathLike, out: str | os.PathLike,
     fig.colorbar(image, ax=ax, label="normalised max dR (Fig. 8)")
     ax.scatter(points[:, 0], points[:, 1], s=6, color="black")
     _draw_channels(ax, layout)
-    return _finish(plt, fig, ax, layout, Path(out),
-                   f"Sensitivity: max over pairs of mean dR, {len(sens)} positions, {len(df)} presses")
+    return _finish(
+        plt,
+        fig,
+        ax,
+        layout,
+        Path(out),
+        f"Sensitivity: max over pairs of mean dR, {len(sens)} positions, {len(df)} presses",
+    )
 
 
-def plot_press_map(path: str | os.PathLike, out: str | os.PathLike,
-                   layout: Layout | str | os.PathLike | None = None) -> Path:
+def plot_press_map(
+    path: str | os.PathLike, out: str | os.PathLike, layout: Layout | str | os.PathLike | None = None
+) -> Path:
     """The pressed positions, numbered by position_id and coloured by how many presses each received."""
     layout = layout_for(path, layout)
     df = read_presses(path)
     per = df.groupby("position_id").agg(x_mm=("x_mm", "first"), y_mm=("y_mm", "first"), presses=("press_id", "size"))
     plt, fig, ax = _figure()
     _draw_channels(ax, layout)
-    image = ax.scatter(per["x_mm"], per["y_mm"], c=per["presses"], cmap="plasma", s=40, edgecolors="black",
-                       linewidths=0.5, zorder=3)
+    image = ax.scatter(
+        per["x_mm"], per["y_mm"], c=per["presses"], cmap="plasma", s=40, edgecolors="black", linewidths=0.5, zorder=3
+    )
     from matplotlib.ticker import MaxNLocator
 
     bar = fig.colorbar(image, ax=ax, label="presses (repeats) at the position")
     bar.locator = MaxNLocator(integer=True)
     bar.update_ticks()
     for position_id, row in per.iterrows():
-        ax.annotate(str(position_id), (row["x_mm"], row["y_mm"]), xytext=(3, 3), textcoords="offset points",
-                    fontsize=6, zorder=4)
+        ax.annotate(
+            str(position_id),
+            (row["x_mm"], row["y_mm"]),
+            xytext=(3, 3),
+            textcoords="offset points",
+            fontsize=6,
+            zorder=4,
+        )
     return _finish(plt, fig, ax, layout, Path(out), f"Pressed positions: {len(per)} positions, {len(df)} presses")

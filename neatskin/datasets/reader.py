@@ -6,8 +6,9 @@ arrays the baselines learn from.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -29,14 +30,19 @@ def press_files(path: str | os.PathLike) -> list[Path]:
     if path.is_file():
         return [path]
     if not path.is_dir():
-        raise DataError("no such dataset file or folder", file=str(path), fix="give a campaign folder or a .parquet file")
+        raise DataError(
+            "no such dataset file or folder", file=str(path), fix="give a campaign folder or a .parquet file"
+        )
     files = [path / CONSOLIDATED_NAME] if (path / CONSOLIDATED_NAME).is_file() else []
     files += list(press_parts(path).values())
     if not files:
         files = sorted(p for p in path.iterdir() if part_press_id(p) is not None)
     if not files:
-        raise DataError("the folder holds no presses (no presses.parquet, no presses/part-*.parquet)",
-                        file=str(path), fix="check the path; a campaign that never finished a press has no data")
+        raise DataError(
+            "the folder holds no presses (no presses.parquet, no presses/part-*.parquet)",
+            file=str(path),
+            fix="check the path; a campaign that never finished a press has no data",
+        )
     return files
 
 
@@ -48,8 +54,11 @@ def read_press_table(path: str | os.PathLike, *, deduplicate: bool = True) -> pa
         schema = pq.read_schema(files[0])
         table = read_tables(files, schema.remove_metadata())
     except (OSError, pa.ArrowException) as exc:
-        raise DataError(f"cannot read the presses: {exc}", file=str(path),
-                        fix="run `neatskin dataset validate` on the folder to find the damaged file") from exc
+        raise DataError(
+            f"cannot read the presses: {exc}",
+            file=str(path),
+            fix="run `neatskin dataset validate` on the folder to find the damaged file",
+        ) from exc
     if deduplicate:
         table = deduplicate_sorted(table)
     return table.replace_schema_metadata(schema.metadata)
@@ -73,8 +82,11 @@ def read_waveforms(folder: str | os.PathLike, press_ids: Iterable[int] | None = 
     optionally only `press_ids`; sorted by press_id and sample."""
     root = Path(folder) / WAVEFORMS_DIR
     if not root.is_dir():
-        raise DataError("this campaign recorded no waveforms", file=str(root),
-                        fix="set the protocol to record raw waveforms and run the campaign again")
+        raise DataError(
+            "this campaign recorded no waveforms",
+            file=str(root),
+            fix="set the protocol to record raw waveforms and run the campaign again",
+        )
     durable = set(read_press_table(folder).column("press_id").to_pylist())
     wanted = durable if press_ids is None else durable & {int(i) for i in press_ids}
     dataset = pads.dataset(str(root), format="parquet", partitioning="hive")
@@ -90,13 +102,13 @@ def pair_labels_from_columns(df: pd.DataFrame) -> tuple[ElectrodePair, ...]:
         if parsed and parsed[0] == "dR":
             pairs.append(parsed[1])
     if not pairs:
-        raise DataError("the table has no dR_ohm_i_j columns", field="dR_ohm_*",
-                        fix="read the presses with read_presses()")
+        raise DataError(
+            "the table has no dR_ohm_i_j columns", field="dR_ohm_*", fix="read the presses with read_presses()"
+        )
     return tuple(pairs)
 
 
-def feature_matrix(df: pd.DataFrame, *, exclude_flagged: bool = False
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def feature_matrix(df: pd.DataFrame, *, exclude_flagged: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """X (n, pairs) from the dR columns in pair order, y (n, 2) = (x_mm, y_mm), groups (n,) = position_id.
 
     Use `groups` for grouped splits (GroupKFold, GroupShuffleSplit) so repeats of a position never straddle

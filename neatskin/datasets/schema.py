@@ -12,7 +12,8 @@ import datetime as _dt
 import json
 import math
 import re
-from typing import Any, Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -98,8 +99,11 @@ def encode_metadata(metadata: Mapping[str, Any]) -> dict[bytes, bytes]:
         try:
             text = json.dumps(value, sort_keys=True, default=_json_default)
         except TypeError as exc:
-            raise DataError(f"metadata value for '{key}' is not JSON-serialisable: {exc}", field=key,
-                            fix="pass strings, numbers, lists or dicts") from exc
+            raise DataError(
+                f"metadata value for '{key}' is not JSON-serialisable: {exc}",
+                field=key,
+                fix="pass strings, numbers, lists or dicts",
+            ) from exc
         out[(META_PREFIX + key).encode()] = text.encode()
     return out
 
@@ -111,9 +115,9 @@ def decode_metadata(raw: Mapping[bytes, bytes] | None) -> dict[str, Any]:
         name = key.decode("utf-8", "replace")
         if name.startswith(META_PREFIX):
             try:
-                out[name[len(META_PREFIX):]] = json.loads(value)
+                out[name[len(META_PREFIX) :]] = json.loads(value)
             except ValueError:
-                out[name[len(META_PREFIX):]] = value.decode("utf-8", "replace")
+                out[name[len(META_PREFIX) :]] = value.decode("utf-8", "replace")
     return out
 
 
@@ -136,16 +140,19 @@ def _timestamp_us(value: Any, key: str) -> int:
     """datetime (aware, or naive meaning UTC), numpy datetime64 or epoch seconds -> epoch microseconds."""
     if isinstance(value, _dt.datetime):
         if value.tzinfo is None:
-            value = value.replace(tzinfo=_dt.timezone.utc)
-        delta = value - _dt.datetime(1970, 1, 1, tzinfo=_dt.timezone.utc)
+            value = value.replace(tzinfo=_dt.UTC)
+        delta = value - _dt.datetime(1970, 1, 1, tzinfo=_dt.UTC)
         return (delta.days * 86_400 + delta.seconds) * 1_000_000 + delta.microseconds
     if isinstance(value, np.datetime64):
         return int(value.astype("datetime64[us]").astype(np.int64))
     if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool):
         if math.isfinite(float(value)):
             return int(round(float(value) * 1e6))
-    raise DataError(f"'{key}' must be a datetime or epoch seconds, got {value!r}", field=key,
-                    fix="pass datetime.now(timezone.utc) or time.time()")
+    raise DataError(
+        f"'{key}' must be a datetime or epoch seconds, got {value!r}",
+        field=key,
+        fix="pass datetime.now(timezone.utc) or time.time()",
+    )
 
 
 class RowEncoder:
@@ -158,15 +165,18 @@ class RowEncoder:
 
     def __init__(self, schema: pa.Schema) -> None:
         self.schema = schema
-        self.pair_names = [f.name for f in schema][len(BASE_FIELDS):]
+        self.pair_names = [f.name for f in schema][len(BASE_FIELDS) :]
         self.n_pairs = len(self.pair_names) // 2
         self._known = set(BASE_COLUMNS) | set(self.pair_names) | {"R_ohm", "dR_ohm"}
 
     def table(self, row: Mapping[str, Any]) -> pa.Table:
         unknown = sorted(set(row) - self._known)
         if unknown:
-            raise DataError(f"unknown key(s) in press row: {', '.join(unknown)}", field=unknown[0],
-                            fix="use the schema's column names (neatskin.datasets.schema.press_schema)")
+            raise DataError(
+                f"unknown key(s) in press row: {', '.join(unknown)}",
+                field=unknown[0],
+                fix="use the schema's column names (neatskin.datasets.schema.press_schema)",
+            )
         missing = [c for c in BASE_COLUMNS if c not in row and c not in NULLABLE_COLUMNS and c != "flags"]
         if missing:
             raise DataError(f"press row lacks {', '.join(missing)}", field=missing[0], fix="give every fixed column")
@@ -189,8 +199,11 @@ class RowEncoder:
             try:
                 arrays.append(pa.array([value], f.type))
             except (pa.ArrowInvalid, pa.ArrowTypeError, OverflowError) as exc:
-                raise DataError(f"'{f.name}' = {value!r} does not fit {f.type}: {exc}", field=f.name,
-                                fix=f"give a value of type {f.type}") from exc
+                raise DataError(
+                    f"'{f.name}' = {value!r} does not fit {f.type}: {exc}",
+                    field=f.name,
+                    fix=f"give a value of type {f.type}",
+                ) from exc
         pair_values = pa.array(self._pair_values(row), pa.float64())
         arrays.extend(pair_values.slice(k, 1) for k in range(len(pair_values)))
         return pa.Table.from_arrays(arrays, schema=self.schema)
@@ -201,12 +214,18 @@ class RowEncoder:
             for key in ("R_ohm", "dR_ohm"):
                 arr = np.asarray(row.get(key), dtype=np.float64).reshape(-1)
                 if arr.shape != (self.n_pairs,):
-                    raise DataError(f"'{key}' has {arr.size} values, the layout has {self.n_pairs} pairs",
-                                    field=key, fix="give one value per pair of layout.pairs, in that order")
+                    raise DataError(
+                        f"'{key}' has {arr.size} values, the layout has {self.n_pairs} pairs",
+                        field=key,
+                        fix="give one value per pair of layout.pairs, in that order",
+                    )
                 parts.append(arr)
             return np.concatenate(parts)
         missing = [c for c in self.pair_names if c not in row]
         if missing:
-            raise DataError(f"press row lacks {len(missing)} pair column(s), first {missing[0]}", field=missing[0],
-                            fix="give R_ohm_i_j and dR_ohm_i_j for every pair, or arrays R_ohm and dR_ohm")
+            raise DataError(
+                f"press row lacks {len(missing)} pair column(s), first {missing[0]}",
+                field=missing[0],
+                fix="give R_ohm_i_j and dR_ohm_i_j for every pair, or arrays R_ohm and dR_ohm",
+            )
         return np.array([row[c] for c in self.pair_names], dtype=np.float64)

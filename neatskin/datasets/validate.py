@@ -30,8 +30,9 @@ def check_dataset(path: str | os.PathLike, **kwargs: Any) -> None:
         raise DataError(problems=problems)
 
 
-def validate_dataset(path: str | os.PathLike, *, layout: Layout | None = None,
-                     allow_flagged: bool = False) -> list[Problem]:
+def validate_dataset(
+    path: str | os.PathLike, *, layout: Layout | None = None, allow_flagged: bool = False
+) -> list[Problem]:
     """Every problem in a campaign folder (or a single press parquet file), one Problem each."""
     path = Path(path)
     problems: list[Problem] = []
@@ -54,8 +55,14 @@ def validate_dataset(path: str | os.PathLike, *, layout: Layout | None = None,
         try:
             table = pq.read_table(file)
         except (OSError, pa.ArrowException) as exc:
-            problems.append(Problem(f"unreadable parquet file: {exc}", str(file), None,
-                                    "move the file out of the folder; resume the campaign to press again"))
+            problems.append(
+                Problem(
+                    f"unreadable parquet file: {exc}",
+                    str(file),
+                    None,
+                    "move the file out of the folder; resume the campaign to press again",
+                )
+            )
             continue
         metadata = metadata or decode_metadata(table.schema.metadata)
         tables.append((file, table))
@@ -83,14 +90,20 @@ def _manifest_layout(folder: Path, manifest: dict, manifest_file: str, problems:
     try:
         return load_layout(layout_path)
     except ConfigError as exc:
-        problems.append(Problem(f"the layout it names cannot be loaded: {exc.problems[0]}", manifest_file,
-                                "layout.path", "point layout.path at the campaign's skin layout TOML "
-                                "(relative to the campaign folder or absolute)"))
+        problems.append(
+            Problem(
+                f"the layout it names cannot be loaded: {exc.problems[0]}",
+                manifest_file,
+                "layout.path",
+                "point layout.path at the campaign's skin layout TOML (relative to the campaign folder or absolute)",
+            )
+        )
         return None
 
 
-def _expected_pairs(layout: Layout | None, manifest: dict | None, metadata: dict, schema: pa.Schema
-                    ) -> tuple[ElectrodePair, ...]:
+def _expected_pairs(
+    layout: Layout | None, manifest: dict | None, metadata: dict, schema: pa.Schema
+) -> tuple[ElectrodePair, ...]:
     if layout is not None:
         return layout.pairs
     for source in (manifest or {}, metadata):
@@ -100,6 +113,7 @@ def _expected_pairs(layout: Layout | None, manifest: dict | None, metadata: dict
             except (TypeError, ValueError):
                 pass
     from neatskin.datasets.schema import parse_pair_column
+
     found = [parse_pair_column(n) for n in schema.names]
     return tuple(p for kind, p in filter(None, found) if kind == "dR")
 
@@ -116,16 +130,31 @@ def _schema_problems(tables: list[tuple[Path, pa.Table]], expected: pa.Schema) -
         missing = [n for n in expected.names if n not in names]
         extra = [n for n in names if n not in want]
         if missing:
-            grouped[(", ".join(missing), f"missing column(s): {', '.join(missing)}",
-                     "rewrite the file with every column of the layout's schema (or validate against the "
-                     "layout the campaign used)")].append(file)
+            grouped[
+                (
+                    ", ".join(missing),
+                    f"missing column(s): {', '.join(missing)}",
+                    "rewrite the file with every column of the layout's schema (or validate against the "
+                    "layout the campaign used)",
+                )
+            ].append(file)
         if extra:
-            grouped[(", ".join(extra), f"unexpected column(s): {', '.join(extra)}",
-                     "drop these columns, or check that the manifest names the campaign's layout")].append(file)
+            grouped[
+                (
+                    ", ".join(extra),
+                    f"unexpected column(s): {', '.join(extra)}",
+                    "drop these columns, or check that the manifest names the campaign's layout",
+                )
+            ].append(file)
         for field in table.schema:
             if field.name in want and not _equivalent_type(field.type, want[field.name]):
-                grouped[(field.name, f"column '{field.name}' has type {field.type}, expected {want[field.name]}",
-                         f"cast the column to {want[field.name]}")].append(file)
+                grouped[
+                    (
+                        field.name,
+                        f"column '{field.name}' has type {field.type}, expected {want[field.name]}",
+                        f"cast the column to {want[field.name]}",
+                    )
+                ].append(file)
     return [Problem(message, _where(files), column, fix) for (column, message, fix), files in grouped.items()]
 
 
@@ -160,8 +189,9 @@ def _ids(series: pd.Series, limit: int = 8) -> str:
     return text + (f", ... ({len(values)} in all)" if len(values) > limit else "")
 
 
-def _content_problems(rows: pd.DataFrame, expected: pa.Schema, layout: Layout | None,
-                      allow_flagged: bool) -> list[Problem]:
+def _content_problems(
+    rows: pd.DataFrame, expected: pa.Schema, layout: Layout | None, allow_flagged: bool
+) -> list[Problem]:
     problems: list[Problem] = []
     base_nullable = {f.name: f.nullable for f in BASE_FIELDS}
     has_ids = "press_id" in rows
@@ -174,9 +204,14 @@ def _content_problems(rows: pd.DataFrame, expected: pa.Schema, layout: Layout | 
             continue
         files = sorted(set(rows.loc[bad, "__file"]))
         which = f" (press ids {_ids(rows.loc[bad, 'press_id'])})" if has_ids else ""
-        problems.append(Problem(f"{int(bad.sum())} NaN/null value(s) in '{field.name}'{which}",
-                                _where([Path(f) for f in files]), field.name,
-                                "re-press those presses (drop them and resume the campaign) or drop the rows"))
+        problems.append(
+            Problem(
+                f"{int(bad.sum())} NaN/null value(s) in '{field.name}'{which}",
+                _where([Path(f) for f in files]),
+                field.name,
+                "re-press those presses (drop them and resume the campaign) or drop the rows",
+            )
+        )
     if not has_ids:
         return problems
     plain = [c for c in rows.columns if c not in ("flags", "__file")]
@@ -184,10 +219,14 @@ def _content_problems(rows: pd.DataFrame, expected: pa.Schema, layout: Layout | 
     dup = distinct["press_id"].duplicated(keep=False)
     if dup.any():
         files = sorted(set(distinct.loc[dup, "__file"]))
-        problems.append(Problem(f"duplicate press id(s) with different rows: {_ids(distinct.loc[dup, 'press_id'])}",
-                                _where([Path(f) for f in files]), "press_id",
-                                "keep one row per press id (re-key with `neatskin dataset merge` if two campaigns "
-                                "were concatenated)"))
+        problems.append(
+            Problem(
+                f"duplicate press id(s) with different rows: {_ids(distinct.loc[dup, 'press_id'])}",
+                _where([Path(f) for f in files]),
+                "press_id",
+                "keep one row per press id (re-key with `neatskin dataset merge` if two campaigns were concatenated)",
+            )
+        )
     if layout is not None and {"x_mm", "y_mm"} <= set(rows.columns):
         x0, y0, x1, y1 = layout.bounds_mm
         tol = max(c.width_mm for c in layout.channels) / 2
@@ -195,28 +234,42 @@ def _content_problems(rows: pd.DataFrame, expected: pa.Schema, layout: Layout | 
         out = (x < x0 - tol) | (x > x1 + tol) | (y < y0 - tol) | (y > y1 + tol)
         if out.any():
             files = sorted(set(rows.loc[out, "__file"]))
-            problems.append(Problem(
-                f"{int(out.sum())} press(es) outside the layout '{layout.name}' bounds x {x0:g}..{x1:g} mm, "
-                f"y {y0:g}..{y1:g} mm (+/- {tol:g} mm) (press ids {_ids(rows.loc[out, 'press_id'])})",
-                _where([Path(f) for f in files]), "x_mm, y_mm",
-                "check the calibration and the layout the manifest names; drop the rows if the presses missed the skin"))
+            problems.append(
+                Problem(
+                    f"{int(out.sum())} press(es) outside the layout '{layout.name}' bounds x {x0:g}..{x1:g} mm, "
+                    f"y {y0:g}..{y1:g} mm (+/- {tol:g} mm) (press ids {_ids(rows.loc[out, 'press_id'])})",
+                    _where([Path(f) for f in files]),
+                    "x_mm, y_mm",
+                    "check the calibration and the layout the manifest names; drop the rows if the presses missed the skin",
+                )
+            )
     if {"position_id", "x_mm", "y_mm"} <= set(rows.columns):
         spread = rows.groupby("position_id")[["x_mm", "y_mm"]].agg(lambda s: s.max() - s.min()).max(axis=1)
         moved = spread[spread > 1e-9]
         if len(moved):
-            problems.append(Problem(f"position id(s) {_ids(pd.Series(moved.index))} have presses at different x/y",
-                                    _where(sorted({Path(f) for f in rows['__file']})), "position_id",
-                                    "give every distinct (x_mm, y_mm) its own position_id"))
+            problems.append(
+                Problem(
+                    f"position id(s) {_ids(pd.Series(moved.index))} have presses at different x/y",
+                    _where(sorted({Path(f) for f in rows["__file"]})),
+                    "position_id",
+                    "give every distinct (x_mm, y_mm) its own position_id",
+                )
+            )
     if "flags" in rows and not allow_flagged:
         flagged = rows["flags"].map(lambda f: f is not None and len(f) > 0)
         if flagged.any():
             counts = Counter(flag for f in rows.loc[flagged, "flags"] for flag in f)
             files = sorted(set(rows.loc[flagged, "__file"]))
-            problems.append(Problem(
-                f"{int(flagged.sum())} flagged press(es) ({', '.join(f'{k}: {v}' for k, v in counts.most_common())}; "
-                f"press ids {_ids(rows.loc[flagged, 'press_id'])})", _where([Path(f) for f in files]), "flags",
-                "inspect them; drop them with `neatskin dataset export --drop-flagged`, or accept them with "
-                "--allow-flagged"))
+            problems.append(
+                Problem(
+                    f"{int(flagged.sum())} flagged press(es) ({', '.join(f'{k}: {v}' for k, v in counts.most_common())}; "
+                    f"press ids {_ids(rows.loc[flagged, 'press_id'])})",
+                    _where([Path(f) for f in files]),
+                    "flags",
+                    "inspect them; drop them with `neatskin dataset export --drop-flagged`, or accept them with "
+                    "--allow-flagged",
+                )
+            )
     return problems
 
 
@@ -231,33 +284,64 @@ def _waveform_problems(folder: Path, rows: pd.DataFrame) -> list[Problem]:
             misplaced.append(part)
     problems = []
     if orphans:
-        problems.append(Problem(f"{len(orphans)} waveform part(s) of presses that are not in the dataset",
-                                _where(orphans), "press_id",
-                                "resume the campaign (it deletes orphans and presses them again) or delete the parts"))
+        problems.append(
+            Problem(
+                f"{len(orphans)} waveform part(s) of presses that are not in the dataset",
+                _where(orphans),
+                "press_id",
+                "resume the campaign (it deletes orphans and presses them again) or delete the parts",
+            )
+        )
     if misplaced:
-        problems.append(Problem(f"{len(misplaced)} waveform part(s) in another press's position_id partition",
-                                _where(misplaced), "position_id",
-                                "move each part to waveforms/position_id=<its press's position_id>/"))
+        problems.append(
+            Problem(
+                f"{len(misplaced)} waveform part(s) in another press's position_id partition",
+                _where(misplaced),
+                "position_id",
+                "move each part to waveforms/position_id=<its press's position_id>/",
+            )
+        )
     return problems
 
 
-def _manifest_problems(manifest: dict, manifest_file: str, metadata: dict, rows: pd.DataFrame,
-                       pairs: tuple[ElectrodePair, ...], layout: Layout | None) -> list[Problem]:
+def _manifest_problems(
+    manifest: dict,
+    manifest_file: str,
+    metadata: dict,
+    rows: pd.DataFrame,
+    pairs: tuple[ElectrodePair, ...],
+    layout: Layout | None,
+) -> list[Problem]:
     problems: list[Problem] = []
     n = int(rows["press_id"].nunique()) if "press_id" in rows else len(rows)
     counts = manifest.get("counts") if isinstance(manifest.get("counts"), dict) else {}
     if counts.get("completed") is not None and counts["completed"] != n:
-        problems.append(Problem(f"counts.completed is {counts['completed']} but the data holds {n} presses",
-                                manifest_file, "counts.completed",
-                                "resume the campaign (it rewrites the counts) or correct counts.completed"))
+        problems.append(
+            Problem(
+                f"counts.completed is {counts['completed']} but the data holds {n} presses",
+                manifest_file,
+                "counts.completed",
+                "resume the campaign (it rewrites the counts) or correct counts.completed",
+            )
+        )
     if manifest.get("status") == "complete" and counts.get("planned") is not None and counts["planned"] != n:
-        problems.append(Problem(f"status is complete but {n} of {counts['planned']} planned presses are present",
-                                manifest_file, "counts.planned",
-                                "resume the campaign to press the missing ones, or set status to interrupted"))
+        problems.append(
+            Problem(
+                f"status is complete but {n} of {counts['planned']} planned presses are present",
+                manifest_file,
+                "counts.planned",
+                "resume the campaign to press the missing ones, or set status to interrupted",
+            )
+        )
     if "seed" in manifest and "seed" in metadata and manifest["seed"] != metadata["seed"]:
-        problems.append(Problem(f"seed {manifest['seed']!r} differs from the parquet metadata's {metadata['seed']!r}",
-                                manifest_file, "seed", "these files come from different runs; restore the campaign's "
-                                "own manifest"))
+        problems.append(
+            Problem(
+                f"seed {manifest['seed']!r} differs from the parquet metadata's {metadata['seed']!r}",
+                manifest_file,
+                "seed",
+                "these files come from different runs; restore the campaign's own manifest",
+            )
+        )
     listed = manifest.get("pairs")
     if listed and layout is not None:
         try:
@@ -265,17 +349,34 @@ def _manifest_problems(manifest: dict, manifest_file: str, metadata: dict, rows:
         except (TypeError, ValueError):
             as_pairs = None
         if as_pairs != layout.pairs:
-            problems.append(Problem("pairs do not match the layout's electrode pairs", manifest_file, "pairs",
-                                    "rewrite pairs from the layout, or name the layout the campaign used"))
+            problems.append(
+                Problem(
+                    "pairs do not match the layout's electrode pairs",
+                    manifest_file,
+                    "pairs",
+                    "rewrite pairs from the layout, or name the layout the campaign used",
+                )
+            )
     if "layout" in manifest and "layout" in metadata and not same_file_ref(manifest["layout"], metadata["layout"]):
-        problems.append(Problem(f"layout {manifest['layout']!r} differs from the parquet metadata's "
-                                f"{metadata['layout']!r}", manifest_file, "layout",
-                                "name the layout the presses were recorded on"))
+        problems.append(
+            Problem(
+                f"layout {manifest['layout']!r} differs from the parquet metadata's {metadata['layout']!r}",
+                manifest_file,
+                "layout",
+                "name the layout the presses were recorded on",
+            )
+        )
     if manifest.get("campaign") and "campaign" in rows:
         other = sorted(set(rows["campaign"].dropna()) - {manifest["campaign"]})
         if other:
-            problems.append(Problem(f"rows belong to campaign(s) {other}, the manifest says {manifest['campaign']!r}",
-                                    manifest_file, "campaign", "merge campaigns with `neatskin dataset merge`"))
+            problems.append(
+                Problem(
+                    f"rows belong to campaign(s) {other}, the manifest says {manifest['campaign']!r}",
+                    manifest_file,
+                    "campaign",
+                    "merge campaigns with `neatskin dataset merge`",
+                )
+            )
     return problems
 
 

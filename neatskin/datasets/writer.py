@@ -15,8 +15,9 @@ DuckDB and Spark add position_id as a column).
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -24,8 +25,14 @@ import pyarrow.parquet as pq
 
 import neatskin
 from neatskin.datasets.durable import fsync_dir, remove_temp_files, write_durably
-from neatskin.datasets.paths import (CONSOLIDATED_NAME, PRESSES_DIR, WAVEFORMS_DIR, part_name, press_parts,
-                                     waveform_parts)
+from neatskin.datasets.paths import (
+    CONSOLIDATED_NAME,
+    PRESSES_DIR,
+    WAVEFORMS_DIR,
+    part_name,
+    press_parts,
+    waveform_parts,
+)
 from neatskin.datasets.schema import RowEncoder, decode_metadata, press_schema
 from neatskin.errors import DataError
 from neatskin.layout import ElectrodePair
@@ -38,8 +45,14 @@ class CampaignWriter:
     `software_version` defaults to neatskin.__version__. `fsync=False` is for tests and throwaway runs only.
     """
 
-    def __init__(self, folder: str | os.PathLike, pairs: Sequence[ElectrodePair], metadata: Mapping[str, Any],
-                 *, fsync: bool = True) -> None:
+    def __init__(
+        self,
+        folder: str | os.PathLike,
+        pairs: Sequence[ElectrodePair],
+        metadata: Mapping[str, Any],
+        *,
+        fsync: bool = True,
+    ) -> None:
         self.folder = Path(folder)
         self.fsync = fsync
         meta = {"software_version": neatskin.__version__, **dict(metadata)}
@@ -85,14 +98,20 @@ class CampaignWriter:
         try:
             found = pq.read_schema(path)
         except (OSError, pa.ArrowException) as exc:
-            raise DataError(f"cannot read an existing part: {exc}", file=str(path),
-                            fix="move the damaged file out of the campaign folder, then resume") from exc
+            raise DataError(
+                f"cannot read an existing part: {exc}",
+                file=str(path),
+                fix="move the damaged file out of the campaign folder, then resume",
+            ) from exc
         if found.names != self.schema.names:
             missing = sorted(set(self.schema.names) - set(found.names))
             extra = sorted(set(found.names) - set(self.schema.names))
-            raise DataError(f"existing data has other columns (missing {missing[:3]}, extra {extra[:3]})",
-                            file=str(path), field="pairs",
-                            fix="resume with the layout the campaign started with, or write to a new folder")
+            raise DataError(
+                f"existing data has other columns (missing {missing[:3]}, extra {extra[:3]})",
+                file=str(path),
+                field="pairs",
+                fix="resume with the layout the campaign started with, or write to a new folder",
+            )
 
     def completed_press_ids(self) -> set[int]:
         """Ids of the presses that are durable (in a part or in the consolidated file)."""
@@ -107,14 +126,21 @@ class CampaignWriter:
         if press_id < 0:
             raise DataError(f"press_id must be >= 0, got {press_id}", field="press_id", fix="number presses from 0")
         if press_id in self._completed:
-            raise DataError(f"press {press_id} is already durable in {self.folder}", field="press_id",
-                            fix="skip the ids in completed_press_ids() when resuming")
+            raise DataError(
+                f"press {press_id} is already durable in {self.folder}",
+                field="press_id",
+                fix="skip the ids in completed_press_ids() when resuming",
+            )
         if waveforms:
             self._write_waveforms(press_id, int(row["position_id"]), waveforms)
         path = self._parts_dir / part_name(press_id)
         # one-row files: column statistics and dictionaries cost time and help no reader
-        write_durably(path, lambda handle: pq.write_table(table, handle, write_statistics=False, use_dictionary=False),
-                      fsync=self.fsync, dir_fd=self._dir_fd)
+        write_durably(
+            path,
+            lambda handle: pq.write_table(table, handle, write_statistics=False, use_dictionary=False),
+            fsync=self.fsync,
+            dir_fd=self._dir_fd,
+        )
         self._completed.add(press_id)
         self._written[press_id] = table
         return path
@@ -129,8 +155,9 @@ class CampaignWriter:
                 fsync_dir(folder.parent)
                 fsync_dir(self.folder)
             self._position_dirs.add(folder)
-        return write_durably(folder / part_name(press_id), lambda handle: pq.write_table(table, handle),
-                             fsync=self.fsync)
+        return write_durably(
+            folder / part_name(press_id), lambda handle: pq.write_table(table, handle), fsync=self.fsync
+        )
 
     # ---- finalize ----------------------------------------------------------------------------
 
@@ -148,8 +175,9 @@ class CampaignWriter:
         tables.append(read_tables([p for i, p in parts.items() if i not in self._written], plain))
         table = pa.concat_tables(tables)
         table = deduplicate_sorted(table).replace_schema_metadata(self.schema.metadata)
-        write_durably(consolidated, lambda handle: pq.write_table(table, handle, row_group_size=1 << 16),
-                      fsync=self.fsync)
+        write_durably(
+            consolidated, lambda handle: pq.write_table(table, handle, row_group_size=1 << 16), fsync=self.fsync
+        )
         for path in parts.values():
             path.unlink(missing_ok=True)
         if self.fsync:
@@ -161,7 +189,7 @@ class CampaignWriter:
             os.close(self._dir_fd)
             self._dir_fd = None
 
-    def __enter__(self) -> "CampaignWriter":
+    def __enter__(self) -> CampaignWriter:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -182,12 +210,18 @@ def read_tables(files: Sequence[Path], schema: pa.Schema) -> pa.Table:
         try:
             table = pq.ParquetFile(path).read(use_threads=False).replace_schema_metadata(None)
         except (OSError, pa.ArrowException) as exc:
-            raise DataError(f"cannot read a parquet part: {exc}", file=str(path),
-                            fix="move the damaged file out of the campaign folder, then resume") from exc
+            raise DataError(
+                f"cannot read a parquet part: {exc}",
+                file=str(path),
+                fix="move the damaged file out of the campaign folder, then resume",
+            ) from exc
         if not table.schema.equals(schema):
             if table.schema.names != schema.names or table.schema.types != schema.types:
-                raise DataError("the file's columns differ from the campaign's schema", file=str(path),
-                                fix="run `neatskin dataset validate` on the folder for the details")
+                raise DataError(
+                    "the file's columns differ from the campaign's schema",
+                    file=str(path),
+                    fix="run `neatskin dataset validate` on the folder for the details",
+                )
             table = table.cast(schema)  # only nullability differs
         tables.append(table)
     return pa.concat_tables(tables) if tables else schema.empty_table()
@@ -206,12 +240,14 @@ def waveform_table(press_id: int, waveforms: Mapping[str, np.ndarray]) -> pa.Tab
     arrays = {name: np.asarray(values) for name, values in waveforms.items()}
     lengths = {name: a.shape for name, a in arrays.items()}
     if any(len(shape) != 1 for shape in lengths.values()) or len(set(lengths.values())) != 1:
-        raise DataError(f"waveforms must be 1-D arrays of one length, got shapes {lengths}", field="waveforms",
-                        fix="pass one 1-D array per signal, sample-aligned (e.g. voltage_v, current_a, fsr_v)")
+        raise DataError(
+            f"waveforms must be 1-D arrays of one length, got shapes {lengths}",
+            field="waveforms",
+            fix="pass one 1-D array per signal, sample-aligned (e.g. voltage_v, current_a, fsr_v)",
+        )
     reserved = {"press_id", "sample", "position_id"} & set(arrays)
     if reserved:
-        raise DataError(f"waveform name(s) {sorted(reserved)} are reserved", field="waveforms",
-                        fix="rename the signal")
+        raise DataError(f"waveform name(s) {sorted(reserved)} are reserved", field="waveforms", fix="rename the signal")
     n = next(iter(lengths.values()))[0]
     columns = {"press_id": np.full(n, press_id, dtype=np.int64), "sample": np.arange(n, dtype=np.int32)}
     columns.update(arrays)

@@ -17,37 +17,75 @@ DEPTH_MARGIN_MM = 0.5  # the probe stops at least this far above the skin's unde
 _MAX_LISTED = 12
 
 
-def check_press_plan(profile: PrinterProfile, printer_x_mm: np.ndarray, printer_y_mm: np.ndarray,
-                     press_ids: np.ndarray, position_ids: np.ndarray, depth_mm: float, thickness_mm: float,
-                     depth_margin_mm: float = DEPTH_MARGIN_MM, source: str = "<program>") -> None:
+def check_press_plan(
+    profile: PrinterProfile,
+    printer_x_mm: np.ndarray,
+    printer_y_mm: np.ndarray,
+    press_ids: np.ndarray,
+    position_ids: np.ndarray,
+    depth_mm: float,
+    thickness_mm: float,
+    depth_margin_mm: float = DEPTH_MARGIN_MM,
+    source: str = "<program>",
+) -> None:
     """Raise one ConfigError listing every press whose target breaks a limit (nothing is emitted)."""
     problems: list[Problem] = []
     cal = profile.calibration
     limit = thickness_mm - depth_margin_mm
     if not depth_mm > 0:
-        problems.append(Problem(f"press depth {depth_mm} mm must be > 0 (below the surface)", source, "press.depth_mm",
-                                "set depth_mm to how far below the skin's top surface the probe goes"))
+        problems.append(
+            Problem(
+                f"press depth {depth_mm} mm must be > 0 (below the surface)",
+                source,
+                "press.depth_mm",
+                "set depth_mm to how far below the skin's top surface the probe goes",
+            )
+        )
     elif depth_mm > limit:
-        problems.append(Problem(f"press depth {depth_mm} mm is beyond the skin thickness {thickness_mm} mm minus the "
-                                f"{depth_margin_mm} mm margin (limit {limit:g} mm)", source, "press.depth_mm",
-                                f"set depth_mm <= {limit:g}"))
+        problems.append(
+            Problem(
+                f"press depth {depth_mm} mm is beyond the skin thickness {thickness_mm} mm minus the "
+                f"{depth_margin_mm} mm margin (limit {limit:g} mm)",
+                source,
+                "press.depth_mm",
+                f"set depth_mm <= {limit:g}",
+            )
+        )
     xy_max = min(profile.max_feed_mm_s.x, profile.max_feed_mm_s.y)
-    for key, value, vmax in (("travel_feed_mm_s", profile.travel_feed_mm_s, xy_max),
-                             ("z_feed_mm_s", profile.z_feed_mm_s, profile.max_feed_mm_s.z),
-                             ("press_feed_mm_s", profile.press_feed_mm_s, profile.max_feed_mm_s.z)):
+    for key, value, vmax in (
+        ("travel_feed_mm_s", profile.travel_feed_mm_s, xy_max),
+        ("z_feed_mm_s", profile.z_feed_mm_s, profile.max_feed_mm_s.z),
+        ("press_feed_mm_s", profile.press_feed_mm_s, profile.max_feed_mm_s.z),
+    ):
         if value > vmax:
-            problems.append(Problem(f"{key} = {value} mm/s exceeds the printer maximum {vmax} mm/s", profile.source,
-                                    f"motion.{key}", f"set {key} <= {vmax}"))
+            problems.append(
+                Problem(
+                    f"{key} = {value} mm/s exceeds the printer maximum {vmax} mm/s",
+                    profile.source,
+                    f"motion.{key}",
+                    f"set {key} <= {vmax}",
+                )
+            )
     z_safe = cal.surface_z_mm + profile.safe_height_mm
     z_press = cal.surface_z_mm - depth_mm
     if z_safe > profile.soft_max_mm.z:
-        problems.append(Problem(f"safe travel height z = {z_safe:g} mm is above the z soft limit "
-                                f"{profile.soft_max_mm.z:g} mm", profile.source, "motion.safe_height_mm",
-                                "lower safe_height_mm or check calibration.surface_z_mm"))
+        problems.append(
+            Problem(
+                f"safe travel height z = {z_safe:g} mm is above the z soft limit {profile.soft_max_mm.z:g} mm",
+                profile.source,
+                "motion.safe_height_mm",
+                "lower safe_height_mm or check calibration.surface_z_mm",
+            )
+        )
     if z_press < profile.soft_min_mm.z and 0 < depth_mm <= limit:  # a depth past the skin is reported above
-        problems.append(Problem(f"press depth reaches z = {z_press:g} mm, below the z soft limit "
-                                f"{profile.soft_min_mm.z:g} mm", profile.source, "calibration.surface_z_mm",
-                                "re-measure surface_z_mm (the skin's top surface in printer z) or lower depth_mm"))
+        problems.append(
+            Problem(
+                f"press depth reaches z = {z_press:g} mm, below the z soft limit {profile.soft_min_mm.z:g} mm",
+                profile.source,
+                "calibration.surface_z_mm",
+                "re-measure surface_z_mm (the skin's top surface in printer z) or lower depth_mm",
+            )
+        )
     x = np.asarray(printer_x_mm, float)
     y = np.asarray(printer_y_mm, float)
     checks = (
@@ -60,17 +98,27 @@ def check_press_plan(profile: PrinterProfile, printer_x_mm: np.ndarray, printer_
     listed = 0
     for i in np.flatnonzero(bad):
         if listed == _MAX_LISTED:
-            problems.append(Problem(f"... and {int(bad.sum()) - listed} more presses out of bounds", source, "presses",
-                                    "fix the calibration or the positions"))
+            problems.append(
+                Problem(
+                    f"... and {int(bad.sum()) - listed} more presses out of bounds",
+                    source,
+                    "presses",
+                    "fix the calibration or the positions",
+                )
+            )
             break
         for axis, values, lo, hi in checks:
             v = float(values[i])
             if not lo <= v <= hi:
-                problems.append(Problem(
-                    f"press {int(press_ids[i])} (position {int(position_ids[i])}) goes to printer {axis} = {v:.3f} mm, "
-                    f"outside the bed and soft limits [{lo:g}, {hi:g}] mm", source,
-                    f"press {int(press_ids[i])}",
-                    "move the skin or refit the calibration offset/rotation so every position lands on the bed"))
+                problems.append(
+                    Problem(
+                        f"press {int(press_ids[i])} (position {int(position_ids[i])}) goes to printer {axis} = {v:.3f} mm, "
+                        f"outside the bed and soft limits [{lo:g}, {hi:g}] mm",
+                        source,
+                        f"press {int(press_ids[i])}",
+                        "move the skin or refit the calibration offset/rotation so every position lands on the bed",
+                    )
+                )
                 listed += 1
                 break
     if problems:
@@ -81,8 +129,11 @@ def check_moves(profile: PrinterProfile, lines, source: str = "<program>") -> li
     """Problems with a parsed program: G0/G1 targets outside the bed or soft limits, feeds over the maxima."""
     problems: list[Problem] = []
     lo = [max(0.0, profile.soft_min_mm.x), max(0.0, profile.soft_min_mm.y), profile.soft_min_mm.z]
-    hi = [min(profile.bed_x_mm, profile.soft_max_mm.x), min(profile.bed_y_mm, profile.soft_max_mm.y),
-          profile.soft_max_mm.z]
+    hi = [
+        min(profile.bed_x_mm, profile.soft_max_mm.x),
+        min(profile.bed_y_mm, profile.soft_max_mm.y),
+        profile.soft_max_mm.z,
+    ]
     fmax = max(profile.max_feed_mm_s)
     relative = False
     pos = [None, None, None]
@@ -93,8 +144,14 @@ def check_moves(profile: PrinterProfile, lines, source: str = "<program>") -> li
         elif code == "G28":
             pos = [profile.soft_min_mm.x, profile.soft_min_mm.y, profile.soft_min_mm.z]
         elif code == "G92":
-            problems.append(Problem(f"{line.raw.strip()!r} redefines the coordinate system", source, f"command {n}",
-                                    "remove G92: press programs rely on homed machine coordinates"))
+            problems.append(
+                Problem(
+                    f"{line.raw.strip()!r} redefines the coordinate system",
+                    source,
+                    f"command {n}",
+                    "remove G92: press programs rely on homed machine coordinates",
+                )
+            )
         elif code in ("G0", "G1"):
             for k, letter in enumerate("XYZ"):
                 value = line.get(letter)
@@ -102,19 +159,36 @@ def check_moves(profile: PrinterProfile, lines, source: str = "<program>") -> li
                     continue
                 if relative:
                     if pos[k] is None:
-                        problems.append(Problem(f"relative {letter} move before the position is known", source,
-                                                f"command {n}", "home (G28) or move absolutely first"))
+                        problems.append(
+                            Problem(
+                                f"relative {letter} move before the position is known",
+                                source,
+                                f"command {n}",
+                                "home (G28) or move absolutely first",
+                            )
+                        )
                         continue
                     value += pos[k]
                 pos[k] = value
                 if not lo[k] <= value <= hi[k]:
-                    problems.append(Problem(f"{line.raw.strip()!r} moves {letter} to {value:g} mm, outside "
-                                            f"[{lo[k]:g}, {hi[k]:g}] mm", source, f"command {n}",
-                                            "regenerate the program with a calibration that fits the bed"))
+                    problems.append(
+                        Problem(
+                            f"{line.raw.strip()!r} moves {letter} to {value:g} mm, outside [{lo[k]:g}, {hi[k]:g}] mm",
+                            source,
+                            f"command {n}",
+                            "regenerate the program with a calibration that fits the bed",
+                        )
+                    )
             f = line.get("F")
             if f is not None and f / 60.0 > fmax:
-                problems.append(Problem(f"feed F{f:g} ({f / 60:g} mm/s) exceeds every axis maximum", source,
-                                        f"command {n}", f"use F <= {fmax * 60:g}"))
+                problems.append(
+                    Problem(
+                        f"feed F{f:g} ({f / 60:g} mm/s) exceeds every axis maximum",
+                        source,
+                        f"command {n}",
+                        f"use F <= {fmax * 60:g}",
+                    )
+                )
         if len(problems) > _MAX_LISTED:
             break
     return problems
@@ -133,14 +207,25 @@ def check_phases(lines, source: str = "<program>") -> list[Problem]:
         is_marker = line.code == "M118" and line.text.startswith("NS ")
         if is_marker:
             if previous is not None and last_code != "M400":
-                problems.append(Problem(f"phase '{previous[1]}' does not end in M400", source, f"command {previous[0]}",
-                                        "end every marked phase with M400 so acquisition lines up with motion"))
+                problems.append(
+                    Problem(
+                        f"phase '{previous[1]}' does not end in M400",
+                        source,
+                        f"command {previous[0]}",
+                        "end every marked phase with M400 so acquisition lines up with motion",
+                    )
+                )
             fields = dict(part.split("=", 1) for part in line.text[3:].split() if "=" in part)
             if "phase" in fields:
                 if fields["phase"] != PHASES[expected % len(PHASES)]:
-                    problems.append(Problem(f"phase '{fields['phase']}' where '{PHASES[expected % len(PHASES)]}' "
-                                            "was expected", source, f"command {n}",
-                                            "regenerate the program; phases run travel, descend, press, lift"))
+                    problems.append(
+                        Problem(
+                            f"phase '{fields['phase']}' where '{PHASES[expected % len(PHASES)]}' was expected",
+                            source,
+                            f"command {n}",
+                            "regenerate the program; phases run travel, descend, press, lift",
+                        )
+                    )
                 expected += 1
             previous = (n, line.text[3:])
         last_code = line.code

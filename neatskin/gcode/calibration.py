@@ -27,8 +27,11 @@ class Calibration:
         for name in ("offset_x_mm", "offset_y_mm", "rotation_deg", "surface_z_mm"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ConfigError(f"{name} must be a finite number, got {value!r}", field=f"calibration.{name}",
-                                  fix=f"set {name} in the printer profile's [calibration]")
+                raise ConfigError(
+                    f"{name} must be a finite number, got {value!r}",
+                    field=f"calibration.{name}",
+                    fix=f"set {name} in the printer profile's [calibration]",
+                )
 
     @property
     def matrix(self) -> np.ndarray:
@@ -81,18 +84,34 @@ def fit_calibration(sensor_xy_mm, printer_xyz_mm, source: str = "<calibration>")
     """
     sensor = np.asarray(sensor_xy_mm, dtype=float)
     printer = np.asarray(printer_xyz_mm, dtype=float)
-    if sensor.ndim != 2 or sensor.shape[1] != 2 or printer.ndim != 2 or printer.shape[1] != 3 \
-            or len(sensor) != len(printer):
-        raise ConfigError(f"need (points, 2) sensor xy and (points, 3) printer xyz, got {sensor.shape} and "
-                          f"{printer.shape}", file=source, field="reference_points",
-                          fix="give one printer x, y, z per sensor x, y")
+    if (
+        sensor.ndim != 2
+        or sensor.shape[1] != 2
+        or printer.ndim != 2
+        or printer.shape[1] != 3
+        or len(sensor) != len(printer)
+    ):
+        raise ConfigError(
+            f"need (points, 2) sensor xy and (points, 3) printer xyz, got {sensor.shape} and {printer.shape}",
+            file=source,
+            field="reference_points",
+            fix="give one printer x, y, z per sensor x, y",
+        )
     if len(sensor) < 2 or not (np.all(np.isfinite(sensor)) and np.all(np.isfinite(printer))):
-        raise ConfigError("need at least 2 finite reference points", file=source, field="reference_points",
-                          fix="jog the probe onto two or three distinct marks (e.g. electrode junctions)")
+        raise ConfigError(
+            "need at least 2 finite reference points",
+            file=source,
+            field="reference_points",
+            fix="jog the probe onto two or three distinct marks (e.g. electrode junctions)",
+        )
     centred = sensor - sensor.mean(axis=0)
     if float(np.max(np.linalg.norm(centred, axis=1))) < 1.0:
-        raise ConfigError("reference points are less than 1 mm apart; rotation is undetermined", file=source,
-                          field="reference_points", fix="use reference points far apart, e.g. opposite corners")
+        raise ConfigError(
+            "reference points are less than 1 mm apart; rotation is undetermined",
+            file=source,
+            field="reference_points",
+            fix="use reference points far apart, e.g. opposite corners",
+        )
     target = printer[:, :2] - printer[:, :2].mean(axis=0)
     # 2-D Kabsch: the rotation angle maximising sum of target . R sensor
     cross = float(np.sum(centred[:, 0] * target[:, 1] - centred[:, 1] * target[:, 0]))

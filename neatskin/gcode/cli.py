@@ -11,17 +11,23 @@ from pathlib import Path
 
 
 def register(subparsers) -> None:
-    parser = subparsers.add_parser("gcode", help="press positions, press programs and Marlin G-code",
-                                   description=__doc__.splitlines()[0])
+    parser = subparsers.add_parser(
+        "gcode", help="press positions, press programs and Marlin G-code", description=__doc__.splitlines()[0]
+    )
     sub = parser.add_subparsers(dest="gcode_command", metavar="ACTION", required=True)
 
     gen = sub.add_parser("generate", help="write the press program of a protocol as G-code")
     gen.add_argument("protocol", type=Path, help="protocol TOML (e.g. protocols/paper.toml)")
     gen.add_argument("-o", "--output", type=Path, required=True, help="G-code file to write")
-    gen.add_argument("--no-hold", action="store_true",
-                     help="leave out the G4 hold (the runner's acquisition is the hold)")
-    gen.add_argument("--positions", type=Path, metavar="FILE.csv",
-                     help="also write the positions (position_id, x_mm, y_mm, feature; sensor frame) as CSV")
+    gen.add_argument(
+        "--no-hold", action="store_true", help="leave out the G4 hold (the runner's acquisition is the hold)"
+    )
+    gen.add_argument(
+        "--positions",
+        type=Path,
+        metavar="FILE.csv",
+        help="also write the positions (position_id, x_mm, y_mm, feature; sensor frame) as CSV",
+    )
     gen.add_argument("--plot", type=Path, metavar="FILE.png", help="also draw the positions on the layout as PNG")
     gen.set_defaults(handler=_generate)
 
@@ -31,9 +37,13 @@ def register(subparsers) -> None:
     chk.set_defaults(handler=_check)
 
     cal = sub.add_parser("calibrate", help="fit sensor->printer offset, rotation and surface height")
-    cal.add_argument("--point", action="append", required=True, metavar="SX,SY,PX,PY,PZ",
-                     help="a reference point: sensor x,y (mm) and the printer x,y,z (M114) with the probe touching "
-                          "it; give 2 or 3")
+    cal.add_argument(
+        "--point",
+        action="append",
+        required=True,
+        metavar="SX,SY,PX,PY,PZ",
+        help="a reference point: sensor x,y (mm) and the printer x,y,z (M114) with the probe touching it; give 2 or 3",
+    )
     cal.set_defaults(handler=_calibrate)
 
 
@@ -49,25 +59,37 @@ def _generate(args: argparse.Namespace) -> int:
     tmp.replace(args.output)
     if args.positions is not None:
         ps = program.positions
-        rows = ["position_id,x_mm,y_mm,feature"] + [f"{i},{x:.3f},{y:.3f},{f}" for i, x, y, f in
-                                                     zip(ps.ids, ps.x_mm, ps.y_mm, ps.features)]
+        rows = ["position_id,x_mm,y_mm,feature"] + [
+            f"{i},{x:.3f},{y:.3f},{f}" for i, x, y, f in zip(ps.ids, ps.x_mm, ps.y_mm, ps.features)
+        ]
         args.positions.write_text("\n".join(rows) + "\n", encoding="utf-8")
     if args.plot is not None:
         from neatskin.gcode.plot import plot_positions
 
         visits = [b.position_id for b in program.presses]
         route = [p for k, p in enumerate(visits) if k == 0 or p != visits[k - 1]]
-        plot_positions(layout, program.positions, args.plot, route=route if program.route_unordered_mm else None,
-                       title=f"{program.name}: {len(program.positions)} positions, seed {program.seed}")
+        plot_positions(
+            layout,
+            program.positions,
+            args.plot,
+            route=route if program.route_unordered_mm else None,
+            title=f"{program.name}: {len(program.positions)} positions, seed {program.seed}",
+        )
     estimate = estimate_program_time(program.command_lines(), profile)
-    print(f"wrote {args.output}: {len(program.positions)} positions, {len(program.presses)} presses, "
-          f"{text.count(chr(10))} lines")
-    print(f"estimated printer time: {_hms(estimate.total_s)} (motion {_hms(estimate.motion_s)}, "
-          f"dwell {_hms(estimate.dwell_s)}, homing {_hms(estimate.homing_s)})")
+    print(
+        f"wrote {args.output}: {len(program.positions)} positions, {len(program.presses)} presses, "
+        f"{text.count(chr(10))} lines"
+    )
+    print(
+        f"estimated printer time: {_hms(estimate.total_s)} (motion {_hms(estimate.motion_s)}, "
+        f"dwell {_hms(estimate.dwell_s)}, homing {_hms(estimate.homing_s)})"
+    )
     if program.route_unordered_mm is not None:
         saved = program.route_unordered_mm - program.route_mm
-        print(f"travel ordering: route {program.route_mm:.1f} mm instead of {program.route_unordered_mm:.1f} mm "
-              f"({saved:.1f} mm, {100 * saved / max(program.route_unordered_mm, 1e-9):.0f} % shorter)")
+        print(
+            f"travel ordering: route {program.route_mm:.1f} mm instead of {program.route_unordered_mm:.1f} mm "
+            f"({saved:.1f} mm, {100 * saved / max(program.route_unordered_mm, 1e-9):.0f} % shorter)"
+        )
     return 0
 
 
@@ -81,15 +103,22 @@ def _check(args: argparse.Namespace) -> int:
     try:
         text = args.file.read_text(encoding="utf-8")
     except OSError as exc:
-        raise ConfigError(f"cannot read G-code file: {exc.strerror}", file=str(args.file), fix="check the path") from exc
+        raise ConfigError(
+            f"cannot read G-code file: {exc.strerror}", file=str(args.file), fix="check the path"
+        ) from exc
     lines = parse_program(text, source=str(args.file))
     codes: dict[str, int] = {}
     for line in lines:
         codes[line.code] = codes.get(line.code, 0) + 1
-    presses = sum(1 for line in lines if line.code == "M118" and line.text.startswith("NS ")
-                  and line.text.endswith(" phase=press"))
-    print(f"{args.file}: {len(lines)} commands, {presses} presses, "
-          + ", ".join(f"{code} x{n}" for code, n in sorted(codes.items())))
+    presses = sum(
+        1
+        for line in lines
+        if line.code == "M118" and line.text.startswith("NS ") and line.text.endswith(" phase=press")
+    )
+    print(
+        f"{args.file}: {len(lines)} commands, {presses} presses, "
+        + ", ".join(f"{code} x{n}" for code, n in sorted(codes.items()))
+    )
     if args.profile is None:
         problems = check_phases(lines, source=str(args.file))
         for problem in problems:
@@ -99,14 +128,18 @@ def _check(args: argparse.Namespace) -> int:
     profile = load_printer_profile(args.profile)
     problems = check_moves(profile, lines, source=str(args.file)) + check_phases(lines, source=str(args.file))
     estimate = estimate_program_time(lines, profile)
-    print(f"estimated printer time on {profile.name}: {_hms(estimate.total_s)} ({estimate.moves} moves, "
-          f"{estimate.path_mm / 1000:.1f} m of path)")
+    print(
+        f"estimated printer time on {profile.name}: {_hms(estimate.total_s)} ({estimate.moves} moves, "
+        f"{estimate.path_mm / 1000:.1f} m of path)"
+    )
     if problems:
         for problem in problems:
             print(f"refused: {problem}", file=sys.stderr)
         return 1
-    print("bounds: every move inside the bed and the soft limits, feeds within the maxima; "
-          "every marked phase ends in M400")
+    print(
+        "bounds: every move inside the bed and the soft limits, feeds within the maxima; "
+        "every marked phase ends in M400"
+    )
     return 0
 
 
@@ -121,16 +154,23 @@ def _calibrate(args: argparse.Namespace) -> int:
         except ValueError:
             values = []
         if len(values) != 5:
-            raise ConfigError(f"point {text!r} is not 5 numbers", field=f"--point[{k}]",
-                              fix="write SX,SY,PX,PY,PZ, e.g. --point 0,0,95.2,94.8,5.6")
+            raise ConfigError(
+                f"point {text!r} is not 5 numbers",
+                field=f"--point[{k}]",
+                fix="write SX,SY,PX,PY,PZ, e.g. --point 0,0,95.2,94.8,5.6",
+            )
         sensor.append(values[:2])
         printer.append(values[2:])
     fit = fit_calibration(sensor, printer, source="--point")
     c = fit.calibration
     print("[calibration]")
-    print(f"offset_x_mm = {c.offset_x_mm:.3f}\noffset_y_mm = {c.offset_y_mm:.3f}\n"
-          f"rotation_deg = {c.rotation_deg:.4f}\nsurface_z_mm = {c.surface_z_mm:.3f}")
-    print(f"# residual: rms {fit.rms_mm:.3f} mm, max {fit.max_mm:.3f} mm (xy); surface z spread {fit.z_spread_mm:.3f} mm")
+    print(
+        f"offset_x_mm = {c.offset_x_mm:.3f}\noffset_y_mm = {c.offset_y_mm:.3f}\n"
+        f"rotation_deg = {c.rotation_deg:.4f}\nsurface_z_mm = {c.surface_z_mm:.3f}"
+    )
+    print(
+        f"# residual: rms {fit.rms_mm:.3f} mm, max {fit.max_mm:.3f} mm (xy); surface z spread {fit.z_spread_mm:.3f} mm"
+    )
     return 0
 
 

@@ -29,9 +29,12 @@ def safe_text(value: str, field: str, source: str = "<memory>") -> str:
         if what is None and unicodedata.category(char) in ("Cc", "Cf", "Zl", "Zp"):
             what = f"the control character U+{ord(char):04X}"
         if what is not None:
-            raise ConfigError(f"{field} {value!r} contains {what}, which could inject a G-code command",
-                              file=source, field=field,
-                              fix="use letters, digits, spaces and simple punctuation (no ';', '*' or line breaks)")
+            raise ConfigError(
+                f"{field} {value!r} contains {what}, which could inject a G-code command",
+                file=source,
+                field=field,
+                fix="use letters, digits, spaces and simple punctuation (no ';', '*' or line breaks)",
+            )
     return value
 
 
@@ -50,7 +53,7 @@ def marker(press_id: int, phase: str) -> str:
     return f"{MARKER} press={press_id} phase={phase}"
 
 
-def header_lines(program: "PressProgram") -> list[str]:
+def header_lines(program: PressProgram) -> list[str]:
     p = program
     lines = [
         f"; neatskin-rig {__version__} press program",
@@ -72,14 +75,16 @@ def preamble_lines() -> tuple[str, ...]:
     return ("G21", "G90", "M211 S1", "G28", "M400")
 
 
-def program_text(program: "PressProgram") -> str:
+def program_text(program: PressProgram) -> str:
     """The whole program as text, one command per line, ending in a newline."""
     out = header_lines(program)
     out.append("; preamble")
     out.extend(program.preamble)
     for block in program.presses:
-        out.append(f"; press {block.press_id} position {block.position_id} repeat {block.repeat} "
-                   f"sensor x={fmt(block.x_mm)} y={fmt(block.y_mm)}")
+        out.append(
+            f"; press {block.press_id} position {block.position_id} repeat {block.repeat} "
+            f"sensor x={fmt(block.x_mm)} y={fmt(block.y_mm)}"
+        )
         for phase in block.phases:
             out.extend(phase.lines)
     out.append("; postamble")

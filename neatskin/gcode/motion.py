@@ -11,8 +11,8 @@ it is a slight over-estimate of Marlin's junction blending).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Iterable
 
 import numpy as np
 
@@ -20,8 +20,9 @@ from neatskin.gcode.parse import GcodeLine, parse_line
 from neatskin.gcode.profile import PrinterProfile
 
 
-def trapezoid_time_s(distance_mm: float, feed_mm_s: float, accel_mm_s2: float,
-                     v_start_mm_s: float = 0.0, v_end_mm_s: float = 0.0) -> float:
+def trapezoid_time_s(
+    distance_mm: float, feed_mm_s: float, accel_mm_s2: float, v_start_mm_s: float = 0.0, v_end_mm_s: float = 0.0
+) -> float:
     """Time of one move under a trapezoidal (or, if the feed is not reached, triangular) profile."""
     if distance_mm < 0 or not math.isfinite(distance_mm):
         raise ValueError(f"distance_mm must be finite and >= 0, got {distance_mm}")
@@ -43,8 +44,9 @@ def trapezoid_time_s(distance_mm: float, feed_mm_s: float, accel_mm_s2: float,
     return (v_peak - vs) / a + (v_peak - ve) / a
 
 
-def limited_feed_and_accel(delta_mm: tuple[float, float, float], feed_mm_s: float,
-                           profile: PrinterProfile) -> tuple[float, float]:
+def limited_feed_and_accel(
+    delta_mm: tuple[float, float, float], feed_mm_s: float, profile: PrinterProfile
+) -> tuple[float, float]:
     """Nominal feed and acceleration along a move, scaled so no axis exceeds its maximum."""
     length = math.sqrt(sum(d * d for d in delta_mm))
     if length == 0:
@@ -58,8 +60,9 @@ def limited_feed_and_accel(delta_mm: tuple[float, float, float], feed_mm_s: floa
     return feed, accel
 
 
-def move_time_s(start_mm: tuple[float, float, float], end_mm: tuple[float, float, float], feed_mm_s: float,
-                profile: PrinterProfile) -> float:
+def move_time_s(
+    start_mm: tuple[float, float, float], end_mm: tuple[float, float, float], feed_mm_s: float, profile: PrinterProfile
+) -> float:
     """Time of one linear move from rest to rest."""
     delta = tuple(e - s for s, e in zip(start_mm, end_mm))
     feed, accel = limited_feed_and_accel(delta, feed_mm_s, profile)
@@ -144,8 +147,9 @@ class MotionClock:
         return TimeEstimate(self.motion_s, self.dwell_s, self.homing_s, self.moves, self.path_mm, self.travel_xy_mm)
 
 
-def estimate_program_time(lines: Iterable[GcodeLine | str], profile: PrinterProfile,
-                          start_mm: tuple[float, float, float] | None = None) -> TimeEstimate:
+def estimate_program_time(
+    lines: Iterable[GcodeLine | str], profile: PrinterProfile, start_mm: tuple[float, float, float] | None = None
+) -> TimeEstimate:
     """Estimate a program's run time: G0/G1 (G90/G91, G92, modal F in mm/min), G4 P/S dwells, G28 homing."""
     clock = MotionClock(profile, start_mm)
     for line in lines:

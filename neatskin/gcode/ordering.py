@@ -11,8 +11,9 @@ import numpy as np
 ORDERS = ("position", "shuffled")
 
 
-def press_order(n_positions: int, repeats: int, order: str, seed: int,
-                position_sequence: np.ndarray | None = None) -> np.ndarray:
+def press_order(
+    n_positions: int, repeats: int, order: str, seed: int, position_sequence: np.ndarray | None = None
+) -> np.ndarray:
     """(presses, 2) array of (position_id, repeat) in execution order."""
     seq = np.arange(n_positions) if position_sequence is None else np.asarray(position_sequence)
     grid = np.column_stack([np.repeat(seq, repeats), np.tile(np.arange(repeats), len(seq))])
@@ -68,5 +69,5 @@ def shorten_route(xy_mm: np.ndarray, start_xy_mm: np.ndarray | None = None, max_
             break
         bi, bj = int(i[best]), int(j[best])
         path[bi + 1 : bj + 1] = path[bi + 1 : bj + 1][::-1].copy()
-        route = path[len(head):]
+        route = path[len(head) :]
     return route

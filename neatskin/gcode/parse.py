@@ -172,6 +172,8 @@ def _letter_params(rest: str, raw: str, source: str, line_no: int | None) -> dic
 def _fail(raw: str, message: str, source: str, line_no: int | None) -> None:
     where = f"line {line_no}" if line_no is not None else "line"
     raise GcodeSyntaxError(
-        f"{message}: {raw!r}", file=source, field=where,
+        f"{message}: {raw!r}",
+        file=source,
+        field=where,
         fix="write one command per line as a letter code and parameters, e.g. 'G1 X10 Y20 F3000'",
     )

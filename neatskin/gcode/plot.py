@@ -13,8 +13,15 @@ from neatskin.gcode.positions import PositionSet
 from neatskin.layout import Layout
 
 
-def plot_positions(layout: Layout, positions: PositionSet, path: str | Path, *, title: str = "",
-                   route: np.ndarray | None = None, probe_diameter_mm: float | None = None) -> Path:
+def plot_positions(
+    layout: Layout,
+    positions: PositionSet,
+    path: str | Path,
+    *,
+    title: str = "",
+    route: np.ndarray | None = None,
+    probe_diameter_mm: float | None = None,
+) -> Path:
     """Write the map to `path` (PNG); `route` is an order of position ids to draw as the travel path."""
     import matplotlib
 
@@ -39,13 +46,36 @@ def plot_positions(layout: Layout, positions: PositionSet, path: str | Path, *, 
     if route is not None and len(route) > 1:
         r = xy[np.asarray(route)]
         ax.plot(r[:, 0], r[:, 1], "-", color="#bbbbbb", linewidth=0.7, zorder=2, label="travel route")
-    ax.plot(xy[on_channel, 0], xy[on_channel, 1], "o", color="#d62728", markersize=4, zorder=5,
-            label=f"on a channel ({int(on_channel.sum())})")
-    ax.plot(xy[~on_channel, 0], xy[~on_channel, 1], "o", color="#1f77b4", markersize=4, zorder=5,
-            label=f"in a face ({int((~on_channel).sum())})")
+    ax.plot(
+        xy[on_channel, 0],
+        xy[on_channel, 1],
+        "o",
+        color="#d62728",
+        markersize=4,
+        zorder=5,
+        label=f"on a channel ({int(on_channel.sum())})",
+    )
+    ax.plot(
+        xy[~on_channel, 0],
+        xy[~on_channel, 1],
+        "o",
+        color="#1f77b4",
+        markersize=4,
+        zorder=5,
+        label=f"in a face ({int((~on_channel).sum())})",
+    )
     if probe_diameter_mm and len(xy):
-        ax.add_patch(Circle(xy[0], probe_diameter_mm / 2, fill=False, linestyle="--", color="#555555", zorder=6,
-                            label=f"probe footprint ({probe_diameter_mm:g} mm)"))
+        ax.add_patch(
+            Circle(
+                xy[0],
+                probe_diameter_mm / 2,
+                fill=False,
+                linestyle="--",
+                color="#555555",
+                zorder=6,
+                label=f"probe footprint ({probe_diameter_mm:g} mm)",
+            )
+        )
     ax.set_aspect("equal")
     ax.set_xlabel("x (mm, sensor frame)")
     ax.set_ylabel("y (mm, sensor frame)")

@@ -49,32 +49,59 @@ class PositionSpec:
     def __post_init__(self) -> None:
         where = "positions"
         if self.strategy not in STRATEGIES:
-            raise ConfigError(f"unknown strategy {self.strategy!r}", file=self.source, field=f"{where}.strategy",
-                              fix=f"use one of {', '.join(STRATEGIES)}")
+            raise ConfigError(
+                f"unknown strategy {self.strategy!r}",
+                file=self.source,
+                field=f"{where}.strategy",
+                fix=f"use one of {', '.join(STRATEGIES)}",
+            )
         if isinstance(self.count, bool) or not isinstance(self.count, int) or self.count < 1:
-            raise ConfigError(f"count must be a positive integer, got {self.count!r}", file=self.source,
-                              field=f"{where}.count", fix="set count to the number of distinct press positions")
+            raise ConfigError(
+                f"count must be a positive integer, got {self.count!r}",
+                file=self.source,
+                field=f"{where}.count",
+                fix="set count to the number of distinct press positions",
+            )
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise ConfigError(f"seed must be a non-negative integer, got {self.seed!r}", file=self.source,
-                              field=f"{where}.seed", fix="set seed to a whole number >= 0")
+            raise ConfigError(
+                f"seed must be a non-negative integer, got {self.seed!r}",
+                file=self.source,
+                field=f"{where}.seed",
+                fix="set seed to a whole number >= 0",
+            )
         for key in ("min_spacing_mm", "electrode_keep_out_mm"):
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-                raise ConfigError(f"{key} must be a number >= 0, got {value!r}", file=self.source,
-                                  field=f"{where}.{key}", fix=f"set {key} >= 0 (0 turns it off)")
+                raise ConfigError(
+                    f"{key} must be a number >= 0, got {value!r}",
+                    file=self.source,
+                    field=f"{where}.{key}",
+                    fix=f"set {key} >= 0 (0 turns it off)",
+                )
         if self.channel_fraction is not None and not 0 <= self.channel_fraction <= 1:
-            raise ConfigError(f"channel_fraction must lie in [0, 1], got {self.channel_fraction!r}", file=self.source,
-                              field=f"{where}.channel_fraction", fix="set a share between 0 and 1, or leave it out")
+            raise ConfigError(
+                f"channel_fraction must lie in [0, 1], got {self.channel_fraction!r}",
+                file=self.source,
+                field=f"{where}.channel_fraction",
+                fix="set a share between 0 and 1, or leave it out",
+            )
         for k, circle in enumerate(self.keep_out):
             if len(circle) != 3 or not all(math.isfinite(v) for v in circle) or circle[2] <= 0:
-                raise ConfigError(f"keep-out zone {circle!r} is not (x_mm, y_mm, radius_mm > 0)", file=self.source,
-                                  field=f"{where}.keep_out[{k}]", fix="write each zone as [x_mm, y_mm, radius_mm]")
+                raise ConfigError(
+                    f"keep-out zone {circle!r} is not (x_mm, y_mm, radius_mm > 0)",
+                    file=self.source,
+                    field=f"{where}.keep_out[{k}]",
+                    fix="write each zone as [x_mm, y_mm, radius_mm]",
+                )
         if self.strategy == "grid":
             rows, cols = self.grid_shape or _square(self.count)
             if rows * cols != self.count or rows < 1 or cols < 1:
-                raise ConfigError(f"a grid of {self.count} positions needs grid_shape rows x cols = count",
-                                  file=self.source, field=f"{where}.grid_shape",
-                                  fix="give grid_shape = [rows, cols] with rows * cols = count, or a square count")
+                raise ConfigError(
+                    f"a grid of {self.count} positions needs grid_shape rows x cols = count",
+                    file=self.source,
+                    field=f"{where}.grid_shape",
+                    fix="give grid_shape = [rows, cols] with rows * cols = count, or a square count",
+                )
 
 
 @dataclass(frozen=True)
@@ -173,8 +200,11 @@ def _in_face(layout: Layout, rng: np.random.Generator, face: int, n: int) -> np.
         keep = poly.contains_points(cand) & np.all(layout.distance_to_channels_mm(cand) > half_width, axis=1)
         out = np.vstack([out, cand[keep]])
     if len(out) < n:
-        raise ConfigError(f"face {face} has no room off the channels", field="positions",
-                          fix="check the layout: the channels are wider than the face")
+        raise ConfigError(
+            f"face {face} has no room off the channels",
+            field="positions",
+            fix="check the layout: the channels are wider than the face",
+        )
     return out[:n]
 
 
@@ -227,9 +257,13 @@ def _accept(layout: Layout, spec: PositionSpec, draw, n: int, taken: np.ndarray 
                 continue
             kept.append(p)
     if len(kept) - start < n:
-        raise ConfigError(f"could place only {len(kept) - start} of {n} positions with min_spacing_mm = "
-                          f"{spec.min_spacing_mm} and the keep-out zones", file=spec.source, field="positions",
-                          fix="lower count or min_spacing_mm, or shrink the keep-out zones")
+        raise ConfigError(
+            f"could place only {len(kept) - start} of {n} positions with min_spacing_mm = "
+            f"{spec.min_spacing_mm} and the keep-out zones",
+            file=spec.source,
+            field="positions",
+            fix="lower count or min_spacing_mm, or shrink the keep-out zones",
+        )
     return np.array(kept[start:]).reshape(-1, 2)
 
 
@@ -240,9 +274,13 @@ def _grid(layout: Layout, spec: PositionSpec) -> np.ndarray:
     pts = np.column_stack([gx.ravel(), gy.ravel()])
     blocked = ~_allowed(layout, spec, pts)
     if blocked.any():
-        raise ConfigError(f"{int(blocked.sum())} grid positions fall in keep-out zones, e.g. "
-                          f"({pts[blocked][0, 0]:.2f}, {pts[blocked][0, 1]:.2f}) mm", file=spec.source,
-                          field="positions.grid_shape", fix="change the grid shape or use strategy 'stratified'")
+        raise ConfigError(
+            f"{int(blocked.sum())} grid positions fall in keep-out zones, e.g. "
+            f"({pts[blocked][0, 0]:.2f}, {pts[blocked][0, 1]:.2f}) mm",
+            file=spec.source,
+            field="positions.grid_shape",
+            fix="change the grid shape or use strategy 'stratified'",
+        )
     return pts
 
 
@@ -274,8 +312,10 @@ def _stratified(layout: Layout, spec: PositionSpec, rng: np.random.Generator) ->
                 s = end + (1 - 2 * end) * (bins + rng.random(k)) / m
                 return _on_channel(layout, rng, np.full(k, index), s)
         else:
+
             def draw(k, index=index):
                 return _in_face(layout, rng, index, k)
+
         out = np.vstack([out, _accept(layout, spec, draw, int(m), taken=out)])
     return out
 

@@ -58,7 +58,7 @@ class PrinterProfile:
         if problems:
             raise ConfigError(problems=problems)
 
-    def with_calibration(self, calibration: Calibration) -> "PrinterProfile":
+    def with_calibration(self, calibration: Calibration) -> PrinterProfile:
         """The same printer with a refitted calibration (checked again against the z limits)."""
         return replace(self, calibration=calibration)
 
@@ -75,7 +75,11 @@ def printer_profile_from_dict(data: dict, source: str = "<memory>") -> PrinterPr
     def table(name: str) -> dict:
         value = data.get(name)
         if not isinstance(value, dict):
-            problems.append(Problem(f"missing [{name}] table", source, name, f"add a [{name}] table (see protocols/printers/paper.toml)"))
+            problems.append(
+                Problem(
+                    f"missing [{name}] table", source, name, f"add a [{name}] table (see protocols/printers/paper.toml)"
+                )
+            )
             return {}
         return value
 
@@ -86,7 +90,9 @@ def printer_profile_from_dict(data: dict, source: str = "<memory>") -> PrinterPr
             problems.append(Problem(f"missing '{key}'", source, where, f"set {key} in [{tname}]"))
             return math.nan
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            problems.append(Problem(f"'{key}' must be a finite number, got {value!r}", source, where, f"set {key} to a number"))
+            problems.append(
+                Problem(f"'{key}' must be a finite number, got {value!r}", source, where, f"set {key} to a number")
+            )
             return math.nan
         if positive and value <= 0:
             problems.append(Problem(f"'{key}' must be positive, got {value!r}", source, where, f"set {key} > 0"))
@@ -96,8 +102,14 @@ def printer_profile_from_dict(data: dict, source: str = "<memory>") -> PrinterPr
     def integer(tab: dict, tname: str, key: str, default: int) -> int:
         value = tab.get(key, default)
         if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-            problems.append(Problem(f"'{key}' must be a positive integer, got {value!r}", source, f"{tname}.{key}",
-                                    f"set {key} to a positive whole number"))
+            problems.append(
+                Problem(
+                    f"'{key}' must be a positive integer, got {value!r}",
+                    source,
+                    f"{tname}.{key}",
+                    f"set {key} to a positive whole number",
+                )
+            )
             return 1
         return value
 
@@ -119,9 +131,14 @@ def printer_profile_from_dict(data: dict, source: str = "<memory>") -> PrinterPr
         z_feed_mm_s=number(motion, "motion", "z_feed_mm_s"),
         press_feed_mm_s=number(motion, "motion", "press_feed_mm_s"),
         safe_height_mm=number(motion, "motion", "safe_height_mm"),
-        park_mm=Axes(*(number(park, "park", key, positive=False, default=default) if math.isfinite(default)
-                       or key in park else math.nan
-                       for key, default in (("x_mm", soft_min.x), ("y_mm", soft_max.y), ("z_mm", soft_max.z)))),
+        park_mm=Axes(
+            *(
+                number(park, "park", key, positive=False, default=default)
+                if math.isfinite(default) or key in park
+                else math.nan
+                for key, default in (("x_mm", soft_min.x), ("y_mm", soft_max.y), ("z_mm", soft_max.z))
+            )
+        ),
         calibration=None,
         baud_rate=integer(printer, "printer", "baud_rate", 115200),
         planner_buffer_size=integer(printer, "printer", "planner_buffer_size", 16),
@@ -131,8 +148,10 @@ def printer_profile_from_dict(data: dict, source: str = "<memory>") -> PrinterPr
         description=str(printer.get("description", "")),
         source=source,
     )
-    cal_values = {k: number(cal, "calibration", k, positive=False) for k in
-                  ("offset_x_mm", "offset_y_mm", "rotation_deg", "surface_z_mm")}
+    cal_values = {
+        k: number(cal, "calibration", k, positive=False)
+        for k in ("offset_x_mm", "offset_y_mm", "rotation_deg", "surface_z_mm")
+    }
     if problems:
         # cross-field problems among the fields that are valid, so one run reports everything
         partial = SimpleNamespace(**{**values, "calibration": SimpleNamespace(**cal_values)})
@@ -154,29 +173,48 @@ def _check(p) -> list[Problem]:
     for axis in "xyz":
         lo, hi = getattr(p.soft_min_mm, axis), getattr(p.soft_max_mm, axis)
         if known(lo, hi) and not lo < hi:
-            problem(f"soft_limits.max_{axis}_mm", f"soft limit max_{axis}_mm = {hi} is not above min_{axis}_mm = {lo}",
-                    f"set max_{axis}_mm > min_{axis}_mm")
+            problem(
+                f"soft_limits.max_{axis}_mm",
+                f"soft limit max_{axis}_mm = {hi} is not above min_{axis}_mm = {lo}",
+                f"set max_{axis}_mm > min_{axis}_mm",
+            )
     for axis, size in (("x", p.bed_x_mm), ("y", p.bed_y_mm)):
         lo, hi = getattr(p.soft_min_mm, axis), getattr(p.soft_max_mm, axis)
         if known(lo, hi, size) and (lo < 0 or hi > size):
-            problem(f"soft_limits.max_{axis}_mm", f"soft limits on {axis} [{lo}, {hi}] reach outside the {size} mm bed",
-                    f"keep the {axis} soft limits within 0..{size} (bed.size_{axis}_mm)")
+            problem(
+                f"soft_limits.max_{axis}_mm",
+                f"soft limits on {axis} [{lo}, {hi}] reach outside the {size} mm bed",
+                f"keep the {axis} soft limits within 0..{size} (bed.size_{axis}_mm)",
+            )
     xy_max = min(p.max_feed_mm_s.x, p.max_feed_mm_s.y)
     if known(xy_max, p.travel_feed_mm_s) and p.travel_feed_mm_s > xy_max:
-        problem("motion.travel_feed_mm_s", f"travel feed {p.travel_feed_mm_s} mm/s exceeds the x/y maximum {xy_max} mm/s",
-                f"set travel_feed_mm_s <= {xy_max}")
+        problem(
+            "motion.travel_feed_mm_s",
+            f"travel feed {p.travel_feed_mm_s} mm/s exceeds the x/y maximum {xy_max} mm/s",
+            f"set travel_feed_mm_s <= {xy_max}",
+        )
     for key in ("z_feed_mm_s", "press_feed_mm_s"):
         value = getattr(p, key)
         if known(value, p.max_feed_mm_s.z) and value > p.max_feed_mm_s.z:
-            problem(f"motion.{key}", f"{key} = {value} mm/s exceeds the z maximum {p.max_feed_mm_s.z} mm/s",
-                    f"set {key} <= {p.max_feed_mm_s.z} (max_feed.z_mm_s)")
+            problem(
+                f"motion.{key}",
+                f"{key} = {value} mm/s exceeds the z maximum {p.max_feed_mm_s.z} mm/s",
+                f"set {key} <= {p.max_feed_mm_s.z} (max_feed.z_mm_s)",
+            )
     surface = p.calibration.surface_z_mm
     if known(p.safe_height_mm, surface, p.soft_max_mm.z) and p.safe_height_mm + surface > p.soft_max_mm.z:
-        problem("motion.safe_height_mm", f"safe height {p.safe_height_mm} mm above the surface at z = {surface} mm "
-                f"is above the z soft limit {p.soft_max_mm.z} mm", "lower safe_height_mm or check calibration.surface_z_mm")
+        problem(
+            "motion.safe_height_mm",
+            f"safe height {p.safe_height_mm} mm above the surface at z = {surface} mm "
+            f"is above the z soft limit {p.soft_max_mm.z} mm",
+            "lower safe_height_mm or check calibration.surface_z_mm",
+        )
     for axis in "xyz":
         value, lo, hi = getattr(p.park_mm, axis), getattr(p.soft_min_mm, axis), getattr(p.soft_max_mm, axis)
         if known(value, lo, hi) and not lo <= value <= hi:
-            problem(f"park.{axis}_mm", f"park {axis} = {value} mm is outside the soft limits",
-                    f"put park.{axis}_mm inside [{lo}, {hi}]")
+            problem(
+                f"park.{axis}_mm",
+                f"park {axis} = {value} mm is outside the soft limits",
+                f"put park.{axis}_mm inside [{lo}, {hi}]",
+            )
     return problems

@@ -14,8 +14,8 @@ Everything is checked by bounds.check_press_plan before any line is formatted.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Iterator
 
 import numpy as np
 
@@ -55,11 +55,18 @@ class PressSpec:
         if self.order not in ORDERS:
             bad("order", f"unknown order {self.order!r}", f"use one of {', '.join(ORDERS)}")
         if not isinstance(self.travel_ordering, bool):
-            bad("travel_ordering", f"travel_ordering must be true or false, got {self.travel_ordering!r}",
-                "set travel_ordering = true or false")
+            bad(
+                "travel_ordering",
+                f"travel_ordering must be true or false, got {self.travel_ordering!r}",
+                "set travel_ordering = true or false",
+            )
         if self.travel_ordering and self.order != "position":
-            bad("travel_ordering", "travel ordering only applies to order = 'position' (shuffled presses jump "
-                "between positions on purpose)", "set travel_ordering = false or order = 'position'")
+            bad(
+                "travel_ordering",
+                "travel ordering only applies to order = 'position' (shuffled presses jump "
+                "between positions on purpose)",
+                "set travel_ordering = false or order = 'position'",
+            )
 
 
 @dataclass(frozen=True)
@@ -116,9 +123,17 @@ class PressProgram:
         return emit.program_text(self)
 
 
-def build_program(layout: Layout, positions: PositionSet, press: PressSpec, profile: PrinterProfile, *,
-                  name: str = "campaign", seed: int = 0, hold_in_gcode: bool = False,
-                  source: str = "<program>") -> PressProgram:
+def build_program(
+    layout: Layout,
+    positions: PositionSet,
+    press: PressSpec,
+    profile: PrinterProfile,
+    *,
+    name: str = "campaign",
+    seed: int = 0,
+    hold_in_gcode: bool = False,
+    source: str = "<program>",
+) -> PressProgram:
     """The press program for these positions; every limit checked before any text is formatted."""
     emit.safe_text(name, "campaign.name", source)
     emit.safe_text(layout.name, "skin.name", layout.source)
@@ -135,32 +150,69 @@ def build_program(layout: Layout, positions: PositionSet, press: PressSpec, prof
     pos_ids, repeats = order[:, 0], order[:, 1]
     px, py = cal.to_printer(xy[pos_ids, 0], xy[pos_ids, 1]) if len(order) else (np.zeros(0), np.zeros(0))
     press_ids = np.arange(len(order))
-    check_press_plan(profile, px, py, press_ids, pos_ids, press.depth_mm, layout.thickness_mm,
-                     press.depth_margin_mm, source)
+    check_press_plan(
+        profile, px, py, press_ids, pos_ids, press.depth_mm, layout.thickness_mm, press.depth_margin_mm, source
+    )
     route = route_length_mm(xy, pos_ids[np.r_[True, np.diff(pos_ids) != 0]]) if len(order) else 0.0
 
     z_safe = emit.fmt(cal.surface_z_mm + profile.safe_height_mm)
     z_contact = emit.fmt(cal.surface_z_mm)
     z_press_mm = cal.surface_z_mm - press.depth_mm
-    f_z, f_travel, f_press = emit.feed(profile.z_feed_mm_s), emit.feed(profile.travel_feed_mm_s), emit.feed(profile.press_feed_mm_s)
+    f_z, f_travel, f_press = (
+        emit.feed(profile.z_feed_mm_s),
+        emit.feed(profile.travel_feed_mm_s),
+        emit.feed(profile.press_feed_mm_s),
+    )
     hold = (f"G4 P{int(round(press.hold_s * 1000))}",) if hold_in_gcode and press.hold_s > 0 else ()
     blocks = []
     for k in range(len(order)):
         pid, pos = int(press_ids[k]), int(pos_ids[k])
         sx, sy = emit.fmt(float(px[k])), emit.fmt(float(py[k]))
         phases = (
-            Phase("travel", (emit.marker(pid, "travel"), f"G0 Z{z_safe} F{f_z}", f"G0 X{sx} Y{sy} F{f_travel}", "M400"),
-                  "baseline"),
+            Phase(
+                "travel",
+                (emit.marker(pid, "travel"), f"G0 Z{z_safe} F{f_z}", f"G0 X{sx} Y{sy} F{f_travel}", "M400"),
+                "baseline",
+            ),
             Phase("descend", (emit.marker(pid, "descend"), f"G1 Z{z_contact} F{f_z}", "M400")),
-            Phase("press", (emit.marker(pid, "press"), f"G1 Z{emit.fmt(z_press_mm)} F{f_press}", *hold, "M400"),
-                  "pressed"),
+            Phase(
+                "press", (emit.marker(pid, "press"), f"G1 Z{emit.fmt(z_press_mm)} F{f_press}", *hold, "M400"), "pressed"
+            ),
             Phase("lift", (emit.marker(pid, "lift"), f"G0 Z{z_safe} F{f_z}", "M400")),
         )
-        blocks.append(PressBlock(pid, pos, int(repeats[k]), positions.x_mm[pos], positions.y_mm[pos], phases,
-                                 positions.features[pos], (float(px[k]), float(py[k]), z_press_mm)))
+        blocks.append(
+            PressBlock(
+                pid,
+                pos,
+                int(repeats[k]),
+                positions.x_mm[pos],
+                positions.y_mm[pos],
+                phases,
+                positions.features[pos],
+                (float(px[k]), float(py[k]), z_press_mm),
+            )
+        )
     park = profile.park_mm
-    postamble = (f"G0 Z{z_safe} F{f_z}", f"G0 X{emit.fmt(park.x)} Y{emit.fmt(park.y)} F{f_travel}",
-                 f"G0 Z{emit.fmt(max(park.z, cal.surface_z_mm + profile.safe_height_mm))} F{f_z}", "M400",
-                 f"{emit.MARKER} program=done")
-    return PressProgram(name, seed, layout.name, profile.name, press.depth_mm, press.hold_s, hold_in_gcode, cal,
-                        positions, tuple(blocks), emit.preamble_lines(), postamble, route, route_unordered)
+    postamble = (
+        f"G0 Z{z_safe} F{f_z}",
+        f"G0 X{emit.fmt(park.x)} Y{emit.fmt(park.y)} F{f_travel}",
+        f"G0 Z{emit.fmt(max(park.z, cal.surface_z_mm + profile.safe_height_mm))} F{f_z}",
+        "M400",
+        f"{emit.MARKER} program=done",
+    )
+    return PressProgram(
+        name,
+        seed,
+        layout.name,
+        profile.name,
+        press.depth_mm,
+        press.hold_s,
+        hold_in_gcode,
+        cal,
+        positions,
+        tuple(blocks),
+        emit.preamble_lines(),
+        postamble,
+        route,
+        route_unordered,
+    )

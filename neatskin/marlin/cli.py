@@ -8,14 +8,19 @@ from pathlib import Path
 
 from neatskin.cligroups import command_group
 
+
 def register(subparsers) -> None:
     host = command_group(subparsers, "printer", "talk to a Marlin printer over a serial port")
     send = host.add_parser(
-        "send", help="stream a G-code file to a printer, exactly once per line, with progress",
+        "send",
+        help="stream a G-code file to a printer, exactly once per line, with progress",
         description="Stream a G-code file through the Marlin driver (line numbers, checksums, resends, "
-                    "lost-ok recovery). Stops with a clear error naming the last line the printer acknowledged.")
+        "lost-ok recovery). Stops with a clear error naming the last line the printer acknowledged.",
+    )
     send.add_argument("file", help="G-code file")
-    send.add_argument("--port", required=True, help="serial port or pyserial URL (/dev/ttyUSB0, /dev/pts/3, socket://h:p)")
+    send.add_argument(
+        "--port", required=True, help="serial port or pyserial URL (/dev/ttyUSB0, /dev/pts/3, socket://h:p)"
+    )
     send.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
     send.add_argument("--profile", default=None, help="printer profile TOML, to size deadlines from the motion")
     send.add_argument("--wire-log", default=None, help="append a timestamped log of every byte to this file")
@@ -56,6 +61,8 @@ def printer_send_handler(args: argparse.Namespace) -> int:
         bar.close()
         driver.close()
     stats = driver.stats
-    print(f"sent {sent} lines to {args.port}: {stats['lines_resent']} resent, {stats['probes']} lost-ok probes, "
-          f"{stats['busy']} busy keep-alives")
+    print(
+        f"sent {sent} lines to {args.port}: {stats['lines_resent']} resent, {stats['probes']} lost-ok probes, "
+        f"{stats['busy']} busy keep-alives"
+    )
     return 0

@@ -37,7 +37,7 @@ class MotionTracker:
         if self.profile is not None:
             self.homing_time_s = max(self.homing_time_s, self.profile.homing_time_s * 2)
 
-    def line_time_s(self, command: "str | GcodeLine") -> tuple[float, bool]:
+    def line_time_s(self, command: str | GcodeLine) -> tuple[float, bool]:
         """(seconds the command itself may take, whether it first waits for queued motion)."""
         try:
             line = parse_line(command) if isinstance(command, str) else command

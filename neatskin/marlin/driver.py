@@ -15,8 +15,8 @@ from __future__ import annotations
 import collections
 import threading
 import time
+from collections.abc import Callable, Iterable
 from os import PathLike
-from typing import Callable, Iterable
 
 from neatskin.gcode.parse import parse_line
 from neatskin.gcode.profile import PrinterProfile
@@ -30,8 +30,14 @@ from neatskin.marlin.wirelog import WireLog
 class MarlinDriver(LineProtocol):
     """Talk to Marlin over `port` (an unopened or open pyserial object: Serial, serial_for_url(...))."""
 
-    def __init__(self, port, *, config: DriverConfig = DriverConfig(), profile: PrinterProfile | None = None,
-                 wire_log: str | PathLike | None = None) -> None:
+    def __init__(
+        self,
+        port,
+        *,
+        config: DriverConfig = DriverConfig(),
+        profile: PrinterProfile | None = None,
+        wire_log: str | PathLike | None = None,
+    ) -> None:
         self.port = port
         self.config = config
         self.profile = profile
@@ -44,7 +50,7 @@ class MarlinDriver(LineProtocol):
         self._reset_state()
 
     @classmethod
-    def open(cls, url: str, baud_rate: int = 115200, **kwargs) -> "MarlinDriver":
+    def open(cls, url: str, baud_rate: int = 115200, **kwargs) -> MarlinDriver:
         """A driver on a port name or pyserial URL (`/dev/ttyUSB0`, `/dev/pts/3`, `loop://`, `socket://h:p`)."""
         import os
 
@@ -99,7 +105,7 @@ class MarlinDriver(LineProtocol):
 
     # ---- connect / close ----------------------------------------------------------------
 
-    def connect(self, boot_timeout_s: float | None = None) -> "MarlinDriver":
+    def connect(self, boot_timeout_s: float | None = None) -> MarlinDriver:
         """Open the port, wait for `start` (or time out cleanly), and reset the line counter (M110 N0)."""
         import serial
 
@@ -132,7 +138,7 @@ class MarlinDriver(LineProtocol):
             self._session = True
         return self
 
-    def reconnect(self, boot_timeout_s: float | None = None) -> "MarlinDriver":
+    def reconnect(self, boot_timeout_s: float | None = None) -> MarlinDriver:
         """After a PrinterReset (or any failure): start a new session. The printer must be homed again."""
         return self.connect(boot_timeout_s)
 
@@ -146,7 +152,7 @@ class MarlinDriver(LineProtocol):
             self._wire.close()
             self._wire = None
 
-    def __enter__(self) -> "MarlinDriver":
+    def __enter__(self) -> MarlinDriver:
         return self.connect() if self._reader is None else self
 
     def __exit__(self, *exc) -> None:
@@ -166,8 +172,12 @@ class MarlinDriver(LineProtocol):
         self._reader = None
         with self._lock:
             if self._failure is None:
-                self._failure = E.PortDead("the driver was closed", last_line=self._last_acked[0],
-                                           last_command=self._last_acked[1], port=self.port_name)
+                self._failure = E.PortDead(
+                    "the driver was closed",
+                    last_line=self._last_acked[0],
+                    last_command=self._last_acked[1],
+                    port=self.port_name,
+                )
             self._fail_jobs(self._failure)
 
     # ---- public API ---------------------------------------------------------------------
@@ -185,12 +195,17 @@ class MarlinDriver(LineProtocol):
             self._pump(time.monotonic())
         self._wait(job)
         if strict and job.rejected:
-            raise E.CommandRejected(f"{job.rejected!r} in answer to N{job.line} {command!r}",
-                                    last_line=job.line, last_command=command, port=self.port_name)
+            raise E.CommandRejected(
+                f"{job.rejected!r} in answer to N{job.line} {command!r}",
+                last_line=job.line,
+                last_command=command,
+                port=self.port_name,
+            )
         return job.replies
 
-    def send_lines(self, lines: Iterable[str], progress: Callable[[int, int], None] | None = None,
-                   *, source: str = "<lines>") -> int:
+    def send_lines(
+        self, lines: Iterable[str], progress: Callable[[int, int], None] | None = None, *, source: str = "<lines>"
+    ) -> int:
         """Send a program in order, exactly once each; returns the number of commands sent.
 
         Comments and blank lines are dropped; every line is parsed first, so a syntax error
@@ -220,8 +235,12 @@ class MarlinDriver(LineProtocol):
         self._wait(last)
         for job in jobs:
             if job.rejected:
-                raise E.CommandRejected(f"{job.rejected!r} in answer to N{job.line} {job.command!r}",
-                                        last_line=job.line, last_command=job.command, port=self.port_name)
+                raise E.CommandRejected(
+                    f"{job.rejected!r} in answer to N{job.line} {job.command!r}",
+                    last_line=job.line,
+                    last_command=job.command,
+                    port=self.port_name,
+                )
         if progress is not None:
             progress(len(jobs), len(jobs))
         return len(jobs)
@@ -246,8 +265,9 @@ class MarlinDriver(LineProtocol):
             with self._lock:
                 if self._failure is None:
                     n, cmd = self._last_acked
-                    self._fail(E.EmergencyStopped("M112 sent on request", last_line=n, last_command=cmd,
-                                                  port=self.port_name))
+                    self._fail(
+                        E.EmergencyStopped("M112 sent on request", last_line=n, last_command=cmd, port=self.port_name)
+                    )
 
     # ---- waiting --------------------------------------------------------------------------
 
@@ -262,8 +282,9 @@ class MarlinDriver(LineProtocol):
             with self._lock:
                 if self._failure is None:
                     n, cmd = self._last_acked
-                    self._fail(E.PortDead("the reader thread stopped", last_line=n, last_command=cmd,
-                                          port=self.port_name))
+                    self._fail(
+                        E.PortDead("the reader thread stopped", last_line=n, last_command=cmd, port=self.port_name)
+                    )
 
     def _raise_failure(self) -> None:
         if self._failure is not None:

@@ -16,8 +16,9 @@ class MarlinError(HardwareError):
     consequence = "the probe's state is unknown and nothing more was sent"
     fix = "check the printer and its cable, reset it, home it (G28) and resume the campaign"
 
-    def __init__(self, detail: str, *, last_line: int | None = None, last_command: str | None = None,
-                 port: str | None = None) -> None:
+    def __init__(
+        self, detail: str, *, last_line: int | None = None, last_command: str | None = None, port: str | None = None
+    ) -> None:
         self.detail = detail
         self.last_line = last_line
         self.last_command = last_command

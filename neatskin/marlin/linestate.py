@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from neatskin.marlin import errors as E
 from neatskin.marlin.replies import PROBE_TAG, Kind, classify, frame
 
+
 @dataclass(frozen=True)
 class DriverConfig:
     boot_timeout_s: float = 3.0  # wait this long for `start` after opening; then go on without it
@@ -93,7 +94,7 @@ def _write_fd(fd: int, data: bytes, timeout_s: float) -> None:
     end = time.monotonic() + timeout_s
     while view:
         try:
-            view = view[os.write(fd, view):]
+            view = view[os.write(fd, view) :]
         except BlockingIOError:
             left = end - time.monotonic()
             if left <= 0 or not select.select([], [fd], [], left)[1]:
@@ -187,8 +188,9 @@ class LineProtocol:
                 if not self._stop.is_set():
                     with self._lock:
                         n, cmd = self._last_acked
-                        self._fail(E.PortDead(f"read failed: {exc}", last_line=n, last_command=cmd,
-                                              port=self.port_name))
+                        self._fail(
+                            E.PortDead(f"read failed: {exc}", last_line=n, last_command=cmd, port=self.port_name)
+                        )
                 return
             now = time.monotonic()
             with self._lock:
@@ -299,8 +301,12 @@ class LineProtocol:
         rest = [j for j in self._queue if j.batch is job.batch]
         self._queue = collections.deque(j for j in self._queue if j.batch is not job.batch)
         for other in rest:
-            other.error = E.CommandRejected(f"not sent: N{job.line} {job.command!r} was refused ({job.rejected!r})",
-                                            last_line=job.line, last_command=job.command, port=self.port_name)
+            other.error = E.CommandRejected(
+                f"not sent: N{job.line} {job.command!r} was refused ({job.rejected!r})",
+                last_line=job.line,
+                last_command=job.command,
+                port=self.port_name,
+            )
             other.event.set()
 
     def _grace_s(self) -> float:
@@ -318,8 +324,11 @@ class LineProtocol:
         if head.m110:
             self._pending_resend, self._resend_due, self._swallow_ok = head.n, now + self._grace_s(), True
             return
-        fresh = self._fw_last_line is not None and self._fw_last_line[0] == n - 1 \
+        fresh = (
+            self._fw_last_line is not None
+            and self._fw_last_line[0] == n - 1
             and self._fw_last_line[1] > self._served[1]
+        )
         if n > self._inflight[-1].n:  # it has every line in flight: nothing to replay
             self.stats["stale_resends"] += 1
             while fresh and self._inflight and self._inflight[0].probe:
@@ -389,15 +398,19 @@ class LineProtocol:
         if head.m110:  # M110 is idempotent: say it again
             self._resend_counts[head.n] += 1
             if self._resend_counts[head.n] > self.config.probe_attempts:
-                self._fail_here(E.NoAnswer, f"no answer to {head.command!r} within {self.config.min_timeout_s:g} s, "
-                                            f"{self.config.probe_attempts} times")
+                self._fail_here(
+                    E.NoAnswer,
+                    f"no answer to {head.command!r} within {self.config.min_timeout_s:g} s, "
+                    f"{self.config.probe_attempts} times",
+                )
                 return
             head.deadline = now + self.config.min_timeout_s
             self._write(head.data)
             return
         if self._probes_in_stall >= self.config.probe_attempts:
-            self._fail_here(E.NoAnswer, f"no ok for N{head.n} {head.command!r} and no answer to "
-                                        f"{self._probes_in_stall} probes")
+            self._fail_here(
+                E.NoAnswer, f"no ok for N{head.n} {head.command!r} and no answer to {self._probes_in_stall} probes"
+            )
             return
         self._probes_in_stall += 1
         self.stats["probes"] += 1

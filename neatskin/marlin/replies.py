@@ -24,8 +24,10 @@ ERR_CHECKSUM = "checksum mismatch, Last Line: "
 ERR_LINE_NO = "Line Number is not Last Line Number+1, Last Line: "
 ERR_NO_CHECKSUM = "No Checksum with line number, Last Line: "
 ERR_KILLED = "Printer halted. kill() called!"
-ERR_STOPPED = ("Printer stopped due to errors. Fix the error and use M999 to restart. "
-               "(Temperature is reset. Set it after restarting)")
+ERR_STOPPED = (
+    "Printer stopped due to errors. Fix the error and use M999 to restart. "
+    "(Temperature is reset. Set it after restarting)"
+)
 BUSY_PROCESSING = "busy: processing"
 UNKNOWN_COMMAND = 'Unknown command: "'
 HOME_FIRST = "Home XYZ First"
@@ -132,7 +134,9 @@ class Position:
     count: tuple[int, ...] | None = None
 
 
-_M114 = re.compile(r"X:\s*(-?\d+(?:\.\d*)?)\s+Y:\s*(-?\d+(?:\.\d*)?)\s+Z:\s*(-?\d+(?:\.\d*)?)(?:\s+E:\s*(-?\d+(?:\.\d*)?))?")
+_M114 = re.compile(
+    r"X:\s*(-?\d+(?:\.\d*)?)\s+Y:\s*(-?\d+(?:\.\d*)?)\s+Z:\s*(-?\d+(?:\.\d*)?)(?:\s+E:\s*(-?\d+(?:\.\d*)?))?"
+)
 _COUNT = re.compile(r"Count\s+X:\s*(-?\d+)\s+Y:\s*(-?\d+)\s+Z:\s*(-?\d+)")
 
 
@@ -142,9 +146,13 @@ def parse_m114(lines: list[str] | tuple[str, ...]) -> Position:
         match = _M114.search(line)
         if match and not line.lstrip().startswith("Count"):
             count = _COUNT.search(line)
-            return Position(float(match.group(1)), float(match.group(2)), float(match.group(3)),
-                            float(match.group(4) or 0.0),
-                            tuple(int(c) for c in count.groups()) if count else None)
+            return Position(
+                float(match.group(1)),
+                float(match.group(2)),
+                float(match.group(3)),
+                float(match.group(4) or 0.0),
+                tuple(int(c) for c in count.groups()) if count else None,
+            )
     raise ValueError(f"no position in M114 reply {list(lines)!r}")
 
 

@@ -23,7 +23,7 @@ class WireLog:
         self.write("#", b"wire log opened")
 
     def write(self, direction: str, data: bytes) -> None:
-        stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+        stamp = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
         with self._lock:
             if not self._file.closed:
                 self._file.write(f"{stamp} {time.monotonic() - self._t0:12.6f} {direction} {data!r}\n")

@@ -7,8 +7,8 @@ same way.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -44,13 +44,17 @@ def open_daq(kind: str, config: DaqConfig = DaqConfig(), **kwargs) -> Daq:
         from neatskin.sim.daq import SimulatedDAQ
 
         if "pair_resistance_ohm" not in kwargs:
-            raise ConfigError("the simulated DAQ needs pair_resistance_ohm(times_s) -> (times, pairs)",
-                              field="pair_resistance_ohm", fix="pass the skin model's pair resistance callable")
+            raise ConfigError(
+                "the simulated DAQ needs pair_resistance_ohm(times_s) -> (times, pairs)",
+                field="pair_resistance_ohm",
+                fix="pass the skin model's pair resistance callable",
+            )
         return SimulatedDAQ(config, **kwargs)
     if kind == "ni":
         if kwargs:
-            raise ConfigError(f"the NI backend takes no {', '.join(sorted(kwargs))}", field="daq",
-                              fix="pass only a DaqConfig")
+            raise ConfigError(
+                f"the NI backend takes no {', '.join(sorted(kwargs))}", field="daq", fix="pass only a DaqConfig"
+            )
         from neatskin.acquisition.daq.nidaqmx_backend import NiDAQ
 
         return NiDAQ(config)
@@ -58,22 +62,29 @@ def open_daq(kind: str, config: DaqConfig = DaqConfig(), **kwargs) -> Daq:
 
 
 def daq_config(protocol):
-    return DaqConfig(rate_hz=protocol.acquisition.rate_hz, amplitude_a=protocol.excitation.amplitude_a,
-                     frequency_hz=protocol.excitation.frequency_hz)
+    return DaqConfig(
+        rate_hz=protocol.acquisition.rate_hz,
+        amplitude_a=protocol.excitation.amplitude_a,
+        frequency_hz=protocol.excitation.frequency_hz,
+    )
 
 
 def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=None, printer_faults=None) -> Rig:
     """The simulated printer on a real pty (reached through pyserial), the simulated skin and DAQ."""
-    from neatskin.sim.daq import NoiseModel, SimulatedDAQ
-    from neatskin.sim.recorder import STREAM_PLACEMENT, DryProbe, SimulatedRecorder
     from neatskin.marlin.driver import DriverConfig, MarlinDriver
+    from neatskin.sim.daq import NoiseModel, SimulatedDAQ
     from neatskin.sim.printer import SimulatedPrinter
+    from neatskin.sim.recorder import STREAM_PLACEMENT, DryProbe, SimulatedRecorder
     from neatskin.skin.model import SkinModel, placement_error_mm
 
     scene = protocol.scene
     probe_radius = protocol.press.press.probe_diameter_mm / 2
-    skin = SkinModel(protocol.layout, fidelity=scene.fidelity, probe_radius_mm=probe_radius,
-                     placement_sigma_mm=scene.placement_error_mm)
+    skin = SkinModel(
+        protocol.layout,
+        fidelity=scene.fidelity,
+        probe_radius_mm=probe_radius,
+        placement_sigma_mm=scene.placement_error_mm,
+    )
     kwargs = {} if printer_faults is None else {"faults": printer_faults}
     printer = SimulatedPrinter(protocol.printer, seed=protocol.seed, time_mode="virtual", **kwargs)
     closers: list[Callable[[], None]] = []
@@ -81,8 +92,9 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
         pty_path = printer.start_pty()
         closers.append(printer.stop)
         # the printer's clock is virtual: its moves take no wall time, so deadlines need no motion allowance
-        driver = MarlinDriver.open(pty_path, protocol.printer.baud_rate, wire_log=wire_log,
-                                   config=DriverConfig(motion_time_scale=0.0))
+        driver = MarlinDriver.open(
+            pty_path, protocol.printer.baud_rate, wire_log=wire_log, config=DriverConfig(motion_time_scale=0.0)
+        )
         closers.append(driver.close)
         driver.connect(boot_timeout_s=connect_timeout_s)
     except Exception:
@@ -93,31 +105,59 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
     calibration = protocol.printer.calibration
     placement = None
     if scene.placement_error_mm > 0:
+
         def placement(press_id: int) -> tuple[float, float]:
             rng = np.random.default_rng([protocol.seed, press_id, STREAM_PLACEMENT])
             dx, dy = placement_error_mm(0.0, 0.0, scene.placement_error_mm, rng)
             return float(np.asarray(dx).reshape(-1)[0]), float(np.asarray(dy).reshape(-1)[0])
 
-    probe = DryProbe(skin, calibration, printer.segments, placement_error=placement,
-                     surface_error_mm=scene.surface_error_mm)
+    probe = DryProbe(
+        skin, calibration, printer.segments, placement_error=placement, surface_error_mm=scene.surface_error_mm
+    )
     noise = NoiseModel() if scene.noise else NoiseModel.none()
     daq = SimulatedDAQ(daq_config(protocol), probe.pair_resistance_ohm, probe.force_n, noise=noise)
-    recorder = SimulatedRecorder(daq, sweep, probe, printer.now_s, seed=protocol.seed, signal=scene.signal,
-                                 method=protocol.acquisition.demodulation, window=protocol.acquisition.window,
-                                 fsr_enabled=protocol.fsr_enabled, keep_waveforms=protocol.record_waveforms)
-    description = {"kind": "dry-run", "printer": "simulated Marlin on " + pty_path, "daq": "simulated",
-                   "skin": {"fidelity": scene.fidelity, "signal": scene.signal, "noise": scene.noise,
-                            "placement_error_mm": scene.placement_error_mm, "surface_error_mm": scene.surface_error_mm,
-                            "probe_radius_mm": probe_radius}}
+    recorder = SimulatedRecorder(
+        daq,
+        sweep,
+        probe,
+        printer.now_s,
+        seed=protocol.seed,
+        signal=scene.signal,
+        method=protocol.acquisition.demodulation,
+        window=protocol.acquisition.window,
+        fsr_enabled=protocol.fsr_enabled,
+        keep_waveforms=protocol.record_waveforms,
+    )
+    description = {
+        "kind": "dry-run",
+        "printer": "simulated Marlin on " + pty_path,
+        "daq": "simulated",
+        "skin": {
+            "fidelity": scene.fidelity,
+            "signal": scene.signal,
+            "noise": scene.noise,
+            "placement_error_mm": scene.placement_error_mm,
+            "surface_error_mm": scene.surface_error_mm,
+            "probe_radius_mm": probe_radius,
+        },
+    }
     return Rig("dry-run", driver, recorder, daq.fsr, description, closers, skin=skin, daq=daq)
 
 
-def build_real_rig(protocol, sweep, *, port: str, daq_kind: str = "ni", baud_rate: int | None = None,
-                   connect_timeout_s: float = 5.0, wire_log=None) -> Rig:
+def build_real_rig(
+    protocol,
+    sweep,
+    *,
+    port: str,
+    daq_kind: str = "ni",
+    baud_rate: int | None = None,
+    connect_timeout_s: float = 5.0,
+    wire_log=None,
+) -> Rig:
     """The printer on a serial port and the DAQ; errors are HardwareErrors raised before any motion."""
     from neatskin.acquisition.fsr import FsrModel
-    from neatskin.rig.recorder import ThreadedRecorder
     from neatskin.marlin.driver import MarlinDriver
+    from neatskin.rig.recorder import ThreadedRecorder
 
     closers: list[Callable[[], None]] = []
     try:  # the printer first: a port that does not answer is the commonest set-up mistake
@@ -134,8 +174,13 @@ def build_real_rig(protocol, sweep, *, port: str, daq_kind: str = "ni", baud_rat
         for close in reversed(closers):
             close()
         raise HardwareError(f"cannot open the rig (printer on {port}, DAQ {daq_kind}): {exc}") from exc
-    recorder = ThreadedRecorder(daq, sweep, method=protocol.acquisition.demodulation,
-                                window=protocol.acquisition.window, fsr_enabled=protocol.fsr_enabled,
-                                keep_waveforms=protocol.record_waveforms)
+    recorder = ThreadedRecorder(
+        daq,
+        sweep,
+        method=protocol.acquisition.demodulation,
+        window=protocol.acquisition.window,
+        fsr_enabled=protocol.fsr_enabled,
+        keep_waveforms=protocol.record_waveforms,
+    )
     description = {"kind": "real", "printer": port, "daq": daq_kind}
     return Rig("real", driver, recorder, FsrModel(), description, closers, daq=daq)

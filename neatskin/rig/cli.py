@@ -14,13 +14,21 @@ def register(subparsers) -> None:
     run = sub.add_parser("run", help="run a campaign from a protocol file")
     run.add_argument("protocol", type=Path, help="protocol TOML, e.g. protocols/paper.toml")
     rig = run.add_mutually_exclusive_group()
-    rig.add_argument("--dry-run", action="store_true",
-                     help="simulated printer (on a pseudo-terminal) and simulated skin and DAQ; no hardware")
+    rig.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="simulated printer (on a pseudo-terminal) and simulated skin and DAQ; no hardware",
+    )
     rig.add_argument("--port", help="the printer's serial port, e.g. /dev/ttyUSB0 (real rig)")
     run.add_argument("--daq", default="ni", choices=("ni", "simulated"), help="DAQ backend of a real run")
     run.add_argument("--out", type=Path, help="campaign folder (default: runs/<name>-<date>-<time>)")
-    run.add_argument("--connect-timeout", type=float, default=None, metavar="S",
-                     help="seconds to wait for the printer's boot banner (real rig default 5)")
+    run.add_argument(
+        "--connect-timeout",
+        type=float,
+        default=None,
+        metavar="S",
+        help="seconds to wait for the printer's boot banner (real rig default 5)",
+    )
     run.add_argument("--limit", type=int, help="stop after this many presses (the campaign stays resumable)")
     run.add_argument("--no-report", action="store_true", help="skip the baseline report at the end")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -41,11 +49,16 @@ def register(subparsers) -> None:
 def _summary(result) -> str:
     rig_s = result.printer_time_s * result.written_now / result.planned if result.planned else 0.0
     ratio = rig_s / result.wall_s if result.wall_s > 0 else float("inf")
-    state = "interrupted (resume with: neatskin campaign resume " + str(result.folder) + ")" \
-        if result.completed < result.planned else "complete"
-    return (f"campaign {state}: {result.completed}/{result.planned} presses in {result.folder} "
-            f"({result.written_now} written now, {result.flagged} flagged); wall {result.wall_s:.1f} s, "
-            f"the rig would take {rig_s / 3600:.2f} h for these presses ({ratio:.0f}x)")
+    state = (
+        "interrupted (resume with: neatskin campaign resume " + str(result.folder) + ")"
+        if result.completed < result.planned
+        else "complete"
+    )
+    return (
+        f"campaign {state}: {result.completed}/{result.planned} presses in {result.folder} "
+        f"({result.written_now} written now, {result.flagged} flagged); wall {result.wall_s:.1f} s, "
+        f"the rig would take {rig_s / 3600:.2f} h for these presses ({ratio:.0f}x)"
+    )
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -55,12 +68,23 @@ def _run(args: argparse.Namespace) -> int:
 
     protocol = load_protocol(args.protocol)
     if not args.dry_run and not args.port:
-        raise ConfigError("choose the rig: --dry-run (simulated, no hardware) or --port PORT (the real printer)",
-                          field="--dry-run/--port", fix=f"e.g. neatskin campaign run {args.protocol} --dry-run")
+        raise ConfigError(
+            "choose the rig: --dry-run (simulated, no hardware) or --port PORT (the real printer)",
+            field="--dry-run/--port",
+            fix=f"e.g. neatskin campaign run {args.protocol} --dry-run",
+        )
     out = args.out or Path("runs") / f"{protocol.name}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
-    result = run_campaign(protocol, out, dry_run=args.dry_run, port=args.port, daq_kind=args.daq,
-                          progress=not args.quiet, limit=args.limit, report=not args.no_report,
-                          connect_timeout_s=args.connect_timeout)
+    result = run_campaign(
+        protocol,
+        out,
+        dry_run=args.dry_run,
+        port=args.port,
+        daq_kind=args.daq,
+        progress=not args.quiet,
+        limit=args.limit,
+        report=not args.no_report,
+        connect_timeout_s=args.connect_timeout,
+    )
     print(_summary(result))
     return 130 if result.interrupted else 0
 
@@ -84,9 +108,13 @@ def _check(args: argparse.Namespace) -> int:
     plan = build_plan(protocol)
     positions = len({b.position_id for b in plan.program.presses})
     print(f"{protocol.path}: ok")
-    print(f"  {plan.n_presses} presses ({positions} positions), layout {protocol.layout.name} "
-          f"({protocol.layout.n_channels} channels, {len(protocol.layout.pairs)} pairs)")
-    print(f"  sweep {plan.sweep.n_samples} samples = {plan.sweep.duration_s * 1000:.1f} ms, "
-          f"{plan.n_sweeps} sweeps recorded per press, hold {plan.hold_s} s")
+    print(
+        f"  {plan.n_presses} presses ({positions} positions), layout {protocol.layout.name} "
+        f"({protocol.layout.n_channels} channels, {len(protocol.layout.pairs)} pairs)"
+    )
+    print(
+        f"  sweep {plan.sweep.n_samples} samples = {plan.sweep.duration_s * 1000:.1f} ms, "
+        f"{plan.n_sweeps} sweeps recorded per press, hold {plan.hold_s} s"
+    )
     print(f"  estimated rig time {plan.printer_time_s / 3600:.2f} h")
     return 0

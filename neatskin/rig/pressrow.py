@@ -55,8 +55,9 @@ def press_values(estimates: PairEstimates, marks: dict[str, int], pair_labels: l
     for label, bits in zip(pair_labels, f_b | f_p):
         for name in flag_names(int(bits)):
             flags.append(f"{name}:{label}")
-    return PressValues(r_p, r_b, delta, tuple(flags), int(baseline_use.any(axis=1).sum()),
-                       int(pressed_use.all(axis=1).sum()))
+    return PressValues(
+        r_p, r_b, delta, tuple(flags), int(baseline_use.any(axis=1).sum()), int(pressed_use.all(axis=1).sum())
+    )
 
 
 @dataclass(frozen=True)
@@ -71,8 +72,9 @@ class FsrLabel:
         return "fsr_missed" in self.flags
 
 
-def fsr_label(fsr_v: np.ndarray | None, rate_hz: float, fsr_model, first_sample: int,
-              marks: dict[str, int], sample_rate_hz: float) -> FsrLabel:
+def fsr_label(
+    fsr_v: np.ndarray | None, rate_hz: float, fsr_model, first_sample: int, marks: dict[str, int], sample_rate_hz: float
+) -> FsrLabel:
     """Onset, offset (s after the recording began) and peak force of the press; flags when it is not one press.
 
     rate_hz is the FSR trace's rate, sample_rate_hz the DAQ's (the marks are DAQ sample indices)."""

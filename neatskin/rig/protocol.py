@@ -10,8 +10,9 @@ import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
-from neatskin.errors import ConfigError, Problem
 from neatskin.config import TableReader
+from neatskin.errors import ConfigError, Problem
+from neatskin.sim.scene import Scene, parse_scene
 from neatskin.tomlfile import read_toml, resolve_path
 
 KNOWN_SECTIONS = ("campaign", "files", "positions", "press", "excitation", "acquisition", "fsr", "record", "scene")
@@ -30,17 +31,6 @@ class AcquisitionSettings:
     live_samples: int
     demodulation: str
     window: int
-
-
-@dataclass(frozen=True)
-class Scene:
-    """What a dry run simulates: the skin model's fidelity, the signal level, the rig effects."""
-
-    fidelity: str  # "deformation" | "network"
-    signal: str  # "features" | "waveforms"
-    noise: bool
-    placement_error_mm: float
-    surface_error_mm: float = 0.0  # the real skin surface lies this far below the calibrated one
 
 
 @dataclass(frozen=True)
@@ -65,8 +55,12 @@ class Protocol:
 
     @property
     def referenced_files(self) -> dict[str, Path]:
-        return {"protocol": self.path, "layout": self.layout_path, "wiring": self.wiring_path,
-                "printer": self.printer_path}
+        return {
+            "protocol": self.path,
+            "layout": self.layout_path,
+            "wiring": self.wiring_path,
+            "printer": self.printer_path,
+        }
 
 
 def file_sha256(path: Path) -> str:
@@ -85,8 +79,14 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
     problems: list[Problem] = []
     for section in data:
         if section not in KNOWN_SECTIONS:
-            problems.append(Problem(f"unknown section [{section}]", source, section,
-                                    f"remove it; known sections: {', '.join(KNOWN_SECTIONS)}"))
+            problems.append(
+                Problem(
+                    f"unknown section [{section}]",
+                    source,
+                    section,
+                    f"remove it; known sections: {', '.join(KNOWN_SECTIONS)}",
+                )
+            )
 
     def table(name: str) -> TableReader:
         raw = data.get(name, {})
@@ -110,8 +110,14 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
             continue
         resolved = Path((file_overrides or {}).get(key) or (path.parent / rel)).resolve()
         if not resolved.is_file():
-            files.problems.append(Problem(f"{key} file {rel!r} does not exist (looked for {resolved})", source,
-                                          f"files.{key}", f"give a path relative to {path.parent}"))
+            files.problems.append(
+                Problem(
+                    f"{key} file {rel!r} does not exist (looked for {resolved})",
+                    source,
+                    f"files.{key}",
+                    f"give a path relative to {path.parent}",
+                )
+            )
         else:
             file_paths[key] = resolved
     files.check_unknown()
@@ -128,11 +134,23 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
     demod = acq.choice("demodulation", ("rms", "lockin"))
     window = acq.integer("window", minimum=2)
     if None not in (live, window) and window > live:
-        acq.problems.append(Problem(f"window {window} is longer than the live window {live}", source,
-                                    "acquisition.window", "set window <= live_samples"))
+        acq.problems.append(
+            Problem(
+                f"window {window} is longer than the live window {live}",
+                source,
+                "acquisition.window",
+                "set window <= live_samples",
+            )
+        )
     if None not in (rate, frequency) and frequency >= rate / 2:
-        acq.problems.append(Problem(f"excitation {frequency} Hz is at or above Nyquist for {rate} Hz sampling",
-                                    source, "excitation.frequency_hz", "sample at least 2x faster than the excitation"))
+        acq.problems.append(
+            Problem(
+                f"excitation {frequency} Hz is at or above Nyquist for {rate} Hz sampling",
+                source,
+                "excitation.frequency_hz",
+                "sample at least 2x faster than the excitation",
+            )
+        )
     acq.check_unknown()
 
     fsr = table("fsr")
@@ -143,18 +161,15 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
     waveforms = record.boolean("waveforms", False)
     record.check_unknown()
 
-    scene_t = table("scene")
-    fidelity = scene_t.choice("fidelity", ("deformation", "network"), "deformation")
-    signal = scene_t.choice("signal", ("features", "waveforms"), "features")
-    noise = scene_t.boolean("noise", True)
-    placement = scene_t.number("placement_error_mm", 0.0, minimum=0.0, unit="mm")
-    surface_error = scene_t.number("surface_error_mm", 0.0, unit="mm")
-    if signal == "features" and waveforms:
-        scene_t.problems.append(Problem("record.waveforms = true needs the waveforms to be simulated", source,
-                                        "scene.signal", "set scene.signal = \"waveforms\" or record.waveforms = false"))
-    scene_t.check_unknown()
+    raw_scene = data.get("scene", {})
+    scene, scene_problems = parse_scene(
+        raw_scene if isinstance(raw_scene, dict) else {}, source, record_waveforms=bool(waveforms)
+    )
+    if not isinstance(raw_scene, dict):
+        scene_problems.append(Problem("[scene] must be a table", source, "scene", "write it as [scene]"))
+    problems.extend(scene_problems)
 
-    for reader in (campaign, files, excitation_t, acq, fsr, record, scene_t):
+    for reader in (campaign, files, excitation_t, acq, fsr, record):
         problems.extend(reader.problems)
 
     layout, wiring, printer, press = _load_components(data, source, file_paths, problems)
@@ -166,13 +181,23 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
     if problems:
         raise ConfigError(problems=problems)
     return Protocol(
-        path=path.resolve(), name=name, seed=seed, description=str(description),
-        layout_path=file_paths["layout"], wiring_path=file_paths["wiring"], printer_path=file_paths["printer"],
-        layout=layout, wiring=wiring, printer=printer, press=press,
+        path=path.resolve(),
+        name=name,
+        seed=seed,
+        description=str(description),
+        layout_path=file_paths["layout"],
+        wiring_path=file_paths["wiring"],
+        printer_path=file_paths["printer"],
+        layout=layout,
+        wiring=wiring,
+        printer=printer,
+        press=press,
         excitation=Excitation(amplitude, frequency),
         acquisition=AcquisitionSettings(rate, settle, live, demod, window),
-        fsr_enabled=fsr_enabled, record_waveforms=waveforms,
-        scene=Scene(fidelity, signal, noise, placement, surface_error), raw=data,
+        fsr_enabled=fsr_enabled,
+        record_waveforms=waveforms,
+        scene=scene,
+        raw=data,
     )
 
 
@@ -197,6 +222,7 @@ def _load_components(data: dict, source: str, paths: dict, problems: list[Proble
     spec_problems: list[Problem] = []
     press = _collect(spec_problems, press_spec_from_dict, data, source)
     # [campaign] and [files] are checked here too: report each of their fields once
-    problems.extend(p for p in spec_problems
-                    if not (p.field in own_fields and p.field.split(".")[0] in ("campaign", "files")))
+    problems.extend(
+        p for p in spec_problems if not (p.field in own_fields and p.field.split(".")[0] in ("campaign", "files"))
+    )
     return layout, wiring, printer, press

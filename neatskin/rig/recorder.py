@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -17,8 +17,17 @@ from neatskin.errors import HardwareError
 class ThreadedRecorder:
     """Real-rig recorder: the DAQ records in a thread while the printer moves."""
 
-    def __init__(self, daq, sweep, *, method: str, window: int, fsr_enabled: bool, keep_waveforms: bool,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self,
+        daq,
+        sweep,
+        *,
+        method: str,
+        window: int,
+        fsr_enabled: bool,
+        keep_waveforms: bool,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.daq, self.sweep, self.clock = daq, sweep, clock
         self.method, self.window = method, window
         self.fsr_enabled, self.keep_waveforms = fsr_enabled, keep_waveforms
@@ -43,8 +52,10 @@ class ThreadedRecorder:
     def end(self, timeout_s: float = 120.0) -> PressRecord:
         self._thread.join(timeout_s)
         if self._thread.is_alive() or not self._result:
-            raise HardwareError(f"the DAQ did not finish its acquisition within {timeout_s:.0f} s "
-                                "(check the device and its sample clock)")
+            raise HardwareError(
+                f"the DAQ did not finish its acquisition within {timeout_s:.0f} s "
+                "(check the device and its sample clock)"
+            )
         acq = self._result[0]
         if isinstance(acq, BaseException):
             raise HardwareError(f"DAQ acquisition failed: {acq}") from acq
@@ -53,7 +64,18 @@ class ThreadedRecorder:
         marks = {k: first + int(round((t - self._t0) * acq.rate_hz)) for k, t in self._marks.items()}
         waveforms = None
         if self.keep_waveforms:
-            waveforms = {"voltage_v": acq.voltage_v.astype(np.float32), "current_a": acq.current_a.astype(np.float32),
-                         "fsr_v": acq.fsr_v.astype(np.float32)}
-        return PressRecord(estimates, first, acq.n_samples, acq.rate_hz, marks,
-                           acq.fsr_v if self.fsr_enabled else None, waveforms, acq.rate_hz)
+            waveforms = {
+                "voltage_v": acq.voltage_v.astype(np.float32),
+                "current_a": acq.current_a.astype(np.float32),
+                "fsr_v": acq.fsr_v.astype(np.float32),
+            }
+        return PressRecord(
+            estimates,
+            first,
+            acq.n_samples,
+            acq.rate_hz,
+            marks,
+            acq.fsr_v if self.fsr_enabled else None,
+            waveforms,
+            acq.rate_hz,
+        )

@@ -13,19 +13,28 @@ DEFAULT_PROFILE = "protocols/printers/paper.toml"
 def register(subparsers) -> None:
     sim = command_group(subparsers, "sim", "simulated hardware, served for any host program")
     printer = sim.add_parser(
-        "printer", help="serve a simulated Marlin printer on a pseudo-terminal",
+        "printer",
+        help="serve a simulated Marlin printer on a pseudo-terminal",
         description="Start a simulated Marlin printer on a new pseudo-terminal, print its device path as the "
-                    "first line, and serve until interrupted (Ctrl-C). Point any host at the path.")
+        "first line, and serve until interrupted (Ctrl-C). Point any host at the path.",
+    )
     printer.add_argument("--profile", default=DEFAULT_PROFILE, help=f"printer profile TOML (default {DEFAULT_PROFILE})")
     printer.add_argument("--seed", type=int, default=0, help="seed of the injected faults")
-    printer.add_argument("--faults", default="", help="none, realistic, extreme, or key=value,... "
-                         "(corrupt, drop_line, drop_ok, duplicate, busy_storm, reset_after, dead_after, dead_closes)")
-    printer.add_argument("--time", choices=("scaled", "virtual"), default="scaled",
-                         help="scaled: real time x --speed (default); virtual: no waiting, the clock jumps")
+    printer.add_argument(
+        "--faults",
+        default="",
+        help="none, realistic, extreme, or key=value,... "
+        "(corrupt, drop_line, drop_ok, duplicate, busy_storm, reset_after, dead_after, dead_closes)",
+    )
+    printer.add_argument(
+        "--time",
+        choices=("scaled", "virtual"),
+        default="scaled",
+        help="scaled: real time x --speed (default); virtual: no waiting, the clock jumps",
+    )
     printer.add_argument("--speed", type=float, default=1.0, help="time scale of --time scaled (default 1)")
     printer.add_argument("--advanced-ok", action="store_true", help="answer `ok N.. P.. B..` (ADVANCED_OK)")
     printer.set_defaults(handler=sim_printer_handler)
-
 
 
 def sim_printer_handler(args: argparse.Namespace) -> int:
@@ -37,12 +46,16 @@ def sim_printer_handler(args: argparse.Namespace) -> int:
 
     faults = FaultConfig.parse(args.faults)
     profile = load_printer_profile(args.profile)
-    sim = SimulatedPrinter(profile, seed=args.seed, faults=faults, time_mode=args.time, speed=args.speed,
-                           advanced_ok=args.advanced_ok)
+    sim = SimulatedPrinter(
+        profile, seed=args.seed, faults=faults, time_mode=args.time, speed=args.speed, advanced_ok=args.advanced_ok
+    )
     path = sim.start_pty()
     print(path, flush=True)
-    print(f"simulated Marlin printer ({profile.name}, faults: {args.faults or 'none'}) on {path}; Ctrl-C stops it",
-          file=sys.stderr, flush=True)
+    print(
+        f"simulated Marlin printer ({profile.name}, faults: {args.faults or 'none'}) on {path}; Ctrl-C stops it",
+        file=sys.stderr,
+        flush=True,
+    )
     try:
         while True:
             time.sleep(0.5)

@@ -21,16 +21,16 @@ back to the waveform path, so flags and values stay the waveform path's.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
-from neatskin.errors import ConfigError
 from neatskin.acquisition.daq.base import Acquisition, Daq, DaqConfig
 from neatskin.acquisition.estimates import PairEstimates, PairFlag
 from neatskin.acquisition.fsr import FsrModel
 from neatskin.acquisition.sequence import Sweep
+from neatskin.errors import ConfigError
 
 ResistanceSource = Callable[[np.ndarray], np.ndarray]
 ForceSource = Callable[[np.ndarray], np.ndarray]
@@ -54,7 +54,7 @@ class NoiseModel:
     fsr_spike_v: float = 2.0  # their size: +-uniform(0.5, 1) x this
 
     @classmethod
-    def none(cls) -> "NoiseModel":
+    def none(cls) -> NoiseModel:
         return cls(0.0, 0.0, 0.0, 0.0, 0.0, False, False, 0.0, 2.0, 0.0, 0.0)
 
 
@@ -65,12 +65,21 @@ def _no_force(times_s: np.ndarray) -> np.ndarray:
 class SimulatedDAQ(Daq):
     """Waveforms of whole sweeps at the configured rate from callables for the skin and the probe force."""
 
-    def __init__(self, config: DaqConfig, pair_resistance_ohm: ResistanceSource,
-                 force_n: ForceSource | None = None, noise: NoiseModel = NoiseModel(), fsr: FsrModel = FsrModel(),
-                 resistance_sampling: str = "per_pair") -> None:
+    def __init__(
+        self,
+        config: DaqConfig,
+        pair_resistance_ohm: ResistanceSource,
+        force_n: ForceSource | None = None,
+        noise: NoiseModel = NoiseModel(),
+        fsr: FsrModel = FsrModel(),
+        resistance_sampling: str = "per_pair",
+    ) -> None:
         if resistance_sampling not in ("per_pair", "per_sample"):
-            raise ConfigError(f"unknown resistance_sampling {resistance_sampling!r}", field="resistance_sampling",
-                              fix="use 'per_pair' or 'per_sample'")
+            raise ConfigError(
+                f"unknown resistance_sampling {resistance_sampling!r}",
+                field="resistance_sampling",
+                fix="use 'per_pair' or 'per_sample'",
+            )
         self.config = config
         self.pair_resistance_ohm = pair_resistance_ohm
         self.force_n = force_n or _no_force
@@ -89,23 +98,33 @@ class SimulatedDAQ(Daq):
         t = (start + np.arange(n_sweeps)[:, None] * sweep.n_samples + mid[None, :]) / self.config.rate_hz
         r_all = np.asarray(self.pair_resistance_ohm(t.ravel()), dtype=float)
         if r_all.shape != (t.size, sweep.n_pairs):
-            raise ConfigError(f"pair_resistance_ohm returned shape {r_all.shape}, expected {(t.size, sweep.n_pairs)}",
-                              field="pair_resistance_ohm", fix="return (n_times, pairs) in layout.pairs order")
+            raise ConfigError(
+                f"pair_resistance_ohm returned shape {r_all.shape}, expected {(t.size, sweep.n_pairs)}",
+                field="pair_resistance_ohm",
+                fix="return (n_times, pairs) in layout.pairs order",
+            )
         r = r_all.reshape(n_sweeps, sweep.n_pairs, sweep.n_pairs)[:, np.arange(sweep.n_pairs), np.arange(sweep.n_pairs)]
         return r * (1.0 + self.noise.drift_per_s * t)
 
     # ---- waveform path ----------------------------------------------------------------
 
-    def acquire(self, sweep: Sweep, n_sweeps: int = 1, *, rng: np.random.Generator | None = None,
-                start_time_s: float = 0.0) -> Acquisition:
+    def acquire(
+        self, sweep: Sweep, n_sweeps: int = 1, *, rng: np.random.Generator | None = None, start_time_s: float = 0.0
+    ) -> Acquisition:
         cfg, noise = self.config, self.noise
         if abs(sweep.rate_hz - cfg.rate_hz) > 1e-9:
-            raise ConfigError(f"sweep built at {sweep.rate_hz} Hz, DAQ configured at {cfg.rate_hz} Hz",
-                              field="rate_hz", fix="build the sweep with the DAQ's rate")
+            raise ConfigError(
+                f"sweep built at {sweep.rate_hz} Hz, DAQ configured at {cfg.rate_hz} Hz",
+                field="rate_hz",
+                fix="build the sweep with the DAQ's rate",
+            )
         if not isinstance(rng, np.random.Generator):
-            raise ConfigError("the simulated DAQ needs an explicit rng (numpy.random.Generator)", field="rng",
-                              fix="pass rng=numpy.random.default_rng(seed), keyed by (seed, press) so a resumed "
-                                  "campaign draws the same numbers")
+            raise ConfigError(
+                "the simulated DAQ needs an explicit rng (numpy.random.Generator)",
+                field="rng",
+                fix="pass rng=numpy.random.default_rng(seed), keyed by (seed, press) so a resumed "
+                "campaign draws the same numbers",
+            )
         start = self._start(start_time_s)
         n = n_sweeps * sweep.n_samples
         index = start + np.arange(n, dtype=np.int64)
@@ -128,8 +147,7 @@ class SimulatedDAQ(Daq):
                 i_max = np.where(finite, cfg.compliance_v / np.where(finite, r, 1.0), 0.0)
             i_max = np.where(finite & (r == 0), np.inf, i_max)
             current = np.clip(command, -i_max, i_max)
-            physical[:, 0] = np.where(finite, current * np.where(finite, r, 0.0),
-                                      cfg.compliance_v * np.sign(command))
+            physical[:, 0] = np.where(finite, current * np.where(finite, r, 0.0), cfg.compliance_v * np.sign(command))
         physical[:, 1] = current
         if noise.transient_v:
             physical[:, 0] += transient
@@ -158,7 +176,9 @@ class SimulatedDAQ(Daq):
         pair = np.maximum(pair_raw, 0)
         sweep_of = np.repeat(np.arange(n_sweeps), sweep.n_samples)
         since = np.tile(np.arange(sweep.n_samples) - _switch_sample(sweep), n_sweeps)
-        transient = self.noise.transient_v * np.exp(-np.maximum(since, 0) / self.noise.transient_tau_samples) * connected
+        transient = (
+            self.noise.transient_v * np.exp(-np.maximum(since, 0) / self.noise.transient_tau_samples) * connected
+        )
         value = (pair, sweep_of, connected, transient)
         self._static_cache = (key, sweep, value)
         return value
@@ -180,8 +200,15 @@ class SimulatedDAQ(Daq):
 
     # ---- features-only path -----------------------------------------------------------
 
-    def estimate_sweep(self, sweep: Sweep, rng: np.random.Generator, start_time_s: float = 0.0,
-                       method: str = "lockin", window: int = 10, n_sweeps: int = 1) -> PairEstimates:
+    def estimate_sweep(
+        self,
+        sweep: Sweep,
+        rng: np.random.Generator,
+        start_time_s: float = 0.0,
+        method: str = "lockin",
+        window: int = 10,
+        n_sweeps: int = 1,
+    ) -> PairEstimates:
         """Per-pair estimates with the waveform path's statistics, without generating waveforms."""
         from neatskin.acquisition import demod
 
@@ -189,12 +216,17 @@ class SimulatedDAQ(Daq):
         cfg, noise = self.config, self.noise
         start = self._start(start_time_s)
         r = self._slot_resistance(sweep, n_sweeps, start)  # (sweeps, pairs)
-        windows = (start + np.arange(n_sweeps)[:, None, None] * sweep.n_samples + sweep.live_windows[None])
+        windows = start + np.arange(n_sweeps)[:, None, None] * sweep.n_samples + sweep.live_windows[None]
         amp = cfg.amplitude_a
         peak_v = np.abs(r) * amp + abs(noise.voltage_offset_v)
         peak_i = amp + abs(noise.current_offset_a)
-        exact = (np.isfinite(r) & (r > 0) & (r * amp < cfg.compliance_v)
-                 & ((peak_v < cfg.voltage_limit_v) | (not noise.clip)) & ((peak_i < cfg.current_limit_a) | (not noise.clip)))
+        exact = (
+            np.isfinite(r)
+            & (r > 0)
+            & (r * amp < cfg.compliance_v)
+            & ((peak_v < cfg.voltage_limit_v) | (not noise.clip))
+            & ((peak_i < cfg.current_limit_a) | (not noise.clip))
+        )
         if not exact.all():
             acq = self.acquire(sweep, n_sweeps, rng=rng, start_time_s=start_time_s)
             return demod.demodulate(acq, sweep, method=method, window=window)
@@ -208,7 +240,8 @@ class SimulatedDAQ(Daq):
         dc_share = demod.DC_OFFSET_SHARE  # the demodulator's rule, on the noise-free means
         lsb = cfg.lsb_ai_v * cfg.to_physical
         dc = (abs(noise.voltage_offset_v) > np.maximum(dc_share * v0 / np.sqrt(2), lsb[0])) | (
-            abs(noise.current_offset_a) > max(dc_share * amp / np.sqrt(2), lsb[1]))
+            abs(noise.current_offset_a) > max(dc_share * amp / np.sqrt(2), lsb[1])
+        )
         flags[dc] |= np.uint8(PairFlag.DC_OFFSET)
         return PairEstimates(resistance, uncertainty, flags, windows, method)
 
@@ -219,13 +252,19 @@ class SimulatedDAQ(Daq):
 def effective_noise_var(config: DaqConfig, noise: NoiseModel) -> tuple[float, float]:
     """Variance of the white noise on V and I (physical units), quantisation (lsb^2 / 12) included."""
     lsb_phys = config.lsb_ai_v * config.to_physical
-    q = lsb_phys ** 2 / 12 if noise.quantise else np.zeros(3)
-    return noise.voltage_noise_v ** 2 + float(q[0]), noise.current_noise_a ** 2 + float(q[1])
+    q = lsb_phys**2 / 12 if noise.quantise else np.zeros(3)
+    return noise.voltage_noise_v**2 + float(q[0]), noise.current_noise_a**2 + float(q[1])
 
 
-def estimator_moments(resistance_ohm: np.ndarray, sweep: Sweep, config: DaqConfig, noise: NoiseModel,
-                      method: str = "lockin", window: int = 10, start_sample: int = 0
-                      ) -> tuple[np.ndarray, np.ndarray, int]:
+def estimator_moments(
+    resistance_ohm: np.ndarray,
+    sweep: Sweep,
+    config: DaqConfig,
+    noise: NoiseModel,
+    method: str = "lockin",
+    window: int = 10,
+    start_sample: int = 0,
+) -> tuple[np.ndarray, np.ndarray, int]:
     """Mean and std of one sweep's estimate of each pair under the noise model, and the demodulator's block count.
 
     resistance_ohm: (sweeps, pairs) true values (finite, unclipped). Pure: the analytic statistics the
@@ -238,7 +277,7 @@ def estimator_moments(resistance_ohm: np.ndarray, sweep: Sweep, config: DaqConfi
     sigma_v2, sigma_i2 = effective_noise_var(config, noise)
     v0 = r * amp
     n_live = sweep.timing.live_samples
-    rel_lin = sigma_v2 / v0 ** 2 + sigma_i2 / amp ** 2
+    rel_lin = sigma_v2 / v0**2 + sigma_i2 / amp**2
     if method == "lockin":
         mean = r
         rel_var = 2.0 / n_live * rel_lin
@@ -249,11 +288,12 @@ def estimator_moments(resistance_ohm: np.ndarray, sweep: Sweep, config: DaqConfi
         sin2 = _sine(first[..., None] + np.arange(n_live), config.samples_per_period) ** 2
         c = demod.window_counts(n_live, window)
         n_win = n_live - window + 1
-        s = (c ** 2 * sin2).sum(axis=-1)
-        dc_v2, dc_i2 = noise.voltage_offset_v ** 2, noise.current_offset_a ** 2
-        mean = np.sqrt((v0 ** 2 / 2 + sigma_v2 + dc_v2) / (amp ** 2 / 2 + sigma_i2 + dc_i2))  # RMS rectifies
-        rel_var = (4.0 / (window * n_win) ** 2 * s * rel_lin
-                   + 2.0 * (c ** 2).sum() / (window * n_win) ** 2 * (sigma_v2 ** 2 / v0 ** 4 + sigma_i2 ** 2 / amp ** 4))
+        s = (c**2 * sin2).sum(axis=-1)
+        dc_v2, dc_i2 = noise.voltage_offset_v**2, noise.current_offset_a**2
+        mean = np.sqrt((v0**2 / 2 + sigma_v2 + dc_v2) / (amp**2 / 2 + sigma_i2 + dc_i2))  # RMS rectifies
+        rel_var = 4.0 / (window * n_win) ** 2 * s * rel_lin + 2.0 * (c**2).sum() / (window * n_win) ** 2 * (
+            sigma_v2**2 / v0**4 + sigma_i2**2 / amp**4
+        )
         blocks = max(1, n_live // window)
     return mean, r * np.sqrt(rel_var), blocks
 

@@ -29,20 +29,26 @@ class FaultConfig:
         for name in _RATES:
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
-                raise ConfigError(f"fault rate {name}={value!r} is not a probability", field=name,
-                                  fix="give a number between 0 and 1, e.g. corrupt=0.01")
+                raise ConfigError(
+                    f"fault rate {name}={value!r} is not a probability",
+                    field=name,
+                    fix="give a number between 0 and 1, e.g. corrupt=0.01",
+                )
         for name in ("reset_after", "dead_after"):
             value = getattr(self, name)
             if value is not None and value < 1:
-                raise ConfigError(f"{name}={value!r} must be a positive line count", field=name,
-                                  fix=f"give {name}=N with N >= 1, or leave it out")
+                raise ConfigError(
+                    f"{name}={value!r} must be a positive line count",
+                    field=name,
+                    fix=f"give {name}=N with N >= 1, or leave it out",
+                )
 
     @property
     def any(self) -> bool:
         return any(getattr(self, f.name) for f in fields(self))
 
     @classmethod
-    def preset(cls, name: str) -> "FaultConfig":
+    def preset(cls, name: str) -> FaultConfig:
         if name == "none":
             return cls()
         if name == "realistic":  # a noisy USB line: about one fault per few hundred lines
@@ -52,7 +58,7 @@ class FaultConfig:
         raise ConfigError(f"unknown fault preset {name!r}", field="faults", fix="use none, realistic or extreme")
 
     @classmethod
-    def parse(cls, spec: str | None) -> "FaultConfig":
+    def parse(cls, spec: str | None) -> FaultConfig:
         """`realistic`, `extreme`, `none`, or `key=value,...` (optionally after a preset: `realistic,reset_after=500`)."""
         if not spec:
             return cls()
@@ -60,14 +66,17 @@ class FaultConfig:
         names = {f.name for f in fields(cls)}
         for part in (p.strip() for p in spec.split(",") if p.strip()):
             if "=" not in part:
-                config = replace(cls.preset(part), **{k: getattr(config, k) for k in names
-                                                       if getattr(config, k) != getattr(cls(), k)})
+                config = replace(
+                    cls.preset(part),
+                    **{k: getattr(config, k) for k in names if getattr(config, k) != getattr(cls(), k)},
+                )
                 continue
             key, _, value = part.partition("=")
             key = key.strip().replace("-", "_")
             if key not in names:
-                raise ConfigError(f"unknown fault {key!r} in {spec!r}", field="faults",
-                                  fix=f"use one of {', '.join(sorted(names))}")
+                raise ConfigError(
+                    f"unknown fault {key!r} in {spec!r}", field="faults", fix=f"use one of {', '.join(sorted(names))}"
+                )
             try:
                 if key in _RATES:
                     parsed: object = float(value)
@@ -76,7 +85,8 @@ class FaultConfig:
                 else:
                     parsed = int(value)
             except ValueError:
-                raise ConfigError(f"fault {key}={value!r} is not a number", field="faults",
-                                  fix=f"write {key}=<number>") from None
+                raise ConfigError(
+                    f"fault {key}={value!r} is not a number", field="faults", fix=f"write {key}=<number>"
+                ) from None
             config = replace(config, **{key: parsed})
         return config

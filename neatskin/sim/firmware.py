@@ -61,9 +61,19 @@ class ScaledClock:
 
 
 class MarlinCore:
-    def __init__(self, profile: PrinterProfile, *, seed: int = 0, faults: FaultConfig = FaultConfig(),
-                 clock=None, advanced_ok: bool = False, marlin_version: str = "2.1",
-                 ok_after_resend: bool = False, bufsize: int = 4, keepalive_s: float = 2.0) -> None:
+    def __init__(
+        self,
+        profile: PrinterProfile,
+        *,
+        seed: int = 0,
+        faults: FaultConfig = FaultConfig(),
+        clock=None,
+        advanced_ok: bool = False,
+        marlin_version: str = "2.1",
+        ok_after_resend: bool = False,
+        bufsize: int = 4,
+        keepalive_s: float = 2.0,
+    ) -> None:
         self.profile = profile
         self.faults = faults
         self.rng = np.random.default_rng(seed)
@@ -160,7 +170,7 @@ class MarlinCore:
             is_m110 = "M110" in text
             npos = text
             if is_m110 and "N" in text[4:]:
-                npos = text[text.index("N", 4):]
+                npos = text[text.index("N", 4) :]
             match = _N.match(npos)
             number = int(match.group(1)) if match else 0
             if number != self.last_n + 1 and not is_m110:
@@ -351,8 +361,10 @@ class MarlinCore:
             self._emit("ok T:25.00 /0.00 B:25.00 /0.00 @:0 B@:0", is_ok=True)
             return
         elif code == "M115":
-            self._emit("FIRMWARE_NAME:Marlin 2.1.2.4 (neatskin simulated printer) SOURCE_CODE_URL:github.com/"
-                       "MarlinFirmware/Marlin PROTOCOL_VERSION:1.0 MACHINE_TYPE:NeatSkin rig EXTRUDER_COUNT:0")
+            self._emit(
+                "FIRMWARE_NAME:Marlin 2.1.2.4 (neatskin simulated printer) SOURCE_CODE_URL:github.com/"
+                "MarlinFirmware/Marlin PROTOCOL_VERSION:1.0 MACHINE_TYPE:NeatSkin rig EXTRUDER_COUNT:0"
+            )
             self._emit(f"Cap:ADVANCED_OK:{int(self.advanced_ok)}")
         elif code not in _QUIET and code not in ("G0", "G1", "G4", "G28", "M400", "M999"):
             self._emit(f'echo:{R.UNKNOWN_COMMAND}{text}"')
@@ -370,10 +382,14 @@ class MarlinCore:
         logical = [p + o for p, o in zip(self.timeline.end_mm, self.offset_mm)]
         actual = self.timeline.position_mm(self.clock.now())
         counts = [round(a * s) for a, s in zip(actual, STEPS_PER_MM)]
-        return (f"X:{logical[0]:.2f} Y:{logical[1]:.2f} Z:{logical[2]:.2f} E:0.00 "
-                f"Count X:{counts[0]} Y:{counts[1]} Z:{counts[2]}")
+        return (
+            f"X:{logical[0]:.2f} Y:{logical[1]:.2f} Z:{logical[2]:.2f} E:0.00 "
+            f"Count X:{counts[0]} Y:{counts[1]} Z:{counts[2]}"
+        )
 
     def _m211(self) -> str:
         lo, hi = self.profile.soft_min_mm, self.profile.soft_max_mm
-        return (f"echo:Soft endstops: {'ON' if self.soft_endstops else 'OFF'}  "
-                f"Min:  X{lo.x:.2f} Y{lo.y:.2f} Z{lo.z:.2f}   Max:  X{hi.x:.2f} Y{hi.y:.2f} Z{hi.z:.2f}")
+        return (
+            f"echo:Soft endstops: {'ON' if self.soft_endstops else 'OFF'}  "
+            f"Min:  X{lo.x:.2f} Y{lo.y:.2f} Z{lo.z:.2f}   Max:  X{hi.x:.2f} Y{hi.y:.2f} Z{hi.z:.2f}"
+        )

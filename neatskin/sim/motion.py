@@ -160,8 +160,11 @@ def positions_mm(segments, times_s: np.ndarray) -> np.ndarray:
             t_a, d_a = v / a, v * v / (2 * a)
             t_c = max(0.0, (length - 2 * d_a) / v)
             td = np.clip(tau - t_a - t_c, 0.0, t_a)
-            dist = np.where(tau < t_a, 0.5 * a * tau * tau,
-                            np.where(tau < t_a + t_c, d_a + v * (tau - t_a), d_a + v * t_c + v * td - 0.5 * a * td * td))
+            dist = np.where(
+                tau < t_a,
+                0.5 * a * tau * tau,
+                np.where(tau < t_a + t_c, d_a + v * (tau - t_a), d_a + v * t_c + v * td - 0.5 * a * td * td),
+            )
             frac = np.minimum(dist, length) / length
         out[mask] = p0 + frac[:, None] * (p1 - p0)
     return out

@@ -13,25 +13,41 @@ import threading
 import time
 
 from neatskin.gcode.profile import PrinterProfile
-from neatskin.tomlfile import resolve_path
 from neatskin.sim.faults import FaultConfig
-from neatskin.sim.pty import PtyPair, open_pty, read_available, write_all
 from neatskin.sim.firmware import MarlinCore, ScaledClock, VirtualClock
+from neatskin.sim.pty import PtyPair, open_pty, read_available, write_all
+from neatskin.tomlfile import resolve_path
 
 
 class SimulatedPrinter:
     """A Marlin printer in software. time_mode "virtual" (no sleeping) or "scaled" (real time x speed)."""
 
-    def __init__(self, profile: PrinterProfile, seed: int = 0, faults: FaultConfig = FaultConfig(), *,
-                 time_mode: str = "virtual", speed: float = 1.0, advanced_ok: bool = False,
-                 marlin_version: str = "2.1", ok_after_resend: bool = False) -> None:
+    def __init__(
+        self,
+        profile: PrinterProfile,
+        seed: int = 0,
+        faults: FaultConfig = FaultConfig(),
+        *,
+        time_mode: str = "virtual",
+        speed: float = 1.0,
+        advanced_ok: bool = False,
+        marlin_version: str = "2.1",
+        ok_after_resend: bool = False,
+    ) -> None:
         if time_mode not in ("virtual", "scaled"):
             raise ValueError(f"time_mode must be 'virtual' or 'scaled', got {time_mode!r}")
         clock = VirtualClock() if time_mode == "virtual" else ScaledClock(speed)
         self.profile = profile
         self.time_mode = time_mode
-        self.core = MarlinCore(profile, seed=seed, faults=faults, clock=clock, advanced_ok=advanced_ok,
-                               marlin_version=marlin_version, ok_after_resend=ok_after_resend)
+        self.core = MarlinCore(
+            profile,
+            seed=seed,
+            faults=faults,
+            clock=clock,
+            advanced_ok=advanced_ok,
+            marlin_version=marlin_version,
+            ok_after_resend=ok_after_resend,
+        )
         self.lock = threading.Condition(threading.RLock())
         self._pty: PtyPair | None = None
         self._thread: threading.Thread | None = None
@@ -56,7 +72,7 @@ class SimulatedPrinter:
             k = len(segments)
             while k > 0 and segments[k - 1].t1_s > t0_s:
                 k -= 1
-            return list(segments[max(k - 1, 0):])
+            return list(segments[max(k - 1, 0) :])
 
     @property
     def executed(self) -> list[tuple[int | None, str]]:
@@ -107,7 +123,7 @@ class SimulatedPrinter:
                     self.core.receive(data)
         pty.close()
 
-    def serial(self) -> "SimSerial":
+    def serial(self) -> SimSerial:
         """A pyserial-compatible port object talking to this printer in-process (no pty)."""
         return SimSerial(self)
 
@@ -120,7 +136,7 @@ class SimulatedPrinter:
             self._pty.close()
             self._pty = None
 
-    def __enter__(self) -> "SimulatedPrinter":
+    def __enter__(self) -> SimulatedPrinter:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -8,7 +8,7 @@ uninterrupted one would have.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -27,8 +27,14 @@ class DryProbe:
     """The simulated skin and force as the DAQ sees them, at the probe state the simulated printer's
     trajectory gives at each sample time (sensor frame, depth below the skin surface)."""
 
-    def __init__(self, skin, calibration, segments_from: Callable[[float], list],
-                 placement_error: Callable[[int], tuple[float, float]] | None = None, surface_error_mm: float = 0.0):
+    def __init__(
+        self,
+        skin,
+        calibration,
+        segments_from: Callable[[float], list],
+        placement_error: Callable[[int], tuple[float, float]] | None = None,
+        surface_error_mm: float = 0.0,
+    ):
         self.skin = skin
         self.surface_z_mm = calibration.surface_z_mm - surface_error_mm
         self.calibration = calibration
@@ -50,8 +56,14 @@ class DryProbe:
         printer_t = (np.asarray(times_s, dtype=float) - self._daq_t0) + self._printer_t0
         xyz = positions_mm(self._segments, printer_t)
         sx, sy = self.calibration.to_sensor(xyz[:, 0], xyz[:, 1])
-        state = np.stack([np.asarray(sx, float) + self._offset[0], np.asarray(sy, float) + self._offset[1],
-                          self.surface_z_mm - xyz[:, 2]], axis=1)
+        state = np.stack(
+            [
+                np.asarray(sx, float) + self._offset[0],
+                np.asarray(sy, float) + self._offset[1],
+                self.surface_z_mm - xyz[:, 2],
+            ],
+            axis=1,
+        )
         return np.round(state, 6)
 
     def pair_resistance_ohm(self, times_s: np.ndarray) -> np.ndarray:
@@ -72,8 +84,20 @@ class DryProbe:
 class SimulatedRecorder:
     """Dry-run recorder: computes the press's acquisition from the simulated printer's trajectory."""
 
-    def __init__(self, daq, sweep, probe: DryProbe, clock: Callable[[], float], *, seed: int, signal: str,
-                 method: str, window: int, fsr_enabled: bool, keep_waveforms: bool) -> None:
+    def __init__(
+        self,
+        daq,
+        sweep,
+        probe: DryProbe,
+        clock: Callable[[], float],
+        *,
+        seed: int,
+        signal: str,
+        method: str,
+        window: int,
+        fsr_enabled: bool,
+        keep_waveforms: bool,
+    ) -> None:
         self.daq, self.sweep, self.probe, self.clock = daq, sweep, probe, clock
         self.seed, self.signal, self.method, self.window = seed, signal, method, window
         self.fsr_enabled, self.keep_waveforms = fsr_enabled, keep_waveforms
@@ -104,11 +128,15 @@ class SimulatedRecorder:
             estimates = demodulate(acq, sweep, method=self.method, window=self.window)
             fsr_v = acq.fsr_v if self.fsr_enabled else None
             if self.keep_waveforms:
-                waveforms = {"voltage_v": acq.voltage_v.astype(np.float32), "current_a": acq.current_a.astype(np.float32),
-                             "fsr_v": acq.fsr_v.astype(np.float32)}
+                waveforms = {
+                    "voltage_v": acq.voltage_v.astype(np.float32),
+                    "current_a": acq.current_a.astype(np.float32),
+                    "fsr_v": acq.fsr_v.astype(np.float32),
+                }
         else:
-            estimates = self.daq.estimate_sweep(sweep, rng, daq_t0, method=self.method, window=self.window,
-                                                n_sweeps=n_sweeps)
+            estimates = self.daq.estimate_sweep(
+                sweep, rng, daq_t0, method=self.method, window=self.window, n_sweeps=n_sweeps
+            )
             if self.fsr_enabled:
                 fsr_v = self._fsr_trace(first, n, press_id)
         marks = {k: first + int(round((t - self._t0) * rate)) for k, t in self._marks.items()}

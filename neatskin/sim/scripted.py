@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 from neatskin.sim.pty import open_pty, read_available, write_all
 
@@ -74,8 +74,10 @@ class ScriptedPeer:
     def check(self) -> None:
         self._thread.join(timeout=self.line_timeout_s * (len(self.script) + 1))
         if self.problems or self.steps_done != len(self.script):
-            raise AssertionError(f"protocol mismatch after {self.steps_done}/{len(self.script)} steps: "
-                                 f"{self.problems}; host sent {self.received}")
+            raise AssertionError(
+                f"protocol mismatch after {self.steps_done}/{len(self.script)} steps: "
+                f"{self.problems}; host sent {self.received}"
+            )
 
     def close(self) -> None:
         self._stop.set()

@@ -9,25 +9,33 @@ DEFAULT_LAYOUT = "protocols/skins/paper.toml"
 
 
 def register(subparsers) -> None:
-    skin = subparsers.add_parser("skin", help="the simulated skin: sensitivity maps",
-                                 description="The simulated skin: network solver and deformation model.")
+    skin = subparsers.add_parser(
+        "skin",
+        help="the simulated skin: sensitivity maps",
+        description="The simulated skin: network solver and deformation model.",
+    )
     commands = skin.add_subparsers(dest="skin_command", metavar="SKIN_COMMAND", required=True)
     maps = commands.add_parser(
-        "maps", help="sensitivity maps (paper Fig. 3 and 5, and the dense deformation-model maps)",
+        "maps",
+        help="sensitivity maps (paper Fig. 3 and 5, and the dense deformation-model maps)",
         description="Write the paper's simulated sensitivity maps (each channel +50 %% in turn) and the same "
-                    "maps from the deformation model on a dense grid of presses, as PNG and parquet.")
+        "maps from the deformation model on a dense grid of presses, as PNG and parquet.",
+    )
     maps.add_argument("--layout", default=DEFAULT_LAYOUT, help=f"skin layout TOML (default {DEFAULT_LAYOUT})")
     maps.add_argument("--out", default="out/skin-maps", help="output folder (created; default out/skin-maps)")
     maps.add_argument("--grid-step-mm", type=float, default=0.25, help="press grid step for the dense maps")
     maps.add_argument("--depth-mm", type=float, default=3.5, help="press depth (paper: 3.5 mm)")
     maps.add_argument("--probe-radius-mm", type=float, default=2.75, help="flat probe radius (paper: 2.75 mm)")
-    maps.add_argument("--fidelity", choices=("deformation", "network"), default="deformation",
-                      help="skin model for the dense maps")
+    maps.add_argument(
+        "--fidelity", choices=("deformation", "network"), default="deformation", help="skin model for the dense maps"
+    )
     maps.add_argument("--no-progress", action="store_true", help="no progress bar")
     maps.set_defaults(handler=maps_handler)
     press = commands.add_parser(
-        "press", help="R_eq of every pair for one press (baseline, pressed, change)",
-        description="Print the baseline, pressed and changed R_eq of every electrode pair for one press.")
+        "press",
+        help="R_eq of every pair for one press (baseline, pressed, change)",
+        description="Print the baseline, pressed and changed R_eq of every electrode pair for one press.",
+    )
     press.add_argument("--layout", default=DEFAULT_LAYOUT, help=f"skin layout TOML (default {DEFAULT_LAYOUT})")
     press.add_argument("--x-mm", type=float, required=True)
     press.add_argument("--y-mm", type=float, required=True)
@@ -48,15 +56,20 @@ def press_handler(args: argparse.Namespace) -> int:
         value = getattr(args, name)
         flag = "--" + name.replace("_", "-")
         if not np.isfinite(value) or (name == "probe_radius_mm" and value <= 0):
-            raise ConfigError(f"{flag} must be a finite number{' > 0' if name == 'probe_radius_mm' else ''}, "
-                              f"got {value}", field=flag, fix=f"pass a valid {flag}")
+            raise ConfigError(
+                f"{flag} must be a finite number{' > 0' if name == 'probe_radius_mm' else ''}, got {value}",
+                field=flag,
+                fix=f"pass a valid {flag}",
+            )
     layout = load_layout(args.layout)
     model = SkinModel(layout, fidelity=args.fidelity, probe_radius_mm=args.probe_radius_mm)
     base = model.baseline_pair_resistance_ohm
     pressed = model.pair_resistance_ohm(args.x_mm, args.y_mm, args.depth_mm)[0]
     force = model.contact_force_n(args.depth_mm)[0]
-    print(f"press at ({args.x_mm:g}, {args.y_mm:g}) mm, depth {args.depth_mm:g} mm, force {force:.2f} N, "
-          f"{args.fidelity} model, layout {layout.name}")
+    print(
+        f"press at ({args.x_mm:g}, {args.y_mm:g}) mm, depth {args.depth_mm:g} mm, force {force:.2f} N, "
+        f"{args.fidelity} model, layout {layout.name}"
+    )
     print(f"{'pair':>6s} {'R0_ohm':>12s} {'R_ohm':>12s} {'dR_ohm':>12s} {'dR_pct':>8s}")
     with np.errstate(invalid="ignore"):
         for pair, r0, r in zip(layout.pairs, base, pressed):
@@ -74,17 +87,29 @@ def maps_handler(args: argparse.Namespace) -> int:
             flag = "--" + name.replace("_", "-")
             raise ConfigError(f"{flag} must be > 0, got {value}", field=flag, fix=f"pass a positive {flag}")
     layout = load_layout(args.layout)
-    written = write_maps(layout, Path(args.out), grid_step_mm=args.grid_step_mm, depth_mm=args.depth_mm,
-                         probe_radius_mm=args.probe_radius_mm, fidelity=args.fidelity,
-                         show_progress=not args.no_progress)
+    written = write_maps(
+        layout,
+        Path(args.out),
+        grid_step_mm=args.grid_step_mm,
+        depth_mm=args.depth_mm,
+        probe_radius_mm=args.probe_radius_mm,
+        fidelity=args.fidelity,
+        show_progress=not args.no_progress,
+    )
     for path in written:
         print(path)
     return 0
 
 
-def write_maps(layout, out_dir: Path, grid_step_mm: float = 0.25, depth_mm: float = 3.5,
-               probe_radius_mm: float = 2.75, fidelity: str = "deformation",
-               show_progress: bool = True) -> list[Path]:
+def write_maps(
+    layout,
+    out_dir: Path,
+    grid_step_mm: float = 0.25,
+    depth_mm: float = 3.5,
+    probe_radius_mm: float = 2.75,
+    fidelity: str = "deformation",
+    show_progress: bool = True,
+) -> list[Path]:
     """Compute both kinds of map and write the PNGs and one parquet file; returns the paths written."""
     import json
 
@@ -114,13 +139,19 @@ def write_maps(layout, out_dir: Path, grid_step_mm: float = 0.25, depth_mm: floa
     ]
     frame = pd.concat([paper.to_frame(), dense.to_frame()], ignore_index=True)
     table = pa.Table.from_pandas(frame, preserve_index=False)
-    meta = {"neatskin.layout": layout.source, "neatskin.layout_name": layout.name,
-            "neatskin.software_version": __version__, "neatskin.depth_mm": str(depth_mm),
-            "neatskin.probe_radius_mm": str(probe_radius_mm), "neatskin.grid_step_mm": str(grid_step_mm),
-            "neatskin.fidelity": fidelity,
-            "neatskin.pairs": json.dumps([p.label for p in layout.pairs])}
-    table = table.replace_schema_metadata({**(table.schema.metadata or {}), **{k.encode(): v.encode()
-                                                                                 for k, v in meta.items()}})
+    meta = {
+        "neatskin.layout": layout.source,
+        "neatskin.layout_name": layout.name,
+        "neatskin.software_version": __version__,
+        "neatskin.depth_mm": str(depth_mm),
+        "neatskin.probe_radius_mm": str(probe_radius_mm),
+        "neatskin.grid_step_mm": str(grid_step_mm),
+        "neatskin.fidelity": fidelity,
+        "neatskin.pairs": json.dumps([p.label for p in layout.pairs]),
+    }
+    table = table.replace_schema_metadata(
+        {**(table.schema.metadata or {}), **{k.encode(): v.encode() for k, v in meta.items()}}
+    )
     data_path = out_dir / "sensitivity_maps.parquet"
     pq.write_table(table, data_path)
     written.append(data_path)

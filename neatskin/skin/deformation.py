@@ -60,8 +60,14 @@ class PinchParams:
             raise ValueError(f"nodes_per_panel must be an integer in 1..200, got {self.nodes_per_panel!r}")
 
 
-def pinch_fraction(r_mm, depth_mm, probe_radius_mm: float, thickness_mm: float, channel_depth_mm: float,
-                   params: PinchParams = PinchParams()) -> np.ndarray:
+def pinch_fraction(
+    r_mm,
+    depth_mm,
+    probe_radius_mm: float,
+    thickness_mm: float,
+    channel_depth_mm: float,
+    params: PinchParams = PinchParams(),
+) -> np.ndarray:
     """Fraction of the channel height lost at horizontal distance r_mm from the probe axis (broadcasts)."""
     r_mm, depth_mm = np.asarray(r_mm, float), np.asarray(depth_mm, float)
     depth = np.maximum(depth_mm, 0.0)
@@ -86,12 +92,14 @@ def _gauss_legendre(q: int) -> tuple[np.ndarray, np.ndarray]:
     return (x + 1.0) / 2.0, w / 2.0  # on [0, 1]
 
 
-def resistance_factor(layout: Layout, x_mm, y_mm, depth_mm, probe_radius_mm,
-                      params: PinchParams = PinchParams()) -> np.ndarray:
+def resistance_factor(
+    layout: Layout, x_mm, y_mm, depth_mm, probe_radius_mm, params: PinchParams = PinchParams()
+) -> np.ndarray:
     """R / R0 of every channel for every press, shape (presses, channels); 1 exactly where depth <= 0,
     inf where a channel is pinched shut. Inputs are arrays of shape (presses,) or scalars."""
-    x, y, depth, radius = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, float))
-                                                for v in (x_mm, y_mm, depth_mm, probe_radius_mm)))
+    x, y, depth, radius = np.broadcast_arrays(
+        *(np.atleast_1d(np.asarray(v, float)) for v in (x_mm, y_mm, depth_mm, probe_radius_mm))
+    )
     out = np.empty((x.shape[0], layout.n_channels))
     for lo in range(0, x.shape[0], _CHUNK_PRESSES):
         sl = slice(lo, lo + _CHUNK_PRESSES)
@@ -157,13 +165,15 @@ def _factor_chunk(layout, x, y, depth, radius, params):
     return factor
 
 
-def nearest_point_factor(layout: Layout, x_mm, y_mm, depth_mm, probe_radius_mm,
-                         params: PinchParams = PinchParams()) -> np.ndarray:
+def nearest_point_factor(
+    layout: Layout, x_mm, y_mm, depth_mm, probe_radius_mm, params: PinchParams = PinchParams()
+) -> np.ndarray:
     """Closed-form stand-in for resistance_factor (the "network" fidelity): the pinch at the channel
     point nearest the probe axis, applied over the probe's footprint (one diameter, at most the
     channel length): F = 1 + (min(2a, L) / L) * (1 / (1 - p(r_min)) - 1). Shape (presses, channels)."""
-    x, y, depth, radius = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, float))
-                                                for v in (x_mm, y_mm, depth_mm, probe_radius_mm)))
+    x, y, depth, radius = np.broadcast_arrays(
+        *(np.atleast_1d(np.asarray(v, float)) for v in (x_mm, y_mm, depth_mm, probe_radius_mm))
+    )
     start, unit, length = _channel_geometry(layout)
     rel_x, rel_y = x[:, None] - start[:, 0], y[:, None] - start[:, 1]
     s0 = np.clip(rel_x * unit[:, 0] + rel_y * unit[:, 1], 0.0, length)

@@ -8,8 +8,8 @@ plotting lives in `plots.py`, files in `cli.py`.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -31,8 +31,10 @@ class SensitivityMap:
     def __post_init__(self) -> None:
         n = self.x_mm.shape[0]
         if self.y_mm.shape != (n,) or self.delta_ohm.shape != (n, len(self.pairs)):
-            raise ValueError(f"inconsistent map shapes: x {self.x_mm.shape}, y {self.y_mm.shape}, "
-                             f"delta {self.delta_ohm.shape}, {len(self.pairs)} pairs")
+            raise ValueError(
+                f"inconsistent map shapes: x {self.x_mm.shape}, y {self.y_mm.shape}, "
+                f"delta {self.delta_ohm.shape}, {len(self.pairs)} pairs"
+            )
 
     @property
     def z(self) -> np.ndarray:
@@ -68,8 +70,9 @@ def paper_sensitivity(layout: Layout, increase: float = 0.5) -> SensitivityMap:
     resistance[np.arange(1, layout.n_channels + 1), np.arange(layout.n_channels)] *= 1.0 + increase
     r_eq = equivalent_resistance(layout, 1.0 / resistance)
     mid = channel_midpoints_mm(layout)
-    return SensitivityMap(f"paper_plus{round(increase * 100)}pct", mid[:, 0].copy(), mid[:, 1].copy(),
-                          r_eq[1:] - r_eq[0], layout.pairs)
+    return SensitivityMap(
+        f"paper_plus{round(increase * 100)}pct", mid[:, 0].copy(), mid[:, 1].copy(), r_eq[1:] - r_eq[0], layout.pairs
+    )
 
 
 def grid_positions_mm(layout: Layout, step_mm: float, margin_mm: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
@@ -83,8 +86,14 @@ def grid_positions_mm(layout: Layout, step_mm: float, margin_mm: float = 0.0) ->
     return gx.ravel(), gy.ravel()
 
 
-def deformation_sensitivity(model: SkinModel, x_mm: np.ndarray, y_mm: np.ndarray, depth_mm: float = 3.5,
-                            batch: int = 4096, progress: Callable[[int], None] | None = None) -> SensitivityMap:
+def deformation_sensitivity(
+    model: SkinModel,
+    x_mm: np.ndarray,
+    y_mm: np.ndarray,
+    depth_mm: float = 3.5,
+    batch: int = 4096,
+    progress: Callable[[int], None] | None = None,
+) -> SensitivityMap:
     """dR_eq of a press at every (x, y) to depth_mm under `model`; `progress(k)` is told of each
     finished batch of k presses (for a progress bar at the edge)."""
     x, y = np.asarray(x_mm, float), np.asarray(y_mm, float)

@@ -71,8 +71,10 @@ class SkinModel:
         if not (math.isfinite(self.placement_sigma_mm) and self.placement_sigma_mm >= 0):
             raise ValueError(f"placement_sigma_mm must be >= 0, got {self.placement_sigma_mm!r}")
         if self.temperature_c is not None and self.resistivity_factor(self.temperature_c) <= 0:
-            raise ValueError(f"temperature_c = {self.temperature_c} drives the resistivity to <= 0; "
-                             "check resistivity_tempco_per_k and reference_temperature_c")
+            raise ValueError(
+                f"temperature_c = {self.temperature_c} drives the resistivity to <= 0; "
+                "check resistivity_tempco_per_k and reference_temperature_c"
+            )
 
     # ---- resistances -----------------------------------------------------------------------
 
@@ -143,8 +145,8 @@ class SkinModel:
         depth_m = np.maximum(np.atleast_1d(np.asarray(depth_mm, float)), 0.0) * 1e-3
         a_m = self.probe_radius_mm * 1e-3
         ratio = self.probe_radius_mm / self.layout.thickness_mm
-        kappa = 1.0 + 1.33 * ratio + 1.33 * ratio ** 3
-        force = 2.0 * a_m * self.youngs_modulus_pa * depth_m / (1.0 - self.poisson_ratio ** 2) * kappa
+        kappa = 1.0 + 1.33 * ratio + 1.33 * ratio**3
+        force = 2.0 * a_m * self.youngs_modulus_pa * depth_m / (1.0 - self.poisson_ratio**2) * kappa
         return force if loading else force * (1.0 - self.hysteresis_fraction)
 
     def placement_error_mm(self, x_mm, y_mm, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

@@ -50,8 +50,10 @@ def equivalent_resistance(layout: Layout, conductance_s: np.ndarray, method: str
     single = g.ndim == 1
     g = np.atleast_2d(g)
     if g.ndim != 2 or g.shape[1] != layout.n_channels:
-        raise ValueError(f"conductance_s must have shape (presses, {layout.n_channels}) for layout "
-                         f"'{layout.name}', got {np.shape(conductance_s)}")
+        raise ValueError(
+            f"conductance_s must have shape (presses, {layout.n_channels}) for layout "
+            f"'{layout.name}', got {np.shape(conductance_s)}"
+        )
     if len(set(layout.electrode_junctions.tolist())) != layout.n_electrodes:
         raise ValueError(f"layout '{layout.name}' has two electrodes on one junction; give each its own junction")
     if not np.all(np.isfinite(g)) or np.any(g < 0):
@@ -116,8 +118,9 @@ def _pair_conductances(w: np.ndarray, nodes: list[int], out: dict[tuple[int, int
     _cross_conductances(w, [nodes[k] for k in lo], [nodes[k] for k in hi], out)
 
 
-def _cross_conductances(w: np.ndarray, a_nodes: list[int], b_nodes: list[int],
-                        out: dict[tuple[int, int], np.ndarray]) -> None:
+def _cross_conductances(
+    w: np.ndarray, a_nodes: list[int], b_nodes: list[int], out: dict[tuple[int, int], np.ndarray]
+) -> None:
     """Pairs with one node in a_nodes and one in b_nodes; w is over a_nodes + b_nodes in that order."""
     if len(a_nodes) == 1 and len(b_nodes) == 1:
         out[(a_nodes[0], b_nodes[0])] = w[0, 1]
@@ -148,8 +151,13 @@ def _dense_chunk(layout: Layout, g: np.ndarray) -> np.ndarray:
     w = _eliminate(w, electrodes)  # Kron reduction onto the electrodes, in Layout.electrodes order
     conductance: dict[tuple[int, int], np.ndarray] = {}
     _pair_conductances(w, list(range(len(electrodes))), conductance)
-    pair_g = np.stack([conductance[(int(a), int(b))] if (int(a), int(b)) in conductance
-                       else conductance[(int(b), int(a))] for a, b in layout.pair_electrode_index], axis=1)
+    pair_g = np.stack(
+        [
+            conductance[(int(a), int(b))] if (int(a), int(b)) in conductance else conductance[(int(b), int(a))]
+            for a, b in layout.pair_electrode_index
+        ],
+        axis=1,
+    )
     with np.errstate(divide="ignore"):
         return 1.0 / pair_g
 
@@ -175,10 +183,15 @@ def _sparse(layout: Layout, g: np.ndarray) -> np.ndarray:
         n_comp, label = connected_components(adjacency, directed=False)
         # Laplacian; ground one node per component by dropping its row and column
         lap = sp.coo_matrix(
-            (np.concatenate([-gp[live], -gp[live], gp[live], gp[live]]),
-             (np.concatenate([a_idx[live], b_idx[live], a_idx[live], b_idx[live]]),
-              np.concatenate([b_idx[live], a_idx[live], a_idx[live], b_idx[live]]))),
-            shape=(n, n)).tocsc()
+            (
+                np.concatenate([-gp[live], -gp[live], gp[live], gp[live]]),
+                (
+                    np.concatenate([a_idx[live], b_idx[live], a_idx[live], b_idx[live]]),
+                    np.concatenate([b_idx[live], a_idx[live], a_idx[live], b_idx[live]]),
+                ),
+            ),
+            shape=(n, n),
+        ).tocsc()
         ground = np.zeros(n, dtype=bool)
         # ground an electrode where the component has one, so its column of Z is simply zero
         for comp in range(n_comp):

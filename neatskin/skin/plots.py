@@ -30,13 +30,20 @@ def draw_layout(ax, layout: Layout) -> None:
         unit = (b - a) / np.hypot(*(b - a))
         normal = np.array([-unit[1], unit[0]]) * ch.width_mm / 2
         for side in (normal, -normal):
-            ax.plot([a[0] + side[0], b[0] + side[0]], [a[1] + side[1], b[1] + side[1]],
-                    ls="--", lw=0.8, color="k")
+            ax.plot([a[0] + side[0], b[0] + side[0]], [a[1] + side[1], b[1] + side[1]], ls="--", lw=0.8, color="k")
     for e in layout.electrodes:
         jx, jy = xy[e.junction]
-        ax.annotate(str(e.number), (jx, jy), xytext=(0, 0), textcoords="offset points", ha="center",
-                    va="center", fontsize=8, fontweight="bold",
-                    bbox=dict(boxstyle="circle,pad=0.2", fc="gold", ec="k", lw=0.6))
+        ax.annotate(
+            str(e.number),
+            (jx, jy),
+            xytext=(0, 0),
+            textcoords="offset points",
+            ha="center",
+            va="center",
+            fontsize=8,
+            fontweight="bold",
+            bbox=dict(boxstyle="circle,pad=0.2", fc="gold", ec="k", lw=0.6),
+        )
 
 
 def _field_on_grid(layout: Layout, smap: SensitivityMap, values: np.ndarray, step_mm: float):
@@ -81,18 +88,23 @@ def plot_z(layout: Layout, smap: SensitivityMap, path: str | Path, title: str, s
     return path
 
 
-def plot_pairs(layout: Layout, smap: SensitivityMap, pairs: tuple[ElectrodePair, ...], path: str | Path,
-               title: str, step_mm: float = 0.25) -> Path:
+def plot_pairs(
+    layout: Layout,
+    smap: SensitivityMap,
+    pairs: tuple[ElectrodePair, ...],
+    path: str | Path,
+    title: str,
+    step_mm: float = 0.25,
+) -> Path:
     """One panel per pair (paper Fig. 5: the symmetry class representatives), each normalised to [-1, 1]."""
     plt = _pyplot()
     cols = min(3, len(pairs))
     rows = -(-len(pairs) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 3.3 * rows), dpi=110, squeeze=False,
-                             layout="constrained")
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 3.3 * rows), dpi=110, squeeze=False, layout="constrained")
     mesh = None
     for ax, pair in zip(axes.flat, pairs):
         mesh = _panel(ax, layout, smap, smap.pair_normalised(pair), f"pair {pair}", step_mm)
-    for ax in list(axes.flat)[len(pairs):]:
+    for ax in list(axes.flat)[len(pairs) :]:
         ax.axis("off")
     fig.suptitle(title, fontsize=10)
     fig.colorbar(mesh, ax=axes, shrink=0.8, label="normalised dR_eq")

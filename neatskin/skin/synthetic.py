@@ -38,9 +38,19 @@ def synthetic_positions_mm(layout: Layout, n_positions: int, seed: int) -> np.nd
     return xy
 
 
-def synthetic_rows(layout: Layout, n_positions: int, repeats: int, *, seed: int = 0, campaign: str = "synthetic",
-                   depth_mm: float = 3.5, touch: float = 0.5, spread_mm: float = 2.0, noise_ohm: float = 1.0,
-                   start: _dt.datetime | None = None) -> list[dict[str, Any]]:
+def synthetic_rows(
+    layout: Layout,
+    n_positions: int,
+    repeats: int,
+    *,
+    seed: int = 0,
+    campaign: str = "synthetic",
+    depth_mm: float = 3.5,
+    touch: float = 0.5,
+    spread_mm: float = 2.0,
+    noise_ohm: float = 1.0,
+    start: _dt.datetime | None = None,
+) -> list[dict[str, Any]]:
     """Rows for n_positions x repeats presses (press_id = position_id * repeats + repeat), ready for
     CampaignWriter.write_press; R_ohm and dR_ohm given as arrays in layout.pairs order."""
     xy = synthetic_positions_mm(layout, n_positions, seed)
@@ -48,7 +58,7 @@ def synthetic_rows(layout: Layout, n_positions: int, repeats: int, *, seed: int 
     factor = 1.0 + touch * np.exp(-0.5 * (layout.distance_to_channels_mm(xy) / spread_mm) ** 2)
     baseline = pair_resistance_ohm(layout, base_ch[None])[0]
     pressed = pair_resistance_ohm(layout, base_ch[None] * factor)  # (positions, pairs)
-    start = start or _dt.datetime(2026, 1, 1, tzinfo=_dt.timezone.utc)
+    start = start or _dt.datetime(2026, 1, 1, tzinfo=_dt.UTC)
     rows = []
     for position_id in range(n_positions):
         for repeat in range(repeats):
@@ -56,22 +66,43 @@ def synthetic_rows(layout: Layout, n_positions: int, repeats: int, *, seed: int 
             noise = np.random.default_rng([seed, 1, press_id]).normal(0.0, noise_ohm, size=baseline.shape)
             r = pressed[position_id] + noise
             t0 = start + _dt.timedelta(seconds=2 * press_id)
-            rows.append({
-                "campaign": campaign, "press_id": press_id, "position_id": position_id, "repeat": repeat,
-                "x_mm": float(xy[position_id, 0]), "y_mm": float(xy[position_id, 1]), "depth_mm": depth_mm,
-                "started_at": t0, "finished_at": t0 + _dt.timedelta(seconds=1.5),
-                "fsr_onset_s": 0.25, "fsr_offset_s": 1.25, "fsr_peak_n": 4.0 + 0.01 * repeat,
-                "flags": [], "R_ohm": r, "dR_ohm": r - baseline,
-            })
+            rows.append(
+                {
+                    "campaign": campaign,
+                    "press_id": press_id,
+                    "position_id": position_id,
+                    "repeat": repeat,
+                    "x_mm": float(xy[position_id, 0]),
+                    "y_mm": float(xy[position_id, 1]),
+                    "depth_mm": depth_mm,
+                    "started_at": t0,
+                    "finished_at": t0 + _dt.timedelta(seconds=1.5),
+                    "fsr_onset_s": 0.25,
+                    "fsr_offset_s": 1.25,
+                    "fsr_peak_n": 4.0 + 0.01 * repeat,
+                    "flags": [],
+                    "R_ohm": r,
+                    "dR_ohm": r - baseline,
+                }
+            )
     return rows
 
 
-def synthetic_presses(layout: Layout, n_positions: int = 100, repeats: int = 28, *, noise_ohm: float = 1.0,
-                      seed: int = 0, depth_mm: float = 3.5) -> pd.DataFrame:
+def synthetic_presses(
+    layout: Layout,
+    n_positions: int = 100,
+    repeats: int = 28,
+    *,
+    noise_ohm: float = 1.0,
+    seed: int = 0,
+    depth_mm: float = 3.5,
+) -> pd.DataFrame:
     """The same presses as a table in the dataset contract's columns (R_ohm_i_j, dR_ohm_i_j per pair)."""
     rows = synthetic_rows(layout, n_positions, repeats, seed=seed, depth_mm=depth_mm, noise_ohm=noise_ohm)
-    table: dict[str, Any] = {key: [row[key] for row in rows]
-                             for key in ("press_id", "position_id", "repeat", "x_mm", "y_mm", "depth_mm", "flags")}
+    table: dict[str, Any] = {
+        key: [row[key] for row in rows]
+        for key in ("press_id", "position_id", "repeat", "x_mm", "y_mm", "depth_mm", "flags")
+    }
     r = np.array([row["R_ohm"] for row in rows])
     d_r = np.array([row["dR_ohm"] for row in rows])
     for p, pair in enumerate(layout.pairs):

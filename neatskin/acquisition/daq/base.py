@@ -43,25 +43,59 @@ class DaqConfig:
 
     def __post_init__(self) -> None:
         problems = []
-        for name in ("rate_hz", "amplitude_a", "frequency_hz", "voltage_range_v", "current_range_v", "fsr_range_v",
-                     "voltage_gain", "current_gain_v_per_a", "ao_v_per_a", "compliance_v"):
+        for name in (
+            "rate_hz",
+            "amplitude_a",
+            "frequency_hz",
+            "voltage_range_v",
+            "current_range_v",
+            "fsr_range_v",
+            "voltage_gain",
+            "current_gain_v_per_a",
+            "ao_v_per_a",
+            "compliance_v",
+        ):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                problems.append(Problem(f"{name} must be a positive number, got {value!r}", "<daq config>", name,
-                                        f"set {name} > 0"))
+                problems.append(
+                    Problem(f"{name} must be a positive number, got {value!r}", "<daq config>", name, f"set {name} > 0")
+                )
         if not problems and self.frequency_hz * 2 >= self.rate_hz:
-            problems.append(Problem(f"excitation {self.frequency_hz} Hz is not below Nyquist of {self.rate_hz} Hz",
-                                    "<daq config>", "frequency_hz", "sample at least 4x faster than the excitation"))
+            problems.append(
+                Problem(
+                    f"excitation {self.frequency_hz} Hz is not below Nyquist of {self.rate_hz} Hz",
+                    "<daq config>",
+                    "frequency_hz",
+                    "sample at least 4x faster than the excitation",
+                )
+            )
         if len(self.channel_names) != 3 or len(self.ai_channels) != 3:
-            problems.append(Problem("three channels are needed: voltage, current, FSR", "<daq config>",
-                                    "channel_names", "name three channels and three AI inputs"))
+            problems.append(
+                Problem(
+                    "three channels are needed: voltage, current, FSR",
+                    "<daq config>",
+                    "channel_names",
+                    "name three channels and three AI inputs",
+                )
+            )
         if not isinstance(self.adc_bits, int) or not 8 <= self.adc_bits <= 24:
-            problems.append(Problem(f"adc_bits must be 8..24, got {self.adc_bits!r}", "<daq config>", "adc_bits",
-                                    "set adc_bits = 16 for the USB-6229"))
+            problems.append(
+                Problem(
+                    f"adc_bits must be 8..24, got {self.adc_bits!r}",
+                    "<daq config>",
+                    "adc_bits",
+                    "set adc_bits = 16 for the USB-6229",
+                )
+            )
         if not problems and self.amplitude_a * self.ao_v_per_a > 10.0:
-            problems.append(Problem(f"the excitation needs {self.amplitude_a * self.ao_v_per_a:.3g} V on the AO, "
-                                    "beyond +-10 V", "<daq config>", "amplitude_a",
-                                    "lower amplitude_a or the galvanostat's ao_v_per_a"))
+            problems.append(
+                Problem(
+                    f"the excitation needs {self.amplitude_a * self.ao_v_per_a:.3g} V on the AO, beyond +-10 V",
+                    "<daq config>",
+                    "amplitude_a",
+                    "lower amplitude_a or the galvanostat's ao_v_per_a",
+                )
+            )
         if problems:
             raise ConfigError(problems=problems)
 
@@ -78,7 +112,7 @@ class DaqConfig:
     def lsb_ai_v(self) -> np.ndarray:
         """One ADC step in AI volts, per channel (3,)."""
         ranges = np.array([self.voltage_range_v, self.current_range_v, self.fsr_range_v])
-        return 2.0 * ranges / 2 ** self.adc_bits
+        return 2.0 * ranges / 2**self.adc_bits
 
     @property
     def to_physical(self) -> np.ndarray:
@@ -139,8 +173,9 @@ class Daq(abc.ABC):
         self.config = config
 
     @abc.abstractmethod
-    def acquire(self, sweep, n_sweeps: int = 1, *, rng: np.random.Generator | None = None,
-                start_time_s: float = 0.0) -> Acquisition:
+    def acquire(
+        self, sweep, n_sweeps: int = 1, *, rng: np.random.Generator | None = None, start_time_s: float = 0.0
+    ) -> Acquisition:
         """Run n_sweeps of the sweep's line table on the sample clock; return every sample."""
 
     def close(self) -> None:

@@ -19,9 +19,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from neatskin.errors import ConfigError, HardwareError
 from neatskin.acquisition.daq.base import Acquisition, Daq, DaqConfig
 from neatskin.acquisition.sequence import Sweep
+from neatskin.errors import ConfigError, HardwareError
 
 USB6229_AI_AGGREGATE_HZ = 250_000.0
 IDLE_TAIL_SAMPLES = 2
@@ -60,8 +60,11 @@ def line_bits(line_names: tuple[str, ...]) -> np.ndarray:
     for name in line_names:
         m = _LINE_RE.match(name)
         if not m or m.group(1) != "0" or int(m.group(2)) > 31:
-            raise ConfigError(f"digital line '{name}' cannot be hardware-timed on the USB-6229", field="lines",
-                              fix="wire A, B and the inhibits to port0/line0..31 and say so in the wiring file")
+            raise ConfigError(
+                f"digital line '{name}' cannot be hardware-timed on the USB-6229",
+                field="lines",
+                fix="wire A, B and the inhibits to port0/line0..31 and say so in the wiring file",
+            )
         bits.append(int(m.group(2)))
     return np.array(bits, dtype=np.uint32)
 
@@ -72,17 +75,27 @@ def pack_lines(lines: np.ndarray, bits: np.ndarray) -> np.ndarray:
     return (lines.astype(np.uint32) * weights).sum(axis=1).astype(np.uint32)
 
 
-def plan_acquisition(config: DaqConfig, sweep: Sweep, n_sweeps: int = 1, start_time_s: float = 0.0,
-                     timeout_margin_s: float = 5.0) -> NiTaskPlan:
+def plan_acquisition(
+    config: DaqConfig, sweep: Sweep, n_sweeps: int = 1, start_time_s: float = 0.0, timeout_margin_s: float = 5.0
+) -> NiTaskPlan:
     """Everything the three tasks need, as data (pure)."""
     if abs(sweep.rate_hz - config.rate_hz) > 1e-9:
-        raise ConfigError(f"sweep built at {sweep.rate_hz} Hz, DAQ configured at {config.rate_hz} Hz",
-                          field="rate_hz", fix="build the sweep with the DAQ's rate")
+        raise ConfigError(
+            f"sweep built at {sweep.rate_hz} Hz, DAQ configured at {config.rate_hz} Hz",
+            field="rate_hz",
+            fix="build the sweep with the DAQ's rate",
+        )
     if config.rate_hz * len(config.ai_channels) > USB6229_AI_AGGREGATE_HZ:
-        raise ConfigError(f"{len(config.ai_channels)} AI channels at {config.rate_hz} Hz exceed the USB-6229's "
-                          f"{USB6229_AI_AGGREGATE_HZ:.0f} S/s aggregate", field="rate_hz", fix="lower rate_hz")
+        raise ConfigError(
+            f"{len(config.ai_channels)} AI channels at {config.rate_hz} Hz exceed the USB-6229's "
+            f"{USB6229_AI_AGGREGATE_HZ:.0f} S/s aggregate",
+            field="rate_hz",
+            fix="lower rate_hz",
+        )
     if not isinstance(n_sweeps, int) or n_sweeps < 1:
-        raise ConfigError(f"n_sweeps must be a positive integer, got {n_sweeps!r}", field="n_sweeps", fix="acquire >= 1 sweep")
+        raise ConfigError(
+            f"n_sweeps must be a positive integer, got {n_sweeps!r}", field="n_sweeps", fix="acquire >= 1 sweep"
+        )
     dev = config.device
     n = n_sweeps * sweep.n_samples
     start = int(round(start_time_s * config.rate_hz))
@@ -92,8 +105,10 @@ def plan_acquisition(config: DaqConfig, sweep: Sweep, n_sweeps: int = 1, start_t
     phase = 2 * np.pi * ((index % whole) / whole if abs(period - whole) < 1e-9 else index / period)
     ao = config.ao_v_per_a * config.amplitude_a * np.sin(phase)
     ranges = (config.voltage_range_v, config.current_range_v, config.fsr_range_v)
-    ai = tuple(AiChannelPlan(f"{dev}/{phys}", name, -r, r)
-               for phys, name, r in zip(config.ai_channels, config.channel_names, ranges))
+    ai = tuple(
+        AiChannelPlan(f"{dev}/{phys}", name, -r, r)
+        for phys, name, r in zip(config.ai_channels, config.channel_names, ranges)
+    )
     bits = line_bits(sweep.line_names)
     do_channel = ",".join(f"{dev}/{name}" for name in sweep.line_names)
     words = pack_lines(np.tile(sweep.lines, (n_sweeps, 1)), bits)
@@ -103,8 +118,21 @@ def plan_acquisition(config: DaqConfig, sweep: Sweep, n_sweeps: int = 1, start_t
     ao = np.concatenate([ao, np.zeros(IDLE_TAIL_SAMPLES)])
     words = np.concatenate([words, np.full(IDLE_TAIL_SAMPLES, idle, dtype=np.uint32)])
     total = n + IDLE_TAIL_SAMPLES
-    return NiTaskPlan(dev, config.rate_hz, total, n, f"/{dev}/ai/SampleClock", ai, f"{dev}/{config.ao_channel}",
-                      10.0, ao, do_channel, words, config.to_physical, total / config.rate_hz + timeout_margin_s)
+    return NiTaskPlan(
+        dev,
+        config.rate_hz,
+        total,
+        n,
+        f"/{dev}/ai/SampleClock",
+        ai,
+        f"{dev}/{config.ao_channel}",
+        10.0,
+        ao,
+        do_channel,
+        words,
+        config.to_physical,
+        total / config.rate_hz + timeout_margin_s,
+    )
 
 
 def import_nidaqmx():
@@ -112,9 +140,11 @@ def import_nidaqmx():
     try:
         return importlib.import_module("nidaqmx")
     except ImportError as exc:
-        raise HardwareError("the NI backend needs the nidaqmx package and the NI-DAQmx driver: "
-                            "pip install 'neatskin-rig[ni]' and install NI-DAQmx from ni.com "
-                            "(or run with --daq simulated)") from exc
+        raise HardwareError(
+            "the NI backend needs the nidaqmx package and the NI-DAQmx driver: "
+            "pip install 'neatskin-rig[ni]' and install NI-DAQmx from ni.com "
+            "(or run with --daq simulated)"
+        ) from exc
 
 
 class NiDAQ(Daq):
@@ -132,11 +162,14 @@ class NiDAQ(Daq):
         except Exception as exc:  # driver missing or broken: nidaqmx raises its own types
             raise HardwareError(f"NI-DAQmx did not answer: {exc}") from exc
         if config.device not in names:
-            raise HardwareError(f"no NI device '{config.device}' answers (found: {', '.join(names) or 'none'}); "
-                                "plug in the USB-6229 or set the device name")
+            raise HardwareError(
+                f"no NI device '{config.device}' answers (found: {', '.join(names) or 'none'}); "
+                "plug in the USB-6229 or set the device name"
+            )
 
-    def acquire(self, sweep: Sweep, n_sweeps: int = 1, *, rng: np.random.Generator | None = None,
-                start_time_s: float = 0.0) -> Acquisition:
+    def acquire(
+        self, sweep: Sweep, n_sweeps: int = 1, *, rng: np.random.Generator | None = None, start_time_s: float = 0.0
+    ) -> Acquisition:
         plan = plan_acquisition(self.config, sweep, n_sweeps, start_time_s)
         try:
             raw = apply_plan(self.nidaqmx, plan)
@@ -158,20 +191,28 @@ def apply_plan(nidaqmx, plan: NiTaskPlan) -> np.ndarray:
     finite = AcquisitionType.FINITE
     with nidaqmx.Task() as ai, nidaqmx.Task() as ao, nidaqmx.Task() as do:
         for ch in plan.ai:
-            ai.ai_channels.add_ai_voltage_chan(ch.physical, name_to_assign_to_channel=ch.name,
-                                               terminal_config=getattr(TerminalConfiguration, ch.terminal),
-                                               min_val=ch.min_v, max_val=ch.max_v)
+            ai.ai_channels.add_ai_voltage_chan(
+                ch.physical,
+                name_to_assign_to_channel=ch.name,
+                terminal_config=getattr(TerminalConfiguration, ch.terminal),
+                min_val=ch.min_v,
+                max_val=ch.max_v,
+            )
         ai.timing.cfg_samp_clk_timing(plan.rate_hz, sample_mode=finite, samps_per_chan=plan.n_samples)
         ao.ao_channels.add_ao_voltage_chan(plan.ao_channel, min_val=-plan.ao_range_v, max_val=plan.ao_range_v)
-        ao.timing.cfg_samp_clk_timing(plan.rate_hz, source=plan.clock_source, sample_mode=finite,
-                                      samps_per_chan=plan.n_samples)
+        ao.timing.cfg_samp_clk_timing(
+            plan.rate_hz, source=plan.clock_source, sample_mode=finite, samps_per_chan=plan.n_samples
+        )
         do.do_channels.add_do_chan(plan.do_channel, line_grouping=LineGrouping.CHAN_FOR_ALL_LINES)
-        do.timing.cfg_samp_clk_timing(plan.rate_hz, source=plan.clock_source, sample_mode=finite,
-                                      samps_per_chan=plan.n_samples)
+        do.timing.cfg_samp_clk_timing(
+            plan.rate_hz, source=plan.clock_source, sample_mode=finite, samps_per_chan=plan.n_samples
+        )
         AnalogSingleChannelWriter(ao.out_stream, auto_start=False).write_many_sample(
-            np.ascontiguousarray(plan.ao_data_v, dtype=np.float64))
+            np.ascontiguousarray(plan.ao_data_v, dtype=np.float64)
+        )
         DigitalSingleChannelWriter(do.out_stream, auto_start=False).write_many_sample_port_uint32(
-            np.ascontiguousarray(plan.do_data, dtype=np.uint32))
+            np.ascontiguousarray(plan.do_data, dtype=np.uint32)
+        )
         ao.start()
         do.start()
         ai.start()
