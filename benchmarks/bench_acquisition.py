@@ -61,7 +61,10 @@ def accuracy_table(wiring, n_sweeps: int, repeats: int) -> None:
                 continue
             est = demodulate(acq, sweep, method, window)
             rel = est.resistance_ohm / R_TRUE - 1
-            seconds = best_time(lambda: demodulate(acq, sweep, method, window), repeats)
+            seconds = best_time(
+                lambda acq=acq, sweep=sweep, method=method, window=window: demodulate(acq, sweep, method, window),
+                repeats,
+            )
             rate = acq.n_samples / seconds
             print(
                 f"{method:>8} {window:>6} {live:>5} {sweep.duration_s * 1e3:>8.1f} "

@@ -4,6 +4,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from neatskin.acquisition.daq.base import DaqConfig
 from neatskin.acquisition.demod import demodulate, window_counts
@@ -215,7 +217,9 @@ def test_skin_callable_of_the_wrong_shape_refused(sweep):
 def test_per_sample_resistance_follows_a_ramp(sweep):
     # R rising 2 % per second, evaluated at every sample: the lock-in reads the live window's mean,
     # i.e. R at its midpoint (exact for a linear ramp, up to the sin^2 weighting over whole periods)
-    ramp = lambda t: R_TRUE[None, :] * (1 + 0.02 * t[:, None])
+    def ramp(t):
+        return R_TRUE[None, :] * (1 + 0.02 * t[:, None])
+
     per_sample = SimulatedDAQ(DaqConfig(), ramp, noise=NoiseModel.none(), resistance_sampling="per_sample")
     est = demodulate(per_sample.acquire(sweep, rng=np.random.default_rng(0)), sweep, "lockin")
     mid_s = (sweep.live_windows.mean(axis=1) - 0.5) / 10_000.0
@@ -239,10 +243,6 @@ def test_estimator_moments_closed_form(sweep):
     # rectification bias sigma_v^2 / V0^2 - sigma_i^2 / A^2 (to first order), and a slightly larger spread
     np.testing.assert_allclose(mean_rms / r - 1, (0.3 / (r * 0.002)) ** 2 - (3e-5 / 0.002) ** 2, rtol=0.05)
     assert np.all(std_rms > std) and np.all(std_rms < 1.1 * std) and blocks_rms == 10
-
-
-from hypothesis import given, settings  # noqa: E402
-from hypothesis import strategies as st
 
 
 @settings(max_examples=25, deadline=None)

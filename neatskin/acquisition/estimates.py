@@ -26,7 +26,7 @@ class PairFlag(enum.IntFlag):
 
 def flag_names(flags: int) -> tuple[str, ...]:
     """The names of the bits set in one flags value, e.g. ('OPEN_CIRCUIT',)."""
-    return tuple(f.name.lower() for f in PairFlag if f and int(flags) & f)
+    return tuple(str(f.name).lower() for f in PairFlag if f and int(flags) & f)
 
 
 @dataclass(frozen=True, eq=False)

@@ -178,8 +178,8 @@ class Daq(abc.ABC):
     ) -> Acquisition:
         """Run n_sweeps of the sweep's line table on the sample clock; return every sample."""
 
-    def close(self) -> None:
-        pass
+    def close(self) -> None:  # noqa: B027 - a backend with nothing to release need not override it
+        """Release the device (default: nothing to release)."""
 
     def __enter__(self):
         return self

@@ -49,8 +49,8 @@ class NiTaskPlan:
     ao_range_v: float
     ao_data_v: np.ndarray = field(repr=False)  # (samples,)
     do_channel: str = ""  # "Dev1/port0/line0,Dev1/port0/line1,..."
-    do_data: np.ndarray = field(default=None, repr=False)  # (samples,) uint32 port0 words
-    to_physical: np.ndarray = field(default=None, repr=False)  # (3,)
+    do_data: np.ndarray | None = field(default=None, repr=False)  # (samples,) uint32 port0 words
+    to_physical: np.ndarray | None = field(default=None, repr=False)  # (3,)
     timeout_s: float = 10.0
 
 
