@@ -1,0 +1,120 @@
+"""Benchmark: the README's main job end to end, by phase, with wall time, CPU time and peak memory.
+
+The main job is one command, `neatskin campaign run protocols/paper.toml --dry-run` (the
+install excluded). Its phases are measured as the commands a user can also run on their own:
+
+    campaign   neatskin campaign run PROTOCOL --dry-run --no-report   (the presses, finalize, bound)
+    report     neatskin baselines CAMPAIGN                             (the baseline report)
+    main job   neatskin campaign run PROTOCOL --dry-run                (both, as the README runs it)
+
+Each phase is a child process; its CPU time and peak RSS come from the kernel's accounting of that
+child (os.wait4), so nothing of this script is counted. With --against DIR the same phases run on
+another checkout of the toolkit (e.g. the previous commit: `git worktree add /tmp/prev HEAD~1`)
+side by side, alternating, and the table gives the ratio.
+
+    python benchmarks/bench_main_job.py                        # the paper protocol, this checkout
+    python benchmarks/bench_main_job.py --protocol protocols/smoke.toml
+    python benchmarks/bench_main_job.py --against /tmp/prev    # side by side with another checkout
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+@dataclass(frozen=True)
+class Measurement:
+    wall_s: float
+    cpu_s: float
+    peak_rss_mb: float
+    ok: bool
+
+
+def run_child(argv: list[str], checkout: Path, cwd: Path) -> Measurement:
+    """Run one command as a child with `checkout` first on the import path; its own wall, CPU and peak RSS."""
+    env = dict(os.environ, PYTHONPATH=str(checkout))
+    started = time.perf_counter()
+    child = subprocess.Popen(argv, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(child.pid, 0)
+    wall = time.perf_counter() - started
+    child.returncode = os.waitstatus_to_exitcode(status)
+    if child.returncode != 0:
+        err = child.stderr.read().decode(errors="replace") if child.stderr else ""
+        print(f"  ! {' '.join(argv[2:])} exited {child.returncode}: {err.strip()[-400:]}", file=sys.stderr)
+    if child.stderr:
+        child.stderr.close()
+    return Measurement(wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024.0, child.returncode == 0)
+
+
+def phases(checkout: Path, protocol: Path, work: Path) -> dict[str, Measurement]:
+    """The three phases on one checkout, each in a fresh campaign folder."""
+    neatskin = [sys.executable, "-m", "neatskin"]
+    out = {}
+    campaign = work / "campaign"
+    out["campaign"] = run_child(
+        [*neatskin, "campaign", "run", str(protocol), "--dry-run", "--no-report", "--quiet", "--out", str(campaign)],
+        checkout,
+        work,
+    )
+    out["report"] = run_child([*neatskin, "baselines", str(campaign)], checkout, work)
+    out["main job"] = run_child(
+        [*neatskin, "campaign", "run", str(protocol), "--dry-run", "--quiet", "--out", str(work / "main")],
+        checkout,
+        work,
+    )
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--protocol", type=Path, default=REPO / "protocols" / "paper.toml")
+    parser.add_argument("--against", type=Path, help="another checkout of the toolkit to measure side by side")
+    parser.add_argument("--rounds", type=int, default=1, help="alternating rounds per checkout (best is kept)")
+    args = parser.parse_args()
+    protocol = args.protocol.resolve()
+    checkouts = {"this": REPO}
+    if args.against:
+        checkouts["against"] = args.against.resolve()
+    best: dict[str, dict[str, Measurement]] = {name: {} for name in checkouts}
+    load_before = os.getloadavg()
+    for _ in range(args.rounds):
+        for name, checkout in checkouts.items():
+            work = Path(tempfile.mkdtemp(prefix=f"bench-main-{name}-"))
+            try:
+                for phase, m in phases(checkout, protocol, work).items():
+                    kept = best[name].get(phase)
+                    if kept is None or m.wall_s < kept.wall_s:
+                        best[name][phase] = m
+            finally:
+                shutil.rmtree(work, ignore_errors=True)
+    load_after = os.getloadavg()
+    print(f"main job on {protocol.name}, {os.cpu_count()} cores, best of {args.rounds} round(s)")
+    print(
+        f"load average (1, 5, 15 min) before {load_before[0]:.2f} {load_before[1]:.2f} {load_before[2]:.2f}, "
+        f"after {load_after[0]:.2f} {load_after[1]:.2f} {load_after[2]:.2f}"
+    )
+    header = f"{'checkout':<9} {'phase':<10} {'wall s':>8} {'cpu s':>8} {'peak RSS MB':>12} {'ok':>4}"
+    if args.against:
+        header += f" {'wall vs against':>16}"
+    print(header)
+    for name in checkouts:
+        for phase, m in best[name].items():
+            line = f"{name:<9} {phase:<10} {m.wall_s:>8.1f} {m.cpu_s:>8.1f} {m.peak_rss_mb:>12.0f} {'yes' if m.ok else 'NO':>4}"
+            if args.against and name == "this":
+                other = best["against"].get(phase)
+                line += f" {m.wall_s / other.wall_s:>15.2f}x" if other else ""
+            print(line)
+
+
+if __name__ == "__main__":
+    main()
