@@ -35,9 +35,11 @@ def campaign_name_problems(name: str, source: str, where: str = "campaign.name")
     """A campaign name becomes a folder name and G-code comment text: safe ASCII file-name characters only."""
     if re.fullmatch(SAFE_NAME, name) and len(name) <= MAX_NAME_LEN and name not in (".", ".."):
         return []
+    injects = any(c in ";*(" or not c.isprintable() for c in name)
+    why = "; its characters could inject G-code" if injects else ""
     return [
         Problem(
-            f"campaign name {name!r} is not {SAFE_NAME_TEXT} (at most {MAX_NAME_LEN} characters)",
+            f"campaign name {name!r} is not {SAFE_NAME_TEXT} (at most {MAX_NAME_LEN} characters){why}",
             source,
             where,
             'rename it, e.g. name = "paper-2019" (no spaces, slashes, accents or other non-ASCII characters)',
