@@ -19,6 +19,7 @@ from neatskin.errors import Problem
 # ---- caps a run can execute (issue 10): anything beyond is refused by `campaign check` ------------
 MAX_COUNT = 100_000  # distinct press positions
 MAX_REPEATS = 10_000  # presses per position
+MAX_PRESSES = 1_000_000  # positions x repeats: a press program held in memory
 MAX_HOLD_S = 3_600.0  # one press held for an hour is already a creep experiment
 MAX_RATE_HZ = 1_250_000.0  # the NI USB-6229's fastest AO/AI clock is below this
 MAX_SAMPLES_PER_PRESS = 50_000_000  # 1.2 GB of float64 V, I, FSR in memory for one press

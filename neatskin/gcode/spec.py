@@ -14,7 +14,14 @@ from pathlib import Path
 from typing import Any
 
 from neatskin.config import parse_collect, parse_partial
-from neatskin.config.files import CampaignTable, FilesTable, PositionsTable, PressTable, campaign_name_problems
+from neatskin.config.files import (
+    MAX_PRESSES,
+    CampaignTable,
+    FilesTable,
+    PositionsTable,
+    PressTable,
+    campaign_name_problems,
+)
 from neatskin.errors import ConfigError, Problem, raise_problems
 from neatskin.gcode.positions import PositionSpec, generate_positions
 from neatskin.gcode.profile import PrinterProfile, load_printer_profile
@@ -83,6 +90,16 @@ def press_spec_from_dict(data: dict, source: str = "<memory>", base_dir: str | P
         pos_spec = _collect(problems, PositionSpec, **fields, source=source)
     if press is not None:
         press_spec = _collect(problems, PressSpec, **dataclasses.asdict(press), source=source)
+    if positions is not None and press is not None and positions.count * press.repeats > MAX_PRESSES:
+        problems.append(
+            Problem(
+                f"{positions.count} positions x {press.repeats} repeats = {positions.count * press.repeats} presses, "
+                f"more than {MAX_PRESSES} in one program",
+                source,
+                "press.repeats",
+                "split the work into several campaigns",
+            )
+        )
     if problems or campaign is None or files is None or pos_spec is None or press_spec is None:
         raise ConfigError(problems=problems or [Problem("incomplete protocol", source, None, "see the errors above")])
     paths = {key: base / files[key] if not Path(files[key]).is_absolute() else Path(files[key]) for key in files}
