@@ -248,15 +248,15 @@ def layout_from_dict(data: dict, source: str = "<memory>") -> Layout:
         if a == b:
             problem(where, f"channel '{name}' starts and ends at the same junction", "connect two different junctions")
             continue
-        key = frozenset((a, b))
-        if key in seen_ends:
+        ends_key = frozenset((a, b))
+        if ends_key in seen_ends:
             problem(
                 where,
-                f"duplicate channel: '{name}' joins the same junctions as '{seen_ends[key]}'",
+                f"duplicate channel: '{name}' joins the same junctions as '{seen_ends[ends_key]}'",
                 "remove one of the two channels",
             )
             continue
-        seen_ends[key] = name
+        seen_ends[ends_key] = name
         length = ct.length_mm if ct.length_mm is not None else _distance_mm(junctions[a], junctions[b])
         width = ct.width_mm if ct.width_mm is not None else defaults.width_mm
         height = ct.height_mm if ct.height_mm is not None else defaults.height_mm
@@ -353,10 +353,10 @@ def _validate(layout: Layout) -> list[Problem]:
         if not (0 <= ch.a < n and 0 <= ch.b < n) or ch.a == ch.b:
             problem(f"channels[{k}]", f"channel '{ch.name}' does not join two existing junctions", "fix its ends")
             continue
-        key = frozenset((ch.a, ch.b))
-        if key in ends_seen:
+        ends = frozenset((ch.a, ch.b))
+        if ends in ends_seen:
             problem(f"channels[{k}]", f"duplicate channel '{ch.name}'", "remove the duplicate")
-        ends_seen.add(key)
+        ends_seen.add(ends)
         for attr in ("length_mm", "width_mm", "height_mm"):
             value = getattr(ch, attr)
             if not (math.isfinite(value) and value > 0):

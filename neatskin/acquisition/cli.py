@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from neatskin.tomlfile import resolve_path
 
@@ -39,7 +40,13 @@ def register(subparsers) -> None:
 
 
 def table_handler(args: argparse.Namespace) -> int:
-    settings = {"rate_hz": 10_000.0, "live_samples": 100, "settle_samples": 20, "hold_s": None, "wiring": None}
+    settings: dict[str, Any] = {
+        "rate_hz": 10_000.0,
+        "live_samples": 100,
+        "settle_samples": 20,
+        "hold_s": None,
+        "wiring": None,
+    }
     if args.protocol is not None:
         settings.update(protocol_settings(args.protocol))
     for key in ("rate_hz", "live_samples", "settle_samples", "hold_s", "wiring"):

@@ -210,7 +210,7 @@ class LinesTable:
 @dataclass(frozen=True)
 class ChipEntry:
     inhibit: str = setting(doc="the chip's inhibit line, e.g. port0/line2")
-    pins: dict[str, Any] = dataclasses.field(metadata={"neatskin.table_doc": "X0..X3, Y0..Y3 = electrode number"})
+    pins: dict[str, Any] = setting(doc="X0..X3, Y0..Y3 = electrode number (inline table)")
     name: str | None = setting(None, max_len=64, default_doc="'U<k>'", doc="as printed on the board")
 
 

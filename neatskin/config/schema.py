@@ -112,7 +112,7 @@ class _Walker:
                 if partial:
                     continue
                 if valid and not is_required(f):
-                    values[f.name] = f.default if f.default is not MISSING else f.default_factory()  # type: ignore[misc]
+                    values[f.name] = f.default if f.default is not MISSING else f.default_factory()  # type: ignore[misc,operator]
                     continue
                 if is_required(f):
                     if is_schema(tp):
