@@ -52,3 +52,19 @@ def test_file_name_too_long(tmp_path):
 def test_missing_file(tmp_path):
     with pytest.raises(ConfigError, match="cannot read wiring file: No such file"):
         read_toml(tmp_path / "nope.toml", "wiring file")
+
+
+def test_gcode_generate_names_the_protocol_field_of_an_unreadable_printer(tmp_path, capsys):
+    from conftest import PROTOCOLS
+
+    from neatskin.cli import main
+
+    text = (PROTOCOLS / "smoke.toml").read_text()
+    text = text.replace('"printers/paper.toml"', '"/dev/zero"').replace('"skins/', f'"{PROTOCOLS}/skins/')
+    protocol = tmp_path / "p.toml"
+    protocol.write_text(text)
+    out = tmp_path / "p.gcode"
+    assert main(["gcode", "generate", str(protocol), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"neatskin: error: {protocol}: [files.printer]: printer profile is not a regular file")
+    assert not out.exists() and not (tmp_path / "p.gcode.tmp").exists()

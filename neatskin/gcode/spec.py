@@ -126,8 +126,8 @@ def build_from_spec(
     spec: GcodeSpec, *, hold_in_gcode: bool = False, layout: Layout | None = None, profile: PrinterProfile | None = None
 ) -> tuple[PressProgram, Layout, PrinterProfile]:
     """Load what the spec names (unless given) and build its press program."""
-    layout = layout if layout is not None else load_layout(spec.layout_path)
-    profile = profile if profile is not None else load_printer_profile(spec.printer_path)
+    layout = layout if layout is not None else _load_named(load_layout, spec, "layout", spec.layout_path)
+    profile = profile if profile is not None else _load_named(load_printer_profile, spec, "printer", spec.printer_path)
     positions = generate_positions(layout, spec.positions)
     program = build_program(
         layout,
@@ -140,6 +140,21 @@ def build_from_spec(
         source=spec.source,
     )
     return program, layout, profile
+
+
+def _load_named(load: Any, spec: GcodeSpec, key: str, path: Path) -> Any:
+    """Load a file the protocol names; a file that cannot be read at all is named by the protocol's field."""
+    try:
+        return load(path)
+    except ConfigError as exc:
+        if all(p.field is not None for p in exc.problems):
+            raise
+        raise ConfigError(
+            problems=[
+                p if p.field is not None else Problem(f"{p.message}: {p.file}", spec.source, f"files.{key}", p.fix)
+                for p in exc.problems
+            ]
+        ) from exc
 
 
 def build_from_protocol(path: str | Path, *, hold_in_gcode: bool = True) -> tuple[PressProgram, Layout, PrinterProfile]:
