@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from neatskin.config.files import ChannelDefaultsTable, LayoutFile, SkinTable
 from neatskin.errors import ConfigError, Problem
 
 _GEOMETRY_TOL_MM = 1e-6
@@ -206,164 +207,121 @@ def load_layout(path: str | Path) -> Layout:
 
 
 def layout_from_dict(data: dict, source: str = "<memory>") -> Layout:
-    """Build a Layout from parsed TOML; collects every problem before raising."""
-    problems: list[Problem] = []
+    """Build a Layout from parsed TOML (schema: `neatskin.config.files.LayoutFile`); collects every problem."""
+    from neatskin.config import parse_tables
+
+    tables, problems = parse_tables(LayoutFile, data, source)
 
     def problem(field_name: str, message: str, fix: str) -> None:
         problems.append(Problem(message, source, field_name, fix))
 
-    skin = data.get("skin")
-    if not isinstance(skin, dict):
-        problem(
-            "skin", "missing [skin] table", "add [skin] with name, thickness_mm, channel_depth_mm, resistivity_ohm_m"
-        )
-        skin = {}
-    defaults = data.get("channel_defaults", {})
-
-    def number(table: dict, key: str, where: str, default: float | None = None) -> float | None:
-        value = table.get(key, default)
-        if value is None:
-            problem(where, f"missing '{key}'", f"set {key} to a positive number")
-            return None
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            problem(where, f"'{key}' must be a finite number, got {value!r}", f"set {key} to a positive number")
-            return None
-        if value <= 0:
-            problem(where, f"'{key}' must be positive, got {value!r}", f"set {key} to a positive number")
-            return None
-        return float(value)
-
-    resistivity = number(skin, "resistivity_ohm_m", "skin.resistivity_ohm_m")
-    thickness = number(skin, "thickness_mm", "skin.thickness_mm")
-    channel_depth = number(skin, "channel_depth_mm", "skin.channel_depth_mm")
+    skin: SkinTable | None = tables.get("skin")
+    defaults: ChannelDefaultsTable = tables.get("channel_defaults") or ChannelDefaultsTable()
+    # a misspelt table (say [channel_default]) is one problem, not a "missing" one per channel it would fill
+    unknown_table = any(p.message.startswith("unknown table") for p in problems)
 
     junctions: list[Junction] = []
     by_name: dict[str, int] = {}
-    raw_junctions = data.get("junctions")
-    if not isinstance(raw_junctions, list) or not raw_junctions:
-        problem("junctions", "no [[junctions]] entries", "add [[junctions]] tables with name, x_mm, y_mm")
-        raw_junctions = []
-    for k, raw in enumerate(raw_junctions):
-        where = f"junctions[{k}]"
-        name = raw.get("name")
-        if not isinstance(name, str) or not name:
-            problem(f"{where}.name", "missing junction name", "give every junction a unique name")
+    for k, jt in enumerate(tables.get("junctions") or ()):
+        if jt.name in by_name:
+            problem(f"junctions[{k}].name", f"duplicate junction name '{jt.name}'", "rename one of the junctions")
             continue
-        if name in by_name:
-            problem(f"{where}.name", f"duplicate junction name '{name}'", "rename one of the junctions")
-            continue
-        xy = []
-        for key in ("x_mm", "y_mm"):
-            value = raw.get(key)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                problem(f"{where}.{key}", f"junction '{name}' needs a finite {key}, got {value!r}", f"set {key} in mm")
-                xy = None
-                break
-            xy.append(float(value))
-        if xy is None:
-            continue
-        by_name[name] = len(junctions)
-        junctions.append(Junction(name, xy[0], xy[1]))
+        by_name[jt.name] = len(junctions)
+        junctions.append(Junction(jt.name, jt.x_mm, jt.y_mm))
+    known = ", ".join(by_name) or "(none defined)"
 
     channels: list[Channel] = []
     seen_ends: dict[frozenset, str] = {}
-    raw_channels = data.get("channels")
-    if not isinstance(raw_channels, list) or not raw_channels:
-        problem("channels", "no [[channels]] entries", "add [[channels]] tables with from and to junction names")
-        raw_channels = []
-    for k, raw in enumerate(raw_channels):
+    missing: dict[str, list[str]] = {"width_mm": [], "height_mm": []}
+    for k, ct in enumerate(tables.get("channels") or ()):
         where = f"channels[{k}]"
         ends = []
-        for key in ("from", "to"):
-            ref = raw.get(key)
+        for key, ref in (("from", ct.start), ("to", ct.to)):
             if ref not in by_name:
-                problem(
-                    f"{where}.{key}",
-                    f"unknown junction {ref!r}",
-                    f"use one of the junction names: {', '.join(by_name) or '(none defined)'}",
-                )
+                problem(f"{where}.{key}", f"unknown junction {ref!r}", f"use one of the junction names: {known}")
             else:
                 ends.append(by_name[ref])
         if len(ends) != 2:
             continue
         a, b = ends
-        name = raw.get("name", f"{junctions[a].name}-{junctions[b].name}")
+        name = ct.name or f"{junctions[a].name}-{junctions[b].name}"
         if a == b:
-            problem(
-                f"{where}", f"channel '{name}' starts and ends at the same junction", "connect two different junctions"
-            )
+            problem(where, f"channel '{name}' starts and ends at the same junction", "connect two different junctions")
             continue
-        key = frozenset((a, b))
-        if key in seen_ends:
+        ends_key = frozenset((a, b))
+        if ends_key in seen_ends:
             problem(
-                f"{where}",
-                f"duplicate channel: '{name}' joins the same junctions as '{seen_ends[key]}'",
+                where,
+                f"duplicate channel: '{name}' joins the same junctions as '{seen_ends[ends_key]}'",
                 "remove one of the two channels",
             )
             continue
-        seen_ends[key] = name
-        straight = math.dist((junctions[a].x_mm, junctions[a].y_mm), (junctions[b].x_mm, junctions[b].y_mm))
-        length = number(raw, "length_mm", f"{where}.length_mm", straight if straight > 0 else None)
-        width = number(raw, "width_mm", f"{where}.width_mm", defaults.get("width_mm"))
-        height = number(raw, "height_mm", f"{where}.height_mm", defaults.get("height_mm"))
-        if None in (length, width, height):
+        seen_ends[ends_key] = name
+        length = ct.length_mm if ct.length_mm is not None else _distance_mm(junctions[a], junctions[b])
+        width = ct.width_mm if ct.width_mm is not None else defaults.width_mm
+        height = ct.height_mm if ct.height_mm is not None else defaults.height_mm
+        for dim, value in (("width_mm", width), ("height_mm", height)):
+            if value is None:
+                missing[dim].append(where)
+        if length <= 0:
+            problem(f"{where}.length_mm", f"channel '{name}' has zero length", "set length_mm or move a junction")
+            continue
+        if width is None or height is None:
             continue
         channels.append(Channel(str(name), a, b, length, width, height))
+    for dim, where_list in missing.items():
+        if where_list and not unknown_table:
+            problem(
+                f"{where_list[0]}.{dim}" if len(where_list) == 1 else "channel_defaults",
+                f"{len(where_list)} channel{'s' if len(where_list) > 1 else ''} ha{'ve' if len(where_list) > 1 else 's'}"
+                f" no {dim} ({', '.join(where_list[:3])}{', ...' if len(where_list) > 3 else ''})",
+                f"set {dim} in [channel_defaults], or on each channel",
+            )
 
     electrodes: list[Electrode] = []
-    raw_electrodes = data.get("electrodes")
-    if not isinstance(raw_electrodes, list) or len(raw_electrodes) < 2:
-        problem(
-            "electrodes", "fewer than 2 [[electrodes]] entries", "add [[electrodes]] tables with number and junction"
-        )
-        raw_electrodes = raw_electrodes if isinstance(raw_electrodes, list) else []
-    numbers: set[int] = set()
     used_junctions: dict[int, int] = {}
-    for k, raw in enumerate(raw_electrodes):
+    numbers: set[int] = set()
+    for k, et in enumerate(tables.get("electrodes") or ()):
         where = f"electrodes[{k}]"
-        num = raw.get("number")
-        if isinstance(num, bool) or not isinstance(num, int) or num < 1:
-            problem(
-                f"{where}.number",
-                f"electrode number must be a positive integer, got {num!r}",
-                "number electrodes 1, 2, ...",
-            )
+        if et.number in numbers:
+            problem(f"{where}.number", f"duplicate electrode number {et.number}", "give every electrode its own number")
             continue
-        if num in numbers:
-            problem(f"{where}.number", f"duplicate electrode number {num}", "give every electrode its own number")
-            continue
-        ref = raw.get("junction")
-        if ref not in by_name:
+        if et.junction not in by_name:
             problem(
                 f"{where}.junction",
-                f"electrode {num} is on a missing junction {ref!r}",
-                f"use one of the junction names: {', '.join(by_name) or '(none defined)'}",
+                f"electrode {et.number} is on a missing junction {et.junction!r}",
+                f"use one of the junction names: {known}",
             )
             continue
-        if by_name[ref] in used_junctions:
+        junction = by_name[et.junction]
+        if junction in used_junctions:
             problem(
                 f"{where}.junction",
-                f"electrodes {used_junctions[by_name[ref]]} and {num} share junction '{ref}'",
+                f"electrodes {used_junctions[junction]} and {et.number} share junction '{et.junction}'",
                 "put each electrode on its own junction",
             )
             continue
-        numbers.add(num)
-        used_junctions[by_name[ref]] = num
-        electrodes.append(Electrode(num, by_name[ref]))
+        numbers.add(et.number)
+        used_junctions[junction] = et.number
+        electrodes.append(Electrode(et.number, junction))
 
-    if problems:
+    if problems or skin is None:
         raise ConfigError(problems=problems)
     return Layout(
-        name=str(skin.get("name", Path(source).stem)),
+        name=skin.name or Path(source).stem,
         junctions=tuple(junctions),
         channels=tuple(channels),
         electrodes=tuple(sorted(electrodes, key=lambda e: e.number)),
-        resistivity_ohm_m=resistivity,
-        thickness_mm=thickness,
-        channel_depth_mm=channel_depth,
+        resistivity_ohm_m=skin.resistivity_ohm_m,
+        thickness_mm=skin.thickness_mm,
+        channel_depth_mm=skin.channel_depth_mm,
         source=source,
-        description=str(skin.get("description", "")),
+        description=skin.description,
     )
+
+
+def _distance_mm(a: Junction, b: Junction) -> float:
+    return math.dist((a.x_mm, a.y_mm), (b.x_mm, b.y_mm))
 
 
 # ---- validation --------------------------------------------------------------------------
@@ -395,10 +353,10 @@ def _validate(layout: Layout) -> list[Problem]:
         if not (0 <= ch.a < n and 0 <= ch.b < n) or ch.a == ch.b:
             problem(f"channels[{k}]", f"channel '{ch.name}' does not join two existing junctions", "fix its ends")
             continue
-        key = frozenset((ch.a, ch.b))
-        if key in ends_seen:
+        ends = frozenset((ch.a, ch.b))
+        if ends in ends_seen:
             problem(f"channels[{k}]", f"duplicate channel '{ch.name}'", "remove the duplicate")
-        ends_seen.add(key)
+        ends_seen.add(ends)
         for attr in ("length_mm", "width_mm", "height_mm"):
             value = getattr(ch, attr)
             if not (math.isfinite(value) and value > 0):

@@ -106,4 +106,9 @@ def test_mux_table_from_a_protocol(tmp_path, capsys):
     protocol.write_text('[acquisition]\nlive_samples = "many"\n')
     assert main(["mux", "table", "--protocol", str(protocol)]) == 2
     err = capsys.readouterr().err
-    assert "[acquisition.live_samples]: live_samples has the wrong type: 'many'" in err
+    assert "[acquisition.live_samples]: 'live_samples' must be an integer, got 'many'" in err
+    protocol.write_text("[acquisition]\nrate_hz = 1e12\nlive_sample = 50\n")
+    assert main(["mux", "table", "--protocol", str(protocol)]) == 2
+    err = capsys.readouterr().err
+    assert "[acquisition.rate_hz]: 'rate_hz' = 1000000000000.0 is above 1.25e+06" in err
+    assert "[acquisition.live_sample]: unknown key 'live_sample' (fix: did you mean 'live_samples'?)" in err

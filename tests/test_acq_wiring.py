@@ -4,6 +4,8 @@ import re
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from neatskin.acquisition.wiring import load_wiring, sequential_wiring, wiring_layout_path, wiring_to_toml
 from neatskin.errors import ConfigError
@@ -141,10 +143,6 @@ def test_pairs_come_from_the_layout(tmp_path, paper_layout):
     assert load_wiring(_write(tmp_path, wiring_to_toml(w)), small).routes == w.routes
 
 
-from hypothesis import given, settings  # noqa: E402
-from hypothesis import strategies as st
-
-
 @settings(max_examples=30, deadline=None)
 @given(data=st.data())
 def test_any_board_that_routes_every_pair_once_loads_and_sweeps_soundly(tmp_path_factory, paper_layout, data):
@@ -163,7 +161,10 @@ def test_any_board_that_routes_every_pair_once_loads_and_sweeps_soundly(tmp_path
         c, k = divmod(slots[p], 4)
         x, y = (pair.j, pair.i) if swap[p] else (pair.i, pair.j)
         chips[c]["pins"].update({f"X{k}": x, f"Y{k}": y})
-    pins = lambda d: "{ " + ", ".join(f"{k} = {v}" for k, v in d.items()) + " }"
+
+    def pins(d):
+        return "{ " + ", ".join(f"{k} = {v}" for k, v in d.items()) + " }"
+
     text = f'[lines]\nA = "port0/line{lines[0]}"\nB = "port0/line{lines[1]}"\n' + "".join(
         f'\n[[chips]]\nname = "{ch["name"]}"\ninhibit = "{ch["inhibit"]}"\npins = {pins(ch["pins"])}\n' for ch in chips
     )
@@ -176,3 +177,31 @@ def test_any_board_that_routes_every_pair_once_loads_and_sweeps_soundly(tmp_path
     for order in ("pairs", "gray"):
         sweep = build_sweep(w, order=order)
         assert check_sweep(sweep) == [] and sorted(sweep.order.tolist()) == list(range(n))
+
+
+def test_electrical_limits_are_read_and_round_trip(tmp_path, paper_layout):
+    w = load_wiring(PAPER, paper_layout)
+    assert (w.electrical.supply_positive_v, w.electrical.supply_negative_v) == (8.0, -8.0)
+    assert (w.electrical.r_on_ohm, w.electrical.r_on_mismatch_ohm) == (100.0, 10.0)
+    text = _paper_text(paper_layout).replace("r_on_ohm = 100.0", "r_on_ohm = 45.0")
+    again = load_wiring(_write(tmp_path, text), paper_layout)
+    assert again.electrical.r_on_ohm == 45.0
+    assert load_wiring(_write(tmp_path, wiring_to_toml(again)), paper_layout).electrical == again.electrical
+
+
+@pytest.mark.parametrize(
+    "old, new, field, message",
+    [
+        ("[electrical]", "[electric]", "electric", "unknown table [electric]"),
+        ("r_on_ohm = 100.0", "r_on = 100.0", "electrical.r_on", "unknown key 'r_on'"),
+        ("supply_negative_v = -8.0", "supply_negative_v = 8.0", "electrical.supply_negative_v", "must be below 0"),
+        ('inhibit = "port0/line2"', 'inhibit = "port0/line2"\ninhibitt = 1', "chips[0].inhibitt", "unknown key"),
+    ],
+)
+def test_electrical_and_chip_mistakes_are_named(tmp_path, paper_layout, old, new, field, message):
+    text = _paper_text(paper_layout)
+    assert old in text
+    with pytest.raises(ConfigError) as info:
+        load_wiring(_write(tmp_path, text.replace(old, new, 1)), paper_layout)
+    assert [p.field for p in info.value.problems] == [field]
+    assert message in info.value.problems[0].message and info.value.problems[0].fix

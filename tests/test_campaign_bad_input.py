@@ -32,7 +32,7 @@ def edit(path, old, new):
     "old, new, field, words",
     [
         ("depth_mm = 3.5", "depth_mm = 9.0", "press.depth_mm", "thickness"),
-        ("amplitude_a = 0.002", "amplitude_a = -0.002", "excitation.amplitude_a", "positive"),
+        ("amplitude_a = 0.0005", "amplitude_a = -0.0005", "excitation.amplitude_a", "positive"),
         ("rate_hz = 10000.0", "rate_hz = 1500.0", "excitation.frequency_hz", "Nyquist"),
         ("window = 10", "window = 500", "acquisition.window", "live window"),
         ('demodulation = "rms"', 'demodulation = "fft"', "acquisition.demodulation", "not one of"),
@@ -59,7 +59,7 @@ def test_each_protocol_mistake_is_named(protocols, old, new, field, words):
 
 def test_every_error_reported_at_once(protocols):
     path = protocols / "smoke.toml"
-    edit(path, "amplitude_a = 0.002", "amplitude_a = 0")
+    edit(path, "amplitude_a = 0.0005", "amplitude_a = 0")
     edit(path, 'demodulation = "rms"', 'demodulation = "fft"')
     edit(path, "depth_mm = 3.5", "depth_mm = 9.0")
     with pytest.raises(ConfigError) as info:
@@ -214,3 +214,94 @@ def test_depth_beyond_the_skin_is_one_error(protocols):
         load_protocol(path)
     assert [p.field for p in info.value.problems] == ["press.depth_mm"]
     assert "set depth_mm <= 5" in info.value.problems[0].fix
+
+
+@pytest.mark.parametrize(
+    "old, new, field, words",
+    [
+        # values the run cannot execute: each refused by campaign check, before anything moves
+        ("hold_s = 1.2", "hold_s = 1e15", "press.hold_s", "is above 3600"),
+        ("hold_s = 1.2", "hold_s = inf", "press.hold_s", "must be a finite number"),
+        ("rate_hz = 10000.0", "rate_hz = 1e300", "acquisition.rate_hz", "is above 1.25e+06"),
+        ("count = 6", "count = 10000000", "positions.count", "is above 100000"),
+        ("surface_error_mm = 0.0", "surface_error_mm = -1e308", "scene.surface_error_mm", "within the 5.5 mm skin"),
+        ("placement_error_mm = 0.0", "placement_error_mm = 1e9", "scene.placement_error_mm", "beyond 100 mm"),
+        ('name = "smoke"', 'name = "smöke"', "campaign.name", "is not a safe file name"),
+        ('name = "smoke"', 'name = "../../x"', "campaign.name", "is not a safe file name"),
+        ('name = "smoke"', 'name = "/tmp/x"', "campaign.name", "is not a safe file name"),
+        ('printer = "printers/paper.toml"', 'printer = "/dev/zero"', "files.printer", "is not a regular file"),
+        ('printer = "printers/paper.toml"', f'printer = "{"x" * 5000}.toml"', "files.printer", "more than 1024"),
+        ('printer = "printers/paper.toml"', f'printer = "{"x" * 300}.toml"', "files.printer", "File name too long"),
+        ("[fsr]", "[fsrr]", "fsrr", "did you mean 'fsr'"),
+        ("[fsr]\nenabled = true", "[fsr]\nenable = true", "fsr.enable", "did you mean 'enabled'"),
+    ],
+)
+def test_values_the_run_cannot_execute_are_refused(protocols, old, new, field, words):
+    path = protocols / "smoke.toml"
+    edit(path, old, new)
+    with pytest.raises(ConfigError) as info:
+        load_protocol(path)
+    fields = [p.field for p in info.value.problems]
+    assert field in fields, info.value
+    problem = info.value.problems[fields.index(field)]
+    assert problem.file == str(path) and problem.fix
+    assert words in str(problem)
+
+
+def test_rig_time_and_waveform_bytes_are_capped(protocols):
+    path = protocols / "smoke.toml"
+    edit(path, "count = 6", "count = 50000")
+    edit(path, "repeats = 2", "repeats = 10")
+    with pytest.raises(ConfigError) as info:
+        load_protocol(path)
+    by_field = {p.field: p for p in info.value.problems}
+    # 5e5 presses x (1.2 s hold + 2 x 13.5 mm / 2 mm/s + 0.5 s + 311 mm / 100 mm/s) = 5e5 x 18.31 s
+    assert "about 106 days of rig time, beyond the cap of 14 days" in by_field["positions.count"].message
+    assert "GiB of waveforms, beyond the cap of 200 GiB" in by_field["record.waveforms"].message
+
+
+def test_resource_estimate_of_the_smoke_campaign(protocols):
+    protocol = load_protocol(protocols / "smoke.toml")
+    r = protocol.resources
+    # hold 1.2 s + (10 mm safe height + 3.5 mm depth) x 2 / 2 mm/s + 0.5 s = 15.2 s at 10 kHz
+    assert (r.presses, r.samples_per_press, r.bytes_per_press) == (12, 152_000, 152_000 * 24)
+    assert r.waveform_bytes == 12 * 152_000 * 24
+    assert r.rig_time_s == pytest.approx(12 * (15.2 + (220 * 2**0.5) / 100) + 25.0)
+
+
+def test_non_utf8_protocol_is_one_error(protocols):
+    path = protocols / "smoke.toml"
+    path.write_bytes(path.read_bytes().replace(b"smoke test", b"smoke \xff test"))
+    with pytest.raises(ConfigError) as info:
+        load_protocol(path)
+    assert len(info.value.problems) == 1 and info.value.file == str(path)
+    assert "not UTF-8" in str(info.value)
+
+
+def test_the_papers_2_mA_clips_at_the_mux_rails(protocols):
+    path = protocols / "smoke.toml"
+    edit(path, "amplitude_a = 0.0005", "amplitude_a = 0.002")
+    with pytest.raises(ConfigError) as info:
+        load_protocol(path)
+    assert [p.field for p in info.value.problems] == ["excitation.amplitude_a"]
+    problem = info.value.problems[0]
+    # 5625 ohm (corner to opposite corner, 1.5 R) x 1.5 + 2 x 100 + 10 = 8647.5 ohm; x 2 mA = 17.3 V
+    assert "2 mA x (5625 ohm (pair 4-8, undeformed) x 1.5 press margin" in problem.message
+    assert "= 17.3 V peak, beyond the mux supply rails (-8 V .. +8 V): 8 V" in problem.message
+    assert "lower amplitude_a to <= 0.925 mA" in problem.fix and "more conductive fluid" in problem.fix
+
+
+def test_electrical_limits_come_from_the_wiring_and_the_protocol(protocols):
+    edit(protocols / "wiring" / "paper.toml", "supply_positive_v = 8.0", "supply_positive_v = 15.0")
+    edit(protocols / "wiring" / "paper.toml", "supply_negative_v = -8.0", "supply_negative_v = -15.0")
+    path = protocols / "smoke.toml"
+    edit(path, "[acquisition]", "[acquisition]\nadc_range_v = 2.0")
+    edit(path, "amplitude_a = 0.0005", "amplitude_a = 0.001")
+    with pytest.raises(ConfigError) as info:
+        load_protocol(path)
+    # rails now +-15 V; the ADC reaches 2 V / 0.5 = 4 V across the pair: 1 mA x 8647.5 ohm = 8.65 V
+    assert "8.65 V peak, beyond the ADC range over the voltage gain" in info.value.problems[0].message
+    edit(path, "adc_range_v = 2.0", "adc_range_v = 10.0")
+    check = load_protocol(path).electrical
+    assert (check.peak_v, check.limit_v) == (pytest.approx(8.6475), 15.0)
+    assert check.limit_name.startswith("mux supply rails")

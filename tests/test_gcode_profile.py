@@ -58,11 +58,9 @@ def test_field_and_cross_field_problems_in_one_report(paper_dict):
     del paper_dict["soft_limits"]["min_z_mm"]  # the z checks that need it are skipped, not misreported
     with pytest.raises(ConfigError) as info:
         printer_profile_from_dict(paper_dict, "printer.toml")
-    assert [p.field for p in info.value.problems] == [
-        "soft_limits.min_z_mm",
-        "bed.size_y_mm",
-        "motion.travel_feed_mm_s",
-    ]
+    fields = [p.field for p in info.value.problems]
+    assert set(fields[:2]) == {"soft_limits.min_z_mm", "bed.size_y_mm"}  # the tables' own problems first
+    assert fields[2:] == ["motion.travel_feed_mm_s"]  # then the cross-field one
 
 
 def test_missing_table_and_unreadable_file(paper_dict, tmp_path):
@@ -75,3 +73,33 @@ def test_missing_table_and_unreadable_file(paper_dict, tmp_path):
     (tmp_path / "bad.toml").write_text("[bed\n")
     with pytest.raises(ConfigError, match="not valid TOML"):
         load_printer_profile(tmp_path / "bad.toml")
+
+
+@pytest.mark.parametrize(
+    "mutate, field, fix",
+    [
+        (lambda d: d.update(parking=d.pop("park")), "parking", "did you mean 'park'?"),
+        (lambda d: d["printer"].update(homing_tim_s=60), "printer.homing_tim_s", "did you mean 'homing_time_s'?"),
+        (lambda d: d["calibration"].update(ofset_x_mm=1.0), "calibration.ofset_x_mm", "did you mean 'offset_x_mm'?"),
+    ],
+)
+def test_misspelt_keys_and_tables_are_refused_with_a_suggestion(paper_dict, mutate, field, fix):
+    # before the schema layer, a misspelt [park] silently parked at the top of the Z travel
+    mutate(paper_dict)
+    with pytest.raises(ConfigError) as info:
+        printer_profile_from_dict(paper_dict, "printer.toml")
+    assert [(p.field, p.fix) for p in info.value.problems] == [(field, fix)]
+
+
+def test_park_defaults_to_the_far_corner_at_the_top_of_z(paper_dict):
+    del paper_dict["park"]
+    assert tuple(printer_profile_from_dict(paper_dict, "printer.toml").park_mm) == (0.0, 220.0, 250.0)
+
+
+def test_extreme_values_are_refused(paper_dict):
+    paper_dict["printer"]["homing_time_s"] = 1e15
+    paper_dict["bed"]["size_x_mm"] = float("inf")
+    with pytest.raises(ConfigError) as info:
+        printer_profile_from_dict(paper_dict, "printer.toml")
+    assert [p.field for p in info.value.problems] == ["printer.homing_time_s", "bed.size_x_mm"]
+    assert "is above 3600" in info.value.problems[0].message

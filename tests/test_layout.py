@@ -96,3 +96,41 @@ def test_layout_built_in_code_is_validated_too(paper_layout):
     with pytest.raises(ConfigError) as info:
         replace(paper_layout, electrodes=twins)
     assert "share junction" in str(info.value)
+
+
+def test_misspelt_channel_defaults_is_one_problem_with_a_suggestion():
+    # before the schema layer this gave 24 lines of "missing width_mm" / "missing height_mm"
+    data = paper_dict()
+    data["channel_default"] = data.pop("channel_defaults")
+    with pytest.raises(ConfigError) as info:
+        layout_from_dict(data, source="skins/bad.toml")
+    assert [(p.field, p.message, p.fix) for p in info.value.problems] == [
+        ("channel_default", "unknown table [channel_default]", "did you mean 'channel_defaults'?")
+    ]
+
+
+def test_missing_channel_dimensions_are_one_problem_per_dimension():
+    data = paper_dict()
+    del data["channel_defaults"]
+    with pytest.raises(ConfigError) as info:
+        layout_from_dict(data, source="skins/bad.toml")
+    assert [(p.field, p.message) for p in info.value.problems] == [
+        ("channel_defaults", "12 channels have no width_mm (channels[0], channels[1], channels[2], ...)"),
+        ("channel_defaults", "12 channels have no height_mm (channels[0], channels[1], channels[2], ...)"),
+    ]
+
+
+@pytest.mark.parametrize(
+    "mutate, field, fix",
+    [
+        (lambda d: d["skin"].update(thickness=5.5), "skin.thickness", "did you mean 'thickness_mm'?"),
+        (lambda d: d["channels"][2].update(widht_mm=2.0), "channels[2].widht_mm", "did you mean 'width_mm'?"),
+        (lambda d: d["electrodes"][0].update(junktion="J10"), "electrodes[0].junktion", "did you mean 'junction'?"),
+    ],
+)
+def test_unknown_keys_at_every_level_suggest_the_close_one(mutate, field, fix):
+    data = paper_dict()
+    mutate(data)
+    with pytest.raises(ConfigError) as info:
+        layout_from_dict(data, source="skins/bad.toml")
+    assert [(p.field, p.fix) for p in info.value.problems] == [(field, fix)]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from neatskin.tomlfile import resolve_path
 
@@ -39,7 +40,13 @@ def register(subparsers) -> None:
 
 
 def table_handler(args: argparse.Namespace) -> int:
-    settings = {"rate_hz": 10_000.0, "live_samples": 100, "settle_samples": 20, "hold_s": None, "wiring": None}
+    settings: dict[str, Any] = {
+        "rate_hz": 10_000.0,
+        "live_samples": 100,
+        "settle_samples": 20,
+        "hold_s": None,
+        "wiring": None,
+    }
     if args.protocol is not None:
         settings.update(protocol_settings(args.protocol))
     for key in ("rate_hz", "live_samples", "settle_samples", "hold_s", "wiring"):
@@ -62,33 +69,32 @@ def table_handler(args: argparse.Namespace) -> int:
 
 
 def protocol_settings(path: Path) -> dict:
-    """The few protocol keys the table needs ([files].wiring, [acquisition], [press].hold_s), read without
-    the campaign loader (acquisition does not import rig); the campaign loader validates the rest."""
+    """The few protocol keys the table needs ([files].wiring, [acquisition], [press].hold_s), each checked
+    against the protocol schema; other sections are left to the campaign loader (acquisition does not import rig)."""
+    from neatskin.config import parse_partial
+    from neatskin.config.files import AcquisitionTable, FilesTable, PressTable
     from neatskin.errors import ConfigError
     from neatskin.tomlfile import read_toml
 
     path = resolve_path(path)
     data = read_toml(path, "protocol", fix="check the path")
     out: dict = {}
+    problems = []
     wanted = (
-        ("files", "wiring", str),
-        ("acquisition", "rate_hz", (int, float)),
-        ("acquisition", "live_samples", int),
-        ("acquisition", "settle_samples", int),
-        ("press", "hold_s", (int, float)),
+        ("files", FilesTable, ("wiring",)),
+        ("acquisition", AcquisitionTable, ("rate_hz", "live_samples", "settle_samples")),
+        ("press", PressTable, ("hold_s",)),
     )
-    for table, key, kind in wanted:
-        value = data.get(table, {}).get(key)
-        if value is None:
+    for table, schema, keys in wanted:
+        if table not in data:
             continue
-        if isinstance(value, bool) or not isinstance(value, kind):
-            raise ConfigError(
-                f"{key} has the wrong type: {value!r}",
-                file=str(path),
-                field=f"{table}.{key}",
-                fix=f"set {table}.{key} to a {'path' if kind is str else 'number'}",
-            )
-        out[key] = (Path(path).parent / value) if key == "wiring" else value
+        values, found = parse_partial(schema, data[table], str(path), table)
+        problems += found
+        out.update({key: values[key] for key in keys if key in values})
+    if problems:
+        raise ConfigError(problems=problems)
+    if "wiring" in out:
+        out["wiring"] = Path(path).parent / out["wiring"]
     return out
 
 

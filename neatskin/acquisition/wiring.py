@@ -17,6 +17,11 @@ The wiring file (protocols/wiring/*.toml):
     name = "U1"
     inhibit = "port0/line2"
     pins = { X0 = 1, Y0 = 2, X1 = 1, Y1 = 3, X2 = 1, Y2 = 4, X3 = 1, Y3 = 5 }
+    [electrical]                       # optional; MAX4052 at +-8 V by default
+    supply_positive_v = 8.0
+    supply_negative_v = -8.0
+    r_on_ohm = 100.0
+    r_on_mismatch_ohm = 10.0
 
 `load_wiring(path, layout)` refuses every mistake a technician can make in it, each with
 one Problem naming the file, the field and the fix. Nothing here knows there are 28 pairs.
@@ -30,6 +35,9 @@ from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
+from neatskin.config import parse_tables
+from neatskin.config.files import ChipEntry, LinesTable, WiringFile
+from neatskin.config.files import ElectricalTable as MuxElectrical
 from neatskin.errors import ConfigError, Problem, raise_problems
 from neatskin.layout import ElectrodePair, Layout
 from neatskin.tomlfile import read_toml, resolve_path
@@ -61,6 +69,7 @@ class Wiring:
     pairs: tuple[ElectrodePair, ...]
     source: str = "<memory>"
     layout_path: str | None = None
+    electrical: MuxElectrical = MuxElectrical()  # the chips' supply rails and on-resistance
 
     def __post_init__(self) -> None:
         n_chips = len(self.chip_names)
@@ -137,6 +146,15 @@ def wiring_to_toml(wiring: Wiring, layout_ref: str | None = None, header: str = 
     out = [header.rstrip("\n")] if header else []
     if layout_ref:
         out.append(f'layout = "{layout_ref}"')
+    e = wiring.electrical
+    out += [
+        "",
+        "[electrical]",
+        f"supply_positive_v = {e.supply_positive_v!r}",
+        f"supply_negative_v = {e.supply_negative_v!r}",
+        f"r_on_ohm = {e.r_on_ohm!r}",
+        f"r_on_mismatch_ohm = {e.r_on_mismatch_ohm!r}",
+    ]
     out += ["", "[lines]", f'A = "{wiring.address_lines[0]}"', f'B = "{wiring.address_lines[1]}"']
     for c, name in enumerate(wiring.chip_names):
         pins = []
@@ -210,21 +228,15 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
             line_owner[value] = field
         return value
 
-    unknown_top = set(data) - {"layout", "lines", "chips", "description"}
-    for key in sorted(unknown_top):
-        problem(key, f"unknown key '{key}'", "remove it (known: layout, description, [lines], [[chips]])")
-    lines = data.get("lines")
-    if not isinstance(lines, dict):
-        problem("lines", "missing [lines] table", 'add [lines] with A = "port0/line0" and B = "port0/line1"')
-        lines = {}
-    address_lines = (line(lines.get("A"), "lines.A"), line(lines.get("B"), "lines.B"))
-
-    chips = data.get("chips")
-    if not isinstance(chips, list) or not chips:
-        problem("chips", "no [[chips]] entries", "add one [[chips]] table per multiplexer")
-        chips = []
+    tables, schema_problems = parse_tables(WiringFile, data, source)
+    problems.extend(schema_problems)
+    lines: LinesTable | None = tables.get("lines")
+    address_lines = (
+        (line(lines.A, "lines.A"), line(lines.B, "lines.B")) if lines else ("<bad:lines.A>", "<bad:lines.B>")
+    )
+    chips: tuple[ChipEntry, ...] = tables.get("chips") or ()
     n_pairs = len(layout.pairs)
-    if len(chips) * ADDRESSES_PER_CHIP < n_pairs:
+    if chips and len(chips) * ADDRESSES_PER_CHIP < n_pairs:
         need = math.ceil(n_pairs / ADDRESSES_PER_CHIP)
         problem(
             "chips",
@@ -238,25 +250,12 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
     routes: list[Route] = []
     for c, chip in enumerate(chips):
         where = f"chips[{c}]"
-        if not isinstance(chip, dict):
-            problem(where, "a chip must be a table", "write [[chips]] with name, inhibit and pins")
-            continue
-        name = chip.get("name", f"U{c + 1}")
-        if not isinstance(name, str) or not name:
-            problem(
-                f"{where}.name", f"chip name must be text, got {name!r}", 'name the chip as on the board, e.g. "U1"'
-            )
-            name = f"U{c + 1}"
+        name = chip.name or f"U{c + 1}"
         if name in names:
             problem(f"{where}.name", f"chip name '{name}' is used twice", "give every chip its own name")
         names.append(name)
-        inhibits.append(line(chip.get("inhibit"), f"{where}.inhibit"))
-        for key in sorted(set(chip) - {"name", "inhibit", "pins"}):
-            problem(f"{where}.{key}", f"unknown key '{key}'", "remove it (known: name, inhibit, pins)")
-        pins = chip.get("pins")
-        if not isinstance(pins, dict):
-            problem(f"{where}.pins", "missing pins table", "write pins = { X0 = 1, Y0 = 2, ... }")
-            continue
+        inhibits.append(line(chip.inhibit, f"{where}.inhibit"))
+        pins = chip.pins
         on_pin: dict[tuple[str, int], int] = {}
         for pin, value in pins.items():
             field = f"{where}.pins.{pin}"
@@ -335,7 +334,6 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
                     f"wire electrodes {pair.i} and {pair.j} to Xk and Yk of a free chip address",
                 )
     raise_problems(problems)
-    layout_ref = data.get("layout") if isinstance(data.get("layout"), str) else None
     return Wiring(
         tuple(names),
         address_lines,
@@ -343,5 +341,6 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
         tuple(sorted(routes, key=lambda r: r.pair_index)),
         layout.pairs,
         source=source,
-        layout_path=layout_ref,
+        layout_path=tables.get("layout"),
+        electrical=tables.get("electrical") or MuxElectrical(),
     )

@@ -7,11 +7,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 from types import SimpleNamespace
 
+from neatskin.config import parse_tables
+from neatskin.config.files import MotionTable, ParkTable, PrinterFile, PrinterTable
 from neatskin.errors import ConfigError, Problem
 from neatskin.gcode.calibration import Calibration
 from neatskin.tomlfile import read_toml, resolve_path
@@ -70,94 +73,46 @@ def load_printer_profile(path: str | Path) -> PrinterProfile:
 
 
 def printer_profile_from_dict(data: dict, source: str = "<memory>") -> PrinterProfile:
-    problems: list[Problem] = []
-
-    def table(name: str) -> dict:
-        value = data.get(name)
-        if not isinstance(value, dict):
-            problems.append(
-                Problem(
-                    f"missing [{name}] table", source, name, f"add a [{name}] table (see protocols/printers/paper.toml)"
-                )
-            )
-            return {}
-        return value
-
-    def number(tab: dict, tname: str, key: str, *, positive: bool = True, default: float | None = None) -> float:
-        where = f"{tname}.{key}"
-        value = tab.get(key, default)
-        if value is None:
-            problems.append(Problem(f"missing '{key}'", source, where, f"set {key} in [{tname}]"))
-            return math.nan
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            problems.append(
-                Problem(f"'{key}' must be a finite number, got {value!r}", source, where, f"set {key} to a number")
-            )
-            return math.nan
-        if positive and value <= 0:
-            problems.append(Problem(f"'{key}' must be positive, got {value!r}", source, where, f"set {key} > 0"))
-            return math.nan
-        return float(value)
-
-    def integer(tab: dict, tname: str, key: str, default: int) -> int:
-        value = tab.get(key, default)
-        if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-            problems.append(
-                Problem(
-                    f"'{key}' must be a positive integer, got {value!r}",
-                    source,
-                    f"{tname}.{key}",
-                    f"set {key} to a positive whole number",
-                )
-            )
-            return 1
-        return value
-
-    printer, bed, soft = table("printer"), table("bed"), table("soft_limits")
-    feed, accel, motion = table("max_feed"), table("max_accel"), table("motion")
-    park, cal = data.get("park", {}), table("calibration")
-    soft_min = Axes(*(number(soft, "soft_limits", f"min_{a}_mm", positive=False) for a in "xyz"))
-    soft_max = Axes(*(number(soft, "soft_limits", f"max_{a}_mm", positive=False) for a in "xyz"))
+    """A PrinterProfile from parsed TOML (schema: `neatskin.config.files.PrinterFile`); every problem at once."""
+    tables, problems = parse_tables(PrinterFile, data, source)
+    nan3 = Axes(math.nan, math.nan, math.nan)
+    printer: PrinterTable = tables.get("printer") or PrinterTable()
+    bed, soft, feed = tables.get("bed"), tables.get("soft_limits"), tables.get("max_feed")
+    accel, motion, cal = tables.get("max_accel"), tables.get("motion"), tables.get("calibration")
+    park: ParkTable = tables.get("park") or ParkTable()
+    soft_min = Axes(soft.min_x_mm, soft.min_y_mm, soft.min_z_mm) if soft else nan3
+    soft_max = Axes(soft.max_x_mm, soft.max_y_mm, soft.max_z_mm) if soft else nan3
+    motion_values = (
+        dataclasses.asdict(motion) if motion else {f.name: math.nan for f in dataclasses.fields(MotionTable)}
+    )
     values = dict(
-        name=str(printer.get("name", Path(source).stem)),
-        bed_x_mm=number(bed, "bed", "size_x_mm"),
-        bed_y_mm=number(bed, "bed", "size_y_mm"),
+        name=printer.name or Path(source).stem,
+        bed_x_mm=bed.size_x_mm if bed else math.nan,
+        bed_y_mm=bed.size_y_mm if bed else math.nan,
         soft_min_mm=soft_min,
         soft_max_mm=soft_max,
-        max_feed_mm_s=Axes(*(number(feed, "max_feed", f"{a}_mm_s") for a in "xyz")),
-        max_accel_mm_s2=Axes(*(number(accel, "max_accel", f"{a}_mm_s2") for a in "xyz")),
-        accel_mm_s2=number(motion, "motion", "accel_mm_s2"),
-        travel_feed_mm_s=number(motion, "motion", "travel_feed_mm_s"),
-        z_feed_mm_s=number(motion, "motion", "z_feed_mm_s"),
-        press_feed_mm_s=number(motion, "motion", "press_feed_mm_s"),
-        safe_height_mm=number(motion, "motion", "safe_height_mm"),
-        park_mm=Axes(
-            *(
-                number(park, "park", key, positive=False, default=default)
-                if math.isfinite(default) or key in park
-                else math.nan
-                for key, default in (("x_mm", soft_min.x), ("y_mm", soft_max.y), ("z_mm", soft_max.z))
-            )
+        max_feed_mm_s=Axes(feed.x_mm_s, feed.y_mm_s, feed.z_mm_s) if feed else nan3,
+        max_accel_mm_s2=Axes(accel.x_mm_s2, accel.y_mm_s2, accel.z_mm_s2) if accel else nan3,
+        **motion_values,
+        park_mm=Axes(  # the defaults of an absent [park]: the far corner at the top of the Z travel
+            soft_min.x if park.x_mm is None else park.x_mm,
+            soft_max.y if park.y_mm is None else park.y_mm,
+            soft_max.z if park.z_mm is None else park.z_mm,
         ),
-        calibration=None,
-        baud_rate=integer(printer, "printer", "baud_rate", 115200),
-        planner_buffer_size=integer(printer, "printer", "planner_buffer_size", 16),
-        rx_buffer_size=integer(printer, "printer", "rx_buffer_size", 128),
-        homing_time_s=number(printer, "printer", "homing_time_s", default=20.0),
-        firmware=str(printer.get("firmware", "Marlin")),
-        description=str(printer.get("description", "")),
+        baud_rate=printer.baud_rate,
+        planner_buffer_size=printer.planner_buffer_size,
+        rx_buffer_size=printer.rx_buffer_size,
+        homing_time_s=printer.homing_time_s,
+        firmware=printer.firmware,
+        description=printer.description,
         source=source,
     )
-    cal_values = {
-        k: number(cal, "calibration", k, positive=False)
-        for k in ("offset_x_mm", "offset_y_mm", "rotation_deg", "surface_z_mm")
-    }
-    if problems:
-        # cross-field problems among the fields that are valid, so one run reports everything
-        partial = SimpleNamespace(**{**values, "calibration": SimpleNamespace(**cal_values)})
+    nan_cal = SimpleNamespace(surface_z_mm=math.nan)
+    if problems or cal is None:
+        # cross-field problems among the tables that are valid, so one run reports everything
+        partial = SimpleNamespace(**values, calibration=cal or nan_cal)
         raise ConfigError(problems=problems + _check(partial))
-    values["calibration"] = Calibration(**cal_values)
-    return PrinterProfile(**values)
+    return PrinterProfile(**values, calibration=Calibration(**dataclasses.asdict(cal)))
 
 
 def _check(p) -> list[Problem]:

@@ -1,35 +1,40 @@
 """The G-code half of a campaign protocol: [campaign] name/seed, [files] layout/printer, [positions], [press].
 
 `press_spec_from_dict(data, source)` reads exactly those sections of a parsed protocol TOML
-(other sections are ignored, so the lead's protocol loader can call it on the whole file) and
+(other sections are ignored, so the campaign's protocol loader can call it on the whole file) and
 returns a frozen `GcodeSpec`; every problem in those sections is reported in one ConfigError.
 `build_from_protocol(path)` loads the layout and printer profile it names and builds the program.
 """
 
 from __future__ import annotations
 
-import difflib
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
-from neatskin.errors import ConfigError, Problem
+from neatskin.config import parse_collect, parse_partial
+from neatskin.config.files import (
+    MAX_PRESSES,
+    CampaignTable,
+    FilesTable,
+    PositionsTable,
+    PressTable,
+    campaign_name_problems,
+)
+from neatskin.errors import ConfigError, Problem, raise_problems
 from neatskin.gcode.positions import PositionSpec, generate_positions
 from neatskin.gcode.profile import PrinterProfile, load_printer_profile
 from neatskin.gcode.program import PressProgram, PressSpec, build_program
 from neatskin.layout import Layout, load_layout
 from neatskin.tomlfile import read_toml, resolve_path
 
-POSITION_KEYS = {
-    "strategy",
-    "count",
-    "seed",
-    "min_spacing_mm",
-    "electrode_keep_out_mm",
-    "keep_out",
-    "channel_fraction",
-    "grid_shape",
-}
-PRESS_KEYS = {"depth_mm", "repeats", "order", "hold_s", "probe_diameter_mm", "travel_ordering", "depth_margin_mm"}
+GCODE_TABLES: tuple[tuple[str, type], ...] = (
+    ("campaign", CampaignTable),
+    ("files", FilesTable),
+    ("positions", PositionsTable),
+    ("press", PressTable),
+)
 
 
 @dataclass(frozen=True)
@@ -44,118 +49,85 @@ class GcodeSpec:
 
 
 def press_spec_from_dict(data: dict, source: str = "<memory>", base_dir: str | Path | None = None) -> GcodeSpec:
-    """The G-code sections of a protocol; paths in [files] are resolved from `base_dir` (default: the source's folder)."""
+    """The G-code sections of a protocol; paths in [files] are resolved from `base_dir` (default: the source's folder).
+
+    The sections are read with the protocol schema (`neatskin.config.files`); every problem in them is
+    reported in one ConfigError. Other sections and [files].wiring are the campaign loader's."""
     problems: list[Problem] = []
     base = Path(base_dir) if base_dir is not None else Path(source).parent
-
-    def table(name: str) -> dict:
-        value = data.get(name)
-        if not isinstance(value, dict):
+    tables: dict[str, Any] = {}
+    for name, schema in GCODE_TABLES:
+        if not isinstance(data.get(name), dict):
             problems.append(
                 Problem(f"missing [{name}] table", source, name, f"add [{name}] (see protocols/paper.toml)")
             )
-            return {}
-        return value
-
-    campaign, files, positions, press = table("campaign"), table("files"), table("positions"), table("press")
-    name = campaign.get("name")
-    if not isinstance(name, str) or not name:
-        problems.append(
-            Problem(
-                f"campaign name must be non-empty text, got {name!r}",
-                source,
-                "campaign.name",
-                'set name = "my-campaign"',
-            )
-        )
-        name = "campaign"
-    seed = campaign.get("seed")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        problems.append(
-            Problem(
-                f"seed must be a whole number >= 0, got {seed!r}",
-                source,
-                "campaign.seed",
-                "set seed = 2019 (any whole number; it fixes positions and order)",
-            )
-        )
-        seed = 0
-    paths = {}
-    for key in ("layout", "printer"):
-        value = files.get(key)
-        if not isinstance(value, str) or not value:
-            problems.append(
-                Problem(
-                    f"missing file path '{key}'",
-                    source,
-                    f"files.{key}",
-                    f'set {key} = "{key}s/paper.toml" (relative to the protocol file)'
-                    if key == "printer"
-                    else 'set layout = "skins/paper.toml"',
-                )
-            )
-            paths[key] = Path()
+            continue
+        if name == "files":  # the wiring is not the G-code's business
+            partial, found = parse_partial(schema, data[name], source, name)
+            for key in ("layout", "printer"):
+                if key not in data[name]:
+                    found.append(
+                        Problem(
+                            f"missing file path '{key}'",
+                            source,
+                            f"files.{key}",
+                            f'set {key} = "{"skins" if key == "layout" else "printers"}/paper.toml" '
+                            "(relative to the protocol file)",
+                        )
+                    )
+            tables[name] = partial if not found else None
         else:
-            paths[key] = (base / value) if not Path(value).is_absolute() else Path(value)
-    for tname, tab, known in (("positions", positions, POSITION_KEYS), ("press", press, PRESS_KEYS)):
-        for key in sorted(set(tab) - known):
-            close = difflib.get_close_matches(key, sorted(known), n=1)
-            problems.append(
-                Problem(
-                    f"unknown key '{key}'",
-                    source,
-                    f"{tname}.{key}",
-                    f"did you mean '{close[0]}'?" if close else f"remove it or use one of: {', '.join(sorted(known))}",
-                )
-            )
-    for tname, tab, key, fix in (
-        ("positions", positions, "strategy", 'set strategy = "paper", "stratified" or "grid"'),
-        ("positions", positions, "count", "set count to the number of distinct positions"),
-        ("press", press, "depth_mm", "set depth_mm (below the skin's top surface; 3.5 in the paper)"),
-        ("press", press, "repeats", "set repeats (presses per position; 28 in the paper)"),
-    ):
-        if tab and key not in tab:
-            problems.append(Problem(f"missing '{key}'", source, f"{tname}.{key}", fix))
+            tables[name], found = parse_collect(schema, data[name], source, name)
+        problems += found
+    campaign: CampaignTable | None = tables.get("campaign")
+    files: dict[str, Any] | None = tables.get("files")
+    positions: PositionsTable | None = tables.get("positions")
+    press: PressTable | None = tables.get("press")
     pos_spec = press_spec = None
-    try:
-        kwargs = {k: v for k, v in positions.items() if k in POSITION_KEYS}
-        kwargs.setdefault("seed", seed)
-        if "keep_out" in kwargs:
-            kwargs["keep_out"] = tuple(tuple(float(v) for v in z) for z in kwargs["keep_out"])
-        if "grid_shape" in kwargs:
-            kwargs["grid_shape"] = tuple(kwargs["grid_shape"])
-        pos_spec = PositionSpec(**kwargs, source=source)
-    except ConfigError as exc:
-        problems.extend(exc.problems)
-    except (TypeError, ValueError) as exc:
+    if positions is not None and campaign is not None:
+        fields = dataclasses.asdict(positions)
+        fields["seed"] = campaign.seed if positions.seed is None else positions.seed
+        pos_spec = _collect(problems, PositionSpec, **fields, source=source)
+    if press is not None:
+        press_spec = _collect(problems, PressSpec, **dataclasses.asdict(press), source=source)
+    if positions is not None and press is not None and positions.count * press.repeats > MAX_PRESSES:
         problems.append(
             Problem(
-                f"malformed value: {exc}",
+                f"{positions.count} positions x {press.repeats} repeats = {positions.count * press.repeats} presses, "
+                f"more than {MAX_PRESSES} in one program",
                 source,
-                "positions",
-                "keep_out is a list of [x_mm, y_mm, radius_mm]; grid_shape is [rows, cols]",
+                "press.repeats",
+                "split the work into several campaigns",
             )
         )
+    if problems or campaign is None or files is None or pos_spec is None or press_spec is None:
+        raise ConfigError(problems=problems or [Problem("incomplete protocol", source, None, "see the errors above")])
+    paths = {key: base / files[key] if not Path(files[key]).is_absolute() else Path(files[key]) for key in files}
+    return GcodeSpec(campaign.name, campaign.seed, paths["layout"], paths["printer"], pos_spec, press_spec, source)
+
+
+def _collect(problems: list[Problem], build: Any, **kwargs: Any) -> Any:
     try:
-        press_spec = PressSpec(**{k: v for k, v in press.items() if k in PRESS_KEYS}, source=source)
+        return build(**kwargs)
     except ConfigError as exc:
         problems.extend(exc.problems)
-    if problems:
-        raise ConfigError(problems=problems)
-    return GcodeSpec(name, seed, paths["layout"], paths["printer"], pos_spec, press_spec, source)
+        return None
 
 
 def load_gcode_spec(path: str | Path) -> GcodeSpec:
+    """The G-code sections of a protocol file; its campaign name must also be a safe file name (G-code text)."""
     path = resolve_path(path)
-    return press_spec_from_dict(read_toml(path, "protocol", fix="check the path"), str(path))
+    spec = press_spec_from_dict(read_toml(path, "protocol", fix="check the path"), str(path))
+    raise_problems(campaign_name_problems(spec.name, str(path)))
+    return spec
 
 
 def build_from_spec(
     spec: GcodeSpec, *, hold_in_gcode: bool = False, layout: Layout | None = None, profile: PrinterProfile | None = None
 ) -> tuple[PressProgram, Layout, PrinterProfile]:
     """Load what the spec names (unless given) and build its press program."""
-    layout = layout if layout is not None else load_layout(spec.layout_path)
-    profile = profile if profile is not None else load_printer_profile(spec.printer_path)
+    layout = layout if layout is not None else _load_named(load_layout, spec, "layout", spec.layout_path)
+    profile = profile if profile is not None else _load_named(load_printer_profile, spec, "printer", spec.printer_path)
     positions = generate_positions(layout, spec.positions)
     program = build_program(
         layout,
@@ -168,6 +140,21 @@ def build_from_spec(
         source=spec.source,
     )
     return program, layout, profile
+
+
+def _load_named(load: Any, spec: GcodeSpec, key: str, path: Path) -> Any:
+    """Load a file the protocol names; a file that cannot be read at all is named by the protocol's field."""
+    try:
+        return load(path)
+    except ConfigError as exc:
+        if all(p.field is not None for p in exc.problems):
+            raise
+        raise ConfigError(
+            problems=[
+                p if p.field is not None else Problem(f"{p.message}: {p.file}", spec.source, f"files.{key}", p.fix)
+                for p in exc.problems
+            ]
+        ) from exc
 
 
 def build_from_protocol(path: str | Path, *, hold_in_gcode: bool = True) -> tuple[PressProgram, Layout, PrinterProfile]:

@@ -1,27 +1,38 @@
 """Campaign protocol files: load a protocol TOML and the layout, wiring and printer profile it names.
 
-Validation reports every error in the protocol (and in the files it references) at once,
-each with its file, field and fix, before anything moves.
+The protocol is read through its schema (`neatskin.config.files.ProtocolFile`); then what spans
+several keys or files is checked: the referenced files, the press program's bounds, the resources
+the run would take (samples per press, bytes, rig time, each against a stated cap), the scene's
+ranges, and the electrical limits (peak excitation voltage against the mux rails, the
+galvanostat's compliance and the ADC range). Every problem in the protocol and the files it
+references is reported at once, each with its file, field and fix, before anything moves.
 """
 
 from __future__ import annotations
 
 import hashlib
+import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
-from neatskin.config import TableReader
+from neatskin.config import files as schema
+from neatskin.config import parse_tables
 from neatskin.errors import ConfigError, Problem
 from neatskin.sim.scene import Scene, parse_scene
 from neatskin.tomlfile import read_toml, resolve_path
 
 KNOWN_SECTIONS = ("campaign", "files", "positions", "press", "excitation", "acquisition", "fsr", "record", "scene")
+WAVEFORM_BYTES_PER_SAMPLE = 3 * 8  # V, I, FSR as float64
+MAX_PLACEMENT_ERROR_MM = 100.0
 
 
 @dataclass(frozen=True)
 class Excitation:
     amplitude_a: float
     frequency_hz: float
+    compliance_v: float = 50.0
+    press_margin: float = 1.5
 
 
 @dataclass(frozen=True)
@@ -31,6 +42,40 @@ class AcquisitionSettings:
     live_samples: int
     demodulation: str
     window: int
+    adc_range_v: float = 10.0
+    voltage_gain: float = 0.5
+
+
+@dataclass(frozen=True)
+class ResourceEstimate:
+    """What the run would take, estimated from the protocol alone (upper bounds, before the plan is built)."""
+
+    presses: int
+    samples_per_press: int
+    bytes_per_press: int  # one press's raw samples in memory
+    waveform_bytes: int  # stored raw samples of the whole campaign (0 unless record.waveforms)
+    rig_time_s: float
+
+    def summary(self) -> str:
+        return (
+            f"{self.presses} presses, <= {self.samples_per_press} samples ({self.bytes_per_press / 2**20:.1f} MiB) "
+            f"per press, {self.waveform_bytes / 2**30:.2f} GiB of waveforms, <= {self.rig_time_s / 3600:.2f} h"
+        )
+
+
+@dataclass(frozen=True)
+class ElectricalCheck:
+    """The excitation's worst-case peak voltage on the undeformed skin times the press margin, and its limit."""
+
+    largest_pair: str
+    largest_r_eq_ohm: float
+    peak_v: float
+    limit_v: float
+    limit_name: str
+
+    @property
+    def headroom(self) -> float:
+        return self.limit_v / self.peak_v
 
 
 @dataclass(frozen=True)
@@ -42,16 +87,18 @@ class Protocol:
     layout_path: Path
     wiring_path: Path
     printer_path: Path
-    layout: object  # neatskin.layout.Layout
-    wiring: object  # neatskin.acquisition.wiring.Wiring
-    printer: object  # neatskin.gcode.profile.PrinterProfile
-    press: object  # the G-code side of the protocol: positions and press program parameters
+    layout: Any  # neatskin.layout.Layout
+    wiring: Any  # neatskin.acquisition.wiring.Wiring
+    printer: Any  # neatskin.gcode.profile.PrinterProfile
+    press: Any  # neatskin.gcode.spec.GcodeSpec: positions and press program parameters
     excitation: Excitation
     acquisition: AcquisitionSettings
     fsr_enabled: bool
     record_waveforms: bool
     scene: Scene
     raw: dict
+    resources: ResourceEstimate
+    electrical: ElectricalCheck
 
     @property
     def referenced_files(self) -> dict[str, Path]:
@@ -75,116 +122,63 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
     path = resolve_path(path)
     source = str(path)
     data = read_toml(path, "protocol file", fix="check the path, e.g. protocols/paper.toml")
-
-    problems: list[Problem] = []
-    for section in data:
-        if section not in KNOWN_SECTIONS:
-            problems.append(
-                Problem(
-                    f"unknown section [{section}]",
-                    source,
-                    section,
-                    f"remove it; known sections: {', '.join(KNOWN_SECTIONS)}",
-                )
-            )
-
-    def table(name: str) -> TableReader:
-        raw = data.get(name, {})
-        reader = TableReader(raw if isinstance(raw, dict) else {}, name, source)
-        if not isinstance(raw, dict):
-            reader.problems.append(Problem(f"[{name}] must be a table", source, name, f"write it as [{name}]"))
-        return reader
-
-    campaign = table("campaign")
-    name = campaign.text("name")
-    seed = campaign.integer("seed", minimum=0)
-    description = campaign._get("description", "") or ""
-    campaign.check_unknown()
-
-    files = table("files")
-    file_paths: dict[str, Path | None] = {}
-    for key in ("layout", "wiring", "printer"):
-        rel = files.text(key)
-        file_paths[key] = None
-        if rel is None:
-            continue
-        resolved = Path((file_overrides or {}).get(key) or (path.parent / rel)).resolve()
-        if not resolved.is_file():
-            files.problems.append(
-                Problem(
-                    f"{key} file {rel!r} does not exist (looked for {resolved})",
-                    source,
-                    f"files.{key}",
-                    f"give a path relative to {path.parent}",
-                )
-            )
-        else:
-            file_paths[key] = resolved
-    files.check_unknown()
-
-    excitation_t = table("excitation")
-    amplitude = excitation_t.number("amplitude_a", positive=True, maximum=0.1, unit="A")
-    frequency = excitation_t.number("frequency_hz", positive=True, unit="Hz")
-    excitation_t.check_unknown()
-
-    acq = table("acquisition")
-    rate = acq.number("rate_hz", positive=True, unit="Hz")
-    settle = acq.integer("settle_samples", minimum=0)
-    live = acq.integer("live_samples", minimum=2)
-    demod = acq.choice("demodulation", ("rms", "lockin"))
-    window = acq.integer("window", minimum=2)
-    if None not in (live, window) and window > live:
-        acq.problems.append(
+    tables, problems = parse_tables(schema.ProtocolFile, data, source)
+    campaign: schema.CampaignTable | None = tables.get("campaign")
+    if campaign is not None:
+        problems += schema.campaign_name_problems(campaign.name, source)
+    file_paths = _referenced_files(tables.get("files"), path, file_overrides or {}, problems)
+    excitation_t: schema.ExcitationTable | None = tables.get("excitation")
+    acq: schema.AcquisitionTable | None = tables.get("acquisition")
+    if acq is not None and acq.window > acq.live_samples:
+        problems.append(
             Problem(
-                f"window {window} is longer than the live window {live}",
+                f"window {acq.window} is longer than the live window {acq.live_samples}",
                 source,
                 "acquisition.window",
                 "set window <= live_samples",
             )
         )
-    if None not in (rate, frequency) and frequency >= rate / 2:
-        acq.problems.append(
+    if acq is not None and excitation_t is not None and excitation_t.frequency_hz >= acq.rate_hz / 2:
+        problems.append(
             Problem(
-                f"excitation {frequency} Hz is at or above Nyquist for {rate} Hz sampling",
+                f"excitation {excitation_t.frequency_hz} Hz is at or above Nyquist for {acq.rate_hz} Hz sampling",
                 source,
                 "excitation.frequency_hz",
                 "sample at least 2x faster than the excitation",
             )
         )
-    acq.check_unknown()
-
-    fsr = table("fsr")
-    fsr_enabled = fsr.boolean("enabled", True)
-    fsr.check_unknown()
-
-    record = table("record")
-    waveforms = record.boolean("waveforms", False)
-    record.check_unknown()
-
-    raw_scene = data.get("scene", {})
-    scene, scene_problems = parse_scene(
-        raw_scene if isinstance(raw_scene, dict) else {}, source, record_waveforms=bool(waveforms)
-    )
-    if not isinstance(raw_scene, dict):
-        scene_problems.append(Problem("[scene] must be a table", source, "scene", "write it as [scene]"))
+    record: schema.RecordTable = tables.get("record") or schema.RecordTable()
+    fsr: schema.FsrTable = tables.get("fsr") or schema.FsrTable()
+    scene, scene_problems = parse_scene(tables.get("scene", {}), source, record_waveforms=record.waveforms)
     problems.extend(scene_problems)
 
-    for reader in (campaign, files, excitation_t, acq, fsr, record):
-        problems.extend(reader.problems)
-
     layout, wiring, printer, press = _load_components(data, source, file_paths, problems)
-    if None not in (layout, printer, press):  # the press program's checks: bounds after calibration, depth, feeds
+    if layout is not None and not scene_problems:
+        problems += _scene_problems(scene, layout, source)
+    resources = electrical = None
+    resource_problems: list[Problem] = []  # a program too large to run is too large to build: check first
+    if press is not None and printer is not None and acq is not None:
+        resources = estimate_resources(press, printer, acq, record.waveforms)
+        resource_problems = _resource_problems(resources, press, acq, source)
+        problems += resource_problems
+    if layout is not None and printer is not None and press is not None and not resource_problems:
+        # the press program's checks: bounds after calibration, depth, feeds
         from neatskin.gcode.spec import build_from_spec
 
         _collect(problems, lambda: build_from_spec(press, layout=layout, profile=printer))
+    if layout is not None and wiring is not None and excitation_t is not None and acq is not None:
+        electrical = check_electrical(layout, wiring, excitation_t, acq)
+        problems += _electrical_problems(electrical, layout, wiring, excitation_t, source)
 
-    if problems:
-        raise ConfigError(problems=problems)
+    if problems or campaign is None or excitation_t is None or acq is None or resources is None or electrical is None:
+        raise ConfigError(
+            problems=problems or [Problem("incomplete protocol", source, None, "see protocols/paper.toml")]
+        )
     return Protocol(
         path=path.resolve(),
-        name=name,
-        seed=seed,
-        description=str(description),
+        name=campaign.name,
+        seed=campaign.seed,
+        description=campaign.description,
         layout_path=file_paths["layout"],
         wiring_path=file_paths["wiring"],
         printer_path=file_paths["printer"],
@@ -192,16 +186,189 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
         wiring=wiring,
         printer=printer,
         press=press,
-        excitation=Excitation(amplitude, frequency),
-        acquisition=AcquisitionSettings(rate, settle, live, demod, window),
-        fsr_enabled=fsr_enabled,
-        record_waveforms=waveforms,
+        excitation=Excitation(
+            excitation_t.amplitude_a, excitation_t.frequency_hz, excitation_t.compliance_v, excitation_t.press_margin
+        ),
+        acquisition=AcquisitionSettings(
+            acq.rate_hz,
+            acq.settle_samples,
+            acq.live_samples,
+            acq.demodulation,
+            acq.window,
+            acq.adc_range_v,
+            acq.voltage_gain,
+        ),
+        fsr_enabled=fsr.enabled,
+        record_waveforms=record.waveforms,
         scene=scene,
         raw=data,
+        resources=resources,
+        electrical=electrical,
     )
 
 
-def _collect(problems: list[Problem], load, *args):
+def _referenced_files(
+    files: schema.FilesTable | None, path: Path, overrides: dict[str, Path], problems: list[Problem]
+) -> dict[str, Any]:
+    """Each [files] entry as an existing regular file (or the override resume gives), else a problem."""
+    out: dict[str, Any] = {"layout": None, "wiring": None, "printer": None}
+    if files is None:
+        return out
+    for key in out:
+        rel = getattr(files, key)
+        try:
+            resolved = Path(overrides.get(key) or (path.parent / rel)).resolve()
+            is_file = resolved.is_file()
+        except OSError as exc:  # a name too long, a loop of links
+            problems.append(
+                Problem(
+                    f"{key} file path cannot be used: {exc.strerror or exc}",
+                    str(path),
+                    f"files.{key}",
+                    "give a shorter path to an existing TOML file",
+                )
+            )
+            continue
+        if not is_file:
+            what = "is not a regular file" if resolved.exists() else "does not exist"
+            problems.append(
+                Problem(
+                    f"{key} file {rel!r} {what} (looked for {resolved})",
+                    str(path),
+                    f"files.{key}",
+                    f"give a path to a TOML file, relative to {path.parent}",
+                )
+            )
+        else:
+            out[key] = resolved
+    return out
+
+
+def estimate_resources(press: Any, printer: Any, acq: schema.AcquisitionTable, waveforms: bool) -> ResourceEstimate:
+    """Upper bounds of one press's samples and the campaign's bytes and rig time, from the protocol alone."""
+    spec = press.press
+    presses = press.positions.count * spec.repeats
+    z_travel_mm = printer.safe_height_mm + spec.depth_mm
+    motion_s = 2 * z_travel_mm / min(printer.z_feed_mm_s, printer.press_feed_mm_s)
+    per_press_s = spec.hold_s + motion_s + 0.5  # the runner records 0.5 s beyond the press
+    travel_s = math.hypot(printer.bed_x_mm, printer.bed_y_mm) / printer.travel_feed_mm_s
+    samples = math.ceil(per_press_s * acq.rate_hz)
+    per_press_bytes = samples * WAVEFORM_BYTES_PER_SAMPLE
+    return ResourceEstimate(
+        presses=presses,
+        samples_per_press=samples,
+        bytes_per_press=per_press_bytes,
+        waveform_bytes=per_press_bytes * presses if waveforms else 0,
+        rig_time_s=presses * (per_press_s + travel_s) + printer.homing_time_s,
+    )
+
+
+def _resource_problems(r: ResourceEstimate, press: Any, acq: schema.AcquisitionTable, source: str) -> list[Problem]:
+    problems = []
+    if r.samples_per_press > schema.MAX_SAMPLES_PER_PRESS:
+        problems.append(
+            Problem(
+                f"one press would record {r.samples_per_press:.3g} samples ({r.bytes_per_press / 2**30:.3g} GiB), "
+                f"beyond the cap of {schema.MAX_SAMPLES_PER_PRESS:.3g}",
+                source,
+                "press.hold_s",
+                f"shorten press.hold_s ({press.press.hold_s:g} s) or lower acquisition.rate_hz ({acq.rate_hz:g} Hz)",
+            )
+        )
+    if r.waveform_bytes > schema.MAX_WAVEFORM_BYTES:
+        problems.append(
+            Problem(
+                f"the campaign would store {r.waveform_bytes / 2**30:.3g} GiB of waveforms, beyond the cap of "
+                f"{schema.MAX_WAVEFORM_BYTES / 2**30:.0f} GiB",
+                source,
+                "record.waveforms",
+                "set record.waveforms = false (features only), or fewer presses, a shorter hold or a lower rate",
+            )
+        )
+    if r.rig_time_s > schema.MAX_RIG_TIME_S:
+        problems.append(
+            Problem(
+                f"the campaign would take about {r.rig_time_s / 86400:.3g} days of rig time, beyond the cap of "
+                f"{schema.MAX_RIG_TIME_S / 86400:.0f} days",
+                source,
+                "positions.count",
+                "split it into several campaigns (fewer positions or repeats each), or shorten press.hold_s",
+            )
+        )
+    return problems
+
+
+def _scene_problems(scene: Scene, layout: Any, source: str) -> list[Problem]:
+    """Ranges of the finished Scene that depend on the layout (sim/scene.py checks each knob's type)."""
+    problems = []
+    if not abs(scene.surface_error_mm) <= layout.thickness_mm:
+        problems.append(
+            Problem(
+                f"surface_error_mm = {scene.surface_error_mm!r} is not within the {layout.thickness_mm} mm skin",
+                source,
+                "scene.surface_error_mm",
+                f"set surface_error_mm between -{layout.thickness_mm} and {layout.thickness_mm}",
+            )
+        )
+    if not scene.placement_error_mm <= MAX_PLACEMENT_ERROR_MM:
+        problems.append(
+            Problem(
+                f"placement_error_mm = {scene.placement_error_mm!r} is beyond {MAX_PLACEMENT_ERROR_MM:g} mm",
+                source,
+                "scene.placement_error_mm",
+                "set a placement error std of a few mm at most (0 turns it off)",
+            )
+        )
+    return problems
+
+
+def check_electrical(
+    layout: Any, wiring: Any, excitation: schema.ExcitationTable, acq: schema.AcquisitionTable
+) -> ElectricalCheck:
+    """Worst-case peak voltage: amplitude x (largest pair R_eq of the undeformed skin x press margin
+    + 2 R_on + R_on mismatch), against the lowest of the mux rails, the compliance and the ADC's reach."""
+    import numpy as np
+
+    from neatskin.skin.network import equivalent_resistance
+
+    r_eq = np.asarray(equivalent_resistance(layout, 1.0 / layout.channel_resistance_ohm))
+    k = int(np.argmax(r_eq))
+    e = wiring.electrical
+    path_ohm = float(r_eq[k]) * excitation.press_margin + 2 * e.r_on_ohm + e.r_on_mismatch_ohm
+    limits = {
+        f"mux supply rails ({e.supply_negative_v:g} V .. +{e.supply_positive_v:g} V)": min(
+            e.supply_positive_v, -e.supply_negative_v
+        ),
+        "galvanostat compliance (excitation.compliance_v)": excitation.compliance_v,
+        "ADC range over the voltage gain (acquisition.adc_range_v / voltage_gain)": acq.adc_range_v / acq.voltage_gain,
+    }
+    name = min(limits, key=lambda n: limits[n])
+    return ElectricalCheck(layout.pairs[k].label, float(r_eq[k]), excitation.amplitude_a * path_ohm, limits[name], name)
+
+
+def _electrical_problems(
+    check: ElectricalCheck, layout: Any, wiring: Any, excitation: schema.ExcitationTable, source: str
+) -> list[Problem]:
+    if check.peak_v <= check.limit_v:
+        return []
+    e = wiring.electrical
+    amp_max = excitation.amplitude_a * check.limit_v / check.peak_v
+    return [
+        Problem(
+            f"the excitation would clip: {excitation.amplitude_a * 1e3:g} mA x ({check.largest_r_eq_ohm:.0f} ohm "
+            f"(pair {check.largest_pair}, undeformed) x {excitation.press_margin:g} press margin + 2 x "
+            f"{e.r_on_ohm:g} ohm R_on + {e.r_on_mismatch_ohm:g} ohm mismatch) = {check.peak_v:.3g} V peak, beyond "
+            f"the {check.limit_name}: {check.limit_v:.3g} V",
+            source,
+            "excitation.amplitude_a",
+            f"lower amplitude_a to <= {amp_max * 1e3:.3g} mA, or use a more conductive fluid (skin "
+            f"resistivity_ohm_m = {layout.resistivity_ohm_m:g} ohm m in {Path(layout.source).name}), or other rails "
+            f"(wiring [electrical])",
+        )
+    ]
+
+
+def _collect(problems: list[Problem], load: Any, *args: Any) -> Any:
     try:
         return load(*args)
     except ConfigError as exc:
@@ -209,7 +376,7 @@ def _collect(problems: list[Problem], load, *args):
         return None
 
 
-def _load_components(data: dict, source: str, paths: dict, problems: list[Problem]):
+def _load_components(data: dict, source: str, paths: dict, problems: list[Problem]) -> tuple[Any, Any, Any, Any]:
     from neatskin.acquisition.wiring import load_wiring
     from neatskin.gcode.profile import load_printer_profile
     from neatskin.gcode.spec import press_spec_from_dict
@@ -218,11 +385,9 @@ def _load_components(data: dict, source: str, paths: dict, problems: list[Proble
     layout = _collect(problems, load_layout, paths["layout"]) if paths["layout"] else None
     printer = _collect(problems, load_printer_profile, paths["printer"]) if paths["printer"] else None
     wiring = _collect(problems, load_wiring, paths["wiring"], layout) if paths["wiring"] and layout else None
-    own_fields = {p.field for p in problems}
+    own_fields = {p.field for p in problems if p.file == source}
     spec_problems: list[Problem] = []
     press = _collect(spec_problems, press_spec_from_dict, data, source)
-    # [campaign] and [files] are checked here too: report each of their fields once
-    problems.extend(
-        p for p in spec_problems if not (p.field in own_fields and p.field.split(".")[0] in ("campaign", "files"))
-    )
+    # the protocol schema has read the G-code's sections too: report each field once
+    problems.extend(p for p in spec_problems if p.field not in own_fields)
     return layout, wiring, printer, press

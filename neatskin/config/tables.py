@@ -1,4 +1,4 @@
-"""Typed reading of TOML tables that collects every problem (file, field, fix) instead of stopping at the first."""
+"""`TableReader`: typed reading of one TOML table, key by key (kept for sim/scene.py; new code declares a schema)."""
 
 from __future__ import annotations
 

@@ -1,0 +1,323 @@
+"""The declarative config engine: a TOML table is a frozen dataclass whose fields carry their constraints.
+
+A schema is a frozen dataclass; each field is declared with `setting(...)` (default, unit, range,
+choices, pattern, doc) or is itself a schema (a TOML table), a tuple of schemas (an array of
+tables), a tuple of numbers, or a free `dict[str, X]` table. `parse(Schema, data, source)` walks
+the data once and collects every problem (wrong type, out of range, missing, unknown key at any
+level with a difflib "did you mean") as a `Problem` naming file, field and fix; it returns the
+fully typed instance only when there is none. One declaration per setting gives validation,
+default, documentation (`neatskin.config.docs`) and the error text, in the spirit of
+scikit-learn's `_parameter_constraints`; no dependency beyond the standard library.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import re
+import types
+import typing
+from collections.abc import Mapping
+from dataclasses import MISSING, dataclass
+from typing import Any, TypeVar, Union
+
+from neatskin.errors import ConfigError, Problem
+
+T = TypeVar("T")
+_META = "neatskin.setting"
+
+
+@dataclass(frozen=True)
+class Constraint:
+    """What one setting accepts: unit, range, choices, pattern, and the sentence that documents it."""
+
+    unit: str = ""
+    ge: float | None = None
+    gt: float | None = None
+    le: float | None = None
+    lt: float | None = None
+    choices: tuple[str, ...] = ()
+    pattern: str | None = None
+    pattern_text: str = ""  # the pattern in words, for the error and the docs
+    max_len: int | None = None
+    min_items: int = 0
+    allow_empty: bool = False  # text may be ""
+    doc: str = ""
+    example: str = ""  # a value to put in the fix when the key is missing
+    default_doc: str = ""  # how a derived default (None in the schema) is computed
+
+
+def setting(default: Any = MISSING, *, key: str | None = None, **constraint: Any) -> Any:
+    """A schema field: its default (none = required), its TOML key if not the field's name, its `Constraint`."""
+    meta: dict[str, Any] = {_META: Constraint(**constraint)}
+    if key is not None:
+        meta["key"] = key
+    if isinstance(default, (list, dict, set)):
+        raise TypeError("use a tuple (immutable) default")
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def constraint_of(f: dataclasses.Field) -> Constraint:
+    return f.metadata.get(_META, Constraint())
+
+
+def is_schema(tp: Any) -> bool:
+    return isinstance(tp, type) and dataclasses.is_dataclass(tp)
+
+
+def hints(schema: type) -> dict[str, Any]:
+    return typing.get_type_hints(schema)
+
+
+def toml_key(f: dataclasses.Field) -> str:
+    """The key in the file: the field name, or metadata `key` (for TOML keys that are Python keywords)."""
+    return f.metadata.get("key", f.name)
+
+
+def is_required(f: dataclasses.Field) -> bool:
+    return f.default is MISSING and f.default_factory is MISSING
+
+
+class _Walker:
+    """One parse: the source file and the problems found so far."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+        self.problems: list[Problem] = []
+
+    def problem(self, where: str, message: str, fix: str) -> None:
+        self.problems.append(Problem(message, self.source, where or None, fix))
+
+    # ---- tables ----------------------------------------------------------------------
+
+    def table(self, schema: type, data: Any, where: str, partial: bool = False, valid: bool = False) -> Any:
+        """An instance of `schema` from a TOML table, or None after recording its problems.
+
+        partial: keys that are absent are left out (the result is a dict of the keys present);
+        valid: the result is a dict of every field that is good (defaults included), bad ones left out."""
+        if not isinstance(data, Mapping):
+            self.problem(where, f"[{where}] must be a table, got {data!r}", f"write it as [{where}] with its keys")
+            return None
+        fields = dataclasses.fields(schema)
+        by_key = {toml_key(f): f for f in fields}
+        types_ = hints(schema)
+        self.unknown_keys(data, tuple(by_key), where)
+        values: dict[str, Any] = {}
+        ok = True
+        for key, f in by_key.items():
+            here = f"{where}.{key}" if where else key
+            tp = types_[f.name]
+            if key not in data:
+                if partial:
+                    continue
+                if valid and not is_required(f):
+                    values[f.name] = f.default if f.default is not MISSING else f.default_factory()  # type: ignore[misc,operator]
+                    continue
+                if is_required(f):
+                    if is_schema(tp):
+                        self.problem(
+                            here, f"missing [{here}] table", f"add a [{here}] table with {_key_list(tp, required=True)}"
+                        )
+                    else:
+                        self.problem(here, f"missing '{key}'", _fix(key, constraint_of(f), tp))
+                    ok = False
+                continue
+            value, good = self.value(tp, data[key], here, constraint_of(f), key)
+            ok = ok and good
+            if good or not valid:
+                values[f.name] = value
+        if valid:
+            return values
+        if partial:
+            return values if ok else None
+        return schema(**values) if ok else None
+
+    def unknown_keys(self, data: Mapping, known: tuple[str, ...], where: str) -> None:
+        for key in data:
+            if key in known:
+                continue
+            here = f"{where}.{key}" if where else key
+            close = difflib.get_close_matches(str(key), known, n=1, cutoff=0.6)
+            kind = "table" if isinstance(data[key], Mapping) else "key"
+            shown = f"[{here}]" if kind == "table" else f"'{key}'"
+            fix = f"did you mean '{close[0]}'?" if close else f"remove it; known: {', '.join(known) or '(none)'}"
+            self.problem(here, f"unknown {kind} {shown}", fix)
+
+    # ---- values ----------------------------------------------------------------------
+
+    def value(self, tp: Any, value: Any, where: str, c: Constraint, key: str) -> tuple[Any, bool]:
+        origin = typing.get_origin(tp)
+        args = typing.get_args(tp)
+        if origin in (Union, types.UnionType):  # X | None: TOML has no null, so a present value is an X
+            inner = [a for a in args if a is not type(None)]
+            return self.value(inner[0], value, where, c, key)
+        if is_schema(tp):
+            result = self.table(tp, value, where)
+            return result, result is not None
+        if origin is tuple:
+            return self.sequence(args, value, where, c, key)
+        if origin is dict:
+            return self.mapping(args[1], value, where, c, key)
+        if tp is Any:
+            return value, True
+        return self.scalar(tp, value, where, c, key)
+
+    def sequence(self, args: tuple, value: Any, where: str, c: Constraint, key: str) -> tuple[Any, bool]:
+        if not isinstance(value, list):
+            self.problem(where, f"'{key}' must be a list, got {value!r}", _fix(key, c, tuple))
+            return None, False
+        if len(args) == 2 and args[1] is Ellipsis:
+            item_types = [args[0]] * len(value)
+        else:
+            item_types = list(args)
+            if len(value) != len(args):
+                self.problem(where, f"'{key}' needs {len(args)} items, got {len(value)}", _fix(key, c, tuple))
+                return None, False
+        if len(value) < c.min_items:
+            self.problem(where, f"'{key}' needs at least {c.min_items} entries, got {len(value)}", _fix(key, c, tuple))
+            return None, False
+        items, ok = [], True
+        for k, (item_tp, item) in enumerate(zip(item_types, value)):
+            item_c = dataclasses.replace(c, min_items=0)
+            got, good = self.value(item_tp, item, f"{where}[{k}]", item_c, key)
+            items.append(got)
+            ok = ok and good
+        return tuple(items), ok
+
+    def mapping(self, item_tp: Any, value: Any, where: str, c: Constraint, key: str) -> tuple[Any, bool]:
+        if not isinstance(value, Mapping):
+            self.problem(where, f"'{key}' must be a table, got {value!r}", _fix(key, c, dict))
+            return None, False
+        out, ok = {}, True
+        for k, item in value.items():
+            got, good = self.value(item_tp, item, f"{where}.{k}", c, str(k))
+            out[str(k)] = got
+            ok = ok and good
+        return out, ok
+
+    def scalar(self, tp: Any, value: Any, where: str, c: Constraint, key: str) -> tuple[Any, bool]:
+        fix = _fix(key, c, tp)
+        if tp is bool:
+            if not isinstance(value, bool):
+                self.problem(where, f"'{key}' must be true or false, got {value!r}", f"set {key} = true or false")
+                return None, False
+            return value, True
+        if tp is str:
+            if not isinstance(value, str) or not (value or c.allow_empty):
+                self.problem(where, f"'{key}' must be a non-empty string, got {value!r}", fix)
+                return None, False
+            if c.max_len is not None and len(value) > c.max_len:
+                self.problem(where, f"'{key}' is {len(value)} characters long, more than {c.max_len}", fix)
+                return None, False
+            if c.choices and value not in c.choices:
+                close = difflib.get_close_matches(value, c.choices, n=1)
+                self.problem(
+                    where,
+                    f"'{key}' = {value!r} is not one of {', '.join(c.choices)}",
+                    (f"did you mean {close[0]!r}? " if close else "") + fix,
+                )
+                return None, False
+            if c.pattern is not None and not re.fullmatch(c.pattern, value):
+                self.problem(where, f"'{key}' = {value!r} is not {c.pattern_text or 'allowed'}", fix)
+                return None, False
+            return value, True
+        if tp is int:
+            if isinstance(value, bool) or not isinstance(value, int):
+                self.problem(where, f"'{key}' must be an integer, got {value!r}", fix)
+                return None, False
+        elif tp is float:
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                self.problem(where, f"'{key}' must be a finite number, got {value!r}", fix)
+                return None, False
+            value = float(value)
+        else:  # pragma: no cover - a schema declared with a type the engine does not know
+            raise TypeError(f"unsupported schema type {tp!r} at {where}")
+        bad = _range_violation(value, c)
+        if bad:
+            self.problem(where, f"'{key}' = {value!r} {bad}", fix)
+            return None, False
+        return value, True
+
+
+def _range_violation(value: float, c: Constraint) -> str:
+    if c.gt is not None and not value > c.gt:
+        return "must be positive" if c.gt == 0 else f"must be above {c.gt:g}"
+    if c.ge is not None and not value >= c.ge:
+        return f"is below {c.ge:g}"
+    if c.lt is not None and not value < c.lt:
+        return f"must be below {c.lt:g}"
+    if c.le is not None and not value <= c.le:
+        return f"is above {c.le:g}"
+    return ""
+
+
+def describe_range(c: Constraint) -> str:
+    """The constraint in words, e.g. '> 0, <= 0.1'."""
+    parts = []
+    for op, bound in ((">", c.gt), (">=", c.ge), ("<", c.lt), ("<=", c.le)):
+        if bound is not None:
+            parts.append(f"{op} {bound:g}")
+    if c.choices:
+        parts.append("one of " + ", ".join(repr(x) for x in c.choices))
+    if c.pattern_text:
+        parts.append(c.pattern_text)
+    if c.max_len is not None:
+        parts.append(f"at most {c.max_len} characters")
+    if c.min_items:
+        parts.append(f"at least {c.min_items} entries")
+    return ", ".join(parts)
+
+
+def _fix(key: str, c: Constraint, tp: Any) -> str:
+    kind = {bool: "true or false", int: "a whole number", float: "a number", str: "text"}.get(tp, "a value")
+    rng = describe_range(c)
+    text = f"set {key} to {kind}" + (f" in {c.unit}" if c.unit else "") + (f" ({rng})" if rng else "")
+    if c.example:
+        text += f", e.g. {key} = {c.example}"
+    return text
+
+
+def _key_list(schema: type, required: bool = False) -> str:
+    keys = [toml_key(f) for f in dataclasses.fields(schema) if is_required(f) or not required]
+    return ", ".join(keys) if keys else "its keys"
+
+
+def parse_collect(schema: type[T], data: Any, source: str, where: str = "") -> tuple[T | None, list[Problem]]:
+    """The instance (None if anything is wrong) and every problem found; for loaders that merge problems."""
+    walker = _Walker(source)
+    result = walker.table(schema, data, where)
+    return (result if not walker.problems else None), walker.problems
+
+
+def parse(schema: type[T], data: Any, source: str, where: str = "") -> T:
+    """The fully typed instance of `schema` read from `data`; one ConfigError with every problem otherwise."""
+    result, problems = parse_collect(schema, data, source, where)
+    if problems or result is None:
+        raise ConfigError(problems=problems or [Problem("no value", source, where or None, "check the file")])
+    return result
+
+
+def parse_partial(schema: type, data: Any, source: str, where: str = "") -> tuple[dict[str, Any], list[Problem]]:
+    """Only the keys present in `data`, each checked against `schema` (absent keys are no problem)."""
+    walker = _Walker(source)
+    result = walker.table(schema, data, where, partial=True)
+    return (result or {}), walker.problems
+
+
+def parse_tables(schema: type, data: Any, source: str) -> tuple[dict[str, Any], list[Problem]]:
+    """Every top-level field of `schema` that reads cleanly (defaults included), and every problem.
+
+    For loaders whose cross-field checks should still run on the good tables of a file with bad ones."""
+    walker = _Walker(source)
+    if not isinstance(data, Mapping):
+        walker.problem("", f"the file must hold TOML tables, got {type(data).__name__}", "check the file")
+        return {}, walker.problems
+    return walker.table(schema, data, "", valid=True), walker.problems
+
+
+def unknown_key_problems(data: Mapping, known: tuple[str, ...], source: str, where: str = "") -> list[Problem]:
+    """'did you mean' problems for the keys of `data` outside `known` (for tables read by hand)."""
+    walker = _Walker(source)
+    walker.unknown_keys(data, known, where)
+    return walker.problems

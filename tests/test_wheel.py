@@ -1,0 +1,82 @@
+"""The packaged defaults work from an installed wheel, from any folder: `skin maps` and `campaign check` from /."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+PIP = [sys.executable, "-m", "pip"]
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory) -> Path:
+    """The package built as a wheel and installed (without dependencies) into a folder of its own."""
+    root = tmp_path_factory.mktemp("wheel")
+    wheels, target = root / "wheels", root / "site"
+    subprocess.run(
+        [*PIP, "wheel", "--no-deps", "-q", "-w", str(wheels), str(REPO)],
+        check=True,
+        timeout=600,
+        cwd=root,
+    )
+    (wheel,) = wheels.glob("neatskin_rig-*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for packaged in ("paper.toml", "smoke.toml", "skins/paper.toml", "wiring/paper.toml", "printers/paper.toml"):
+        assert f"neatskin/protocols/{packaged}" in names
+    subprocess.run(
+        [*PIP, "install", "--no-deps", "-q", "--target", str(target), str(wheel)], check=True, timeout=600, cwd=root
+    )
+    return target
+
+
+def run_from_root(target: Path, *args: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(target), "MPLBACKEND": "Agg"}
+    return subprocess.run(
+        [sys.executable, "-m", "neatskin", *args], cwd="/", env=env, capture_output=True, text=True, timeout=600
+    )
+
+
+@pytest.mark.slow
+def test_the_package_comes_from_the_wheel(installed):
+    env = {**os.environ, "PYTHONPATH": str(installed)}
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import neatskin, neatskin.tomlfile as t; print(neatskin.__file__); "
+            "print(t.resolve_path('protocols/paper.toml'))",
+        ],
+        cwd="/",
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.splitlines()
+    assert out[0] == str(installed / "neatskin" / "__init__.py")
+    assert out[1] == str(installed / "neatskin" / "protocols" / "paper.toml")
+
+
+@pytest.mark.slow
+def test_campaign_check_of_the_packaged_paper_protocol_from_root(installed):
+    result = run_from_root(installed, "campaign", "check", "protocols/paper.toml")
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert lines[0] == f"{installed / 'neatskin' / 'protocols' / 'paper.toml'}: ok"
+    assert lines[1].strip() == "2800 presses (100 positions), layout neatskin-paper (12 channels, 28 pairs)"
+
+
+@pytest.mark.slow
+def test_skin_maps_from_root(installed, tmp_path):
+    out = tmp_path / "maps"
+    result = run_from_root(installed, "skin", "maps", "--out", str(out), "--grid-step-mm", "1.0", "--no-progress")
+    assert result.returncode == 0, result.stderr
+    pngs = sorted(p.name for p in out.glob("*.png"))
+    parquets = sorted(p.name for p in out.glob("*.parquet"))
+    assert pngs and parquets, sorted(p.name for p in out.iterdir())
+    assert all((out / name).stat().st_size > 1000 for name in pngs)
