@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from neatskin.errors import ConfigError, Problem
+from neatskin.gcode.machine import Machine, Move, SetPosition
 from neatskin.gcode.profile import PrinterProfile
 
 DEPTH_MARGIN_MM = 0.5  # the probe stops at least this far above the skin's underside
@@ -93,7 +94,7 @@ def check_press_plan(
         ("y", y, max(0.0, profile.soft_min_mm.y), min(profile.bed_y_mm, profile.soft_max_mm.y)),
     )
     bad = np.zeros(len(x), dtype=bool)
-    for axis, values, lo, hi in checks:
+    for _axis, values, lo, hi in checks:
         bad |= ~np.isfinite(values) | (values < lo) | (values > hi)
     listed = 0
     for i in np.flatnonzero(bad):
@@ -126,7 +127,9 @@ def check_press_plan(
 
 
 def check_moves(profile: PrinterProfile, lines, source: str = "<program>") -> list[Problem]:
-    """Problems with a parsed program: G0/G1 targets outside the bed or soft limits, feeds over the maxima."""
+    """Problems with a parsed program, stepped on the machine model (gcode.machine): G0/G1 targets
+    outside the bed or soft limits, relative moves from an unknown position, feeds over the maxima,
+    and G92 (press programs rely on homed machine coordinates)."""
     problems: list[Problem] = []
     lo = [max(0.0, profile.soft_min_mm.x), max(0.0, profile.soft_min_mm.y), profile.soft_min_mm.z]
     hi = [
@@ -135,15 +138,10 @@ def check_moves(profile: PrinterProfile, lines, source: str = "<program>") -> li
         profile.soft_max_mm.z,
     ]
     fmax = max(profile.max_feed_mm_s)
-    relative = False
-    pos = [None, None, None]
+    machine = Machine(profile)
     for n, line in enumerate(lines, start=1):
-        code = line.code
-        if code in ("G90", "G91"):
-            relative = code == "G91"
-        elif code == "G28":
-            pos = [profile.soft_min_mm.x, profile.soft_min_mm.y, profile.soft_min_mm.z]
-        elif code == "G92":
+        event = machine.step(line)
+        if isinstance(event, SetPosition):
             problems.append(
                 Problem(
                     f"{line.raw.strip()!r} redefines the coordinate system",
@@ -152,25 +150,21 @@ def check_moves(profile: PrinterProfile, lines, source: str = "<program>") -> li
                     "remove G92: press programs rely on homed machine coordinates",
                 )
             )
-        elif code in ("G0", "G1"):
+        elif isinstance(event, Move):
             for k, letter in enumerate("XYZ"):
-                value = line.get(letter)
-                if value is None:
+                if line.get(letter) is None:
                     continue
-                if relative:
-                    if pos[k] is None:
-                        problems.append(
-                            Problem(
-                                f"relative {letter} move before the position is known",
-                                source,
-                                f"command {n}",
-                                "home (G28) or move absolutely first",
-                            )
+                value = event.end_mm[k]
+                if value is None:
+                    problems.append(
+                        Problem(
+                            f"relative {letter} move before the position is known",
+                            source,
+                            f"command {n}",
+                            "home (G28) or move absolutely first",
                         )
-                        continue
-                    value += pos[k]
-                pos[k] = value
-                if not lo[k] <= value <= hi[k]:
+                    )
+                elif not lo[k] <= value <= hi[k]:
                     problems.append(
                         Problem(
                             f"{line.raw.strip()!r} moves {letter} to {value:g} mm, outside [{lo[k]:g}, {hi[k]:g}] mm",
