@@ -9,13 +9,16 @@ XOR of every byte before the '*'.
 Parameters map an upper-case letter to a float (`X10.5` -> {"X": 10.5}); a letter with no
 value (`G28 X`) maps to the empty string. M117/M118 (and the SD-card file commands) keep their
 free text in the string parameter "text"; M118's leading A1/E1/Pn flags are still parsed as
-numbers. A syntax error raises `GcodeSyntaxError` (a ConfigError) naming the line.
+numbers. Numbers are finite: `X1e999`, `Xnan` and `Xinf` are syntax errors. A syntax error raises
+`GcodeSyntaxError` (a ConfigError) naming the line.
 """
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field
+from typing import NoReturn
 
 from neatskin.errors import ConfigError, Problem
 
@@ -25,6 +28,10 @@ _CODE_RE = re.compile(r"([GMTD])\s*(\d+(?:\.\d+)?)", re.IGNORECASE)
 _NUMBER_RE = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
 _LINE_NUMBER_RE = re.compile(r"N\s*(\d+)\s*", re.IGNORECASE)
 _M118_FLAG_RE = re.compile(r"([AEP])(\d+)(?=\s|$)")
+_NOT_FINITE_RE = re.compile(r"[+-]?(?:nan|inf)", re.IGNORECASE)
+# the common line, `G1 X10 Y-2.5 F6000`: no framing, comment, exponent or lower case (parse_line's fast path)
+_SIMPLE_RE = re.compile(r"([GM])([1-9]\d*|0)((?:[ \t]+[A-Z][+-]?(?:\d+\.?\d*|\.\d+))*)[ \t]*")
+_SIMPLE_PARAM_RE = re.compile(r"([A-Z])([+-]?[\d.]+)")
 
 
 class GcodeSyntaxError(ConfigError):
@@ -79,6 +86,12 @@ def frame_line(command: str, line_number: int) -> str:
 def parse_line(text: str, *, source: str = "<line>", line_no: int | None = None) -> GcodeLine | None:
     """Parse one line; None for blank or comment-only lines. Raises GcodeSyntaxError."""
     raw = text.rstrip("\r\n")
+    simple = _SIMPLE_RE.fullmatch(raw)
+    if simple is not None:
+        code = simple.group(1) + simple.group(2)
+        if code not in TEXT_COMMANDS:
+            params: dict[str, float | str] = {k: float(v) for k, v in _SIMPLE_PARAM_RE.findall(simple.group(3))}
+            return GcodeLine(code, params, "", raw, None, None)
     body, _, comment = raw.partition(";")
     comment = comment.strip()
     check: int | None = None
@@ -160,16 +173,21 @@ def _letter_params(rest: str, raw: str, source: str, line_no: int | None) -> dic
             pos += 1  # Marlin accepts "X 10"
         number = _NUMBER_RE.match(rest, pos)
         if number:
-            params[letter] = float(number.group(0))
+            value = float(number.group(0))
+            if not math.isfinite(value):
+                _fail(raw, f"'{letter}{number.group(0)}' is not a finite number", source, line_no)
+            params[letter] = value
             pos = number.end()
             if pos < len(rest) and not rest[pos].isspace() and not rest[pos].isalpha():
                 _fail(raw, f"malformed number for '{letter}'", source, line_no)
+        elif _NOT_FINITE_RE.match(rest, pos):
+            _fail(raw, f"'{letter}{rest[pos:].split()[0]}' is not a finite number", source, line_no)
         else:
             params[letter] = ""
     return params
 
 
-def _fail(raw: str, message: str, source: str, line_no: int | None) -> None:
+def _fail(raw: str, message: str, source: str, line_no: int | None) -> NoReturn:
     where = f"line {line_no}" if line_no is not None else "line"
     raise GcodeSyntaxError(
         f"{message}: {raw!r}",

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import bisect
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -20,9 +20,11 @@ from neatskin.gcode.profile import PrinterProfile
 Xyz = tuple[float, float, float]
 
 
-@dataclass(frozen=True, slots=True)
-class Segment:
-    """One move from p0_mm to p1_mm over [t0_s, t1_s]; `linear` for homing (constant speed)."""
+class Segment(NamedTuple):
+    """One move from p0_mm to p1_mm over [t0_s, t1_s]; `linear` for homing (constant speed).
+
+    An immutable NamedTuple rather than a frozen dataclass: one is built per move on the simulated
+    printer's hot path."""
 
     t0_s: float
     t1_s: float
