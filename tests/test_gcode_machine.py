@@ -12,7 +12,7 @@ from dataclasses import replace
 
 import pytest
 
-from neatskin.gcode.bounds import check_moves
+from neatskin.gcode.bounds import check_commands, check_moves
 from neatskin.gcode.machine import Dwell, Home, Machine, Move, SetPosition, Sync
 from neatskin.gcode.motion import MotionClock
 from neatskin.gcode.parse import checksum, parse_line
@@ -104,8 +104,9 @@ def test_every_consumer_agrees_on_home_and_g92(shifted):
     core.step()
     assert core.take_output().startswith(b"X:7.00 Y:15.00 Z:4.00 E:0.00 Count X:2560 Y:1200 Z:1600\nok\n")
     assert core.timeline.end_mm == native
-    problems = check_moves(shifted, [parse_line(c) for c in PROGRAM])
-    assert [p.field for p in problems] == ["command 4"]  # only the G92 is refused: every target is in bounds
+    lines = [parse_line(c) for c in PROGRAM]
+    assert check_moves(shifted, lines) == []  # every native target is inside the bed and the soft limits
+    assert [p.field for p in check_commands(lines)] == ["command 4"]  # the G92 is refused by the command check
 
 
 def test_g28_homes_to_the_profiles_home_in_the_estimate(shifted):

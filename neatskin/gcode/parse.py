@@ -16,6 +16,7 @@ numbers. Numbers are finite: `X1e999`, `Xnan` and `Xinf` are syntax errors. A sy
 from __future__ import annotations
 
 import math
+import os
 import re
 from dataclasses import dataclass, field
 from typing import NoReturn
@@ -122,7 +123,12 @@ def parse_line(text: str, *, source: str = "<line>", line_no: int | None = None)
 
 def parse_program(text: str, source: str = "<program>") -> tuple[GcodeLine, ...]:
     """Parse every line of a program; one GcodeSyntaxError listing every bad line."""
-    lines: list[GcodeLine] = []
+    return tuple(line for _, line in parse_numbered(text, source))
+
+
+def parse_numbered(text: str, source: str = "<program>") -> tuple[tuple[int, GcodeLine], ...]:
+    """(line number in the text, command) of every command; one GcodeSyntaxError listing every bad line."""
+    lines: list[tuple[int, GcodeLine]] = []
     problems: list[Problem] = []
     for number, line in enumerate(text.splitlines(), start=1):
         try:
@@ -131,10 +137,47 @@ def parse_program(text: str, source: str = "<program>") -> tuple[GcodeLine, ...]
             problems.extend(exc.problems)
             continue
         if parsed is not None:
-            lines.append(parsed)
+            lines.append((number, parsed))
     if problems:
         raise GcodeSyntaxError(problems=problems)
     return tuple(lines)
+
+
+MAX_PROGRAM_BYTES = 64 * 1024 * 1024  # the paper campaign's program is about 1 MB
+
+
+def read_program_file(path: str | os.PathLike[str], max_bytes: int = MAX_PROGRAM_BYTES) -> str:
+    """The text of a G-code file: at most max_bytes, no NUL bytes, UTF-8. Anything else is one ConfigError
+    naming the file and the fix (a parquet, a binary or a device is never read past the cap)."""
+    name = os.fspath(path)
+    try:
+        with open(name, "rb") as handle:
+            data = handle.read(max_bytes + 1)
+    except OSError as exc:
+        raise ConfigError(
+            f"cannot read G-code file: {exc.strerror or exc}", file=name, fix="check the path; give a G-code text file"
+        ) from exc
+    if len(data) > max_bytes:
+        raise ConfigError(
+            f"larger than {max_bytes // (1024 * 1024)} MiB: not a press program",
+            file=name,
+            fix="give the .gcode file written by `neatskin gcode generate`",
+        )
+    nul = data.find(b"\0")
+    if nul >= 0:
+        raise ConfigError(
+            f"holds NUL bytes (the first at byte {nul}): a binary file (parquet, image, ...), not G-code text",
+            file=name,
+            fix="give the .gcode file written by `neatskin gcode generate`",
+        )
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"is not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start})",
+            file=name,
+            fix="give a G-code text file in ASCII or UTF-8",
+        ) from None
 
 
 def _normalise_number(digits: str) -> str:

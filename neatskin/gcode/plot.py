@@ -5,6 +5,7 @@ Lets a technician see the positions (and the travel order) before a campaign sta
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +20,7 @@ def plot_positions(
     path: str | Path,
     *,
     title: str = "",
-    route: np.ndarray | None = None,
+    route: np.ndarray | Sequence[int] | None = None,
     probe_diameter_mm: float | None = None,
 ) -> Path:
     """Write the map to `path` (PNG); `route` is an order of position ids to draw as the travel path."""
