@@ -86,6 +86,7 @@ class MarlinCore:
         self.faults = faults
         self.rng = np.random.default_rng(seed)
         self.clock = clock or VirtualClock()
+        self._virtual = isinstance(self.clock, VirtualClock)
         self.advanced_ok = advanced_ok
         self.marlin_version = marlin_version
         self.ok_after_resend = ok_after_resend
@@ -275,7 +276,8 @@ class MarlinCore:
             self.queue.popleft()
             self._head_ready = None
             self._after_command()
-            self._read_lines()
+            if self.rx:
+                self._read_lines()
         return None
 
     def _after_command(self) -> None:
@@ -289,11 +291,11 @@ class MarlinCore:
     def _wait(self, ready_s: float) -> float:
         """0 when the clock has reached ready_s (virtual time jumps there), else the real seconds left."""
         now = self.clock.now()
-        if isinstance(self.clock, VirtualClock):
-            intervals = int((ready_s - now) // self.keepalive_s) if ready_s > now else 0
-            for _ in range(min(intervals, 3)):
-                self._emit(f"echo:{R.BUSY_PROCESSING}")
-            self.clock.wait_until(ready_s)
+        if self._virtual:
+            if ready_s > now:
+                for _ in range(min(int((ready_s - now) // self.keepalive_s), 3)):
+                    self._emit(f"echo:{R.BUSY_PROCESSING}")
+                self.clock.wait_until(ready_s)
             return 0.0
         left = self.clock.wait_until(ready_s)
         if left > 0 and now - self._last_busy >= self.keepalive_s:
