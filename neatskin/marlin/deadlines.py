@@ -49,6 +49,11 @@ class MotionTracker:
     def absolute(self) -> bool:
         return self.machine.absolute
 
+    @property
+    def feed_mm_s(self) -> float:
+        """The modal feed (the default until a line sets F)."""
+        return self.machine.feed_mm_s
+
     def line_time_s(self, command: str | GcodeLine) -> tuple[float, bool]:
         """(seconds the command itself may take, whether it first waits for queued motion)."""
         try:
