@@ -25,22 +25,13 @@ import serial
 HERE = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(HERE))
 
-from neatskin.gcode.parse import checksum  # noqa: E402
+sys.path.insert(0, str(HERE / "benchmarks"))
+
+from bench_marlin import ECHO_SCRIPT, _read_ok, framed_lines  # noqa: E402
+
 from neatskin.marlin.driver import DriverConfig, MarlinDriver  # noqa: E402
 
 CONFIG = DriverConfig(boot_timeout_s=0.05, motion_time_scale=0.0)
-ECHO = """
-from neatskin.sim.pty import open_pty, read_available, write_all
-pty = open_pty()
-print(pty.path, flush=True)
-pending = b""
-while True:
-    pending += read_available(pty.master_fd, 0.5)
-    count = pending.count(b"\\n")
-    if count:
-        pending = pending[pending.rfind(b"\\n") + 1:]
-        write_all(pty.master_fd, b"ok\\n" * count)
-"""
 CORE = """
 import sys, time
 from neatskin.gcode.parse import checksum
@@ -70,7 +61,11 @@ class Peer:
     """A peer process serving a pty; `.path` is what a host opens."""
 
     def __init__(self, tree: Path, kind: str) -> None:
-        argv = [sys.executable, "-c", ECHO] if kind == "echo" else [sys.executable, "-m", "neatskin", "sim", "printer"]
+        argv = (
+            [sys.executable, "-c", ECHO_SCRIPT]
+            if kind == "echo"
+            else [sys.executable, "-m", "neatskin", "sim", "printer"]
+        )
         if kind != "echo":
             argv += ["--time", "virtual"]
         self.proc = subprocess.Popen(
@@ -89,14 +84,6 @@ class Peer:
         self.proc.wait(timeout=5)
 
 
-def framed(n: int) -> list[bytes]:
-    out = []
-    for i in range(n):
-        body = f"N{i + 1} G1 X{10 + i % 100} Y{20 + i % 50} F6000"
-        out.append(f"{body}*{checksum(body)}\n".encode())
-    return out
-
-
 def bare_host(peer: Peer, lines: list[bytes], hello: list[bytes]) -> tuple[float, float]:
     """(lines per second, peer CPU seconds per line) of the simplest host loop."""
     port = serial.Serial(peer.path, 115200, timeout=1.0)
@@ -113,15 +100,6 @@ def bare_host(peer: Peer, lines: list[bytes], hello: list[bytes]) -> tuple[float
         return len(lines) / wall, (peer.cpu_s() - cpu) / len(lines)
     finally:
         port.close()
-
-
-def _read_ok(port: serial.Serial) -> None:
-    got = b""
-    while not got.endswith(b"ok\n"):
-        chunk = port.read(port.in_waiting or 1)
-        if not chunk:
-            raise RuntimeError("no ok within 1 s")
-        got += chunk
 
 
 def driver_rate(peer: Peer, commands: list[str]) -> tuple[float, float]:
@@ -152,7 +130,7 @@ def main() -> int:
     parser.add_argument("--rounds", type=int, default=3, help="alternating rounds; each row is the best")
     args = parser.parse_args()
     trees = {"base": args.base.resolve(), "this": HERE}
-    lines = framed(args.lines)
+    lines = framed_lines(args.lines)
     commands = [f"G1 X{10 + i % 100} Y{20 + i % 50} F6000" for i in range(args.lines)]
     hello = [b"N0 M110 N0*125\n", b"G28\n"]
     rows: dict[tuple[str, str], float] = {}

@@ -196,10 +196,7 @@ class MarlinCore:
         framed = _FRAMED.fullmatch(text)
         if framed is not None and "M110" not in text:  # the common case, checked as the general path below
             number = int(framed.group(1))
-            if number != self.last_n + 1:
-                if self.marlin_version >= "2.1" and self.last_n - 1 <= number <= self.last_n:
-                    return
-                self._line_error(R.ERR_LINE_NO)
+            if not self._in_sequence(number):
                 return
             if int(framed.group(3)) != checksum(text[: framed.start(3) - 1]):
                 self._line_error(R.ERR_CHECKSUM)
@@ -214,10 +211,7 @@ class MarlinCore:
                 npos = text[text.index("N", 4) :]
             match = _N.match(npos)
             number = int(match.group(1)) if match else 0
-            if number != self.last_n + 1 and not is_m110:
-                if self.marlin_version >= "2.1" and self.last_n - 1 <= number <= self.last_n:
-                    return  # a repeat from a crossed resend: dropped without a word (Marlin 2.1)
-                self._line_error(R.ERR_LINE_NO)
+            if not is_m110 and not self._in_sequence(number):
                 return
             star = text.rfind("*")
             if star < 0:
@@ -231,6 +225,15 @@ class MarlinCore:
             head = _N.match(text)
             text = text[head.end() : star].strip() if head else text[:star].strip()
         self._enqueue(number, text)
+
+    def _in_sequence(self, number: int) -> bool:
+        """True for the next line number; otherwise the line is refused (or dropped) here."""
+        if number == self.last_n + 1:
+            return True
+        if not (self.marlin_version >= "2.1" and self.last_n - 1 <= number <= self.last_n):
+            self._line_error(R.ERR_LINE_NO)
+        # else: a repeat from a crossed resend, dropped without a word (Marlin 2.1)
+        return False
 
     def _enqueue(self, number: int | None, text: str) -> None:
         """Queue a command, parsed once (Marlin parses at execution; the result is the same)."""
