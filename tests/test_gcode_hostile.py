@@ -53,6 +53,21 @@ def test_numbers_must_be_finite(word):
         parse_line(f"G1 {word} Y2")
 
 
+@pytest.mark.parametrize("word", ["X1e300", "X99999999999", "F-3000000000", "P2147483649"])
+def test_numbers_beyond_marlins_range_are_refused(word):
+    with pytest.raises(GcodeSyntaxError, match="is beyond"):
+        parse_line(f"G1 {word}")
+    assert parse_line("G1 X2147483648").params == {"X": 2147483648.0}  # 2^31 itself is in range
+
+
+def test_check_of_huge_coordinates_is_a_clear_error(tmp_path, capsys, paper_profile):
+    program = tmp_path / "p.gcode"
+    program.write_text("G28\nG1 X1e300 Y1e300\nG4 P1e300\n")
+    assert main(["gcode", "check", str(program), "--profile", paper_profile]) == 2
+    err = capsys.readouterr().err
+    assert "[line 2]: 'X1e300' is beyond" in err and "[line 3]: 'P1e300' is beyond" in err
+
+
 @pytest.mark.parametrize("profile", [False, True])
 def test_check_of_an_infinite_or_nan_coordinate_is_a_clear_error(tmp_path, capsys, paper_profile, profile):
     program = tmp_path / "p.gcode"

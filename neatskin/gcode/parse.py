@@ -9,7 +9,7 @@ XOR of every byte before the '*'.
 Parameters map an upper-case letter to a float (`X10.5` -> {"X": 10.5}); a letter with no
 value (`G28 X`) maps to the empty string. M117/M118 (and the SD-card file commands) keep their
 free text in the string parameter "text"; M118's leading A1/E1/Pn flags are still parsed as
-numbers. Numbers are finite: `X1e999`, `Xnan` and `Xinf` are syntax errors. A syntax error raises
+numbers. Numbers are finite and within +-2^31: `X1e999`, `Xnan`, `Xinf` and `X1e300` are syntax errors. A syntax error raises
 `GcodeSyntaxError` (a ConfigError) naming the line.
 """
 
@@ -29,9 +29,10 @@ _CODE_RE = re.compile(r"([GMTD])\s*(\d+(?:\.\d+)?)", re.IGNORECASE)
 _NUMBER_RE = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
 _LINE_NUMBER_RE = re.compile(r"N\s*(\d+)\s*", re.IGNORECASE)
 _M118_FLAG_RE = re.compile(r"([AEP])(\d+)(?=\s|$)")
+MAX_MAGNITUDE = 2.0**31  # Marlin's line numbers are longs; no coordinate, feed or time is anywhere near
 _NOT_FINITE_RE = re.compile(r"[+-]?(?:nan|inf)", re.IGNORECASE)
-# the common line, `G1 X10 Y-2.5 F6000`: no framing, comment, exponent or lower case (parse_line's fast path)
-_SIMPLE_RE = re.compile(r"([GM])([1-9]\d*|0)((?:[ \t]+[A-Z][+-]?(?:\d+\.?\d*|\.\d+))*)[ \t]*")
+# the common line, `G1 X10 Y-2.5 F6000`: no framing, comment, exponent, lower case or number >= 1e9 (the fast path)
+_SIMPLE_RE = re.compile(r"([GM])([1-9]\d*|0)((?:[ \t]+[A-Z][+-]?(?:\d{1,9}(?:\.\d*)?|\.\d+))*)[ \t]*")
 _SIMPLE_PARAM_RE = re.compile(r"([A-Z])([+-]?[\d.]+)")
 
 
@@ -219,6 +220,8 @@ def _letter_params(rest: str, raw: str, source: str, line_no: int | None) -> dic
             value = float(number.group(0))
             if not math.isfinite(value):
                 _fail(raw, f"'{letter}{number.group(0)}' is not a finite number", source, line_no)
+            if abs(value) > MAX_MAGNITUDE:
+                _fail(raw, f"'{letter}{number.group(0)}' is beyond +-2^31 (Marlin's range)", source, line_no)
             params[letter] = value
             pos = number.end()
             if pos < len(rest) and not rest[pos].isspace() and not rest[pos].isalpha():
