@@ -122,3 +122,16 @@ def test_move_event_is_a_frozen_value():
     with pytest.raises(AttributeError):
         move.duration_s = 1.0  # type: ignore[misc]
     assert not move.clamped and math.isclose(move.length_mm, 1.0)
+
+
+def test_host_deadlines_from_the_model(shifted):
+    tracker = MotionTracker(shifted)
+    # unknown start: 500 mm on the slowest axis (5 mm/s, 100 mm/s^2): 2 x 0.05 s ramps + 499.75 mm / 5
+    assert tracker.line_time_s("G1 X10") == (pytest.approx(100.05, abs=1e-9), False)
+    assert tracker.line_time_s("G28") == (60.0, True)  # the host's bound: max(60, 2 x 25 s)
+    assert tracker.position_mm == [5.0, 10.0, 1.0]
+    # from home (5, 10, 1) to x = 15: 10 mm at 100 mm/s, 500 mm/s^2 is a triangle, 2 sqrt(10 / 500)
+    seconds, waits = tracker.line_time_s("G1 X15 F6000")
+    assert seconds == pytest.approx(0.282842712474619, abs=1e-12) and not waits
+    assert tracker.line_time_s("G4 P250") == (0.25, True) and tracker.line_time_s("M400") == (0.0, True)
+    assert tracker.line_time_s("; comment") == (0.0, False) and tracker.line_time_s("G1 X1e999") == (0.0, True)
