@@ -4,7 +4,8 @@ import math
 
 import pytest
 
-from neatskin.gcode.motion import estimate_program_time, limited_feed_and_accel, trapezoid_time_s
+from neatskin.gcode.machine import limited_feed_and_accel, trapezoid_time_s
+from neatskin.gcode.motion import estimate_program_time
 from neatskin.gcode.profile import load_printer_profile
 
 

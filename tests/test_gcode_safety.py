@@ -3,10 +3,14 @@
 from dataclasses import replace
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from neatskin.errors import ConfigError
 from neatskin.gcode import emit
+from neatskin.gcode.bounds import check_commands, check_moves, check_phases
 from neatskin.gcode.calibration import Calibration
+from neatskin.gcode.parse import parse_program
 from neatskin.gcode.positions import PositionSet, PositionSpec, generate_positions
 from neatskin.gcode.profile import load_printer_profile
 from neatskin.gcode.program import PressSpec, build_program
@@ -146,13 +150,6 @@ def test_safe_names_pass(paper_layout, positions, profile):
     assert commands == list(prog.command_lines())
 
 
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
-from neatskin.gcode.bounds import check_moves, check_phases
-from neatskin.gcode.parse import parse_program
-
-
 @settings(max_examples=40, deadline=None)
 @given(st.floats(-60, 260), st.floats(-60, 260), st.floats(-180, 180), st.floats(0, 12), st.floats(0.1, 6))
 def test_either_refused_before_text_or_every_move_in_bounds(paper_layout, profile, ox, oy, rot, z, depth):
@@ -168,4 +165,5 @@ def test_either_refused_before_text_or_every_move_in_bounds(paper_layout, profil
     lines = parse_program(prog.text())
     assert check_moves(shifted, lines) == []
     assert check_phases(lines) == []
+    assert check_commands(lines) == []  # nothing a press program must never contain
     assert depth <= paper_layout.thickness_mm - 0.5

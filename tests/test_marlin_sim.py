@@ -10,7 +10,7 @@ import serial
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from neatskin.gcode.motion import limited_feed_and_accel, trapezoid_time_s
+from neatskin.gcode.machine import limited_feed_and_accel, trapezoid_time_s
 from neatskin.gcode.parse import checksum
 from neatskin.gcode.profile import load_printer_profile
 from neatskin.marlin import errors as E

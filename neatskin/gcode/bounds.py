@@ -8,9 +8,12 @@ parsed file (`check_moves`).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from neatskin.errors import ConfigError, Problem
+from neatskin.gcode.machine import Machine, Move
 from neatskin.gcode.profile import PrinterProfile
 
 DEPTH_MARGIN_MM = 0.5  # the probe stops at least this far above the skin's underside
@@ -93,7 +96,7 @@ def check_press_plan(
         ("y", y, max(0.0, profile.soft_min_mm.y), min(profile.bed_y_mm, profile.soft_max_mm.y)),
     )
     bad = np.zeros(len(x), dtype=bool)
-    for axis, values, lo, hi in checks:
+    for _axis, values, lo, hi in checks:
         bad |= ~np.isfinite(values) | (values < lo) | (values > hi)
     listed = 0
     for i in np.flatnonzero(bad):
@@ -125,8 +128,12 @@ def check_press_plan(
         raise ConfigError(problems=problems)
 
 
-def check_moves(profile: PrinterProfile, lines, source: str = "<program>") -> list[Problem]:
-    """Problems with a parsed program: G0/G1 targets outside the bed or soft limits, feeds over the maxima."""
+def check_moves(
+    profile: PrinterProfile, lines, source: str = "<program>", line_numbers: Sequence[int] | None = None
+) -> list[Problem]:
+    """Problems with a parsed program, stepped on the machine model (gcode.machine): G0/G1 targets
+    outside the bed or soft limits, relative moves from an unknown position, feeds over the maxima.
+    Each names `line N` (line_numbers[k] of the k-th command) or, without numbers, `command k`."""
     problems: list[Problem] = []
     lo = [max(0.0, profile.soft_min_mm.x), max(0.0, profile.soft_min_mm.y), profile.soft_min_mm.z]
     hi = [
@@ -135,47 +142,30 @@ def check_moves(profile: PrinterProfile, lines, source: str = "<program>") -> li
         profile.soft_max_mm.z,
     ]
     fmax = max(profile.max_feed_mm_s)
-    relative = False
-    pos = [None, None, None]
-    for n, line in enumerate(lines, start=1):
-        code = line.code
-        if code in ("G90", "G91"):
-            relative = code == "G91"
-        elif code == "G28":
-            pos = [profile.soft_min_mm.x, profile.soft_min_mm.y, profile.soft_min_mm.z]
-        elif code == "G92":
-            problems.append(
-                Problem(
-                    f"{line.raw.strip()!r} redefines the coordinate system",
-                    source,
-                    f"command {n}",
-                    "remove G92: press programs rely on homed machine coordinates",
-                )
-            )
-        elif code in ("G0", "G1"):
+    machine = Machine(profile)
+    for k, line in enumerate(lines):
+        where = _where(k, line_numbers)
+        event = machine.step(line)
+        if isinstance(event, Move):
             for k, letter in enumerate("XYZ"):
-                value = line.get(letter)
-                if value is None:
+                if line.get(letter) is None:
                     continue
-                if relative:
-                    if pos[k] is None:
-                        problems.append(
-                            Problem(
-                                f"relative {letter} move before the position is known",
-                                source,
-                                f"command {n}",
-                                "home (G28) or move absolutely first",
-                            )
+                value = event.end_mm[k]
+                if value is None:
+                    problems.append(
+                        Problem(
+                            f"relative {letter} move before the position is known",
+                            source,
+                            where,
+                            "home (G28) or move absolutely first",
                         )
-                        continue
-                    value += pos[k]
-                pos[k] = value
-                if not lo[k] <= value <= hi[k]:
+                    )
+                elif not lo[k] <= value <= hi[k]:
                     problems.append(
                         Problem(
                             f"{line.raw.strip()!r} moves {letter} to {value:g} mm, outside [{lo[k]:g}, {hi[k]:g}] mm",
                             source,
-                            f"command {n}",
+                            where,
                             "regenerate the program with a calibration that fits the bed",
                         )
                     )
@@ -185,7 +175,7 @@ def check_moves(profile: PrinterProfile, lines, source: str = "<program>") -> li
                     Problem(
                         f"feed F{f:g} ({f / 60:g} mm/s) exceeds every axis maximum",
                         source,
-                        f"command {n}",
+                        where,
                         f"use F <= {fmax * 60:g}",
                     )
                 )
@@ -194,16 +184,17 @@ def check_moves(profile: PrinterProfile, lines, source: str = "<program>") -> li
     return problems
 
 
-def check_phases(lines, source: str = "<program>") -> list[Problem]:
+def check_phases(lines, source: str = "<program>", line_numbers: Sequence[int] | None = None) -> list[Problem]:
     """Problems with the marked phases: every `NS press=<id> phase=<name>` marker must be followed by
     commands ending in M400 before the next marker, phases in order travel, descend, press, lift."""
     from neatskin.gcode.program import PHASES
 
     problems: list[Problem] = []
     expected = 0
-    previous = None  # (command number, marker text)
+    previous: tuple[str, str] | None = None  # (where, marker text)
     last_code = None
-    for n, line in enumerate(lines, start=1):
+    for k, line in enumerate(lines):
+        n = _where(k, line_numbers)
         is_marker = line.code == "M118" and line.text.startswith("NS ")
         if is_marker:
             if previous is not None and last_code != "M400":
@@ -211,7 +202,7 @@ def check_phases(lines, source: str = "<program>") -> list[Problem]:
                     Problem(
                         f"phase '{previous[1]}' does not end in M400",
                         source,
-                        f"command {previous[0]}",
+                        previous[0],
                         "end every marked phase with M400 so acquisition lines up with motion",
                     )
                 )
@@ -222,7 +213,7 @@ def check_phases(lines, source: str = "<program>") -> list[Problem]:
                         Problem(
                             f"phase '{fields['phase']}' where '{PHASES[expected % len(PHASES)]}' was expected",
                             source,
-                            f"command {n}",
+                            n,
                             "regenerate the program; phases run travel, descend, press, lift",
                         )
                     )
@@ -232,3 +223,50 @@ def check_phases(lines, source: str = "<program>") -> list[Problem]:
         if len(problems) > _MAX_LISTED:
             break
     return problems
+
+
+# What a press program may contain: what `gcode generate` emits, and reads that change nothing.
+PRESS_COMMANDS = frozenset(
+    {"G0", "G1", "G4", "G21", "G28", "G90", "G91", "M17", "M18", "M82", "M83", "M84", "M105", "M114", "M115"}
+    | {"M117", "M118", "M119", "M211", "M400"}
+)
+# Commands a press program must never contain, and why.
+REFUSED_COMMANDS = {
+    "M500": "writes the settings to the EEPROM",
+    "M501": "replaces the live settings with the EEPROM's",
+    "M502": "resets the settings to the factory defaults",
+    "M104": "heats the hotend",
+    "M109": "heats the hotend and waits",
+    "M140": "heats the bed",
+    "M190": "heats the bed and waits",
+    "M141": "heats the chamber",
+    "M191": "heats the chamber and waits",
+    "M303": "runs a PID autotune, which heats",
+    "M112": "is an emergency stop: the printer halts and needs a reset",
+    "G92": "redefines the coordinate system (press programs rely on homed machine coordinates)",
+}
+
+
+def check_commands(lines, source: str = "<program>", line_numbers: Sequence[int] | None = None) -> list[Problem]:
+    """One problem per command a press program must never contain: EEPROM writes, heaters, M112, G92,
+    and any command outside PRESS_COMMANDS (unknown or unsupported). Every offending line is listed."""
+    problems: list[Problem] = []
+    allowed = ", ".join(sorted(PRESS_COMMANDS, key=lambda c: (c[0], int(float(c[1:])))))
+    for k, line in enumerate(lines):
+        code = line.code
+        if code in PRESS_COMMANDS:
+            continue
+        why = REFUSED_COMMANDS.get(code, "is not a command a press program uses (unknown or unsupported here)")
+        problems.append(
+            Problem(
+                f"{line.raw.strip()!r}: {code} {why}",
+                source,
+                _where(k, line_numbers),
+                f"remove it; a press program holds only {allowed}",
+            )
+        )
+    return problems
+
+
+def _where(k: int, line_numbers: Sequence[int] | None) -> str:
+    return f"line {line_numbers[k]}" if line_numbers is not None else f"command {k + 1}"

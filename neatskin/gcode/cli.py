@@ -48,33 +48,43 @@ def register(subparsers) -> None:
 
 
 def _generate(args: argparse.Namespace) -> int:
+    from neatskin.errors import ConfigError
+    from neatskin.gcode.emit import check_output_path, write_text_atomic
     from neatskin.gcode.motion import estimate_program_time
     from neatskin.gcode.spec import build_from_protocol
 
+    for path, option in ((args.output, "--output"), (args.positions, "--positions"), (args.plot, "--plot")):
+        if path is not None:
+            check_output_path(path, option)
     program, layout, profile = build_from_protocol(args.protocol, hold_in_gcode=not args.no_hold)
     text = program.text()
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.output.with_name(args.output.name + ".tmp")
-    tmp.write_text(text, encoding="ascii")
-    tmp.replace(args.output)
+    write_text_atomic(args.output, text, "ascii", "--output")
     if args.positions is not None:
         ps = program.positions
         rows = ["position_id,x_mm,y_mm,feature"] + [
             f"{i},{x:.3f},{y:.3f},{f}" for i, x, y, f in zip(ps.ids, ps.x_mm, ps.y_mm, ps.features)
         ]
-        args.positions.write_text("\n".join(rows) + "\n", encoding="utf-8")
+        write_text_atomic(args.positions, "\n".join(rows) + "\n", "utf-8", "--positions")
     if args.plot is not None:
         from neatskin.gcode.plot import plot_positions
 
         visits = [b.position_id for b in program.presses]
         route = [p for k, p in enumerate(visits) if k == 0 or p != visits[k - 1]]
-        plot_positions(
-            layout,
-            program.positions,
-            args.plot,
-            route=route if program.route_unordered_mm else None,
-            title=f"{program.name}: {len(program.positions)} positions, seed {program.seed}",
-        )
+        try:
+            plot_positions(
+                layout,
+                program.positions,
+                args.plot,
+                route=route if program.route_unordered_mm else None,
+                title=f"{program.name}: {len(program.positions)} positions, seed {program.seed}",
+            )
+        except OSError as exc:
+            raise ConfigError(
+                f"cannot write the plot: {exc.strerror or exc}",
+                file=str(args.plot),
+                field="--plot",
+                fix="give --plot a writable .png path",
+            ) from exc
     estimate = estimate_program_time(program.command_lines(), profile)
     print(
         f"wrote {args.output}: {len(program.positions)} positions, {len(program.presses)} presses, "
@@ -94,19 +104,15 @@ def _generate(args: argparse.Namespace) -> int:
 
 
 def _check(args: argparse.Namespace) -> int:
-    from neatskin.errors import ConfigError
-    from neatskin.gcode.bounds import check_moves, check_phases
+    from neatskin.gcode.bounds import check_commands, check_moves, check_phases
     from neatskin.gcode.motion import estimate_program_time
-    from neatskin.gcode.parse import parse_program
+    from neatskin.gcode.parse import parse_numbered, read_program_file
     from neatskin.gcode.profile import load_printer_profile
 
-    try:
-        text = args.file.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(
-            f"cannot read G-code file: {exc.strerror}", file=str(args.file), fix="check the path"
-        ) from exc
-    lines = parse_program(text, source=str(args.file))
+    source = str(args.file)
+    numbered = parse_numbered(read_program_file(args.file), source=source)
+    numbers = [n for n, _ in numbered]
+    lines = [line for _, line in numbered]
     codes: dict[str, int] = {}
     for line in lines:
         codes[line.code] = codes.get(line.code, 0) + 1
@@ -119,14 +125,14 @@ def _check(args: argparse.Namespace) -> int:
         f"{args.file}: {len(lines)} commands, {presses} presses, "
         + ", ".join(f"{code} x{n}" for code, n in sorted(codes.items()))
     )
+    problems = check_commands(lines, source, numbers) + check_phases(lines, source, numbers)
     if args.profile is None:
-        problems = check_phases(lines, source=str(args.file))
         for problem in problems:
             print(f"refused: {problem}", file=sys.stderr)
         print("no --profile given: bounds and time not checked")
         return 1 if problems else 0
     profile = load_printer_profile(args.profile)
-    problems = check_moves(profile, lines, source=str(args.file)) + check_phases(lines, source=str(args.file))
+    problems = check_moves(profile, lines, source, numbers) + problems
     estimate = estimate_program_time(lines, profile)
     print(
         f"estimated printer time on {profile.name}: {_hms(estimate.total_s)} ({estimate.moves} moves, "
@@ -138,7 +144,7 @@ def _check(args: argparse.Namespace) -> int:
         return 1
     print(
         "bounds: every move inside the bed and the soft limits, feeds within the maxima; "
-        "every marked phase ends in M400"
+        "every marked phase ends in M400; only press-program commands (no EEPROM, heater or M112)"
     )
     return 0
 

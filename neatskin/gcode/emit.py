@@ -7,7 +7,9 @@ refuses anything that could end a comment or start a command there: newline, car
 
 from __future__ import annotations
 
+import os
 import unicodedata
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from neatskin import __version__
@@ -28,12 +30,14 @@ def safe_text(value: str, field: str, source: str = "<memory>") -> str:
         what = FORBIDDEN.get(char)
         if what is None and unicodedata.category(char) in ("Cc", "Cf", "Zl", "Zp"):
             what = f"the control character U+{ord(char):04X}"
+        if what is None and not char.isascii():
+            what = f"the non-ASCII character {char!r} (U+{ord(char):04X}); G-code files are ASCII"
         if what is not None:
             raise ConfigError(
                 f"{field} {value!r} contains {what}, which could inject a G-code command",
                 file=source,
                 field=field,
-                fix="use letters, digits, spaces and simple punctuation (no ';', '*' or line breaks)",
+                fix="use ASCII letters, digits, spaces and simple punctuation (no ';', '*' or line breaks)",
             )
     return value
 
@@ -90,3 +94,61 @@ def program_text(program: PressProgram) -> str:
     out.append("; postamble")
     out.extend(program.postamble)
     return "\n".join(out) + "\n"
+
+
+def check_output_path(path: Path, option: str) -> None:
+    """ConfigError unless `path` can be a file we write: not a folder, its parent a folder or creatable."""
+    if path.is_dir():
+        raise ConfigError(
+            f"{path} is a folder, not a file", file=str(path), field=option, fix=f"give {option} a file name in it"
+        )
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ConfigError(
+            f"cannot create {path}: {parent} is a file, not a folder",
+            file=str(path),
+            field=option,
+            fix=f"give {option} a path in a folder",
+        )
+
+
+def write_text_atomic(path: Path, text: str, encoding: str, option: str) -> None:
+    """Write `text` to `path` through a temp file and a rename: either the whole file or nothing (no temp
+    file left behind on any failure). Encoding and file system failures are one ConfigError naming the file."""
+    check_output_path(path, option)
+    try:
+        data = text.encode(encoding)
+    except UnicodeEncodeError as exc:
+        bad = exc.object[exc.start : exc.end]
+        raise ConfigError(
+            f"cannot write {bad!r} (U+{ord(bad[0]):04X}) as {encoding}",
+            file=str(path),
+            field=option,
+            fix="use ASCII in the names that land in the file (campaign, layout and printer names)",
+        ) from None
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as handle:
+            handle.write(data)
+        os.replace(tmp, path)
+    except OSError as exc:
+        _remove(tmp)
+        raise ConfigError(
+            f"cannot write {path}: {exc.strerror or exc}",
+            file=str(path),
+            field=option,
+            fix=f"give {option} a writable file path (a folder you may write to, with free space)",
+        ) from exc
+    except BaseException:
+        _remove(tmp)
+        raise
+
+
+def _remove(path: Path) -> None:
+    try:
+        path.unlink(missing_ok=True)
+    except OSError:
+        pass

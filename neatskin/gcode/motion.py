@@ -1,7 +1,8 @@
-"""Motion-time estimates: trapezoidal velocity profiles per move, summed over a G-code program.
+"""Motion-time estimates of a G-code program: the machine model's moves, dwells and homing, summed.
 
-A move of length d at nominal feed v with acceleration a accelerates from v_start, cruises,
-and decelerates to v_end; when d is too short to reach v the profile is triangular. As in
+The interpreter and the kinematics live in gcode.machine (one for the whole toolkit). A move of
+length d at nominal feed v with acceleration a accelerates, cruises, and decelerates; when d is
+too short to reach v the profile is triangular. As in
 Marlin's planner, the nominal feed and the acceleration of a move are limited so that no axis
 exceeds its own maximum (a pure Z move runs at the Z limits). Every move here starts and ends
 at rest (M400 between phases forces that on the real printer anyway; for chained travel moves
@@ -16,57 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from neatskin.gcode.machine import Dwell, Home, Machine, Move
 from neatskin.gcode.parse import GcodeLine, parse_line
 from neatskin.gcode.profile import PrinterProfile
-
-
-def trapezoid_time_s(
-    distance_mm: float, feed_mm_s: float, accel_mm_s2: float, v_start_mm_s: float = 0.0, v_end_mm_s: float = 0.0
-) -> float:
-    """Time of one move under a trapezoidal (or, if the feed is not reached, triangular) profile."""
-    if distance_mm < 0 or not math.isfinite(distance_mm):
-        raise ValueError(f"distance_mm must be finite and >= 0, got {distance_mm}")
-    if feed_mm_s <= 0 or accel_mm_s2 <= 0:
-        raise ValueError(f"feed_mm_s and accel_mm_s2 must be > 0, got {feed_mm_s}, {accel_mm_s2}")
-    if not (0 <= v_start_mm_s <= feed_mm_s and 0 <= v_end_mm_s <= feed_mm_s):
-        raise ValueError(f"v_start_mm_s and v_end_mm_s must lie in [0, feed], got {v_start_mm_s}, {v_end_mm_s}")
-    if distance_mm == 0:
-        return 0.0
-    a, v, vs, ve = accel_mm_s2, feed_mm_s, v_start_mm_s, v_end_mm_s
-    d_accel = (v * v - vs * vs) / (2 * a)
-    d_decel = (v * v - ve * ve) / (2 * a)
-    if d_accel + d_decel <= distance_mm:
-        return (v - vs) / a + (v - ve) / a + (distance_mm - d_accel - d_decel) / v
-    v_peak_sq = a * distance_mm + (vs * vs + ve * ve) / 2
-    if v_peak_sq < max(vs, ve) ** 2 - 1e-12:
-        raise ValueError(f"cannot change speed from {vs} to {ve} mm/s within {distance_mm} mm at {a} mm/s^2")
-    v_peak = math.sqrt(max(v_peak_sq, max(vs, ve) ** 2))
-    return (v_peak - vs) / a + (v_peak - ve) / a
-
-
-def limited_feed_and_accel(
-    delta_mm: tuple[float, float, float], feed_mm_s: float, profile: PrinterProfile
-) -> tuple[float, float]:
-    """Nominal feed and acceleration along a move, scaled so no axis exceeds its maximum."""
-    length = math.sqrt(sum(d * d for d in delta_mm))
-    if length == 0:
-        return feed_mm_s, profile.accel_mm_s2
-    feed, accel = feed_mm_s, profile.accel_mm_s2
-    for d, vmax, amax in zip(delta_mm, profile.max_feed_mm_s, profile.max_accel_mm_s2):
-        share = abs(d) / length
-        if share > 0:
-            feed = min(feed, vmax / share)
-            accel = min(accel, amax / share)
-    return feed, accel
-
-
-def move_time_s(
-    start_mm: tuple[float, float, float], end_mm: tuple[float, float, float], feed_mm_s: float, profile: PrinterProfile
-) -> float:
-    """Time of one linear move from rest to rest."""
-    delta = tuple(e - s for s, e in zip(start_mm, end_mm))
-    feed, accel = limited_feed_and_accel(delta, feed_mm_s, profile)
-    return trapezoid_time_s(math.sqrt(sum(d * d for d in delta)), feed, accel)
 
 
 @dataclass(frozen=True)
@@ -86,7 +39,7 @@ class TimeEstimate:
 
 
 class MotionClock:
-    """Steps through commands one at a time, keeping position, G90/G91 and the modal feed.
+    """Steps through commands one at a time on the machine model (gcode.machine), summing the program's time.
 
     `step(line)` returns the seconds that command takes and accumulates the program's totals.
     Before a G28 the position is unknown; it starts at `start_mm` (default: the park position).
@@ -94,9 +47,10 @@ class MotionClock:
 
     def __init__(self, profile: PrinterProfile, start_mm: tuple[float, float, float] | None = None) -> None:
         self.profile = profile
-        self.pos = list(start_mm if start_mm is not None else tuple(profile.park_mm))
-        self.feed_mm_s = profile.travel_feed_mm_s
-        self.relative = False
+        start = start_mm if start_mm is not None else tuple(profile.park_mm)
+        self.machine = Machine(
+            profile, start_mm=start, feed_mm_s=profile.travel_feed_mm_s, homing_time_s=profile.homing_time_s
+        )
         self.motion_s = self.dwell_s = self.homing_s = self.path_mm = self.travel_xy_mm = 0.0
         self.moves = 0
 
@@ -104,43 +58,22 @@ class MotionClock:
         line = parse_line(item) if isinstance(item, str) else item
         if line is None:
             return 0.0
-        code, profile = line.code, self.profile
-        if code in ("G0", "G1"):
-            f = line.get("F")
-            if f is not None and f > 0:
-                self.feed_mm_s = f / 60.0
-            target = list(self.pos)
-            for k, letter in enumerate("XYZ"):
-                value = line.get(letter)
-                if value is not None:
-                    target[k] = self.pos[k] + value if self.relative else value
-            delta = [t - p for t, p in zip(target, self.pos)]
-            length = math.sqrt(sum(d * d for d in delta))
-            seconds = 0.0
-            if length > 0:
-                seconds = move_time_s(tuple(self.pos), tuple(target), self.feed_mm_s, profile)
-                self.motion_s += seconds
-                self.path_mm += length
-                self.travel_xy_mm += math.hypot(delta[0], delta[1])
-                self.moves += 1
-            self.pos = target
-            return seconds
-        if code == "G4":
-            p_ms, s_s = line.get("P"), line.get("S")
-            seconds = (p_ms / 1000.0 if p_ms is not None else 0.0) + (s_s if s_s is not None else 0.0)
-            self.dwell_s += seconds
-            return seconds
-        if code == "G28":
-            self.homing_s += profile.homing_time_s
-            self.pos = [profile.soft_min_mm.x, profile.soft_min_mm.y, profile.soft_min_mm.z]
-            return profile.homing_time_s
-        if code in ("G90", "G91"):
-            self.relative = code == "G91"
-        elif code == "G92":
-            for k, letter in enumerate("XYZ"):
-                value = line.get(letter)
-                if value is not None:
-                    self.pos[k] = value
+        event = self.machine.step(line)
+        if isinstance(event, Move):
+            if not event.length_mm > 0 or event.duration_s is None:
+                return 0.0
+            start, end = event.start_mm, event.end_mm
+            self.motion_s += event.duration_s
+            self.path_mm += event.length_mm
+            self.travel_xy_mm += math.hypot(end[0] - start[0], end[1] - start[1])  # type: ignore[operator]
+            self.moves += 1
+            return event.duration_s
+        if isinstance(event, Dwell):
+            self.dwell_s += event.duration_s
+            return event.duration_s
+        if isinstance(event, Home):
+            self.homing_s += event.duration_s
+            return event.duration_s
         return 0.0
 
     def estimate(self) -> TimeEstimate:

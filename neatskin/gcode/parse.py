@@ -9,13 +9,17 @@ XOR of every byte before the '*'.
 Parameters map an upper-case letter to a float (`X10.5` -> {"X": 10.5}); a letter with no
 value (`G28 X`) maps to the empty string. M117/M118 (and the SD-card file commands) keep their
 free text in the string parameter "text"; M118's leading A1/E1/Pn flags are still parsed as
-numbers. A syntax error raises `GcodeSyntaxError` (a ConfigError) naming the line.
+numbers. Numbers are finite and within +-2^31: `X1e999`, `Xnan`, `Xinf` and `X1e300` are syntax errors. A syntax error raises
+`GcodeSyntaxError` (a ConfigError) naming the line.
 """
 
 from __future__ import annotations
 
+import math
+import os
 import re
 from dataclasses import dataclass, field
+from typing import NoReturn
 
 from neatskin.errors import ConfigError, Problem
 
@@ -25,6 +29,11 @@ _CODE_RE = re.compile(r"([GMTD])\s*(\d+(?:\.\d+)?)", re.IGNORECASE)
 _NUMBER_RE = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
 _LINE_NUMBER_RE = re.compile(r"N\s*(\d+)\s*", re.IGNORECASE)
 _M118_FLAG_RE = re.compile(r"([AEP])(\d+)(?=\s|$)")
+MAX_MAGNITUDE = 2.0**31  # Marlin's line numbers are longs; no coordinate, feed or time is anywhere near
+_NOT_FINITE_RE = re.compile(r"[+-]?(?:nan|inf)", re.IGNORECASE)
+# the common line, `G1 X10 Y-2.5 F6000`: no framing, comment, exponent, lower case or number >= 1e9 (the fast path)
+_SIMPLE_RE = re.compile(r"([GM])([1-9]\d*|0)((?:[ \t]+[A-Z][+-]?(?:\d{1,9}(?:\.\d*)?|\.\d+))*)[ \t]*")
+_SIMPLE_PARAM_RE = re.compile(r"([A-Z])([+-]?[\d.]+)")
 
 
 class GcodeSyntaxError(ConfigError):
@@ -79,6 +88,12 @@ def frame_line(command: str, line_number: int) -> str:
 def parse_line(text: str, *, source: str = "<line>", line_no: int | None = None) -> GcodeLine | None:
     """Parse one line; None for blank or comment-only lines. Raises GcodeSyntaxError."""
     raw = text.rstrip("\r\n")
+    simple = _SIMPLE_RE.fullmatch(raw)
+    if simple is not None:
+        code = simple.group(1) + simple.group(2)
+        if code not in TEXT_COMMANDS:
+            params: dict[str, float | str] = {k: float(v) for k, v in _SIMPLE_PARAM_RE.findall(simple.group(3))}
+            return GcodeLine(code, params, "", raw, None, None)
     body, _, comment = raw.partition(";")
     comment = comment.strip()
     check: int | None = None
@@ -109,7 +124,12 @@ def parse_line(text: str, *, source: str = "<line>", line_no: int | None = None)
 
 def parse_program(text: str, source: str = "<program>") -> tuple[GcodeLine, ...]:
     """Parse every line of a program; one GcodeSyntaxError listing every bad line."""
-    lines: list[GcodeLine] = []
+    return tuple(line for _, line in parse_numbered(text, source))
+
+
+def parse_numbered(text: str, source: str = "<program>") -> tuple[tuple[int, GcodeLine], ...]:
+    """(line number in the text, command) of every command; one GcodeSyntaxError listing every bad line."""
+    lines: list[tuple[int, GcodeLine]] = []
     problems: list[Problem] = []
     for number, line in enumerate(text.splitlines(), start=1):
         try:
@@ -118,10 +138,47 @@ def parse_program(text: str, source: str = "<program>") -> tuple[GcodeLine, ...]
             problems.extend(exc.problems)
             continue
         if parsed is not None:
-            lines.append(parsed)
+            lines.append((number, parsed))
     if problems:
         raise GcodeSyntaxError(problems=problems)
     return tuple(lines)
+
+
+MAX_PROGRAM_BYTES = 64 * 1024 * 1024  # the paper campaign's program is about 1 MB
+
+
+def read_program_file(path: str | os.PathLike[str], max_bytes: int = MAX_PROGRAM_BYTES) -> str:
+    """The text of a G-code file: at most max_bytes, no NUL bytes, UTF-8. Anything else is one ConfigError
+    naming the file and the fix (a parquet, a binary or a device is never read past the cap)."""
+    name = os.fspath(path)
+    try:
+        with open(name, "rb") as handle:
+            data = handle.read(max_bytes + 1)
+    except OSError as exc:
+        raise ConfigError(
+            f"cannot read G-code file: {exc.strerror or exc}", file=name, fix="check the path; give a G-code text file"
+        ) from exc
+    if len(data) > max_bytes:
+        raise ConfigError(
+            f"larger than {max_bytes // (1024 * 1024)} MiB: not a press program",
+            file=name,
+            fix="give the .gcode file written by `neatskin gcode generate`",
+        )
+    nul = data.find(b"\0")
+    if nul >= 0:
+        raise ConfigError(
+            f"holds NUL bytes (the first at byte {nul}): a binary file (parquet, image, ...), not G-code text",
+            file=name,
+            fix="give the .gcode file written by `neatskin gcode generate`",
+        )
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"is not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start})",
+            file=name,
+            fix="give a G-code text file in ASCII or UTF-8",
+        ) from None
 
 
 def _normalise_number(digits: str) -> str:
@@ -160,16 +217,23 @@ def _letter_params(rest: str, raw: str, source: str, line_no: int | None) -> dic
             pos += 1  # Marlin accepts "X 10"
         number = _NUMBER_RE.match(rest, pos)
         if number:
-            params[letter] = float(number.group(0))
+            value = float(number.group(0))
+            if not math.isfinite(value):
+                _fail(raw, f"'{letter}{number.group(0)}' is not a finite number", source, line_no)
+            if abs(value) > MAX_MAGNITUDE:
+                _fail(raw, f"'{letter}{number.group(0)}' is beyond +-2^31 (Marlin's range)", source, line_no)
+            params[letter] = value
             pos = number.end()
             if pos < len(rest) and not rest[pos].isspace() and not rest[pos].isalpha():
                 _fail(raw, f"malformed number for '{letter}'", source, line_no)
+        elif _NOT_FINITE_RE.match(rest, pos):
+            _fail(raw, f"'{letter}{rest[pos:].split()[0]}' is not a finite number", source, line_no)
         else:
             params[letter] = ""
     return params
 
 
-def _fail(raw: str, message: str, source: str, line_no: int | None) -> None:
+def _fail(raw: str, message: str, source: str, line_no: int | None) -> NoReturn:
     where = f"line {line_no}" if line_no is not None else "line"
     raise GcodeSyntaxError(
         f"{message}: {raw!r}",

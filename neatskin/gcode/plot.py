@@ -5,6 +5,7 @@ Lets a technician see the positions (and the travel order) before a campaign sta
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +20,7 @@ def plot_positions(
     path: str | Path,
     *,
     title: str = "",
-    route: np.ndarray | None = None,
+    route: np.ndarray | Sequence[int] | None = None,
     probe_diameter_mm: float | None = None,
 ) -> Path:
     """Write the map to `path` (PNG); `route` is an order of position ids to draw as the travel path."""
@@ -33,7 +34,8 @@ def plot_positions(
     for k, face in enumerate(layout.faces):
         pts = layout.xy_mm[list(face)]
         ax.add_patch(Polygon(pts, closed=True, facecolor="#eef3fb", edgecolor="none", zorder=0))
-        ax.text(*pts.mean(axis=0), f"face {k}", ha="center", va="center", fontsize=7, color="#8899bb", zorder=1)
+        cx, cy = pts.mean(axis=0)
+        ax.text(float(cx), float(cy), f"face {k}", ha="center", va="center", fontsize=7, color="#8899bb", zorder=1)
     for ch in layout.channels:
         (ax_, ay), (bx, by) = layout.xy_mm[ch.a], layout.xy_mm[ch.b]
         ax.plot([ax_, bx], [ay, by], color="#9fc5e8", linewidth=ch.width_mm * 4, solid_capstyle="round", zorder=1)

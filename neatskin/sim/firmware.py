@@ -19,7 +19,8 @@ import time
 import numpy as np
 
 from neatskin.errors import ConfigError
-from neatskin.gcode.parse import checksum, parse_line
+from neatskin.gcode.machine import Machine, MaybeXyz, Move
+from neatskin.gcode.parse import GcodeLine, checksum, parse_line
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.marlin import replies as R
 from neatskin.sim.faults import FaultConfig
@@ -27,6 +28,13 @@ from neatskin.sim.motion import Timeline
 
 STEPS_PER_MM = (80.0, 80.0, 400.0)
 _N = re.compile(r"N\s*(-?\d+)")
+_DIGITS = re.compile(r"\d+")
+_EOL = re.compile(rb"[\r\n]")
+_FRAMED = re.compile(r"N(\d+)([^*]*)\*(\d+)")  # the common framed line: N<n> <command>*<checksum>
+_MOVES = frozenset({"G0", "G1"})
+_MODES = frozenset({"G90", "G91", "M82", "M83"})
+_SILENT = frozenset({"G0", "G1", "G4", "G28", "M400", "M999"})
+_OK = b"ok\n"
 _QUIET = frozenset({"G21", "G90", "G91", "M17", "M82", "M83", "M104", "M106", "M107", "M117", "M140", "M220", "M221"})
 
 
@@ -78,6 +86,7 @@ class MarlinCore:
         self.faults = faults
         self.rng = np.random.default_rng(seed)
         self.clock = clock or VirtualClock()
+        self._virtual = isinstance(self.clock, VirtualClock)
         self.advanced_ok = advanced_ok
         self.marlin_version = marlin_version
         self.ok_after_resend = ok_after_resend
@@ -85,24 +94,29 @@ class MarlinCore:
         self.keepalive_s = keepalive_s
         self.timeline = Timeline(profile, tuple(profile.park_mm))
         self.executed: list[tuple[int | None, str]] = []
-        self.clip_events: list[tuple[float, str, tuple[float, float, float], tuple[float, float, float]]] = []
+        self.clip_events: list[tuple[float, str, MaybeXyz, MaybeXyz]] = []
         self.out = bytearray()
         self.dead = False
         self.closed = False
         self.resets = 0
+        self._plain_ok = not (faults.drop_ok or faults.duplicate) and R.OK == "ok"
         self._boot()
 
     # ---- state ----------------------------------------------------------------------------
 
     def _boot(self) -> None:
         self.rx = bytearray()
-        self.queue: collections.deque[tuple[int | None, str]] = collections.deque()
+        self.queue: collections.deque[tuple[int | None, str, str, GcodeLine | None]] = collections.deque()
         self.last_n = 0
         self.homed = [False, False, False]
-        self.absolute = True
-        self.feed_mm_s = self.profile.travel_feed_mm_s
-        self.offset_mm = [0.0, 0.0, 0.0]  # logical = physical + offset (G92)
-        self.soft_endstops = True
+        # the one G-code machine model (gcode.machine): native position = the timeline's, G92 offsets, modes
+        self.machine = Machine(
+            self.profile,
+            start_mm=self.timeline.end_mm,
+            feed_mm_s=self.profile.travel_feed_mm_s,
+            homing_time_s=self.profile.homing_time_s,
+        )
+        self._set_soft_endstops(True)
         self.halted = False
         self._head_ready: float | None = None
         self._last_busy = self.clock.now()
@@ -120,6 +134,17 @@ class MarlinCore:
         data = bytes(self.out)
         self.out.clear()
         return data
+
+    def _set_soft_endstops(self, on: bool) -> None:
+        """M211: the machine clamps native targets to the bed, and to the soft limits while they are on."""
+        p = self.profile
+        lo = (0.0, 0.0, p.soft_min_mm.z)
+        hi = (p.bed_x_mm, p.bed_y_mm, p.soft_max_mm.z)
+        if on:
+            lo = (max(lo[0], p.soft_min_mm.x), max(lo[1], p.soft_min_mm.y), max(lo[2], p.soft_min_mm.z))
+            hi = (min(hi[0], p.soft_max_mm.x), min(hi[1], p.soft_max_mm.y), min(hi[2], p.soft_max_mm.z))
+        self.soft_endstops = on
+        self.machine.limits_mm = (lo, hi)
 
     def _emit(self, text: str, *, is_ok: bool = False) -> None:
         if self.dead:
@@ -140,12 +165,14 @@ class MarlinCore:
         self._read_lines()
 
     def _read_lines(self) -> None:
+        rx = self.rx
         while len(self.queue) < self.bufsize and not self.dead:
-            cut = min((i for i in (self.rx.find(b"\n"), self.rx.find(b"\r")) if i >= 0), default=-1)
-            if cut < 0:
+            eol = _EOL.search(rx)
+            if eol is None:
                 return
-            raw = bytes(self.rx[:cut])
-            del self.rx[: cut + 1]
+            cut = eol.start()
+            raw = bytes(rx[:cut])
+            del rx[: cut + 1]
             self._accept(raw)
 
     def _accept(self, raw: bytes) -> None:
@@ -166,6 +193,17 @@ class MarlinCore:
                 self._emit(R.OK, is_ok=True)
             return
         number = None
+        framed = _FRAMED.fullmatch(text)
+        if framed is not None and "M110" not in text:  # the common case, checked as the general path below
+            number = int(framed.group(1))
+            if not self._in_sequence(number):
+                return
+            if int(framed.group(3)) != checksum(text[: framed.start(3) - 1]):
+                self._line_error(R.ERR_CHECKSUM)
+                return
+            self.last_n = number
+            self._enqueue(number, framed.group(2).strip())
+            return
         if text.startswith("N"):
             is_m110 = "M110" in text
             npos = text
@@ -173,23 +211,38 @@ class MarlinCore:
                 npos = text[text.index("N", 4) :]
             match = _N.match(npos)
             number = int(match.group(1)) if match else 0
-            if number != self.last_n + 1 and not is_m110:
-                if self.marlin_version >= "2.1" and self.last_n - 1 <= number <= self.last_n:
-                    return  # a repeat from a crossed resend: dropped without a word (Marlin 2.1)
-                self._line_error(R.ERR_LINE_NO)
+            if not is_m110 and not self._in_sequence(number):
                 return
             star = text.rfind("*")
             if star < 0:
                 self._line_error(R.ERR_NO_CHECKSUM)
                 return
-            digits = re.match(r"\d+", text[star + 1 :])
+            digits = _DIGITS.match(text, star + 1)
             if digits is None or int(digits.group(0)) != checksum(text[:star]):
                 self._line_error(R.ERR_CHECKSUM)
                 return
             self.last_n = number
             head = _N.match(text)
             text = text[head.end() : star].strip() if head else text[:star].strip()
-        self.queue.append((number, text))
+        self._enqueue(number, text)
+
+    def _in_sequence(self, number: int) -> bool:
+        """True for the next line number; otherwise the line is refused (or dropped) here."""
+        if number == self.last_n + 1:
+            return True
+        if not (self.marlin_version >= "2.1" and self.last_n - 1 <= number <= self.last_n):
+            self._line_error(R.ERR_LINE_NO)
+        # else: a repeat from a crossed resend, dropped without a word (Marlin 2.1)
+        return False
+
+    def _enqueue(self, number: int | None, text: str) -> None:
+        """Queue a command, parsed once (Marlin parses at execution; the result is the same)."""
+        try:
+            line = parse_line(text)
+        except ConfigError:
+            line = None
+        code = line.code if line is not None else text.split(" ", 1)[0]
+        self.queue.append((number, text, code, line))
 
     def _corrupt(self, raw: bytes) -> bytes:
         # never the leading 'N': a line that loses it is taken unnumbered, a hole in Marlin's protocol
@@ -226,7 +279,8 @@ class MarlinCore:
             self.queue.popleft()
             self._head_ready = None
             self._after_command()
-            self._read_lines()
+            if self.rx:
+                self._read_lines()
         return None
 
     def _after_command(self) -> None:
@@ -240,11 +294,11 @@ class MarlinCore:
     def _wait(self, ready_s: float) -> float:
         """0 when the clock has reached ready_s (virtual time jumps there), else the real seconds left."""
         now = self.clock.now()
-        if isinstance(self.clock, VirtualClock):
-            intervals = int((ready_s - now) // self.keepalive_s) if ready_s > now else 0
-            for _ in range(min(intervals, 3)):
-                self._emit(f"echo:{R.BUSY_PROCESSING}")
-            self.clock.wait_until(ready_s)
+        if self._virtual:
+            if ready_s > now:
+                for _ in range(min(int((ready_s - now) // self.keepalive_s), 3)):
+                    self._emit(f"echo:{R.BUSY_PROCESSING}")
+                self.clock.wait_until(ready_s)
             return 0.0
         left = self.clock.wait_until(ready_s)
         if left > 0 and now - self._last_busy >= self.keepalive_s:
@@ -253,91 +307,65 @@ class MarlinCore:
         return left
 
     def _run_head(self) -> float:
-        number, text = self.queue[0]
-        try:
-            line = parse_line(text)
-        except ConfigError:
-            line = None
-        code = line.code if line is not None else text.split(" ", 1)[0]
+        number, text, code, line = self.queue[0]
         if self._head_ready is None:  # first visit: start the command, decide when it may finish
             self._last_busy = self.clock.now()
-            self._head_ready = self._start(code, line)
-            if self._head_ready is None:
-                self._head_ready = self.clock.now()
-        if code in ("G0", "G1") and line is not None and all(self.homed):
-            wait = self._wait(self._head_ready)
-            if wait > 0:
-                return wait
-            self._move(line)
-        else:
-            wait = self._wait(self._head_ready)
-            if wait > 0:
-                return wait
+            ready = self._start(code, line)
+            self._head_ready = self.clock.now() if ready is None else ready
+        wait = self._wait(self._head_ready)
+        if wait > 0:
+            return wait
+        moved = code in _MOVES and line is not None and self.homed_all
+        if moved:
+            self._move(line)  # type: ignore[arg-type]
         self.executed.append((number, text))
         if self.faults.busy_storm and self.rng.random() < self.faults.busy_storm:
             for _ in range(int(self.rng.integers(3, 30))):
                 self._emit(f"echo:{R.BUSY_PROCESSING}")
-        self._reply(code, line, text, number)
+        if moved or not self._reply(code, line, text):
+            self._ok(number)
         return 0.0
 
-    def _start(self, code: str, line) -> float | None:
+    @property
+    def homed_all(self) -> bool:
+        h = self.homed
+        return h[0] and h[1] and h[2]
+
+    def _start(self, code: str, line: GcodeLine | None) -> float | None:
         """Side effects at the start of a command; the time its `ok` waits for (None: at once)."""
         now = self.clock.now()
         tl = self.timeline
-        if code in ("G0", "G1"):
-            return tl.slot_free_s(now, self.profile.planner_buffer_size) if all(self.homed) else None
+        if code in _MOVES:
+            return tl.slot_free_s(now, self.profile.planner_buffer_size) if self.homed_all else None
         if code == "M400":
             return tl.end_s
         if code == "G4" and line is not None:
             return max(now, tl.end_s) + (line.get("P", 0.0) or 0.0) / 1000.0 + (line.get("S", 0.0) or 0.0)
         if code == "G28":
-            axes = [i for i, a in enumerate("XYZ") if line is not None and a in line.params] or [0, 1, 2]
-            home = list(tl.end_mm)
-            for i in axes:
-                home[i] = tuple(self.profile.soft_min_mm)[i]
+            event = self.machine.home(
+                tuple(i for i, a in enumerate("XYZ") if line is not None and a in line.params) or (0, 1, 2)
+            )
+            for i in event.axes:
                 self.homed[i] = True
-                self.offset_mm[i] = 0.0
-            return tl.add_homing(now, tuple(home), self.profile.homing_time_s * len(axes) / 3).t1_s
+            return tl.add_homing(now, event.end_mm, event.duration_s).t1_s  # type: ignore[arg-type]
         return None
 
-    def _move(self, line) -> None:
-        feed = line.get("F")
-        if feed is not None and feed > 0:
-            self.feed_mm_s = feed / 60.0
-        current = self.timeline.end_mm
-        target = list(current)
-        for i, axis in enumerate("XYZ"):
-            value = line.get(axis)
-            if value is None:
-                continue
-            logical_now = current[i] + self.offset_mm[i]
-            logical = value if self.absolute else logical_now + value
-            target[i] = logical - self.offset_mm[i]
-        clipped = tuple(self._clip(target))
-        if clipped != tuple(target):
-            self.clip_events.append((self.clock.now(), line.raw, tuple(target), clipped))
-        self.timeline.add_move(self.clock.now(), clipped, self.feed_mm_s)
+    def _move(self, line: GcodeLine) -> None:
+        event = self.machine.step(line)
+        assert isinstance(event, Move) and event.duration_s is not None  # homed: every axis is known
+        now = self.clock.now()
+        if event.clamped:
+            self.clip_events.append((now, line.raw, event.requested_mm, event.end_mm))
+        self.timeline.add(now, event)
 
-    def _clip(self, target: list[float]) -> list[float]:
-        p = self.profile
-        lo = [0.0, 0.0, p.soft_min_mm.z]
-        hi = [p.bed_x_mm, p.bed_y_mm, p.soft_max_mm.z]
-        if self.soft_endstops:
-            lo = [max(a, b) for a, b in zip(lo, p.soft_min_mm)]
-            hi = [min(a, b) for a, b in zip(hi, p.soft_max_mm)]
-        return [min(max(v, a), b) for v, a, b in zip(target, lo, hi)]
-
-    def _reply(self, code: str, line, text: str, number: int | None) -> None:
-        if code in ("G0", "G1") and not all(self.homed):
-            self._emit("echo:Home " + "".join(a for a, h in zip("XYZ", self.homed) if not h) + " First")
-        elif code in ("G90", "G91"):
-            self.absolute = code == "G90"
-        elif code == "G92" and line is not None:
-            here = self.timeline.end_mm
-            for i, axis in enumerate("XYZ"):
-                value = line.get(axis)
-                if value is not None:
-                    self.offset_mm[i] = value - here[i]
+    def _reply(self, code: str, line: GcodeLine | None, text: str) -> bool:
+        """Replies of a command other than a homed move; True when its `ok` is already sent."""
+        if code in _MOVES:
+            if not self.homed_all:
+                self._emit("echo:Home " + "".join(a for a, h in zip("XYZ", self.homed) if not h) + " First")
+        elif code in _MODES or code == "G92":
+            if line is not None:
+                self.machine.step(line)
         elif code == "M110" and line is not None:
             self.last_n = int(line.get("N", 0.0) or 0)
         elif code == "M114":
@@ -350,7 +378,7 @@ class MarlinCore:
                 self._emit(f"{axis}_min: {'TRIGGERED' if hit else 'open'}")
         elif code == "M211":
             if line is not None and line.get("S") is not None:
-                self.soft_endstops = bool(line.get("S"))
+                self._set_soft_endstops(bool(line.get("S")))
             self._emit(self._m211())
         elif code == "M118" and line is not None:
             prefix = "echo:" if line.get("E") else ("//" if line.get("A") else "")
@@ -359,27 +387,30 @@ class MarlinCore:
             self.homed = [False, False, False]
         elif code == "M105":
             self._emit("ok T:25.00 /0.00 B:25.00 /0.00 @:0 B@:0", is_ok=True)
-            return
+            return True
         elif code == "M115":
             self._emit(
                 "FIRMWARE_NAME:Marlin 2.1.2.4 (neatskin simulated printer) SOURCE_CODE_URL:github.com/"
                 "MarlinFirmware/Marlin PROTOCOL_VERSION:1.0 MACHINE_TYPE:NeatSkin rig EXTRUDER_COUNT:0"
             )
             self._emit(f"Cap:ADVANCED_OK:{int(self.advanced_ok)}")
-        elif code not in _QUIET and code not in ("G0", "G1", "G4", "G28", "M400", "M999"):
+        elif code not in _QUIET and code not in _SILENT:
             self._emit(f'echo:{R.UNKNOWN_COMMAND}{text}"')
-        self._ok(number)
+        return False
 
     def _ok(self, number: int | None) -> None:
         if not self.advanced_ok:
-            self._emit(R.OK, is_ok=True)
+            if self._plain_ok and not self.dead:
+                self.out += _OK
+            else:
+                self._emit(R.OK, is_ok=True)
             return
         free = self.profile.planner_buffer_size - self.timeline.pending(self.clock.now())
         tag = f" N{number}" if number is not None else ""
         self._emit(f"ok{tag} P{free} B{self.bufsize - len(self.queue)}", is_ok=True)
 
     def _m114(self) -> str:
-        logical = [p + o for p, o in zip(self.timeline.end_mm, self.offset_mm)]
+        logical = [p + o for p, o in zip(self.timeline.end_mm, self.machine.offset_mm)]
         actual = self.timeline.position_mm(self.clock.now())
         counts = [round(a * s) for a, s in zip(actual, STEPS_PER_MM)]
         return (

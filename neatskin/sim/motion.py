@@ -1,8 +1,8 @@
 """The simulated printer's motion: a timeline of trapezoidal moves, and where the probe is at any time.
 
-Each move is planned at the profile's limits (gcode.motion: the feed and acceleration scaled
-so no axis exceeds its maximum) and starts when the previous one ends (rest to rest, as the
-gcode.motion estimates assume). `position_mm(t_s)` interpolates the trapezoid exactly, so the
+Each move comes from the one G-code machine model (gcode.machine: the feed and acceleration
+scaled so no axis exceeds its maximum, the rest-to-rest trapezoid time) and starts when the
+previous one ends (rest to rest, as the gcode.motion estimates assume). `position_mm(t_s)` interpolates the trapezoid exactly, so the
 simulated skin and FSR see the press as it happens.
 """
 
@@ -10,19 +10,21 @@ from __future__ import annotations
 
 import bisect
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
-from neatskin.gcode.motion import limited_feed_and_accel, trapezoid_time_s
+from neatskin.gcode.machine import Move, limited_feed_and_accel, trapezoid_time_s
 from neatskin.gcode.profile import PrinterProfile
 
 Xyz = tuple[float, float, float]
 
 
-@dataclass(frozen=True)
-class Segment:
-    """One move from p0_mm to p1_mm over [t0_s, t1_s]; `linear` for homing (constant speed)."""
+class Segment(NamedTuple):
+    """One move from p0_mm to p1_mm over [t0_s, t1_s]; `linear` for homing (constant speed).
+
+    An immutable NamedTuple rather than a frozen dataclass: one is built per move on the simulated
+    printer's hot path."""
 
     t0_s: float
     t1_s: float
@@ -76,6 +78,7 @@ class Timeline:
         self.start_mm = start_mm
         self.segments: list[Segment] = []
         self._t0s: list[float] = []
+        self._t1s: list[float] = []  # non-decreasing: every segment starts when the previous one ends
 
     @property
     def end_s(self) -> float:
@@ -87,12 +90,10 @@ class Timeline:
 
     def pending(self, t_s: float) -> int:
         """Moves queued and not finished at t_s (the planner's occupied slots)."""
-        count = 0
-        for segment in reversed(self.segments):
-            if segment.t1_s <= t_s:
-                break
-            count += 1
-        return count
+        t1s = self._t1s
+        if not t1s or t1s[-1] <= t_s:
+            return 0
+        return len(t1s) - bisect.bisect_right(t1s, t_s)
 
     def slot_free_s(self, t_s: float, slots: int) -> float:
         """The earliest time >= t_s at which fewer than `slots` moves are pending."""
@@ -100,9 +101,17 @@ class Timeline:
             return t_s
         return self.segments[-slots].t1_s
 
+    def add(self, now_s: float, move: Move) -> Segment:
+        """Queue a move of the machine model (known start, end and duration) after the last one."""
+        t0 = now_s if now_s > self.end_s else self.end_s
+        duration = move.duration_s or 0.0
+        return self._append(
+            Segment(t0, t0 + duration, move.start_mm, move.end_mm, move.feed_mm_s, move.accel_mm_s2)  # type: ignore[arg-type]
+        )
+
     def add_move(self, now_s: float, target_mm: Xyz, feed_mm_s: float) -> Segment:
         start = self.end_mm
-        delta = tuple(b - a for a, b in zip(start, target_mm))
+        delta = (target_mm[0] - start[0], target_mm[1] - start[1], target_mm[2] - start[2])
         feed, accel = limited_feed_and_accel(delta, feed_mm_s, self.profile)
         length = math.sqrt(sum(d * d for d in delta))
         t0 = max(now_s, self.end_s)
@@ -118,10 +127,12 @@ class Timeline:
         here = self.position_mm(now_s)
         self.segments = [Segment(now_s, now_s, here, position_mm, 1.0, 1.0, linear=True)]
         self._t0s = [now_s]
+        self._t1s = [now_s]
 
     def _append(self, segment: Segment) -> Segment:
         self.segments.append(segment)
         self._t0s.append(segment.t0_s)
+        self._t1s.append(segment.t1_s)
         return segment
 
     def position_mm(self, t_s: float) -> Xyz:

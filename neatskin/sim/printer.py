@@ -2,7 +2,7 @@
 
 `start_pty()` returns a `/dev/pts/N` path that any host (our driver through pyserial, Printrun,
 a terminal) opens like a USB port; a thread serves it. `serial()` returns a pyserial-compatible
-object for in-process use without a pty. Both wrap one MarlinCore (simcore.py) under a lock,
+object for in-process use without a pty. Both wrap one MarlinCore (firmware.py) under a lock,
 so `probe_position()`, `now_s()` and `executed` may be read from any thread while it runs.
 """
 
@@ -103,24 +103,26 @@ class SimulatedPrinter:
         return self._pty.path
 
     def _serve(self) -> None:
+        # the hot path: one lock hold, one select, one read and at most one write per round
         pty = self._pty
         assert pty is not None
-        while not self._stop.is_set():
-            with self.lock:
-                wait = self.core.step()
-                out = self.core.take_output()
-                closed = self.core.closed
+        core, lock, fd, stop = self.core, self.lock, pty.master_fd, self._stop
+        data = b""
+        while not stop.is_set():
+            with lock:
+                if data:
+                    core.receive(data)
+                wait = core.step()
+                out = core.take_output() if core.out else b""
+                closed = core.closed
             try:
                 if out:
-                    write_all(pty.master_fd, out)
+                    write_all(fd, out)
                 if closed:
                     break
-                data = read_available(pty.master_fd, 0.05 if wait is None else min(wait, 0.05))
+                data = read_available(fd, 0.05 if wait is None or wait > 0.05 else wait)
             except OSError:
                 break
-            if data:
-                with self.lock:
-                    self.core.receive(data)
         pty.close()
 
     def serial(self) -> SimSerial:
