@@ -78,3 +78,30 @@ class CommandRejected(MarlinError):
 class EmergencyStopped(MarlinError):
     what = "emergency stop (M112) was sent"
     fix = "reset the printer, home (G28) and resume"
+
+
+class ConnectFailed(MarlinError):
+    what = "the printer would not start a session"
+    fix = (
+        "the printer keeps rebooting or refusing `M110 N0`: check its power supply and USB cable, "
+        "that the baud rate matches the firmware, and that no other program talks to it"
+    )
+
+
+class PortBusy(PortMissing):
+    """Another process holds the port (opened exclusively): nothing was sent."""
+
+    what = "the serial port is in use"
+    fix = "another program (a second neatskin, OctoPrint, Pronterface) holds it: close that program, then retry"
+
+
+class BadReply(MarlinError):
+    what = "the printer's reply could not be read"
+    consequence = "the command ran, but its answer is unusable"
+    fix = "check that the firmware is Marlin (or compatible) and that the line is not noisy"
+
+
+class Interrupted(MarlinError):
+    what = "sending was interrupted"
+    consequence = "lines not yet sent were not sent"
+    fix = "continue from the last acknowledged line"
