@@ -3,13 +3,18 @@ three resend dialects refusing a line twice still run every command exactly once
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 
 from neatskin.marlin import errors as E
 from neatskin.marlin.driver import DriverConfig, MarlinDriver
 from neatskin.sim.scripted import DialectFirmware, FirmwareOnPty
 
-QUICK = DriverConfig(boot_timeout_s=0.3, min_timeout_s=0.3, poll_s=0.01, probe_attempts=2, connect_attempts=6)
+# motion_time_scale=0: these peers take no time to move, so deadlines need no motion allowance
+QUICK = DriverConfig(
+    boot_timeout_s=0.3, min_timeout_s=0.3, poll_s=0.01, probe_attempts=2, connect_attempts=6, motion_time_scale=0.0
+)
 PROGRAM = [f"G1 X{i} Y{2 * i} F6000" for i in range(1, 13)]
 
 
@@ -67,7 +72,7 @@ def test_peer_turning_hostile_mid_stream_ends_in_one_named_error(serve, mode):
 
 @pytest.mark.timeout(30)
 def test_double_ok_in_separate_reads_cannot_end_a_confirmed_send_early(serve):
-    config = DriverConfig(boot_timeout_s=0.3, min_timeout_s=0.3, poll_s=0.01, confirm_batches=True)
+    config = replace(QUICK, confirm_batches=True)
     firmware = DialectFirmware(mode="double_ok")
     peer, driver = serve(firmware, split_s=0.005, config=config)
     driver.connect()
@@ -80,7 +85,7 @@ def test_double_ok_in_separate_reads_cannot_end_a_confirmed_send_early(serve):
 
 @pytest.mark.timeout(30)
 def test_double_ok_from_a_peer_that_cannot_echo_ends_in_no_answer(serve):
-    config = DriverConfig(boot_timeout_s=0.3, min_timeout_s=0.3, poll_s=0.01, probe_attempts=2, confirm_batches=True)
+    config = replace(QUICK, confirm_batches=True)
 
     class NoEcho(DialectFirmware):
         def _line(self, text: str) -> bytes:

@@ -103,6 +103,16 @@ class MarlinDriver:
         x, y, z = list(self._protocol.motion.position_mm or [None, None, None])[:3]
         return x, y, z
 
+    @property
+    def commanded_absolute(self) -> bool:
+        """Whether the lines sent so far leave the printer in absolute (G90) distance mode."""
+        return bool(self._protocol.motion.absolute)
+
+    @property
+    def failure(self) -> E.MarlinError | None:
+        """The error that ended the session, if any."""
+        return self._protocol.failure
+
     # ---- connect / close ----------------------------------------------------------------------
 
     def connect(self, boot_timeout_s: float | None = None) -> MarlinDriver:
