@@ -125,3 +125,28 @@ def test_the_port_is_exclusive(serve):
     second.close()
     driver.send("M400")  # the first session is untouched
     assert firmware.executed[-1] == "M400"
+
+
+@pytest.mark.timeout(30)
+def test_a_failing_wire_log_is_named_as_such_not_as_a_dead_port(serve, tmp_path):
+    import errno
+
+    peer = FirmwareOnPty(DialectFirmware())
+    try:
+        with pytest.raises(E.WireLogFailed, match="/dev/full"):
+            MarlinDriver.open(peer.path, config=QUICK, wire_log="/dev/full").connect()
+        driver = MarlinDriver.open(peer.path, config=QUICK, wire_log=tmp_path / "wire.log")
+        driver.connect()
+        driver.send("G28")
+
+        def full(direction: str, data: bytes) -> None:
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        driver._wire.write = full  # the disk fills up in mid-session
+        with pytest.raises(E.WireLogFailed) as info:
+            driver.send("M400")
+        assert "No space left" in str(info.value) and info.value.last_command == "G28"
+        assert peer.firmware.executed == ["M110 N0", "G28"]  # nothing went out unlogged
+        driver.close()
+    finally:
+        peer.close()

@@ -123,7 +123,10 @@ class MarlinDriver:
 
         self._stop_reader()
         if self.wire_log_path is not None and self._wire is None:
-            self._wire = WireLog(self.wire_log_path)
+            try:
+                self._wire = WireLog(self.wire_log_path)
+            except OSError as exc:
+                raise E.WireLogFailed(f"{self.wire_log_path}: {exc}", port=self.port_name) from exc
         try:
             if not self.port.is_open:
                 self.port.open()
@@ -194,8 +197,7 @@ class MarlinDriver:
                 return
             with self._cond:
                 if data:
-                    if self._wire is not None:
-                        self._wire.write("<", data)
+                    self._log("<", data)
                     protocol.receive(data, self.clock())
                 else:
                     protocol.tick(self.clock())
@@ -206,8 +208,8 @@ class MarlinDriver:
         """Write what the protocol asks for (called with the lock held)."""
         channel = self._channel
         for data in self._protocol.data_to_send():
-            if self._wire is not None:
-                self._wire.write(">", data)
+            if not self._log(">", data):
+                return
             try:
                 if channel is None:
                     raise OSError("the port is not open")
@@ -216,6 +218,20 @@ class MarlinDriver:
                 self._protocol.port_failed(f"write failed: {exc}")
                 self._protocol.data_to_send()
                 return
+
+    def _log(self, direction: str, data: bytes) -> bool:
+        """Append to the wire log; a failing log ends the session as such, not as a dead port."""
+        if self._wire is None:
+            return True
+        try:
+            self._wire.write(direction, data)
+            return True
+        except (OSError, ValueError) as exc:
+            n, cmd = self._protocol.last_acked
+            where = f"{self._wire.path}: {exc}"
+            self._protocol.fail(E.WireLogFailed(where, last_line=n, last_command=cmd, port=self.port_name))
+            self._protocol.data_to_send()
+            return False
 
     def _submit(self, jobs: list[Job]) -> None:
         with self._cond:

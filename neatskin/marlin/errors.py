@@ -105,3 +105,9 @@ class Interrupted(MarlinError):
     what = "sending was interrupted"
     consequence = "lines not yet sent were not sent"
     fix = "continue from the last acknowledged line"
+
+
+class WireLogFailed(MarlinError):
+    what = "the wire log could not be written"
+    consequence = "the printer line itself was fine; nothing more was sent, so the log stays complete"
+    fix = "free disk space or give the wire log a writable path, then resume"
