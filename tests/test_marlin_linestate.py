@@ -12,7 +12,8 @@ from collections import deque
 import pytest
 
 from neatskin.marlin import errors as E
-from neatskin.marlin.linestate import DriverConfig, Job, LineProtocol
+from neatskin.marlin.jobs import DriverConfig, Job
+from neatskin.marlin.linestate import LineProtocol
 from neatskin.sim.scripted import DialectFirmware
 
 CONFIG = DriverConfig(boot_timeout_s=0.5, min_timeout_s=0.4, busy_extension_s=0.6, poll_s=0.01)

@@ -23,7 +23,8 @@ from typing import Any
 from neatskin.gcode.parse import parse_line, parse_program
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.marlin import errors as E
-from neatskin.marlin.linestate import DriverConfig, Job, LineProtocol
+from neatskin.marlin.jobs import DriverConfig, Job
+from neatskin.marlin.linestate import LineProtocol
 from neatskin.marlin.replies import Position, parse_m114, parse_m119
 from neatskin.marlin.transport import Channel, Clock, SerialPort, channel_for
 from neatskin.marlin.wirelog import WireLog
