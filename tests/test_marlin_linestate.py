@@ -10,6 +10,8 @@ import functools
 from collections import deque
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from neatskin.marlin import errors as E
 from neatskin.marlin.jobs import DriverConfig, Job
@@ -235,3 +237,38 @@ def test_garbage_without_newlines_is_bounded_and_the_line_times_out():
         t += 0.05
     assert isinstance(job.error, E.NoAnswer)
     assert sent <= 4 and len(proto._rx) <= 4096
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    dialect=st.sampled_from(["marlin1", "marlin2", "repetier"]),
+    known=st.booleans(),
+    rejects=st.dictionaries(st.integers(1, 20), st.integers(1, 3), max_size=6),
+    chunk=st.integers(1, 4),
+)
+def test_any_refusal_pattern_in_any_dialect_runs_each_command_once(dialect, known, rejects, chunk):
+    config = DriverConfig(
+        boot_timeout_s=0.5, min_timeout_s=0.4, poll_s=0.01, ok_after_resend=(dialect != "marlin2") if known else None
+    )
+    proto = connected(config)
+    firmware = DialectFirmware(dialect, reject=rejects)
+    commands = [f"G1 X{i}" for i in range(1, 21)]
+    jobs = [Job(c) for c in commands]
+    wire: deque[bytes] = deque()
+    t = 1.0
+    proto.submit(jobs, t)
+    for _ in range(20_000):
+        for data in proto.data_to_send():
+            wire.extend(line + b"\n" for line in firmware.feed(data).split(b"\n")[:-1])
+        if wire:  # `chunk` reply lines per read
+            proto.receive(b"".join(wire.popleft() for _ in range(min(chunk, len(wire)))), t)
+        else:
+            proto.tick(t)
+        for job in jobs:
+            assert not (job.done and job.error is None) or job.command in firmware.executed
+        if jobs[-1].done:
+            break
+        t += 0.001
+    assert all(job.done and job.error is None for job in jobs)
+    assert firmware.executed == commands
+    assert proto.stats["lines_resent"] == sum(rejects.values())
