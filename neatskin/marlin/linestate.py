@@ -529,7 +529,7 @@ class LineProtocol:
             self.failure = error
             log.debug("session failed: %s", error)
         jobs = [line.job for line in self._inflight if line.job is not None] + list(self._queue)
-        if self._hello is not None:
+        if self._hello is not None and not self._hello.done:
             jobs.append(self._hello)  # a handshake that failed before its M110 went out
         self._queue.clear()
         self._inflight.clear()
