@@ -12,6 +12,7 @@ an M112 on request.
 
 from __future__ import annotations
 
+import collections
 import logging
 import os
 import threading
@@ -81,7 +82,7 @@ class MarlinDriver:
         return str(getattr(self.port, "name", None) or getattr(self.port, "port", None) or "<port>")
 
     @property
-    def stats(self) -> Any:
+    def stats(self) -> collections.Counter[str]:
         """Counters of this session: lines_sent, lines_resent, probes, busy, oks_swallowed, stray_oks..."""
         return self._protocol.stats
 
@@ -95,7 +96,7 @@ class MarlinDriver:
         return self._protocol.actions
 
     @property
-    def unsolicited(self) -> Any:
+    def unsolicited(self) -> collections.deque[str]:
         return self._protocol.unsolicited
 
     @property

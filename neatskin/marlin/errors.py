@@ -53,7 +53,7 @@ class PortMissing(PortDead):
     consequence = "nothing was sent"
     fix = "check the port name (ls /dev/ttyUSB* /dev/ttyACM*) and that the printer is plugged in and powered"
 
-    def __init__(self, detail: str, *, port: str | None = None, **kwargs) -> None:
+    def __init__(self, detail: str, *, port: str | None = None, **kwargs: object) -> None:
         MarlinError.__init__(self, detail, port=port)
         # a port that never opened has no session: say only what is wrong and how to fix it
         Exception.__init__(self, f"{self.what} {port!r}: {detail}; {self.consequence} (fix: {self.fix})")
