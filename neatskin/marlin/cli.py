@@ -151,7 +151,8 @@ def _interrupted(args: argparse.Namespace, driver: Any, numbered: list[tuple[int
         print(f"the printer acknowledged line {number} of {args.file}: {line.strip()!r}", file=err)
     else:
         print(f"the printer acknowledged no line of {args.file} in this run", file=err)
-    in_doubt = driver.failure is not None  # the line in flight never got its ok: it may have run
+    # the line in flight never got its ok (the printer failed, or it is still running): it may have run
+    in_doubt = driver.failure is not None or driver.lines_in_flight > 0
     safe_z = args.safe_z_mm
     if safe_z is None:
         safe_z = profile.safe_height_mm if profile is not None else DEFAULT_SAFE_Z_MM
@@ -164,6 +165,8 @@ def _interrupted(args: argparse.Namespace, driver: Any, numbered: list[tuple[int
         absolute=driver.commanded_absolute,
     )
     try:
+        if lift.lines and driver.lines_in_flight:
+            lift = Lift((), "no lift: a line is still in flight; lift the probe by hand before continuing")
         if lift.lines:
             driver.send_lines(list(lift.lines), source="lift")
         print(lift.reason + (f" ({' / '.join(lift.lines)})" if lift.lines else ""), file=err)

@@ -111,6 +111,11 @@ class MarlinDriver:
         return bool(self._protocol.motion.absolute)
 
     @property
+    def lines_in_flight(self) -> int:
+        """Lines written whose `ok` has not come yet."""
+        return self._protocol.in_flight
+
+    @property
     def failure(self) -> E.MarlinError | None:
         """The error that ended the session, if any."""
         return self._protocol.failure
