@@ -181,11 +181,10 @@ def step_costs(profile) -> dict[str, float]:
     tracker = MotionTracker(profile)
     tracker.line_time_s("G28")
     parsed = parse_line("G1 X10 Y20 F6000")
-    event = threading.Event()
     peer = EchoPeer()
     port = serial.Serial(peer.path, 115200, timeout=1.0)
     line = framed_lines(1)[0]
-    lock = threading.RLock()
+    cond = threading.Condition(threading.RLock())
 
     def round_trip() -> None:
         port.write(line)
@@ -196,7 +195,7 @@ def step_costs(profile) -> dict[str, float]:
         "frame N<n> <cmd>*<cs>": lambda: frame("G1 X10 Y20 F6000", 1234),
         "deadline from the motion model": lambda: tracker.line_time_s(parsed),
         "parse a G-code line (send_lines, once)": lambda: parse_line("G1 X10 Y20 F6000"),
-        "threading.Event.set + RLock": lambda: (lock.acquire(), event.set(), lock.release()),
+        "Condition (RLock) acquire + notify_all": lambda: (cond.acquire(), cond.notify_all(), cond.release()),
         "pyserial write + read ok (bare round trip)": round_trip,
     }
     try:
