@@ -1,6 +1,10 @@
-"""A scripted Marlin peer for byte-level protocol tests, in the manner of PyMeasure's expected_protocol.
+"""Marlin peers for protocol tests: a byte-exact scripted peer, and a small firmware in three resend dialects.
 
-`ScriptedPeer(script)` serves a real pty: for each step it reads exactly one line the host
+`DialectFirmware` (sans-IO) and `FirmwareOnPty` (it, served on a real pty) answer in the Marlin 1,
+Marlin 2 or Repetier/OctoPrint resend dialect, refuse chosen lines, or turn hostile (a boot loop,
+`Resend: 0` for ever, doubled oks, garbage, silence); see DialectFirmware.
+
+`ScriptedPeer(script)`, in the manner of PyMeasure's expected_protocol, serves a real pty: for each step it reads exactly one line the host
 writes and compares it byte for byte with the expectation, then writes the scripted replies.
 Steps: `(expected_line_bytes, replies)`, replies bytes or a list of bytes and pauses (seconds); `(None, replies)` writes without waiting for a
 line (a spontaneous reply, e.g. a `start` in mid-session); `expected` may also be a callable
