@@ -10,11 +10,16 @@ Rows, all measured in this run over the same kind of pty, one line in flight:
   driver vs sim    MarlinDriver.send_lines against the simulated printer (virtual time).
   sim core only    the simulator's firmware model with no I/O at all (MarlinCore in-process).
 The target: driver vs sim >= 80 % of the echo limit.
+
+`--against REV` adds, in the same run, the driver rows of git revision REV (its `neatskin` exported
+to a temporary folder and measured in a subprocess against the same peers), and the driver through
+pyserial's read/write API instead of the raw descriptor (the transport's two channels).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import threading
 import time
@@ -23,7 +28,8 @@ from pathlib import Path
 import serial
 
 REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+TREE = Path(os.environ.get("NEATSKIN_BENCH_TREE", REPO))  # the neatskin whose driver is measured
+sys.path.insert(0, str(TREE))
 
 from neatskin.gcode.parse import checksum  # noqa: E402
 from neatskin.gcode.profile import load_printer_profile  # noqa: E402
@@ -90,7 +96,10 @@ class PeerProcess:
             argv = [sys.executable, "-m", "neatskin", "sim", "printer", "--time", "virtual"]
             if kind == "sim-advanced-ok":
                 argv.append("--advanced-ok")
-        self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, cwd=REPO)
+        env = {**os.environ, "PYTHONPATH": str(REPO)}  # the same peer whichever driver is measured
+        self.proc = subprocess.Popen(
+            argv, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, cwd=REPO, env=env
+        )
         self.path = self.proc.stdout.readline().strip()
 
     def stop(self) -> None:
@@ -172,11 +181,10 @@ def step_costs(profile) -> dict[str, float]:
     tracker = MotionTracker(profile)
     tracker.line_time_s("G28")
     parsed = parse_line("G1 X10 Y20 F6000")
-    event = threading.Event()
     peer = EchoPeer()
     port = serial.Serial(peer.path, 115200, timeout=1.0)
     line = framed_lines(1)[0]
-    lock = threading.RLock()
+    cond = threading.Condition(threading.RLock())
 
     def round_trip() -> None:
         port.write(line)
@@ -187,7 +195,7 @@ def step_costs(profile) -> dict[str, float]:
         "frame N<n> <cmd>*<cs>": lambda: frame("G1 X10 Y20 F6000", 1234),
         "deadline from the motion model": lambda: tracker.line_time_s(parsed),
         "parse a G-code line (send_lines, once)": lambda: parse_line("G1 X10 Y20 F6000"),
-        "threading.Event.set + RLock": lambda: (lock.acquire(), event.set(), lock.release()),
+        "Condition (RLock) acquire + notify_all": lambda: (cond.acquire(), cond.notify_all(), cond.release()),
         "pyserial write + read ok (bare round trip)": round_trip,
     }
     try:
@@ -195,6 +203,50 @@ def step_costs(profile) -> dict[str, float]:
     finally:
         port.close()
         peer.stop()
+
+
+class ApiSerial(serial.Serial):
+    """A POSIX serial port the transport does not recognise: it goes through pyserial's read/write."""
+
+
+def driver_rows(commands: list[str], repeats: int) -> dict[str, float]:
+    """The driver against the echo peer and the simulated printer, each in its own process (lines/s)."""
+
+    def run(kind: str, warmup: list[str], port_type: type = serial.Serial) -> float:
+        def once() -> float:
+            peer = PeerProcess(kind)
+            try:
+                port = port_type()
+                port.port = peer.path
+                return driver_rate(port, commands, warmup)
+            finally:
+                peer.stop()
+
+        return max(once() for _ in range(repeats))
+
+    return {
+        "driver vs echo peer": run("echo", []),
+        "driver vs sim printer": run("sim", ["G28"]),
+        "driver vs sim printer, pyserial API channel": run("sim", ["G28"], ApiSerial),
+    }
+
+
+def against(rev: str, commands: list[str], repeats: int) -> dict[str, float]:
+    """driver_rows of git revision rev, measured in a subprocess on its exported `neatskin`."""
+    import json
+    import subprocess
+    import tarfile
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        archive = Path(tmp) / "tree.tar"
+        subprocess.run(["git", "archive", "-o", str(archive), rev, "neatskin"], cwd=REPO, check=True)
+        with tarfile.open(archive) as tar:
+            tar.extractall(tmp, filter="data")
+        env = {**os.environ, "NEATSKIN_BENCH_TREE": tmp}
+        argv = [sys.executable, __file__, "--driver-rows-json", "--lines", str(len(commands))]
+        out = subprocess.run(argv + ["--repeats", str(repeats)], env=env, capture_output=True, text=True, check=True)
+        return {name: float(rate) for name, rate in json.loads(out.stdout).items()}
 
 
 def rates_limit(rows: dict[str, float]) -> float:
@@ -205,9 +257,33 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--lines", type=int, default=3000)
     parser.add_argument("--repeats", type=int, default=3, help="best of this many runs per row")
+    parser.add_argument("--against", default=None, metavar="REV", help="also measure the driver of git revision REV")
+    parser.add_argument("--driver-rows-json", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     profile = load_printer_profile(REPO / "protocols" / "printers" / "paper.toml")
     commands = [f"G1 X{10 + i % 100} Y{20 + i % 50} F6000" for i in range(args.lines)]
+    if args.driver_rows_json:
+        import json
+
+        print(json.dumps(driver_rows(commands, args.repeats)))
+        return 0
+    if args.against:  # alternate the two trees, so load drifts hit both alike
+        import statistics
+
+        runs_now: list[dict[str, float]] = []
+        runs_before: list[dict[str, float]] = []
+        for _ in range(args.repeats):
+            runs_before.append(against(args.against, commands, 1))
+            runs_now.append(driver_rows(commands, 1))
+        print(f"{args.lines} lines, one in flight, peers in their own process, {args.repeats} alternating runs")
+        print(f"{'lines/s: median (min-max)':44s} {args.against[:12]:>20s} {'this tree':>20s} {'ratio':>6s}")
+        for name in runs_now[0]:
+            now = [run[name] for run in runs_now]
+            before = [run[name] for run in runs_before]
+            ratio = statistics.median(now) / statistics.median(before)
+            cells = [f"{statistics.median(v):6.0f} ({min(v):.0f}-{max(v):.0f})" for v in (before, now)]
+            print(f"{name:44s} {cells[0]:>20s} {cells[1]:>20s} {ratio:6.2f}")
+        print()
     rows: dict[str, float] = {}
 
     def best(fn) -> float:

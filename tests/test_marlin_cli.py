@@ -80,3 +80,85 @@ def test_printer_send_refuses_bad_gcode_before_opening_the_port(tmp_path, capsys
 def test_sim_printer_refuses_a_bad_fault_spec(capsys):
     assert main(["sim", "printer", "--faults", "noise=1"]) == 2
     assert "unknown fault 'noise'" in capsys.readouterr().err
+
+
+def _executed_program(sim) -> list[str]:
+    return [t for _, t in sim.executed if not t.startswith("M110") and "neatskin-probe" not in t]
+
+
+@pytest.mark.timeout(120)
+def test_ctrl_c_stops_after_the_line_in_flight_lifts_and_from_line_continues_once(tmp_path):
+    import os
+    import re
+    import time
+
+    from neatskin.sim.printer import sim_printer_for_tests
+
+    sim = sim_printer_for_tests(time_mode="scaled", speed=10.0)
+    path = sim.start_pty()
+    moves = []
+    for i in range(60):  # presses: down to Z 9.x (below the 10 mm safe height), up to 12
+        moves += [f"G1 X{20 + i % 5} Y{30 + i % 4} Z12 F6000", f"G1 Z{9.5 + (i % 3) / 10:.1f} F1200"]
+    program = tmp_path / "presses.gcode"
+    program.write_text("; presses\nG28\n" + "\n".join(moves) + "\nM400\n")
+    commands = ["G28", *moves, "M400"]  # no G90/G91 of its own: the lift's are told apart
+    profile = str(REPO / "protocols" / "printers" / "paper.toml")
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    base = [sys.executable, "-m", "neatskin", "printer", "send", "--port", path, "--no-progress"]
+    try:
+        proc = subprocess.Popen(
+            [*base, "--profile", profile, "--boot-timeout-s", "0.2", str(program)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+        )
+        end = time.monotonic() + 60
+        while len(_executed_program(sim)) < 40 and time.monotonic() < end and proc.poll() is None:
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+        assert proc.returncode == 130, err
+        acked = re.search(r"acknowledged line (\d+) of .*: '([^']*)'", err)
+        assert acked, err
+        cont = re.search(r"continue with: (.*)", err)
+        assert cont, err
+        next_line = int(re.search(r"--from-line (\d+)", cont.group(1)).group(1))
+        assert next_line == int(acked.group(1)) + 1
+        before = _executed_program(sim)
+        # stopped after the acknowledged line: the program ran up to it, then the lift (the probe may be down)
+        done = before[: before.index("G91")] if "G91" in before else before
+        assert done == commands[: len(done)] and done[-1] == acked.group(2)
+        if "Z12" in done[-1]:  # the probe was up at the safe travel height: no lift
+            assert before == done and "no lift: Z 12 mm is at or above the safe height 10 mm" in err
+        else:  # down at the skin: lifted to the safe height, relative, then back to absolute
+            z = float(done[-1].split("Z")[1].split()[0])
+            assert before[len(done) :] == ["G91", f"G0 Z{10 - z:.3f} F300", "G90"], err
+            assert z < 10
+            assert "lifted the probe" in err
+
+        proc = subprocess.run(
+            [*base, "--profile", profile, "--boot-timeout-s", "0.2", "--from-line", str(next_line), str(program)],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=90,
+        )
+        assert proc.returncode == 0, proc.stderr
+        ran = [t for t in _executed_program(sim) if t not in ("G91", "G90") and not t.startswith("G0 Z")]
+        assert ran == commands  # every line of the file exactly once, in order
+    finally:
+        sim.stop()
+
+
+def test_lift_rule():
+    from neatskin.marlin.cli import lift_lines
+
+    assert lift_lines(12.0, 10.0, max_z_mm=50.0, feed_mm_s=5.0, absolute=True).lines == ()
+    assert lift_lines(0.5, 10.0, max_z_mm=50.0, feed_mm_s=5.0, absolute=True).lines == ("G91", "G0 Z9.500 F300", "G90")
+    assert lift_lines(None, 10.0, max_z_mm=None, feed_mm_s=5.0, absolute=False).lines == (
+        "G91",
+        "G0 Z10.000 F300",
+        "G91",
+    )
+    assert lift_lines(48.0, 60.0, max_z_mm=50.0, feed_mm_s=5.0, absolute=True).lines[1] == "G0 Z2.000 F300"

@@ -138,7 +138,7 @@ def test_rs_short_form_and_resend_without_error_line(run):
         ]
     )
     driver.connect()
-    assert driver.send("M105") == []
+    assert driver.send("M105") == ["T:25.00 /0.00"]  # data on the ok line is kept
     peer.check()
 
 
@@ -437,7 +437,7 @@ def test_advanced_ok_reports_are_read(run):
 
 @pytest.mark.timeout(20)
 def test_pipelining_starts_only_after_ok_names_its_line(run):
-    config = DriverConfig(boot_timeout_s=0.5, min_timeout_s=0.4, poll_s=0.01, max_in_flight=4)
+    config = DriverConfig(boot_timeout_s=0.5, min_timeout_s=0.4, poll_s=0.01, max_in_flight=4, confirm_batches=True)
     peer, driver = run(
         [
             BOOT,
@@ -445,6 +445,8 @@ def test_pipelining_starts_only_after_ok_names_its_line(run):
             (cs(1, "G1 X1"), b""),
             (cs(2, "G1 X2"), b""),  # three lines out before any ok
             (cs(3, "G1 X3"), b"ok N1 P15 B3\nok N2 P14 B2\nok N3 P13 B1\n"),
+            # the batch ends with a probe whose echo proves every line ran
+            (cs(4, "M118 E1 neatskin-probe 4"), b"echo:neatskin-probe 4\nok N4 P16 B3\n"),
         ],
         config=config,
     )

@@ -1,21 +1,34 @@
-"""The `neatskin printer send` command: stream a G-code file to a printer through the driver."""
+"""The `neatskin printer send` command: stream a G-code file to a printer through the driver, and stop safely.
+
+Ctrl-C (SIGINT) stops after the line in flight: nothing queued is sent, the probe is lifted when
+it may be down (the lift rule is in `lift_lines`), and the last acknowledged line of the file is
+printed with the exact command that continues from the next one (`--from-line N`), so no line
+runs twice.
+"""
 
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from neatskin.cligroups import command_group
 
+DEFAULT_SAFE_Z_MM = 5.0  # without a profile: the height above which the probe is taken to be clear
 
-def register(subparsers) -> None:
+
+def register(subparsers: Any) -> None:
     host = command_group(subparsers, "printer", "talk to a Marlin printer over a serial port")
     send = host.add_parser(
         "send",
         help="stream a G-code file to a printer, exactly once per line, with progress",
         description="Stream a G-code file through the Marlin driver (line numbers, checksums, resends, "
-        "lost-ok recovery). Stops with a clear error naming the last line the printer acknowledged.",
+        "lost-ok recovery). Stops with a clear error naming the last line the printer acknowledged. "
+        "Ctrl-C stops after the line in flight, lifts the probe if it may be down, and prints the "
+        "command that continues from the next line (--from-line).",
     )
     send.add_argument("file", help="G-code file")
     send.add_argument(
@@ -26,13 +39,56 @@ def register(subparsers) -> None:
     send.add_argument("--wire-log", default=None, help="append a timestamped log of every byte to this file")
     send.add_argument("--boot-timeout-s", type=float, default=3.0, help="wait this long for `start` (default 3)")
     send.add_argument("--no-progress", action="store_true", help="no progress bar")
+    send.add_argument(
+        "--from-line",
+        type=int,
+        default=1,
+        metavar="N",
+        help="start at line N of the file (1-based; what an interrupted send prints to continue)",
+    )
+    send.add_argument(
+        "--safe-z-mm",
+        type=float,
+        default=None,
+        help="on Ctrl-C, lift when Z is below this (default: the profile's safe_height_mm, else "
+        f"{DEFAULT_SAFE_Z_MM:g})",
+    )
     send.set_defaults(handler=printer_send_handler)
+
+
+@dataclass(frozen=True)
+class Lift:
+    """The relative lift after an interrupt: the lines, and why (or why not)."""
+
+    lines: tuple[str, ...]
+    reason: str
+
+
+def lift_lines(
+    z_mm: float | None, safe_z_mm: float, *, max_z_mm: float | None, feed_mm_s: float, absolute: bool
+) -> Lift:
+    """The rule: lift only when the probe may be down, i.e. the commanded Z after the last acknowledged
+    line is unknown or below the safe height; lift by the distance to the safe height (the whole
+    safe height when Z is unknown), never past the soft maximum; relative (`G91`, `G0 Z+d`), then
+    back to the file's own distance mode."""
+    if z_mm is not None and z_mm >= safe_z_mm:
+        return Lift((), f"no lift: Z {z_mm:g} mm is at or above the safe height {safe_z_mm:g} mm")
+    rise = safe_z_mm if z_mm is None else safe_z_mm - z_mm
+    if max_z_mm is not None and z_mm is not None:
+        rise = min(rise, max_z_mm - z_mm)
+    if rise <= 0:
+        return Lift((), f"no lift: Z {z_mm:g} mm is at the top of the travel")
+    where = "unknown" if z_mm is None else f"{z_mm:g} mm"
+    restore = "G90" if absolute else "G91"
+    lines = ("G91", f"G0 Z{rise:.3f} F{feed_mm_s * 60:.0f}", restore)
+    return Lift(lines, f"lifted the probe by {rise:.3f} mm (Z was {where}, safe height {safe_z_mm:g} mm)")
 
 
 def printer_send_handler(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from neatskin.errors import ConfigError
+    from neatskin.gcode.parse import parse_program
     from neatskin.gcode.profile import load_printer_profile
     from neatskin.marlin.driver import DriverConfig, MarlinDriver
 
@@ -41,11 +97,22 @@ def printer_send_handler(args: argparse.Namespace) -> int:
         text = path.read_text(encoding="ascii")
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"cannot read G-code: {exc}", file=path, fix="give a readable ASCII G-code file") from exc
-    from neatskin.gcode.parse import parse_program
-
     parse_program(text, source=str(path))  # a syntax error is reported before the port is touched
+    all_lines = text.splitlines()
+    if not 1 <= args.from_line <= len(all_lines) + 1:
+        raise ConfigError(
+            f"--from-line {args.from_line} is outside the file (lines 1 to {len(all_lines)})",
+            file=path,
+            field="--from-line",
+            fix="give a line number the interrupted send printed",
+        )
+    numbered = [
+        (number, line)
+        for number, line in enumerate(all_lines, start=1)
+        if number >= args.from_line and line.split(";", 1)[0].strip()
+    ]
     profile = load_printer_profile(args.profile) if args.profile else None
-    config = DriverConfig(boot_timeout_s=args.boot_timeout_s)
+    config = DriverConfig(boot_timeout_s=args.boot_timeout_s, confirm_batches=True)
     driver = MarlinDriver.open(args.port, args.baud, config=config, profile=profile, wire_log=args.wire_log)
     bar = tqdm(total=0, unit="line", disable=args.no_progress, file=sys.stderr)
 
@@ -56,7 +123,11 @@ def printer_send_handler(args: argparse.Namespace) -> int:
 
     try:
         driver.connect()
-        sent = driver.send_lines(text.splitlines(), progress=progress, source=str(path))
+        try:
+            sent = driver.send_lines([line for _, line in numbered], progress=progress, source=str(path))
+        except KeyboardInterrupt:
+            bar.close()
+            return _interrupted(args, driver, numbered, profile)
     finally:
         bar.close()
         driver.close()
@@ -66,3 +137,52 @@ def printer_send_handler(args: argparse.Namespace) -> int:
         f"{stats['busy']} busy keep-alives"
     )
     return 0
+
+
+def _interrupted(args: argparse.Namespace, driver: Any, numbered: list[tuple[int, str]], profile: Any) -> int:
+    """Ctrl-C: stop after the line in flight, lift if the probe may be down, say where to continue."""
+    from neatskin.marlin.errors import MarlinError
+
+    err = sys.stderr
+    print("interrupted: sending nothing more; waiting for the line in flight", file=err, flush=True)
+    acked = driver.stop_after_line_in_flight(timeout_s=60.0)
+    if acked:
+        number, line = numbered[acked - 1]
+        print(f"the printer acknowledged line {number} of {args.file}: {line.strip()!r}", file=err)
+    else:
+        print(f"the printer acknowledged no line of {args.file} in this run", file=err)
+    # the line in flight never got its ok (the printer failed, or it is still running): it may have run
+    in_doubt = driver.failure is not None or driver.lines_in_flight > 0
+    safe_z = args.safe_z_mm
+    if safe_z is None:
+        safe_z = profile.safe_height_mm if profile is not None else DEFAULT_SAFE_Z_MM
+    _, _, z_mm = driver.commanded_position_mm
+    lift = lift_lines(
+        z_mm,
+        safe_z,
+        max_z_mm=profile.soft_max_mm.z if profile is not None else None,
+        feed_mm_s=profile.z_feed_mm_s if profile is not None else 5.0,
+        absolute=driver.commanded_absolute,
+    )
+    try:
+        if lift.lines and driver.lines_in_flight:
+            lift = Lift((), "no lift: a line is still in flight; lift the probe by hand before continuing")
+        if lift.lines:
+            driver.send_lines(list(lift.lines), source="lift")
+        print(lift.reason + (f" ({' / '.join(lift.lines)})" if lift.lines else ""), file=err)
+    except MarlinError as exc:
+        print(f"could not lift the probe: {exc}", file=err)
+    next_line = numbered[acked][0] if acked < len(numbered) else None
+    if next_line is None:
+        print("every line of the file was acknowledged: nothing to continue", file=err)
+        return 130
+    command = ["neatskin", "printer", "send", "--port", args.port]
+    if args.baud != 115200:
+        command += ["--baud", str(args.baud)]
+    if args.profile:
+        command += ["--profile", args.profile]
+    command += ["--from-line", str(next_line), args.file]
+    if in_doubt:
+        print(f"line {next_line} may have run: check the printer before continuing", file=err)
+    print(f"continue with: {shlex.join(command)}", file=err, flush=True)
+    return 130

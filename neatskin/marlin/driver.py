@@ -1,141 +1,156 @@
 """MarlinDriver: exactly-once, in-order G-code delivery to Marlin over any pyserial port object.
 
-One reader thread owns the protocol: it reads replies, retires lines on `ok`, replays on
-`Resend:`, sends the next queued line the moment an `ok` frees the line (no thread hand-off per
-line), extends deadlines on `busy:`, and recovers a lost `ok` by a probe: `N<n+1> M118 E1
-neatskin-probe <n+1>`. The firmware either echoes the probe (so every line up to it ran: the
-`ok` was lost) or rejects its number with `Resend: n` (so line n never arrived and is replayed):
-no line is ever sent twice under a number the firmware has already taken. Callers block in
-`send` / `send_lines`; every wait has a deadline. Halts, resets and a dead port raise a
-MarlinError naming the last line acknowledged; after that nothing is sent but an M112 on request.
+The driver is the thin transport around the sans-IO `LineProtocol` (linestate.py): it owns the
+port (through one `Channel`, transport.py), a reader thread that feeds the protocol what it
+reads and the time, the writes the protocol asks for, the wire log, and the callers who block
+in `send` / `send_lines` until their jobs finish. All protocol decisions (resends, lost-`ok`
+probes, deadlines, caps) live in the state machine; every wait here ends when the protocol
+finishes or fails the job, and the protocol has a deadline for every line. Halts, resets and a
+dead port raise a MarlinError naming the last line acknowledged; after that nothing is sent but
+an M112 on request.
 """
 
 from __future__ import annotations
 
 import collections
+import logging
+import os
 import threading
 import time
 from collections.abc import Callable, Iterable
 from os import PathLike
+from typing import Any
 
-from neatskin.gcode.parse import parse_line
+from neatskin.gcode.parse import parse_line, parse_program
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.marlin import errors as E
-from neatskin.marlin.deadlines import MotionTracker
-from neatskin.marlin.linestate import DriverConfig, LineProtocol, _Job, _Line  # noqa: F401 (re-exported)
+from neatskin.marlin.jobs import DriverConfig, Job
+from neatskin.marlin.linestate import LineProtocol
 from neatskin.marlin.replies import Position, parse_m114, parse_m119
+from neatskin.marlin.transport import Channel, Clock, SerialPort, channel_for
 from neatskin.marlin.wirelog import WireLog
 
+__all__ = ["DriverConfig", "MarlinDriver"]
 
-class MarlinDriver(LineProtocol):
+log = logging.getLogger(__name__)
+
+
+class MarlinDriver:
     """Talk to Marlin over `port` (an unopened or open pyserial object: Serial, serial_for_url(...))."""
 
     def __init__(
         self,
-        port,
+        port: SerialPort,
         *,
         config: DriverConfig = DriverConfig(),
         profile: PrinterProfile | None = None,
-        wire_log: str | PathLike | None = None,
+        wire_log: str | PathLike[str] | None = None,
+        clock: Clock = time.monotonic,
     ) -> None:
         self.port = port
         self.config = config
         self.profile = profile
         self.wire_log_path = wire_log
+        self.clock = clock
         self._wire: WireLog | None = None
-        self._lock = threading.RLock()
-        self._wlock = threading.Lock()
+        self._cond = threading.Condition(threading.RLock())
         self._reader: threading.Thread | None = None
+        self._channel: Channel | None = None
         self._stop = threading.Event()
-        self._reset_state()
+        self._protocol = LineProtocol(config, profile, self.port_name)
+        self._batch: list[Job] = []
 
     @classmethod
-    def open(cls, url: str, baud_rate: int = 115200, **kwargs) -> MarlinDriver:
-        """A driver on a port name or pyserial URL (`/dev/ttyUSB0`, `/dev/pts/3`, `loop://`, `socket://h:p`)."""
-        import os
+    def open(cls, url: str, baud_rate: int = 115200, **kwargs: Any) -> MarlinDriver:
+        """A driver on a port name or pyserial URL (`/dev/ttyUSB0`, `/dev/pts/3`, `loop://`, `socket://h:p`).
 
+        A device port is opened exclusively (flock): a second process gets PortBusy, not a shared line."""
         import serial
 
         if "://" not in url and not os.path.exists(url):
             raise E.PortMissing("the device does not exist", port=url)
         try:
-            port = serial.serial_for_url(url, baudrate=baud_rate, timeout=0.02, do_not_open=True)
+            port = serial.serial_for_url(url, baudrate=baud_rate, timeout=0.02, exclusive=True, do_not_open=True)
         except (ValueError, serial.SerialException) as exc:
             raise E.PortDead(f"cannot use port {url!r}: {exc}", port=url) from exc
         return cls(port, **kwargs)
 
-    # ---- state --------------------------------------------------------------------------
-
-    def _reset_state(self) -> None:
-        self._next_n = 0
-        self._queue: collections.deque[_Job] = collections.deque()
-        self._inflight: list[_Line] = []
-        self._failure: E.MarlinError | None = None
-        self._session = False
-        self._booted = False
-        self._last_acked: tuple[int | None, str | None] = (None, None)
-        self._acked_jobs = 0
-        self._comm_errors = 0
-        self._fw_last_line: tuple[int, int] | None = None  # (Last Line: L, comm error count when said)
-        self._history: dict[int, _Line] = {}  # recently acknowledged lines, for a firmware that never took them
-        self._stale_streak = 0
-        self._served = (None, -1, 0.0)  # (n, comm_errors at serve, time)
-        self._pending_resend: int | None = None
-        self._resend_due = 0.0
-        self._swallow_ok = False
-        self._advanced_ok_seen = False
-        self._ok_follows_resend = False  # learned: Marlin 1.x sends `ok` after `Resend:`, 2.x does not
-        self._resends_without_ok = 0
-        self._resend_counts: collections.Counter[int] = collections.Counter()
-        self._probes_in_stall = 0
-        self._motion = MotionTracker(self.profile, self.config.homing_time_s, self.config.default_feed_mm_s)
-        self._motion_end = 0.0
-        self.unsolicited: collections.deque[str] = collections.deque(maxlen=200)
-        self.actions: list[str] = []
-        self.stats = collections.Counter()
+    # ---- what callers read ------------------------------------------------------------------
 
     @property
     def port_name(self) -> str:
         return str(getattr(self.port, "name", None) or getattr(self.port, "port", None) or "<port>")
 
     @property
+    def stats(self) -> collections.Counter[str]:
+        """Counters of this session: lines_sent, lines_resent, probes, busy, oks_swallowed, stray_oks..."""
+        return self._protocol.stats
+
+    @property
     def last_acknowledged(self) -> tuple[int | None, str | None]:
         """(line number, command) of the last line the firmware acknowledged."""
-        return self._last_acked
+        return self._protocol.last_acked
 
-    # ---- connect / close ----------------------------------------------------------------
+    @property
+    def actions(self) -> list[str]:
+        return self._protocol.actions
+
+    @property
+    def unsolicited(self) -> collections.deque[str]:
+        return self._protocol.unsolicited
+
+    @property
+    def commanded_position_mm(self) -> tuple[float | None, float | None, float | None]:
+        """Where the lines sent so far put the tool (None: unknown), from the host's motion model."""
+        x, y, z = list(self._protocol.motion.position_mm or [None, None, None])[:3]
+        return x, y, z
+
+    @property
+    def commanded_absolute(self) -> bool:
+        """Whether the lines sent so far leave the printer in absolute (G90) distance mode."""
+        return bool(self._protocol.motion.absolute)
+
+    @property
+    def lines_in_flight(self) -> int:
+        """Lines written whose `ok` has not come yet."""
+        return self._protocol.in_flight
+
+    @property
+    def failure(self) -> E.MarlinError | None:
+        """The error that ended the session, if any."""
+        return self._protocol.failure
+
+    # ---- connect / close ----------------------------------------------------------------------
 
     def connect(self, boot_timeout_s: float | None = None) -> MarlinDriver:
-        """Open the port, wait for `start` (or time out cleanly), and reset the line counter (M110 N0)."""
+        """Open the port, wait for `start` (or time out cleanly), and reset the line counter (M110 N0).
+
+        Bounded: a boot loop or a printer that refuses M110 ends in ConnectFailed, silence in NoAnswer."""
         import serial
 
         self._stop_reader()
-        self._reset_state()
         if self.wire_log_path is not None and self._wire is None:
-            self._wire = WireLog(self.wire_log_path)
+            try:
+                self._wire = WireLog(self.wire_log_path)
+            except OSError as exc:
+                raise E.WireLogFailed(f"{self.wire_log_path}: {exc}", port=self.port_name) from exc
         try:
             if not self.port.is_open:
                 self.port.open()
             self.port.timeout = self.config.poll_s
             self.port.reset_input_buffer()
         except (serial.SerialException, OSError, ValueError) as exc:
+            if "exclusively lock" in str(exc) or "Resource temporarily unavailable" in str(exc):
+                raise E.PortBusy(f"cannot open it exclusively: {exc}", port=self.port_name) from exc
             raise E.PortDead(f"cannot open: {exc}", port=self.port_name) from exc
+        self._channel = channel_for(self.port)
+        with self._cond:
+            hello = self._protocol.start_session(self.clock(), boot_timeout_s)
+            self._flush()
         self._stop.clear()
         self._reader = threading.Thread(target=self._run, name=f"marlin-reader {self.port_name}", daemon=True)
         self._reader.start()
-        wait_s = self.config.boot_timeout_s if boot_timeout_s is None else boot_timeout_s
-        end = time.monotonic() + wait_s
-        while time.monotonic() < end and not self._booted and self._failure is None:
-            time.sleep(0.005)
-        if self._booted:  # let the boot banner finish before talking
-            time.sleep(min(0.05, wait_s))
-        job = _Job("M110 N0")
-        with self._lock:
-            self._raise_failure()
-            self._send_line(job, m110=True)
-        self._wait(job)
-        with self._lock:
-            self._session = True
+        self._wait(hello)
         return self
 
     def reconnect(self, boot_timeout_s: float | None = None) -> MarlinDriver:
@@ -155,45 +170,114 @@ class MarlinDriver(LineProtocol):
     def __enter__(self) -> MarlinDriver:
         return self.connect() if self._reader is None else self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     def _stop_reader(self) -> None:
         if self._reader is None:
             return
         self._stop.set()
-        cancel = getattr(self.port, "cancel_read", None)
-        if cancel is not None:
-            try:
-                cancel()
-            except Exception:  # noqa: BLE001
-                pass
+        if self._channel is not None:
+            self._channel.cancel()
         self._reader.join(timeout=2.0)
         self._reader = None
-        with self._lock:
-            if self._failure is None:
-                self._failure = E.PortDead(
-                    "the driver was closed",
-                    last_line=self._last_acked[0],
-                    last_command=self._last_acked[1],
-                    port=self.port_name,
-                )
-            self._fail_jobs(self._failure)
+        with self._cond:
+            n, cmd = self._protocol.last_acked
+            self._protocol.fail(E.PortDead("the driver was closed", last_line=n, last_command=cmd, port=self.port_name))
+            self._cond.notify_all()
 
-    # ---- public API ---------------------------------------------------------------------
+    # ---- the transport: the reader thread and the writes --------------------------------------
+
+    def _run(self) -> None:
+        channel = self._channel
+        assert channel is not None
+        poll_s = self.config.poll_s
+        protocol = self._protocol
+        while not self._stop.is_set():
+            try:
+                data = channel.read(poll_s)
+            except Exception as exc:  # noqa: BLE001 - SerialException, OSError: the port is gone
+                if not self._stop.is_set():
+                    with self._cond:
+                        protocol.port_failed(f"read failed: {exc}")
+                        self._cond.notify_all()
+                return
+            with self._cond:
+                if data:
+                    self._log("<", data)
+                    protocol.receive(data, self.clock())
+                else:
+                    protocol.tick(self.clock())
+                self._flush()
+                self._cond.notify_all()
+
+    def _flush(self) -> None:
+        """Write what the protocol asks for (called with the lock held)."""
+        channel = self._channel
+        for data in self._protocol.data_to_send():
+            if not self._log(">", data):
+                return
+            try:
+                if channel is None:
+                    raise OSError("the port is not open")
+                channel.write(data, self.config.write_timeout_s)
+            except Exception as exc:  # noqa: BLE001 - any port failure is a dead port
+                self._protocol.port_failed(f"write failed: {exc}")
+                self._protocol.data_to_send()
+                return
+
+    def _log(self, direction: str, data: bytes) -> bool:
+        """Append to the wire log; a failing log ends the session as such, not as a dead port."""
+        if self._wire is None:
+            return True
+        try:
+            self._wire.write(direction, data)
+            return True
+        except (OSError, ValueError) as exc:
+            n, cmd = self._protocol.last_acked
+            where = f"{self._wire.path}: {exc}"
+            self._protocol.fail(E.WireLogFailed(where, last_line=n, last_command=cmd, port=self.port_name))
+            self._protocol.data_to_send()
+            return False
+
+    def _submit(self, jobs: list[Job]) -> None:
+        with self._cond:
+            if self._reader is None:
+                raise E.PortDead("not connected: call connect() first", port=self.port_name)
+            self._protocol.submit(jobs, self.clock())
+            self._flush()
+
+    def _wait(self, job: Job, progress: Callable[[], None] | None = None) -> None:
+        """Until the protocol finishes job (it has a deadline for every line it sends)."""
+        with self._cond:
+            while not job.done:
+                self._cond.wait(0.1)
+                if self._reader is None or not self._reader.is_alive():
+                    n, cmd = self._protocol.last_acked
+                    error = E.PortDead("the reader thread stopped", last_line=n, last_command=cmd, port=self.port_name)
+                    self._protocol.fail(error)
+                    job.finish(error)
+                if progress is not None:
+                    progress()
+        if job.error is not None:
+            raise job.error
+
+    # ---- public API ---------------------------------------------------------------------------
 
     def send(self, command: str, *, strict: bool = True) -> list[str]:
-        """Send one command and wait for its `ok`; the reply lines before the `ok` (M114 text, echoes).
+        """Send one command and wait for its `ok`; the reply lines before the `ok` (M114 text, echoes),
+        then any data carried on the `ok` line itself (`ok T:25.00 /0.00` gives "T:25.00 /0.00").
 
         strict: raise CommandRejected when Marlin refuses it (`Unknown command`, `Home XYZ First`).
+        Once the printer has sent an unexplained `ok`, each command is confirmed by a probe's echo.
         """
         command = _clean(command)
-        job = _Job(command)
-        with self._lock:
-            self._raise_failure()
-            self._queue.append(job)
-            self._pump(time.monotonic())
-        self._wait(job)
+        job = Job(command)
+        jobs = [job]
+        if self._protocol.confirming:
+            jobs.append(Job("", barrier=True))
+        self._submit(jobs)
+        self._wait(jobs[-1])
         if strict and job.rejected:
             raise E.CommandRejected(
                 f"{job.rejected!r} in answer to N{job.line} {command!r}",
@@ -210,10 +294,11 @@ class MarlinDriver(LineProtocol):
 
         Comments and blank lines are dropped; every line is parsed first, so a syntax error
         raises before anything is sent. progress(done, total) is called as lines are acknowledged.
-        A refused command stops the batch (CommandRejected) with the rest unsent.
+        A refused command stops the batch (CommandRejected) with the rest unsent. With
+        config.confirm_batches (or once the printer was seen duplicating an `ok`) the batch ends with
+        a probe (`M118 E1 neatskin-probe N`) whose echo proves that every line ran, so a duplicated
+        `ok` cannot make this return before the printer ran the batch.
         """
-        from neatskin.gcode.parse import parse_program
-
         text = "\n".join(lines)
         program = parse_program(text, source=source)
         cleaned = [(_clean(line.raw), line) for line in program]
@@ -221,18 +306,22 @@ class MarlinDriver(LineProtocol):
         if not cleaned:
             return 0
         batch = object()
-        jobs = [_Job(c, batch, line) for c, line in cleaned]
-        with self._lock:
-            self._raise_failure()
-            start = self._acked_jobs
-            self._queue.extend(jobs)
-            self._pump(time.monotonic())
+        jobs = [Job(c, line, batch) for c, line in cleaned]
+        self._batch = jobs
         last = jobs[-1]
-        while not last.event.wait(0.1):
-            self._check_reader()
-            if progress is not None:
-                progress(min(self._acked_jobs - start, len(jobs)), len(jobs))
-        self._wait(last)
+        if self._protocol.confirming:
+            last = Job("", batch=batch, barrier=True)
+        self._submit(jobs if last is jobs[-1] else [*jobs, last])
+
+        shown = [0.0]
+
+        def report() -> None:
+            now = self.clock()
+            if progress is not None and now - shown[0] >= 0.1:
+                shown[0] = now
+                progress(self.batch_acknowledged(), len(jobs))
+
+        self._wait(last, report)
         for job in jobs:
             if job.rejected:
                 raise E.CommandRejected(
@@ -245,52 +334,57 @@ class MarlinDriver(LineProtocol):
             progress(len(jobs), len(jobs))
         return len(jobs)
 
+    def batch_acknowledged(self) -> int:
+        """How many commands of the latest send_lines batch the printer acknowledged (a prefix, in order)."""
+        done = 0
+        for job in self._batch:
+            if not job.done or job.error is not None:
+                break
+            done += 1
+        return done
+
+    def stop_after_line_in_flight(self, timeout_s: float | None = None) -> int:
+        """Take back every command not yet written, wait for the line in flight; the number acknowledged.
+
+        For Ctrl-C: nothing new goes out; the session stays usable (a lift may follow)."""
+        with self._cond:
+            n, cmd = self._protocol.last_acked
+            self._protocol.cancel_queued(
+                E.Interrupted("taken back before sending", last_line=n, last_command=cmd, port=self.port_name)
+            )
+            end = self.clock() + (timeout_s if timeout_s is not None else self.config.max_busy_s)
+            while self._protocol.in_flight and self._protocol.failure is None and self.clock() < end:
+                self._cond.wait(0.1)
+        return self.batch_acknowledged()
+
     def sync(self) -> None:
         """M400: return when every queued move has finished."""
         self.send("M400")
 
     def position(self) -> Position:
-        """M114, parsed."""
-        return parse_m114(self.send("M114"))
+        """M114, parsed (`X:.. Y:.. Z:..` on its own line or on the `ok`); BadReply if no position came."""
+        replies = self.send("M114")
+        try:
+            return parse_m114(replies)
+        except ValueError as exc:
+            n, cmd = self._protocol.last_acked
+            raise E.BadReply(str(exc), last_line=n, last_command=cmd, port=self.port_name) from exc
 
     def endstops(self) -> dict[str, bool]:
-        """M119, parsed: {"x_min": False, "z_min": True, ...} (True = triggered)."""
-        return parse_m119(self.send("M119"))
+        """M119, parsed: {"x_min": False, "z_min": True, ...} (True = triggered); BadReply if none came."""
+        replies = self.send("M119")
+        try:
+            return parse_m119(replies)
+        except ValueError as exc:
+            n, cmd = self._protocol.last_acked
+            raise E.BadReply(str(exc), last_line=n, last_command=cmd, port=self.port_name) from exc
 
     def emergency_stop(self) -> None:
         """Send M112 at once, ahead of anything queued; the session ends (EmergencyStopped)."""
-        try:
-            self._write(b"M112\n")
-        finally:
-            with self._lock:
-                if self._failure is None:
-                    n, cmd = self._last_acked
-                    self._fail(
-                        E.EmergencyStopped("M112 sent on request", last_line=n, last_command=cmd, port=self.port_name)
-                    )
-
-    # ---- waiting --------------------------------------------------------------------------
-
-    def _wait(self, job: _Job) -> None:
-        while not job.event.wait(0.25):
-            self._check_reader()
-        if job.error is not None:
-            raise job.error
-
-    def _check_reader(self) -> None:
-        if self._reader is None or not self._reader.is_alive():
-            with self._lock:
-                if self._failure is None:
-                    n, cmd = self._last_acked
-                    self._fail(
-                        E.PortDead("the reader thread stopped", last_line=n, last_command=cmd, port=self.port_name)
-                    )
-
-    def _raise_failure(self) -> None:
-        if self._failure is not None:
-            raise self._failure
-        if self._reader is None:
-            raise E.PortDead("not connected: call connect() first", port=self.port_name)
+        with self._cond:
+            self._protocol.emergency_stop()
+            self._flush()
+            self._cond.notify_all()
 
 
 def _clean(command: str) -> str:

@@ -53,7 +53,7 @@ class PortMissing(PortDead):
     consequence = "nothing was sent"
     fix = "check the port name (ls /dev/ttyUSB* /dev/ttyACM*) and that the printer is plugged in and powered"
 
-    def __init__(self, detail: str, *, port: str | None = None, **kwargs) -> None:
+    def __init__(self, detail: str, *, port: str | None = None, **kwargs: object) -> None:
         MarlinError.__init__(self, detail, port=port)
         # a port that never opened has no session: say only what is wrong and how to fix it
         Exception.__init__(self, f"{self.what} {port!r}: {detail}; {self.consequence} (fix: {self.fix})")
@@ -78,3 +78,36 @@ class CommandRejected(MarlinError):
 class EmergencyStopped(MarlinError):
     what = "emergency stop (M112) was sent"
     fix = "reset the printer, home (G28) and resume"
+
+
+class ConnectFailed(MarlinError):
+    what = "the printer would not start a session"
+    fix = (
+        "the printer keeps rebooting or refusing `M110 N0`: check its power supply and USB cable, "
+        "that the baud rate matches the firmware, and that no other program talks to it"
+    )
+
+
+class PortBusy(PortMissing):
+    """Another process holds the port (opened exclusively): nothing was sent."""
+
+    what = "the serial port is in use"
+    fix = "another program (a second neatskin, OctoPrint, Pronterface) holds it: close that program, then retry"
+
+
+class BadReply(MarlinError):
+    what = "the printer's reply could not be read"
+    consequence = "the command ran, but its answer is unusable"
+    fix = "check that the firmware is Marlin (or compatible) and that the line is not noisy"
+
+
+class Interrupted(MarlinError):
+    what = "sending was interrupted"
+    consequence = "lines not yet sent were not sent"
+    fix = "continue from the last acknowledged line"
+
+
+class WireLogFailed(MarlinError):
+    what = "the wire log could not be written"
+    consequence = "the printer line itself was fine; nothing more was sent, so the log stays complete"
+    fix = "free disk space or give the wire log a writable path, then resume"

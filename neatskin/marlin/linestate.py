@@ -1,213 +1,270 @@
-"""The line protocol behind MarlinDriver: framing, `ok` accounting, resends, deadlines and lost-`ok` probes.
+"""The Marlin line protocol as a sans-IO state machine: bytes and time in, bytes to write and finished jobs out.
 
-`LineProtocol` is the state machine the driver's reader thread runs; every method here is
-called with the driver's lock held. It reads Marlin's replies (replies.classify), retires the
-line in flight on `ok`, replays on `Resend:`, extends deadlines on `busy:`, sends the lost-`ok`
-probe (`N<n+1> M118 E1 neatskin-probe <n+1>`) when a deadline passes, and turns halts, resets and
-silence into MarlinErrors that name the last line acknowledged. See driver.py for the public API.
+`LineProtocol` owns every piece of protocol state (line numbers, the lines in flight, resends,
+deadlines, lost-`ok` probes, the connect handshake) and touches no port, thread or clock: the
+caller feeds it what the printer said (`receive(data, now)`), the passing of time (`tick(now)`)
+and work (`start_session`, `submit`), and takes the bytes to write (`data_to_send()`). A `Job`
+is finished when `job.done` is set, with `job.error` when it failed. Every wait it keeps has a
+deadline and every retry a cap, so a hostile peer ends in one MarlinError, never a loop.
+The transport around it (driver.py) owns the port, the reader thread and the clock.
+One module over the usual size on purpose: every transition reads and writes the same session
+state, and a reader should see the whole machine in one place (values live in jobs.py).
 """
 
 from __future__ import annotations
 
 import collections
-import os
-import select
-import threading
-import time
+import logging
+from collections.abc import Iterable
 from dataclasses import dataclass
 
+from neatskin.gcode.parse import GcodeLine
+from neatskin.gcode.profile import PrinterProfile
 from neatskin.marlin import errors as E
-from neatskin.marlin.replies import PROBE_TAG, Kind, classify, frame
+from neatskin.marlin.deadlines import MotionTracker
+from neatskin.marlin.jobs import DriverConfig, Job
+from neatskin.marlin.replies import PROBE_TAG, Kind, Reply, classify, frame
+
+log = logging.getLogger(__name__)
 
 
-@dataclass(frozen=True)
-class DriverConfig:
-    boot_timeout_s: float = 3.0  # wait this long for `start` after opening; then go on without it
-    min_timeout_s: float = 2.0  # the least time any line may take to be acknowledged
-    busy_extension_s: float = 6.0  # a `busy:` pushes the deadline to now + this (Marlin sends one every 2 s)
-    max_busy_s: float = 900.0  # keep-alives cannot stretch one line's wait beyond this
-    probe_attempts: int = 3  # lost-ok probes per stall before NoAnswer
-    max_resends: int = 12  # the same line asked for this often -> ResendLoop
-    resend_grace_s: float = 0.02  # wait for an `ok` that old Marlin sends after `Resend:` before replaying
-    duplicate_resend_s: float = 1.0  # an identical `Resend: n` with no new error within this is a duplicate
-    poll_s: float = 0.02  # the reader's read timeout: how often deadlines are checked
-    write_timeout_s: float = 5.0  # a write that finds no room for this long: PortDead
-    max_in_flight: int = 1  # >1 pipelines lines, only once the firmware's `ok N.. P.. B..` names them
-    rx_buffer_bytes: int = 127  # Marlin's RX_BUFFER_SIZE less one: bytes in flight never exceed it
-    homing_time_s: float = 60.0
-    default_feed_mm_s: float = 25.0
-    motion_time_scale: float = 1.0  # real seconds per second of motion: 0 for a virtual-time simulated printer
-
-    def __post_init__(self) -> None:
-        for name in ("boot_timeout_s", "min_timeout_s", "busy_extension_s", "max_busy_s", "poll_s"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"DriverConfig.{name} must be > 0")
-
-
-class _Job:
-    __slots__ = ("command", "replies", "event", "error", "rejected", "line", "batch", "parsed")
-
-    def __init__(self, command: str, batch: object = None, parsed=None) -> None:
-        self.command = command
-        self.parsed = parsed  # the GcodeLine, when the caller parsed it already
-        self.replies: list[str] = []
-        self.event = threading.Event()
-        self.error: BaseException | None = None
-        self.rejected: str | None = None
-        self.line: int | None = None
-        self.batch = batch
-
-
+@dataclass(eq=False)
 class _Line:
-    __slots__ = ("n", "command", "data", "job", "deadline", "hard_deadline", "probe", "echoed", "m110", "released")
-
-    def __init__(self, n, command, data, job, deadline, probe=False, m110=False, max_busy_s=900.0):
-        self.n, self.command, self.data, self.job = n, command, data, job
-        self.deadline = deadline
-        self.hard_deadline = deadline + max_busy_s
-        self.probe, self.echoed, self.m110 = probe, False, m110
-        self.released = False  # its caller was told it is acknowledged
+    n: int
+    command: str
+    data: bytes
+    job: Job | None
+    deadline: float
+    hard_deadline: float
+    probe: bool = False
+    m110: bool = False
+    echoed: bool = False
+    released: bool = False  # its caller was told it is acknowledged
 
 
 _SYNCHRONISING = frozenset({"G28", "G4", "M400", "G29"})
-
-
-def _posix_fd(port) -> int | None:
-    """The descriptor of an open pyserial POSIX port (a /dev/tty* or a pty), for direct select/read/write.
-
-    pyserial's own read and write add a select, an ioctl and timeout bookkeeping per call; on the
-    one-line-in-flight path that is a third of the driver's time. Other port objects (socket://,
-    loop://, the simulator's in-process port) go through pyserial's API.
-    """
-    try:
-        from serial.serialposix import Serial as PosixSerial
-    except ImportError:  # Windows
-        return None
-    if type(port) is PosixSerial and port.is_open and port.fd is not None:
-        return port.fd
-    return None
-
-
-def _write_fd(fd: int, data: bytes, timeout_s: float) -> None:
-    """All of data to a non-blocking descriptor, waiting for room at most timeout_s in all."""
-    view = memoryview(data)
-    end = time.monotonic() + timeout_s
-    while view:
-        try:
-            view = view[os.write(fd, view) :]
-        except BlockingIOError:
-            left = end - time.monotonic()
-            if left <= 0 or not select.select([], [fd], [], left)[1]:
-                raise TimeoutError(f"the port took no data for {timeout_s:g} s (the printer is not reading)")
+_BOOT_SETTLE_S = 0.05  # after `start`, let the banner finish before the handshake
+_MAX_LINE_BYTES = 4096  # a reply line longer than this is garbage
 
 
 class LineProtocol:
-    """The protocol state machine; MarlinDriver supplies the port, the lock and the state it resets."""
+    """Marlin's host protocol, one session at a time; see the module docstring for the contract."""
 
-    # ---- writing (callers hold self._lock) ----------------------------------------------
+    def __init__(
+        self, config: DriverConfig = DriverConfig(), profile: PrinterProfile | None = None, port_name: str = "<port>"
+    ) -> None:
+        self.config = config
+        self.profile = profile
+        self.port_name = port_name
+        self._outbox: list[bytes] = []
+        self.stats: collections.Counter[str] = collections.Counter()
+        self.reset(0.0)
+        self.failure: E.MarlinError | None = E.PortDead("not connected: call connect() first", port=port_name)
 
-    def _write(self, data: bytes) -> None:
-        error = None
-        with self._wlock:
-            if self._wire is not None:
-                self._wire.write(">", data)
-            try:
-                fd = _posix_fd(self.port)
-                if fd is None:
-                    self.port.write(data)
-                else:
-                    _write_fd(fd, data, self.config.write_timeout_s)
-            except Exception as exc:  # noqa: BLE001 - any port failure is a dead port
-                error = exc
-        if error is not None:  # outside the write lock: the state lock is always taken first
-            with self._lock:
-                n, cmd = self._last_acked
-                self._fail(E.PortDead(f"write failed: {error}", last_line=n, last_command=cmd, port=self.port_name))
-            raise self._failure from error
+    def reset(self, now: float) -> None:
+        """Forget the session: counters, queues, the commanded position, the learned dialect."""
+        self._next_n = 0
+        self._rx = b""
+        self._queue: collections.deque[Job] = collections.deque()
+        self._inflight: list[_Line] = []
+        self.failure = None
+        self.session = False
+        self.booted = False
+        self._phase = "idle"  # idle -> booting -> handshake -> session
+        self._boot_seen_s: float | None = None
+        self._boot_deadline = now
+        self._connect_deadline = now
+        self._connect_attempts = 0
+        self._starts = 0
+        self._hello: Job | None = None
+        self.last_acked: tuple[int | None, str | None] = (None, None)
+        self.acked_jobs = 0
+        self._comm_errors = 0
+        self._fw_last_line: int | None = None  # the firmware's `Last Line:` with the latest comm error
+        self._history: dict[int, _Line] = {}  # recently acknowledged lines, for a firmware that never took them
+        self._stale_streak = 0
+        self._served: tuple[int | None, int, float] = (None, -1, 0.0)  # (n, comm_errors at serve, time)
+        self._pending_resend: int | None = None
+        self._resend_due = 0.0
+        self._resend_ok_seen = False
+        self._advanced_ok_seen = False
+        self._ok_after_resend: bool | None = self.config.ok_after_resend
+        self._resends_without_ok = 0
+        self._resend_counts: collections.Counter[int] = collections.Counter()
+        self._probes_in_stall = 0
+        self.motion = MotionTracker(self.profile, self.config.homing_time_s, self.config.default_feed_mm_s)
+        self._motion_end = 0.0
+        self.unsolicited: collections.deque[str] = collections.deque(maxlen=200)
+        self.actions: list[str] = []
+        self.stats = collections.Counter()
 
-    def _deadline(self, command, now: float) -> float:
-        own_s, _ = self._motion.line_time_s(command)
+    # ---- inputs -----------------------------------------------------------------------------
+
+    def start_session(self, now: float, boot_timeout_s: float | None = None) -> Job:
+        """Begin a session: wait for `start` (or boot_timeout_s), then `M110 N0`; the returned job is the handshake."""
+        self.reset(now)
+        wait_s = self.config.boot_timeout_s if boot_timeout_s is None else boot_timeout_s
+        self._phase = "booting"
+        self._boot_deadline = now + wait_s
+        self._connect_deadline = now + wait_s + self.config.connect_timeout_s
+        self._hello = Job("M110 N0")
+        if wait_s <= 0:
+            self._say_hello(now)
+        return self._hello
+
+    def submit(self, jobs: Iterable[Job], now: float) -> None:
+        """Queue jobs in order; they go out as the line frees. Raises the session's failure, if any."""
+        if self.failure is not None:
+            raise self.failure
+        self._queue.extend(jobs)
+        self._pump(now)
+
+    def receive(self, data: bytes, now: float) -> None:
+        """What the printer said: complete lines are handled at once, a partial line waits for its end;
+        then `tick(now)`, so the next line goes out only after the whole chunk was read."""
+        self._rx += data
+        *complete, self._rx = self._rx.split(b"\n")
+        for raw in complete:
+            if self.failure is not None:
+                break
+            self._on_line(raw.decode("ascii", "replace").strip(), now)
+        if len(self._rx) > _MAX_LINE_BYTES:  # garbage without a newline: keep the tail only
+            self.stats["garbage_bytes"] += len(self._rx) - _MAX_LINE_BYTES
+            self._rx = self._rx[-_MAX_LINE_BYTES:]
+        self.tick(now)
+
+    def tick(self, now: float) -> None:
+        """Let time pass: replay requested lines, probe overdue ones, send queued ones, fail what is too late."""
+        if self.failure is not None:
+            return
+        if self._phase == "booting":
+            settled = self._boot_seen_s is not None and now >= self._boot_seen_s + _BOOT_SETTLE_S
+            if settled or now >= self._boot_deadline:
+                self._say_hello(now)
+            return
+        if self._phase == "handshake" and now >= self._connect_deadline:
+            self._fail_here(
+                E.ConnectFailed,
+                f"no handshake within {self.config.connect_timeout_s:g} s "
+                f"({self._connect_attempts} M110 sent, {self._starts} `start` seen)",
+            )
+            return
+        if self._pending_resend is not None and now >= self._resend_due:
+            self._replay(now)
+        if not self._inflight:
+            self._pump(now)
+            return
+        head = self._inflight[0]
+        if now < head.deadline or self._pending_resend is not None:
+            return
+        self._overdue(head, now)
+
+    def cancel_queued(self, error: E.MarlinError) -> int:
+        """Take back every job not yet written (they finish with `error`); lines in flight go on."""
+        jobs = list(self._queue)
+        self._queue.clear()
+        for job in jobs:
+            job.finish(error)
+        return len(jobs)
+
+    def emergency_stop(self) -> None:
+        """M112 ahead of everything; the session ends."""
+        self._outbox.append(b"M112\n")
+        self._fail_here(E.EmergencyStopped, "M112 sent on request")
+
+    def port_failed(self, detail: str) -> None:
+        self._fail_here(E.PortDead, detail)
+
+    # ---- outputs ----------------------------------------------------------------------------
+
+    def data_to_send(self) -> list[bytes]:
+        """The writes due, in order (one entry per line); the caller writes them and calls again later."""
+        out, self._outbox = self._outbox, []
+        return out
+
+    @property
+    def confirming(self) -> bool:
+        """Whether batches end with a confirming probe now (config.confirm_batches, or oks seen duplicated)."""
+        mode = self.config.confirm_batches
+        return mode is True or (mode is None and self.stats["stray_oks"] > 0)
+
+    @property
+    def in_flight(self) -> int:
+        return len(self._inflight)
+
+    @property
+    def queued(self) -> int:
+        return len(self._queue)
+
+    # ---- the handshake ----------------------------------------------------------------------
+
+    def _say_hello(self, now: float) -> None:
+        assert self._hello is not None
+        self._phase = "handshake"
+        self._connect_attempts = 1
+        self._send_line(self._hello, m110=True, now=now)
+
+    def _hello_again(self, now: float, why: str) -> None:
+        """M110 is idempotent: say it again, within the connect cap."""
+        self._connect_attempts += 1
+        if self._connect_attempts > self.config.connect_attempts:
+            self._fail_here(
+                E.ConnectFailed,
+                f"{why}; M110 N0 was sent {self.config.connect_attempts} times "
+                f"and the printer never acknowledged it ({self._starts} `start` seen)",
+            )
+            return
+        self._pending_resend = self._inflight[0].n
+        self._resend_due = now + _BOOT_SETTLE_S
+        self._resend_ok_seen = False
+
+    # ---- writing ----------------------------------------------------------------------------
+
+    def _deadline(self, command: str | GcodeLine, now: float) -> float:
+        own_s, _ = self.motion.line_time_s(command)
         own_s *= self.config.motion_time_scale
         start = max(now, self._motion_end)  # a full planner delays any ok until queued motion runs out
         self._motion_end = start + own_s
         return self._motion_end + self.config.min_timeout_s
 
-    def _send_line(self, job: _Job | None, *, probe: bool = False, m110: bool = False) -> _Line:
-        now = time.monotonic()
+    def _send_line(self, job: Job | None, *, now: float, probe: bool = False, m110: bool = False) -> _Line:
         n = self._next_n
         self._next_n += 1
-        command = f"M118 E1 {PROBE_TAG} {n}" if probe else job.command
         if job is not None:
             job.line = n
+        command = f"M118 E1 {PROBE_TAG} {n}" if probe else job.command if job is not None else ""
         if probe or m110:
             deadline = max(now, self._motion_end) + self.config.min_timeout_s
         else:
+            assert job is not None
             deadline = self._deadline(job.parsed or command, now)
-        line = _Line(n, command, frame(command, n), job, deadline, probe, m110, self.config.max_busy_s)
+        line = _Line(n, command, frame(command, n), job, deadline, deadline + self.config.max_busy_s, probe, m110)
         self._inflight.append(line)
         self.stats["lines_sent"] += 1
         self.stats["max_in_flight"] = max(self.stats["max_in_flight"], len(self._inflight))
-        self._write(line.data)
+        self._outbox.append(line.data)
         return line
 
     def _pump(self, now: float) -> None:
-        while self._queue and self._failure is None and self._pending_resend is None and self._room_for(self._queue[0]):
-            self._send_line(self._queue.popleft())
+        if self._phase != "session":
+            return
+        while self._queue and self.failure is None and self._pending_resend is None and self._room_for(self._queue[0]):
+            job = self._queue.popleft()
+            self._send_line(job, now=now, probe=job.barrier)
 
-    def _room_for(self, job: _Job) -> bool:
+    def _room_for(self, job: Job) -> bool:
         """One line in flight; more (up to max_in_flight, within Marlin's RX buffer) only once the
         firmware's `ok N..` names its lines, and never past a probe or an M110."""
         if not self._inflight:
             return True
-        if self.config.max_in_flight <= 1 or not self._advanced_ok_seen:
+        if self.config.max_in_flight <= 1 or not self._advanced_ok_seen or job.barrier:
             return False
-        if len(self._inflight) >= self.config.max_in_flight or any(l.probe or l.m110 for l in self._inflight):
+        if len(self._inflight) >= self.config.max_in_flight or any(line.probe or line.m110 for line in self._inflight):
             return False
         in_flight = sum(len(line.data) for line in self._inflight)
         return in_flight + len(job.command) + 16 <= self.config.rx_buffer_bytes
 
-    # ---- the reader ---------------------------------------------------------------------
-
-    def _run(self) -> None:
-        buffer = b""
-        port = self.port
-        fd = _posix_fd(port)
-        poll_s = self.config.poll_s
-        while not self._stop.is_set():
-            try:
-                if fd is not None:  # a POSIX tty or pty: one select and one read per burst
-                    ready, _, _ = select.select([fd], [], [], poll_s)
-                    data = os.read(fd, 4096) if ready else b""
-                    if ready and not data:
-                        raise OSError("end of file: the device went away")
-                else:
-                    data = port.read(port.in_waiting or 1)
-                    if data and port.in_waiting:  # the rest of a burst that woke us: handle it as one chunk
-                        data += port.read(port.in_waiting)
-            except Exception as exc:  # noqa: BLE001 - SerialException, OSError: the port is gone
-                if not self._stop.is_set():
-                    with self._lock:
-                        n, cmd = self._last_acked
-                        self._fail(
-                            E.PortDead(f"read failed: {exc}", last_line=n, last_command=cmd, port=self.port_name)
-                        )
-                return
-            now = time.monotonic()
-            with self._lock:
-                try:
-                    if data:
-                        if self._wire is not None:
-                            self._wire.write("<", data)
-                        buffer += data
-                        *complete, buffer = buffer.split(b"\n")
-                        for raw in complete:
-                            if self._failure is not None:
-                                break
-                            self._on_line(raw.decode("ascii", "replace").strip(), now)
-                    if self._failure is None:
-                        self._tick(now)
-                except E.MarlinError:
-                    pass  # recorded in self._failure; waiters were woken
+    # ---- reading ----------------------------------------------------------------------------
 
     def _on_line(self, text: str, now: float) -> None:
         if not text:
@@ -218,43 +275,67 @@ class LineProtocol:
         if kind is Kind.OK:
             self._on_ok(reply, now)
         elif kind is Kind.RESEND:
+            assert reply.number is not None
             self._on_resend(reply.number, now)
         elif kind is Kind.COMM_ERROR:
             self._comm_errors += 1
-            self._fw_last_line = (reply.number, self._comm_errors)
+            self._fw_last_line = reply.number
             self.stats["comm_errors"] += 1
         elif kind in (Kind.HALTED, Kind.STOPPED):
             self._fail_here(E.PrinterHalted, f"the printer said {text!r}")
         elif kind is Kind.START:
-            if self._session:
-                self._fail_here(E.PrinterReset, "the printer sent 'start' (it rebooted)")
-            else:
-                self._booted = True
-                if head is not None and head.m110:  # booted under our M110: say it again
-                    self._pending_resend, self._resend_due = head.n, now
+            self._on_start(now)
         elif kind is Kind.BUSY:
             self.stats["busy"] += 1
             for line in self._inflight:
                 line.deadline = min(max(line.deadline, now + self.config.busy_extension_s), line.hard_deadline)
         elif kind is Kind.PROBE_ECHO:
+            assert reply.number is not None
             self._on_probe_echo(reply.number, now)
         elif kind is Kind.WAIT:
             pass
         else:
             if kind is Kind.ACTION:
                 self.actions.append(text)
-            if head is not None and head.job is not None:
+            if head is not None and head.job is not None and not head.probe:
                 head.job.replies.append(text)
                 if kind in (Kind.UNKNOWN_COMMAND, Kind.REJECTED):
                     head.job.rejected = text
             else:
                 self.unsolicited.append(text)
 
-    def _on_ok(self, reply, now: float) -> None:
-        if self._swallow_ok:  # old Marlin: `Resend: n` then `ok`; this ok acknowledges nothing
-            self._swallow_ok = False
-            self._ok_follows_resend = True
+    def _on_start(self, now: float) -> None:
+        self._starts += 1
+        self.booted = True
+        if self.session:
+            self._fail_here(E.PrinterReset, "the printer sent 'start' (it rebooted)")
+        elif self._phase == "booting":
+            if self._starts > self.config.connect_attempts:
+                self._fail_here(E.ConnectFailed, f"the printer sent 'start' {self._starts} times (a boot loop)")
+            elif self._boot_seen_s is None:
+                self._boot_seen_s = now
+        elif self._phase == "handshake" and self._inflight and self._inflight[0].m110:
+            if self._pending_resend is None:
+                self._hello_again(now, "the printer rebooted under the handshake (`start`)")
+                self._resend_ok_seen = True  # not a `Resend:`: an ok now teaches nothing about the dialect
+            else:
+                self._connect_attempts += 1  # a `start` flood: every one counts against the cap
+                if self._connect_attempts > self.config.connect_attempts:
+                    self._fail_here(E.ConnectFailed, f"the printer sent 'start' {self._starts} times (a boot loop)")
+
+    def _on_ok(self, reply: Reply, now: float) -> None:
+        pending = self._pending_resend
+        if pending is not None and (not self._inflight or self._inflight[0].n >= pending):
+            # a line at or after the rejected one cannot be acknowledged before it is replayed:
+            # this is the `ok` that Marlin 1.x, Repetier and OctoPrint send after `Resend:` (or a duplicate)
             self.stats["oks_swallowed"] += 1
+            if not self._resend_ok_seen:
+                self._resend_ok_seen = True
+                if self._ok_after_resend is None:
+                    log.debug("learned: this firmware sends `ok` after `Resend:`")
+                    self._ok_after_resend = True
+                if self._ok_after_resend:
+                    self._resend_due = now  # replay now: its `ok` can no longer be mistaken for the replay's
             return
         if not self._inflight:
             self.stats["stray_oks"] += 1
@@ -266,17 +347,20 @@ class LineProtocol:
                 self.stats["stale_oks"] += 1
                 return
             while self._inflight and self._inflight[0].n <= reply.number:
-                self._retire(self._inflight[0])
+                self._retire(self._inflight[0], now)
         elif head.probe and not head.echoed:
             # the firmware echoes a probe before its ok: this ok is a duplicate of an earlier one
             self.stats["stray_oks"] += 1
             return
         else:
-            self._retire(head)
-        # the next line goes out in _tick, after the whole chunk is read: a duplicated `ok` in the
+            payload = reply.text[2:].lstrip(" :")
+            if payload and reply.planner_free is None and head.job is not None and not head.probe:
+                head.job.replies.append(payload)  # data carried on the ok line (`ok T:25.00 /0.00`)
+            self._retire(head, now)
+        # the next line goes out in tick(), after the whole chunk is read: a duplicated `ok` in the
         # same chunk then finds nothing in flight instead of acknowledging a line just sent
 
-    def _retire(self, line: _Line) -> None:
+    def _retire(self, line: _Line, now: float) -> None:
         self._inflight.remove(line)
         self._probes_in_stall = 0
         self._stale_streak = 0
@@ -287,33 +371,40 @@ class LineProtocol:
         line.released = True
         self._resend_counts.pop(line.n, None)
         if not line.probe:
-            self._last_acked = (line.n, line.command)
+            self.last_acked = (line.n, line.command)
         if line.command.split(" ", 1)[0] in _SYNCHRONISING:  # its ok means the planner ran empty
-            self._motion_end = min(self._motion_end, time.monotonic())
+            self._motion_end = min(self._motion_end, now)
+        if line.m110:
+            self._phase = "session"
+            self.session = True
         job = line.job
-        if job is not None:
-            self._acked_jobs += 1
-            if job.rejected and job.batch is not None:
-                self._cancel_batch(job)
-            job.event.set()
+        if job is None:
+            return
+        self.acked_jobs += 1
+        if job.rejected and job.batch is not None:
+            self._cancel_batch(job)
+        job.finish()
 
-    def _cancel_batch(self, job: _Job) -> None:
+    def _cancel_batch(self, job: Job) -> None:
         rest = [j for j in self._queue if j.batch is job.batch]
         self._queue = collections.deque(j for j in self._queue if j.batch is not job.batch)
         for other in rest:
-            other.error = E.CommandRejected(
-                f"not sent: N{job.line} {job.command!r} was refused ({job.rejected!r})",
-                last_line=job.line,
-                last_command=job.command,
-                port=self.port_name,
+            other.finish(
+                E.CommandRejected(
+                    f"not sent: N{job.line} {job.command!r} was refused ({job.rejected!r})",
+                    last_line=job.line,
+                    last_command=job.command,
+                    port=self.port_name,
+                )
             )
-            other.event.set()
 
-    def _grace_s(self) -> float:
-        """Wait for an `ok` after `Resend:` until the firmware has shown, three times, that it sends none."""
-        if self._ok_follows_resend or self._resends_without_ok < 3:
+    # ---- resends ----------------------------------------------------------------------------
+
+    def _resend_wait_s(self) -> float:
+        """How long to wait for the dialect's `ok` after `Resend:` before replaying."""
+        if self._ok_after_resend is None:
             return self.config.resend_grace_s
-        return 0.0
+        return self.config.min_timeout_s if self._ok_after_resend else 0.0
 
     def _on_resend(self, n: int, now: float) -> None:
         self.stats["resend_requests"] += 1
@@ -322,17 +413,18 @@ class LineProtocol:
             return
         head = self._inflight[0]
         if head.m110:
-            self._pending_resend, self._resend_due, self._swallow_ok = head.n, now + self._grace_s(), True
+            if self._pending_resend is None:
+                self._hello_again(now, f"the printer asked for line {n} under the handshake")
             return
         fresh = (
-            self._fw_last_line is not None
-            and self._fw_last_line[0] == n - 1
-            and self._fw_last_line[1] > self._served[1]
+            0 < self._comm_errors
+            and self._comm_errors > self._served[1]
+            and (self._fw_last_line is None or self._fw_last_line == n - 1)
         )
         if n > self._inflight[-1].n:  # it has every line in flight: nothing to replay
             self.stats["stale_resends"] += 1
             while fresh and self._inflight and self._inflight[0].probe:
-                self._retire(self._inflight[0])  # a probe it took (its echo went missing) is done
+                self._retire(self._inflight[0], now)  # a probe it took (its echo went missing) is done
             return
         if n < head.n:
             if fresh and all(m in self._history for m in range(n, head.n)):
@@ -357,42 +449,43 @@ class LineProtocol:
         if self._resend_counts[n] > self.config.max_resends:
             self._fail_here(E.ResendLoop, f"line N{n} was asked for {self._resend_counts[n]} times")
             return
-        self._pending_resend, self._resend_due, self._swallow_ok = n, now + self._grace_s(), True
+        self._pending_resend, self._resend_due, self._resend_ok_seen = n, now + self._resend_wait_s(), False
         self._served = (n, self._comm_errors, now)
+
+    def _replay(self, now: float) -> None:
+        n = self._pending_resend
+        assert n is not None
+        self._pending_resend = None
+        if self._ok_after_resend is None and not self._resend_ok_seen:
+            self._resends_without_ok += 1
+            if self._resends_without_ok >= 3:
+                log.debug("learned: this firmware sends no `ok` after `Resend:`")
+                self._ok_after_resend = False
+        for line in self._inflight:
+            if line.n >= n or line.m110:
+                self.stats["lines_resent"] += 1
+                line.deadline = max(line.deadline, now + self.config.min_timeout_s)
+                self._outbox.append(line.data)
+        self._served = (n, self._comm_errors, now)
+
+    # ---- lost oks -----------------------------------------------------------------------------
 
     def _on_probe_echo(self, k: int, now: float) -> None:
         probe = next((line for line in self._inflight if line.n == k and line.probe), None)
         if probe is None:
             self.stats["stale_probe_echoes"] += 1
             return
-        self.stats["oks_recovered"] += sum(1 for line in self._inflight if line.n < k)
-        for line in [line for line in self._inflight if line.n < k]:
-            self._retire(line)  # the firmware ran the probe, so it ran every line before it
+        before = [line for line in self._inflight if line.n < k]
+        self.stats["oks_recovered"] += len(before)
+        for line in before:
+            self._retire(line, now)  # the firmware ran the probe, so it ran every line before it
         probe.echoed = True
         probe.deadline = now + self.config.min_timeout_s
 
-    def _tick(self, now: float) -> None:
-        if self._pending_resend is not None and now >= self._resend_due:
-            n = self._pending_resend
-            self._pending_resend = None
-            if self._swallow_ok:
-                self._resends_without_ok += 1
-            self._swallow_ok = False
-            for line in self._inflight:
-                if line.n >= n or line.m110:
-                    self.stats["lines_resent"] += 1
-                    line.deadline = max(line.deadline, now + self.config.min_timeout_s)
-                    self._write(line.data)
-            self._served = (n, self._comm_errors, now)
-        if not self._inflight:
-            self._pump(now)
-            return
-        head = self._inflight[0]
-        if now < head.deadline or self._pending_resend is not None:
-            return
+    def _overdue(self, head: _Line, now: float) -> None:
         if head.probe and head.echoed:  # the probe ran; its own ok was lost
             self.stats["oks_recovered"] += 1
-            self._retire(head)
+            self._retire(head, now)
             self._pump(now)
             return
         if head.m110:  # M110 is idempotent: say it again
@@ -405,7 +498,7 @@ class LineProtocol:
                 )
                 return
             head.deadline = now + self.config.min_timeout_s
-            self._write(head.data)
+            self._outbox.append(head.data)
             return
         if self._probes_in_stall >= self.config.probe_attempts:
             self._fail_here(
@@ -417,29 +510,29 @@ class LineProtocol:
         pending = next((line for line in self._inflight if line.probe), None)
         if pending is not None:  # the probe itself went missing: say it again under its number
             pending.deadline = max(now, self._motion_end) + self.config.min_timeout_s
-            self._write(pending.data)
+            self._outbox.append(pending.data)
             probe = pending
         else:
-            probe = self._send_line(None, probe=True)
+            probe = self._send_line(None, now=now, probe=True)
         for line in self._inflight:
             line.deadline = max(line.deadline, probe.deadline)
 
-    # ---- failure --------------------------------------------------------------------------
+    # ---- failure ------------------------------------------------------------------------------
 
     def _fail_here(self, kind: type[E.MarlinError], detail: str) -> None:
-        n, cmd = self._last_acked
-        self._fail(kind(detail, last_line=n, last_command=cmd, port=self.port_name))
+        n, cmd = self.last_acked
+        self.fail(kind(detail, last_line=n, last_command=cmd, port=self.port_name))
 
-    def _fail(self, error: E.MarlinError) -> None:
-        if self._failure is None:
-            self._failure = error
-        self._fail_jobs(self._failure)
-
-    def _fail_jobs(self, error: E.MarlinError) -> None:
+    def fail(self, error: E.MarlinError) -> None:
+        """End the session with error (the first failure wins); every waiting job finishes with it."""
+        if self.failure is None:
+            self.failure = error
+            log.debug("session failed: %s", error)
         jobs = [line.job for line in self._inflight if line.job is not None] + list(self._queue)
+        if self._hello is not None and not self._hello.done:
+            jobs.append(self._hello)  # a handshake that failed before its M110 went out
         self._queue.clear()
         self._inflight.clear()
+        self._pending_resend = None
         for job in jobs:
-            if job.error is None:
-                job.error = error
-            job.event.set()
+            job.finish(self.failure)

@@ -68,6 +68,8 @@ _OK_P = re.compile(r"\bP(\d+)")
 _OK_B = re.compile(r"\bB(\d+)")
 _RESEND = re.compile(r"^(?:Resend|rs)\s*:?\s*N?:?\s*(\d+)", re.IGNORECASE)
 _LAST_LINE = re.compile(r"Last Line:\s*(-?\d+)")
+_EXPECTED_LINE = re.compile(r"expected line\s*(\d+)", re.IGNORECASE)
+_COMM_ERROR = re.compile(r"checksum|line ?number|last line", re.IGNORECASE)
 _HOME_FIRST = re.compile(r"^(?:echo:)?\s*Home [XYZ]+ first", re.IGNORECASE)
 
 
@@ -98,6 +100,11 @@ def classify(line: str) -> Reply:
         last = _LAST_LINE.search(text)
         if last and (ERR_CHECKSUM in text or ERR_LINE_NO in text or ERR_NO_CHECKSUM in text):
             return Reply(Kind.COMM_ERROR, text, int(last.group(1)))
+        expected = _EXPECTED_LINE.search(text)
+        if expected:  # Repetier / OctoPrint: `Error: expected line 5 got 6`
+            return Reply(Kind.COMM_ERROR, text, int(expected.group(1)) - 1)
+        if _COMM_ERROR.search(text):  # `Error: Checksum mismatch`, `Error: Wrong checksum`, no `Last Line:`
+            return Reply(Kind.COMM_ERROR, text, int(last.group(1)) if last else None)
         return Reply(Kind.ERROR, text)
     body = text[5:] if text.startswith("echo:") else text
     if body.startswith("busy:"):
@@ -119,7 +126,7 @@ def classify(line: str) -> Reply:
     return Reply(Kind.DATA, text)
 
 
-def _int(match: re.Match | None) -> int | None:
+def _int(match: re.Match[str] | None) -> int | None:
     return int(match.group(1)) if match else None
 
 
@@ -141,7 +148,8 @@ _COUNT = re.compile(r"Count\s+X:\s*(-?\d+)\s+Y:\s*(-?\d+)\s+Z:\s*(-?\d+)")
 
 
 def parse_m114(lines: list[str] | tuple[str, ...]) -> Position:
-    """The first `X:.. Y:.. Z:..` line of an M114 reply; ValueError when there is none."""
+    """The first `X:.. Y:.. Z:..` line of an M114 reply (also `ok X:.. Y:..`, as OctoPrint's Virtual Printer
+    answers); ValueError when there is none."""
     for line in lines:
         match = _M114.search(line)
         if match and not line.lstrip().startswith("Count"):

@@ -1,0 +1,65 @@
+"""The values a caller hands the Marlin line protocol: DriverConfig (every timing knob and cap) and Job.
+
+A Job is the one mutable handle a caller waits on: the protocol (linestate.LineProtocol) fills
+in its replies and sets `done`, with `error` when the session failed or the command was refused.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from neatskin.gcode.parse import GcodeLine
+from neatskin.marlin import errors as E
+
+
+@dataclass(frozen=True)
+class DriverConfig:
+    boot_timeout_s: float = 3.0  # wait this long for `start` after opening; then go on without it
+    min_timeout_s: float = 2.0  # the least time any line may take to be acknowledged
+    busy_extension_s: float = 6.0  # a `busy:` pushes the deadline to now + this (Marlin sends one every 2 s)
+    max_busy_s: float = 900.0  # keep-alives cannot stretch one line's wait beyond this
+    probe_attempts: int = 3  # lost-ok probes per stall before NoAnswer
+    max_resends: int = 12  # the same line asked for this often -> ResendLoop
+    resend_grace_s: float = 0.02  # while the dialect is unknown: wait this long for an `ok` after `Resend:`
+    duplicate_resend_s: float = 1.0  # an identical `Resend: n` with no new error within this is a duplicate
+    poll_s: float = 0.02  # the reader's read timeout: how often deadlines are checked
+    write_timeout_s: float = 5.0  # a write that finds no room for this long: PortDead
+    max_in_flight: int = 1  # >1 pipelines lines, only once the firmware's `ok N.. P.. B..` names them
+    rx_buffer_bytes: int = 127  # Marlin's RX_BUFFER_SIZE less one: bytes in flight never exceed it
+    homing_time_s: float = 60.0
+    default_feed_mm_s: float = 25.0
+    motion_time_scale: float = 1.0  # real seconds per second of motion: 0 for a virtual-time simulated printer
+    connect_attempts: int = 8  # M110 said this often (after `start`, `Resend:`) -> ConnectFailed
+    connect_timeout_s: float = 30.0  # the handshake after the boot wait ends within this -> ConnectFailed
+    ok_after_resend: bool | None = None  # the firmware's dialect: None learns it from the first resends
+    # end each batch (send_lines, send) with a probe whose echo proves every line ran: True always,
+    # None once the printer has sent an `ok` that acknowledged nothing (it duplicates oks), False never
+    confirm_batches: bool | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("boot_timeout_s", "min_timeout_s", "busy_extension_s", "max_busy_s", "poll_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"DriverConfig.{name} must be > 0")
+        for name in ("probe_attempts", "max_resends", "connect_attempts", "max_in_flight"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"DriverConfig.{name} must be >= 1")
+
+
+@dataclass(eq=False)
+class Job:
+    """One command a caller waits for; `done` with `replies` (or `error`) once the printer answered."""
+
+    command: str
+    parsed: GcodeLine | None = None  # the parsed line, when the caller parsed it already
+    batch: object | None = None  # jobs of one send_lines call share it: a refusal cancels the rest
+    barrier: bool = False  # a probe whose echo proves that every line before it ran
+    replies: list[str] = field(default_factory=list)
+    done: bool = False
+    error: E.MarlinError | None = None
+    rejected: str | None = None
+    line: int | None = None
+
+    def finish(self, error: E.MarlinError | None = None) -> None:
+        if error is not None and self.error is None:
+            self.error = error
+        self.done = True

@@ -1,0 +1,274 @@
+"""The sans-IO line protocol, driven deterministically: no pty, no thread, no sleep, a clock that is a number.
+
+Each test feeds LineProtocol exact bytes and times and checks the exact bytes it writes, or couples
+it to a DialectFirmware (neatskin.sim.scripted) and checks what the firmware executed.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections import deque
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from neatskin.marlin import errors as E
+from neatskin.marlin.jobs import DriverConfig, Job
+from neatskin.marlin.linestate import LineProtocol
+from neatskin.sim.scripted import DialectFirmware
+
+CONFIG = DriverConfig(boot_timeout_s=0.5, min_timeout_s=0.4, busy_extension_s=0.6, poll_s=0.01)
+
+
+def cs(n: int, command: str) -> bytes:
+    body = f"N{n} {command}".encode()
+    return body + b"*" + str(functools.reduce(lambda a, b: a ^ b, body, 0)).encode() + b"\n"
+
+
+def connected(config: DriverConfig = CONFIG) -> LineProtocol:
+    proto = LineProtocol(config)
+    hello = proto.start_session(0.0)
+    proto.receive(b"start\necho:Marlin 2.1.2.4\n", 0.01)
+    assert proto.data_to_send() == []  # the banner settles first
+    proto.tick(0.07)
+    assert proto.data_to_send() == [b"N0 M110 N0*125\n"]
+    proto.receive(b"ok\n", 0.08)
+    assert hello.done and hello.error is None and proto.session
+    return proto
+
+
+def test_exact_lines_for_exact_replies():
+    proto = connected()
+    g28, move = Job("G28"), Job("G1 X10 Y20 F3000")
+    proto.submit([g28, move], 1.0)
+    assert proto.data_to_send() == [b"N1 G28*18\n"]  # one line in flight
+    proto.receive(b"echo:busy: processing\n", 1.5)
+    assert proto.data_to_send() == [] and not g28.done
+    proto.receive(b"ok\n", 2.0)
+    assert g28.done and g28.replies == []
+    assert proto.data_to_send() == [b"N2 G1 X10 Y20 F3000*77\n"]
+    proto.receive(b"o", 2.1)  # a reply split across reads waits for its end of line
+    assert not move.done
+    proto.receive(b"k\n", 2.2)
+    assert move.done and proto.last_acked == (2, "G1 X10 Y20 F3000")
+
+
+def test_data_on_the_ok_line_is_kept():
+    proto = connected()
+    job = Job("M105")
+    proto.submit([job], 1.0)
+    proto.data_to_send()
+    proto.receive(b"ok T:25.00 /0.00 B:24.00 /0.00\n", 1.1)
+    assert job.replies == ["T:25.00 /0.00 B:24.00 /0.00"]
+
+
+def test_marlin2_replays_after_the_grace_and_learns_no_ok_follows():
+    proto = connected()
+    jobs = [Job(f"G1 X{i}") for i in range(1, 5)]
+    proto.submit(jobs, 1.0)
+    t = 1.0
+    for n in range(1, 4):  # three resends without an ok: the dialect is learned
+        assert proto.data_to_send() == [cs(n, f"G1 X{n}")]
+        proto.receive(f"Error:checksum mismatch, Last Line: {n - 1}\nResend: {n}\n".encode(), t)
+        proto.tick(t + 0.019)
+        assert proto.data_to_send() == []  # waiting 20 ms for an ok that Marlin 2 does not send
+        proto.tick(t + 0.021)
+        assert proto.data_to_send() == [cs(n, f"G1 X{n}")]
+        proto.receive(b"ok\n", t + 0.03)
+        t += 0.1
+    assert proto.data_to_send() == [cs(4, "G1 X4")]
+    proto.receive(b"Error:checksum mismatch, Last Line: 3\nResend: 4\n", t)
+    assert proto.data_to_send() == [cs(4, "G1 X4")]  # learned: replayed at once
+    proto.receive(b"ok\n", t + 0.01)
+    assert all(job.done and job.error is None for job in jobs)
+    assert proto.stats["lines_resent"] == 4
+
+
+def test_ok_after_resend_in_a_separate_read_acknowledges_nothing():
+    proto = connected()
+    job, nxt = Job("G1 X5"), Job("M400")
+    proto.submit([job, nxt], 1.0)
+    proto.data_to_send()
+    proto.receive(b"Error:checksum mismatch, Last Line: 0\nResend: 1\n", 1.0)
+    proto.receive(b"ok\n", 1.01)  # Marlin 1.x's ok after Resend, in a read of its own
+    assert not job.done
+    assert proto.data_to_send() == [cs(1, "G1 X5")]  # replayed as soon as that ok came
+    proto.receive(b"ok\n", 1.05)
+    assert job.done and proto.data_to_send() == [cs(2, "M400")]
+    assert proto.stats["oks_swallowed"] == 1
+
+
+def test_start_flood_at_connect_is_capped():
+    config = DriverConfig(boot_timeout_s=0.1, min_timeout_s=0.4, poll_s=0.01, connect_attempts=4)
+    proto = LineProtocol(config)
+    hello = proto.start_session(0.0)
+    sent: list[bytes] = []
+    t = 0.0
+    for _ in range(10_000):
+        proto.tick(t)
+        out = proto.data_to_send()
+        sent += out
+        proto.receive(b"start\n" * len(out) or b"start\n", t)  # a boot loop answers everything with `start`
+        if hello.done:
+            break
+        t += 0.01
+    assert isinstance(hello.error, E.ConnectFailed)
+    assert "start" in str(hello.error)
+    assert len(sent) <= 4 and t < 1.0
+
+
+def test_resend_0_for_ever_at_connect_is_capped():
+    proto = LineProtocol(DriverConfig(boot_timeout_s=0.05, connect_attempts=5))
+    hello = proto.start_session(0.0)
+    sent: list[bytes] = []
+    t = 0.0
+    while not hello.done and t < 100:
+        proto.tick(t)
+        out = proto.data_to_send()
+        sent += out
+        for _ in out:
+            proto.receive(b"Resend: 0\n", t)
+        t += 0.02
+    assert isinstance(hello.error, E.ConnectFailed) and "M110 N0 was sent 5 times" in str(hello.error)
+    assert sent == [b"N0 M110 N0*125\n"] * 5
+
+
+def test_connect_deadline_holds_even_when_each_answer_looks_like_progress():
+    config = DriverConfig(boot_timeout_s=0.1, connect_timeout_s=1.0, connect_attempts=1000)
+    proto = LineProtocol(config)
+    hello = proto.start_session(0.0)
+    t = 0.0
+    while not hello.done and t < 100:
+        proto.tick(t)
+        if proto.data_to_send():
+            proto.receive(b"echo:busy: processing\n", t)
+        t += 0.05
+    assert isinstance(hello.error, (E.ConnectFailed, E.NoAnswer))
+    assert t <= 1.2
+
+
+def converse(proto: LineProtocol, firmware: DialectFirmware, jobs: list[Job], max_steps: int = 20_000) -> float:
+    """Couple the protocol to a firmware, one reply line per read (the worst split); time is 1 ms a step.
+
+    Checks at every step that no job is done before the firmware ran its command."""
+    wire: deque[bytes] = deque()
+    t = 1.0
+    proto.submit(jobs, t)
+    for _ in range(max_steps):
+        for data in proto.data_to_send():
+            wire.extend(line + b"\n" for line in firmware.feed(data).split(b"\n")[:-1])
+        if wire:
+            proto.receive(wire.popleft(), t)
+        else:
+            proto.tick(t)
+        ran = firmware.executed.count
+        for job in jobs:
+            if job.done and job.error is None and not job.barrier:
+                assert ran(job.command) >= 1, f"{job.command} reported done before it ran"
+        if jobs[-1].done:
+            return t
+        t += 0.001
+    raise AssertionError("no end")
+
+
+@pytest.mark.parametrize("dialect", ["marlin1", "marlin2", "repetier"])
+@pytest.mark.parametrize("ok_after_resend", [None, "right"])
+def test_each_dialect_rejecting_one_line_twice_runs_every_command_once_in_order(dialect, ok_after_resend):
+    known = None if ok_after_resend is None else dialect != "marlin2"
+    config = DriverConfig(boot_timeout_s=0.5, min_timeout_s=0.4, poll_s=0.01, ok_after_resend=known)
+    proto = connected(config)
+    firmware = DialectFirmware(dialect, reject={5: 2, 9: 1})
+    firmware.executed.append("M110 N0")  # the handshake above
+    commands = [f"G1 X{i} Y{2 * i}" for i in range(1, 13)]
+    jobs = [Job(c) for c in commands]
+    converse(proto, firmware, jobs)
+    assert all(job.error is None for job in jobs)
+    assert firmware.executed == ["M110 N0", *commands]
+    assert proto.stats["lines_resent"] == 3
+
+
+def test_repetier_error_text_counts_as_a_communication_error():
+    proto = connected()
+    job = Job("G1 X1")
+    proto.submit([job], 1.0)
+    proto.data_to_send()
+    # the same line refused twice within a second: both are real, neither a duplicate
+    for t in (1.0, 1.1):
+        proto.receive(b"Error: Checksum mismatch\nResend:1\nok\n", t)
+        assert proto.data_to_send() == [cs(1, "G1 X1")] and not job.done
+    proto.receive(b"ok\n", 1.2)
+    assert job.done and proto.stats["duplicate_resends"] == 0
+
+
+def test_a_duplicated_ok_in_a_separate_read_cannot_finish_a_confirmed_batch_early():
+    config = DriverConfig(boot_timeout_s=0.5, min_timeout_s=0.4, poll_s=0.01, confirm_batches=True)
+    proto = connected(config)
+    firmware = DialectFirmware("marlin2", mode="double_ok")
+    firmware.executed.append("M110 N0")
+    commands = [f"G1 X{i}" for i in range(1, 40)]
+    jobs = [Job(c) for c in commands] + [Job("", barrier=True)]
+    converse(proto, firmware, jobs)
+    assert firmware.executed[1:] == commands + ["M118 E1 neatskin-probe 40"]
+    assert proto.stats["stray_oks"] > 0
+
+
+def test_position_from_an_ok_line():
+    from neatskin.marlin.replies import parse_m114
+
+    proto = connected()
+    job = Job("M114")
+    proto.submit([job], 1.0)
+    proto.data_to_send()
+    proto.receive(b"ok X:1.00 Y:2.00 Z:3.00 E:0.00 Count: A:0 B:0 C:0\n", 1.1)
+    position = parse_m114(job.replies)
+    assert (position.x_mm, position.y_mm, position.z_mm) == (1.0, 2.0, 3.0)
+
+
+def test_garbage_without_newlines_is_bounded_and_the_line_times_out():
+    config = DriverConfig(boot_timeout_s=0.5, min_timeout_s=0.4, poll_s=0.01, probe_attempts=2)
+    proto = connected(config)
+    job = Job("M105")
+    proto.submit([job], 1.0)
+    t, sent = 1.0, 0
+    while not job.done and t < 60:
+        sent += len(proto.data_to_send())
+        proto.receive(b"\xff\x00garbage" * 100, t)
+        t += 0.05
+    assert isinstance(job.error, E.NoAnswer)
+    assert sent <= 4 and len(proto._rx) <= 4096
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    dialect=st.sampled_from(["marlin1", "marlin2", "repetier"]),
+    known=st.booleans(),
+    rejects=st.dictionaries(st.integers(1, 20), st.integers(1, 3), max_size=6),
+    chunk=st.integers(1, 4),
+)
+def test_any_refusal_pattern_in_any_dialect_runs_each_command_once(dialect, known, rejects, chunk):
+    config = DriverConfig(
+        boot_timeout_s=0.5, min_timeout_s=0.4, poll_s=0.01, ok_after_resend=(dialect != "marlin2") if known else None
+    )
+    proto = connected(config)
+    firmware = DialectFirmware(dialect, reject=rejects)
+    commands = [f"G1 X{i}" for i in range(1, 21)]
+    jobs = [Job(c) for c in commands]
+    wire: deque[bytes] = deque()
+    t = 1.0
+    proto.submit(jobs, t)
+    for _ in range(20_000):
+        for data in proto.data_to_send():
+            wire.extend(line + b"\n" for line in firmware.feed(data).split(b"\n")[:-1])
+        if wire:  # `chunk` reply lines per read
+            proto.receive(b"".join(wire.popleft() for _ in range(min(chunk, len(wire)))), t)
+        else:
+            proto.tick(t)
+        for job in jobs:
+            assert not (job.done and job.error is None) or job.command in firmware.executed
+        if jobs[-1].done:
+            break
+        t += 0.001
+    assert all(job.done and job.error is None for job in jobs)
+    assert firmware.executed == commands
+    assert proto.stats["lines_resent"] == sum(rejects.values())
