@@ -122,7 +122,8 @@ def test_generate_with_a_non_ascii_name_is_clear_and_leaves_nothing(protocols_di
     out = tmp_path / "out" / "p.gcode"
     assert main(["gcode", "generate", str(proto), "-o", str(out)]) == 2
     err = capsys.readouterr().err
-    assert "campaign.name" in err and "non-ASCII character 'Ü' (U+00DC)" in err and "UnicodeEncodeError" not in err
+    # refused by the protocol schema, before emission (which refuses it too: see test_emit_refuses_a_non_ascii_name)
+    assert "campaign.name" in err and "non-ASCII" in err and "UnicodeEncodeError" not in err
     assert not out.exists() and not (tmp_path / "out" / "p.gcode.tmp").exists()
 
 
@@ -172,3 +173,13 @@ def test_generate_to_a_folder_or_below_a_file_is_one_clear_error(protocols_dir, 
         "is a folder, not a file" in err if where == "folder" else "is a file, not a folder" in err
     )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
+
+
+def test_emit_refuses_a_non_ascii_name():
+    from neatskin.errors import ConfigError
+    from neatskin.gcode.emit import safe_text
+
+    with pytest.raises(ConfigError) as info:
+        safe_text("Kampagne Üben", "campaign.name", "proto.toml")
+    assert info.value.problems[0].field == "campaign.name"
+    assert "non-ASCII character 'Ü' (U+00DC)" in str(info.value)
