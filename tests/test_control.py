@@ -77,6 +77,18 @@ def test_stale_request_from_an_earlier_run_is_ignored(campaign_dir):
     assert rig.calls == []
 
 
+def test_request_written_after_the_run_started_but_before_the_first_press_counts(campaign_dir):
+    from neatskin.datasets.manifest import utc_now_iso
+
+    (campaign_dir / "manifest.json").write_text(json.dumps({"started_at": utc_now_iso()}))
+    request_control(campaign_dir, "stop")
+    rig = FakeRig(campaign_dir)
+    assert rig.checkpoint().after_press(0, []) is False and rig.calls == ["park"]
+    (campaign_dir / "manifest.json").write_text(json.dumps({"started_at": "2020", "resumed_at": utc_now_iso()}))
+    rig = FakeRig(campaign_dir)  # the same stop, now older than the resume: not acted on again
+    assert rig.checkpoint().after_press(0, []) is True and rig.calls == []
+
+
 def test_pause_lifts_waits_and_continue_goes_on(campaign_dir):
     rig = FakeRig(campaign_dir)
     cp = rig.checkpoint(poll_s=0.25)

@@ -4,8 +4,9 @@ calls between presses (Bluesky-style checkpoints; no socket into the campaign pr
 CAMPAIGN/control.json        the latest request: {"action", "id", "requested_at", "by"}, replaced atomically
 CAMPAIGN/control_state.json  what the runner is doing: {"state": running|paused|stopped, "reason", "since", ...}
 
-The runner acts on a request once (it remembers the id it handled); a request left in the folder from an earlier
-run is ignored when a campaign starts or resumes. Between presses the probe is already lifted; a pause lifts it
+The runner acts on a request once (it remembers the id it handled); a request written before this run started
+or resumed (the manifest's started_at / resumed_at) is ignored, one written since is acted on at the first safe
+point, even if it came before the first press. Between presses the probe is already lifted; a pause lifts it
 to the safe height and waits; a stop lifts, parks and leaves a campaign that `neatskin campaign resume` finishes.
 After `fsr_miss_limit` presses in a row that the FSR missed (each already retried), the runner pauses by itself
 and names the likely causes.
@@ -47,7 +48,7 @@ class ControlRequest:
 
 
 def _now_iso() -> str:
-    return datetime.now(UTC).isoformat(timespec="milliseconds")
+    return datetime.now(UTC).isoformat(timespec="microseconds")
 
 
 def request_control(folder: str | Path, action: str, *, by: str = "cli") -> ControlRequest:
@@ -89,6 +90,25 @@ def read_state(folder: str | Path) -> dict[str, object]:
     return data if isinstance(data, dict) else {}
 
 
+def _parse_time(text: str) -> datetime:
+    try:
+        value = datetime.fromisoformat(text)
+    except ValueError:
+        return datetime.min.replace(tzinfo=UTC)
+    return value if value.tzinfo else value.replace(tzinfo=UTC)
+
+
+def _run_started_at(folder: Path) -> datetime | None:
+    """When this run of the campaign began (the manifest's resumed_at, else started_at): requests written
+    since then are for this run, even one written before the first press."""
+    try:
+        manifest = json.loads((folder / "manifest.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    stamp = manifest.get("resumed_at") or manifest.get("started_at") if isinstance(manifest, dict) else None
+    return _parse_time(stamp) if isinstance(stamp, str) else None
+
+
 def fsr_miss_cause(n_misses: int, press_ids: Sequence[int]) -> str:
     """The operator's message for an automatic pause after `n_misses` missed presses in a row."""
     ids = ", ".join(str(i) for i in press_ids)
@@ -124,8 +144,12 @@ class Checkpoint:
         self.fsr_miss_limit = int(fsr_miss_limit)
         self.poll_s, self.max_pause_s = poll_s, max_pause_s
         self._sleep, self._clock = sleep, clock
+        self._since = _run_started_at(self.folder)
         stale = read_request(self.folder)
-        self._handled = stale.request_id if stale is not None else None  # requests older than this run
+        if stale is not None and (self._since is None or _parse_time(stale.requested_at) < self._since):
+            self._handled: str | None = stale.request_id  # a request from before this run started or resumed
+        else:
+            self._handled = None
         self._missed: list[int] = []
         self.pauses = 0
         self._write_state("running", None)
