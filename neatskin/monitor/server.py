@@ -139,6 +139,8 @@ class _Handler(BaseHTTPRequestHandler):
         raw_path = urlsplit(self.path).path
         if raw_path in ("/", "/index.html"):
             return self._send(HTTPStatus.OK, asset_bytes("index.html"), "text/html; charset=utf-8")
+        if raw_path == "/favicon.ico":
+            return self._send(HTTPStatus.NO_CONTENT, b"", "image/x-icon")
         if raw_path.startswith("/assets/"):
             name = unquote(raw_path[len("/assets/") :])
             if name not in ASSETS:

@@ -3,6 +3,8 @@
 const SVGNS = "http://www.w3.org/2000/svg";
 const COLORS = { ok: "#2f9e44", flagged: "#f08c00", missed: "#e03131" };
 const $ = (id) => document.getElementById(id);
+// ?poll=MS sets the polling period (default 1000 ms; at least 100)
+const POLL_MS = Math.max(100, parseInt(new URLSearchParams(location.search).get("poll") || "1000", 10) || 1000);
 
 function el(tag, attrs, parent, text) {
   const node = document.createElementNS(SVGNS, tag);
@@ -102,11 +104,11 @@ function drawQuality(table, fsrDiv, q) {
   const kinds = Object.keys(q.counts);
   const head = table.insertRow();
   head.insertCell().textContent = "pair";
-  kinds.forEach((k) => { head.insertCell().textContent = k.replace("_", " "); });
-  q.pairs.forEach((pair, i) => {
+  q.pairs.forEach((pair) => { head.insertCell().textContent = pair; });
+  kinds.forEach((k) => {
     const row = table.insertRow();
-    row.insertCell().textContent = pair;
-    kinds.forEach((k) => {
+    row.insertCell().textContent = k.replace("_", " ");
+    q.pairs.forEach((pair, i) => {
       const c = row.insertCell();
       c.textContent = q.counts[k][i];
       if (q.counts[k][i] > 0) c.className = "bad";
@@ -119,7 +121,7 @@ function update(s) {
   document.title = `${s.campaign} · ${s.counts.done}/${s.counts.planned} · neatskin monitor`;
   const st = $("status"); st.textContent = s.status; st.className = `badge ${s.status}`;
   const runnerState = (s.control && s.control.state) || "";
-  const rs = $("runner"); rs.textContent = runnerState ? `runner: ${runnerState}` : ""; rs.className = `badge ${runnerState}`;
+  const rs = $("runner"); rs.textContent = runnerState ? `runner: ${runnerState}` : ""; rs.className = `badge ${runnerState}`; rs.hidden = !runnerState;
   const reason = $("reason");
   reason.hidden = !(s.control && s.control.reason && runnerState !== "running");
   reason.textContent = reason.hidden ? "" : `${runnerState}: ${s.control.reason}`;
@@ -151,7 +153,7 @@ async function poll() {
   } catch (err) {
     $("updated").textContent = `monitor unreachable (${err})`;
   }
-  setTimeout(poll, 1000);
+  setTimeout(poll, POLL_MS);
 }
 
 async function control(action) {
