@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import http.client
 import json
+import re
 import shutil
 import threading
 from pathlib import Path
@@ -177,6 +178,15 @@ def test_binding_beyond_loopback_needs_allow_remote(finished):
         server.server_close()
 
 
+def test_a_busy_port_is_one_clear_error(finished):
+    first = make_server(finished, port=0)
+    try:
+        with pytest.raises(ConfigError, match=r"cannot listen on 127.0.0.1:\d+.*--port 0 picks a free one"):
+            make_server(finished, port=first.server_address[1])
+    finally:
+        first.server_close()
+
+
 def test_campaign_files_are_served(served, finished):
     status, body = served.request("GET", "/files/manifest.json")
     assert status == 200 and json.loads(body)["campaign"] == "smoke"
@@ -239,3 +249,31 @@ def test_wire_tail_prefers_a_newer_m114_report(tmp_path):
         "Z": 5.5,
         "at": "2026-01-01T00:00:01.000000Z",
     }
+
+
+def test_campaign_run_with_monitor_starts_and_stops_the_page(tmp_path):
+    import os
+    import socket
+    import subprocess
+    import sys
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    out = tmp_path / "run"
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.run(
+        [sys.executable, "-m", "neatskin", "campaign", "run", str(SMOKE), "--dry-run", "--out", str(out)]
+        + ["--no-report", "--quiet", "--monitor", "--monitor-port", str(port)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "PYTHONPATH": str(root), "PYTHONUNBUFFERED": "1"},
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert f"on http://127.0.0.1:{port}/" in proc.stdout
+    assert re.search(r"control token \(paste it in the page to pause/continue/stop\): \S{16,}", proc.stdout)
+    assert "campaign complete: 12/12" in proc.stdout
+    assert proc.stdout.rstrip().endswith(f"to look again: neatskin monitor {out}")
+    with socket.socket() as again:  # the monitor process ended with the campaign: its port is free
+        again.bind(("127.0.0.1", port))

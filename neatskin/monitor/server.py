@@ -199,7 +199,7 @@ def make_server(
 ) -> MonitorServer:
     """A monitor server for `folder`, bound but not yet serving. token None and not read_only: a random one."""
     folder = Path(folder)
-    if not folder.is_dir():
+    if not (folder.is_dir() or (not folder.exists() and folder.parent.is_dir())):
         raise ConfigError(
             "no such campaign folder", file=str(folder), fix="give the folder `neatskin campaign run --out` wrote"
         )
@@ -214,7 +214,14 @@ def make_server(
         token = None
     elif token is None:
         token = secrets.token_urlsafe(16)
-    return MonitorServer(MonitorConfig(folder, token, remote, host, port))
+    try:
+        return MonitorServer(MonitorConfig(folder, token, remote, host, port))
+    except OSError as exc:
+        raise ConfigError(
+            f"cannot listen on {host}:{port}: {exc.strerror or exc}",
+            field="--port",
+            fix="choose another port (--port 0 picks a free one), or stop the other monitor",
+        ) from exc
 
 
 def serve(
@@ -231,6 +238,8 @@ def serve(
     server = make_server(folder, host=host, port=port, allow_remote=allow_remote, token=token, read_only=read_only)
     cfg = server.config
     announce(f"neatskin monitor: {cfg.folder} on {server.url}")
+    if not cfg.folder.exists():
+        announce("  the folder does not exist yet: the page fills in when a campaign creates it")
     if cfg.remote:
         announce(f"  bound to {cfg.host}: anyone who can reach this address sees the page (--allow-remote)")
     if cfg.token is None:
