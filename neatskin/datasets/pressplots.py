@@ -55,8 +55,8 @@ def _row(df: pd.DataFrame, press_id: int, folder: Path) -> pd.Series:
     return rows.iloc[0]
 
 
-def _opt(value: object) -> float | None:
-    return None if value is None or pd.isna(value) else float(value)  # type: ignore[arg-type]
+def _opt(value: float | None) -> float | None:
+    return None if value is None or not np.isfinite(value) else float(value)
 
 
 def press_series(folder: str | os.PathLike, press_id: int) -> PressSeries:
@@ -154,7 +154,7 @@ def plot_press(folder: str | os.PathLike, press_id: int, out: str | os.PathLike)
     ax_f.set_ylabel(f"FSR ({s.fsr_unit})")
     change = np.abs(s.resistance_ohm.max(axis=0) - s.resistance_ohm.min(axis=0))
     top = set(np.argsort(np.nan_to_num(change, nan=-1.0))[-5:])
-    highlight = iter(plt.get_cmap("tab10").colors)
+    highlight = iter(f"C{k}" for k in range(10))  # the default colour cycle
     for k, label in enumerate(s.pairs):
         ax_r.plot(
             s.time_s,
