@@ -11,6 +11,7 @@ import threading
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from neatskin.datasets.paths import press_parts
@@ -277,3 +278,11 @@ def test_campaign_run_with_monitor_starts_and_stops_the_page(tmp_path):
     assert proc.stdout.rstrip().endswith(f"to look again: neatskin monitor {out}")
     with socket.socket() as again:  # the monitor process ended with the campaign: its port is free
         again.bind(("127.0.0.1", port))
+
+
+def test_seconds_since_the_last_press_tell_a_killed_campaign(killed):
+    last = pd.Timestamp(read_presses(killed)["finished_at"].max())
+    before = (pd.Timestamp.now(tz="UTC") - last).total_seconds()
+    s = CampaignView(killed).snapshot()
+    after = (pd.Timestamp.now(tz="UTC") - last).total_seconds()
+    assert before <= s["since_last_press_s"] <= after

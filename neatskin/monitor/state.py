@@ -163,6 +163,14 @@ def rate_and_eta(df: pd.DataFrame, planned: int) -> tuple[float | None, float | 
     return per_s * 3600.0, max(planned - len(df), 0) / per_s
 
 
+def _since_last_s(df: pd.DataFrame) -> float | None:
+    """Seconds since the last durable press finished (a running campaign that stops landing presses was killed)."""
+    if df.empty or "finished_at" not in df:
+        return None
+    last = pd.to_datetime(df["finished_at"], utc=True).max()
+    return max(0.0, (pd.Timestamp.now(tz="UTC") - last).total_seconds())
+
+
 def wire_tail(folder: Path) -> tuple[list[str], dict[str, Any] | None]:
     """The wire log's last lines and the printer's last position: an M114 report if one is newer than the
     last commanded move, else the commanded target (printer coordinates)."""
@@ -230,6 +238,7 @@ class CampaignView:
             "counts": {"done": len(df), "planned": planned, "flagged": flagged},
             "rate_per_h": rate,
             "eta_s": eta,
+            "since_last_press_s": _since_last_s(df),
             "layout": self._layout,
             "presses": self._press_points(df),
             "last_press": self._last_press(df, manifest, pairs),

@@ -116,6 +116,12 @@ function drawQuality(table, fsrDiv, q) {
   });
 }
 
+// a running campaign with no press for 60 s and 20 presses' time: its process was likely killed
+function stalled(s) {
+  const per = s.rate_per_h ? 3600 / s.rate_per_h : 0;
+  return s.since_last_press_s !== null && s.since_last_press_s > Math.max(60, 20 * per);
+}
+
 function update(s) {
   $("campaign").textContent = s.campaign;
   document.title = `${s.campaign} · ${s.counts.done}/${s.counts.planned} · neatskin monitor`;
@@ -131,7 +137,11 @@ function update(s) {
   $("done").textContent = s.counts.done; $("planned").textContent = s.counts.planned; $("flagged").textContent = s.counts.flagged;
   $("progress").value = s.counts.planned ? s.counts.done / s.counts.planned : 0;
   $("rate").textContent = s.rate_per_h === null ? "–" : `${s.rate_per_h >= 100 ? Math.round(s.rate_per_h) : s.rate_per_h.toFixed(1)} /h`;
-  $("eta").textContent = s.status === "complete" ? "done" : fmtDuration(s.eta_s);
+  // no ETA while nothing advances: paused, stopped, or a campaign that is not running
+  $("eta").textContent = s.status === "complete" ? "done"
+    : runnerState === "paused" ? "paused"
+    : runnerState === "stopped" || s.status !== "running" ? "–"
+    : stalled(s) ? `stalled: no press for ${fmtDuration(s.since_last_press_s)}` : fmtDuration(s.eta_s);
   const p = s.printer;
   $("possrc").textContent = p ? p.source : "–";
   $("position").textContent = p ? ["X", "Y", "Z"].map((a) => (p[a] === undefined ? `${a} ?` : `${a}${p[a]}`)).join(" ") : "–";
