@@ -286,3 +286,21 @@ def test_seconds_since_the_last_press_tell_a_killed_campaign(killed):
     s = CampaignView(killed).snapshot()
     after = (pd.Timestamp.now(tz="UTC") - last).total_seconds()
     assert before <= s["since_last_press_s"] <= after
+
+
+def test_drift_is_strided_for_long_campaigns(monkeypatch, finished):
+    import neatskin.monitor.state as state
+
+    monkeypatch.setattr(state, "DRIFT_MAX_POINTS", 5)
+    drift = CampaignView(finished).snapshot()["drift"]
+    assert drift["press_id"] == [0, 2, 5, 8, 11]
+    assert all(len(col) == 5 for col in drift["baseline_pct"])
+
+
+def test_a_rewritten_part_rebuilds_the_table(tmp_path, killed):
+    folder = tmp_path / "copy"
+    shutil.copytree(killed, folder)
+    view = CampaignView(folder)
+    assert view.snapshot()["counts"]["done"] == 5
+    press_parts(folder)[4].unlink()
+    assert view.snapshot()["presses"]["press_id"] == [0, 1, 2, 3]

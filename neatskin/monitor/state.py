@@ -31,6 +31,7 @@ log = logging.getLogger(__name__)
 WIRE_LOG = "wire.log"
 WIRE_TAIL_BYTES = 64 * 1024
 WIRE_TAIL_LINES = 40
+DRIFT_MAX_POINTS = 600  # presses per drift line sent to the page (a 2,800-press campaign is strided)
 RATE_WINDOW_PRESSES = 20  # rate over the last presses, so a pause or a resume a day later does not skew it
 _AXIS = re.compile(r"\b([XYZ])(-?\d+(?:\.\d*)?)")
 _REPORT = re.compile(r"X:(-?\d+(?:\.\d*)?) Y:(-?\d+(?:\.\d*)?) Z:(-?\d+(?:\.\d*)?)")
@@ -44,35 +45,51 @@ def _finite(values: Any) -> list[float | None]:
 
 @dataclass
 class PressCache:
-    """Presses read so far, by file; a file is read again only when its size or mtime changed."""
+    """Presses read so far, by file; a file is read again only when its size or mtime changed, and the table
+    of all presses is rebuilt only when a file changed or went away (new parts are appended)."""
 
     files: dict[Path, tuple[int, int]] = field(default_factory=dict)
     frames: dict[Path, pd.DataFrame] = field(default_factory=dict)
+    table: pd.DataFrame = field(default_factory=pd.DataFrame)
 
     def read(self, folder: Path) -> pd.DataFrame:
         try:
             paths = press_files(folder)
         except NeatskinError:
-            return pd.DataFrame()
+            paths = []
         fresh: dict[Path, tuple[int, int]] = {}
+        added: list[Path] = []
+        rebuild = False
         for path in paths:
             try:
                 st = path.stat()
             except OSError:
                 continue  # consolidated while we listed
-            fresh[path] = (st.st_size, st.st_mtime_ns)
-            if self.files.get(path) != fresh[path]:
+            stamp = (st.st_size, st.st_mtime_ns)
+            if self.files.get(path) != stamp:
                 try:
                     self.frames[path] = read_presses(path)
                 except NeatskinError as exc:
                     log.info("skipping %s for now: %s", path, exc)
-                    fresh.pop(path)
+                    continue
+                rebuild |= path in self.files
+                added.append(path)
+            fresh[path] = stamp
+        rebuild |= any(p not in fresh for p in self.files)
         self.files = fresh
         self.frames = {p: f for p, f in self.frames.items() if p in fresh}
-        if not self.frames:
-            return pd.DataFrame()
-        df = pd.concat(list(self.frames.values()), ignore_index=True)
-        return df.drop_duplicates("press_id").sort_values("press_id", kind="stable").reset_index(drop=True)
+        if rebuild or self.table.empty:
+            parts = list(self.frames.values())
+        elif added:
+            parts = [self.table, *(self.frames[p] for p in added)]
+        else:
+            return self.table
+        if not parts:
+            self.table = pd.DataFrame()
+            return self.table
+        df = pd.concat(parts, ignore_index=True)
+        self.table = df.drop_duplicates("press_id").sort_values("press_id", kind="stable").reset_index(drop=True)
+        return self.table
 
 
 def _pairs(df: pd.DataFrame, manifest: dict[str, Any]) -> list[tuple[int, int]]:
@@ -285,9 +302,13 @@ class CampaignView:
 
     @staticmethod
     def _drift(df: pd.DataFrame, pairs) -> dict[str, Any]:
-        """Baseline R (R - dR) per pair against press order, relative to each pair's first finite value, in %."""
+        """Baseline R (R - dR) per pair against press order, relative to each pair's first finite value, in %
+        (at most DRIFT_MAX_POINTS presses, evenly strided, the first and last included)."""
         if df.empty:
             return {"press_id": [], "pairs": [], "baseline_pct": [], "baseline_first_ohm": []}
+        if len(df) > DRIFT_MAX_POINTS:  # the page draws lines, not every press: an even stride plus the last
+            keep = np.unique(np.r_[np.linspace(0, len(df) - 1, DRIFT_MAX_POINTS).astype(int), len(df) - 1])
+            df = df.iloc[keep]
         r = df[[f"R_ohm_{i}_{j}" for i, j in pairs]].to_numpy(dtype=float)
         dr = df[[f"dR_ohm_{i}_{j}" for i, j in pairs]].to_numpy(dtype=float)
         base = r - dr
