@@ -304,3 +304,15 @@ def test_a_rewritten_part_rebuilds_the_table(tmp_path, killed):
     assert view.snapshot()["counts"]["done"] == 5
     press_parts(folder)[4].unlink()
     assert view.snapshot()["presses"]["press_id"] == [0, 1, 2, 3]
+
+
+def test_snapshot_json_is_rebuilt_only_when_a_file_changes(tmp_path, killed):
+    folder = tmp_path / "copy"
+    shutil.copytree(killed, folder)
+    view = CampaignView(folder)
+    first = view.snapshot_json()
+    assert view.snapshot_json() is first  # nothing changed: the same bytes object
+    with open(folder / "wire.log", "a") as log:
+        log.write("2026-01-01T00:00:00.000000Z     9.9 > b'N999 G0 Z42 F300*1\\n'\n")
+    again = json.loads(view.snapshot_json())
+    assert again["printer"]["Z"] == 42.0 and again["counts"]["done"] == 5

@@ -149,10 +149,11 @@ class _Handler(BaseHTTPRequestHandler):
             return self._send(HTTPStatus.OK, asset_bytes(name), f"{kind}; charset=utf-8")
         if raw_path == "/api/state":
             with self.server.view_lock:
-                snap = self.server.view.snapshot()
+                body = self.server.view.snapshot_json()
             cfg = self.server.config
-            snap["server"] = {"controls": cfg.token is not None, "remote": cfg.remote, "bound_to": cfg.host}
-            return self._json(HTTPStatus.OK, snap)
+            server = {"controls": cfg.token is not None, "remote": cfg.remote, "bound_to": cfg.host}
+            body = body[:-1] + b', "server": ' + json.dumps(server).encode() + b"}"
+            return self._send(HTTPStatus.OK, body, "application/json")
         if raw_path.startswith("/files/"):
             target = resolve_inside(self.server.config.folder, unquote(raw_path[len("/files/") :]))
             if target is None:

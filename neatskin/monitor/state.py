@@ -9,6 +9,7 @@ campaign: every file may be missing or half-written, and each section then says 
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import os
@@ -43,13 +44,19 @@ def _finite(values: Any) -> list[float | None]:
     return [float(v) if math.isfinite(float(v)) else None for v in np.ravel(values)]
 
 
+def _plain(df: pd.DataFrame) -> pd.DataFrame:
+    """Without attrs: pandas deep-copies df.attrs (the dataset metadata) on every column access."""
+    df.attrs = {}
+    return df
+
+
 @dataclass
 class PressCache:
-    """Presses read so far, by file; a file is read again only when its size or mtime changed, and the table
-    of all presses is rebuilt only when a file changed or went away (new parts are appended)."""
+    """Presses read so far. The whole table is read through the reader once (and again only when a file
+    already read changed or went away, as when parts are consolidated); parts that land later are read
+    one by one and appended."""
 
     files: dict[Path, tuple[int, int]] = field(default_factory=dict)
-    frames: dict[Path, pd.DataFrame] = field(default_factory=dict)
     table: pd.DataFrame = field(default_factory=pd.DataFrame)
 
     def read(self, folder: Path) -> pd.DataFrame:
@@ -58,37 +65,33 @@ class PressCache:
         except NeatskinError:
             paths = []
         fresh: dict[Path, tuple[int, int]] = {}
-        added: list[Path] = []
-        rebuild = False
         for path in paths:
             try:
                 st = path.stat()
             except OSError:
                 continue  # consolidated while we listed
-            stamp = (st.st_size, st.st_mtime_ns)
-            if self.files.get(path) != stamp:
+            fresh[path] = (st.st_size, st.st_mtime_ns)
+        if fresh == self.files:
+            return self.table
+        added = [p for p in fresh if p not in self.files]
+        if not fresh:
+            self.files, self.table = {}, pd.DataFrame()
+        elif self.table.empty or any(fresh.get(p) != stamp for p, stamp in self.files.items()):
+            try:
+                self.table = _plain(read_presses(folder))
+                self.files = fresh
+            except NeatskinError as exc:
+                log.info("presses not readable yet: %s", exc)
+        else:
+            frames = [self.table]
+            for path in added:
                 try:
-                    self.frames[path] = read_presses(path)
+                    frames.append(_plain(read_presses(path)))
+                    self.files[path] = fresh[path]
                 except NeatskinError as exc:
                     log.info("skipping %s for now: %s", path, exc)
-                    continue
-                rebuild |= path in self.files
-                added.append(path)
-            fresh[path] = stamp
-        rebuild |= any(p not in fresh for p in self.files)
-        self.files = fresh
-        self.frames = {p: f for p, f in self.frames.items() if p in fresh}
-        if rebuild or self.table.empty:
-            parts = list(self.frames.values())
-        elif added:
-            parts = [self.table, *(self.frames[p] for p in added)]
-        else:
-            return self.table
-        if not parts:
-            self.table = pd.DataFrame()
-            return self.table
-        df = pd.concat(parts, ignore_index=True)
-        self.table = df.drop_duplicates("press_id").sort_values("press_id", kind="stable").reset_index(drop=True)
+            df = pd.concat(frames, ignore_index=True)
+            self.table = df.drop_duplicates("press_id").sort_values("press_id", kind="stable").reset_index(drop=True)
         return self.table
 
 
@@ -223,6 +226,28 @@ class CampaignView:
         self._presses = PressCache()
         self._model = ModelCache()
         self._layout: dict[str, Any] | None = None
+        self._cached_stamp: tuple[object, ...] | None = None
+        self._cached_json = b""
+
+    def _stamp(self) -> tuple[object, ...]:
+        """What a snapshot depends on: the press files and the stats of the other files it reads."""
+        stats: list[tuple[int, int] | None] = []
+        for name in ("manifest.json", "control.json", "control_state.json", WIRE_LOG):
+            try:
+                st = (self.folder / name).stat()
+                stats.append((st.st_size, st.st_mtime_ns))
+            except OSError:
+                stats.append(None)
+        return (tuple(sorted(self._presses.files.items())), *stats)
+
+    def snapshot_json(self) -> bytes:
+        """The snapshot as JSON, rebuilt only when a file it reads changed (a finished campaign costs a stat)."""
+        self._presses.read(self.folder)
+        stamp = self._stamp()
+        if stamp != self._cached_stamp:
+            self._cached_json = json.dumps(self.snapshot(), allow_nan=False).encode()
+            self._cached_stamp = stamp
+        return self._cached_json
 
     def snapshot(self) -> dict[str, Any]:
         folder = self.folder
