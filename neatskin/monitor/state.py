@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 
 from neatskin.datasets.manifest import read_manifest
+from neatskin.datasets.paths import part_press_id
 from neatskin.datasets.reader import press_files, read_presses
 from neatskin.errors import NeatskinError
 from neatskin.rig.control import read_request, read_state
@@ -66,6 +67,9 @@ class PressCache:
             paths = []
         fresh: dict[Path, tuple[int, int]] = {}
         for path in paths:
+            if part_press_id(path) is not None:  # a durable part is renamed into place whole and never rewritten
+                fresh[path] = (0, 0)
+                continue
             try:
                 st = path.stat()
             except OSError:
