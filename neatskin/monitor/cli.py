@@ -23,7 +23,9 @@ def register(subparsers) -> None:
         action="store_true",
         help="allow binding to an address other than loopback (anyone who can reach it sees the page)",
     )
-    monitor.add_argument("--token", help="control token to use instead of a random one")
+    monitor.add_argument(
+        "--token", help="control token instead of a random one (other users can read it in the process list)"
+    )
     monitor.add_argument("--read-only", action="store_true", help="no controls at all, not even with a token")
     monitor.set_defaults(handler=_monitor)
 
