@@ -210,3 +210,12 @@ def test_stop_parks_and_resume_finishes_with_the_same_rows(tmp_path, reference):
     thread.join(120)
     assert result["r"].completed == 12 and not result["r"].interrupted
     _same_rows(read_presses(folder), reference)
+
+
+def test_cli_request_on_a_campaign_that_is_not_running_says_how_to_finish_it(campaign_dir, capsys):
+    (campaign_dir / "manifest.json").write_text(json.dumps({"status": "interrupted"}))
+    assert main(["campaign", "continue", str(campaign_dir)]) == 0
+    out = capsys.readouterr().out
+    assert f"continue requested for {campaign_dir} (campaign interrupted, runner unknown)" in out
+    assert f"the campaign is not running; to finish it: neatskin campaign resume {campaign_dir}" in out
+    assert read_request(campaign_dir).action == "continue"

@@ -182,3 +182,25 @@ def test_controls_without_the_token_are_refused(browser, tmp_path):
     finally:
         server.shutdown()
         server.server_close()
+
+
+def test_page_says_when_it_is_served_beyond_loopback(browser, tmp_path):
+    from neatskin.monitor.server import make_server
+    from neatskin.rig.protocol import load_protocol
+    from neatskin.rig.runner import run_campaign
+
+    folder = tmp_path / "done"
+    run_campaign(load_protocol(SMOKE), folder, progress=False, report=False, limit=1)
+    for host, remote in (("127.0.0.1", False), ("0.0.0.0", True)):
+        server = make_server(folder, host=host, port=0, allow_remote=remote)
+        threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True).start()
+        try:
+            browser.get(f"http://127.0.0.1:{server.server_address[1]}/?poll=100")
+            _wait(lambda: _text(browser, "done") == "1", what="the page to load the campaign")
+            banner = browser.find_element("id", "remote")
+            assert banner.is_displayed() is remote
+            if remote:
+                assert "served on 0.0.0.0 (--allow-remote): anyone who can reach that address" in banner.text
+        finally:
+            server.shutdown()
+            server.server_close()
