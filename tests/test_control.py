@@ -14,7 +14,7 @@ from neatskin.cli import main
 from neatskin.datasets.paths import press_parts
 from neatskin.datasets.reader import read_presses
 from neatskin.errors import DataError
-from neatskin.rig.control import Checkpoint, fsr_miss_cause, read_request, read_state, request_control
+from neatskin.rig.control import Checkpoint, fsr_miss_cause, read_request, read_requests, read_state, request_control
 from neatskin.tomlfile import resolve_path
 
 SMOKE = resolve_path("protocols/smoke.toml")
@@ -219,3 +219,23 @@ def test_cli_request_on_a_campaign_that_is_not_running_says_how_to_finish_it(cam
     assert f"continue requested for {campaign_dir} (campaign interrupted, runner unknown)" in out
     assert f"the campaign is not running; to finish it: neatskin campaign resume {campaign_dir}" in out
     assert read_request(campaign_dir).action == "continue"
+
+
+def test_requests_in_quick_succession_are_all_seen_in_order(campaign_dir):
+    rig = FakeRig(campaign_dir)
+    rig.calls.append("continue-sent")  # the fake sends no continue of its own
+    cp = rig.checkpoint(max_pause_s=1.0, poll_s=0.5)
+    request_control(campaign_dir, "pause")
+    request_control(campaign_dir, "continue")
+    assert cp.after_press(0, []) is True and rig.calls == ["continue-sent"]  # cancelled out: no lift
+    request_control(campaign_dir, "pause")
+    request_control(campaign_dir, "stop")
+    assert cp.after_press(1, []) is False and rig.calls == ["continue-sent", "park"]
+    assert [r.action for r in read_requests(campaign_dir)] == ["pause", "continue", "pause", "stop"]
+
+
+def test_control_file_keeps_the_last_16_requests(campaign_dir):
+    for k in range(20):
+        request_control(campaign_dir, ("pause", "continue")[k % 2])
+    requests = read_requests(campaign_dir)
+    assert len(requests) == 16 and requests[-1] == read_request(campaign_dir) and requests[-1].action == "continue"

@@ -1,12 +1,13 @@
 """Pause, continue and stop at safe points: the request file an operator writes and the checkpoint the runner
 calls between presses (Bluesky-style checkpoints; no socket into the campaign process).
 
-CAMPAIGN/control.json        the latest request: {"action", "id", "requested_at", "by"}, replaced atomically
+CAMPAIGN/control.json        the latest request {"action", "id", "requested_at", "by"} and up to 15 before it
+                             under "earlier"; replaced atomically
 CAMPAIGN/control_state.json  what the runner is doing: {"state": running|paused|stopped, "reason", "since", ...}
 
-The runner acts on a request once (it remembers the id it handled); a request written before this run started
-or resumed (the manifest's started_at / resumed_at) is ignored, one written since is acted on at the first safe
-point, even if it came before the first press. Between presses the probe is already lifted; a pause lifts it
+Two requests written in quick succession both reach the runner, in order; it acts on each once (by its id).
+A request written before this run started or resumed (the manifest's started_at / resumed_at) is ignored;
+one written since is acted on at the first safe point, even if it came before the first press. Between presses the probe is already lifted; a pause lifts it
 to the safe height and waits; a stop lifts, parks and leaves a campaign that `neatskin campaign resume` finishes.
 After `fsr_miss_limit` presses in a row that the FSR missed (each already retried), the runner pauses by itself
 and names the likely causes.
@@ -34,6 +35,7 @@ STATE_NAME = "control_state.json"
 ACTIONS = ("pause", "continue", "stop")
 DEFAULT_FSR_MISS_LIMIT = 3
 POLL_S = 0.2
+KEEP_REQUESTS = 16  # requests kept in control.json, so two in quick succession both reach the runner
 MAX_PAUSE_S = 7 * 24 * 3600.0  # a pause longer than a week stops the campaign (it stays resumable)
 
 Action = Literal["pause", "continue", "stop"]
@@ -63,22 +65,40 @@ def request_control(folder: str | Path, action: str, *, by: str = "cli") -> Cont
             fix="give the folder `neatskin campaign run --out` wrote",
         )
     request = ControlRequest(action, secrets.token_hex(8), _now_iso(), by)
-    payload = {"action": action, "id": request.request_id, "requested_at": request.requested_at, "by": by}
+    earlier = [_as_dict(r) for r in read_requests(folder)][-(KEEP_REQUESTS - 1) :]
+    payload = {**_as_dict(request), "earlier": earlier}
     write_bytes_durably(folder / REQUEST_NAME, (json.dumps(payload) + "\n").encode())
     return request
 
 
-def read_request(folder: str | Path) -> ControlRequest | None:
-    """The latest request in the folder, or None (none written, or unreadable: a request is retried by its writer)."""
-    try:
-        data = json.loads((Path(folder) / REQUEST_NAME).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
+def _as_dict(request: ControlRequest) -> dict[str, str]:
+    return {"action": request.action, "id": request.request_id, "requested_at": request.requested_at, "by": request.by}
+
+
+def _from_dict(data: object) -> ControlRequest | None:
     if not isinstance(data, dict) or data.get("action") not in ACTIONS:
         return None
     return ControlRequest(
         str(data["action"]), str(data.get("id", "")), str(data.get("requested_at", "")), str(data.get("by", ""))
     )
+
+
+def read_requests(folder: str | Path) -> list[ControlRequest]:
+    """The folder's recent requests, oldest first ([] when none was written or the file is unreadable)."""
+    try:
+        data = json.loads((Path(folder) / REQUEST_NAME).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return []
+    if not isinstance(data, dict):
+        return []
+    entries = [*(data.get("earlier") or []), data] if isinstance(data.get("earlier", []), list) else [data]
+    return [r for r in map(_from_dict, entries) if r is not None]
+
+
+def read_request(folder: str | Path) -> ControlRequest | None:
+    """The latest request in the folder, or None."""
+    requests = read_requests(folder)
+    return requests[-1] if requests else None
 
 
 def read_state(folder: str | Path) -> dict[str, object]:
@@ -144,12 +164,10 @@ class Checkpoint:
         self.fsr_miss_limit = int(fsr_miss_limit)
         self.poll_s, self.max_pause_s = poll_s, max_pause_s
         self._sleep, self._clock = sleep, clock
-        self._since = _run_started_at(self.folder)
-        stale = read_request(self.folder)
-        if stale is not None and (self._since is None or _parse_time(stale.requested_at) < self._since):
-            self._handled: str | None = stale.request_id  # a request from before this run started or resumed
-        else:
-            self._handled = None
+        since = _run_started_at(self.folder)
+        self._handled = {  # requests from before this run started or resumed are not for it
+            r.request_id for r in read_requests(self.folder) if since is None or _parse_time(r.requested_at) < since
+        }
         self._missed: list[int] = []
         self.pauses = 0
         self._write_state("running", None)
@@ -158,31 +176,32 @@ class Checkpoint:
         payload = {"state": state, "reason": reason, "since": _now_iso(), "pauses": self.pauses, **extra}
         write_bytes_durably(self.folder / STATE_NAME, (json.dumps(payload) + "\n").encode(), fsync=False)
 
-    def _new_request(self) -> ControlRequest | None:
-        request = read_request(self.folder)
-        if request is None or request.request_id == self._handled:
-            return None
-        self._handled = request.request_id
-        return request
+    def _new_requests(self) -> list[ControlRequest]:
+        """Requests not acted on yet, oldest first; from now on they count as handled."""
+        fresh = [r for r in read_requests(self.folder) if r.request_id not in self._handled]
+        self._handled.update(r.request_id for r in fresh)
+        return fresh
 
     def after_press(self, press_id: int, flags: Sequence[str]) -> bool:
         """Called once the press is durable: True to run the next press, False to stop here."""
         self._missed = [*self._missed, press_id] if "fsr_missed" in flags else []
-        request = self._new_request()
-        if request is not None and request.action == "stop":
-            return self._stop(f"stop requested by {request.by}")
+        pause_by: str | None = None
+        for request in self._new_requests():  # in order: a pause then a continue cancel out
+            if request.action == "stop":
+                return self._stop(f"stop requested by {request.by}")
+            pause_by = request.by if request.action == "pause" else None
         if self.fsr_miss_limit > 0 and len(self._missed) >= self.fsr_miss_limit:
             reason = fsr_miss_cause(len(self._missed), self._missed)
             log.warning("campaign paused: %s", reason)
             return self._pause(reason, auto=True)
-        if request is not None and request.action == "pause":
+        if pause_by is not None:
             log.warning(
                 "campaign paused at press %d by %s; continue with: neatskin campaign continue %s",
                 press_id,
-                request.by,
+                pause_by,
                 self.folder,
             )
-            return self._pause(f"pause requested by {request.by}", auto=False)
+            return self._pause(f"pause requested by {pause_by}", auto=False)
         return True
 
     def _stop(self, reason: str) -> bool:
@@ -203,14 +222,16 @@ class Checkpoint:
         while self._clock() < deadline:
             if self._interrupted():
                 return self._stop("Ctrl-C during a pause")
-            request = self._new_request()
-            if request is not None and request.action == "continue":
-                log.warning("campaign continues (%s)", request.by)
+            paused, by = True, ""
+            for request in self._new_requests():  # in order: a continue then a pause stay paused
+                if request.action == "stop":
+                    return self._stop(f"stop requested by {request.by}")
+                paused, by = request.action == "pause", request.by
+            if not paused:
+                log.warning("campaign continues (%s)", by)
                 self._missed = []
                 self._write_state("running", None)
                 return True
-            if request is not None and request.action == "stop":
-                return self._stop(f"stop requested by {request.by}")
             self._sleep(self.poll_s)
         return self._stop(f"paused longer than {self.max_pause_s:.0f} s")
 
