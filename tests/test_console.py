@@ -63,6 +63,22 @@ def test_jog_sends_a_relative_move_and_waits():
     assert s.handle("y+ 500") == ["jog step must be in (0, 100] mm, got 500.0"]
 
 
+def test_a_refused_jog_still_returns_to_absolute_mode():
+    from neatskin.marlin.errors import CommandRejected
+
+    class Refusing(FakeDriver):
+        def send(self, command: str, *, strict: bool = True) -> list[str]:
+            super().send(command, strict=strict)
+            if command.startswith("G0"):
+                raise CommandRejected("'Error: move out of bounds'", last_line=3, last_command=command)
+            return []
+
+    d = Refusing()
+    with pytest.raises(CommandRejected):
+        ConsoleSession(d).handle("z- 50")
+    assert d.sent == ["G91", "G0 Z-50 F300", "G90"]
+
+
 def test_helpers_and_raw_lines():
     d = FakeDriver()
     s = ConsoleSession(d)

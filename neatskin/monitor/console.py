@@ -166,8 +166,12 @@ class ConsoleSession:
         if not (math.isfinite(step) and 0 < step <= 100):
             return [f"jog step must be in (0, 100] mm, got {step}"]
         dist = step if sign == "+" else -step
-        for command in ("G91", f"G0 {axis}{dist:g} F{JOG_FEED_MM_MIN[axis]:g}", "G90", "M400"):
-            self.driver.send(command)
+        self.driver.send("G91")
+        try:
+            self.driver.send(f"G0 {axis}{dist:g} F{JOG_FEED_MM_MIN[axis]:g}")
+        finally:  # a refused jog (beyond a soft limit) must not leave the printer in relative mode
+            self.driver.send("G90")
+        self.driver.send("M400")
         return [_fmt_position(self.driver.position())]
 
     def _step(self, arg: str) -> list[str]:
