@@ -316,3 +316,14 @@ def test_snapshot_json_is_rebuilt_only_when_a_file_changes(tmp_path, killed):
         log.write("2026-01-01T00:00:00.000000Z     9.9 > b'N999 G0 Z42 F300*1\\n'\n")
     again = json.loads(view.snapshot_json())
     assert again["printer"]["Z"] == 42.0 and again["counts"]["done"] == 5
+
+
+def test_a_folder_not_made_yet_is_served_and_a_file_is_refused(tmp_path):
+    server = make_server(tmp_path / "runs" / "not-yet", port=0)
+    try:
+        assert CampaignView(tmp_path / "runs" / "not-yet").snapshot()["status"] == "unknown"
+    finally:
+        server.server_close()
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ConfigError, match="not a campaign folder"):
+        make_server(tmp_path / "file", port=0)

@@ -200,9 +200,11 @@ def make_server(
 ) -> MonitorServer:
     """A monitor server for `folder`, bound but not yet serving. token None and not read_only: a random one."""
     folder = Path(folder)
-    if not (folder.is_dir() or (not folder.exists() and folder.parent.is_dir())):
+    if folder.exists() and not folder.is_dir():  # a folder not made yet is fine: a campaign may be starting
         raise ConfigError(
-            "no such campaign folder", file=str(folder), fix="give the folder `neatskin campaign run --out` wrote"
+            "not a campaign folder (a file)",
+            file=str(folder),
+            fix="give the folder `neatskin campaign run --out` wrote",
         )
     remote = not is_loopback(host)
     if remote and not allow_remote:
