@@ -32,6 +32,12 @@ def register(subparsers) -> None:
     run.add_argument("--limit", type=int, help="stop after this many presses (the campaign stays resumable)")
     run.add_argument("--no-report", action="store_true", help="skip the baseline report at the end")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
+    run.add_argument(
+        "--monitor",
+        action="store_true",
+        help="also serve the live page (neatskin monitor, in its own process) on 127.0.0.1 while it runs",
+    )
+    run.add_argument("--monitor-port", type=int, default=8765, metavar="N", help="the live page's port (default 8765)")
     run.set_defaults(handler=_run)
 
     resume = sub.add_parser("resume", help="finish an interrupted campaign, no press lost or duplicated")
@@ -74,19 +80,46 @@ def _run(args: argparse.Namespace) -> int:
             fix=f"e.g. neatskin campaign run {args.protocol} --dry-run",
         )
     out = args.out or Path("runs") / f"{protocol.name}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
-    result = run_campaign(
-        protocol,
-        out,
-        dry_run=args.dry_run,
-        port=args.port,
-        daq_kind=args.daq,
-        progress=not args.quiet,
-        limit=args.limit,
-        report=not args.no_report,
-        connect_timeout_s=args.connect_timeout,
-    )
+    monitor = _start_monitor(out, args.monitor_port) if args.monitor else None
+    try:
+        result = run_campaign(
+            protocol,
+            out,
+            dry_run=args.dry_run,
+            port=args.port,
+            daq_kind=args.daq,
+            progress=not args.quiet,
+            limit=args.limit,
+            report=not args.no_report,
+            connect_timeout_s=args.connect_timeout,
+        )
+    finally:
+        if monitor is not None:
+            monitor.terminate()
+            monitor.wait(10)
     print(_summary(result))
+    if monitor is not None:
+        print(f"the live page stopped with the campaign; to look again: neatskin monitor {out}")
     return 130 if result.interrupted else 0
+
+
+def _start_monitor(out: Path, port: int):
+    """`neatskin monitor OUT` in its own process (it reads only the folder; it prints its URL and token),
+    waited for (up to 15 s) so its URL is on screen before the first press."""
+    import socket
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "neatskin", "monitor", str(out), "--port", str(port)])
+    deadline = time.monotonic() + 15.0
+    while proc.poll() is None and time.monotonic() < deadline:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
+            break
+        except OSError:
+            time.sleep(0.1)
+    return proc
 
 
 def _resume(args: argparse.Namespace) -> int:

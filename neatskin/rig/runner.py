@@ -283,6 +283,7 @@ def _press_loop(protocol, plan, rig, writer, todo, pair_labels, already_done, pr
     )
     interrupted = False
     with _StopRequest() as stop:
+        checkpoint = _checkpoint(protocol, plan, driver, writer.folder, stop)
         for block in todo:
             row, waveforms = _run_press(protocol, plan, rig, block, pair_labels)
             writer.write_press(row, waveforms)
@@ -294,8 +295,26 @@ def _press_loop(protocol, plan, rig, writer, todo, pair_labels, already_done, pr
                 interrupted = True
                 driver.send_lines(plan.program.postamble[:2] if plan.program.postamble else (), source="lift")
                 break
+            if block is not todo[-1] and not checkpoint.after_press(block.press_id, row["flags"]):
+                interrupted = True
+                break
+        checkpoint.finished("stopped" if interrupted else "finished")
     bar.close()
     return written, flagged, interrupted
+
+
+def _checkpoint(protocol, plan, driver, folder, stop):
+    """The safe point between presses (neatskin.rig.control): pause lifts and waits, stop lifts and parks."""
+    from neatskin.rig.control import DEFAULT_FSR_MISS_LIMIT, Checkpoint
+
+    post = plan.program.postamble  # lift to the safe height, park, lift, M400, done marker
+    return Checkpoint(
+        folder,
+        lift=lambda: driver.send_lines((*post[:1], "M400"), source="pause lift"),
+        park=lambda: driver.send_lines((*post[:3], "M400"), source="stop park"),
+        fsr_miss_limit=getattr(protocol, "fsr_pause_after_misses", DEFAULT_FSR_MISS_LIMIT),
+        interrupted=lambda: stop.requested,
+    )
 
 
 def _hold_lines(hold_s: float) -> tuple[str, ...]:

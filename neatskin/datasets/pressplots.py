@@ -1,0 +1,237 @@
+"""Curator plots of single presses and of drift (PNG, matplotlib Agg): R per pair and the FSR against time for
+one press, from its recorded waveforms (or, without them, from its features), and each pair's baseline R
+against press order.
+
+From waveforms, R per pair and sweep is RMS(V) / RMS(I) over the pair's whole live window (the sweep's slots
+are break, settle, live; their pair order is the manifest's `sweep.pair_order` when recorded, else the layout's
+pair order, which is checked against the press's stored baseline before anything is drawn). Only the ground
+floor and the dataset reader are used: no acquisition code.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from neatskin.datasets.manifest import read_manifest
+from neatskin.datasets.reader import pair_labels_from_columns, read_presses, read_waveforms
+from neatskin.errors import DataError
+
+FIGSIZE_IN = (9.0, 6.5)
+DPI = 100
+SLOT_MATCH_TOLERANCE = 0.05  # a slot's first-sweep R within 5 % of its pair's stored baseline
+
+
+@dataclass(frozen=True)
+class PressSeries:
+    """One press against time: R per sweep and pair, and the FSR signal."""
+
+    press_id: int
+    source: str  # "waveforms" or "features"
+    pairs: tuple[str, ...]
+    time_s: np.ndarray  # (points,) time of each R point, s from the press record's start
+    resistance_ohm: np.ndarray  # (points, pairs)
+    fsr_time_s: np.ndarray  # (fsr points,)
+    fsr: np.ndarray  # (fsr points,) volts (waveforms) or newtons (features: 0, peak, 0)
+    fsr_unit: str
+    onset_s: float | None
+    offset_s: float | None
+
+
+def _row(df: pd.DataFrame, press_id: int, folder: Path) -> pd.Series:
+    rows = df[df["press_id"] == press_id]
+    if rows.empty:
+        ids = df["press_id"].to_numpy()
+        raise DataError(
+            f"no press {press_id} in this dataset",
+            file=str(folder),
+            field="--press",
+            fix=f"give a press id between {ids.min()} and {ids.max()}" if len(ids) else "the dataset has no presses",
+        )
+    return rows.iloc[0]
+
+
+def _opt(value: float | None) -> float | None:
+    return None if value is None or not np.isfinite(value) else float(value)
+
+
+def press_series(folder: str | os.PathLike, press_id: int) -> PressSeries:
+    """R per pair and the FSR against time for `press_id`: from waveforms when the campaign recorded them."""
+    folder = Path(folder)
+    df = read_presses(folder)
+    row = _row(df, press_id, folder)
+    pairs = pair_labels_from_columns(df)
+    labels = tuple(p.label for p in pairs)
+    r = np.array([row[f"R_ohm_{p.i}_{p.j}"] for p in pairs], dtype=float)
+    base = r - np.array([row[f"dR_ohm_{p.i}_{p.j}"] for p in pairs], dtype=float)
+    onset, offset = _opt(row["fsr_onset_s"]), _opt(row["fsr_offset_s"])
+    if (folder / "waveforms").is_dir():
+        return _from_waveforms(folder, press_id, labels, base, onset, offset)
+    # features only: the baseline until the FSR onset, the pressed value until its offset, then the baseline
+    t_on = onset if onset is not None else 1.0
+    t_off = offset if offset is not None else t_on + 1.0
+    time_s = np.array([0.0, t_on, t_on, t_off, t_off, t_off + t_on])
+    resistance = np.vstack([base, base, r, r, base, base])
+    peak = _opt(row["fsr_peak_n"]) or 0.0
+    return PressSeries(
+        press_id,
+        "features",
+        labels,
+        time_s,
+        resistance,
+        np.array([0.0, t_on, t_on, t_off, t_off, t_off + t_on]),
+        np.array([0.0, 0.0, peak, peak, 0.0, 0.0]),
+        "N (peak)",
+        onset,
+        offset,
+    )
+
+
+def _from_waveforms(folder, press_id, labels, baseline_ohm, onset, offset) -> PressSeries:
+    sweep = read_manifest(folder).get("sweep") or {}
+    try:
+        rate = float(sweep["rate_hz"])
+        n = int(sweep["samples"])
+        settle, live = int(sweep["settle_samples"]), int(sweep["live_samples"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DataError(
+            f"the manifest's sweep lacks {exc}",
+            file=str(folder / "manifest.json"),
+            field="sweep",
+            fix="plot from a campaign written by `neatskin campaign run`",
+        ) from exc
+    n_pairs = len(labels)
+    slot = n // n_pairs
+    order = np.asarray(sweep.get("pair_order", range(n_pairs)), dtype=int)
+    wave = read_waveforms(folder, [press_id])
+    v, i = wave["voltage_v"].to_numpy(float), wave["current_a"].to_numpy(float)
+    n_sweeps = len(v) // n
+    if n_sweeps < 1 or slot * n_pairs != n or slot < settle + live or sorted(order) != list(range(n_pairs)):
+        raise DataError(
+            f"press {press_id}'s {len(v)} samples do not split into sweeps of {n} samples ({n_pairs} slots)",
+            file=str(folder / "waveforms"),
+            fix="plot it from features: move the waveforms folder aside",
+        )
+    start = np.arange(n_pairs) * slot + (slot - live)  # break and settle come first in a slot
+    idx = start[:, None] + np.arange(live)[None, :]  # (slots, live)
+    v_s = v[: n_sweeps * n].reshape(n_sweeps, n)[:, idx]  # (sweeps, slots, live)
+    i_s = i[: n_sweeps * n].reshape(n_sweeps, n)[:, idx]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r_slots = np.sqrt((v_s**2).mean(axis=2)) / np.sqrt((i_s**2).mean(axis=2))
+    r = np.empty_like(r_slots)
+    r[:, order] = r_slots
+    ok = np.isfinite(baseline_ohm) & np.isfinite(r[0])
+    rel = np.abs(r[0][ok] / baseline_ohm[ok] - 1.0)
+    if rel.size and rel.max() > SLOT_MATCH_TOLERANCE:
+        worst = labels[int(np.flatnonzero(ok)[np.argmax(rel)])]
+        raise DataError(
+            f"the first sweep's R of pair {worst} is {rel.max():.0%} off its stored baseline: the sweep's pair "
+            "order is not the layout's",
+            file=str(folder / "manifest.json"),
+            field="sweep.pair_order",
+            fix="record the mux visiting order as sweep.pair_order in the manifest",
+        )
+    time_s = (np.arange(n_sweeps)[:, None] * n + idx.mean(axis=1)[None, :]) / rate  # (sweeps, slots)
+    mid = time_s[:, order.argsort()].mean(axis=1)
+    fsr = wave["fsr_v"].to_numpy(float)
+    return PressSeries(press_id, "waveforms", labels, mid, r, np.arange(len(fsr)) / rate, fsr, "V", onset, offset)
+
+
+def plot_press(folder: str | os.PathLike, press_id: int, out: str | os.PathLike) -> Path:
+    """PNG of one press: the FSR (top) and R of every pair (bottom) against time, FSR onset/offset marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    s = press_series(folder, press_id)
+    fig, (ax_f, ax_r) = plt.subplots(2, 1, figsize=FIGSIZE_IN, sharex=True, height_ratios=(1, 2.2))
+    ax_f.plot(s.fsr_time_s, s.fsr, color="0.25", lw=0.8)
+    ax_f.set_ylabel(f"FSR ({s.fsr_unit})")
+    change = np.abs(s.resistance_ohm.max(axis=0) - s.resistance_ohm.min(axis=0))
+    top = set(np.argsort(np.nan_to_num(change, nan=-1.0))[-5:])
+    highlight = iter(f"C{k}" for k in range(10))  # the default colour cycle
+    for k, label in enumerate(s.pairs):
+        ax_r.plot(
+            s.time_s,
+            s.resistance_ohm[:, k],
+            color=next(highlight) if k in top else "0.72",
+            lw=1.5 if k in top else 0.7,
+            label=label if k in top else None,
+            marker="." if s.source == "waveforms" else None,
+            ms=3,
+            zorder=3 if k in top else 2,
+        )
+    for ax in (ax_f, ax_r):
+        for t, name in ((s.onset_s, "FSR onset"), (s.offset_s, "FSR offset")):
+            if t is not None:
+                ax.axvline(t, color="tab:red", ls="--", lw=0.8)
+                if ax is ax_f:
+                    ax.annotate(
+                        name,
+                        (t, 1.0),
+                        xycoords=("data", "axes fraction"),
+                        fontsize=8,
+                        color="tab:red",
+                        ha="left",
+                        va="bottom",
+                    )
+    ax_r.set_ylabel("R per pair (ohm)")
+    ax_r.set_xlabel("time since the press record began (s)")
+    ax_r.legend(title="5 largest changes (others grey)", fontsize=8, title_fontsize=8, loc="upper right")
+    note = "one point per sweep (RMS over each pair's live window)" if s.source == "waveforms" else "from features"
+    fig.suptitle(f"press {s.press_id}: R of {len(s.pairs)} pairs and FSR ({s.source}; {note})", fontsize=10)
+    fig.tight_layout()
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=DPI)
+    plt.close(fig)
+    return out
+
+
+def baseline_drift_pct(df: pd.DataFrame) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:
+    """(press ids, pair labels, (presses, pairs) baseline R = R - dR as % change from each pair's first press)."""
+    df = df.sort_values("press_id", kind="stable")
+    pairs = pair_labels_from_columns(df)
+    r = df[[f"R_ohm_{p.i}_{p.j}" for p in pairs]].to_numpy(float)
+    dr = df[[f"dR_ohm_{p.i}_{p.j}" for p in pairs]].to_numpy(float)
+    base = r - dr
+    first = base[0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pct = 100.0 * (base / first - 1.0)
+    return df["press_id"].to_numpy(int), tuple(p.label for p in pairs), pct
+
+
+def plot_drift(folder: str | os.PathLike, out: str | os.PathLike) -> Path:
+    """PNG of every pair's baseline R against press order (% from its first press), the median across pairs bold."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ids, labels, pct = baseline_drift_pct(read_presses(folder))
+    fig, ax = plt.subplots(figsize=(FIGSIZE_IN[0], 4.5))
+    cmap = plt.get_cmap("viridis")
+    for k in range(len(labels)):
+        ax.plot(ids, pct[:, k], color=cmap(k / max(len(labels) - 1, 1)), lw=0.7, alpha=0.6)
+    with np.errstate(all="ignore"):
+        median = np.nanmedian(np.where(np.isfinite(pct), pct, np.nan), axis=1)
+    ax.plot(ids, median, color="k", lw=2.0, label="median over pairs")
+    ax.axhline(0.0, color="0.5", lw=0.6)
+    ax.set_xlabel("press id (order pressed)")
+    ax.set_ylabel("baseline R (R - dR): % from first press")
+    ax.legend(fontsize=8)
+    span = np.nanmax(np.abs(pct[np.isfinite(pct)])) if np.isfinite(pct).any() else 0.0
+    ax.set_title(
+        f"baseline drift of {len(labels)} pairs over {len(ids)} presses (largest |change| {span:.3f} %)", fontsize=10
+    )
+    fig.tight_layout()
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=DPI)
+    plt.close(fig)
+    return out

@@ -1,0 +1,207 @@
+"""`neatskin printer console`: the commands on a fake driver (exact lines sent), then the real console over the
+simulated printer's pty, driven by scripted keystrokes (pexpect): jog keys, history, calibration points, Ctrl-C."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from neatskin.cli import main
+from neatskin.monitor.console import ConsoleSession
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@dataclass(frozen=True)
+class Pos:
+    x_mm: float
+    y_mm: float
+    z_mm: float
+
+
+class FakeDriver:
+    def __init__(self) -> None:
+        self.sent: list[str] = []
+        self.pos = Pos(0.0, 0.0, 0.0)
+        self.interrupt_on: str | None = None
+        self.stopped = False
+
+    def send(self, command: str, *, strict: bool = True) -> list[str]:
+        self.sent.append(command)
+        if command == self.interrupt_on:
+            self.interrupt_on = None
+            raise KeyboardInterrupt
+        return ["echo:fake"] if command.startswith("M503") else []
+
+    def position(self) -> Pos:
+        self.sent.append("M114")
+        return self.pos
+
+    def endstops(self) -> dict[str, bool]:
+        self.sent.append("M119")
+        return {"x_min": False, "z_min": True}
+
+    def emergency_stop(self) -> None:
+        self.stopped = True
+
+
+def test_jog_sends_a_relative_move_and_waits():
+    d = FakeDriver()
+    s = ConsoleSession(d)
+    assert s.handle("x+ 10") == ["X0.000 Y0.000 Z0.000"]
+    assert d.sent == ["G91", "G0 X10 F3000", "G90", "M400", "M114"]
+    d.sent.clear()
+    s.handle("step 0.1")
+    s.handle("z-")
+    assert d.sent == ["G91", "G0 Z-0.1 F300", "G90", "M400", "M114"]
+    assert s.handle("y+ 500") == ["jog step must be in (0, 100] mm, got 500.0"]
+
+
+def test_a_refused_jog_still_returns_to_absolute_mode():
+    from neatskin.marlin.errors import CommandRejected
+
+    class Refusing(FakeDriver):
+        def send(self, command: str, *, strict: bool = True) -> list[str]:
+            super().send(command, strict=strict)
+            if command.startswith("G0"):
+                raise CommandRejected("'Error: move out of bounds'", last_line=3, last_command=command)
+            return []
+
+    d = Refusing()
+    with pytest.raises(CommandRejected):
+        ConsoleSession(d).handle("z- 50")
+    assert d.sent == ["G91", "G0 Z-50 F300", "G90"]
+
+
+def test_helpers_and_raw_lines():
+    d = FakeDriver()
+    s = ConsoleSession(d)
+    assert s.handle("m119") == ["x_min:open z_min:TRIGGERED"]
+    assert s.handle("M503") == ["echo:fake", "ok"]
+    assert d.sent == ["M119", "M503"]
+    assert "step MM" in "\n".join(s.handle("help"))
+    assert any("M410" in line for line in s.handle("help ctrl-c"))
+
+
+def test_points_give_the_block_gcode_calibrate_prints(tmp_path, capsys):
+    d = FakeDriver()
+    s = ConsoleSession(d, calibration_out=tmp_path / "cal.toml")
+    assert s.handle("point 0 0")[0] == "point 1: sensor (0, 0) = printer X0.000 Y0.000 Z0.000"
+    assert s.handle("undo") == ["dropped point 1: 0,0,0,0,0"]
+    d.pos = Pos(95.2, 94.8, 5.6)
+    s.handle("point 0 0")
+    d.pos = Pos(125.2, 95.3, 5.5)
+    s.handle("point 30 0")
+    d.pos = Pos(95.0, 124.9, 5.7)
+    s.handle("point 0 30")
+    block = s.handle("calibration")
+    points = ["0,0,95.2,94.8,5.6", "30,0,125.2,95.3,5.5", "0,30,95,124.9,5.7"]
+    assert block[-1] == "# from: neatskin gcode calibrate " + " ".join(f"--point {p}" for p in points)
+    main(["gcode", "calibrate"] + [a for p in points for a in ("--point", p)])
+    assert capsys.readouterr().out.splitlines() == block[:-1]
+    assert s.handle("save") == [f"wrote {tmp_path / 'cal.toml'}: paste its [calibration] into the printer profile"]
+    assert (tmp_path / "cal.toml").read_text().splitlines() == block
+
+
+def test_ctrl_c_waits_for_the_move_then_lifts():
+    d = FakeDriver()
+    d.pos = Pos(10.0, 20.0, 1.5)
+    s = ConsoleSession(d, lift_mm=5.0)
+    out = s.halt()
+    assert d.sent == ["M400", "M114", "G90", "G0 Z6.500 F300", "M400", "M114"]
+    assert out[-1] == "halted and lifted 5 mm: X10.000 Y20.000 Z1.500" and not d.stopped
+
+
+def test_second_ctrl_c_sends_m112():
+    d = FakeDriver()
+    d.interrupt_on = "M400"
+    s = ConsoleSession(d)
+    out = s.halt()
+    assert d.stopped and s.done and "M112 sent" in out[-1]
+
+
+# ---- the real console over the simulated printer's pty ---------------------------------------------------------
+
+pexpect = pytest.importorskip("pexpect", reason="pexpect drives the console with keystrokes (pip install pexpect)")
+
+
+@pytest.fixture
+def sim_printer():
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "neatskin", "sim", "printer", "--speed", "20"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
+    )
+    assert proc.stdout is not None
+    path = proc.stdout.readline().strip()
+    assert path.startswith("/dev/"), path
+    yield path
+    proc.terminate()
+    proc.wait(30)
+
+
+def test_console_over_the_simulated_printer(sim_printer, tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "PROMPT_TOOLKIT_NO_CPR": "1", "TERM": "xterm"}
+    history = tmp_path / "history"
+    child = pexpect.spawn(
+        sys.executable,
+        ["-m", "neatskin", "printer", "console", "--port", sim_printer, "--history", str(history)]
+        + ["--calibration-out", str(tmp_path / "cal.toml")],
+        env=env,
+        encoding="utf-8",
+        timeout=60,
+        dimensions=(40, 140),
+    )
+
+    def run(keys: str, expect: str, *, line: bool = True) -> None:
+        """Type `keys` (and Enter), wait for `expect` in the output, then for the next prompt."""
+        child.send(keys + ("\r" if line else ""))
+        child.expect_exact(expect)
+        child.expect_exact("marlin>")
+
+    try:
+        child.expect_exact("marlin>")
+        run("home", "X0.000 Y0.000 Z0.000")
+        run("x+ 20", "X20.000 Y0.000 Z0.000")
+        run("step 5", "jog step 5 mm")
+        run("\x1b\x1b[A", "X20.000 Y5.000 Z0.000", line=False)  # Alt+Up: Y+ by the step
+        run("\x1b\x1b[5~", "X20.000 Y5.000 Z5.000", line=False)  # Alt+PageUp: Z+
+        run("z- 5", "X20.000 Y5.000 Z0.000")
+        run("point 0 0", "point 1: sensor (0, 0) = printer X20.000 Y5.000 Z0.000")
+        run("x+ 30", "X50.000 Y5.000 Z0.000")
+        run("point 30 0", "point 2: sensor (30, 0) = printer X50.000 Y5.000 Z0.000")
+        run("save", "wrote")
+        run("M114", "X50.000 Y5.000 Z0.000")  # the M114 helper
+        run("\x1b[A" * 4, "X80.000 Y5.000 Z0.000")  # history: 4 x Up recalls `x+ 30`, Enter runs it
+        # Ctrl-C while the printer is busy with a long move: the move finishes, then the probe lifts 5 mm
+        run("G1 X150 F60", "ok")  # 70 mm at 1 mm/s: 70 s, 3.5 s at 20x; acknowledged at once, still moving
+        child.send("M400\r")  # waits for the move
+        child.expect_exact("\x1b[?2004l")  # prompt_toolkit left the prompt: M400 is in flight
+        time.sleep(0.5)  # let it hand the terminal back (cooked mode, so ^C is a SIGINT)
+        child.sendintr()
+        child.expect_exact("Ctrl-C: letting the move in flight finish (no M410 quickstop), then lifting the probe")
+        child.expect_exact("halted and lifted 5 mm: X150.000 Y5.000 Z5.000")
+        child.expect_exact("marlin>")
+        run("pos", "X150.000 Y5.000 Z5.000")
+        child.send("quit\r")
+        child.expect(pexpect.EOF)
+    finally:
+        child.close(force=True)
+    assert (tmp_path / "cal.toml").read_text().splitlines()[:5] == [
+        "[calibration]",
+        "offset_x_mm = 20.000",
+        "offset_y_mm = 5.000",
+        "rotation_deg = 0.0000",
+        "surface_z_mm = 0.000",
+    ]
+    typed = [line[1:] for line in history.read_text().splitlines() if line.startswith("+")]
+    assert typed[:3] == ["home", "x+ 20", "step 5"] and typed[-2:] == ["pos", "quit"]

@@ -1,0 +1,89 @@
+"""Curator plots (neatskin.datasets.pressplots): one press's R per pair and FSR against time from waveforms or
+features, and the baseline drift per pair against press order."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from neatskin.datasets.pressplots import baseline_drift_pct, plot_drift, plot_press, press_series
+from neatskin.datasets.reader import read_presses
+from neatskin.errors import DataError
+from neatskin.tomlfile import resolve_path
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory) -> Path:
+    from neatskin.rig.protocol import load_protocol
+    from neatskin.rig.runner import run_campaign
+
+    folder = tmp_path_factory.mktemp("plots") / "smoke"
+    run_campaign(load_protocol(resolve_path("protocols/smoke.toml")), folder, progress=False, report=False)
+    return folder
+
+
+def _png_size(path: Path) -> tuple[int, int]:
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    return struct.unpack(">II", data[16:24])
+
+
+def test_press_series_from_waveforms_matches_the_stored_row(campaign):
+    df = read_presses(campaign)
+    row = df[df["press_id"] == 3].iloc[0]
+    s = press_series(campaign, 3)
+    assert s.source == "waveforms" and len(s.pairs) == 28 and s.pairs[0] == "1-2"
+    sweeps = json.loads((campaign / "manifest.json").read_text())["sweep"]["sweeps_per_press"]
+    assert s.resistance_ohm.shape == (sweeps, 28) and s.time_s.shape == (sweeps,)
+    assert np.all(np.diff(s.time_s) > 0)
+    stored_r = np.array([row[f"R_ohm_{p.replace('-', '_')}"] for p in s.pairs])
+    stored_base = stored_r - np.array([row[f"dR_ohm_{p.replace('-', '_')}"] for p in s.pairs])
+    np.testing.assert_allclose(s.resistance_ohm[0], stored_base, rtol=1e-3)  # first sweep: before contact
+    closest = np.abs(s.resistance_ohm - stored_r).min(axis=0) / stored_r  # a sweep on the hold's plateau
+    assert closest.max() < 1e-3
+    assert s.fsr_unit == "V" and len(s.fsr) == sweeps * 3416 and s.fsr.max() > 1.0 > s.fsr[0]
+    assert s.onset_s == pytest.approx(row["fsr_onset_s"]) and s.offset_s == pytest.approx(row["fsr_offset_s"])
+
+
+def test_press_series_from_features_without_waveforms(campaign, tmp_path):
+    folder = tmp_path / "features"
+    shutil.copytree(campaign, folder, ignore=shutil.ignore_patterns("waveforms"))
+    s = press_series(folder, 3)
+    row = read_presses(folder).set_index("press_id").loc[3]
+    assert s.source == "features" and s.resistance_ohm.shape == (6, 28)
+    assert s.resistance_ohm[2, 0] == row["R_ohm_1_2"] and s.resistance_ohm[0, 0] == row["R_ohm_1_2"] - row["dR_ohm_1_2"]
+    assert s.time_s[1] == row["fsr_onset_s"] and s.fsr.max() == row["fsr_peak_n"]
+
+
+def test_a_wrong_pair_order_is_caught_not_drawn(campaign, tmp_path):
+    folder = tmp_path / "reordered"
+    shutil.copytree(campaign, folder)
+    manifest = json.loads((folder / "manifest.json").read_text())
+    manifest["sweep"]["pair_order"] = list(range(27, -1, -1))
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(DataError, match=r"sweep.pair_order"):
+        press_series(folder, 3)
+
+
+def test_unknown_press_id_names_the_range(campaign):
+    with pytest.raises(DataError, match=r"no press 99 .*between 0 and 11"):
+        press_series(campaign, 99)
+
+
+def test_baseline_drift_is_r_minus_dr_against_the_first_press(campaign):
+    df = read_presses(campaign)
+    ids, labels, pct = baseline_drift_pct(df)
+    assert ids.tolist() == list(range(12)) and labels[-1] == "7-8" and pct.shape == (12, 28)
+    base = df["R_ohm_7_8"].to_numpy() - df["dR_ohm_7_8"].to_numpy()
+    np.testing.assert_allclose(pct[:, -1], 100 * (base / base[0] - 1))
+    assert np.all(pct[0] == 0.0)
+
+
+def test_plots_are_written(campaign, tmp_path):
+    assert _png_size(plot_press(campaign, 3, tmp_path / "press-3.png")) == (900, 650)
+    assert _png_size(plot_drift(campaign, tmp_path / "drift.png")) == (900, 450)
