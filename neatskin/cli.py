@@ -22,6 +22,7 @@ COMMAND_MODULES = (
     "neatskin.rig.cli",
     "neatskin.datasets.cli",
     "neatskin.baselines.cli",
+    "neatskin.design.cli",
 )
 
 

@@ -27,7 +27,6 @@ from neatskin.skin.deformation import PinchParams, nearest_point_factor, resista
 FIDELITIES = ("network", "deformation")
 DENSE_MAX_JUNCTIONS = 3000  # Z is junctions^2 floats: 72 MB at 3000
 _STEP_MM = 1e-3
-_CHUNK_ELEMENTS = 2_000_000  # presses x channels per factor evaluation
 
 
 @dataclass(frozen=True)
@@ -95,8 +94,23 @@ def grounded_inverse(layout: Layout, conductance_s: np.ndarray | None = None) ->
     return z
 
 
+@dataclass(frozen=True)
+class ChannelSubset:
+    """The part of a layout the deformation model reads (geometry of some channels, skin thickness and channel
+    depth): the channels within reach of one tile of presses, so a big grid costs presses x nearby channels."""
+
+    xy_mm: np.ndarray
+    channel_ends: np.ndarray
+    thickness_mm: float
+    channel_depth_mm: float
+
+    @property
+    def n_channels(self) -> int:
+        return int(self.channel_ends.shape[0])
+
+
 def channel_factors(
-    layout: Layout,
+    layout: Layout | ChannelSubset,
     x_mm: np.ndarray,
     y_mm: np.ndarray,
     depth_mm: np.ndarray,
@@ -117,7 +131,14 @@ def channel_factors(
     xs = (x_mm[None] + dx[:, None]).ravel()
     ys = (y_mm[None] + dy[:, None]).ravel()
     ds = (depth_mm[None] + dd[:, None]).ravel()
-    return factor(layout, xs, ys, ds, probe_radius_mm, pinch).reshape(7, n, layout.n_channels)
+    out = factor(layout, xs, ys, ds, probe_radius_mm, pinch)  # type: ignore[arg-type]  # duck-typed subset
+    return out.reshape(7, n, layout.n_channels)
+
+
+def reach_mm(layout: Layout, probe_radius_mm: float, depth_mm: float, pinch: PinchParams = PinchParams()) -> float:
+    """Beyond this horizontal distance from the probe axis a channel's factor is exactly 1 (pinch < 1e-16)."""
+    decay = pinch.decay_ratio * (layout.channel_depth_mm + depth_mm + _STEP_MM)
+    return probe_radius_mm + 6.2 * decay + 1.0
 
 
 def press_jacobian(
@@ -130,39 +151,46 @@ def press_jacobian(
     fidelity: str = "network",
     z: np.ndarray | None = None,
 ) -> PressJacobian:
-    """The adjoint sensitivities of every press (x_mm, y_mm at depth_mm) for the candidate `junctions` (indices)."""
+    """The adjoint sensitivities of every press (x_mm, y_mm at depth_mm) for the candidate `junctions` (indices).
+
+    Presses are processed in square tiles of about TILE_PRESSES presses, each against only the channels within
+    reach of the tile, so the cost grows with presses x nearby channels, not presses x all channels."""
     x = np.asarray(x_mm, float).ravel()
     y = np.asarray(y_mm, float).ravel()
     depth = np.broadcast_to(np.asarray(depth_mm, float), x.shape).copy()
     junctions = np.asarray(junctions, dtype=np.intp)
     z = grounded_inverse(layout) if z is None else z
     ends = layout.channel_ends
-    t = z[ends[:, 0]] - z[ends[:, 1]]  # (C, junctions): B^T Z
-    t_cand = t[:, junctions]
-    r0 = layout.channel_resistance_ohm
+    t_cand = z[ends[:, 0]][:, junctions] - z[ends[:, 1]][:, junctions]  # (C, J): B^T Z for the candidates
     z_jj = z[np.ix_(junctions, junctions)]
     diag = np.diag(z_jj)
     baseline = diag[:, None] + diag[None, :] - 2.0 * z_jj
-    chunk = max(1, _CHUNK_ELEMENTS // (7 * layout.n_channels))
-    parts = [
-        _press_chunk(
-            layout,
-            z,
-            t,
-            t_cand,
-            r0,
-            x[s : s + chunk],
-            y[s : s + chunk],
-            depth[s : s + chunk],
-            probe_radius_mm,
-            fidelity,
-        )
-        for s in range(0, x.shape[0], chunk)
-    ]
+    reach = reach_mm(layout, probe_radius_mm, float(depth.max(initial=0.0)))
+    parts = []
+    order = _tile_order(x, y)
+    for tile in order:
+        parts.append(_press_chunk(layout, z, t_cand, x[tile], y[tile], depth[tile], probe_radius_mm, fidelity, reach))
     k_max = max(p[0].shape[1] for p in parts)
     padded = [tuple(_pad(arr, k_max) for arr in p) for p in parts]
-    weights, conductance, d_res, unpressed, delta_g = (np.concatenate(list(col)) for col in zip(*padded))
+    stacked = [np.concatenate(list(col)) for col in zip(*padded)]
+    back = np.argsort(np.concatenate(order), kind="stable")
+    weights, conductance, d_res, unpressed, delta_g = (arr[back] for arr in stacked)
     return PressJacobian(junctions, weights, conductance, d_res, baseline, unpressed, delta_g)
+
+
+TILE_PRESSES = 64
+
+
+def _tile_order(x: np.ndarray, y: np.ndarray) -> list[np.ndarray]:
+    """Press indices grouped into square tiles of about TILE_PRESSES presses."""
+    span_x, span_y = float(np.ptp(x)) + 1e-9, float(np.ptp(y)) + 1e-9
+    side = max(np.sqrt(span_x * span_y * TILE_PRESSES / max(x.size, 1)), 1e-6)
+    tx = np.floor((x - x.min()) / side).astype(np.int64)
+    ty = np.floor((y - y.min()) / side).astype(np.int64)
+    key = ty * (int(tx.max()) + 1) + tx
+    order = np.argsort(key, kind="stable")
+    cuts = np.flatnonzero(np.diff(key[order])) + 1
+    return np.split(order, cuts)
 
 
 def _pad(arr: np.ndarray, k: int) -> np.ndarray:
@@ -173,15 +201,28 @@ def _pad(arr: np.ndarray, k: int) -> np.ndarray:
     return np.pad(arr, width)
 
 
-def _press_chunk(layout, z, t, t_cand, r0, x, y, depth, probe_radius_mm, fidelity):
-    f = channel_factors(layout, x, y, depth, probe_radius_mm, fidelity)
-    touched = np.any(f != 1.0, axis=0)  # (n, C)
+def _nearby_channels(layout: Layout, x: np.ndarray, y: np.ndarray, reach: float) -> np.ndarray:
+    """Channels whose bounding box comes within `reach` of the presses' bounding box."""
+    xy = layout.xy_mm
+    a, b = xy[layout.channel_ends[:, 0]], xy[layout.channel_ends[:, 1]]
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    near = (lo[:, 0] <= x.max() + reach) & (hi[:, 0] >= x.min() - reach)
+    near &= (lo[:, 1] <= y.max() + reach) & (hi[:, 1] >= y.min() - reach)
+    return np.flatnonzero(near)
+
+
+def _press_chunk(layout, z, t_cand, x, y, depth, probe_radius_mm, fidelity, reach):
+    near = _nearby_channels(layout, x, y, reach)
+    subset = ChannelSubset(layout.xy_mm, layout.channel_ends[near], layout.thickness_mm, layout.channel_depth_mm)
+    f = channel_factors(subset, x, y, depth, probe_radius_mm, fidelity)
+    touched = np.any(f != 1.0, axis=0)  # (n, near)
     k = max(1, int(touched.sum(axis=1).max()))
-    order = np.argsort(~touched, axis=1, kind="stable")[:, :k]  # touched channels first
-    live = np.take_along_axis(touched, order, axis=1)
+    local = np.argsort(~touched, axis=1, kind="stable")[:, :k]  # touched channels first
+    live = np.take_along_axis(touched, local, axis=1)
     rows = np.arange(x.shape[0])[:, None]
-    fk = f[:, rows, order]  # (7, n, k)
-    r0k = r0[order]
+    fk = f[:, rows, local]  # (7, n, k)
+    order = near[local]  # global channel indices
+    r0k = layout.channel_resistance_ohm[order]
     h = 2.0 * _STEP_MM
     with np.errstate(invalid="ignore"):
         d_res = np.stack([fk[1] - fk[2], fk[3] - fk[4], fk[5] - fk[6]], axis=-1) * (r0k / h)[..., None]
