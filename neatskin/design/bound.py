@@ -17,6 +17,7 @@ import numpy as np
 
 CRITERIA = ("D", "A")
 _SINGULAR = 1e-12
+RELATIVE_RIDGE = 1e-8
 
 
 @dataclass(frozen=True)
@@ -83,12 +84,17 @@ def bound_mm(info2: np.ndarray) -> np.ndarray:
 
 def criterion(info2: np.ndarray, kind: str, ridge: float) -> np.ndarray:
     """Placement criterion, lower is better, averaged over the press axis (-2 after the (2, 2) block):
-    D: -mean log det(F + ridge I); A: mean trace((F + ridge I)^-1) (the mean squared bound, in mm^2).
-    The ridge keeps presses no pair sees finite, so a greedy search can start from two electrodes."""
+    D: -mean log det(F + r I); A: mean trace((F + r I)^-1) (the mean squared bound, in mm^2).
+
+    r = ridge + RELATIVE_RIDGE * trace(F) per press. The absolute ridge keeps presses no pair sees finite (so a
+    greedy search can start from two electrodes); the relative one caps a press's condition number near 1e8,
+    below which the rounding of F (summed in whatever order) no longer decides the score: along a channel the
+    weak direction's information can be 1e-16 of the strong one's, pure rounding noise."""
     if kind not in CRITERIA:
         raise ValueError(f"criterion must be one of {CRITERIA}, got {kind!r}")
-    a = info2[..., 0, 0] + ridge
-    d = info2[..., 1, 1] + ridge
+    a0, d0 = info2[..., 0, 0], info2[..., 1, 1]
+    r = ridge + RELATIVE_RIDGE * (a0 + d0)
+    a, d = a0 + r, d0 + r
     b = info2[..., 0, 1]
     det = np.maximum(a * d - b * b, np.finfo(float).tiny)
     if kind == "D":
