@@ -81,6 +81,7 @@ def run_study(
     progress: Progress | None = None,
     on_result: Callable[[CandidateResult], None] | None = None,
     pngs: bool = True,
+    connect_timeout_s: float = 20.0,
 ) -> pd.DataFrame:
     """Evaluate every candidate not yet done in out_dir, durably, then write candidates.parquet and report.md.
 
@@ -115,7 +116,7 @@ def run_study(
     log.info("study %s: %d candidates, %d already done", study.name, len(candidates), done)
     if progress is not None:
         progress(done, len(candidates))
-    for result in _results(study, todo, jobs, scheduler, address):
+    for result in _results(study, todo, jobs, scheduler, address, connect_timeout_s):
         write_candidate(out, result, png=pngs)
         done += 1
         if on_result is not None:
@@ -138,12 +139,12 @@ def collect(out_dir: Path, candidates: list[Candidate]) -> pd.DataFrame:
 
 
 def _results(
-    study: Study, todo: list[Candidate], jobs: int, scheduler: str, address: str | None
+    study: Study, todo: list[Candidate], jobs: int, scheduler: str, address: str | None, timeout_s: float
 ) -> Iterator[CandidateResult]:
     if not todo:
         return
     if scheduler == "dask":
-        yield from _dask_results(study, todo, address or "")
+        yield from _dask_results(study, todo, address or "", timeout_s)
     elif jobs == 1:
         for candidate in todo:
             yield evaluate_candidate(study, candidate)
@@ -154,7 +155,7 @@ def _results(
         yield from parallel(delayed(evaluate_candidate)(study, c) for c in todo)
 
 
-def _dask_results(study: Study, todo: list[Candidate], address: str) -> Iterator[CandidateResult]:
+def _dask_results(study: Study, todo: list[Candidate], address: str, timeout_s: float) -> Iterator[CandidateResult]:
     try:
         from distributed import Client, as_completed
     except ImportError as exc:
@@ -164,7 +165,7 @@ def _dask_results(study: Study, todo: list[Candidate], address: str) -> Iterator
             fix="pip install 'neatskin-rig[cluster]'",
         ) from exc
     try:
-        client = Client(address, timeout="20s", set_as_default=False)
+        client = Client(address, timeout=f"{timeout_s}s", set_as_default=False)
     except OSError as exc:
         raise ConfigError(
             f"cannot reach the Dask scheduler at {address}: {exc}",
@@ -172,12 +173,12 @@ def _dask_results(study: Study, todo: list[Candidate], address: str) -> Iterator
             fix="start the cluster (dask scheduler / dask worker) or correct the address",
         ) from exc
     try:
-        scattered = client.scatter(study, broadcast=True)
+        # the study is small: it travels with each task, so a restarted worker needs nothing scattered
         futures = [
-            client.submit(evaluate_candidate, scattered, c, key=f"design-{c.candidate_id}", pure=False, retries=2)
+            client.submit(evaluate_candidate, study, c, key=f"design-{c.candidate_id}", pure=False, retries=2)
             for c in todo
         ]
-        for future in as_completed(futures):
+        for future in as_completed(futures, loop=client.loop):
             yield future.result()
             future.release()
     finally:
