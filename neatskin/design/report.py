@@ -137,6 +137,49 @@ def _fmt(value: float, digits: int = 3) -> str:
     return f"{value:.{digits}g}"
 
 
+def _comparison(frame: pd.DataFrame, learned: bool) -> list[str]:
+    """Boundary against optimised placement at each electrode count on each skin (where the study has both)."""
+    both = frame[frame["strategy"].isin(["boundary", "optimised"])]
+    keys = [*SKIN_COLUMNS, "electrodes"]
+    rows = []
+    for key, group in both.groupby(keys, sort=False):
+        by = group.set_index("strategy")
+        if not {"boundary", "optimised"} <= set(by.index):
+            continue
+        b, o = by.loc["boundary"], by.loc["optimised"]
+        cells = [
+            f"{key[0]} x {key[1]}",
+            str(key[-1]),
+            f"{_fmt(b['bound_median_mm'])} -> {_fmt(o['bound_median_mm'])} "
+            f"({(o['bound_median_mm'] / b['bound_median_mm'] - 1) * 100:+.0f} %)",
+            f"{_fmt(b['bound_p90_mm'])} -> {_fmt(o['bound_p90_mm'])}",
+            f"{_fmt(b['bound_mean_capped_mm'])} -> {_fmt(o['bound_mean_capped_mm'])}",
+            f"`{o['electrode_nodes']}`",
+        ]
+        if learned:
+            cells.insert(
+                5,
+                f"{_fmt(b['learned_error_mean_mm'])} +- {_fmt(b['learned_error_std_mm'], 2)} -> "
+                f"{_fmt(o['learned_error_mean_mm'])} +- {_fmt(o['learned_error_std_mm'], 2)}",
+            )
+        rows.append("| " + " | ".join(cells) + " |")
+    if not rows:
+        return []
+    head = "| skin | electrodes | bound median (mm) | bound p90 (mm) | capped mean (mm) |"
+    head += " learned (mm, mean +- std over seeds) |" if learned else ""
+    head += " optimised junctions (i,j) |"
+    return [
+        "",
+        "## Boundary against optimised placement",
+        "",
+        "Boundary -> optimised, same skin, same electrode count (so the same sweep time).",
+        "",
+        head,
+        "|" + "---|" * (head.count("|") - 1),
+        *rows,
+    ]
+
+
 def write_report(out_dir: Path, study: Study, frame: pd.DataFrame) -> None:
     from neatskin.datasets.durable import write_bytes_durably
 
@@ -199,6 +242,7 @@ def write_report(out_dir: Path, study: Study, frame: pd.DataFrame) -> None:
             f"| {_fmt(row['bound_known_depth_median_mm'])} | {row['peak_voltage_v']:.2f} "
             f"| {'yes' if row['compliant'] else '**no**'} |{learned_cell} {'**yes**' if front[k] else ''} |"
         )
+    lines += _comparison(frame, learned)
     lines += [
         "",
         "Per-candidate maps: `maps/<candidate_id>.png` and `.parquet`; every row with its parameters: "
