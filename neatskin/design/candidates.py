@@ -16,6 +16,7 @@ import hashlib
 import json
 import logging
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 
@@ -96,35 +97,47 @@ def expand(study: Study) -> list[Candidate]:
                 for height in study.channel_height_mm:
                     for diameter in study.probe_diameter_mm:
                         for depth in study.depth_mm:
-                            base = (nx, ny, pitch, width, height, diameter, depth)
+                            base: dict[str, Any] = dict(
+                                nx=nx,
+                                ny=ny,
+                                pitch_mm=pitch,
+                                channel_width_mm=width,
+                                channel_height_mm=height,
+                                probe_diameter_mm=diameter,
+                                depth_mm=depth,
+                            )
                             out += _placements(study, base)
     return out
 
 
-def _placements(study: Study, base: tuple) -> list[Candidate]:
-    nx, ny, pitch = base[0], base[1], base[2]
+def _placements(study: Study, base: dict[str, Any]) -> list[Candidate]:
+    nx, ny, pitch = base["nx"], base["ny"], base["pitch_mm"]
     out: list[Candidate] = []
     for strategy in study.strategies:
         if strategy == "every_k":
             nodes = every_k_nodes(nx, ny, study.every_k)
-            out.append(Candidate(*base, strategy, len(nodes), f"every{study.every_k}-", nodes))
+            out.append(
+                Candidate(**base, strategy=strategy, count=len(nodes), placement=f"every{study.every_k}-", nodes=nodes)
+            )
             continue
         if strategy == "explicit":
             for placement in study.explicit:
                 pts = tuple(grid_node(p, nx, ny, pitch) for p in placement.junctions_mm)
                 nodes = tuple(n for n in pts if n is not None)
-                out.append(Candidate(*base, strategy, len(nodes), placement.name, nodes))
+                out.append(
+                    Candidate(**base, strategy=strategy, count=len(nodes), placement=placement.name, nodes=nodes)
+                )
             continue
         for count in study.counts:
             if count > nx * ny:
                 log.info("skipping %s %d on %d x %d: more electrodes than junctions", strategy, count, nx, ny)
                 continue
             if strategy == "optimised":
-                out.append(Candidate(*base, strategy, count, "optimised", ()))
+                out.append(Candidate(**base, strategy=strategy, count=count, placement="optimised", nodes=()))
                 continue
             found = boundary_nodes(nx, ny, count) if strategy == "boundary" else interior_nodes(nx, ny, count)
             if found is None:
                 log.info("skipping %s %d on %d x %d: not enough %s junctions", strategy, count, nx, ny, strategy)
                 continue
-            out.append(Candidate(*base, strategy, count, strategy, found))
+            out.append(Candidate(**base, strategy=strategy, count=count, placement=strategy, nodes=found))
     return out

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -110,7 +111,8 @@ def plot_pareto(frame: pd.DataFrame, path: Path, title: str) -> None:
             )
     skins = frame.groupby(list(SKIN_COLUMNS), sort=False).indices
     for ax, xcol, scale in ((axes[0], "electrodes", 1.0), (axes[1], "sweep_time_s", 1e3)):
-        for n, (skin, index) in enumerate(skins.items()):
+        for n, (skin_key, index) in enumerate(skins.items()):
+            skin: tuple[Any, ...] = tuple(skin_key)  # type: ignore[arg-type]
             part = frame.iloc[index]
             f = part[front[index]].sort_values(xcol)
             label = f"front, {skin[0]} x {skin[1]} @ {skin[2]:g} mm" if len(skins) > 1 else "Pareto front"
@@ -131,8 +133,9 @@ def plot_pareto(frame: pd.DataFrame, path: Path, title: str) -> None:
     plt.close(fig)
 
 
-def _fmt(value: float, digits: int = 3) -> str:
-    if isinstance(value, float) and not math.isfinite(value):
+def _fmt(value: Any, digits: int = 3) -> str:
+    value = float(value)
+    if not math.isfinite(value):
         return "inf" if value > 0 else "n/a"
     return f"{value:.{digits}g}"
 
@@ -142,7 +145,8 @@ def _comparison(frame: pd.DataFrame, learned: bool) -> list[str]:
     both = frame[frame["strategy"].isin(["boundary", "optimised"])]
     keys = [*SKIN_COLUMNS, "electrodes"]
     rows = []
-    for key, group in both.groupby(keys, sort=False):
+    for key_, group in both.groupby(keys, sort=False):
+        key: tuple[Any, ...] = tuple(key_)  # type: ignore[arg-type]
         by = group.set_index("strategy")
         if not {"boundary", "optimised"} <= set(by.index):
             continue
@@ -231,7 +235,7 @@ def write_report(out_dir: Path, study: Study, frame: pd.DataFrame) -> None:
         + " Pareto (per skin) |",
         "|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if learned else "") + "---|",
     ]
-    for k, row in frame.iterrows():
+    for k, (_, row) in enumerate(frame.iterrows()):
         learned_cell = (
             f" {_fmt(row['learned_error_mean_mm'])} +- {_fmt(row['learned_error_std_mm'], 2)} |" if learned else ""
         )
