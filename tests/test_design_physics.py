@@ -105,3 +105,28 @@ def test_lockin_noise_is_the_simulated_daqs_estimator_std():
     _, std, _ = estimator_moments(r, _Sweep(), config, noise, "lockin")
     ours = pair_noise(Study(name="t", source="<t>")).std(r[0])
     np.testing.assert_allclose(ours, std[0], rtol=1e-12)
+
+
+def test_model_inversion_attains_the_bound_where_the_bound_is_small(paper_grid):
+    """The maximum-likelihood inversion is efficient at high SNR: its RMS error over noise draws meets the
+    Cramér-Rao bound (depth unknown) - a check of the bound, the Jacobian and the inversion against each other."""
+    from neatskin.design.evaluate import pair_noise, press_grid_mm
+    from neatskin.design.inversion import InversionSpec, inversion_errors_mm
+    from neatskin.design.sensitivity import grounded_inverse
+    from neatskin.design.study import Study
+
+    x, y = press_grid_mm(paper_grid, 10)
+    noise = pair_noise(Study(name="t", source="<t>"))
+    pj = press_jacobian(paper_grid, paper_grid.electrode_junctions, x, y, 3.5, 2.75, "deformation")
+    a, b = np.triu_indices(8, 1)
+    bound = bound_mm(position_information(fisher(pj.pair_jacobian(a, b), noise.std(pj.baseline_pair_ohm[a, b]))))
+    errors = inversion_errors_mm(
+        paper_grid, paper_grid.electrode_junctions, x, y, 3.5, 2.75, "deformation", noise,
+        grounded_inverse(paper_grid), InversionSpec(True, draws=16), seed=0,
+    )  # fmt: skip
+    assert errors.shape == (16, 100)
+    sharp = bound < 0.02  # 80 of the 100 presses on this grid
+    assert sharp.sum() == 80
+    rms_error = np.sqrt(np.mean(errors[:, sharp] ** 2))
+    rms_bound = np.sqrt(np.mean(bound[sharp] ** 2))
+    assert rms_error == pytest.approx(rms_bound, rel=0.1)

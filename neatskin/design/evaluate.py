@@ -171,19 +171,42 @@ def evaluate_candidate(study: Study, candidate: Candidate) -> CandidateResult:
     if study.learned.enabled:
         from neatskin.design.learned import learned_error_mm
 
-        errors = learned_error_mm(candidate_layout(study, candidate, nodes), study, candidate, noise)
+        # electrodes numbered in junction order: the same set draws the same noise, whatever the placement's order
+        canonical = tuple(sorted(nodes, key=lambda n: (n[1], n[0])))
+        errors = learned_error_mm(candidate_layout(study, candidate, canonical), study, candidate, noise)
         row.update(
             learned_error_mean_mm=float(np.mean(errors)),
             learned_error_std_mm=float(np.std(errors, ddof=1)) if errors.size > 1 else math.nan,
             learned_seeds=int(errors.size),
         )
-    map_frame = pd.DataFrame(
-        {
-            "candidate_id": candidate.candidate_id,
-            "x_mm": x,
-            "y_mm": y,
-            "bound_mm": bound,
-            "bound_known_depth_mm": bound_known,
-        }
+    map_columns = {
+        "candidate_id": candidate.candidate_id,
+        "x_mm": x,
+        "y_mm": y,
+        "bound_mm": bound,
+        "bound_known_depth_mm": bound_known,
+    }
+    row.update(
+        inversion_error_mean_mm=math.nan,
+        inversion_error_std_mm=math.nan,
+        inversion_error_median_mm=math.nan,
+        inversion_error_p90_mm=math.nan,
     )
+    if study.inversion.enabled:
+        from neatskin.design.inversion import inversion_errors_mm
+
+        electrode_junctions = pj.junctions[members]
+        errors = inversion_errors_mm(
+            layout, electrode_junctions, x, y, candidate.depth_mm, radius, study.fidelity, noise, z,
+            study.inversion, study.seed,
+        )  # fmt: skip
+        per_draw = errors.mean(axis=1)
+        row.update(
+            inversion_error_mean_mm=float(per_draw.mean()),
+            inversion_error_std_mm=float(np.std(per_draw, ddof=1)) if per_draw.size > 1 else math.nan,
+            inversion_error_median_mm=float(np.median(errors)),
+            inversion_error_p90_mm=float(np.percentile(errors, 90)),
+        )
+        map_columns["inversion_error_mm"] = errors.mean(axis=0)
+    map_frame = pd.DataFrame(map_columns)
     return CandidateResult(candidate.candidate_id, row, map_frame)

@@ -46,26 +46,28 @@ def plot_map(row: dict, frame: pd.DataFrame, path: Path) -> None:
     n = int(round(math.sqrt(len(frame))))
     x = frame["x_mm"].to_numpy().reshape(n, n)
     y = frame["y_mm"].to_numpy().reshape(n, n)
-    bound = frame["bound_mm"].to_numpy().reshape(n, n)
     pitch = float(row["pitch_mm"])
-    shown = np.clip(np.where(np.isfinite(bound), bound, 10 * pitch), 1e-3, 10 * pitch)
-    fig, ax = plt.subplots(figsize=(5.2, 4.4))
-    mesh = ax.pcolormesh(x, y, shown, norm=LogNorm(vmin=max(shown.min(), 1e-3), vmax=10 * pitch), shading="nearest")
-    fig.colorbar(mesh, ax=ax, label="position bound (mm), depth unknown")
+    panels = [("bound_mm", "position bound (mm), depth unknown", f"median {row['bound_median_mm']:.3g} mm")]
+    if "inversion_error_mm" in frame:
+        panels.append(("inversion_error_mm", "inversion error (mm)", f"mean {row['inversion_error_mean_mm']:.3g} mm"))
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 4.4), squeeze=False)
     nx, ny = int(row["nx"]), int(row["ny"])
-    for i in range(nx):
-        ax.plot([i * pitch, i * pitch], [0, (ny - 1) * pitch], color="white", lw=0.6, alpha=0.7)
-    for j in range(ny):
-        ax.plot([0, (nx - 1) * pitch], [j * pitch, j * pitch], color="white", lw=0.6, alpha=0.7)
     nodes = np.array([[int(v) for v in n.split(",")] for n in str(row["electrode_nodes"]).split(";")]) * pitch
-    ax.plot(nodes[:, 0], nodes[:, 1], "o", ms=7, mfc="red", mec="black", label="electrode")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("y (mm)")
-    ax.set_title(
-        f"{nx} x {ny} {row['placement']} {row['electrodes']} el.: median {row['bound_median_mm']:.3g} mm",
-        fontsize=9,
-    )
+    for ax, (column, label, summary) in zip(axes[0], panels):
+        values = frame[column].to_numpy().reshape(n, n)
+        shown = np.clip(np.where(np.isfinite(values), values, 10 * pitch), 1e-3, 10 * pitch)
+        norm = LogNorm(vmin=max(shown.min(), 1e-3), vmax=10 * pitch)
+        mesh = ax.pcolormesh(x, y, shown, norm=norm, shading="nearest")
+        fig.colorbar(mesh, ax=ax, label=label)
+        for i in range(nx):
+            ax.plot([i * pitch, i * pitch], [0, (ny - 1) * pitch], color="white", lw=0.6, alpha=0.7)
+        for j in range(ny):
+            ax.plot([0, (nx - 1) * pitch], [j * pitch, j * pitch], color="white", lw=0.6, alpha=0.7)
+        ax.plot(nodes[:, 0], nodes[:, 1], "o", ms=7, mfc="red", mec="black", label="electrode")
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("y (mm)")
+        ax.set_title(f"{nx} x {ny} {row['placement']} {row['electrodes']} el.: {summary}", fontsize=9)
     fig.tight_layout()
     write_durably(path, lambda h: fig.savefig(h, format="png", dpi=80))
     plt.close(fig)
@@ -140,7 +142,7 @@ def _fmt(value: Any, digits: int = 3) -> str:
     return f"{value:.{digits}g}"
 
 
-def _comparison(frame: pd.DataFrame, learned: bool) -> list[str]:
+def _comparison(frame: pd.DataFrame, learned: bool, inverted: bool) -> list[str]:
     """Boundary against optimised placement at each electrode count on each skin (where the study has both)."""
     both = frame[frame["strategy"].isin(["boundary", "optimised"])]
     keys = [*SKIN_COLUMNS, "electrodes"]
@@ -160,9 +162,15 @@ def _comparison(frame: pd.DataFrame, learned: bool) -> list[str]:
             f"{_fmt(b['bound_mean_capped_mm'])} -> {_fmt(o['bound_mean_capped_mm'])}",
             f"`{o['electrode_nodes']}`",
         ]
-        if learned:
+        if inverted:
             cells.insert(
                 5,
+                f"{_fmt(b['inversion_error_mean_mm'])} +- {_fmt(b['inversion_error_std_mm'], 2)} -> "
+                f"{_fmt(o['inversion_error_mean_mm'])} +- {_fmt(o['inversion_error_std_mm'], 2)}",
+            )
+        if learned:
+            cells.insert(
+                -1,
                 f"{_fmt(b['learned_error_mean_mm'])} +- {_fmt(b['learned_error_std_mm'], 2)} -> "
                 f"{_fmt(o['learned_error_mean_mm'])} +- {_fmt(o['learned_error_std_mm'], 2)}",
             )
@@ -170,6 +178,7 @@ def _comparison(frame: pd.DataFrame, learned: bool) -> list[str]:
     if not rows:
         return []
     head = "| skin | electrodes | bound median (mm) | bound p90 (mm) | capped mean (mm) |"
+    head += " inversion mean (mm) |" if inverted else ""
     head += " learned (mm, mean +- std over seeds) |" if learned else ""
     head += " optimised junctions (i,j) |"
     return [
@@ -190,6 +199,7 @@ def write_report(out_dir: Path, study: Study, frame: pd.DataFrame) -> None:
     plot_pareto(frame, out_dir / "pareto.png", f"study {study.name}: error against electrodes and sweep time")
     front = pareto_mask(frame)
     learned = study.learned.enabled
+    inverted = study.inversion.enabled
     lines = [
         f"# Design study `{study.name}`",
         "",
@@ -218,6 +228,15 @@ def write_report(out_dir: Path, study: Study, frame: pd.DataFrame) -> None:
         f"- **peak V** = excitation amplitude {study.amplitude_a:g} A x the largest pair R_eq over the presses; "
         f"compliant when within the mux rails of +-{study.rails_v:g} V (an assumed supply, set `rails_v`).",
     ]
+    if inverted:
+        inv = study.inversion
+        lines.append(
+            f"- **inversion**: the press located by the skin model itself from its noisy resistances (library search "
+            f"over {inv.library} x {inv.library} positions x depths {', '.join(f'{o:+g}' for o in inv.depth_offsets_mm)} "
+            f"mm, then {inv.iterations} Gauss-Newton steps on x, y and depth); Euclidean error, mean +- std over "
+            f"{inv.draws} noise draws, and the median and 90th percentile over presses. Unlike the bound it is global: "
+            "it shows mirror ambiguities."
+        )
     if learned:
         spec = study.learned
         lines.append(
@@ -231,11 +250,21 @@ def write_report(out_dir: Path, study: Study, frame: pd.DataFrame) -> None:
         "",
         "| grid | placement | electrodes | pairs | sweep (ms) | bound median (mm) | bound p90 (mm) | capped mean (mm) "
         "| known-depth median (mm) | peak V | rails ok |"
+        + (" inversion mean (mm) | inversion median / p90 (mm) |" if inverted else "")
         + (" learned (mm) |" if learned else "")
         + " Pareto (per skin) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if learned else "") + "---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|"
+        + ("---|---|" if inverted else "")
+        + ("---|" if learned else "")
+        + "---|",
     ]
     for k, (_, row) in enumerate(frame.iterrows()):
+        inversion_cell = (
+            f" {_fmt(row['inversion_error_mean_mm'])} +- {_fmt(row['inversion_error_std_mm'], 2)} "
+            f"| {_fmt(row['inversion_error_median_mm'])} / {_fmt(row['inversion_error_p90_mm'])} |"
+            if inverted
+            else ""
+        )
         learned_cell = (
             f" {_fmt(row['learned_error_mean_mm'])} +- {_fmt(row['learned_error_std_mm'], 2)} |" if learned else ""
         )
@@ -244,9 +273,9 @@ def write_report(out_dir: Path, study: Study, frame: pd.DataFrame) -> None:
             f"| {row['pairs']} | {row['sweep_time_s'] * 1e3:.1f} | {_fmt(row['bound_median_mm'])} "
             f"| {_fmt(row['bound_p90_mm'])} | {_fmt(row['bound_mean_capped_mm'])} "
             f"| {_fmt(row['bound_known_depth_median_mm'])} | {row['peak_voltage_v']:.2f} "
-            f"| {'yes' if row['compliant'] else '**no**'} |{learned_cell} {'**yes**' if front[k] else ''} |"
+            f"| {'yes' if row['compliant'] else '**no**'} |{inversion_cell}{learned_cell} {'**yes**' if front[k] else ''} |"
         )
-    lines += _comparison(frame, learned)
+    lines += _comparison(frame, learned, inverted)
     lines += [
         "",
         "Per-candidate maps: `maps/<candidate_id>.png` and `.parquet`; every row with its parameters: "

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from neatskin.config import TableReader
+from neatskin.design.inversion import InversionSpec
 from neatskin.errors import ConfigError, Problem
 from neatskin.tomlfile import read_toml, resolve_path
 
@@ -32,6 +33,7 @@ TOP_TABLES = (
     "acquisition",
     "noise",
     "learned",
+    "inversion",
 )
 
 
@@ -92,6 +94,7 @@ class Study:
     quantise: bool = True
     sweeps_per_press: int = 1
     learned: LearnedSpec = field(default_factory=LearnedSpec)
+    inversion: InversionSpec = field(default_factory=InversionSpec)
 
 
 def load_study(path: str | Path) -> Study:
@@ -235,6 +238,27 @@ def study_from_dict(data: dict[str, Any], source: str = "<memory>") -> Study:
     )
     le.check_unknown()
 
+    inv = table("inversion")
+    offsets = _as_list(inv, "depth_offsets_mm", [-0.5, 0.0, 0.5])
+    if not offsets or not all(isinstance(o, (int, float)) and not isinstance(o, bool) for o in offsets):
+        problems.append(
+            Problem(
+                f"depth_offsets_mm must list numbers (mm), got {offsets!r}",
+                source,
+                "inversion.depth_offsets_mm",
+                "write depth_offsets_mm = [-0.5, 0.0, 0.5]",
+            )
+        )
+        offsets = [0.0]
+    inversion = InversionSpec(
+        enabled=bool(inv.boolean("enabled", False)),
+        draws=inv.integer("draws", 2, minimum=1) or 2,
+        library=inv.integer("library", 40, minimum=4) or 40,
+        depth_offsets_mm=tuple(float(o) for o in offsets),
+        iterations=inv.integer("iterations", 6, minimum=0) or 0,
+    )
+    inv.check_unknown()
+
     if problems:
         raise ConfigError(problems=problems)
     return Study(
@@ -273,6 +297,7 @@ def study_from_dict(data: dict[str, Any], source: str = "<memory>") -> Study:
         quantise=bool(quantise),
         sweeps_per_press=int(sweeps or 1),
         learned=learned,
+        inversion=inversion,
     )
 
 
