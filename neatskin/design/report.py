@@ -233,9 +233,10 @@ def write_report(out_dir: Path, study: Study, frame: pd.DataFrame) -> None:
         lines.append(
             f"- **inversion**: the press located by the skin model itself from its noisy resistances (library search "
             f"over {inv.library} x {inv.library} positions x depths {', '.join(f'{o:+g}' for o in inv.depth_offsets_mm)} "
-            f"mm, then {inv.iterations} Gauss-Newton steps on x, y and depth); Euclidean error, mean +- std over "
+            f"mm, then {inv.iterations} Gauss-Newton steps on x, y and depth from the {inv.starts} best matches, the "
+            f"least misfit kept); Euclidean error, mean +- std over "
             f"{inv.draws} noise draws, and the median and 90th percentile over presses. Unlike the bound it is global: "
-            "it shows mirror ambiguities."
+            "it counts the presses the search sends to a wrong basin (an upper estimate of the model's own error)."
         )
     if learned:
         spec = study.learned

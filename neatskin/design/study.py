@@ -256,6 +256,7 @@ def study_from_dict(data: dict[str, Any], source: str = "<memory>") -> Study:
         library=inv.integer("library", 40, minimum=4) or 40,
         depth_offsets_mm=tuple(float(o) for o in offsets),
         iterations=inv.integer("iterations", 6, minimum=0) or 0,
+        starts=inv.integer("starts", 3, minimum=1) or 3,
     )
     inv.check_unknown()
 
