@@ -1,9 +1,11 @@
 """A model-based inversion error map for a candidate: each press of the map measured with the study's per-pair
 Gaussian noise, then located by the skin model itself (the estimator a perfect model allows): a search over a
 library of presses (a position grid x a few depths), then damped Gauss-Newton on (x, y, depth) with the adjoint
-Jacobian from the few best library matches, keeping the least misfit. The error is global, so unlike the local bound it counts presses whose noisy resistances lead the search to a
-wrong basin (more starts, fewer of them: 1 start gives a 2.3 mm mean on the 5 x 5 boundary-8 skin, 3 starts
-0.14 mm, 6 starts 0.07 mm, medians all 0.015 mm); it is an upper estimate of what the model itself allows. Vectorised over presses and noise draws.
+Jacobian from the few best library matches, keeping the least misfit. Vectorised over presses and noise draws.
+
+The error is global, so unlike the local bound it counts presses whose noisy resistances lead the search to a
+wrong basin. More starts, fewer of them: 1 start gives a 2.3 mm mean on the 5 x 5 boundary-8 skin, 3 starts
+0.14 mm, 6 starts 0.07 mm (medians all 0.015 mm), so it is an upper estimate of what the model itself allows.
 """
 
 from __future__ import annotations
