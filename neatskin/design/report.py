@@ -279,8 +279,15 @@ def write_report(out_dir: Path, study: Study, frame: pd.DataFrame) -> None:
     lines += _comparison(frame, learned, inverted)
     lines += [
         "",
-        "Per-candidate maps: `maps/<candidate_id>.png` and `.parquet`; every row with its parameters: "
-        "`candidates.parquet`.",
+        "## Maps",
+        "",
+        "Every row with its parameters: `candidates.parquet`; each candidate's map: `maps/<candidate_id>.parquet` "
+        "and the PNG linked here.",
+        "",
+        *(
+            f"- [{r['nx']} x {r['ny']} {r['placement']} {r['electrodes']}](maps/{r['candidate_id']}.png)"
+            for _, r in frame.iterrows()
+        ),
         "",
     ]
     write_bytes_durably(out_dir / "report.md", "\n".join(lines).encode())
