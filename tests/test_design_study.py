@@ -137,6 +137,11 @@ def test_local_run_writes_every_file_and_joblib_agrees(tmp_path):
         assert len(pd.read_parquet(out / "maps" / f"{cid}.parquet")) == 64
     report = (out / "report.md").read_text()
     assert "Pareto" in report and (out / "pareto.png").stat().st_size > 10_000
+    assert "## Boundary against optimised placement" in report
+    tables = [block.splitlines() for block in report.split("\n\n") if block.startswith("|")]
+    assert len(tables) == 2 and len(tables[0]) == 2 + 8 and len(tables[1]) == 2 + 4  # header, rule, rows
+    for table in tables:  # every row has the header's columns
+        assert len({line.count("|") for line in table}) == 1
     # the optimiser is never worse than the boundary ring under its own criterion
     for (nx, ny, count), group in one.groupby(["nx", "ny", "electrodes"]):
         by = group.set_index("strategy")["criterion_D"]

@@ -142,7 +142,7 @@ def _fmt(value: Any, digits: int = 3) -> str:
     return f"{value:.{digits}g}"
 
 
-def _comparison(frame: pd.DataFrame, learned: bool, inverted: bool) -> list[str]:
+def _comparison(frame: pd.DataFrame, learned: bool, inverted: bool, kind: str) -> list[str]:
     """Boundary against optimised placement at each electrode count on each skin (where the study has both)."""
     both = frame[frame["strategy"].isin(["boundary", "optimised"])]
     keys = [*SKIN_COLUMNS, "electrodes"]
@@ -160,6 +160,7 @@ def _comparison(frame: pd.DataFrame, learned: bool, inverted: bool) -> list[str]
             f"({(o['bound_median_mm'] / b['bound_median_mm'] - 1) * 100:+.0f} %)",
             f"{_fmt(b['bound_p90_mm'])} -> {_fmt(o['bound_p90_mm'])}",
             f"{_fmt(b['bound_mean_capped_mm'])} -> {_fmt(o['bound_mean_capped_mm'])}",
+            f"{b['criterion_' + kind]:.4g} -> {o['criterion_' + kind]:.4g}",
             f"`{o['electrode_nodes']}`",
         ]
         if inverted:
@@ -170,7 +171,7 @@ def _comparison(frame: pd.DataFrame, learned: bool, inverted: bool) -> list[str]
             )
         if learned:
             cells.insert(
-                -1,
+                -2,
                 f"{_fmt(b['learned_error_mean_mm'])} +- {_fmt(b['learned_error_std_mm'], 2)} -> "
                 f"{_fmt(o['learned_error_mean_mm'])} +- {_fmt(o['learned_error_std_mm'], 2)}",
             )
@@ -180,7 +181,7 @@ def _comparison(frame: pd.DataFrame, learned: bool, inverted: bool) -> list[str]
     head = "| skin | electrodes | bound median (mm) | bound p90 (mm) | capped mean (mm) |"
     head += " inversion mean (mm) |" if inverted else ""
     head += " learned (mm, mean +- std over seeds) |" if learned else ""
-    head += " optimised junctions (i,j) |"
+    head += f" {kind} criterion (optimised on it) | optimised junctions (i,j) |"
     return [
         "",
         "## Boundary against optimised placement",
@@ -276,7 +277,7 @@ def write_report(out_dir: Path, study: Study, frame: pd.DataFrame) -> None:
             f"| {_fmt(row['bound_known_depth_median_mm'])} | {row['peak_voltage_v']:.2f} "
             f"| {'yes' if row['compliant'] else '**no**'} |{inversion_cell}{learned_cell} {'**yes**' if front[k] else ''} |"
         )
-    lines += _comparison(frame, learned, inverted)
+    lines += _comparison(frame, learned, inverted, study.criterion)
     lines += [
         "",
         "## Maps",
