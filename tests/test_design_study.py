@@ -192,3 +192,19 @@ def test_resume_after_sigkill_of_the_cli_gives_the_same_results_without_duplicat
     assert len(resumed) == total and resumed["candidate_id"].is_unique
     pd.testing.assert_frame_equal(resumed, reference, check_exact=True)
     assert not list(parts.glob(".*.tmp"))
+
+
+def test_explicit_paper_placement_scores_as_the_boundary_ring(tmp_path):
+    """The paper's electrodes listed by hand (in another order) are the boundary-8 candidate: same numbers."""
+    text = SMALL.replace('strategies = ["boundary", "optimised"]', 'strategies = ["boundary", "explicit"]')
+    text = text.replace("counts = [4, 6]", "counts = [8]").replace("sizes = [[3, 3], [4, 3]]", "sizes = [[3, 3]]")
+    text += (
+        '\n[[electrodes.explicit]]\nname = "paper"\n'
+        "junctions_mm = [[0, 0], [15, 0], [30, 0], [30, 15], [30, 30], [15, 30], [0, 30], [0, 15]]\n"
+    )
+    frame = run_study(load_study(_write(tmp_path, text)), tmp_path / "out", pngs=False).set_index("placement")
+    assert frame.loc["paper", "electrode_nodes"] == "0,0;1,0;2,0;2,1;2,2;1,2;0,2;0,1"
+    for column in ("bound_median_mm", "bound_p90_mm", "bound_mean_capped_mm", "criterion_D", "peak_voltage_v"):
+        assert frame.loc["paper", column] == pytest.approx(frame.loc["boundary", column], rel=1e-9), column
+    # 28 pairs x 122 samples at 10 kHz
+    assert frame.loc["paper", "sweep_time_s"] == pytest.approx(0.3416)
