@@ -20,7 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from neatskin.design.study import Study, grid_node
+from neatskin.design.fields import grid_node
+from neatskin.design.study import Study
 
 log = logging.getLogger(__name__)
 

@@ -8,12 +8,14 @@ optionally a learned-error estimate. protocols/studies/grid5.toml is the worked 
 
 from __future__ import annotations
 
-import math
+import difflib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from neatskin.config import TableReader
+from neatskin.design import fields
+from neatskin.design.fields import ExplicitPlacement
 from neatskin.design.inversion import InversionSpec
 from neatskin.errors import ConfigError, Problem
 from neatskin.tomlfile import read_toml, resolve_path
@@ -35,12 +37,6 @@ TOP_TABLES = (
     "learned",
     "inversion",
 )
-
-
-@dataclass(frozen=True)
-class ExplicitPlacement:
-    name: str
-    junctions_mm: tuple[tuple[float, float], ...]
 
 
 @dataclass(frozen=True)
@@ -107,8 +103,6 @@ def study_from_dict(data: dict[str, Any], source: str = "<memory>") -> Study:
     problems: list[Problem] = []
     for key in data:
         if key not in TOP_TABLES:
-            import difflib
-
             close = difflib.get_close_matches(key, TOP_TABLES, n=1)
             fix = f"did you mean '{close[0]}'?" if close else f"remove it; known tables: {', '.join(TOP_TABLES)}"
             problems.append(Problem(f"unknown table [{key}]", source, key, fix))
@@ -140,10 +134,10 @@ def study_from_dict(data: dict[str, Any], source: str = "<memory>") -> Study:
         )
 
     lay = table("layouts")
-    sizes = _sizes(lay, problems, source)
-    pitch = _numbers(lay, "pitch_mm", [15.0], problems, source)
-    width = _numbers(lay, "channel_width_mm", [2.0], problems, source)
-    height = _numbers(lay, "channel_height_mm", [1.0], problems, source)
+    sizes = fields.sizes(lay, problems, source)
+    pitch = fields.numbers(lay, "pitch_mm", [15.0], problems, source)
+    width = fields.numbers(lay, "channel_width_mm", [2.0], problems, source)
+    height = fields.numbers(lay, "channel_height_mm", [1.0], problems, source)
     channel_depth = lay.number("channel_depth_mm", 2.0, positive=True, unit="mm")
     thickness = lay.number("thickness_mm", 5.5, positive=True, unit="mm")
     resistivity = lay.number("resistivity_ohm_m", 0.5, positive=True, unit="ohm m")
@@ -159,11 +153,11 @@ def study_from_dict(data: dict[str, Any], source: str = "<memory>") -> Study:
         )
 
     el = table("electrodes")
-    counts = _integers(el, "counts", [8], problems, source, minimum=2)
-    strategies = _choices(el, "strategies", STRATEGIES, ["boundary"], problems, source)
+    counts = fields.integers(el, "counts", [8], problems, source, minimum=2)
+    strategies = fields.choices(el, "strategies", STRATEGIES, ["boundary"], problems, source)
     every_k = el.integer("every_k", 2, minimum=1)
     restarts = el.integer("restarts", 8, minimum=0)
-    explicit = _explicit(el, problems, source)
+    explicit = fields.explicit(el, problems, source)
     el.check_unknown()
     if "explicit" in strategies and not explicit:
         problems.append(
@@ -188,11 +182,11 @@ def study_from_dict(data: dict[str, Any], source: str = "<memory>") -> Study:
                     )
                 )
     if sizes and pitch:
-        _check_explicit_on_grid(explicit, sizes, pitch, problems, source)
+        fields.check_explicit_on_grid(explicit, sizes, pitch, problems, source)
 
     pr = table("probes")
-    diameter = _numbers(pr, "diameter_mm", [5.5], problems, source)
-    depth = _numbers(pr, "depth_mm", [3.5], problems, source)
+    diameter = fields.numbers(pr, "diameter_mm", [5.5], problems, source)
+    depth = fields.numbers(pr, "depth_mm", [3.5], problems, source)
     pr.check_unknown()
     if thickness is not None:
         for k, d in enumerate(depth):
@@ -239,7 +233,7 @@ def study_from_dict(data: dict[str, Any], source: str = "<memory>") -> Study:
     le.check_unknown()
 
     inv = table("inversion")
-    offsets = _as_list(inv, "depth_offsets_mm", [-0.5, 0.0, 0.5])
+    offsets = fields.as_list(inv, "depth_offsets_mm", [-0.5, 0.0, 0.5])
     if not offsets or not all(isinstance(o, (int, float)) and not isinstance(o, bool) for o in offsets):
         problems.append(
             Problem(
@@ -300,159 +294,3 @@ def study_from_dict(data: dict[str, Any], source: str = "<memory>") -> Study:
         learned=learned,
         inversion=inversion,
     )
-
-
-# ---- list fields -------------------------------------------------------------------------------
-
-
-def _as_list(reader: TableReader, key: str, default: list[Any]) -> list[Any]:
-    value = reader._get(key, default)
-    return value if isinstance(value, list) else [value]
-
-
-def _numbers(reader: TableReader, key: str, default: list[float], problems: list[Problem], source: str) -> list[float]:
-    out = []
-    for k, value in enumerate(_as_list(reader, key, default)):
-        where = f"{reader.section}.{key}[{k}]"
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            problems.append(Problem(f"'{key}' needs finite numbers, got {value!r}", source, where, f"give {key} in mm"))
-        elif value <= 0:
-            problems.append(Problem(f"'{key}' must be positive, got {value!r}", source, where, f"set {key} > 0"))
-        else:
-            out.append(float(value))
-    return out
-
-
-def _integers(
-    reader: TableReader, key: str, default: list[int], problems: list[Problem], source: str, minimum: int
-) -> list[int]:
-    out = []
-    for k, value in enumerate(_as_list(reader, key, default)):
-        where = f"{reader.section}.{key}[{k}]"
-        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-            problems.append(
-                Problem(
-                    f"'{key}' needs whole numbers >= {minimum}, got {value!r}", source, where, f"set it >= {minimum}"
-                )
-            )
-        else:
-            out.append(value)
-    return out
-
-
-def _choices(
-    reader: TableReader, key: str, options: tuple[str, ...], default: list[str], problems: list[Problem], source: str
-) -> list[str]:
-    import difflib
-
-    out = []
-    for k, value in enumerate(_as_list(reader, key, default)):
-        if value in options:
-            out.append(value)
-            continue
-        close = difflib.get_close_matches(str(value), options, n=1)
-        fix = f"did you mean '{close[0]}'?" if close else f"use one of: {', '.join(options)}"
-        problems.append(Problem(f"unknown {key[:-1]} {value!r}", source, f"{reader.section}.{key}[{k}]", fix))
-    return out
-
-
-def _sizes(reader: TableReader, problems: list[Problem], source: str) -> list[tuple[int, int]]:
-    out = []
-    for k, value in enumerate(_as_list(reader, "sizes", [[3, 3]])):
-        ok = (
-            isinstance(value, list)
-            and len(value) == 2
-            and all(isinstance(v, int) and not isinstance(v, bool) and v >= 2 for v in value)
-        )
-        if not ok:
-            problems.append(
-                Problem(
-                    f"a grid size is [N, M] junctions with N, M >= 2, got {value!r}",
-                    source,
-                    f"layouts.sizes[{k}]",
-                    "write sizes = [[5, 5], [10, 10]]",
-                )
-            )
-        else:
-            out.append((int(value[0]), int(value[1])))
-    return out
-
-
-def _explicit(reader: TableReader, problems: list[Problem], source: str) -> list[ExplicitPlacement]:
-    raw = reader._get("explicit", [])
-    out: list[ExplicitPlacement] = []
-    if not isinstance(raw, list):
-        problems.append(
-            Problem("explicit placements must be [[electrodes.explicit]] tables", source, "electrodes.explicit", "")
-        )
-        return out
-    for k, entry in enumerate(raw):
-        where = f"electrodes.explicit[{k}]"
-        if not isinstance(entry, dict):
-            problems.append(Problem("must be a table", source, where, "use [[electrodes.explicit]]"))
-            continue
-        sub = TableReader(entry, where, source, problems)
-        name = sub.text("name", f"explicit{k + 1}")
-        points = sub._get("junctions_mm", None)
-        sub.check_unknown()
-        good = isinstance(points, list) and len(points) >= 2
-        good = good and all(
-            isinstance(p, list)
-            and len(p) == 2
-            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in p)
-            for p in points
-        )
-        if not good:
-            problems.append(
-                Problem(
-                    f"junctions_mm must list at least 2 [x_mm, y_mm] points, got {points!r}",
-                    source,
-                    f"{where}.junctions_mm",
-                    "write junctions_mm = [[0, 0], [15, 0], ...] (mm from the bottom-left junction)",
-                )
-            )
-            continue
-        pts = tuple((float(p[0]), float(p[1])) for p in points)
-        if len(set(pts)) != len(pts):
-            problems.append(
-                Problem("two electrodes on the same junction", source, f"{where}.junctions_mm", "list each once")
-            )
-            continue
-        out.append(ExplicitPlacement(str(name), pts))
-    return out
-
-
-def grid_node(point_mm: tuple[float, float], nx: int, ny: int, pitch_mm: float) -> tuple[int, int] | None:
-    """The grid junction (i, j) at a point, or None when the point is on no junction (1e-6 mm tolerance)."""
-    i, j = point_mm[0] / pitch_mm, point_mm[1] / pitch_mm
-    ri, rj = round(i), round(j)
-    if abs(i - ri) * pitch_mm > 1e-6 or abs(j - rj) * pitch_mm > 1e-6:
-        return None
-    if not (0 <= ri < nx and 0 <= rj < ny):
-        return None
-    return int(ri), int(rj)
-
-
-def _check_explicit_on_grid(
-    explicit: list[ExplicitPlacement],
-    sizes: list[tuple[int, int]],
-    pitch: list[float],
-    problems: list[Problem],
-    source: str,
-) -> None:
-    for k, placement in enumerate(explicit):
-        for nx, ny in sizes:
-            for p in pitch:
-                for m, point in enumerate(placement.junctions_mm):
-                    if grid_node(point, nx, ny, p) is None:
-                        problems.append(
-                            Problem(
-                                f"electrode at ({point[0]:g}, {point[1]:g}) mm of placement '{placement.name}' is "
-                                f"on no channel junction of the {nx} x {ny} grid at {p:g} mm pitch",
-                                source,
-                                f"electrodes.explicit[{k}].junctions_mm[{m}]",
-                                f"put it on a junction: multiples of {p:g} mm up to "
-                                f"({(nx - 1) * p:g}, {(ny - 1) * p:g})",
-                            )
-                        )
-                        return
