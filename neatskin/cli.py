@@ -23,6 +23,7 @@ COMMAND_MODULES = (
     "neatskin.datasets.cli",
     "neatskin.baselines.cli",
     "neatskin.monitor.cli",
+    "neatskin.design.cli",
 )
 
 

@@ -1,0 +1,1 @@
+"""Design studies: the predicted localisation error of candidate skin layouts and electrode placements (`neatskin design study`)."""
