@@ -112,4 +112,13 @@ def parse_scene(raw: dict, source: str, *, record_waveforms: bool) -> tuple[Scen
             )
         )
     scene_t.check_unknown()
-    return Scene(fidelity, signal, noise, surface_error_mm=surface_error, preset=preset, **knobs), scene_t.problems
+    # a bad value is in problems; the scene then holds the default in its place
+    scene = Scene(
+        fidelity or "deformation",
+        signal or "features",
+        True if noise is None else noise,
+        surface_error_mm=surface_error or 0.0,
+        preset=preset,
+        **knobs,
+    )
+    return scene, scene_t.problems
