@@ -41,6 +41,15 @@ from neatskin.layout import Layout
 _CHUNK_PRESSES = 768
 _CUTOFF_DECAYS = 6.1  # exp(-6.1^2) < 1e-16
 _PANEL_EDGES = np.array([0.0, 0.5, 2.0, np.inf])  # side panels in decay lengths from the probe edge
+# Near a full-depth press (p0 -> 1) the integrand 1 / (1 - p0 exp(-u^2)) is a peak of half-width
+# w = sqrt((1 - p0) / p0) decay lengths at the footprint's edge: the first panel is then cut
+# geometrically (ratio 1/3) towards the edge until its innermost panel is about w wide.
+_GRADED_FROM_P0 = 0.9
+_GRADING_RATIO = 2.0
+_MAX_GRADING_LEVELS = 30
+# where the channel only grazes the probe, r - a grows as s^2 / 2a and the peak spreads over the
+# outer panels: near full depth they are halved too
+_GRADED_OUTER_EDGES = np.array([0.5, 1.0, 1.5, 2.0, 3.0, np.inf])
 
 
 @dataclass(frozen=True)
@@ -130,13 +139,30 @@ def _integrate(layout, x_mm, y_mm, depth_mm, probe_radius_mm, params, pinch_scal
     )
     scale = None if pinch_scale is None else np.asarray(pinch_scale, float).reshape(1, layout.n_channels)
     out = np.empty((x.shape[0], layout.n_channels))
-    for lo in range(0, x.shape[0], _CHUNK_PRESSES):
-        sl = slice(lo, lo + _CHUNK_PRESSES)
-        out[sl] = _factor_chunk(layout, x[sl], y[sl], depth[sl], radius[sl], params, scale, volume)
+    p0 = np.minimum(1.0, params.pinch_gain * np.maximum(depth, 0.0) / layout.thickness_mm)
+    if scale is not None:
+        p0 = np.minimum(1.0, p0 * scale.max())
+    near_full = p0 > _GRADED_FROM_P0
+    for group, edges in ((~near_full, _PANEL_EDGES), (near_full, _graded_edges(p0[near_full]))):
+        idx = np.flatnonzero(group)
+        for lo in range(0, idx.size, _CHUNK_PRESSES):
+            sl = idx[lo : lo + _CHUNK_PRESSES]
+            out[sl] = _factor_chunk(layout, x[sl], y[sl], depth[sl], radius[sl], params, scale, volume, edges)
     return out
 
 
-def _factor_chunk(layout, x, y, depth, radius, params, scale=None, volume=False):
+def _graded_edges(p0: np.ndarray) -> np.ndarray:
+    """Panel edges (in decay lengths) for presses near full depth: the standard ones, with the first panel
+    cut geometrically towards the footprint's edge down to the narrowest peak's half-width."""
+    if p0.size == 0:
+        return _PANEL_EDGES
+    peak = np.sqrt(max(1.0 - float(p0.max()), 1e-300) / float(p0.max()))
+    levels = int(np.clip(np.ceil(np.log(_PANEL_EDGES[1] / peak) / np.log(_GRADING_RATIO)), 1, _MAX_GRADING_LEVELS))
+    graded = _PANEL_EDGES[1] * _GRADING_RATIO ** -np.arange(levels, 0, -1.0)
+    return np.concatenate([[0.0], graded, _GRADED_OUTER_EDGES])
+
+
+def _factor_chunk(layout, x, y, depth, radius, params, scale=None, volume=False, panel_edges=_PANEL_EDGES):
     start, unit, length = _channel_geometry(layout)
     thickness, cdepth = layout.thickness_mm, layout.channel_depth_mm
     touching = depth > 0
@@ -165,7 +191,7 @@ def _factor_chunk(layout, x, y, depth, radius, params, scale=None, volume=False)
     # beyond r = a + CUTOFF * l the pinch is below 1e-16: that stretch is exactly its length
     reach = np.sqrt(np.maximum((a + _CUTOFF_DECAYS * decay) ** 2 - perp2, 0.0)) - half_chord
     active = np.minimum(np.maximum(reach, 0.0)[..., None], side_len)  # (n, C, 2)
-    edges = np.minimum(decay[..., None, None] * _PANEL_EDGES, active[..., None])
+    edges = np.minimum(decay[..., None, None] * panel_edges, active[..., None])
     edges[..., -1] = active
     p_start = base[..., None] + edges[..., :-1]  # (n, C, 2 sides, panels)
     p_width = np.diff(edges, axis=-1)
