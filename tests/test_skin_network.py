@@ -392,3 +392,13 @@ def test_grounded_path_matches_gth_on_ordinary_presses(paper_layout):
     np.testing.assert_array_equal(
         equivalent_resistance(paper_layout, shut), equivalent_resistance(paper_layout, shut, method="dense")
     )
+
+
+@pytest.mark.parametrize("spread", [3.0, 1e5])  # the grounded path, then GTH
+def test_a_press_gets_the_same_bits_whatever_batch_it_is_in(paper_layout, spread):
+    rng = np.random.default_rng(1)
+    g = 1.0 / (paper_layout.channel_resistance_ohm * rng.uniform(1.0, spread, (20, 12)))
+    batch = equivalent_resistance(paper_layout, g)
+    for k in range(20):
+        assert equivalent_resistance(paper_layout, g[k]).tobytes() == batch[k].tobytes()
+        assert equivalent_resistance(paper_layout, g[k : k + 3])[0].tobytes() == batch[k].tobytes()

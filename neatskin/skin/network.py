@@ -77,6 +77,10 @@ def equivalent_resistance(layout: Layout, conductance_s: np.ndarray, method: str
             method = "grounded"
         if method == "sparse" and layout.n_junctions <= STIFF_DENSE_MAX_JUNCTIONS and _spread(g) > STIFF_SPREAD:
             method = "dense"
+    if method in ("dense", "grounded") and g.shape[0] == 1:
+        # numpy sums a lone press's (nodes, 1) column pairwise but a batch's rows in sequence: solve the
+        # lone press as a batch of two so that a press gets the same bits whatever batch it comes in
+        return equivalent_resistance(layout, np.repeat(g, 2, axis=0), method)[0 if single else slice(0, 1)]
     if method == "dense":
         out = np.empty((g.shape[0], len(layout.pairs)))
         chunk = max(1, min(_DENSE_CHUNK_PRESSES, _DENSE_CHUNK_ELEMENTS // layout.n_junctions**2))
@@ -191,11 +195,12 @@ def _grounded(layout: Layout, g: np.ndarray) -> np.ndarray:
     w[ends[:, 1], ends[:, 0]] = g.T
     w = _eliminate(w, [int(j) for j in layout.electrode_junctions])  # (k, k, presses), zero diagonal
     k = w.shape[0]
-    lap = -np.moveaxis(w, -1, 0)  # (presses, k, k)
+    # press-major and contiguous, so every press is computed the same way whatever the batch (bit for bit)
+    lap = -np.ascontiguousarray(np.moveaxis(w, -1, 0))  # (presses, k, k)
     diag = np.arange(k)
-    lap[:, diag, diag] = w.sum(axis=1).T
+    lap[:, diag, diag] = -lap.sum(axis=2)
     z = np.zeros_like(lap)
-    z[:, 1:, 1:] = np.linalg.inv(lap[:, 1:, 1:])  # electrode 0 grounded
+    z[:, 1:, 1:] = np.linalg.inv(np.ascontiguousarray(lap[:, 1:, 1:]))  # electrode 0 grounded
     a, b = layout.pair_electrode_index[:, 0], layout.pair_electrode_index[:, 1]
     return z[:, a, a] + z[:, b, b] - 2.0 * z[:, a, b]
 
