@@ -79,7 +79,8 @@ def test_every_source_off_is_the_ideal_scene_bit_for_bit(tmp_path):
         tmp_path,
         ("repeats = 2", "repeats = 1"),
         ("placement_error_mm = 0.0\n", ""),
-        scene_lines=['preset = "paper-like"'] + [f"{k} = 0.0" for k in PAPER_LIKE if k != "relaxation_time_s"],
+        ('preset = "ideal"', 'preset = "paper-like"'),
+        scene_lines=[f"{k} = 0.0" for k in PAPER_LIKE if k != "relaxation_time_s"],
         name="off.toml",
     )
     run_campaign(load_protocol(ideal), tmp_path / "ideal", progress=False, report=False)

@@ -191,13 +191,19 @@ def press_conditions(protocol, skin):
         return None
     commanded = None
     interval_s = getattr(scene, "press_interval_s", 0.0)
-    if relaxing or (drifting and not interval_s):
+    if (drifting or relaxing) and not interval_s:  # the G-code's own time per press (costs a motion estimate)
         from neatskin.rig.runner import build_plan
 
         plan = build_plan(protocol)
+        interval_s = plan.printer_time_s / max(plan.n_presses, 1)
+    if relaxing:
+        from neatskin.gcode.spec import build_from_spec
+
+        program, _, _ = build_from_spec(
+            protocol.press, hold_in_gcode=False, layout=protocol.layout, profile=protocol.printer
+        )
         depth = protocol.press.press.depth_mm
-        commanded = np.array([(b.x_mm, b.y_mm, depth) for b in plan.program.presses])
-        interval_s = interval_s or plan.printer_time_s / max(plan.n_presses, 1)
+        commanded = np.array([(b.x_mm, b.y_mm, depth) for b in program.presses])
     relaxation = Relaxation(scene.hysteresis_fraction, scene.relaxation_time_s, interval_s) if relaxing else None
 
     def conditions(press_id: int) -> PressConditions:

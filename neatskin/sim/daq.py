@@ -192,17 +192,16 @@ class SimulatedDAQ(Daq):
         """Double layer (V += (1 / C) integral of i dt, steady state), V/I sampling skew (I read skew later)
         and mains pickup, in place; each skipped when off, so an off effect changes no bit."""
         cfg, noise = self.config, self.noise
-        phase = 2.0 * np.pi * index / cfg.samples_per_period
         if noise.series_capacitance_f:
-            # i = A sin(wt) through C gives -A X cos(wt); scaled by the share of the sine actually driven
+            # i = A sin(wt) through C gives -A X cos(wt) = A X sin(wt - pi/2)
             x = noise.reactance_ohm(cfg.frequency_hz)
-            physical[:, 0] -= x * cfg.amplitude_a * np.cos(phase) * connected
+            physical[:, 0] += x * cfg.amplitude_a * _sine(index, cfg.samples_per_period, -0.5 * np.pi) * connected
         if noise.adc_skew_s:
-            skewed = cfg.amplitude_a * np.sin(phase + 2.0 * np.pi * cfg.frequency_hz * noise.adc_skew_s) * connected
+            shift = 2.0 * np.pi * cfg.frequency_hz * noise.adc_skew_s
+            skewed = cfg.amplitude_a * _sine(index, cfg.samples_per_period, shift) * connected
             physical[:, 1] = skewed if i_max is None else np.clip(skewed, -i_max, i_max)
         if noise.mains_v:
-            t = index / cfg.rate_hz
-            physical[:, 0] += noise.mains_v * np.sin(2.0 * np.pi * noise.mains_frequency_hz * t)
+            physical[:, 0] += noise.mains_v * _sine(index, cfg.rate_hz / noise.mains_frequency_hz)
 
     def _static(self, sweep: Sweep, n_sweeps: int):
         """Per-sample arrays that depend only on the sweep (cached for the last sweep used)."""
@@ -364,11 +363,18 @@ def estimator_moments(
     return mean, r * np.sqrt(rel_var), blocks
 
 
-def _sine(index: np.ndarray, samples_per_period: float) -> np.ndarray:
-    """sin(2 pi index / samples_per_period), from a table when a period is a whole number of samples."""
+def _sine(index: np.ndarray, samples_per_period: float, phase: float = 0.0) -> np.ndarray:
+    """sin(2 pi index / samples_per_period + phase), from a table when a period is a whole number of samples."""
     whole = round(samples_per_period)
     if abs(samples_per_period - whole) < 1e-9:
-        return np.sin(2 * np.pi * np.arange(whole) / whole)[index % whole]
+        table = (
+            np.sin(2 * np.pi * np.arange(whole) / whole + phase)
+            if phase
+            else np.sin(2 * np.pi * np.arange(whole) / whole)
+        )
+        return table[index % whole]
+    if phase:
+        return np.sin(2 * np.pi * index / samples_per_period + phase)
     return np.sin(2 * np.pi * index / samples_per_period)
 
 
