@@ -85,7 +85,7 @@ def main() -> None:
         ]
         for label, keys in SOURCES.items():
             knobs = {k: PAPER_LIKE[k] for k in keys}
-            scenes.append((f"ideal + {label}", scene_protocol(work, label.split()[0], "ideal", knobs), False))
+            scenes.append((f"ideal + {label}", scene_protocol(work, f"source-{len(scenes)}", "ideal", knobs), False))
         scenes.append(("paper-like (every source)", scene_protocol(work, "paper-like", "paper-like", {}), False))
         print(f"bench_scenes: paper campaign, features path, first {args.presses} presses per scene")
         print(f"  {'scene':<40s} {'wall s':>8s} {'skin+DAQ ms/press':>18s} {'ratio to ideal':>15s}")

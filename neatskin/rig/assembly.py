@@ -221,7 +221,7 @@ def press_conditions(protocol, skin):
                 )
             )
         extra = None
-        if relaxation is not None:
+        if relaxation is not None and commanded is not None:
             dents = relaxation.residual_dents(press_id, commanded)
             if len(dents):
                 extra = (
