@@ -224,8 +224,8 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
     jac = skin.jacobian_mm(px, py, pd_)
     grad2 = np.nansum(jac**2, axis=-1)  # (positions, pairs)
     repeats = counts >= 2
-    var = np.stack([np.bincount(inverse, (dr[:, p] - mean_dr[inverse, p]) ** 2) for p in range(dr.shape[1])], axis=1)
-    var = var / np.maximum(counts - 1, 1)[:, None]
+    spread = [np.bincount(inverse, (dr[:, p] - mean_dr[inverse, p]) ** 2) for p in range(dr.shape[1])]
+    var = np.stack(spread, axis=1) / np.maximum(counts - 1, 1)[:, None]
     a = np.column_stack([np.ones(int(repeats.sum()) * dr.shape[1]), grad2[repeats].ravel()])
     b = var[repeats].ravel()
     keep = np.isfinite(a[:, 1]) & np.isfinite(b)
