@@ -91,6 +91,7 @@ def main() -> None:
         print(f"  {'scene':<40s} {'wall s':>8s} {'skin+DAQ ms/press':>18s} {'ratio to ideal':>15s}")
         import neatskin.skin.network as network
 
+        timed_run(scenes[1][1], work / "warm-up", min(args.presses, 20))  # imports and caches, untimed
         rows = []
         for k, (label, path, gth) in enumerate(scenes):
             saved = network.GROUNDED_MAX_PRESSES
