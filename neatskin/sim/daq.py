@@ -10,6 +10,10 @@ Waveform path, per sample n at t = index / rate_hz (vectorised, no loop per samp
       transient_v * exp(-k / transient_tau_samples) k samples after the switch closes
   + DC offsets, white noise, range clipping and ADC quantisation in AI volts;
   fsr = Vcc F / (F + k / Rm) + noise (+ optional single-sample spikes), clipped and quantised.
+Electrode and ADC effects (NoiseModel, each off at 0 and then untouched, bit for bit): the
+double layers as a series capacitance (v += -A X cos(wt): RMS reads |Z|, lock-in reads R),
+V/I sampling skew (the current channel read `adc_skew_s` late: the lock-in reads
+R cos(phi) - X sin(phi)), and mains pickup on the voltage channel.
 By default R is evaluated once per pair per sweep, at the middle of its live window
 (resistance_sampling="per_pair"); "per_sample" evaluates it at every sample.
 

@@ -3,7 +3,8 @@
 The printer runs on a virtual clock, so the acquisition is computed after the motion from the
 printer's own trajectory; its sample clock is keyed by the press (press_id * PRESS_SLOT_S), and
 its random draws by (seed, press_id), so a resumed campaign records bit for bit what an
-uninterrupted one would have.
+uninterrupted one would have. The scene's per-press variability (`PressConditions`: placement,
+depth jitter, drift, dents of earlier presses) comes from a pure function of the press id.
 """
 
 from __future__ import annotations
