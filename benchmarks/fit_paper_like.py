@@ -73,8 +73,7 @@ def paper_features(knobs: dict, seed: int, positions: int = 100, repeats: int = 
         relax = Relaxation(knobs["hysteresis_fraction"], knobs["relaxation_time_s"], PRESS_INTERVAL_S)
         for lag in range(1, relax.memory_presses(DEPTH_MM) + 1):
             dent = knobs["hysteresis_fraction"] * DEPTH_MM * np.exp(-lag * PRESS_INTERVAL_S / relax.relaxation_time_s)
-            f = skin.channel_resistance_ohm(xy[:-lag, 0], xy[:-lag, 1], dent) / skin.channel_baseline_ohm - 1
-            extra[lag:] += f
+            extra[lag:] += skin.pinch_factor(xy[:-lag, 0], xy[:-lag, 1], np.full(n - lag, dent)) - 1.0
     pressed = skin.pair_resistance_ohm(landed[:, 0], landed[:, 1], depth, resistivity_factor=rho, extra_factor=extra)
     base = skin.pair_resistance_ohm(np.zeros(n), np.zeros(n), np.zeros(n), resistivity_factor=rho, extra_factor=extra)
     noise = NoiseModel(series_capacitance_f=knobs["double_layer_capacitance_uf"] * 1e-6 / 2)

@@ -224,10 +224,7 @@ def press_conditions(protocol, skin):
         if relaxation is not None and commanded is not None:
             dents = relaxation.residual_dents(press_id, commanded)
             if len(dents):
-                extra = (
-                    skin.channel_resistance_ohm(dents[:, 0], dents[:, 1], dents[:, 2]) / skin.channel_baseline_ohm - 1
-                )
-                extra = extra.sum(axis=0)
+                extra = (skin.pinch_factor(dents[:, 0], dents[:, 1], dents[:, 2]) - 1.0).sum(axis=0)
         return PressConditions(depth_offset_mm=depth_offset, resistivity_factor=factor, extra_factor=extra)
 
     return conditions

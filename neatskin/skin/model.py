@@ -140,12 +140,7 @@ class SkinModel:
         channels) is added to every channel's R / R0 (a residual dent from earlier presses)."""
         x, y, depth = _as_presses(x_mm, y_mm, depth_mm)
         depth = self.effective_depth_mm(depth, peak_depth_mm)
-        args = (self.layout, x, y, depth, self.probe_radius_mm, self.pinch)
-        scale = None if self._heights is None else 1.0 / self._heights
-        if self.fidelity == "deformation":
-            factor = resistance_factor(*args, pinch_scale=scale)
-        else:
-            factor = nearest_point_factor(*args, pinch_scale=scale)
+        factor = self.pinch_factor(x, y, depth)
         if extra_factor is not None:
             factor = factor + np.asarray(extra_factor, float)
         if self.displaced_fluid_fraction > 0:
@@ -157,6 +152,15 @@ class SkinModel:
         if resistivity_factor is not None:
             resistance = resistance * np.reshape(np.asarray(resistivity_factor, float), (-1, 1))
         return resistance
+
+    def pinch_factor(self, x_mm, y_mm, depth_mm) -> np.ndarray:
+        """R / R0 of every channel from the pinch alone (no fluid widening, drift or dents), (n, channels)."""
+        x, y, depth = _as_presses(x_mm, y_mm, depth_mm)
+        args = (self.layout, x, y, depth, self.probe_radius_mm, self.pinch)
+        scale = None if self._heights is None else 1.0 / self._heights
+        if self.fidelity == "deformation":
+            return resistance_factor(*args, pinch_scale=scale)
+        return nearest_point_factor(*args, pinch_scale=scale)
 
     def pinched_volume_mm3(self, x_mm, y_mm, depth_mm) -> np.ndarray:
         """Fluid volume each press takes out of each channel under the probe, (n, channels)."""
