@@ -114,3 +114,21 @@ def test_the_command_prints_the_fit_and_writes_a_profile(tmp_path, paper_layout,
     out = capsys.readouterr().out
     assert "pinch_gain" in out and "correlation(pinch_gain, decay_ratio)" in out
     assert "[skin_profile]" in (tmp_path / "c" / "skin_profile.toml").read_text()
+
+
+def test_a_profile_round_trips_and_refuses_another_layout(tmp_path, paper_layout):
+    from neatskin.errors import ConfigError
+    from neatskin.skin.fit import load_skin_profile
+    from neatskin.skin.layouts import grid_layout
+
+    write_campaign(tmp_path / "c", paper_layout, seed=9, positions=10, repeats=3)
+    fit = fit_skin(tmp_path / "c")
+    path = tmp_path / "profile.toml"
+    path.write_text(fit.to_toml())
+    skin = load_skin_profile(path, paper_layout)
+    np.testing.assert_allclose(skin.channel_baseline_ohm, [c.value for c in fit.channel_resistance_ohm], rtol=1e-5)
+    assert skin.pinch.pinch_gain == pytest.approx(fit.pinch_gain.value)
+    with pytest.raises(ConfigError) as err:
+        load_skin_profile(path, grid_layout(4, 4, pitch_mm=10.0))
+    assert err.value.field == "skin_profile.channel_resistance_ohm" and err.value.file == str(path)
+    assert "12 channel resistances" in str(err.value) and "24 channels" in str(err.value)

@@ -251,3 +251,41 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
         rms_residual_ohm=float(np.sqrt(np.mean(sol_p.fun**2))),
         notes=tuple(notes),
     )
+
+
+def load_skin_profile(path: str | Path, layout: Layout, probe_radius_mm: float = 2.75) -> SkinModel:
+    """The SkinModel a `[skin_profile]` TOML (written by `neatskin skin fit`) describes on `layout`.
+
+    Every problem is one ConfigError naming the file, the field and the fix; a profile fitted to
+    another layout (a different channel count) is refused."""
+    from neatskin.errors import ConfigError
+    from neatskin.tomlfile import read_toml
+
+    data = read_toml(path, "skin profile")
+    table = data.get("skin_profile")
+    if not isinstance(table, dict):
+        raise ConfigError(
+            "no [skin_profile] table", file=str(path), field="skin_profile", fix="write it with neatskin skin fit"
+        )
+    channels = table.get("channel_resistance_ohm")
+    if not isinstance(channels, list) or len(channels) != layout.n_channels:
+        count = len(channels) if isinstance(channels, list) else "no"
+        raise ConfigError(
+            f"{count} channel resistances for layout '{layout.name}', which has {layout.n_channels} channels",
+            file=str(path),
+            field="skin_profile.channel_resistance_ohm",
+            fix="fit the profile to a campaign on this layout (neatskin skin fit), or name the layout it was fitted on",
+        )
+    values = np.asarray(channels, float)
+    if not np.all(np.isfinite(values) & (values > 0)):
+        raise ConfigError(
+            "channel resistances must be positive numbers",
+            file=str(path),
+            field="skin_profile.channel_resistance_ohm",
+            fix="refit the profile",
+        )
+    pinch = PinchParams(
+        pinch_gain=float(table.get("pinch_gain", 1.0)), decay_ratio=float(table.get("decay_ratio", 0.5))
+    )
+    heights = tuple(float(h) for h in layout.channel_resistance_ohm / values)
+    return SkinModel(layout, probe_radius_mm=probe_radius_mm, pinch=pinch, channel_height_factor=heights)
