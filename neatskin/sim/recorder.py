@@ -77,8 +77,10 @@ class DryProbe:
                 self._skin_kwargs["resistivity_factor"] = c.resistivity_factor
             if c.extra_factor is not None:
                 self._skin_kwargs["extra_factor"] = c.extra_factor[None, :]
-            if self._skin_kwargs:
+            if c.extra_factor is not None:
                 self._baseline = self.skin.pair_resistance_ohm(0.0, 0.0, 0.0, **self._skin_kwargs)[0]
+            elif c.resistivity_factor is not None:  # a uniform rho scales every R_eq by the same factor: no solve
+                self._baseline = self._skin_baseline * c.resistivity_factor
 
     def state(self, times_s: np.ndarray) -> np.ndarray:
         """(times, 3): sensor x, y and depth below the surface (mm), rounded to 1 nm (G-code resolution is 1 um)."""
