@@ -2,6 +2,7 @@
 
     python benchmarks/bench_scenes.py                 # 200 presses per scene
     python benchmarks/bench_scenes.py --presses 400
+    python benchmarks/bench_scenes.py --fit out/paper     # and time the skin fit on a finished campaign
 
 Runs protocols/paper.toml as a dry run for --presses presses in the `ideal` scene, in `ideal`
 with one source switched on at its `paper-like` value (mains pickup, off in `paper-like`, at
@@ -77,6 +78,9 @@ def timed_run(path: Path, out: Path, presses: int) -> tuple[float, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--presses", type=int, default=200)
+    parser.add_argument(
+        "--fit", metavar="CAMPAIGN_DIR", default=None, help="also time `neatskin skin fit` on this finished campaign"
+    )
     args = parser.parse_args()
     work = Path(tempfile.mkdtemp(prefix="bench-scenes-"))
     try:
@@ -108,6 +112,16 @@ def main() -> None:
         ideal = next(r[2] for r in rows if r[0] == "ideal")
         for label, wall, per_press in rows:
             print(f"  {label:<40s} {wall:>8.1f} {1e3 * per_press:>18.2f} {per_press / ideal:>15.2f}")
+        if args.fit:
+            from neatskin.skin.fit import fit_skin
+
+            t0 = time.perf_counter()
+            fit = fit_skin(args.fit)
+            print(
+                f"skin fit on {args.fit}: {time.perf_counter() - t0:.1f} s (target 30 s); placement "
+                f"{fit.placement_error_mm.value:.3g} mm, pinch_gain {fit.pinch_gain.value:.3g}, "
+                f"drift {fit.drift_per_h.value:.3g} /h"
+            )
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
