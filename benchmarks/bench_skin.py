@@ -85,10 +85,10 @@ def pipeline_section(layout, n, repeats, rng):
     depth = np.full(n, 3.5)
     for fidelity in ("deformation", "network"):
         model = SkinModel(layout, fidelity=fidelity)
-        t_total = best_time(lambda: model.pair_resistance_ohm(x, y, depth), repeats)
+        t_total = best_time(lambda m=model: m.pair_resistance_ohm(x, y, depth), repeats)
         resistance = model.channel_resistance_ohm(x, y, depth)
-        t_channels = best_time(lambda: model.channel_resistance_ohm(x, y, depth), repeats)
-        t_solve = best_time(lambda: equivalent_resistance(layout, 1.0 / resistance), repeats)
+        t_channels = best_time(lambda m=model: m.channel_resistance_ohm(x, y, depth), repeats)
+        t_solve = best_time(lambda r=resistance: equivalent_resistance(layout, 1.0 / r), repeats)
         target = "  (target >= 100,000)" if fidelity == "deformation" else ""
         row(
             f"{fidelity} fidelity, end to end",
@@ -112,7 +112,7 @@ def quadrature_section(layout, n, repeats, rng):
     )
     for q in (2, 3, 4, 6, 8, 12, 16):
         params = PinchParams(nodes_per_panel=q)
-        t = best_time(lambda: resistance_factor(layout, x, y, depth, 2.75, params), repeats)
+        t = best_time(lambda p=params: resistance_factor(layout, x, y, depth, 2.75, p), repeats)
         f = resistance_factor(layout, x, y, depth, 2.75, params)
         r_eq = equivalent_resistance(layout, 1.0 / (f * layout.channel_resistance_ohm))
         mark = "  <- default" if q == PinchParams().nodes_per_panel else ""
@@ -120,6 +120,36 @@ def quadrature_section(layout, n, repeats, rng):
             f"  {q:>11d} {2 * 3 * q:>13d} {np.max(np.abs(f / ref - 1)):>17.1e} "
             f"{np.max(np.abs(r_eq / ref_eq - 1)):>17.1e} {n / t:>12,.0f}{mark}"
         )
+
+
+def near_full_section(layout, repeats):
+    """Presses near the skin's full thickness with a channel crossing or grazing the probe's edge: the error
+    of the standard panels (grading switched off) and of the graded ones, against a 64-node graded reference."""
+    import neatskin.skin.deformation as deformation
+
+    depths = np.array([5.0, 5.3, 5.4, 5.45, 5.49, 5.499, 5.4999])
+    offsets = np.array([0.0, 1.0, 2.0, 2.5, 2.7, 2.75, 2.8, 3.0, 4.0])
+    d, off, along = (v.ravel() for v in np.meshgrid(depths, offsets, np.array([2.0, 7.5, 14.0]), indexing="ij"))
+    x, y = along, off  # channel 0 of the paper layout runs along y = 0 from x = 0 to 15
+    ref = resistance_factor(layout, x, y, d, 2.75, PinchParams(nodes_per_panel=64))
+    print(
+        f"\nnear full depth ({x.size} presses: depth 5.0..5.4999 mm of 5.5, the channel 0..4 mm from the probe axis; "
+        f"reference 64 nodes/panel, graded; tests hold it to QUADPACK)"
+    )
+    print(f"  {'nodes/panel':>11s} {'standard panels':>16s} {'graded panels':>14s} {'presses/s graded':>17s}")
+    for q in (4, 6, 8, 12):
+        params = PinchParams(nodes_per_panel=q)
+        saved = deformation._GRADED_FROM_P0
+        deformation._GRADED_FROM_P0 = 2.0  # no press is graded: the standard panels
+        try:
+            plain = resistance_factor(layout, x, y, d, 2.75, params)
+        finally:
+            deformation._GRADED_FROM_P0 = saved
+        graded = resistance_factor(layout, x, y, d, 2.75, params)
+        t = best_time(lambda p=params: resistance_factor(layout, x, y, d, 2.75, p), repeats)
+        err = lambda f: np.max(np.abs(f / ref - 1))  # noqa: E731
+        mark = "  <- default" if q == PinchParams().nodes_per_panel else ""
+        print(f"  {q:>11d} {err(plain):>16.1e} {err(graded):>14.1e} {x.size / t:>17,.0f}{mark}")
 
 
 def main() -> None:
@@ -136,6 +166,7 @@ def main() -> None:
     )
     pipeline_section(paper, args.presses, args.repeats, rng)
     quadrature_section(paper, min(args.presses, 20_000), args.repeats, rng)
+    near_full_section(paper, args.repeats)
 
 
 if __name__ == "__main__":

@@ -374,3 +374,31 @@ def test_auto_keeps_stiff_grids_on_the_exact_path():
     np.testing.assert_allclose(
         equivalent_resistance(layout, ordinary), equivalent_resistance(layout, ordinary, method="dense"), rtol=1e-10
     )
+
+
+def test_grounded_path_matches_gth_on_ordinary_presses(paper_layout):
+    """The small-batch path (Kron reduction + one batched inverse) agrees with the GTH path to ~1e-14 and is what
+    "auto" picks for a press's few states; a channel pinched shut or a stiff batch stays on GTH."""
+    import neatskin.skin.network as network
+
+    rng = np.random.default_rng(4)
+    g = 1.0 / (paper_layout.channel_resistance_ohm * rng.uniform(1.0, 900.0, (40, 12)))
+    grounded = equivalent_resistance(paper_layout, g, method="grounded")
+    np.testing.assert_allclose(grounded, equivalent_resistance(paper_layout, g, method="dense"), rtol=5e-14, atol=0)
+    assert network._spread(g) <= network.GROUNDED_MAX_SPREAD
+    np.testing.assert_array_equal(equivalent_resistance(paper_layout, g), grounded)
+    shut = g.copy()
+    shut[:, 0] = 0.0
+    np.testing.assert_array_equal(
+        equivalent_resistance(paper_layout, shut), equivalent_resistance(paper_layout, shut, method="dense")
+    )
+
+
+@pytest.mark.parametrize("spread", [3.0, 1e5])  # the grounded path, then GTH
+def test_a_press_gets_the_same_bits_whatever_batch_it_is_in(paper_layout, spread):
+    rng = np.random.default_rng(1)
+    g = 1.0 / (paper_layout.channel_resistance_ohm * rng.uniform(1.0, spread, (20, 12)))
+    batch = equivalent_resistance(paper_layout, g)
+    for k in range(20):
+        assert equivalent_resistance(paper_layout, g[k]).tobytes() == batch[k].tobytes()
+        assert equivalent_resistance(paper_layout, g[k : k + 3])[0].tobytes() == batch[k].tobytes()

@@ -76,6 +76,7 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
     from neatskin.sim.printer import SimulatedPrinter
     from neatskin.sim.recorder import STREAM_PLACEMENT, DryProbe, SimulatedRecorder
     from neatskin.skin.model import SkinModel, placement_error_mm
+    from neatskin.skin.variability import fabrication_heights
 
     scene = protocol.scene
     probe_radius = protocol.press.press.probe_diameter_mm / 2
@@ -84,6 +85,10 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
         fidelity=scene.fidelity,
         probe_radius_mm=probe_radius,
         placement_sigma_mm=scene.placement_error_mm,
+        channel_height_factor=fabrication_heights(
+            protocol.layout.n_channels, getattr(scene, "fabrication_spread_fraction", 0.0), protocol.seed
+        ),
+        displaced_fluid_fraction=getattr(scene, "displaced_fluid_fraction", 0.0),
     )
     kwargs = {} if printer_faults is None else {"faults": printer_faults}
     printer = SimulatedPrinter(protocol.printer, seed=protocol.seed, time_mode="virtual", **kwargs)
@@ -112,9 +117,14 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
             return float(np.asarray(dx).reshape(-1)[0]), float(np.asarray(dy).reshape(-1)[0])
 
     probe = DryProbe(
-        skin, calibration, printer.segments, placement_error=placement, surface_error_mm=scene.surface_error_mm
+        skin,
+        calibration,
+        printer.segments,
+        placement_error=placement,
+        surface_error_mm=scene.surface_error_mm,
+        conditions=press_conditions(protocol, skin),
     )
-    noise = NoiseModel() if scene.noise else NoiseModel.none()
+    noise = interface_noise(NoiseModel() if scene.noise else NoiseModel.none(), scene)
     daq = SimulatedDAQ(daq_config(protocol), probe.pair_resistance_ohm, probe.force_n, noise=noise)
     recorder = SimulatedRecorder(
         daq,
@@ -139,9 +149,85 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
             "placement_error_mm": scene.placement_error_mm,
             "surface_error_mm": scene.surface_error_mm,
             "probe_radius_mm": probe_radius,
+            "preset": getattr(scene, "preset", "ideal"),
+            **(scene.variability() if hasattr(scene, "variability") else {}),
         },
     }
     return Rig("dry-run", driver, recorder, daq.fsr, description, closers, skin=skin, daq=daq)
+
+
+def interface_noise(noise, scene):
+    """The DAQ's noise model with the scene's electrode and ADC effects (each left as is when off)."""
+    import dataclasses
+
+    changes = {}
+    if getattr(scene, "double_layer_capacitance_uf", 0.0):
+        changes["series_capacitance_f"] = scene.double_layer_capacitance_uf * 1e-6 / 2  # two electrodes in series
+    if getattr(scene, "adc_skew_us", 0.0):
+        changes["adc_skew_s"] = scene.adc_skew_us * 1e-6
+    if getattr(scene, "mains_pickup_mv", 0.0):
+        changes["mains_v"] = scene.mains_pickup_mv * 1e-3
+        changes["mains_frequency_hz"] = scene.mains_frequency_hz
+    return dataclasses.replace(noise, **changes) if changes else noise
+
+
+def press_conditions(protocol, skin):
+    """The per-press variability of the scene as a pure function of press_id, or None when every source is off.
+
+    Placement error, depth jitter (each its own random stream keyed by (seed, press_id)), drift of
+    the fluid's resistivity and the residual dents of earlier presses (both from the press's
+    campaign time, press_id x press_interval_s, and the commanded presses before it), so a resumed
+    campaign gets exactly what an uninterrupted one would have."""
+    from neatskin.sim.recorder import STREAM_DEPTH, PressConditions
+    from neatskin.skin.variability import Relaxation, drift_resistivity_factor
+
+    scene = protocol.scene
+    jitter = getattr(scene, "depth_jitter_mm", 0.0)
+    drifting = bool(
+        getattr(scene, "temperature_drift_k_per_h", 0.0) or getattr(scene, "evaporation_fraction_per_h", 0.0)
+    )
+    relaxing = bool(getattr(scene, "hysteresis_fraction", 0.0))
+    if not (jitter or drifting or relaxing):
+        return None
+    commanded = None
+    interval_s = getattr(scene, "press_interval_s", 0.0)
+    if (drifting or relaxing) and not interval_s:  # the G-code's own time per press (costs a motion estimate)
+        from neatskin.rig.runner import build_plan
+
+        plan = build_plan(protocol)
+        interval_s = plan.printer_time_s / max(plan.n_presses, 1)
+    if relaxing:
+        from neatskin.gcode.spec import build_from_spec
+
+        program, _, _ = build_from_spec(
+            protocol.press, hold_in_gcode=False, layout=protocol.layout, profile=protocol.printer
+        )
+        depth = protocol.press.press.depth_mm
+        commanded = np.array([(b.x_mm, b.y_mm, depth) for b in program.presses])
+    relaxation = Relaxation(scene.hysteresis_fraction, scene.relaxation_time_s, interval_s) if relaxing else None
+
+    def conditions(press_id: int) -> PressConditions:
+        depth_offset = 0.0
+        if jitter:
+            depth_offset = float(np.random.default_rng([protocol.seed, press_id, STREAM_DEPTH]).normal(0.0, jitter))
+        factor = None
+        if drifting:
+            factor = float(
+                drift_resistivity_factor(
+                    press_id * interval_s,
+                    scene.temperature_drift_k_per_h,
+                    scene.evaporation_fraction_per_h,
+                    skin.resistivity_tempco_per_k,
+                )
+            )
+        extra = None
+        if relaxation is not None and commanded is not None:
+            dents = relaxation.residual_dents(press_id, commanded)
+            if len(dents):
+                extra = (skin.pinch_factor(dents[:, 0], dents[:, 1], dents[:, 2]) - 1.0).sum(axis=0)
+        return PressConditions(depth_offset_mm=depth_offset, resistivity_factor=factor, extra_factor=extra)
+
+    return conditions
 
 
 def build_real_rig(

@@ -10,6 +10,10 @@ Waveform path, per sample n at t = index / rate_hz (vectorised, no loop per samp
       transient_v * exp(-k / transient_tau_samples) k samples after the switch closes
   + DC offsets, white noise, range clipping and ADC quantisation in AI volts;
   fsr = Vcc F / (F + k / Rm) + noise (+ optional single-sample spikes), clipped and quantised.
+Electrode and ADC effects (NoiseModel, each off at 0 and then untouched, bit for bit): the
+double layers as a series capacitance (v += -A X cos(wt): RMS reads |Z|, lock-in reads R),
+V/I sampling skew (the current channel read `adc_skew_s` late: the lock-in reads
+R cos(phi) - X sin(phi)), and mains pickup on the voltage channel.
 By default R is evaluated once per pair per sweep, at the middle of its live window
 (resistance_sampling="per_pair"); "per_sample" evaluates it at every sample.
 
@@ -52,6 +56,27 @@ class NoiseModel:
     drift_per_s: float = 0.0  # fluid resistivity drift, relative per second
     fsr_spike_rate_hz: float = 0.0  # single-sample spikes on the FSR channel (cable knocks, EMI)
     fsr_spike_v: float = 2.0  # their size: +-uniform(0.5, 1) x this
+    series_capacitance_f: float = 0.0  # the electrodes' double layers in series with the pair (0 = none)
+    adc_skew_s: float = 0.0  # the current channel is sampled this long after the voltage channel
+    mains_v: float = 0.0  # mains pickup on the voltage channel, amplitude
+    mains_frequency_hz: float = 50.0
+
+    def reactance_ohm(self, frequency_hz: float) -> float:
+        """X = 1 / (w C) of the series double layer at the excitation frequency (0 without one)."""
+        if self.series_capacitance_f == 0:
+            return 0.0
+        return 1.0 / (2.0 * np.pi * frequency_hz * self.series_capacitance_f)
+
+    def demodulated_resistance_ohm(self, resistance_ohm, frequency_hz: float, method: str):
+        """What a noise-free demodulator reads for a pair of resistance R behind the double layer and skew:
+        lock-in Re((R + iX) e^{i phi}) = R cos(phi) - X sin(phi) with phi = 2 pi f skew; RMS (whole
+        periods per window) |Z| = sqrt(R^2 + X^2), which the skew does not change."""
+        x = self.reactance_ohm(frequency_hz)
+        r = np.asarray(resistance_ohm, float)
+        if method == "lockin":
+            phi = 2.0 * np.pi * frequency_hz * self.adc_skew_s
+            return r * np.cos(phi) - x * np.sin(phi) if (phi or x) else r
+        return np.hypot(r, x) if x else r
 
     @classmethod
     def none(cls) -> NoiseModel:
@@ -138,6 +163,7 @@ class SimulatedDAQ(Daq):
             r = r_all[np.arange(n), pair] * (1 + noise.drift_per_s * t)
         command = cfg.amplitude_a * _sine(index, cfg.samples_per_period) * connected
         physical = np.empty((n, 3))
+        i_max = None
         if np.all(np.isfinite(r)) and np.all(r >= 0) and float(np.max(r)) * cfg.amplitude_a <= cfg.compliance_v:
             current = command  # the common case: the galvanostat drives the full sine
             np.multiply(current, r, out=physical[:, 0])
@@ -149,6 +175,7 @@ class SimulatedDAQ(Daq):
             current = np.clip(command, -i_max, i_max)
             physical[:, 0] = np.where(finite, current * np.where(finite, r, 0.0), cfg.compliance_v * np.sign(command))
         physical[:, 1] = current
+        self._add_interface_effects(physical, index, connected, i_max)
         if noise.transient_v:
             physical[:, 0] += transient
         if noise.voltage_offset_v:
@@ -164,6 +191,21 @@ class SimulatedDAQ(Daq):
             where = rng.integers(0, n, k)
             physical[where, 2] += rng.choice([-1.0, 1.0], k) * rng.uniform(0.5, 1.0, k) * noise.fsr_spike_v
         return Acquisition(self._digitise(physical), index, cfg, n_sweeps)
+
+    def _add_interface_effects(self, physical, index, connected, i_max) -> None:
+        """Double layer (V += (1 / C) integral of i dt, steady state), V/I sampling skew (I read skew later)
+        and mains pickup, in place; each skipped when off, so an off effect changes no bit."""
+        cfg, noise = self.config, self.noise
+        if noise.series_capacitance_f:
+            # i = A sin(wt) through C gives -A X cos(wt) = A X sin(wt - pi/2)
+            x = noise.reactance_ohm(cfg.frequency_hz)
+            physical[:, 0] += x * cfg.amplitude_a * _sine(index, cfg.samples_per_period, -0.5 * np.pi) * connected
+        if noise.adc_skew_s:
+            shift = 2.0 * np.pi * cfg.frequency_hz * noise.adc_skew_s
+            skewed = cfg.amplitude_a * _sine(index, cfg.samples_per_period, shift) * connected
+            physical[:, 1] = skewed if i_max is None else np.clip(skewed, -i_max, i_max)
+        if noise.mains_v:
+            physical[:, 0] += noise.mains_v * _sine(index, cfg.rate_hz / noise.mains_frequency_hz)
 
     def _static(self, sweep: Sweep, n_sweeps: int):
         """Per-sample arrays that depend only on the sweep (cached for the last sweep used)."""
@@ -230,6 +272,10 @@ class SimulatedDAQ(Daq):
         if not exact.all():
             acq = self.acquire(sweep, n_sweeps, rng=rng, start_time_s=start_time_s)
             return demod.demodulate(acq, sweep, method=method, window=window)
+        if noise.mains_v:
+            r = self._noise_free_estimate(r, windows, method, window)
+        elif noise.series_capacitance_f or noise.adc_skew_s:
+            r = noise.demodulated_resistance_ohm(r, cfg.frequency_hz, method)
         mean, std, blocks = estimator_moments(r, sweep, cfg, noise, method, window, start)
         v0 = r * amp
         resistance = mean + std * rng.standard_normal(r.shape)
@@ -244,6 +290,29 @@ class SimulatedDAQ(Daq):
         )
         flags[dc] |= np.uint8(PairFlag.DC_OFFSET)
         return PairEstimates(resistance, uncertainty, flags, windows, method)
+
+    def _noise_free_estimate(self, r: np.ndarray, windows: np.ndarray, method: str, window: int) -> np.ndarray:
+        """What the demodulator reads from the noise-free live samples (double layer, skew and mains
+        included): the mains hum has no closed form under a moving RMS, so its bias is computed on
+        the live windows alone, not on whole waveforms."""
+        from neatskin.acquisition import demod
+
+        cfg = self.config
+        index = windows[..., :1] + np.arange(windows[0, 0, 1] - windows[0, 0, 0])  # (sweeps, pairs, live)
+        flat = index.reshape(-1)
+        physical = np.empty((flat.size, 3))
+        current = cfg.amplitude_a * _sine(flat, cfg.samples_per_period)
+        physical[:, 0] = current * np.repeat(r.reshape(-1), index.shape[-1])
+        physical[:, 1] = current
+        self._add_interface_effects(physical, flat, np.ones(flat.size), None)
+        v = physical[:, 0].reshape(index.shape)
+        i = physical[:, 1].reshape(index.shape)
+        closed = np.zeros(r.shape, dtype=bool)
+        if method == "rms":
+            mean, _ = demod._rms(v, i, window, closed)
+        else:
+            mean, _ = demod._lockin(v, i, index, cfg.samples_per_period, closed)
+        return mean
 
     def effective_noise_var(self) -> tuple[float, float]:
         return effective_noise_var(self.config, self.noise)
@@ -298,11 +367,18 @@ def estimator_moments(
     return mean, r * np.sqrt(rel_var), blocks
 
 
-def _sine(index: np.ndarray, samples_per_period: float) -> np.ndarray:
-    """sin(2 pi index / samples_per_period), from a table when a period is a whole number of samples."""
+def _sine(index: np.ndarray, samples_per_period: float, phase: float = 0.0) -> np.ndarray:
+    """sin(2 pi index / samples_per_period + phase), from a table when a period is a whole number of samples."""
     whole = round(samples_per_period)
     if abs(samples_per_period - whole) < 1e-9:
-        return np.sin(2 * np.pi * np.arange(whole) / whole)[index % whole]
+        table = (
+            np.sin(2 * np.pi * np.arange(whole) / whole + phase)
+            if phase
+            else np.sin(2 * np.pi * np.arange(whole) / whole)
+        )
+        return table[index % whole]
+    if phase:
+        return np.sin(2 * np.pi * index / samples_per_period + phase)
     return np.sin(2 * np.pi * index / samples_per_period)
 
 

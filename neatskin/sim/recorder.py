@@ -3,12 +3,14 @@
 The printer runs on a virtual clock, so the acquisition is computed after the motion from the
 printer's own trajectory; its sample clock is keyed by the press (press_id * PRESS_SLOT_S), and
 its random draws by (seed, press_id), so a resumed campaign records bit for bit what an
-uninterrupted one would have.
+uninterrupted one would have. The scene's per-press variability (`PressConditions`: placement,
+depth jitter, drift, dents of earlier presses) comes from a pure function of the press id.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -20,7 +22,19 @@ PRESS_SLOT_S = 1000.0  # each press owns [press_id * slot, (press_id + 1) * slot
 STREAM_DAQ = 1
 STREAM_PLACEMENT = 2
 STREAM_FSR = 3
+STREAM_DEPTH = 4
 FSR_DECIMATION = 10  # features-only scene: the FSR trace at rate / 10
+
+
+@dataclass(frozen=True)
+class PressConditions:
+    """What varies from press to press on the simulated skin, drawn from (seed, press_id) alone."""
+
+    dx_mm: float = 0.0  # placement error
+    dy_mm: float = 0.0
+    depth_offset_mm: float = 0.0  # depth jitter: the probe goes this much deeper than commanded
+    resistivity_factor: float | None = None  # drift of the fluid's resistivity (None = none)
+    extra_factor: np.ndarray | None = None  # (channels,) residual dents of earlier presses, added to R / R0
 
 
 class DryProbe:
@@ -34,15 +48,19 @@ class DryProbe:
         segments_from: Callable[[float], list],
         placement_error: Callable[[int], tuple[float, float]] | None = None,
         surface_error_mm: float = 0.0,
+        conditions: Callable[[int], PressConditions] | None = None,
     ):
         self.skin = skin
         self.surface_z_mm = calibration.surface_z_mm - surface_error_mm
         self.calibration = calibration
         self.segments_from = segments_from  # the printer's moves from the one the probe rests after at t
         self.placement_error = placement_error
-        self._baseline = np.asarray(skin.baseline_pair_resistance_ohm, dtype=float)
+        self.conditions = conditions
+        self._skin_baseline = self._baseline = np.asarray(skin.baseline_pair_resistance_ohm, dtype=float)
         self._segments: list = []
         self._offset = (0.0, 0.0)
+        self._depth_offset = 0.0
+        self._skin_kwargs: dict = {}
         self._printer_t0 = self._daq_t0 = 0.0
 
     def load(self, press_id: int, printer_t0_s: float, daq_t0_s: float, duration_s: float) -> None:
@@ -50,6 +68,19 @@ class DryProbe:
         self._segments = self.segments_from(printer_t0_s)
         self._printer_t0, self._daq_t0 = printer_t0_s, daq_t0_s
         self._offset = self.placement_error(press_id) if self.placement_error is not None else (0.0, 0.0)
+        self._depth_offset, self._skin_kwargs, self._baseline = 0.0, {}, self._skin_baseline
+        if self.conditions is not None:
+            c = self.conditions(press_id)
+            self._offset = (self._offset[0] + c.dx_mm, self._offset[1] + c.dy_mm)
+            self._depth_offset = c.depth_offset_mm
+            if c.resistivity_factor is not None:
+                self._skin_kwargs["resistivity_factor"] = c.resistivity_factor
+            if c.extra_factor is not None:
+                self._skin_kwargs["extra_factor"] = c.extra_factor[None, :]
+            if c.extra_factor is not None:
+                self._baseline = self.skin.pair_resistance_ohm(0.0, 0.0, 0.0, **self._skin_kwargs)[0]
+            elif c.resistivity_factor is not None:  # a uniform rho scales every R_eq by the same factor: no solve
+                self._baseline = self._skin_baseline * c.resistivity_factor
 
     def state(self, times_s: np.ndarray) -> np.ndarray:
         """(times, 3): sensor x, y and depth below the surface (mm), rounded to 1 nm (G-code resolution is 1 um)."""
@@ -60,7 +91,7 @@ class DryProbe:
             [
                 np.asarray(sx, float) + self._offset[0],
                 np.asarray(sy, float) + self._offset[1],
-                self.surface_z_mm - xyz[:, 2],
+                self.surface_z_mm - xyz[:, 2] + self._depth_offset,
             ],
             axis=1,
         )
@@ -72,7 +103,7 @@ class DryProbe:
         touching = state[:, 2] > 0
         if touching.any():
             unique, inverse = np.unique(state[touching], axis=0, return_inverse=True)
-            r = self.skin.pair_resistance_ohm(unique[:, 0], unique[:, 1], unique[:, 2])
+            r = self.skin.pair_resistance_ohm(unique[:, 0], unique[:, 1], unique[:, 2], **self._skin_kwargs)
             out[touching] = r[inverse.reshape(-1)]
         return out
 

@@ -1,4 +1,4 @@
-"""The `neatskin skin` command group: sensitivity maps of a skin layout as PNG and parquet."""
+"""The `neatskin skin` command group: sensitivity maps of a skin layout as PNG and parquet, one press, and the fit."""
 
 from __future__ import annotations
 
@@ -43,6 +43,37 @@ def register(subparsers) -> None:
     press.add_argument("--probe-radius-mm", type=float, default=2.75, help="flat probe radius (paper: 2.75 mm)")
     press.add_argument("--fidelity", choices=("deformation", "network"), default="deformation")
     press.set_defaults(handler=press_handler)
+    fit = commands.add_parser(
+        "fit",
+        help="fit the skin model to a recorded campaign (channel baselines, pinch, placement, noise, drift)",
+        description="Estimate the skin model's parameters from a recorded campaign by nonlinear least squares "
+        "through the forward model, with 95 %% intervals and the pinch's correlation, and write a skin profile.",
+    )
+    fit.add_argument("campaign", metavar="CAMPAIGN_DIR", help="a finished campaign folder (presses.parquet)")
+    fit.add_argument("--out", default=None, help="skin profile TOML to write (default CAMPAIGN_DIR/skin_profile.toml)")
+    fit.add_argument("--probe-radius-mm", type=float, default=2.75, help="flat probe radius (paper: 2.75 mm)")
+    fit.set_defaults(handler=fit_handler)
+
+
+def fit_handler(args: argparse.Namespace) -> int:
+    import time
+
+    from neatskin.skin.fit import fit_skin
+
+    t0 = time.perf_counter()
+    result = fit_skin(args.campaign, probe_radius_mm=args.probe_radius_mm)
+    out = Path(args.out) if args.out else Path(args.campaign) / "skin_profile.toml"
+    out.write_text(result.to_toml())
+    print(f"skin fitted to {args.campaign} in {time.perf_counter() - t0:.1f} s (95 % intervals)")
+    for name in ("pinch_gain", "decay_ratio", "placement_error_mm", "noise_ohm", "drift_per_h"):
+        v = getattr(result, name)
+        print(f"  {name:<20s} {v.value:12.5g}   [{v.ci95[0]:.5g}, {v.ci95[1]:.5g}]")
+    print(f"  correlation(pinch_gain, decay_ratio) = {result.pinch_correlation:+.2f}")
+    print(f"  rms residual of the mean dR per position: {result.rms_residual_ohm:.3g} ohm")
+    for note in result.notes:
+        print(f"  note: {note}")
+    print(f"wrote {out}")
+    return 0
 
 
 def press_handler(args: argparse.Namespace) -> int:

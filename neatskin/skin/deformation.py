@@ -41,6 +41,15 @@ from neatskin.layout import Layout
 _CHUNK_PRESSES = 768
 _CUTOFF_DECAYS = 6.1  # exp(-6.1^2) < 1e-16
 _PANEL_EDGES = np.array([0.0, 0.5, 2.0, np.inf])  # side panels in decay lengths from the probe edge
+# Near a full-depth press (p0 -> 1) the integrand 1 / (1 - p0 exp(-u^2)) is a peak of half-width
+# w = sqrt((1 - p0) / p0) decay lengths at the footprint's edge: the first panel is then cut
+# geometrically (ratio 1/3) towards the edge until its innermost panel is about w wide.
+_GRADED_FROM_P0 = 0.9
+_GRADING_RATIO = 2.0
+_MAX_GRADING_LEVELS = 30
+# where the channel only grazes the probe, r - a grows as s^2 / 2a and the peak spreads over the
+# outer panels: near full depth they are halved too
+_GRADED_OUTER_EDGES = np.array([0.5, 1.0, 1.5, 2.0, 3.0, np.inf])
 
 
 @dataclass(frozen=True)
@@ -93,27 +102,74 @@ def _gauss_legendre(q: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def resistance_factor(
-    layout: Layout, x_mm, y_mm, depth_mm, probe_radius_mm, params: PinchParams = PinchParams()
+    layout: Layout,
+    x_mm,
+    y_mm,
+    depth_mm,
+    probe_radius_mm,
+    params: PinchParams = PinchParams(),
+    pinch_scale: np.ndarray | None = None,
 ) -> np.ndarray:
     """R / R0 of every channel for every press, shape (presses, channels); 1 exactly where depth <= 0,
-    inf where a channel is pinched shut. Inputs are arrays of shape (presses,) or scalars."""
+    inf where a channel is pinched shut. Inputs are arrays of shape (presses,) or scalars.
+
+    pinch_scale (channels,): multiplies each channel's pinch fraction (capped at shut). A channel of
+    relative height h loses the same absolute height as a nominal one, so its scale is 1 / h;
+    None = every channel at the layout's height."""
+    return _integrate(layout, x_mm, y_mm, depth_mm, probe_radius_mm, params, pinch_scale, volume=False)
+
+
+def pinched_length_fraction(
+    layout: Layout,
+    x_mm,
+    y_mm,
+    depth_mm,
+    probe_radius_mm,
+    params: PinchParams = PinchParams(),
+    pinch_scale: np.ndarray | None = None,
+) -> np.ndarray:
+    """(1 / L) integral of p(r(s)) ds along every channel, (presses, channels): the share of each
+    channel's fluid volume the press displaces (same quadrature as `resistance_factor`)."""
+    return _integrate(layout, x_mm, y_mm, depth_mm, probe_radius_mm, params, pinch_scale, volume=True)
+
+
+def _integrate(layout, x_mm, y_mm, depth_mm, probe_radius_mm, params, pinch_scale, *, volume):
     x, y, depth, radius = np.broadcast_arrays(
         *(np.atleast_1d(np.asarray(v, float)) for v in (x_mm, y_mm, depth_mm, probe_radius_mm))
     )
+    scale = None if pinch_scale is None else np.asarray(pinch_scale, float).reshape(1, layout.n_channels)
     out = np.empty((x.shape[0], layout.n_channels))
-    for lo in range(0, x.shape[0], _CHUNK_PRESSES):
-        sl = slice(lo, lo + _CHUNK_PRESSES)
-        out[sl] = _factor_chunk(layout, x[sl], y[sl], depth[sl], radius[sl], params)
+    p0 = np.minimum(1.0, params.pinch_gain * np.maximum(depth, 0.0) / layout.thickness_mm)
+    if scale is not None:
+        p0 = np.minimum(1.0, p0 * scale.max())
+    near_full = p0 > _GRADED_FROM_P0
+    for group, edges in ((~near_full, _PANEL_EDGES), (near_full, _graded_edges(p0[near_full]))):
+        idx = np.flatnonzero(group)
+        for lo in range(0, idx.size, _CHUNK_PRESSES):
+            sl = idx[lo : lo + _CHUNK_PRESSES]
+            out[sl] = _factor_chunk(layout, x[sl], y[sl], depth[sl], radius[sl], params, scale, volume, edges)
     return out
 
 
-def _factor_chunk(layout, x, y, depth, radius, params):
+def _graded_edges(p0: np.ndarray) -> np.ndarray:
+    """Panel edges (in decay lengths) for presses near full depth: the standard ones, with the first panel
+    cut geometrically towards the footprint's edge down to the narrowest peak's half-width."""
+    if p0.size == 0:
+        return _PANEL_EDGES
+    peak = np.sqrt(max(1.0 - float(p0.max()), 1e-300) / float(p0.max()))
+    levels = int(np.clip(np.ceil(np.log(_PANEL_EDGES[1] / peak) / np.log(_GRADING_RATIO)), 1, _MAX_GRADING_LEVELS))
+    graded = _PANEL_EDGES[1] * _GRADING_RATIO ** -np.arange(levels, 0, -1.0)
+    return np.concatenate([[0.0], graded, _GRADED_OUTER_EDGES])
+
+
+def _factor_chunk(layout, x, y, depth, radius, params, scale=None, volume=False, panel_edges=_PANEL_EDGES):
     start, unit, length = _channel_geometry(layout)
     thickness, cdepth = layout.thickness_mm, layout.channel_depth_mm
     touching = depth > 0
     d = np.where(touching, depth, 0.0)[:, None]
     a = radius[:, None]
-    p0 = np.minimum(1.0, params.pinch_gain * d / thickness)  # (n, 1)
+    p0 = params.pinch_gain * d / thickness  # (n, 1), or (n, C) with a per-channel height
+    p0 = np.minimum(1.0, p0 if scale is None else p0 * scale)
     decay = params.decay_ratio * (cdepth + d)
     rel_x, rel_y = x[:, None] - start[:, 0], y[:, None] - start[:, 1]  # (n, C)
     s0 = rel_x * unit[:, 0] + rel_y * unit[:, 1]
@@ -123,8 +179,11 @@ def _factor_chunk(layout, x, y, depth, radius, params):
     foot_lo = np.clip(s0 - half_chord, 0.0, length)
     foot_hi = np.clip(s0 + half_chord, 0.0, length)
     foot = foot_hi - foot_lo
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inner = np.where(foot > 0, foot / (1.0 - p0), 0.0)  # exact: p = p0 under the probe
+    if volume:
+        inner = foot * p0  # exact: p = p0 under the probe
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inner = np.where(foot > 0, foot / (1.0 - p0), 0.0)
     # the two sides outside the footprint, each as panels [edge, edge + l] and [edge + l, end];
     # only (s - s0)^2 enters, and on side k, s - s0 = sign_k * (base_k + offset)
     base = np.stack([foot_hi - s0, s0 - foot_lo], axis=-1)  # (n, C, 2): footprint edge to s0 distance
@@ -132,7 +191,7 @@ def _factor_chunk(layout, x, y, depth, radius, params):
     # beyond r = a + CUTOFF * l the pinch is below 1e-16: that stretch is exactly its length
     reach = np.sqrt(np.maximum((a + _CUTOFF_DECAYS * decay) ** 2 - perp2, 0.0)) - half_chord
     active = np.minimum(np.maximum(reach, 0.0)[..., None], side_len)  # (n, C, 2)
-    edges = np.minimum(decay[..., None, None] * _PANEL_EDGES, active[..., None])
+    edges = np.minimum(decay[..., None, None] * panel_edges, active[..., None])
     edges[..., -1] = active
     p_start = base[..., None] + edges[..., :-1]  # (n, C, 2 sides, panels)
     p_width = np.diff(edges, axis=-1)
@@ -153,20 +212,30 @@ def _factor_chunk(layout, x, y, depth, radius, params):
     np.multiply(r, r, out=r)  # outside the footprint r >= a, so this is (r - a)^2
     r *= per_side(np.broadcast_to(-1.0 / (decay * decay), perp2.shape))
     np.exp(r, out=r)
-    r *= per_side(np.broadcast_to(-p0, perp2.shape))
-    r += 1.0
-    with np.errstate(divide="ignore"):
-        np.reciprocal(r, out=r)
+    r *= per_side(np.broadcast_to(-p0, perp2.shape))  # -p
+    if volume:
+        np.negative(r, out=r)
+    else:
+        r += 1.0
+        with np.errstate(divide="ignore"):
+            np.reciprocal(r, out=r)
     side_integral = np.zeros(active.size)
     side_integral[live] = np.sum(np.tensordot(weights, r, axes=(0, 0)) * width, axis=0)
-    outer = np.sum(side_integral.reshape(active.shape) + (side_len - active), axis=-1)
+    beyond = 0.0 if volume else side_len - active  # past the reach p < 1e-16: exactly its length (or no volume)
+    outer = np.sum(side_integral.reshape(active.shape) + beyond, axis=-1)
     factor = (inner + outer) / length
-    factor[~touching] = 1.0
+    factor[~touching] = 0.0 if volume else 1.0
     return factor
 
 
 def nearest_point_factor(
-    layout: Layout, x_mm, y_mm, depth_mm, probe_radius_mm, params: PinchParams = PinchParams()
+    layout: Layout,
+    x_mm,
+    y_mm,
+    depth_mm,
+    probe_radius_mm,
+    params: PinchParams = PinchParams(),
+    pinch_scale: np.ndarray | None = None,
 ) -> np.ndarray:
     """Closed-form stand-in for resistance_factor (the "network" fidelity): the pinch at the channel
     point nearest the probe axis, applied over the probe's footprint (one diameter, at most the
@@ -179,6 +248,11 @@ def nearest_point_factor(
     s0 = np.clip(rel_x * unit[:, 0] + rel_y * unit[:, 1], 0.0, length)
     r_min = np.hypot(rel_x - s0 * unit[:, 0], rel_y - s0 * unit[:, 1])
     p = pinch_fraction(r_min, depth[:, None], radius[:, None], layout.thickness_mm, layout.channel_depth_mm, params)
+    if pinch_scale is not None:  # same absolute height lost: p / h, capped at shut (p0 = 1)
+        p0 = np.minimum(1.0, params.pinch_gain * np.maximum(depth, 0.0) / layout.thickness_mm)[:, None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            shape = np.where(p0 > 0, p / np.where(p0 > 0, p0, 1.0), 0.0)
+        p = np.minimum(1.0, p0 * np.asarray(pinch_scale, float)[None, :]) * shape
     share = np.minimum(2.0 * radius[:, None], length) / length
     with np.errstate(divide="ignore"):
         factor = 1.0 + share * (1.0 / (1.0 - p) - 1.0)

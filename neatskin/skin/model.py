@@ -24,7 +24,12 @@ from functools import cached_property
 import numpy as np
 
 from neatskin.layout import Layout
-from neatskin.skin.deformation import PinchParams, nearest_point_factor, resistance_factor
+from neatskin.skin.deformation import (
+    PinchParams,
+    nearest_point_factor,
+    pinched_length_fraction,
+    resistance_factor,
+)
 from neatskin.skin.network import equivalent_resistance
 
 FIDELITIES = ("deformation", "network")
@@ -43,6 +48,13 @@ class SkinModel:
         (1 - h) times the loading force.
     placement_sigma_mm: standard deviation of the probe placement error per axis (the runner draws
         it with `placement_error_mm`).
+    channel_height_factor: per channel, its height over the layout's (fabrication spread; None =
+        as drawn). R0 scales by 1 / h, and a press takes the same absolute height off every
+        channel, so the pinch fraction scales by 1 / h (`skin.variability.fabrication_heights`).
+    displaced_fluid_fraction: the sealed network keeps this share of the fluid a press displaces
+        in its channels, which widen uniformly by 1 + e so that the fluid volume is conserved
+        (0 = off: the displaced fluid goes elsewhere, e.g. into the electrode wells). A press then
+        lowers the resistance of the channels it does not pinch: a negative dR on far pairs.
     """
 
     layout: Layout
@@ -56,6 +68,8 @@ class SkinModel:
     resistivity_tempco_per_k: float = -0.02
     hysteresis_fraction: float = 0.0
     placement_sigma_mm: float = 0.0
+    channel_height_factor: tuple[float, ...] | None = None
+    displaced_fluid_fraction: float = 0.0
 
     def __post_init__(self) -> None:
         if self.fidelity not in FIDELITIES:
@@ -70,6 +84,15 @@ class SkinModel:
             raise ValueError(f"hysteresis_fraction must be in [0, 1), got {self.hysteresis_fraction!r}")
         if not (math.isfinite(self.placement_sigma_mm) and self.placement_sigma_mm >= 0):
             raise ValueError(f"placement_sigma_mm must be >= 0, got {self.placement_sigma_mm!r}")
+        if not 0 <= self.displaced_fluid_fraction <= 1:
+            raise ValueError(f"displaced_fluid_fraction must be in [0, 1], got {self.displaced_fluid_fraction!r}")
+        if self.channel_height_factor is not None:
+            heights = np.asarray(self.channel_height_factor, float)
+            if heights.shape != (self.layout.n_channels,) or not np.all(np.isfinite(heights) & (heights > 0)):
+                raise ValueError(
+                    f"channel_height_factor must be {self.layout.n_channels} positive numbers (one per channel "
+                    f"of layout '{self.layout.name}'), got {self.channel_height_factor!r}"
+                )
         if self.temperature_c is not None and self.resistivity_factor(self.temperature_c) <= 0:
             raise ValueError(
                 f"temperature_c = {self.temperature_c} drives the resistivity to <= 0; "
@@ -82,24 +105,106 @@ class SkinModel:
         """rho(T) / rho_layout (linear temperature coefficient)."""
         return 1.0 + self.resistivity_tempco_per_k * (np.asarray(temperature_c, float) - self.reference_temperature_c)
 
-    def channel_resistance_ohm(self, x_mm, y_mm, depth_mm, peak_depth_mm=None, temperature_c=None) -> np.ndarray:
+    @cached_property
+    def _heights(self) -> np.ndarray | None:
+        return None if self.channel_height_factor is None else np.asarray(self.channel_height_factor, float)
+
+    @cached_property
+    def channel_baseline_ohm(self) -> np.ndarray:
+        """Undeformed resistance of every channel, (channels,): the layout's, over the fabricated heights."""
+        base = self.layout.channel_resistance_ohm
+        return base if self._heights is None else base / self._heights
+
+    @cached_property
+    def channel_volume_mm3(self) -> np.ndarray:
+        """Undeformed fluid volume of every channel, (channels,)."""
+        volume = np.array([c.length_mm * c.area_mm2 for c in self.layout.channels])
+        return volume if self._heights is None else volume * self._heights
+
+    def channel_resistance_ohm(
+        self,
+        x_mm,
+        y_mm,
+        depth_mm,
+        peak_depth_mm=None,
+        temperature_c=None,
+        *,
+        resistivity_factor=None,
+        extra_factor=None,
+    ) -> np.ndarray:
         """Resistance of every channel for every press, (n, channels); inf for a channel pinched shut.
 
         depth_mm <= 0 means not touching (baseline). peak_depth_mm (unloading branch) only matters
-        with hysteresis; temperature_c (per press or scalar) overrides the model's temperature."""
+        with hysteresis; temperature_c (per press or scalar) overrides the model's temperature.
+        resistivity_factor (per press or scalar) multiplies rho (drift); extra_factor (n or 1,
+        channels) is added to every channel's R / R0 (a residual dent from earlier presses)."""
         x, y, depth = _as_presses(x_mm, y_mm, depth_mm)
         depth = self.effective_depth_mm(depth, peak_depth_mm)
-        args = (self.layout, x, y, depth, self.probe_radius_mm, self.pinch)
-        factor = resistance_factor(*args) if self.fidelity == "deformation" else nearest_point_factor(*args)
-        resistance = factor * self.layout.channel_resistance_ohm
+        factor = self.pinch_factor(x, y, depth)
+        if extra_factor is not None:
+            factor = factor + np.asarray(extra_factor, float)
+        if self.displaced_fluid_fraction > 0:
+            factor = factor / self.fluid_widening(x, y, depth)[:, None]
+        resistance = factor * self.channel_baseline_ohm
         temperature = self.temperature_c if temperature_c is None else temperature_c
         if temperature is not None:
             resistance = resistance * np.reshape(self.resistivity_factor(temperature), (-1, 1))
+        if resistivity_factor is not None:
+            resistance = resistance * np.reshape(np.asarray(resistivity_factor, float), (-1, 1))
         return resistance
 
-    def pair_resistance_ohm(self, x_mm, y_mm, depth_mm, peak_depth_mm=None, temperature_c=None) -> np.ndarray:
+    def pinch_factor(self, x_mm, y_mm, depth_mm) -> np.ndarray:
+        """R / R0 of every channel from the pinch alone (no fluid widening, drift or dents), (n, channels)."""
+        x, y, depth = _as_presses(x_mm, y_mm, depth_mm)
+        args = (self.layout, x, y, depth, self.probe_radius_mm, self.pinch)
+        scale = None if self._heights is None else 1.0 / self._heights
+        if self.fidelity == "deformation":
+            return resistance_factor(*args, pinch_scale=scale)
+        return nearest_point_factor(*args, pinch_scale=scale)
+
+    def pinched_volume_mm3(self, x_mm, y_mm, depth_mm) -> np.ndarray:
+        """Fluid volume each press takes out of each channel under the probe, (n, channels)."""
+        x, y, depth = _as_presses(x_mm, y_mm, depth_mm)
+        scale = None if self._heights is None else 1.0 / self._heights
+        share = pinched_length_fraction(self.layout, x, y, depth, self.probe_radius_mm, self.pinch, scale)
+        return share * self.channel_volume_mm3
+
+    def fluid_widening(self, x_mm, y_mm, depth_mm) -> np.ndarray:
+        """1 + e per press, (n,): the uniform widening of every channel's cross-section that keeps the
+        share `displaced_fluid_fraction` of the displaced volume dV in the network,
+        (1 + e) (V - dV) = V - dV + f dV."""
+        lost = self.pinched_volume_mm3(x_mm, y_mm, depth_mm).sum(axis=1)
+        total = float(self.channel_volume_mm3.sum())
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return 1.0 + self.displaced_fluid_fraction * lost / np.maximum(total - lost, 0.0)
+
+    def channel_fluid_volume_mm3(self, x_mm, y_mm, depth_mm) -> np.ndarray:
+        """Fluid volume of every channel under each press, (n, channels): pinched, then widened."""
+        lost = self.pinched_volume_mm3(x_mm, y_mm, depth_mm)
+        widening = self.fluid_widening(x_mm, y_mm, depth_mm) if self.displaced_fluid_fraction > 0 else 1.0
+        return (self.channel_volume_mm3 - lost) * np.reshape(widening, (-1, 1))
+
+    def pair_resistance_ohm(
+        self,
+        x_mm,
+        y_mm,
+        depth_mm,
+        peak_depth_mm=None,
+        temperature_c=None,
+        *,
+        resistivity_factor=None,
+        extra_factor=None,
+    ) -> np.ndarray:
         """Equivalent resistance of every electrode pair (layout.pairs order), (n, pairs); inf if cut apart."""
-        resistance = self.channel_resistance_ohm(x_mm, y_mm, depth_mm, peak_depth_mm, temperature_c)
+        resistance = self.channel_resistance_ohm(
+            x_mm,
+            y_mm,
+            depth_mm,
+            peak_depth_mm,
+            temperature_c,
+            resistivity_factor=resistivity_factor,
+            extra_factor=extra_factor,
+        )
         with np.errstate(divide="ignore"):
             return equivalent_resistance(self.layout, 1.0 / resistance)
 
