@@ -114,7 +114,7 @@ def result_warnings(table: pd.DataFrame, data: BaselineData, bound: float | None
     notes = []
     size = _skin_size_mm(data)
     for row in table.itertuples(index=False):
-        if row.mean_error_mm > size:
+        if float(row.mean_error_mm) > size:  # type: ignore[arg-type]
             notes.append(
                 f"{row.model} ({row.split}): mean error {row.mean_error_mm:.1f} mm is larger than the skin "
                 f"({size:.0f} mm): it extrapolates; read its figures as a failure, not as an error size"

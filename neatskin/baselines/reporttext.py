@@ -35,7 +35,7 @@ def bold_winners(table: pd.DataFrame) -> set[tuple[str, str]]:
                 continue
             others = rows[rows["model"] != row.model]
             if len(others) and (row.mean_error_mm_hi < others["mean_error_mm_lo"]).all():
-                winners.add((row.model, split))
+                winners.add((str(row.model), str(split)))
     return winners
 
 
