@@ -40,6 +40,7 @@ logger = logging.getLogger(__name__)
 PAPER_REAL_SKIN = {"mean_error_mm": 2.03, "std_error_mm": 0.26, "mse_mm2": 3.32, "within_probe_pct": 82.0}
 TABLE_NAME = "baselines"
 DEFAULT_REPEATS = 10
+MEDIAN_BOUND_SHARE = 0.5  # see results_table
 SPLIT_CHOICES = {"both": ("grouped", "random"), "all": SPLITS}  # "random" brings "design" when it fits
 
 
@@ -65,12 +66,14 @@ def bound_rms_mm(limit: pd.DataFrame | None) -> float | None:
 
 
 def results_table(results: Iterable[ModelResult], bound: float | None) -> pd.DataFrame:
-    """One row per model and split; `below_bound` marks an RMS error under the Cramér-Rao bound (memorisation)."""
+    """One row per model and split; `below_bound` marks memorisation: an RMS error under the Cramér-Rao bound,
+    or a median error under half of it (an unbiased estimator at the bound, Gaussian errors in 2-D, has a
+    median error of 0.67 to 0.83 times its RMS: a median below half the bound cannot be one)."""
     table = pd.DataFrame([r.row() for r in results])
     if bound is not None:
         table["crb_rms_mm"] = bound
         table["rms_over_crb"] = table["rms_error_mm"] / bound if bound > 0 else np.inf
-        table["below_bound"] = table["rms_error_mm"] < bound
+        table["below_bound"] = (table["rms_error_mm"] < bound) | (table["median_error_mm"] < MEDIAN_BOUND_SHARE * bound)
     else:
         table["below_bound"] = False
     return table
@@ -121,9 +124,9 @@ def result_warnings(table: pd.DataFrame, data: BaselineData, bound: float | None
             )
         if row.below_bound:
             notes.append(
-                f"{row.model} ({row.split}): RMS error {row.rms_error_mm:.3g} mm is below the Cramér-Rao bound "
-                f"{bound:.3g} mm: no unbiased estimator of a new press can do that; it memorises the training "
-                "positions (repeats of a test position are in training)"
+                f"{row.model} ({row.split}): RMS error {row.rms_error_mm:.3g} mm, median {row.median_error_mm:.3g} mm "
+                f"against the Cramér-Rao bound {bound:.3g} mm (RMS): no unbiased estimator of a new press can do "
+                "that; it memorises the training positions (repeats of a test position are in training)"
             )
     return notes
 
