@@ -147,7 +147,8 @@ def markdown_report(
         lines += [
             f"Physical limit (`{PHYSICAL_LIMIT_NAME}`): the Cramér-Rao bound on the RMS error of any unbiased "
             f"estimator of a press's position, pooled over positions as sqrt(mean CRB²) = {bound:.3g} mm. A result "
-            "below it is flagged: it can only come from memorising training positions (a split by row).",
+            "below it (RMS error below the bound, or median error below half of it) is flagged: it can only come "
+            "from memorising training positions (a split by row).",
             "",
         ]
     lm_note = (
