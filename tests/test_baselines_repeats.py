@@ -225,3 +225,22 @@ def test_inversion_stands_beside_the_learned_models_in_the_report(tmp_path):
     rows = [int(np.flatnonzero((df[["x_mm", "y_mm"]].to_numpy() == p).all(axis=1))[0]) for p in inv.y_true_mm]
     np.testing.assert_allclose(inv.y_pred_mm, direct.xy_mm[rows])
     assert "`inversion`" in report.text
+
+
+def test_only_the_grouped_split_hands_positions_to_the_lm(monkeypatch):
+    from neatskin.baselines import evaluate
+
+    seen = []
+    real = evaluate.fit_predict
+
+    def spy(estimator, X, y, groups, train, test):
+        seen.append(groups is not None)
+        return real(estimator, X, y, groups, train, test)
+
+    monkeypatch.setattr(evaluate, "fit_predict", spy)
+    df = table(12, 8)
+    X, y, groups = df.filter(like="dR_ohm").to_numpy(), df[["x_mm", "y_mm"]].to_numpy(), df["position_id"].to_numpy()
+    lm = LMNetworkRegressor(n_restarts=1, max_epochs=3, random_state=0)
+    splits = {s: repeat_splits(s, groups, 2)[0] for s in ("grouped", "random", "design")}
+    evaluate.evaluate_models({"lm_network": lm}, X, y, groups, splits)
+    assert seen == [True, True, False, False, False, False]

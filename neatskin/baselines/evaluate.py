@@ -337,12 +337,19 @@ def evaluate_models(
     n_jobs: processes (1 = in this process, -1 = every core). backend: a joblib backend name
     ("loky" by default; "dask" with a dask.distributed client registered).
     progress: optional callable(done_tasks, total_tasks).
+    The grouped split's fits get the training rows' position ids (an estimator that validates on
+    held-out positions uses them); fits on a split by row do not.
     """
     from joblib import Parallel, delayed, parallel_backend
 
     check_arrays(X, y)
     tasks = [(s, n, rep) for s, reps in split_repeats.items() for n in estimators for rep in reps]
-    calls = (delayed(fit_predict)(estimators[n], X, y, groups, rep.train, rep.test) for s, n, rep in tasks)
+    # held-out positions for validation only on the grouped split: on a split by row (random, design) the
+    # LM validates on random rows, as the paper did
+    calls = (
+        delayed(fit_predict)(estimators[n], X, y, groups if s == "grouped" else None, rep.train, rep.test)
+        for s, n, rep in tasks
+    )
     outputs: list[tuple[np.ndarray, float, float]] = []
     if n_jobs == 1 and backend is None:
         for call in calls:
