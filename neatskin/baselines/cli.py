@@ -24,7 +24,8 @@ def register(subparsers) -> None:
     parser.add_argument(
         "--models",
         default=None,
-        help="comma-separated: ridge,knn,kernel_ridge,extra_trees,mlp,lm_network (default: all)",
+        help="comma-separated: ridge,knn,kernel_ridge,extra_trees,mlp,lm_network,inversion (default: all; "
+        "inversion, the physics baseline, needs the layout the manifest names)",
     )
     parser.add_argument("--out", default=None, help="output folder (default: the dataset folder)")
     parser.add_argument(
