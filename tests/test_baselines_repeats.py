@@ -244,3 +244,20 @@ def test_only_the_grouped_split_hands_positions_to_the_lm(monkeypatch):
     splits = {s: repeat_splits(s, groups, 2)[0] for s in ("grouped", "random", "design")}
     evaluate.evaluate_models({"lm_network": lm}, X, y, groups, splits)
     assert seen == [True, True, False, False, False, False]
+
+
+def test_bold_only_when_the_interval_beats_every_honest_competitor():
+    from neatskin.baselines.reporttext import bold_winners
+
+    t = pd.DataFrame(
+        {
+            "model": ["a", "b", "c", "a", "b", "m"],
+            "split": ["grouped"] * 3 + ["random"] * 3,
+            "mean_error_mm_lo": [1.0, 2.5, 3.0, 1.0, 1.4, 0.0],
+            "mean_error_mm_hi": [2.0, 3.5, 4.0, 1.5, 2.0, 0.0],
+            "below_bound": [False, False, False, False, False, True],
+        }
+    )
+    # grouped: a's [1, 2] lies below b's and c's; random: a's [1, 1.5] overlaps b's [1.4, 2], and the
+    # memorising m is neither bold nor a competitor
+    assert bold_winners(t) == {("a", "grouped")}

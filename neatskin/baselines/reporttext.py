@@ -33,7 +33,7 @@ def bold_winners(table: pd.DataFrame) -> set[tuple[str, str]]:
         for row in rows.itertuples(index=False):
             if row.below_bound:  # memorisation is no result to celebrate
                 continue
-            others = rows[rows["model"] != row.model]
+            others = rows[(rows["model"] != row.model) & ~rows["below_bound"]]  # memorisation is no competitor
             if len(others) and (row.mean_error_mm_hi < others["mean_error_mm_lo"]).all():
                 winners.add((str(row.model), str(split)))
     return winners
@@ -96,7 +96,9 @@ def _like_for_like(table: pd.DataFrame, paper: Mapping[str, float], data: Baseli
     grouped = table[(table["model"] == "lm_network") & (table["split"] == "grouped")]
     for row in grouped.itertuples(index=False):
         lines += [
-            f"**New positions** (grouped split, the LM network): mean error {_cell(row, 'mean_error_mm')} mm, "
+            "### New positions (grouped split)",
+            "",
+            f"The LM network: mean error {_cell(row, 'mean_error_mm')} mm, "
             f"{_cell(row, 'within_probe_pct', '.1f')} % within the probe radius. This is a different question from "
             "the paper's: the press lands at a position the network never saw. It has no counterpart in the paper.",
             "",
