@@ -197,12 +197,16 @@ def test_inversion_recovers_positions_on_the_ideal_skin():
     xy[:10, 1] = 15.0  # on the middle channel row
     depth = np.full(25, 3.5)
     dr = skin.pair_resistance_ohm(xy[:, 0], xy[:, 1], depth) - skin.baseline_pair_resistance_ohm
+    one_pass = skin_inversion(layout, dr, fidelity="deformation", retry_residual_factor=None)
     res = skin_inversion(layout, dr, fidelity="deformation")
     err = np.hypot(*(res.xy_mm - xy).T)
-    # noise-free: most presses come back exact to far below the dry run's bound (~0.002 mm rms);
-    # a few stay in a local minimum of the grid start (3 of these 25, measured): stated, not hidden
+    # noise-free: presses come back exact to far below the dry run's bound (~0.002 mm rms); one pass
+    # leaves 2 of these 25 in a local minimum of the grid start, the second pass on high residuals
+    # recovers one (measured): stated, not hidden
     assert np.median(err) < 1e-4, np.sort(err)
-    assert np.mean(err < 0.002) >= 0.85, np.sort(err)
+    assert np.mean(err < 0.002) >= 0.96, np.sort(err)
+    assert np.mean(np.hypot(*(one_pass.xy_mm - xy).T) < 0.002) == pytest.approx(0.92)
+    assert (res.residual_ohm <= one_pass.residual_ohm).all()  # the second pass only keeps better fits
     assert np.median(np.abs(res.depth_mm - 3.5)) < 1e-2
     assert res.n_model_evaluations > 0 and res.time_s > 0
 
