@@ -148,7 +148,8 @@ def plot_error_ellipses(
         ax.set_ylim(lo[1], hi[1])
         outside = int(np.sum(np.any((ell.mean_pred_mm[keep] < lo) | (ell.mean_pred_mm[keep] > hi), axis=1)))
         note = f", {outside} mean(s) off the view" if outside else ""
-        ax.set_title(f"{r.model} ({r.split}, repeat 0): {r.errors.mean_error_mm:.2f} mm{note}", fontsize=9)
+        which = "first k-fold partition" if r.split == "grouped" else "repeat 0"
+        ax.set_title(f"{r.model} ({r.split}, {which})\n{r.errors.mean_error_mm:.2f} mm{note}", fontsize=9)
         ax.set_xlabel("x (mm)")
         ax.set_ylabel("y (mm)")
     for ax in axes.ravel()[n:]:
