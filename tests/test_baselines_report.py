@@ -149,7 +149,10 @@ def test_make_models_names_and_unknown_model():
 
 def test_report_writes_table_files_and_plots(tmp_path):
     folder = write_dataset(tmp_path / "ds", small_table(10, 4), layout=True, crb_mm=0.5)
-    report = run_baselines(folder, split="both", models=["ridge", "knn", "lm_network"], progress=False, echo=False)
+    with pytest.warns(UserWarning):
+        report = run_baselines(
+            folder, split="both", models=["ridge", "knn", "lm_network"], progress=False, echo=False, n_repeats=3
+        )
     table = report.table
     assert table[["model", "split"]].values.tolist() == [
         ["ridge", "grouped"],
@@ -159,22 +162,29 @@ def test_report_writes_table_files_and_plots(tmp_path):
         ["knn", "random"],
         ["lm_network", "random"],
     ]
-    assert (table.loc[table.split == "grouped", "n_test"] == 40).all()  # every press predicted out of fold
+    assert (table["n_repeats"] == 3).all()
+    assert (table.loc[table.split == "grouped", "n_test"] == 8).all()  # one fold of 5 over 10 positions x 4
     assert (table.loc[table.split == "random", "n_test"] == 1).all()  # 2 % of 40 rounds to 1
     np.testing.assert_allclose(table["mse_per_coordinate_mm2"], table["mse_mm2"] / 2)
     np.testing.assert_allclose(table["rms_over_crb"], table["rms_error_mm"] / 0.5)
+    assert (table["mean_error_mm_lo"] <= table["mean_error_mm"]).all()
+    assert (table["mean_error_mm"] <= table["mean_error_mm_hi"]).all()
+    assert (table["within_probe_pct_lo"] >= 0).all() and (table["within_probe_pct_hi"] <= 100).all()
     assert report.bound_rms_mm == pytest.approx(0.5)
     assert (table["fit_time_s"] > 0).all() and (table["predict_time_per_sample_us"] > 0).all()
     back = pq.read_table(folder / "baselines.parquet").to_pandas()
     pd.testing.assert_frame_equal(back, table)
     assert pd.read_csv(folder / "baselines.csv")["model"].tolist() == table["model"].tolist()
-    for name in ("baselines_error_vs_time.png", "baselines_ellipses_grouped.png", "baselines_ellipses_random.png"):
+    for name in ("baselines_error_vs_time.png", "baselines_ellipses_grouped.png"):
         assert (folder / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not (folder / "baselines_ellipses_random.png").exists()  # one prediction per position: degenerate
     text = (folder / "report.md").read_text()
-    assert (
-        "2.03 mm" in text and "82 %" in text and "3.32 mm²" in text and "95 % train / 3 % validation / 2 % test" in text
-    )
-    assert "Cramér-Rao" in text
+    assert "2.03 ± 0.26" in text and "| 82 |" in text and "3.32" in text
+    assert "95 % train / 3 % validation / 2 % test" in text and "Cramér-Rao" in text
+    # 4 presses per position cannot give the 11 x 6 design; 1 test press per random repeat is too few
+    assert any("design split skipped" in w for w in report.warnings)
+    assert any("only 1 test presses per repeat" in w for w in report.warnings)
+    assert text.index("## Warnings") < text.index("## The paper beside")
 
 
 def test_report_is_deterministic_for_a_seed(tmp_path):

@@ -30,6 +30,8 @@ class BaselineData:
     n_flagged_dropped: int
     layout: object | None  # neatskin.layout.Layout when the manifest names one
     physical_limit: pd.DataFrame | None  # position_id, x_mm, y_mm, crb_mm
+    skin_fidelity: str | None = None  # the simulated skin's fidelity (dry runs), from the manifest
+    probe_radius_mm: float | None = None  # from the manifest's rig description, when it gives one
 
 
 def _pair_sort_key(name: str) -> tuple[int, int]:
@@ -57,6 +59,20 @@ def _load_layout(folder: Path, metadata: dict):
         return load_layout(path)
     except ConfigError:
         return None
+
+
+def _rig_skin(folder: Path) -> dict:
+    """The manifest's rig.skin block (fidelity, probe radius of a dry run), or {}."""
+    import json
+
+    path = folder / "manifest.json"
+    if not path.is_file():
+        return {}
+    try:
+        skin = json.loads(path.read_text(encoding="utf-8")).get("rig", {}).get("skin", {})
+    except (ValueError, AttributeError):
+        return {}
+    return skin if isinstance(skin, dict) else {}
 
 
 def check_table(df: pd.DataFrame, source: str, expected_pairs: list[str] | None = None) -> list[str]:
@@ -151,6 +167,8 @@ def load_baseline_data(dataset: str | Path, flagged: str = "drop") -> BaselineDa
                 field="crb_mm",
                 fix="write position_id, x_mm, y_mm, crb_mm (see cramer_rao_bound_mm)",
             )
+    skin = _rig_skin(folder)
+    radius = skin.get("probe_radius_mm")
     return BaselineData(
         source=source,
         X=df[pairs].to_numpy(dtype=np.float64),
@@ -160,4 +178,6 @@ def load_baseline_data(dataset: str | Path, flagged: str = "drop") -> BaselineDa
         n_flagged_dropped=dropped,
         layout=layout,
         physical_limit=limit,
+        skin_fidelity=skin.get("fidelity") if isinstance(skin.get("fidelity"), str) else None,
+        probe_radius_mm=float(radius) if isinstance(radius, (int, float)) else None,
     )

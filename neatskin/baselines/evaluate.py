@@ -1,29 +1,47 @@
-"""Splits and evaluation: the paper's random 95/3/2 split by row, the honest k-fold over positions, timings.
+"""Splits and repeated evaluation: the paper's 95/3/2 by row, k-fold over positions, the 11 x 6 test design.
 
 - `paper_split`: rows shuffled and cut 95 % train, 3 % validation, 2 % test, as the paper
   states (its split is by row, so repeats of a test position are also in training: the
   error it gives is optimistic for positions never pressed before).
 - `grouped_folds`: k-fold over position ids (GroupKFold, shuffled): no position appears in
-  both the training and the test rows of a fold; every row is predicted once, out of fold.
-- `evaluate_model`: fits a fresh clone per fold, times fit and predict, pools the test
-  predictions and summarises them with `position_errors`.
+  both the training and the test rows of a fold.
+- `design_split`: the paper's Fig. 9 test design: 11 positions with 6 presses each held out as
+  test rows (their other presses stay in training, as in a split by row), so every test
+  position has 6 predictions and its error ellipse is never degenerate.
+- `repeat_splits`: n (seed, split) repeats of a split, each one fit. Grouped repeat r is fold
+  r mod k of the k-fold partition seeded random_state + r // k.
+- `evaluate_models`: every (model, split, repeat) fit as one task, run in processes through
+  joblib (its backend can be Dask); per repeat the held-out errors, pooled and summarised.
+
+Anything that makes a figure weak (few test rows, folds cut) is returned as a warning text.
 """
 
 from __future__ import annotations
 
+import logging
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from sklearn.base import BaseEstimator, clone
 from sklearn.model_selection import GroupKFold
 
-from neatskin.baselines.metrics import PositionErrors, position_errors
+from neatskin.baselines.metrics import Interval, PositionErrors, position_errors, summarise_repeats
 from neatskin.errors import DataError
 
+logger = logging.getLogger(__name__)
+
 PAPER_FRACTIONS = (0.95, 0.03, 0.02)
-SPLITS = ("grouped", "random")
+SPLITS = ("grouped", "random", "design")
+DESIGN_POSITIONS = 11
+DESIGN_PRESSES = 6
 MIN_TRAIN_ROWS = 6
+MIN_TEST_ROWS = 20  # below this a share moves in steps of 5 % or more per press
+
+
+class BaselineWarning(UserWarning):
+    """A baseline figure that stands on weak ground (few test rows, folds cut, errors beyond the skin)."""
 
 
 def paper_split(n_rows: int, random_state: int | None = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -38,10 +56,20 @@ def paper_split(n_rows: int, random_state: int | None = 0) -> tuple[np.ndarray, 
     return order[n_test + n_val :], order[n_test : n_test + n_val], order[:n_test]
 
 
+def _check_folds(n_splits: int) -> None:
+    if int(n_splits) < 2:
+        raise DataError(
+            f"--folds {n_splits}: a k-fold over positions needs k >= 2 (k = 1 leaves no position to test on)",
+            field="folds",
+            fix="use --folds 2 or more (5 is the default)",
+        )
+
+
 def grouped_folds(
     groups: np.ndarray, n_splits: int = 5, random_state: int | None = 0
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """(train, test) row indices of a k-fold over groups (positions); k = min(n_splits, n_groups)."""
+    _check_folds(n_splits)
     n_groups = len(np.unique(groups))
     if n_groups < 2:
         raise DataError(
@@ -55,6 +83,36 @@ def grouped_folds(
     return [(train, test) for train, test in splitter.split(dummy, dummy, groups)]
 
 
+def design_split(
+    groups: np.ndarray,
+    random_state: int | None = 0,
+    n_positions: int = DESIGN_POSITIONS,
+    presses_per_position: int = DESIGN_PRESSES,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(train, test) rows: `presses_per_position` presses of each of `n_positions` positions are the test rows.
+
+    Only positions with more than `presses_per_position` presses are drawn (one at least stays in
+    training); with fewer such positions than asked, all of them are used.
+    """
+    labels, counts = np.unique(groups, return_counts=True)
+    eligible = labels[counts > presses_per_position]
+    if len(eligible) == 0:
+        raise DataError(
+            f"no position has more than {presses_per_position} presses for the {n_positions} x "
+            f"{presses_per_position} test design",
+            field="repeats",
+            fix=f"press each position at least {presses_per_position + 1} times, or use --split grouped",
+        )
+    rng = np.random.default_rng(random_state)
+    chosen = rng.choice(eligible, size=min(n_positions, len(eligible)), replace=False)
+    test = np.concatenate(
+        [rng.choice(np.flatnonzero(groups == g), presses_per_position, replace=False) for g in chosen]
+    )
+    test = np.sort(test)
+    train = np.setdiff1d(np.arange(len(groups)), test)
+    return train, test
+
+
 def split_folds(split: str, groups: np.ndarray, random_state: int | None = 0, n_splits: int = 5):
     """The (train, test) folds of a named split; for "random" the paper's train and val rows train."""
     if split == "grouped":
@@ -62,40 +120,114 @@ def split_folds(split: str, groups: np.ndarray, random_state: int | None = 0, n_
     if split == "random":
         train, val, test = paper_split(len(groups), random_state)
         return [(np.sort(np.concatenate([train, val])), np.sort(test))]
-    raise DataError(f"unknown split {split!r}", field="split", fix="use 'grouped' or 'random'")
+    if split == "design":
+        return [design_split(groups, random_state)]
+    raise DataError(f"unknown split {split!r}", field="split", fix="use 'grouped', 'random' or 'design'")
+
+
+@dataclass(frozen=True)
+class Repeat:
+    """One (seed, split) repeat: its training and test rows."""
+
+    index: int
+    seed: int
+    train: np.ndarray
+    test: np.ndarray
+
+
+def repeat_splits(
+    split: str, groups: np.ndarray, n_repeats: int = 10, random_state: int | None = 0, n_splits: int = 5
+) -> tuple[list[Repeat], list[str]]:
+    """n_repeats (train, test) repeats of a split, and warnings about them (folds cut, few test rows)."""
+    if int(n_repeats) < 1:
+        raise DataError(f"{n_repeats} repeats", field="repeats", fix="use --repeats 1 or more (10 is the default)")
+    base = int(random_state or 0)
+    notes: list[str] = []
+    repeats: list[Repeat] = []
+    if split == "grouped":
+        _check_folds(n_splits)
+        n_groups = len(np.unique(groups))
+        if n_splits > n_groups:
+            notes.append(f"grouped split: --folds {n_splits} cut to {n_groups}, the number of positions in the dataset")
+        partitions: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+        for r in range(n_repeats):
+            k = min(n_splits, n_groups)
+            seed = base + r // k
+            if seed not in partitions:
+                partitions[seed] = grouped_folds(groups, n_splits, seed)
+            train, test = partitions[seed][r % k]
+            repeats.append(Repeat(r, seed, train, test))
+    else:
+        for r in range(n_repeats):
+            train, test = split_folds(split, groups, base + r, n_splits)[0]
+            repeats.append(Repeat(r, base + r, train, test))
+    n_test = min(len(rep.test) for rep in repeats)
+    if n_test < MIN_TEST_ROWS:
+        notes.append(
+            f"{split} split: only {n_test} test presses per repeat (fewer than {MIN_TEST_ROWS}); a share within "
+            f"the probe radius moves in steps of {100 / n_test:.0f} % per press: record more presses"
+        )
+    for rep in repeats:
+        if len(rep.train) < MIN_TRAIN_ROWS:
+            raise DataError(
+                f"only {len(rep.train)} training presses in a {split} repeat",
+                field="rows",
+                fix=f"record at least {MIN_TRAIN_ROWS} presses per fold",
+            )
+    return repeats, notes
 
 
 @dataclass(frozen=True)
 class ModelResult:
-    """One model on one split: pooled test errors, timings, and the predictions behind them."""
+    """One model on one split over its repeats: per-repeat errors, their summary, timings, example predictions.
+
+    y_true_mm / y_pred_mm / groups: the predictions the Fig. 9 ellipses are drawn from (grouped:
+    the first k-fold partition, every row once; random and design: repeat 0).
+    """
 
     model: str
     split: str
-    errors: PositionErrors
-    fit_time_s: float  # mean over folds, one fit each
+    per_repeat: tuple[PositionErrors, ...]
+    fit_time_s: float  # mean over repeats, one fit each
     predict_time_per_sample_s: float
-    n_folds: int
-    n_train_rows: int  # mean over folds
+    n_train_rows: int  # mean over repeats
     y_true_mm: np.ndarray
     y_pred_mm: np.ndarray
     groups: np.ndarray
 
+    @property
+    def n_repeats(self) -> int:
+        return len(self.per_repeat)
+
+    @property
+    def errors(self) -> PositionErrors:
+        """Pooled over the example predictions (see the class docstring)."""
+        return position_errors(self.y_true_mm, self.y_pred_mm)
+
+    @property
+    def summary(self) -> dict[str, Interval]:
+        return summarise_repeats(list(self.per_repeat))
+
     def row(self) -> dict:
-        e = self.errors
-        return {
+        out: dict = {
             "model": self.model,
             "split": self.split,
-            "n_test": e.n,
-            "n_folds": self.n_folds,
-            "mean_error_mm": e.mean_error_mm,
-            "std_error_mm": e.std_error_mm,
-            "median_error_mm": e.median_error_mm,
-            "mse_mm2": e.mse_mm2,
-            "mse_per_coordinate_mm2": e.mse_per_coordinate_mm2,
-            "within_probe_pct": 100.0 * e.within_probe_share,
-            "fit_time_s": self.fit_time_s,
-            "predict_time_per_sample_us": 1e6 * self.predict_time_per_sample_s,
+            "n_repeats": self.n_repeats,
+            "n_test": int(round(np.mean([e.n for e in self.per_repeat]))),
+            "n_train": self.n_train_rows,
         }
+        for name, iv in self.summary.items():
+            scale = 100.0 if name.endswith("_share") else 1.0
+            key = name.replace("_share", "_pct") if scale != 1.0 else name
+            out[key] = scale * iv.mean
+            out[f"{key}_std"] = scale * iv.std
+            # every figure is >= 0 (shares <= 100 %): the interval is cut there, never drawn below zero
+            high = 100.0 if scale != 1.0 else np.inf
+            out[f"{key}_lo"] = float(np.clip(scale * iv.low, 0.0, high))
+            out[f"{key}_hi"] = float(np.clip(scale * iv.high, 0.0, high))
+        out["fit_time_s"] = self.fit_time_s
+        out["predict_time_per_sample_us"] = 1e6 * self.predict_time_per_sample_s
+        return out
 
 
 def check_arrays(X: np.ndarray, y: np.ndarray, source: str = "<arrays>") -> None:
@@ -112,6 +244,131 @@ def check_arrays(X: np.ndarray, y: np.ndarray, source: str = "<arrays>") -> None
             )
 
 
+def _takes_groups(estimator: BaseEstimator) -> bool:
+    return getattr(estimator, "_validates_on_groups", False) is True
+
+
+def fit_predict(
+    estimator: BaseEstimator,
+    X: np.ndarray,
+    y: np.ndarray,
+    groups: np.ndarray | None,
+    train: np.ndarray,
+    test: np.ndarray,
+) -> tuple[np.ndarray, float, float]:
+    """Fit a clone on the training rows, predict the test rows: (predictions, fit s, predict s).
+
+    An estimator that validates on held-out positions (the LM network) gets the training rows'
+    groups, so its validation rows are whole positions it does not train on.
+    """
+    model = clone(estimator)
+    start = time.perf_counter()
+    if groups is not None and _takes_groups(model):
+        model.fit(X[train], y[train], groups=groups[train])
+    else:
+        model.fit(X[train], y[train])
+    fit_s = time.perf_counter() - start
+    start = time.perf_counter()
+    pred = np.asarray(model.predict(X[test]), dtype=float)
+    return pred, fit_s, time.perf_counter() - start
+
+
+def _collect(
+    name: str,
+    split: str,
+    repeats: Sequence[Repeat],
+    outputs: Sequence[tuple[np.ndarray, float, float]],
+    y: np.ndarray,
+    groups: np.ndarray,
+) -> ModelResult:
+    per_repeat = []
+    for rep, (pred, _, _) in zip(repeats, outputs):
+        if not np.isfinite(pred).all():
+            raise DataError(
+                f"model {name} predicted non-finite positions",
+                field=name,
+                fix="report this dataset: every baseline should give finite predictions",
+            )
+        per_repeat.append(position_errors(y[rep.test], pred))
+    # example predictions: grouped -> the first partition (same seed as repeat 0), else repeat 0
+    first = [i for i, rep in enumerate(repeats) if rep.seed == repeats[0].seed] if split == "grouped" else [0]
+    rows = np.concatenate([repeats[i].test for i in first])
+    preds = np.concatenate([outputs[i][0] for i in first])
+    n_pred = sum(len(rep.test) for rep in repeats)
+    return ModelResult(
+        model=name,
+        split=split,
+        per_repeat=tuple(per_repeat),
+        fit_time_s=float(np.mean([o[1] for o in outputs])),
+        predict_time_per_sample_s=float(sum(o[2] for o in outputs) / max(n_pred, 1)),
+        n_train_rows=int(np.mean([len(rep.train) for rep in repeats])),
+        y_true_mm=y[rows],
+        y_pred_mm=preds,
+        groups=groups[rows],
+    )
+
+
+def result_from_predictions(
+    name: str,
+    split: str,
+    repeats: Sequence[Repeat],
+    predictions: np.ndarray,
+    y: np.ndarray,
+    groups: np.ndarray,
+    predict_time_per_sample_s: float,
+) -> ModelResult:
+    """A model that needs no training (the physics inversion): its predictions of every row, cut per repeat."""
+    outputs = [(predictions[rep.test], 0.0, predict_time_per_sample_s * len(rep.test)) for rep in repeats]
+    return _collect(name, split, repeats, outputs, y, groups)
+
+
+def evaluate_models(
+    estimators: Mapping[str, BaseEstimator],
+    X: np.ndarray,
+    y: np.ndarray,
+    groups: np.ndarray,
+    split_repeats: Mapping[str, Sequence[Repeat]],
+    n_jobs: int = 1,
+    backend: str | None = None,
+    progress=None,
+) -> list[ModelResult]:
+    """Every (split, model, repeat) fit as one joblib task; results in (split, model) order.
+
+    n_jobs: processes (1 = in this process, -1 = every core). backend: a joblib backend name
+    ("loky" by default; "dask" with a dask.distributed client registered).
+    progress: optional callable(done_tasks, total_tasks).
+    The grouped split's fits get the training rows' position ids (an estimator that validates on
+    held-out positions uses them); fits on a split by row do not.
+    """
+    from joblib import Parallel, delayed, parallel_backend
+
+    check_arrays(X, y)
+    tasks = [(s, n, rep) for s, reps in split_repeats.items() for n in estimators for rep in reps]
+    # held-out positions for validation only on the grouped split: on a split by row (random, design) the
+    # LM validates on random rows, as the paper did
+    calls = (
+        delayed(fit_predict)(estimators[n], X, y, groups if s == "grouped" else None, rep.train, rep.test)
+        for s, n, rep in tasks
+    )
+    outputs: list[tuple[np.ndarray, float, float]] = []
+    if n_jobs == 1 and backend is None:
+        for call in calls:
+            func, args, kwargs = call
+            outputs.append(func(*args, **kwargs))
+            if progress is not None:
+                progress(len(outputs), len(tasks))
+    else:
+        with parallel_backend(backend or "loky", n_jobs=n_jobs):
+            for out in Parallel(return_as="generator")(calls):
+                outputs.append(out)
+                if progress is not None:
+                    progress(len(outputs), len(tasks))
+    by_key: dict[tuple[str, str], list[tuple[np.ndarray, float, float]]] = {}
+    for (s, n, _), out in zip(tasks, outputs):
+        by_key.setdefault((s, n), []).append(out)
+    return [_collect(n, s, split_repeats[s], by_key[(s, n)], y, groups) for s in split_repeats for n in estimators]
+
+
 def evaluate_model(
     name: str,
     estimator: BaseEstimator,
@@ -121,45 +378,15 @@ def evaluate_model(
     split: str = "grouped",
     random_state: int | None = 0,
     n_splits: int = 5,
+    *,
+    n_repeats: int | None = None,
+    n_jobs: int = 1,
 ) -> ModelResult:
-    """Fit a clone per fold, predict the held-out rows, pool them, time both."""
+    """One model on one split over its repeats (default: grouped, one k-fold partition; others 1 repeat)."""
+    if n_repeats is None:
+        n_repeats = min(n_splits, len(np.unique(groups))) if split == "grouped" else 1
     check_arrays(X, y)
-    folds = split_folds(split, groups, random_state, n_splits)
-    pred = np.full(y.shape, np.nan)
-    tested = np.zeros(len(y), dtype=bool)
-    fit_s, predict_s, n_pred, n_train = 0.0, 0.0, 0, 0
-    for train, test in folds:
-        if len(train) < MIN_TRAIN_ROWS:
-            raise DataError(
-                f"only {len(train)} training presses in a fold",
-                field="rows",
-                fix=f"record at least {MIN_TRAIN_ROWS} presses per fold",
-            )
-        model = clone(estimator)
-        start = time.perf_counter()
-        model.fit(X[train], y[train])
-        fit_s += time.perf_counter() - start
-        start = time.perf_counter()
-        pred[test] = model.predict(X[test])
-        predict_s += time.perf_counter() - start
-        tested[test] = True
-        n_pred += len(test)
-        n_train += len(train)
-    if not np.isfinite(pred[tested]).all():
-        raise DataError(
-            f"model {name} predicted non-finite positions",
-            field=name,
-            fix="report this dataset: every baseline should give finite predictions",
-        )
-    return ModelResult(
-        model=name,
-        split=split,
-        errors=position_errors(y[tested], pred[tested]),
-        fit_time_s=fit_s / len(folds),
-        predict_time_per_sample_s=predict_s / max(n_pred, 1),
-        n_folds=len(folds),
-        n_train_rows=n_train // len(folds),
-        y_true_mm=y[tested],
-        y_pred_mm=pred[tested],
-        groups=groups[tested],
-    )
+    repeats, notes = repeat_splits(split, groups, n_repeats, random_state, n_splits)
+    for note in notes:
+        logger.warning(note)
+    return evaluate_models({name: estimator}, X, y, groups, {split: repeats}, n_jobs=n_jobs)[0]

@@ -11,7 +11,11 @@ to [0, 1], trained by our own vectorised Levenberg-Marquardt loop:
   validation weights are kept), when the gradient norm falls below `min_grad`, when mu
   exceeds `mu_max`, or after `max_epochs`;
 - `n_restarts` restarts, each with its own Nguyen-Widrow-like initial weights and its own
-  random validation subset; the restart with the lowest validation MSE wins.
+  random validation subset; the restart with the lowest validation MSE wins. Given `groups`
+  (position ids) in `fit`, a restart's validation rows are whole positions it does not train
+  on, so on a split over positions the stop and the choice see new positions, as the test does.
+- restarts run in `n_jobs` processes through joblib (its backend, e.g. Dask, is the caller's
+  choice); each restart is a pure function of its seed, so the result does not depend on n_jobs.
 
 `fit_with_scipy_lm` solves the same least-squares problem (same scaling, same initial
 weights, same training rows) with `scipy.optimize.least_squares(method="lm")`; tests and the
@@ -199,7 +203,20 @@ def train_lm(
 
 
 def _train_lm(
-    w0, x_train, y_train, x_val, y_val, n_hidden, *, mu, mu_dec, mu_inc, mu_max, max_fail, max_epochs, min_grad
+    w0,
+    x_train,
+    y_train,
+    x_val,
+    y_val,
+    n_hidden,
+    *,
+    mu,
+    mu_dec,
+    mu_inc,
+    mu_max,
+    max_fail,
+    max_epochs,
+    min_grad,
 ) -> LMRun:
     n_outputs = y_train.shape[1]
     w = w0.astype(float, copy=True)
@@ -217,7 +234,7 @@ def _train_lm(
     best_w, best_val, fails = w.copy(), val_sse, 0
     n_train, n_val = y_train.size, max(y_val.size, 1)
     stop, epoch = "max_epochs", 0
-    for epoch in range(1, max_epochs + 1):
+    for epoch in range(1, max_epochs + 1):  # noqa: B007 (the count is read after the loop)
         jtj, jte = normal_equations(w, x_train, x_products, hidden, err, x_bias)
         if np.sqrt(jte @ jte) * 2.0 / n_train < min_grad:
             stop = "min_grad"
@@ -287,6 +304,7 @@ class LMNetworkRegressor(RegressorMixin, BaseEstimator):
         max_fail: int = 6,
         min_grad: float = 1e-7,
         random_state=None,
+        n_jobs: int | None = None,
     ):
         self.n_hidden = n_hidden
         self.n_restarts = n_restarts
@@ -299,6 +317,10 @@ class LMNetworkRegressor(RegressorMixin, BaseEstimator):
         self.max_fail = max_fail
         self.min_grad = min_grad
         self.random_state = random_state
+        self.n_jobs = n_jobs
+
+    # evaluate.fit_predict passes the training rows' position ids to fit
+    _validates_on_groups = True
 
     def __sklearn_tags__(self):
         tags = super().__sklearn_tags__()
@@ -314,9 +336,13 @@ class LMNetworkRegressor(RegressorMixin, BaseEstimator):
         if not (self.mu > 0 and 0 < self.mu_dec < 1 < self.mu_inc and self.mu_max > self.mu):
             raise ValueError("need mu > 0, 0 < mu_dec < 1 < mu_inc and mu_max > mu")
 
-    def fit(self, X, y):
+    def fit(self, X, y, groups=None):
+        """Fit n_restarts networks and keep the best on validation; groups: validate on whole positions."""
         self._check_params()
         X, y = validate_data(self, X, y, multi_output=True, y_numeric=True, dtype=np.float64)
+        self.groups_ = None if groups is None else np.asarray(groups).reshape(-1)
+        if self.groups_ is not None and len(self.groups_) != len(X):
+            raise ValueError(f"groups has {len(self.groups_)} entries for {len(X)} rows")
         start = time.perf_counter()
         self._y_1d = y.ndim == 1
         y2 = y.reshape(len(y), -1).astype(np.float64)
@@ -330,7 +356,8 @@ class LMNetworkRegressor(RegressorMixin, BaseEstimator):
         seeds = check_random_state(self.random_state).randint(0, 2**31 - 1, size=int(self.n_restarts))
         self.restart_seeds_ = seeds
         self.n_val_ = n_val
-        runs = [self._fit_one(xs, ys, n_val, int(seed)) for seed in seeds]
+        self.n_rows_ = n
+        runs = self._run_restarts(xs, ys, n_val, seeds)
 
         self.val_mse_ = np.array([r.val_mse for r in runs])
         self.n_epochs_ = np.array([r.n_epochs for r in runs])
@@ -342,14 +369,42 @@ class LMNetworkRegressor(RegressorMixin, BaseEstimator):
         self.fit_time_s_ = time.perf_counter() - start
         return self
 
+    def _run_restarts(self, xs: np.ndarray, ys: np.ndarray, n_val: int, seeds: np.ndarray) -> list[LMRun]:
+        n_jobs = 1 if self.n_jobs is None else int(self.n_jobs)
+        if n_jobs == 1 or len(seeds) == 1:
+            return [self._fit_one(xs, ys, n_val, int(seed)) for seed in seeds]
+        from joblib import Parallel, delayed
+
+        return Parallel(n_jobs=n_jobs)(delayed(self._fit_one)(xs, ys, n_val, int(seed)) for seed in seeds)
+
     def _restart_setup(self, n_rows: int, n_inputs: int, n_outputs: int, n_val: int, seed: int):
-        """(train rows, val rows, initial weights) of one restart, all drawn from its seed."""
+        """(train rows, val rows, initial weights) of one restart, all drawn from its seed.
+
+        With groups: whole positions, drawn at random until they hold about n_val rows (at least
+        one position, and at least one left to train on)."""
         rng = np.random.default_rng(seed)
-        order = rng.permutation(n_rows)
-        val, train = order[:n_val], order[n_val:]
+        groups = getattr(self, "groups_", None)
+        if groups is not None and n_val > 0 and len(np.unique(groups)) >= 2:
+            labels, inverse, counts = np.unique(groups, return_inverse=True, return_counts=True)
+            order = rng.permutation(len(labels))
+            n_groups = int(np.searchsorted(np.cumsum(counts[order]), n_val)) + 1
+            is_val = np.isin(inverse, order[: min(n_groups, len(labels) - 1)])
+            val, train = np.flatnonzero(is_val), np.flatnonzero(~is_val)
+        else:
+            order = rng.permutation(n_rows)
+            val, train = order[:n_val], order[n_val:]
         if n_val == 0:  # too few rows to hold any out: validate on the training rows
             val = train
         return train, val, initial_weights(n_inputs, int(self.n_hidden), n_outputs, rng)
+
+    def restart_rows(self, restart: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """(train, validation) row indices, into the rows given to fit, of restart `restart`."""
+        check_is_fitted(self, "weights_")
+        n_rows = len(self.groups_) if self.groups_ is not None else self.n_rows_
+        train, val, _ = self._restart_setup(
+            n_rows, self.n_features_in_, self.n_outputs_, self.n_val_, int(self.restart_seeds_[restart])
+        )
+        return train, val
 
     def restart_problem(self, X, y, restart: int = 0) -> dict[str, np.ndarray]:
         """The scaled least-squares problem restart `restart` of the last fit solved (same X, y as fit).

@@ -5,6 +5,11 @@ Conventions, stated once:
 - `mse_per_coordinate_mm2` is MATLAB's `mse` (perform) on a 2 x n target: the mean over
   every coordinate of every prediction, i.e. exactly half of `mse_mm2` for 2-D positions.
   The paper's 3.32 mm^2 most likely uses this one (MATLAB's default performance function).
+- `failure_share` is the share of predictions more than `FAILURE_RADII` probe radii off.
+
+Over repeated (seed, split) evaluations, `interval95` gives mean, std (ddof 1) and the
+95 % Student-t interval of the mean of any per-repeat figure; `summarise_repeats` applies it
+to every field of `PositionErrors`.
 """
 
 from __future__ import annotations
@@ -14,6 +19,17 @@ from dataclasses import dataclass
 import numpy as np
 
 PROBE_RADIUS_MM = 2.75
+FAILURE_RADII = 3.0
+REPEAT_FIELDS = (
+    "mean_error_mm",
+    "median_error_mm",
+    "rms_error_mm",
+    "mse_mm2",
+    "mse_per_coordinate_mm2",
+    "within_probe_share",
+    "failure_share",
+    "max_error_mm",
+)
 
 
 @dataclass(frozen=True)
@@ -27,6 +43,12 @@ class PositionErrors:
     mse_mm2: float
     mse_per_coordinate_mm2: float
     within_probe_share: float
+    failure_share: float = 0.0  # more than FAILURE_RADII probe radii off
+    max_error_mm: float = 0.0
+
+    @property
+    def rms_error_mm(self) -> float:
+        return float(np.sqrt(self.mse_mm2))
 
 
 def euclidean_error_mm(y_true_mm: np.ndarray, y_pred_mm: np.ndarray) -> np.ndarray:
@@ -50,7 +72,39 @@ def position_errors(
         mse_mm2=float(sq.mean()),
         mse_per_coordinate_mm2=float(sq.sum() / (err.size * y_true_mm.shape[1])),
         within_probe_share=float(np.mean(err <= probe_radius_mm)),
+        failure_share=float(np.mean(err > FAILURE_RADII * probe_radius_mm)),
+        max_error_mm=float(err.max()),
     )
+
+
+@dataclass(frozen=True)
+class Interval:
+    """A figure over repeats: its mean, std (ddof 1), the 95 % t-interval of the mean, and n."""
+
+    mean: float
+    std: float
+    low: float
+    high: float
+    n: int
+
+
+def interval95(values: np.ndarray) -> Interval:
+    """Mean, sample std and 95 % Student-t interval of the mean (one value: std 0, interval the value)."""
+    from scipy.stats import t as student_t
+
+    v = np.asarray(values, dtype=float).ravel()
+    n = v.size
+    mean = float(v.mean())
+    if n < 2:
+        return Interval(mean, 0.0, mean, mean, n)
+    std = float(v.std(ddof=1))
+    half = float(student_t.ppf(0.975, n - 1)) * std / np.sqrt(n)
+    return Interval(mean, std, mean - half, mean + half, n)
+
+
+def summarise_repeats(per_repeat: list[PositionErrors]) -> dict[str, Interval]:
+    """Every REPEAT_FIELDS figure over the repeats, as an Interval."""
+    return {name: interval95(np.array([getattr(e, name) for e in per_repeat], dtype=float)) for name in REPEAT_FIELDS}
 
 
 @dataclass(frozen=True)

@@ -1,13 +1,19 @@
-"""The baseline report: evaluate every model on a dataset, print the table, write report.md, CSV, parquet, PNGs.
+"""The baseline report: every model over repeated splits, the physics inversion, the bound; table, report.md, PNGs.
 
 `run_baselines(dataset, split, models, out)` is what the CLI and the campaign runner call.
-The table sets each model's error beside its fit and predict time; when the dataset folder
-holds `physical_limit.parquet` (Cramér-Rao bound per position, from the dry run) the
-table also gives each model's RMS error against the RMS bound.
+Per model and split the table gives mean, std over repeats and the 95 % interval of the mean
+of every figure (mean and median error, RMS, both MSEs, share within the probe radius, share
+of failures). When the dataset folder holds `physical_limit.parquet` (Cramér-Rao bound per
+position, from the dry run), any result whose RMS error is below the bound is flagged as
+memorisation. Warnings (few test rows, folds cut, errors larger than the skin, memorisation)
+are logged, raised as `BaselineWarning` and listed at the top of report.md.
 """
 
 from __future__ import annotations
 
+import logging
+import time
+import warnings
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -15,24 +21,40 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from neatskin.baselines.dataset import PHYSICAL_LIMIT_NAME, BaselineData, load_baseline_data
-from neatskin.baselines.evaluate import PAPER_FRACTIONS, SPLITS, ModelResult, evaluate_model
-from neatskin.baselines.models import DESCRIPTIONS, MODEL_NAMES, make_models
+from neatskin.baselines.dataset import BaselineData, load_baseline_data
+from neatskin.baselines.evaluate import (
+    SPLITS,
+    BaselineWarning,
+    ModelResult,
+    evaluate_models,
+    repeat_splits,
+    result_from_predictions,
+)
+from neatskin.baselines.metrics import PROBE_RADIUS_MM
+from neatskin.baselines.models import DESCRIPTIONS, MODEL_NAMES, PHYSICS_MODELS, SMALL_ROWS, make_models
+from neatskin.baselines.reporttext import markdown_report
 from neatskin.errors import DataError
+
+logger = logging.getLogger(__name__)
 
 PAPER_REAL_SKIN = {"mean_error_mm": 2.03, "std_error_mm": 0.26, "mse_mm2": 3.32, "within_probe_pct": 82.0}
 TABLE_NAME = "baselines"
+DEFAULT_REPEATS = 10
+MEDIAN_BOUND_SHARE = 0.5  # see results_table
+SPLIT_CHOICES = {"both": ("grouped", "random"), "all": SPLITS}  # "random" brings "design" when it fits
 
 
 @dataclass(frozen=True)
 class Report:
-    """What run_baselines produced: results, the table, the bound, the text and the files written."""
+    """What run_baselines produced: results, the table, the bound, warnings, the text and the files written."""
 
     results: tuple[ModelResult, ...]
     table: pd.DataFrame
     bound_rms_mm: float | None
     text: str
     files: dict[str, Path] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+    time_s: float = 0.0
 
 
 def bound_rms_mm(limit: pd.DataFrame | None) -> float | None:
@@ -44,95 +66,101 @@ def bound_rms_mm(limit: pd.DataFrame | None) -> float | None:
 
 
 def results_table(results: Iterable[ModelResult], bound: float | None) -> pd.DataFrame:
+    """One row per model and split; `below_bound` marks memorisation: an RMS error under the Cramér-Rao bound,
+    or a median error under half of it (an unbiased estimator at the bound, Gaussian errors in 2-D, has a
+    median error of 0.67 to 0.83 times its RMS: a median below half the bound cannot be one)."""
     table = pd.DataFrame([r.row() for r in results])
-    table.insert(7, "rms_error_mm", np.sqrt(table["mse_mm2"]))
     if bound is not None:
         table["crb_rms_mm"] = bound
         table["rms_over_crb"] = table["rms_error_mm"] / bound if bound > 0 else np.inf
+        table["below_bound"] = (table["rms_error_mm"] < bound) | (table["median_error_mm"] < MEDIAN_BOUND_SHARE * bound)
+    else:
+        table["below_bound"] = False
     return table
 
 
 def format_table(table: pd.DataFrame) -> str:
-    """A fixed-width text table, one row per model and split."""
+    """A fixed-width text table: mean ± std over repeats [95 % interval of the mean] per figure."""
     header = (
-        f"{'model':<13} {'split':<8} {'mean err mm':>14} {'median':>7} {'RMS mm':>7} {'MSE mm2':>8} {'MSE/coord':>9} "
-        f"{'<=2.75mm':>8} {'fit s':>8} {'pred us/row':>11}"
+        f"{'model':<12} {'split':<8} {'rep':>3} {'n_test':>6} {'mean err mm [95% CI]':>28} {'median mm':>9} "
+        f"{'RMS mm':>8} {'<=r %':>6} {'fail %':>6} {'fit s':>7} {'us/row':>8}"
     )
-    if "rms_over_crb" in table.columns:
+    has_bound = "rms_over_crb" in table.columns
+    if has_bound:
         header += f" {'RMS/CRB':>8}"
     lines = [header, "-" * len(header)]
     for row in table.itertuples(index=False):
+        mean = f"{row.mean_error_mm:.3g} ± {row.mean_error_mm_std:.2g} [{row.mean_error_mm_lo:.3g}, {row.mean_error_mm_hi:.3g}]"
         line = (
-            f"{row.model:<13} {row.split:<8} {row.mean_error_mm:>6.2f} ± {row.std_error_mm:<5.2f} "
-            f"{row.median_error_mm:>7.2f} {row.rms_error_mm:>7.2f} {row.mse_mm2:>8.2f} {row.mse_per_coordinate_mm2:>9.2f} "
-            f"{row.within_probe_pct:>7.1f}% {row.fit_time_s:>8.3f} {row.predict_time_per_sample_us:>11.1f}"
+            f"{row.model:<12} {row.split:<8} {row.n_repeats:>3} {row.n_test:>6} {mean:>28} {row.median_error_mm:>9.3g} "
+            f"{row.rms_error_mm:>8.3g} {row.within_probe_pct:>6.1f} {row.failure_pct:>6.1f} {row.fit_time_s:>7.3f} "
+            f"{row.predict_time_per_sample_us:>8.1f}"
         )
-        if "rms_over_crb" in table.columns:
-            line += f" {row.rms_over_crb:>8.2f}"
+        if has_bound:
+            line += f" {row.rms_over_crb:>8.3g}"
+        if row.below_bound:
+            line += "  MEMORISATION (below the bound)"
         lines.append(line)
     return "\n".join(lines)
 
 
-def _markdown(
-    data: BaselineData,
-    table: pd.DataFrame,
-    bound: float | None,
-    splits: tuple[str, ...],
-    files: dict[str, Path],
-    random_state: int | None,
-) -> str:
-    t, v, s = (int(100 * f) for f in PAPER_FRACTIONS)
-    lines = [
-        "# Baseline report",
-        "",
-        f"Dataset: `{data.source}`: {len(data.y)} presses at {len(np.unique(data.groups))} positions, "
-        f"{data.X.shape[1]} pair features; {data.n_flagged_dropped} flagged presses dropped. Seed {random_state}.",
-        "",
-        "Splits:",
-    ]
-    if "grouped" in splits:
-        lines.append(
-            "- `grouped`: k-fold over positions (no position in both training and test rows); every press "
-            "is predicted once, by the model that never saw its position. This is the honest error for a new press position."
-        )
-    if "random" in splits:
-        lines.append(
-            f"- `random`: the paper's split by row, {t} % train / {v} % validation / {s} % test; models fit on "
-            "train + validation (the LM network holds out its own 3/98 for early stopping and restart choice). "
-            "Repeats of a test position are in training, so this error is optimistic."
-        )
-    lines += [
-        "",
-        "Columns: mean Euclidean error ± its std (mm); median Euclidean error (mm; robust to a few wild extrapolations); RMS error = sqrt(MSE); `MSE mm2` = mean of dx²+dy²; "
-        "`MSE/coord` = MATLAB's `mse` over both coordinates (half of it; the paper's 3.32 mm² is most likely this "
-        "convention); `<=2.75mm` = share of predictions within the probe radius; fit time per fit (s); predict time per press (µs).",
-        "",
-        "```",
-        format_table(table),
-        "```",
-        "",
-    ]
-    if bound is not None:
-        lines += [
-            f"Physical limit (`{PHYSICAL_LIMIT_NAME}`): the Cramér-Rao bound on the RMS position error, pooled over "
-            f"positions as sqrt(mean CRB²) = {bound:.3f} mm. `RMS/CRB` says how far each model is from the best any "
-            "unbiased estimator could do on this simulated skin and noise.",
-            "",
-        ]
-    lines += [
-        "For comparison, the paper on its real skin (28-5-2 network, random 95/3/2 split, 11 test positions x 6 presses): "
-        f"mean error {PAPER_REAL_SKIN['mean_error_mm']} mm (std {PAPER_REAL_SKIN['std_error_mm']} mm as reported), "
-        f"MSE {PAPER_REAL_SKIN['mse_mm2']} mm² averaged over ten models, {PAPER_REAL_SKIN['within_probe_pct']:.0f} % of "
-        "predictions within the probe radius. Nothing here is tuned to match those figures.",
-        "",
-        "Models:",
-        *[f"- `{name}`: {DESCRIPTIONS[name]}" for name in table["model"].unique()],
-        "",
-        "Files:",
-        *[f"- {label}: `{path.name}`" for label, path in files.items()],
-        "",
-    ]
-    return "\n".join(lines)
+def _skin_size_mm(data: BaselineData) -> float:
+    """The skin's largest extent (layout bounds, else the pressed positions' extent)."""
+    if data.layout is not None:
+        x0, y0, x1, y1 = data.layout.bounds_mm  # type: ignore[attr-defined]
+        return float(max(x1 - x0, y1 - y0))
+    return float(np.max(np.ptp(data.y, axis=0)))
+
+
+def result_warnings(table: pd.DataFrame, data: BaselineData, bound: float | None) -> list[str]:
+    """Warnings about the results: errors larger than the skin, results below the physical bound."""
+    notes = []
+    size = _skin_size_mm(data)
+    for row in table.itertuples(index=False):
+        if float(row.mean_error_mm) > size:  # type: ignore[arg-type]
+            notes.append(
+                f"{row.model} ({row.split}): mean error {row.mean_error_mm:.1f} mm is larger than the skin "
+                f"({size:.0f} mm): it extrapolates; read its figures as a failure, not as an error size"
+            )
+        if row.below_bound:
+            notes.append(
+                f"{row.model} ({row.split}): RMS error {row.rms_error_mm:.3g} mm, median {row.median_error_mm:.3g} mm "
+                f"against the Cramér-Rao bound {bound:.3g} mm (RMS): no unbiased estimator of a new press can do "
+                "that; it memorises the training positions (repeats of a test position are in training)"
+            )
+    return notes
+
+
+def _warn(notes: Iterable[str]) -> None:
+    for note in notes:  # a warning reaches the terminal once (Python's warning display); the log keeps it too
+        logger.info("warning: %s", note)
+        warnings.warn(note, BaselineWarning, stacklevel=3)
+
+
+def _resolve(split: str | Iterable[str], models: Iterable[str] | None, data: BaselineData):
+    if isinstance(split, str):
+        splits = SPLIT_CHOICES.get(split, (split,))
+    else:
+        splits = tuple(split)
+    implied = "random" in splits and "design" not in splits
+    if implied:  # the random split's Fig. 9 comes from the 11 x 6 design
+        splits = (*splits, "design")
+    for s in splits:
+        if s not in SPLITS:
+            raise DataError(f"unknown split {s!r}", field="split", fix="use grouped, random, design or both")
+    known = MODEL_NAMES + PHYSICS_MODELS
+    names = tuple(models) if models is not None else known
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise DataError(f"unknown model {unknown[0]!r}", field="models", fix=f"choose from {', '.join(known)}")
+    learned = tuple(n for n in names if n in MODEL_NAMES)
+    physics = tuple(n for n in names if n in PHYSICS_MODELS)
+    notes = []
+    if physics and data.layout is None:
+        if models is not None:
+            notes.append("inversion skipped: the dataset names no layout (manifest.json), so there is no forward model")
+        physics = ()
+    return splits, learned, physics, notes, implied
 
 
 def run_baselines(
@@ -146,57 +174,116 @@ def run_baselines(
     n_splits: int = 5,
     progress: bool = True,
     echo: bool = True,
+    n_repeats: int = DEFAULT_REPEATS,
+    n_jobs: int | None = None,
+    backend: str | None = None,
+    lm_restarts: int | None = 1,
 ) -> Report:
-    """Evaluate the baselines on a dataset, print the table, and write report.md, CSV, parquet and PNGs.
+    """Evaluate the baselines over repeated splits, print the table, and write report.md, CSV, parquet and PNGs.
 
-    split: "grouped", "random", "both" or a list of them. models: names from MODEL_NAMES (all by default).
+    split: "grouped", "random", "design", "both" (all three) or a list; "random" brings "design" (its Fig. 9).
+    models: names from MODEL_NAMES and "inversion" (all by default; inversion needs the dataset's layout).
+    n_repeats: (seed, split) repeats per model and split, one fit each.
+    n_jobs: processes for the fits (default: every core, or 1 below SMALL_ROWS presses); backend: joblib's.
+    lm_restarts: restarts per LM fit (default 1: each repeat trains one network, as each of the paper's ten).
     out: folder for the outputs (the dataset folder by default).
     """
     from tqdm.auto import tqdm
 
     from neatskin.baselines.plots import plot_error_ellipses, plot_error_vs_time
 
-    splits = SPLITS if split == "both" else ((split,) if isinstance(split, str) else tuple(split))
-    for s in splits:
-        if s not in SPLITS:
-            raise DataError(f"unknown split {s!r}", field="split", fix="use grouped, random or both")
-    names = tuple(models) if models is not None else MODEL_NAMES
-    unknown = [n for n in names if n not in MODEL_NAMES]
-    if unknown:
-        raise DataError(f"unknown model {unknown[0]!r}", field="models", fix=f"choose from {', '.join(MODEL_NAMES)}")
+    started = time.perf_counter()
     data = load_baseline_data(dataset_folder, flagged=flagged)
+    splits, learned, physics, notes, design_implied = _resolve(split, models, data)
     dataset_path = Path(dataset_folder)
     out_dir = Path(out) if out is not None else (dataset_path if dataset_path.is_dir() else dataset_path.parent)
-    out_dir.mkdir(parents=True, exist_ok=True)
 
-    estimators = make_models(names, random_state=random_state, n_features=data.X.shape[1])
-    jobs = [(s, n) for s in splits for n in names]
+    split_repeats = {}
+    for s in splits:
+        try:
+            reps, split_notes = repeat_splits(s, data.groups, n_repeats, random_state, n_splits)
+        except DataError as exc:
+            if not (s == "design" and design_implied):
+                raise
+            notes.append(f"design split skipped: {exc.problems[0].message}")
+            continue
+        split_repeats[s] = reps
+        notes += split_notes
+    splits = tuple(split_repeats)
+    n_rows = len(data.y)
+    if n_jobs is None:
+        n_jobs = 1 if n_rows < SMALL_ROWS else -1
+    train_rows = int(np.mean([len(r.train) for reps in split_repeats.values() for r in reps]))
+    estimators = make_models(
+        learned, random_state=random_state, n_features=data.X.shape[1], n_rows=train_rows, lm_restarts=lm_restarts
+    )
+    bar = tqdm(total=len(splits) * len(learned) * n_repeats, desc="baselines", unit="fit", disable=not progress)
+
+    def advance(done: int, total: int) -> None:
+        bar.update(done - bar.n)
+
+    learned_results = evaluate_models(
+        estimators, data.X, data.y, data.groups, split_repeats, n_jobs=n_jobs, backend=backend, progress=advance
+    )
+    bar.close()
     results = []
-    bar = tqdm(jobs, desc="baselines", unit="model", disable=not progress)
-    for s, n in bar:
-        bar.set_postfix_str(f"{n} ({s})")
-        results.append(evaluate_model(n, estimators[n], data.X, data.y, data.groups, s, random_state, n_splits))
+    physics_results = []
+    if physics:
+        from neatskin.baselines.inversion import skin_inversion
+
+        inv = skin_inversion(
+            data.layout,
+            data.X,
+            fidelity=data.skin_fidelity or "deformation",
+            probe_radius_mm=data.probe_radius_mm or PROBE_RADIUS_MM,
+        )
+        per_row_s = inv.time_s / max(n_rows, 1)
+        for s in splits:
+            physics_results.append(
+                result_from_predictions("inversion", s, split_repeats[s], inv.xy_mm, data.y, data.groups, per_row_s)
+            )
+    for s in splits:
+        results += [r for r in learned_results if r.split == s] + [r for r in physics_results if r.split == s]
     bound = bound_rms_mm(data.physical_limit)
     table = results_table(results, bound)
+    notes += result_warnings(table, data, bound)
+    _warn(notes)
 
+    out_dir.mkdir(parents=True, exist_ok=True)
     files = {
         "table (CSV)": out_dir / f"{TABLE_NAME}.csv",
         "table (parquet)": out_dir / f"{TABLE_NAME}.parquet",
-        "error vs fit time": out_dir / "baselines_error_vs_time.png",
+        "error vs time": out_dir / "baselines_error_vs_time.png",
     }
     table.to_csv(files["table (CSV)"], index=False)
     table.to_parquet(files["table (parquet)"], index=False)
-    plot_error_vs_time(results, files["error vs fit time"], bound)
+    plot_error_vs_time(results, files["error vs time"], bound, table)
     for s in splits:
+        if s == "random":  # one prediction per test position: Fig. 9 is drawn from the 11 x 6 design instead
+            continue
         key = f"error ellipses ({s})"
         files[key] = out_dir / f"baselines_ellipses_{s}.png"
         plot_error_ellipses([r for r in results if r.split == s], files[key], data.layout)
     files["report"] = out_dir / "report.md"
-    text = _markdown(data, table, bound, splits, files, random_state)
+    elapsed = time.perf_counter() - started
+    text = markdown_report(
+        data=data,
+        table=table,
+        bound=bound,
+        splits=splits,
+        files=files,
+        random_state=random_state,
+        notes=notes,
+        n_jobs=n_jobs,
+        elapsed_s=elapsed,
+        descriptions={n: DESCRIPTIONS[n] for n in (*learned, *physics)},
+        paper=PAPER_REAL_SKIN,
+        lm_restarts=lm_restarts,
+    )
     files["report"].write_text(text, encoding="utf-8")
     if echo:
         print(format_table(table))
         if bound is not None:
-            print(f"Cramér-Rao bound (RMS over positions): {bound:.3f} mm")
-        print(f"wrote {files['report']}")
-    return Report(tuple(results), table, bound, text, files)
+            print(f"Cramér-Rao bound (RMS over positions): {bound:.3g} mm")
+        print(f"wrote {files['report']} ({elapsed:.1f} s)")
+    return Report(tuple(results), table, bound, text, files, tuple(notes), elapsed)

@@ -1,0 +1,212 @@
+"""The physics baseline: per press, (x, y, depth) by nonlinear least squares through the skin's forward model.
+
+No training data. For every press the pair resistance changes dR (ohm) are matched by
+    dR_model(x, y, depth) = R_eq(x, y, depth) - R_eq(unpressed)
+from a forward model with the `pair_resistance_ohm(x_mm, y_mm, depth_mm)` signature
+(`neatskin.skin.model.SkinModel`). Vectorised over presses throughout:
+
+1. a coarse grid start: the model is evaluated once on a grid of (x, y, depth) over the skin,
+   and each press starts from the few grid points nearest to it in dR space that lie apart on
+   the skin (one distance matrix, in chunks), so a start in each plausible basin;
+2. a batched Levenberg-Marquardt: all unconverged presses take a damped Gauss-Newton step
+   together, with a forward-difference Jacobian (3 extra model evaluations per press and
+   step); each press keeps its own damping and accepts a step only if its residual falls.
+
+Parameters are kept inside the skin's bounds and a depth range. The cost is reported like a
+learned model's (fit time 0, predict time per press).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+logger = logging.getLogger(__name__)
+
+_BIG_OHM = 1e9  # stands in for an infinite model resistance (a channel pinched shut)
+
+
+class ForwardModel(Protocol):
+    """What the inversion needs from a skin: pair resistances for presses, (n,) in -> (n, pairs) out."""
+
+    def pair_resistance_ohm(self, x_mm, y_mm, depth_mm) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class InversionResult:
+    """Per press: the fitted position and depth, the final residual norm (ohm), and the run's cost."""
+
+    xy_mm: np.ndarray  # (n, 2)
+    depth_mm: np.ndarray  # (n,)
+    residual_ohm: np.ndarray  # (n,) RMS over pairs of dR_model - dR
+    n_iterations: int
+    n_model_evaluations: int
+    time_s: float
+
+
+def _model_dr(skin: ForwardModel, baseline_ohm: np.ndarray, p: np.ndarray) -> np.ndarray:
+    r = skin.pair_resistance_ohm(p[:, 0], p[:, 1], p[:, 2]) - baseline_ohm
+    return np.where(np.isfinite(r), r, _BIG_OHM)
+
+
+def _diverse_starts(
+    grid_xy: np.ndarray, grid_dr: np.ndarray, dr: np.ndarray, k: int, separation_mm: float, chunk: int = 256
+) -> np.ndarray:
+    """Indices (n, k): per press the grid row nearest in dR space, then the nearest at least `separation_mm`
+    (in x, y) from every start already taken: starts in different basins, not k neighbours of one."""
+    g2 = np.einsum("gp,gp->g", grid_dr, grid_dr)
+    out = np.empty((len(dr), k), dtype=np.int64)
+    for start in range(0, len(dr), chunk):
+        block = dr[start : start + chunk]
+        dist = g2[None, :] - 2.0 * block @ grid_dr.T  # (m, grid), up to a per-press constant
+        for j in range(k):
+            best = np.argmin(dist, axis=1)
+            out[start : start + chunk, j] = best
+            near = np.linalg.norm(grid_xy[None, :, :] - grid_xy[best][:, None, :], axis=2) < separation_mm
+            dist[near] = np.inf
+    return out
+
+
+def invert_presses(
+    skin: ForwardModel,
+    dr_ohm: np.ndarray,
+    bounds_mm: tuple[float, float, float, float],
+    depth_range_mm: tuple[float, float],
+    *,
+    grid_step_mm: float = 1.0,
+    n_grid_depths: int = 5,
+    n_starts: int = 2,
+    separation_mm: float = 3.0,
+    max_iterations: int = 40,
+    step_mm: float = 1e-3,
+    tolerance_mm: float = 1e-5,
+) -> InversionResult:
+    """(x, y, depth) per press that best explains its dR (n, pairs), starting from a coarse grid.
+
+    bounds_mm: (x0, y0, x1, y1) the skin's extent; depth_range_mm: (low, high) depths to search.
+    n_starts: each press is refined from n_starts grid points, the best in dR space and then the best
+    at least separation_mm away from those taken (a channel's two sides, an edge and its mirror);
+    the lowest residual wins. Every loop is capped: at most `max_iterations` steps.
+    """
+    start_time = time.perf_counter()
+    observed = np.asarray(dr_ohm, dtype=float)
+    baseline = np.asarray(skin.pair_resistance_ohm(0.0, 0.0, 0.0), dtype=float)[0]
+    x0, y0, x1, y1 = bounds_mm
+    lo = np.array([x0, y0, depth_range_mm[0]], dtype=float)
+    hi = np.array([x1, y1, depth_range_mm[1]], dtype=float)
+    gx = np.linspace(x0, x1, max(2, int(round((x1 - x0) / grid_step_mm)) + 1))
+    gy = np.linspace(y0, y1, max(2, int(round((y1 - y0) / grid_step_mm)) + 1))
+    gd = np.linspace(depth_range_mm[0], depth_range_mm[1], max(1, n_grid_depths))
+    grid = np.stack(np.meshgrid(gx, gy, gd, indexing="ij"), axis=-1).reshape(-1, 3)
+    grid_dr = _model_dr(skin, baseline, grid)
+    evaluations = len(grid)
+    starts = _diverse_starts(grid[:, :2], grid_dr, observed, max(1, n_starts), separation_mm)  # (n, k)
+    n_start = starts.shape[1]
+    p = grid[starts.T.ravel()]  # start-major: rows [j * n + i] are press i from start j
+    dr = np.tile(observed, (n_start, 1))
+    r = _model_dr(skin, baseline, p) - dr
+    evaluations += len(p)
+    cost = np.einsum("np,np->n", r, r)
+    damping = np.full(len(p), 1e-3)
+    active = np.ones(len(p), dtype=bool)
+    iteration = 0
+    for iteration in range(1, max_iterations + 1):  # noqa: B007 (the count is read after the loop)
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            break
+        pa, ra = p[idx], r[idx]
+        # forward differences, stepping inward at the upper bound
+        h = np.where(pa + step_mm > hi, -step_mm, step_mm)
+        shifted = np.repeat(pa[None], 3, axis=0)  # (3, m, 3)
+        for k in range(3):
+            shifted[k, :, k] += h[:, k]
+        dr_shift = _model_dr(skin, baseline, shifted.reshape(-1, 3)).reshape(3, len(idx), -1)
+        jac = (dr_shift - (ra + dr[idx])[None]) / h.T[:, :, None]  # (3, m, pairs)
+        jac = jac.transpose(1, 2, 0)  # (m, pairs, 3)
+        jtj = np.einsum("mpa,mpb->mab", jac, jac)
+        jtr = np.einsum("mpa,mp->ma", jac, ra)
+        diag = np.einsum("maa->ma", jtj)
+        lhs = jtj + (damping[idx, None] * (diag + 1e-12))[:, :, None] * np.eye(3)[None]
+        delta = -np.linalg.solve(lhs, jtr[:, :, None])[:, :, 0]
+        candidate = np.clip(pa + delta, lo, hi)
+        r_new = _model_dr(skin, baseline, candidate) - dr[idx]
+        evaluations += 4 * len(idx)
+        cost_new = np.einsum("np,np->n", r_new, r_new)
+        better = cost_new < cost[idx]
+        moved = np.max(np.abs(candidate - pa), axis=1)
+        good = idx[better]
+        p[good], r[good], cost[good] = candidate[better], r_new[better], cost_new[better]
+        damping[good] = np.maximum(damping[good] * 0.1, 1e-9)
+        damping[idx[~better]] *= 10.0
+        done = (better & (moved < tolerance_mm)) | (damping[idx] > 1e8)
+        active[idx[done]] = False
+    n = len(observed)
+    best = np.argmin(cost.reshape(n_start, n), axis=0) * n + np.arange(n)
+    p, cost = p[best], cost[best]
+    elapsed = time.perf_counter() - start_time
+    logger.debug(
+        "inverted %d presses in %.2f s, %d iterations, %d model evaluations", len(p), elapsed, iteration, evaluations
+    )
+    return InversionResult(
+        xy_mm=p[:, :2],
+        depth_mm=p[:, 2],
+        residual_ohm=np.sqrt(cost / max(observed.shape[1], 1)),
+        n_iterations=iteration,
+        n_model_evaluations=evaluations,
+        time_s=elapsed,
+    )
+
+
+def skin_inversion(
+    layout,
+    dr_ohm: np.ndarray,
+    fidelity: str = "deformation",
+    probe_radius_mm: float = 2.75,
+    margin_mm: float = 0.5,
+    retry_residual_factor: float | None = 2.0,
+    **kwargs,
+) -> InversionResult:
+    """invert_presses on `SkinModel(layout, fidelity, probe_radius_mm)` over the layout's bounds widened by
+    margin_mm (a press on an edge channel may land just outside them) and depths from 5 % to 95 %
+    of the skin's thickness.
+
+    retry_residual_factor: presses whose residual exceeds this many times the median residual (a
+    local minimum, most likely) are inverted again from 6 starts 2 mm apart on a 0.5 mm grid, and
+    keep the better fit. On the paper dry run: ~9 % of the presses, mean error 0.39 -> 0.24 mm.
+    None: no second pass."""
+    from neatskin.skin.model import SkinModel
+
+    skin = SkinModel(layout, fidelity=fidelity, probe_radius_mm=probe_radius_mm)
+    depth = (0.05 * layout.thickness_mm, 0.95 * layout.thickness_mm)
+    x0, y0, x1, y1 = layout.bounds_mm
+    r = margin_mm
+    bounds = (x0 - r, y0 - r, x1 + r, y1 + r)
+    first = invert_presses(skin, dr_ohm, bounds, depth, **kwargs)
+    if retry_residual_factor is None or len(first.residual_ohm) == 0:
+        return first
+    suspects = np.flatnonzero(first.residual_ohm > retry_residual_factor * np.median(first.residual_ohm))
+    if suspects.size == 0:
+        return first
+    retry_kwargs = {**kwargs, "n_starts": 6, "separation_mm": 2.0, "grid_step_mm": 0.5}
+    second = invert_presses(skin, np.asarray(dr_ohm, float)[suspects], bounds, depth, **retry_kwargs)
+    better = second.residual_ohm < first.residual_ohm[suspects]
+    rows = suspects[better]
+    xy, depth_mm, residual = first.xy_mm.copy(), first.depth_mm.copy(), first.residual_ohm.copy()
+    xy[rows], depth_mm[rows], residual[rows] = (
+        second.xy_mm[better],
+        second.depth_mm[better],
+        second.residual_ohm[better],
+    )
+    logger.debug("second pass on %d presses improved %d", suspects.size, rows.size)
+    return InversionResult(
+        xy_mm=xy,
+        depth_mm=depth_mm,
+        residual_ohm=residual,
+        n_iterations=first.n_iterations + second.n_iterations,
+        n_model_evaluations=first.n_model_evaluations + second.n_model_evaluations,
+        time_s=first.time_s + second.time_s,
+    )
