@@ -101,8 +101,8 @@ PROBE_MODULES = (
 
 def _modules_after(args, cwd):
     code = (
-        "import sys\nfrom neatskin.cli import main\ncode = main(%r)\n"
-        "print(sorted(m for m in %r if m in sys.modules))" % (args, PROBE_MODULES)
+        f"import sys\nfrom neatskin.cli import main\ncode = main({args!r})\n"
+        f"print(sorted(m for m in {PROBE_MODULES!r} if m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=cwd, timeout=120)
     return out

@@ -40,7 +40,7 @@ def _netlist(layout, g: np.ndarray) -> tuple[str, list[tuple[int, int, str]]]:
         for k, (ia, ib) in enumerate(layout.pair_electrode_index.tolist()):
             a, b = elec[ia], elec[ib]
 
-            def node(j: int) -> str:
+            def node(j: int, b: int = b, p: int = p, k: int = k) -> str:
                 return "0" if j == b else f"p{p}k{k}n{j}"
 
             for c, (u, v) in enumerate(ends):

@@ -88,5 +88,5 @@ class FaultConfig:
                 raise ConfigError(
                     f"fault {key}={value!r} is not a number", field="faults", fix=f"write {key}=<number>"
                 ) from None
-            config = replace(config, **{key: parsed})
+            config = replace(config, **{key: parsed})  # type: ignore[arg-type]  # typed per key above
         return config

@@ -72,7 +72,7 @@ class PinchParams:
 def pinch_fraction(
     r_mm,
     depth_mm,
-    probe_radius_mm: float,
+    probe_radius_mm: float | np.ndarray,
     thickness_mm: float,
     channel_depth_mm: float,
     params: PinchParams = PinchParams(),

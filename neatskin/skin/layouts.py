@@ -28,7 +28,7 @@ def grid_layout(
     """
     if nx < 2 or ny < 2:
         raise ValueError(f"a grid needs at least 2 x 2 junctions, got {nx} x {ny}")
-    idx = {(i, j): j * nx + i for j in range(ny) for i in range(nx)}
+    idx: dict[tuple[int, ...], int] = {(i, j): j * nx + i for j in range(ny) for i in range(nx)}
     junctions = tuple(Junction(f"J{i}_{j}", i * pitch_mm, j * pitch_mm) for j in range(ny) for i in range(nx))
     channels = []
     for j in range(ny):

@@ -92,7 +92,7 @@ def deformation_sensitivity(
     y_mm: np.ndarray,
     depth_mm: float = 3.5,
     batch: int = 4096,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[int], object] | None = None,
 ) -> SensitivityMap:
     """dR_eq of a press at every (x, y) to depth_mm under `model`; `progress(k)` is told of each
     finished batch of k presses (for a progress bar at the edge)."""
