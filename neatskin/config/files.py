@@ -38,6 +38,12 @@ def campaign_name_problems(name: str, source: str, where: str = "campaign.name")
         return []
     injects = any(c in ";*(" or not c.isprintable() for c in name)
     why = "; its characters could inject G-code" if injects else ""
+    bad = next((c for c in name if not c.isascii()), None)  # the one a technician cannot see comes first
+    bad = bad or next((c for c in name if not re.fullmatch(r"[A-Za-z0-9._-]", c)), None)
+    if bad is not None and not bad.isascii():
+        why += f"; non-ASCII character {bad!r} (U+{ord(bad):04X})"
+    elif bad is not None and bad.isprintable():
+        why += f"; character {bad!r} is not allowed"
     return [
         Problem(
             f"campaign name {name!r} is not {SAFE_NAME_TEXT} (at most {MAX_NAME_LEN} characters){why}",
