@@ -377,3 +377,12 @@ def test_a_wiring_drawn_for_another_skin_is_refused(protocols):
         problem.message
         == "the wiring was drawn for layout 'other' (../skins/other.toml), the protocol uses 'neatskin-paper'"
     )
+
+
+def test_electrical_summary_of_the_smoke_campaign(protocols):
+    # 0.5 mA x (5625 ohm x 1.5 + 2 x 100 ohm + 10 ohm) = 4.32375 V against the +-8 V rails
+    summary = load_protocol(protocols / "smoke.toml").electrical.summary()
+    assert summary == (
+        "peak 4.32 V (pair 4-8, 5625 ohm undeformed, with the press margin and R_on), "
+        "limit 8.00 V (mux supply rails (-8 V .. +8 V)), 1.85x headroom"
+    )

@@ -77,6 +77,13 @@ class ElectricalCheck:
     def headroom(self) -> float:
         return self.limit_v / self.peak_v
 
+    def summary(self) -> str:
+        return (
+            f"peak {self.peak_v:.2f} V (pair {self.largest_pair}, {self.largest_r_eq_ohm:.0f} ohm undeformed, "
+            f"with the press margin and R_on), limit {self.limit_v:.2f} V ({self.limit_name}), "
+            f"{self.headroom:.2f}x headroom"
+        )
+
 
 @dataclass(frozen=True)
 class Protocol:
