@@ -309,7 +309,7 @@ def test_electrical_limits_come_from_the_wiring_and_the_protocol(protocols):
 
 # A technician's mistakes, one at a time, through `campaign check` as typed at the shell (QA of the config
 # layer): each is exactly one problem naming the file and the field, exit code 2, no traceback. Each case
-# cascaded, passed, or printed a raw value before (the table in docs/config.md, "Hostile input").
+# cascaded, passed, or printed a raw value before (docs/config.md, "Mistakes and what they print").
 ONE_MISTAKE = [
     ("smoke.toml", "[campaign]", "[campain]", "campain", "did you mean 'campaign'?"),
     ("smoke.toml", 'name = "smoke"', 'nme = "smoke"', "campaign.nme", "did you mean 'name'?"),

@@ -296,16 +296,39 @@ class MotionTable:
 
 @dataclass(frozen=True)
 class ParkTable:
-    x_mm: float | None = setting(None, unit="mm", ge=-10_000, le=10_000, default_doc="soft_limits.min_x_mm")
-    y_mm: float | None = setting(None, unit="mm", ge=-10_000, le=10_000, default_doc="soft_limits.max_y_mm")
-    z_mm: float | None = setting(None, unit="mm", ge=-10_000, le=10_000, default_doc="soft_limits.max_z_mm")
+    x_mm: float | None = setting(
+        None,
+        unit="mm",
+        ge=-10_000,
+        le=10_000,
+        default_doc="soft_limits.min_x_mm",
+        doc="where the probe waits after the campaign, printer frame",
+    )
+    y_mm: float | None = setting(
+        None,
+        unit="mm",
+        ge=-10_000,
+        le=10_000,
+        default_doc="soft_limits.max_y_mm",
+        doc="where the probe waits after the campaign, printer frame",
+    )
+    z_mm: float | None = setting(
+        None,
+        unit="mm",
+        ge=-10_000,
+        le=10_000,
+        default_doc="soft_limits.max_z_mm",
+        doc="where the probe waits after the campaign, printer frame",
+    )
 
 
 @dataclass(frozen=True)
 class CalibrationTable:
     offset_x_mm: float = setting(unit="mm", ge=-10_000, le=10_000, doc="printer xy of the sensor's origin")
     offset_y_mm: float = setting(unit="mm", ge=-10_000, le=10_000, doc="printer xy of the sensor's origin")
-    rotation_deg: float = setting(unit="deg", ge=-360, le=360, doc="sensor frame against the printer's")
+    rotation_deg: float = setting(
+        unit="deg", ge=-360, le=360, doc="sensor frame against the printer's, in degrees (a radian value is refused)"
+    )
     surface_z_mm: float = setting(unit="mm", ge=-10_000, le=10_000, doc="printer z touching the skin surface")
 
 
