@@ -220,6 +220,7 @@ def layout_from_dict(data: dict, source: str = "<memory>") -> Layout:
     # a misspelt table (say [channel_default]) is one problem, not a "missing" one per channel it would fill
     # (and a misspelt [[junction]] or width key likewise: what it would have defined is not missing twice)
     unknown_table = any(p.message.startswith(("unknown table", "unknown key")) for p in problems)
+    unknown_table = unknown_table or ("channel_defaults" in data and "channel_defaults" not in tables)
 
     junctions: list[Junction] = []
     by_name: dict[str, int] = {}

@@ -328,6 +328,8 @@ ONE_MISTAKE = [
     ("wiring/paper.toml", "X0 = 1, Y0 = 2,", "X0 = 1, YO = 2,", "chips[0].pins.YO", "did you mean 'Y0'?"),
     ("wiring/paper.toml", '"../skins/paper.toml"', '"../skins/paper2.toml"', "layout", "does not exist"),
     ("printers/paper.toml", "offset_x_mm = 95.0", "offset_x_mm = 250.0", "press 0", "so do 11 more presses"),
+    ("skins/paper.toml", "width_mm = 2.0", "width_mm = 0.0", "channel_defaults.width_mm", "must be positive"),
+    ("wiring/paper.toml", '[[chips]]\nname = "U7"', '[[chipz]]\nname = "U7"', "chipz", "did you mean 'chips'?"),
 ]
 
 
@@ -385,4 +387,32 @@ def test_electrical_summary_of_the_smoke_campaign(protocols):
     assert summary == (
         "peak 4.32 V (pair 4-8, 5625 ohm undeformed, with the press margin and R_on), "
         "limit 8.00 V (mux supply rails (-8 V .. +8 V)), 1.85x headroom"
+    )
+
+
+@pytest.mark.parametrize(
+    "key, named, kind, own",
+    [
+        ("wiring", "skins/paper.toml", "layout", "wiring"),
+        ("printer", "wiring/paper.toml", "wiring", "printer profile"),
+        ("layout", "printers/paper.toml", "printer profile", "layout"),
+    ],
+)
+def test_a_file_of_another_kind_is_one_problem(protocols, capsys, key, named, kind, own):
+    edit(protocols / "smoke.toml", f'{key} = "', f'{key} = "{named}" # was "')
+    assert main(["campaign", "check", str(protocols / "smoke.toml")]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert f"{protocols / named}: this is a {kind} file (it has [" in lines[0]
+    assert f"), not a {own} (fix: name a {own} file here" in lines[0]
+
+
+@pytest.mark.parametrize("command", [["campaign", "check"], ["gcode", "generate", "-o", "out.gcode"]])
+def test_a_printer_profile_given_as_the_protocol_is_one_problem(protocols, capsys, command):
+    path = protocols / "printers" / "paper.toml"
+    assert main([*command[:2], str(path), *command[2:]]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and f"{path}: this is a printer profile file (it has [printer], [bed]," in lines[0]
+    assert lines[0].endswith(
+        "), not a protocol (fix: name a protocol file here: check the protocol's [files] entry or the path given)"
     )

@@ -236,7 +236,9 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
     )
     chips: tuple[ChipEntry, ...] = tables.get("chips") or ()
     n_pairs = len(layout.pairs)
-    if chips and len(chips) * ADDRESSES_PER_CHIP < n_pairs:
+    # a misspelt [[chipz]] is one problem: the chip it held is not also "missing", nor its pairs unrouted
+    misspelt = any(p.message.startswith("unknown table") for p in schema_problems)
+    if chips and len(chips) * ADDRESSES_PER_CHIP < n_pairs and not misspelt:
         need = math.ceil(n_pairs / ADDRESSES_PER_CHIP)
         problem(
             "chips",
@@ -352,7 +354,7 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
         problems[twice[0]] = Problem(
             first.message, first.file, first.field, f"{first.fix}; pairs not routed by any chip: {labels}"
         )
-    elif chips and len(chips) * ADDRESSES_PER_CHIP >= n_pairs and not bad_pins:
+    elif chips and len(chips) * ADDRESSES_PER_CHIP >= n_pairs and not bad_pins and not misspelt:
         for pair in unrouted:
             problem(
                 "chips",

@@ -348,7 +348,31 @@ def parse_tables(schema: type, data: Any, source: str) -> tuple[dict[str, Any], 
     if not isinstance(data, Mapping):
         walker.problem("", f"the file must hold TOML tables, got {type(data).__name__}", "check the file")
         return {}, walker.problems
+    wrong = wrong_kind_problem(schema, data, source)
+    if wrong is not None:
+        return {}, [wrong]
     return walker.table(schema, data, "", valid=True), walker.problems
+
+
+def wrong_kind_problem(schema: type, data: Mapping, source: str) -> Problem | None:
+    """A file of another kind (a layout named where a wiring belongs): one problem, not one per table."""
+    from neatskin.config.files import FILE_KINDS  # the schemas import this engine
+
+    own_keys = {toml_key(f) for f in dataclasses.fields(schema)}
+    if not data or own_keys & set(data):
+        return None
+    own = next((title for title, kind in FILE_KINDS.items() if kind is schema), "")
+    for title, kind in FILE_KINDS.items():
+        required = [toml_key(f) for f in dataclasses.fields(kind) if is_required(f)]
+        if kind is not schema and required and all(key in data for key in required):
+            shown = ", ".join(f"[{key}]" for key in required)
+            return Problem(
+                f"this is a {title} file (it has {shown}), not a {own or 'file of this kind'}",
+                source,
+                None,
+                f"name a {own} file here: check the protocol's [files] entry or the path given",
+            )
+    return None
 
 
 def unknown_key_problems(data: Mapping, known: tuple[str, ...], source: str, where: str = "") -> list[Problem]:

@@ -21,8 +21,10 @@ from neatskin.config.files import (
     FilesTable,
     PositionsTable,
     PressTable,
+    ProtocolFile,
     campaign_name_problems,
 )
+from neatskin.config.schema import wrong_kind_problem
 from neatskin.errors import ConfigError, Problem, raise_problems
 from neatskin.gcode.positions import PositionSpec, generate_positions
 from neatskin.gcode.profile import PrinterProfile, load_printer_profile
@@ -77,6 +79,9 @@ def press_spec_from_dict(data: dict, source: str = "<memory>", base_dir: str | P
     tables: dict[str, Any] = {}
     if not data:
         raise ConfigError("the file is empty", file=source, fix="write its tables (see protocols/paper.toml)")
+    wrong = wrong_kind_problem(ProtocolFile, data, source)  # a layout or printer profile given as the protocol
+    if wrong is not None:
+        raise ConfigError(problems=[wrong])
     for name, schema in GCODE_TABLES:
         if not isinstance(data.get(name), dict):
             problems.append(_missing_table(data, name, source))

@@ -165,7 +165,10 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
         # the press program's checks: bounds after calibration, depth, feeds
         from neatskin.gcode.spec import build_from_spec
 
-        _collect(problems, lambda: build_from_spec(press, layout=layout, profile=printer))
+        built: list[Problem] = []
+        _collect(built, lambda: build_from_spec(press, layout=layout, profile=printer))
+        reported = {p.field for p in problems}  # a field the schema refused (a non-ASCII name) is reported once
+        problems += [p for p in built if p.field not in reported]
     if layout is not None and wiring is not None and excitation_t is not None and acq is not None:
         electrical = check_electrical(layout, wiring, excitation_t, acq)
         problems += _electrical_problems(electrical, layout, wiring, excitation_t, source)
