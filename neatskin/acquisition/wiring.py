@@ -38,6 +38,7 @@ from pathlib import Path
 from neatskin.config import parse_tables
 from neatskin.config.files import ChipEntry, LinesTable, WiringFile
 from neatskin.config.files import ElectricalTable as MuxElectrical
+from neatskin.config.schema import wrong_kind_problem
 from neatskin.errors import ConfigError, Problem, raise_problems
 from neatskin.layout import ElectrodePair, Layout
 from neatskin.tomlfile import read_toml, resolve_path
@@ -177,6 +178,9 @@ def wiring_layout_path(path: str | Path) -> Path | None:
     """The layout a wiring file names (its `layout` key, relative to the file), or None."""
     path = resolve_path(path)
     data = read_toml(path, "wiring file", fix="check the path (protocols/wiring/*.toml)")
+    wrong = wrong_kind_problem(WiringFile, data, str(path))  # a layout given as the wiring
+    if wrong is not None:
+        raise ConfigError(problems=[wrong])
     ref = data.get("layout")
     if ref is None:
         return None
@@ -187,7 +191,15 @@ def wiring_layout_path(path: str | Path) -> Path | None:
             field="layout",
             fix='write layout = "../skins/paper.toml" (relative to the wiring file)',
         )
-    return (path.parent / ref).resolve()
+    target = (path.parent / ref).resolve()
+    if not target.is_file():
+        raise ConfigError(
+            f"the wiring names layout {ref!r}, which is not a file (looked for {target})",
+            file=str(path),
+            field="layout",
+            fix="point layout at the skin file, relative to the wiring file, or pass --layout FILE",
+        )
+    return target
 
 
 def load_wiring(path: str | Path, layout: Layout) -> Wiring:
@@ -332,6 +344,7 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
                     f"pair with both ends on electrode {x}: X{k} and Y{k} of chip '{name}' are on the same electrode",
                     f"wire X{k} and Y{k} to the two different electrodes of a pair",
                 )
+                bad_pins = True  # the pair that belongs here is the one left unrouted: not a second mistake
                 continue
             key = (min(x, y), max(x, y))
             p = pair_index[key]
