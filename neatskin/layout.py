@@ -218,7 +218,9 @@ def layout_from_dict(data: dict, source: str = "<memory>") -> Layout:
     skin: SkinTable | None = tables.get("skin")
     defaults: ChannelDefaultsTable = tables.get("channel_defaults") or ChannelDefaultsTable()
     # a misspelt table (say [channel_default]) is one problem, not a "missing" one per channel it would fill
-    unknown_table = any(p.message.startswith("unknown table") for p in problems)
+    # (and a misspelt [[junction]] or width key likewise: what it would have defined is not missing twice)
+    unknown_table = any(p.message.startswith(("unknown table", "unknown key")) for p in problems)
+    unknown_table = unknown_table or ("channel_defaults" in data and "channel_defaults" not in tables)
 
     junctions: list[Junction] = []
     by_name: dict[str, int] = {}
@@ -229,6 +231,9 @@ def layout_from_dict(data: dict, source: str = "<memory>") -> Layout:
         by_name[jt.name] = len(junctions)
         junctions.append(Junction(jt.name, jt.x_mm, jt.y_mm))
     known = ", ".join(by_name) or "(none defined)"
+    # names are checked against the junctions only when those read cleanly: a bad or duplicate junction is
+    # one problem, not one more per channel and electrode that names it
+    check_refs = "junctions" in tables and len(by_name) == len(tables["junctions"]) and not unknown_table
 
     channels: list[Channel] = []
     seen_ends: dict[frozenset, str] = {}
@@ -238,7 +243,8 @@ def layout_from_dict(data: dict, source: str = "<memory>") -> Layout:
         ends = []
         for key, ref in (("from", ct.start), ("to", ct.to)):
             if ref not in by_name:
-                problem(f"{where}.{key}", f"unknown junction {ref!r}", f"use one of the junction names: {known}")
+                if check_refs:
+                    problem(f"{where}.{key}", f"unknown junction {ref!r}", f"use one of the junction names: {known}")
             else:
                 ends.append(by_name[ref])
         if len(ends) != 2:
@@ -287,11 +293,12 @@ def layout_from_dict(data: dict, source: str = "<memory>") -> Layout:
             problem(f"{where}.number", f"duplicate electrode number {et.number}", "give every electrode its own number")
             continue
         if et.junction not in by_name:
-            problem(
-                f"{where}.junction",
-                f"electrode {et.number} is on a missing junction {et.junction!r}",
-                f"use one of the junction names: {known}",
-            )
+            if check_refs:
+                problem(
+                    f"{where}.junction",
+                    f"electrode {et.number} is on a missing junction {et.junction!r}",
+                    f"use one of the junction names: {known}",
+                )
             continue
         junction = by_name[et.junction]
         if junction in used_junctions:

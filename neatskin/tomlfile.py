@@ -87,7 +87,8 @@ def read_toml(
     """Parse a TOML file; a missing, unreadable, non-regular, oversized or non-UTF-8 file, or a syntax error,
     is one ConfigError naming the file (and the line)."""
     path = resolve_path(path)
-    text = read_text_capped(path, what, fix)
+    # a byte-order mark (Windows Notepad writes one) is not TOML, but it hides nothing: read past it
+    text = read_text_capped(path, what, fix).removeprefix("\ufeff")
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

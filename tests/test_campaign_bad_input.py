@@ -305,3 +305,114 @@ def test_electrical_limits_come_from_the_wiring_and_the_protocol(protocols):
     check = load_protocol(path).electrical
     assert (check.peak_v, check.limit_v) == (pytest.approx(8.6475), 15.0)
     assert check.limit_name.startswith("mux supply rails")
+
+
+# A technician's mistakes, one at a time, through `campaign check` as typed at the shell (QA of the config
+# layer): each is exactly one problem naming the file and the field, exit code 2, no traceback. Each case
+# cascaded, passed, or printed a raw value before (docs/config.md, "Mistakes and what they print").
+ONE_MISTAKE = [
+    ("smoke.toml", "[campaign]", "[campain]", "campain", "did you mean 'campaign'?"),
+    ("smoke.toml", 'name = "smoke"', 'nme = "smoke"', "campaign.nme", "did you mean 'name'?"),
+    ("smoke.toml", "[press]\n", "[pres]\n", "pres", "did you mean 'press'?"),
+    ("smoke.toml", "[press]\n", "[[press]]\n", "press", "written as an array of tables [[press]]"),
+    ("smoke.toml", "frequency_hz = 1000.0", "frequency_hz = 1.0", "excitation.frequency_hz", "0.01 periods"),
+    ("smoke.toml", "rate_hz = 10000.0", "rate_hz = 10.0", "excitation.frequency_hz", "10 kHz is rate_hz = 10000.0"),
+    ("smoke.toml", "probe_diameter_mm = 5.5", "probe_diameter_mm = 55", "press.probe_diameter_mm", "wider than"),
+    ("skins/paper.toml", "[[junctions]]", "[[junction]]", "junction", "did you mean 'junctions'?"),
+    ("skins/paper.toml", "x_mm = 15.0", 'x_mm = "15.0"', "junctions[1].x_mm", "must be a finite number"),
+    ("skins/paper.toml", 'name = "J22"', 'name = "J21"', "junctions[8].name", "duplicate junction name 'J21'"),
+    ("skins/paper.toml", "width_mm = 2.0", "widht_mm = 2.0", "channel_defaults.widht_mm", "did you mean"),
+    ("skins/paper.toml", "[skin]", "[[skin]]", "skin", "written as an array of tables [[skin]]"),
+    ("wiring/paper.toml", "X3 = 7, Y3 = 8", "X3 = 1, Y3 = 2", "chips[6].pins.X3/Y3", "not routed by any chip: 7-8"),
+    ("wiring/paper.toml", "X3 = 7, Y3 = 8", "X3 = 7, Y3 = 9", "chips[6].pins.Y3", "electrode 9 on pin Y3"),
+    ("wiring/paper.toml", "X0 = 1, Y0 = 2,", "X0 = 1, YO = 2,", "chips[0].pins.YO", "did you mean 'Y0'?"),
+    ("wiring/paper.toml", '"../skins/paper.toml"', '"../skins/paper2.toml"', "layout", "does not exist"),
+    ("printers/paper.toml", "offset_x_mm = 95.0", "offset_x_mm = 250.0", "press 0", "so do 11 more presses"),
+    ("skins/paper.toml", "width_mm = 2.0", "width_mm = 0.0", "channel_defaults.width_mm", "must be positive"),
+    ("wiring/paper.toml", '[[chips]]\nname = "U7"', '[[chipz]]\nname = "U7"', "chipz", "did you mean 'chips'?"),
+]
+
+
+@pytest.mark.parametrize("name, old, new, field, words", ONE_MISTAKE, ids=[f"{c[0]}:{c[2][:24]}" for c in ONE_MISTAKE])
+def test_one_mistake_is_one_problem(protocols, capsys, name, old, new, field, words):
+    path = protocols / name
+    text = path.read_text()
+    assert old in text
+    path.write_text(text.replace(old, new, 1))  # one mistake: the first occurrence only
+    assert main(["campaign", "check", str(protocols / "smoke.toml")]) == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    reported_in = protocols / ("smoke.toml" if field.startswith("press ") else name)  # presses are the protocol's
+    assert f"{reported_in}: [{field}]: " in lines[0] and words in lines[0] and "(fix: " in lines[0]
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("name", ["smoke.toml", "skins/paper.toml"])
+def test_an_empty_file_is_one_problem(protocols, capsys, name):
+    (protocols / name).write_text("")
+    assert main(["campaign", "check", str(protocols / "smoke.toml")]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and f"{protocols / name}: the file is empty (fix: write its tables (" in lines[0]
+
+
+@pytest.mark.parametrize("name", ["smoke.toml", "skins/paper.toml", "wiring/paper.toml", "printers/paper.toml"])
+def test_a_byte_order_mark_or_crlf_line_ends_are_read_as_the_same_file(protocols, name):
+    clean = load_protocol(protocols / "smoke.toml")
+    path = protocols / name
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes().replace(b"\n", b"\r\n"))
+    again = load_protocol(protocols / "smoke.toml")
+    assert again.layout.xy_mm.tolist() == clean.layout.xy_mm.tolist()
+    assert (again.press, again.excitation, again.acquisition) == (clean.press, clean.excitation, clean.acquisition)
+    assert again.printer.calibration == clean.printer.calibration and again.wiring.routes == clean.wiring.routes
+
+
+def test_a_wiring_drawn_for_another_skin_is_refused(protocols):
+    other = (protocols / "skins" / "paper.toml").read_text().replace('name = "neatskin-paper"', 'name = "other"')
+    (protocols / "skins" / "other.toml").write_text(other)
+    edit(protocols / "wiring" / "paper.toml", '"../skins/paper.toml"', '"../skins/other.toml"')
+    with pytest.raises(ConfigError) as info:
+        load_protocol(protocols / "smoke.toml")
+    [problem] = info.value.problems
+    assert problem.field == "layout" and problem.file == str(protocols / "wiring" / "paper.toml")
+    assert (
+        problem.message
+        == "the wiring was drawn for layout 'other' (../skins/other.toml), the protocol uses 'neatskin-paper'"
+    )
+
+
+def test_electrical_summary_of_the_smoke_campaign(protocols):
+    # 0.5 mA x (5625 ohm x 1.5 + 2 x 100 ohm + 10 ohm) = 4.32375 V against the +-8 V rails
+    summary = load_protocol(protocols / "smoke.toml").electrical.summary()
+    assert summary == (
+        "peak 4.32 V (pair 4-8, 5625 ohm undeformed, with the press margin and R_on), "
+        "limit 8.00 V (mux supply rails (-8 V .. +8 V)), 1.85x headroom"
+    )
+
+
+@pytest.mark.parametrize(
+    "key, named, kind, own",
+    [
+        ("wiring", "skins/paper.toml", "layout", "wiring"),
+        ("printer", "wiring/paper.toml", "wiring", "printer profile"),
+        ("layout", "printers/paper.toml", "printer profile", "layout"),
+    ],
+)
+def test_a_file_of_another_kind_is_one_problem(protocols, capsys, key, named, kind, own):
+    edit(protocols / "smoke.toml", f'{key} = "', f'{key} = "{named}" # was "')
+    assert main(["campaign", "check", str(protocols / "smoke.toml")]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert f"{protocols / named}: this is a {kind} file (it has [" in lines[0]
+    assert f"), not a {own} (fix: name a {own} file here" in lines[0]
+
+
+@pytest.mark.parametrize("command", [["campaign", "check"], ["gcode", "generate", "-o", "out.gcode"]])
+def test_a_printer_profile_given_as_the_protocol_is_one_problem(protocols, capsys, command):
+    path = protocols / "printers" / "paper.toml"
+    assert main([*command[:2], str(path), *command[2:]]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and f"{path}: this is a printer profile file (it has [printer], [bed]," in lines[0]
+    assert lines[0].endswith(
+        "), not a protocol (fix: name a protocol file here: check the protocol's [files] entry or the path given)"
+    )

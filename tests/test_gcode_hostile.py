@@ -183,3 +183,32 @@ def test_emit_refuses_a_non_ascii_name():
         safe_text("Kampagne Üben", "campaign.name", "proto.toml")
     assert info.value.problems[0].field == "campaign.name"
     assert "non-ASCII character 'Ü' (U+00DC)" in str(info.value)
+
+
+@pytest.mark.parametrize("text", ["", "; only a comment\n\n", "\n\n   \n"])
+def test_check_of_a_program_without_commands_is_one_error(tmp_path, capsys, paper_profile, text):
+    program = tmp_path / "empty.gcode"
+    program.write_text(text)
+    assert main(["gcode", "check", str(program), "--profile", paper_profile]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert captured.err == (
+        f"neatskin: error: {program}: holds no G-code command (empty, or comments only): not a press program "
+        "(fix: give the .gcode file written by `neatskin gcode generate`)\n"
+    )
+
+
+def test_a_byte_order_mark_is_read_past(tmp_path):
+    program = tmp_path / "bom.gcode"
+    program.write_bytes(b"\xef\xbb\xbf; a comment\r\nG28\r\n")
+    assert read_program_file(program) == "; a comment\r\nG28\r\n"
+
+
+@pytest.mark.parametrize("profile", ["missing.toml", "wiring"])
+def test_a_bad_profile_is_one_error_before_anything_is_printed(tmp_path, capsys, protocols_dir, profile):
+    program = tmp_path / "p.gcode"
+    program.write_text("G28\n")
+    path = protocols_dir / "wiring" / "paper.toml" if profile == "wiring" else tmp_path / profile
+    assert main(["gcode", "check", str(program), "--profile", str(path)]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and len(captured.err.splitlines()) == 1 and str(path) in captured.err

@@ -103,3 +103,28 @@ def test_extreme_values_are_refused(paper_dict):
         printer_profile_from_dict(paper_dict, "printer.toml")
     assert [p.field for p in info.value.problems] == ["printer.homing_time_s", "bed.size_x_mm"]
     assert "is above 3600" in info.value.problems[0].message
+
+
+@pytest.mark.parametrize(
+    "rotation, refused",
+    [(1.5708, True), (-3.14159, True), (0.7854, True), (1.571, False), (90.0, False), (2.5, False), (0.0, False)],
+)
+def test_a_rotation_written_in_radians_is_refused(paper_dict, rotation, refused):
+    paper_dict["calibration"]["rotation_deg"] = rotation
+    if not refused:
+        assert printer_profile_from_dict(paper_dict, "printer.toml").calibration.rotation_deg == rotation
+        return
+    with pytest.raises(ConfigError) as info:
+        printer_profile_from_dict(paper_dict, "printer.toml")
+    [problem] = info.value.problems
+    degrees = round(rotation / 0.7853981633974483) * 45
+    assert problem.field == "calibration.rotation_deg"
+    assert problem.message == f"rotation_deg = {rotation:g} looks like {degrees:g} degrees written in radians"
+    assert problem.fix.startswith(f"rotation_deg is in degrees: write {degrees:.1f} ")
+
+
+def test_soft_limits_upside_down_are_one_problem_not_also_the_park(paper_dict):
+    paper_dict["soft_limits"]["min_x_mm"] = 300.0
+    with pytest.raises(ConfigError) as info:
+        printer_profile_from_dict(paper_dict, "printer.toml")
+    assert [p.field for p in info.value.problems] == ["soft_limits.max_x_mm"]

@@ -38,6 +38,7 @@ from pathlib import Path
 from neatskin.config import parse_tables
 from neatskin.config.files import ChipEntry, LinesTable, WiringFile
 from neatskin.config.files import ElectricalTable as MuxElectrical
+from neatskin.config.schema import wrong_kind_problem
 from neatskin.errors import ConfigError, Problem, raise_problems
 from neatskin.layout import ElectrodePair, Layout
 from neatskin.tomlfile import read_toml, resolve_path
@@ -177,6 +178,9 @@ def wiring_layout_path(path: str | Path) -> Path | None:
     """The layout a wiring file names (its `layout` key, relative to the file), or None."""
     path = resolve_path(path)
     data = read_toml(path, "wiring file", fix="check the path (protocols/wiring/*.toml)")
+    wrong = wrong_kind_problem(WiringFile, data, str(path))  # a layout given as the wiring
+    if wrong is not None:
+        raise ConfigError(problems=[wrong])
     ref = data.get("layout")
     if ref is None:
         return None
@@ -187,7 +191,15 @@ def wiring_layout_path(path: str | Path) -> Path | None:
             field="layout",
             fix='write layout = "../skins/paper.toml" (relative to the wiring file)',
         )
-    return (path.parent / ref).resolve()
+    target = (path.parent / ref).resolve()
+    if not target.is_file():
+        raise ConfigError(
+            f"the wiring names layout {ref!r}, which is not a file (looked for {target})",
+            file=str(path),
+            field="layout",
+            fix="point layout at the skin file, relative to the wiring file, or pass --layout FILE",
+        )
+    return target
 
 
 def load_wiring(path: str | Path, layout: Layout) -> Wiring:
@@ -236,7 +248,9 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
     )
     chips: tuple[ChipEntry, ...] = tables.get("chips") or ()
     n_pairs = len(layout.pairs)
-    if chips and len(chips) * ADDRESSES_PER_CHIP < n_pairs:
+    # a misspelt [[chipz]] is one problem: the chip it held is not also "missing", nor its pairs unrouted
+    misspelt = any(p.message.startswith("unknown table") for p in schema_problems)
+    if chips and len(chips) * ADDRESSES_PER_CHIP < n_pairs and not misspelt:
         need = math.ceil(n_pairs / ADDRESSES_PER_CHIP)
         problem(
             "chips",
@@ -248,6 +262,8 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
     inhibits: list[str] = []
     routed: dict[int, tuple[int, int, str]] = {}  # pair index -> (chip, address, field)
     routes: list[Route] = []
+    bad_pins = False  # a pin already reported: its address and the pairs left unrouted are not new mistakes
+    twice: list[int] = []  # indices in problems of the "routed twice" problems
     for c, chip in enumerate(chips):
         where = f"chips[{c}]"
         name = chip.name or f"U{c + 1}"
@@ -257,16 +273,26 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
         inhibits.append(line(chip.inhibit, f"{where}.inhibit"))
         pins = chip.pins
         on_pin: dict[tuple[str, int], int] = {}
+        bad_addresses: set[int] = set()
         for pin, value in pins.items():
             field = f"{where}.pins.{pin}"
             m = _PIN_RE.match(pin)
             if not m or not 0 <= int(m.group(2)) < ADDRESSES_PER_CHIP:
+                bad_pins = True
+                meant = _PIN_RE.match(pin.upper().replace("O", "0"))
+                if meant and 0 <= int(meant.group(2)) < ADDRESSES_PER_CHIP:
+                    bad_addresses.add(int(meant.group(2)))
+                    hint = f"did you mean '{meant.group(0)}'? "
+                else:
+                    bad_addresses.update(range(ADDRESSES_PER_CHIP))
+                    hint = ""
                 problem(
                     field,
                     f"chip '{name}' has no pin '{pin}'",
-                    f"use X0..X{ADDRESSES_PER_CHIP - 1} and Y0..Y{ADDRESSES_PER_CHIP - 1}",
+                    f"{hint}use X0..X{ADDRESSES_PER_CHIP - 1} and Y0..Y{ADDRESSES_PER_CHIP - 1}",
                 )
                 continue
+            address = int(m.group(2))
             if isinstance(value, list):
                 if len(value) > 1:
                     problem(
@@ -275,6 +301,8 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
                         f"{', '.join(map(str, value))}",
                         f"wire exactly one electrode to {pin}",
                     )
+                    bad_pins = True
+                    bad_addresses.add(address)
                     continue
                 value = value[0] if value else None
             if isinstance(value, bool) or not isinstance(value, int):
@@ -283,6 +311,8 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
                     f"pin {pin} of chip '{name}' must name an electrode number, got {value!r}",
                     f"write {pin} = <electrode number>",
                 )
+                bad_pins = True
+                bad_addresses.add(address)
                 continue
             if value not in electrodes:
                 problem(
@@ -291,11 +321,13 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
                     f"(electrodes {', '.join(map(str, sorted(electrodes)))})",
                     "use an electrode number of the layout",
                 )
+                bad_pins = True
+                bad_addresses.add(address)
                 continue
             on_pin[(m.group(1), int(m.group(2)))] = value
         for k in range(ADDRESSES_PER_CHIP):
             x, y = on_pin.get(("X", k)), on_pin.get(("Y", k))
-            if x is None and y is None:
+            if (x is None and y is None) or k in bad_addresses:
                 continue
             field = f"{where}.pins.X{k}/Y{k}"
             if x is None or y is None:
@@ -312,11 +344,13 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
                     f"pair with both ends on electrode {x}: X{k} and Y{k} of chip '{name}' are on the same electrode",
                     f"wire X{k} and Y{k} to the two different electrodes of a pair",
                 )
+                bad_pins = True  # the pair that belongs here is the one left unrouted: not a second mistake
                 continue
             key = (min(x, y), max(x, y))
             p = pair_index[key]
             if p in routed:
                 oc, ok, ofield = routed[p]
+                twice.append(len(problems))
                 problem(
                     field,
                     f"pair {key[0]}-{key[1]} is routed twice: chip '{name}' address {k} and {ofield}",
@@ -325,14 +359,21 @@ def wiring_from_dict(data: dict, layout: Layout, source: str = "<memory>") -> Wi
                 continue
             routed[p] = (c, k, field)
             routes.append(Route(p, c, k, x, y))
-    if chips and len(chips) * ADDRESSES_PER_CHIP >= n_pairs:
-        for p, pair in enumerate(layout.pairs):
-            if p not in routed:
-                problem(
-                    "chips",
-                    f"pair {pair.label} of S is not routed by any chip",
-                    f"wire electrodes {pair.i} and {pair.j} to Xk and Yk of a free chip address",
-                )
+    unrouted = [pair for p, pair in enumerate(layout.pairs) if p not in routed]
+    if twice and unrouted:
+        # a pair wired twice usually stands where an unrouted pair belongs: one mistake, one problem
+        first = problems[twice[0]]
+        labels = ", ".join(pair.label for pair in unrouted)
+        problems[twice[0]] = Problem(
+            first.message, first.file, first.field, f"{first.fix}; pairs not routed by any chip: {labels}"
+        )
+    elif chips and len(chips) * ADDRESSES_PER_CHIP >= n_pairs and not bad_pins and not misspelt:
+        for pair in unrouted:
+            problem(
+                "chips",
+                f"pair {pair.label} of S is not routed by any chip",
+                f"wire electrodes {pair.i} and {pair.j} to Xk and Yk of a free chip address",
+            )
     raise_problems(problems)
     return Wiring(
         tuple(names),

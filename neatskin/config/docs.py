@@ -115,6 +115,42 @@ def render_schema(title: str, schema: type) -> str:
     return "\n".join(lines)
 
 
+MISTAKES = """## Mistakes and what they print
+
+One mistake is one line, `file: [field]: what (fix: how)`, exit code 2, nothing written: a
+misspelt key or table is reported as unknown with its close name, and not once more as missing;
+an empty file is "the file is empty"; what follows from a problem already reported (the channels
+naming a junction whose entry is bad, the pair left unrouted by a pin wired twice, each press of
+a campaign a wrong offset puts off the bed) is not reported again. Files with a byte-order mark
+or CRLF line ends read as the same file. Beyond each key's range, the loaders check across keys
+and files: the excitation below Nyquist and at least one whole period in the live window (and in
+the RMS window), so a Hz/kHz slip fails; a probe narrower than the skin; a wiring whose own
+`layout` key names a file that exists and the protocol's skin; a `rotation_deg` that is not a
+radian value (within 5e-5 of a multiple of pi/4).
+
+| mistake | what `neatskin campaign check protocols/paper.toml` prints |
+|---|---|
+| `[campain]` | `paper.toml: [campain]: unknown table [campain] (fix: did you mean 'campaign'?)` |
+| `[[press]]` | `paper.toml: [press]: [press] is written as an array of tables [[press]], but it is one table (fix: write its header with single brackets: [press])` |
+| `depth_mm = 35` | `paper.toml: [press.depth_mm]: press depth 35.0 mm is beyond the skin thickness 5.5 mm minus the 0.5 mm margin (limit 5 mm) (fix: set depth_mm <= 5)` |
+| `enabled = "true"` | `paper.toml: [fsr.enabled]: 'enabled' must be true or false, got 'true' (fix: set enabled = true or false)` |
+| `frequency_hz = 1.0` | `paper.toml: [excitation.frequency_hz]: the live_samples of 100 samples (10 ms at 10000 Hz) holds 0.01 periods of the 1 Hz excitation; ...` |
+| `amplitude_a = 0.002` | `paper.toml: [excitation.amplitude_a]: the excitation would clip: 2 mA x (...) = 17.3 V peak, beyond the mux supply rails ...` |
+| `probe_diameter_mm = 55` | `paper.toml: [press.probe_diameter_mm]: a 55 mm probe is wider than the skin (30 x 30 mm between its outer junctions) ...` |
+| a channel `to = "J23"` | `skins/paper.toml: [channels[11].to]: unknown junction 'J23' (fix: use one of the junction names: J00, ...)` |
+| `x_mm = "15.0"` | `skins/paper.toml: [junctions[1].x_mm]: 'x_mm' must be a finite number, got '15.0' (...)` |
+| a pair wired twice | `wiring/paper.toml: [chips[6].pins.X3/Y3]: pair 1-2 is routed twice: ... (fix: ...; pairs not routed by any chip: 7-8)` |
+| pin `YO` | `wiring/paper.toml: [chips[0].pins.YO]: chip 'U1' has no pin 'YO' (fix: did you mean 'Y0'? ...)` |
+| `[parking]` | `printers/paper.toml: [parking]: unknown table [parking] (fix: did you mean 'park'?)` |
+| `rotation_deg = 1.5708` | `printers/paper.toml: [calibration.rotation_deg]: rotation_deg = 1.5708 looks like 90 degrees written in radians ...` |
+| `offset_x_mm = 250` | `paper.toml: [press 0]: press 0 (position 0) goes to printer x = 279.153 mm, outside the bed and soft limits [0, 220] mm; so do 2799 more presses ...` |
+
+`gcode generate` reads only what the program needs (`[campaign]`, `[files]` layout and printer,
+`[positions]`, `[press]`); a mistake elsewhere (`[fsr]`, `[scene]`, the wiring, the excitation)
+is `campaign check`'s, and `campaign run` refuses it before anything moves.
+"""
+
+
 def render_markdown() -> str:
     intro = INTRO.format(
         max_samples=files.MAX_SAMPLES_PER_PRESS,
@@ -125,6 +161,7 @@ def render_markdown() -> str:
     parts = [intro]
     for title, schema in files.FILE_KINDS.items():
         parts.append(render_schema(title.capitalize(), schema))
+    parts.append(MISTAKES)
     parts.append(
         "## Scene\n\nThe protocol's `[scene]` (what a dry run simulates) is declared and read by "
         "`neatskin/sim/scene.py`; see docs/campaigns.md. `campaign check` also refuses a "

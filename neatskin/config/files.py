@@ -38,6 +38,12 @@ def campaign_name_problems(name: str, source: str, where: str = "campaign.name")
         return []
     injects = any(c in ";*(" or not c.isprintable() for c in name)
     why = "; its characters could inject G-code" if injects else ""
+    bad = next((c for c in name if not c.isascii()), None)  # the one a technician cannot see comes first
+    bad = bad or next((c for c in name if not re.fullmatch(r"[A-Za-z0-9._-]", c)), None)
+    if bad is not None and not bad.isascii():
+        why += f"; non-ASCII character {bad!r} (U+{ord(bad):04X})"
+    elif bad is not None and bad.isprintable():
+        why += f"; character {bad!r} is not allowed"
     return [
         Problem(
             f"campaign name {name!r} is not {SAFE_NAME_TEXT} (at most {MAX_NAME_LEN} characters){why}",
@@ -290,16 +296,39 @@ class MotionTable:
 
 @dataclass(frozen=True)
 class ParkTable:
-    x_mm: float | None = setting(None, unit="mm", ge=-10_000, le=10_000, default_doc="soft_limits.min_x_mm")
-    y_mm: float | None = setting(None, unit="mm", ge=-10_000, le=10_000, default_doc="soft_limits.max_y_mm")
-    z_mm: float | None = setting(None, unit="mm", ge=-10_000, le=10_000, default_doc="soft_limits.max_z_mm")
+    x_mm: float | None = setting(
+        None,
+        unit="mm",
+        ge=-10_000,
+        le=10_000,
+        default_doc="soft_limits.min_x_mm",
+        doc="where the probe waits after the campaign, printer frame",
+    )
+    y_mm: float | None = setting(
+        None,
+        unit="mm",
+        ge=-10_000,
+        le=10_000,
+        default_doc="soft_limits.max_y_mm",
+        doc="where the probe waits after the campaign, printer frame",
+    )
+    z_mm: float | None = setting(
+        None,
+        unit="mm",
+        ge=-10_000,
+        le=10_000,
+        default_doc="soft_limits.max_z_mm",
+        doc="where the probe waits after the campaign, printer frame",
+    )
 
 
 @dataclass(frozen=True)
 class CalibrationTable:
     offset_x_mm: float = setting(unit="mm", ge=-10_000, le=10_000, doc="printer xy of the sensor's origin")
     offset_y_mm: float = setting(unit="mm", ge=-10_000, le=10_000, doc="printer xy of the sensor's origin")
-    rotation_deg: float = setting(unit="deg", ge=-360, le=360, doc="sensor frame against the printer's")
+    rotation_deg: float = setting(
+        unit="deg", ge=-360, le=360, doc="sensor frame against the printer's, in degrees (a radian value is refused)"
+    )
     surface_z_mm: float = setting(unit="mm", ge=-10_000, le=10_000, doc="printer z touching the skin surface")
 
 

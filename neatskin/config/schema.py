@@ -97,12 +97,16 @@ class _Walker:
         partial: keys that are absent are left out (the result is a dict of the keys present);
         valid: the result is a dict of every field that is good (defaults included), bad ones left out."""
         if not isinstance(data, Mapping):
-            self.problem(where, f"[{where}] must be a table, got {data!r}", f"write it as [{where}] with its keys")
+            self.not_a_table(data, where)
             return None
         fields = dataclasses.fields(schema)
         by_key = {toml_key(f): f for f in fields}
         types_ = hints(schema)
-        self.unknown_keys(data, tuple(by_key), where)
+        if not where and not data and any(is_required(f) for f in fields):
+            self.problem("", "the file is empty", f"write its tables ({_key_list(schema, required=True)})")
+            return {} if (valid or partial) else None
+        # a misspelt key ("nme", "[campain]") is one mistake: its "did you mean" stands for the missing key too
+        suggested = self.unknown_keys(data, tuple(by_key), where)
         values: dict[str, Any] = {}
         ok = True
         for key, f in by_key.items():
@@ -114,7 +118,9 @@ class _Walker:
                 if valid and not is_required(f):
                     values[f.name] = f.default if f.default is not MISSING else f.default_factory()  # type: ignore[misc,operator]
                     continue
-                if is_required(f):
+                if is_required(f) and key in suggested:
+                    ok = False
+                elif is_required(f):
                     if is_schema(tp):
                         self.problem(
                             here, f"missing [{here}] table", f"add a [{here}] table with {_key_list(tp, required=True)}"
@@ -133,16 +139,40 @@ class _Walker:
             return values if ok else None
         return schema(**values) if ok else None
 
-    def unknown_keys(self, data: Mapping, known: tuple[str, ...], where: str) -> None:
+    def not_a_table(self, data: Any, where: str) -> None:
+        if isinstance(data, list) and data and all(isinstance(item, Mapping) for item in data):
+            self.problem(
+                where,
+                f"[{where}] is written as an array of tables [[{where}]], but it is one table",
+                f"write its header with single brackets: [{where}]",
+            )
+            return
+        shown = _short_repr(data)
+        self.problem(where, f"[{where}] must be a table, got {shown}", f"write it as [{where}] with its keys")
+
+    def unknown_keys(self, data: Mapping, known: tuple[str, ...], where: str) -> set[str]:
+        """Record a problem per unknown key; return the known keys suggested for them (not to be reported missing)."""
+        suggested: set[str] = set()
         for key in data:
             if key in known:
                 continue
             here = f"{where}.{key}" if where else key
             close = difflib.get_close_matches(str(key), known, n=1, cutoff=0.6)
-            kind = "table" if isinstance(data[key], Mapping) else "key"
+            value = data[key]
+            is_table = isinstance(value, Mapping) or (
+                isinstance(value, list) and bool(value) and all(isinstance(item, Mapping) for item in value)
+            )
+            kind = "table" if is_table else "key"
             shown = f"[{here}]" if kind == "table" else f"'{key}'"
-            fix = f"did you mean '{close[0]}'?" if close else f"remove it; known: {', '.join(known) or '(none)'}"
+            if close and close[0] not in data:
+                suggested.add(close[0])
+                fix = f"did you mean '{close[0]}'?"
+            elif close:
+                fix = f"did you mean '{close[0]}'?"
+            else:
+                fix = f"remove it; known: {', '.join(known) or '(none)'}"
             self.problem(here, f"unknown {kind} {shown}", fix)
+        return suggested
 
     # ---- values ----------------------------------------------------------------------
 
@@ -240,6 +270,11 @@ class _Walker:
         return value, True
 
 
+def _short_repr(value: Any, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[: limit - 20]}...{text[-12:]} (a {type(value).__name__})"
+
+
 def _range_violation(value: float, c: Constraint) -> str:
     if c.gt is not None and not value > c.gt:
         return "must be positive" if c.gt == 0 else f"must be above {c.gt:g}"
@@ -313,7 +348,31 @@ def parse_tables(schema: type, data: Any, source: str) -> tuple[dict[str, Any], 
     if not isinstance(data, Mapping):
         walker.problem("", f"the file must hold TOML tables, got {type(data).__name__}", "check the file")
         return {}, walker.problems
+    wrong = wrong_kind_problem(schema, data, source)
+    if wrong is not None:
+        return {}, [wrong]
     return walker.table(schema, data, "", valid=True), walker.problems
+
+
+def wrong_kind_problem(schema: type, data: Mapping, source: str) -> Problem | None:
+    """A file of another kind (a layout named where a wiring belongs): one problem, not one per table."""
+    from neatskin.config.files import FILE_KINDS  # the schemas import this engine
+
+    own_keys = {toml_key(f) for f in dataclasses.fields(schema)}
+    if not data or own_keys & set(data):
+        return None
+    own = next((title for title, kind in FILE_KINDS.items() if kind is schema), "")
+    for title, kind in FILE_KINDS.items():
+        required = [toml_key(f) for f in dataclasses.fields(kind) if is_required(f)]
+        if kind is not schema and required and all(key in data for key in required):
+            shown = ", ".join(f"[{key}]" for key in required)
+            return Problem(
+                f"this is a {title} file (it has {shown}), not a {own or 'file of this kind'}",
+                source,
+                None,
+                f"name a {own} file here: check the protocol's [files] entry or the path given",
+            )
+    return None
 
 
 def unknown_key_problems(data: Mapping, known: tuple[str, ...], source: str, where: str = "") -> list[Problem]:

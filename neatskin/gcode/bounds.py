@@ -95,35 +95,35 @@ def check_press_plan(
         ("x", x, max(0.0, profile.soft_min_mm.x), min(profile.bed_x_mm, profile.soft_max_mm.x)),
         ("y", y, max(0.0, profile.soft_min_mm.y), min(profile.bed_y_mm, profile.soft_max_mm.y)),
     )
-    bad = np.zeros(len(x), dtype=bool)
-    for _axis, values, lo, hi in checks:
-        bad |= ~np.isfinite(values) | (values < lo) | (values > hi)
-    listed = 0
-    for i in np.flatnonzero(bad):
-        if listed == _MAX_LISTED:
-            problems.append(
-                Problem(
-                    f"... and {int(bad.sum()) - listed} more presses out of bounds",
-                    source,
-                    "presses",
-                    "fix the calibration or the positions",
-                )
+    # one problem per axis, whatever the number of presses: a wrong offset moves them all, and is one mistake
+    press_ids = np.asarray(press_ids)
+    position_ids = np.asarray(position_ids)
+    for axis, values, lo, hi in checks:
+        out = ~np.isfinite(values) | (values < lo) | (values > hi)
+        if not out.any():
+            continue
+        first = int(np.flatnonzero(out)[0])
+        v = float(values[first])
+        message = (
+            f"press {int(press_ids[first])} (position {int(position_ids[first])}) goes to printer {axis} = "
+            f"{v:.3f} mm, outside the bed and soft limits [{lo:g}, {hi:g}] mm"
+        )
+        n_out = int(out.sum())
+        if n_out > 1:
+            reach = values[out][np.isfinite(values[out])]
+            span = f", {axis} from {float(reach.min()):.3f} to {float(reach.max()):.3f} mm" if reach.size else ""
+            n_positions = len(np.unique(position_ids[out]))
+            more = "so does 1 more press" if n_out == 2 else f"so do {n_out - 1} more presses"
+            message += f"; {more} ({n_positions} position{'s' if n_positions > 1 else ''} in all{span})"
+        problems.append(
+            Problem(
+                message,
+                source,
+                f"press {int(press_ids[first])}",
+                "move the skin or refit the calibration offset/rotation (printer profile [calibration]) "
+                "so every position lands on the bed",
             )
-            break
-        for axis, values, lo, hi in checks:
-            v = float(values[i])
-            if not lo <= v <= hi:
-                problems.append(
-                    Problem(
-                        f"press {int(press_ids[i])} (position {int(position_ids[i])}) goes to printer {axis} = {v:.3f} mm, "
-                        f"outside the bed and soft limits [{lo:g}, {hi:g}] mm",
-                        source,
-                        f"press {int(press_ids[i])}",
-                        "move the skin or refit the calibration offset/rotation so every position lands on the bed",
-                    )
-                )
-                listed += 1
-                break
+        )
     if problems:
         raise ConfigError(problems=problems)
 

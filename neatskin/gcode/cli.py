@@ -104,13 +104,22 @@ def _generate(args: argparse.Namespace) -> int:
 
 
 def _check(args: argparse.Namespace) -> int:
+    from neatskin.errors import ConfigError
     from neatskin.gcode.bounds import check_commands, check_moves, check_phases
     from neatskin.gcode.motion import estimate_program_time
     from neatskin.gcode.parse import parse_numbered, read_program_file
     from neatskin.gcode.profile import load_printer_profile
 
     source = str(args.file)
+    # the profile first: a wrong --profile is one error before anything is printed
+    profile = load_printer_profile(args.profile) if args.profile is not None else None
     numbered = parse_numbered(read_program_file(args.file), source=source)
+    if not numbered:
+        raise ConfigError(
+            "holds no G-code command (empty, or comments only): not a press program",
+            file=source,
+            fix="give the .gcode file written by `neatskin gcode generate`",
+        )
     numbers = [n for n, _ in numbered]
     lines = [line for _, line in numbered]
     codes: dict[str, int] = {}
@@ -126,12 +135,11 @@ def _check(args: argparse.Namespace) -> int:
         + ", ".join(f"{code} x{n}" for code, n in sorted(codes.items()))
     )
     problems = check_commands(lines, source, numbers) + check_phases(lines, source, numbers)
-    if args.profile is None:
+    if profile is None:
         for problem in problems:
             print(f"refused: {problem}", file=sys.stderr)
         print("no --profile given: bounds and time not checked")
         return 1 if problems else 0
-    profile = load_printer_profile(args.profile)
     problems = check_moves(profile, lines, source, numbers) + problems
     estimate = estimate_program_time(lines, profile)
     print(

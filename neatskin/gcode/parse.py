@@ -172,7 +172,8 @@ def read_program_file(path: str | os.PathLike[str], max_bytes: int = MAX_PROGRAM
             fix="give the .gcode file written by `neatskin gcode generate`",
         )
     try:
-        return data.decode("utf-8")
+        # a byte-order mark (an editor on Windows) is not G-code, but hides nothing: read past it
+        return data.decode("utf-8").removeprefix("\ufeff")
     except UnicodeDecodeError as exc:
         raise ConfigError(
             f"is not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start})",

@@ -164,8 +164,20 @@ def _check(p) -> list[Problem]:
             f"is above the z soft limit {p.soft_max_mm.z} mm",
             "lower safe_height_mm or check calibration.surface_z_mm",
         )
+    rotation = getattr(p.calibration, "rotation_deg", math.nan)
+    if known(rotation) and rotation != 0:
+        quarter = round(rotation / (math.pi / 4))
+        if quarter != 0 and abs(rotation - quarter * math.pi / 4) < 5e-5:
+            problem(
+                "calibration.rotation_deg",
+                f"rotation_deg = {rotation:g} looks like {quarter * 45:g} degrees written in radians",
+                f"rotation_deg is in degrees: write {quarter * 45:.1f} (a real rotation of {rotation:g} degrees: "
+                f"write {round(rotation, 3):g})",
+            )
     for axis in "xyz":
         value, lo, hi = getattr(p.park_mm, axis), getattr(p.soft_min_mm, axis), getattr(p.soft_max_mm, axis)
+        if known(lo, hi) and not lo < hi:
+            continue  # the soft limits are reported above; the park position is not a second mistake
         if known(value, lo, hi) and not lo <= value <= hi:
             problem(
                 f"park.{axis}_mm",

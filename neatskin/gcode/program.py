@@ -123,6 +123,20 @@ class PressProgram:
         return emit.program_text(self)
 
 
+def _check_probe_fits(layout: Layout, press: PressSpec) -> None:
+    """A probe wider than the skin presses every channel at once: a unit slip (55 for 5.5), not a campaign."""
+    x_min, y_min, x_max, y_max = layout.bounds_mm
+    spans = [s for s in (x_max - x_min, y_max - y_min) if s > 0]
+    if spans and press.probe_diameter_mm > min(spans):
+        raise ConfigError(
+            f"a {press.probe_diameter_mm:g} mm probe is wider than the skin "
+            f"({x_max - x_min:g} x {y_max - y_min:g} mm between its outer junctions)",
+            file=press.source,
+            field="press.probe_diameter_mm",
+            fix=f"probe_diameter_mm is the flat probe's diameter in mm (the paper's is 5.5): set it below {min(spans):g}",
+        )
+
+
 def build_program(
     layout: Layout,
     positions: PositionSet,
@@ -138,6 +152,7 @@ def build_program(
     emit.safe_text(name, "campaign.name", source)
     emit.safe_text(layout.name, "skin.name", layout.source)
     emit.safe_text(profile.name, "printer.name", profile.source)
+    _check_probe_fits(layout, press)
     cal = profile.calibration
     xy = positions.xy_mm
     route_unordered = None

@@ -9,6 +9,7 @@ returns a frozen `GcodeSpec`; every problem in those sections is reported in one
 from __future__ import annotations
 
 import dataclasses
+import difflib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,8 +21,10 @@ from neatskin.config.files import (
     FilesTable,
     PositionsTable,
     PressTable,
+    ProtocolFile,
     campaign_name_problems,
 )
+from neatskin.config.schema import wrong_kind_problem
 from neatskin.errors import ConfigError, Problem, raise_problems
 from neatskin.gcode.positions import PositionSpec, generate_positions
 from neatskin.gcode.profile import PrinterProfile, load_printer_profile
@@ -48,6 +51,24 @@ class GcodeSpec:
     source: str = "<memory>"
 
 
+def _missing_table(data: dict, name: str, source: str) -> Problem:
+    """Why a G-code section is not a table: an array of tables ([[press]]), a misspelt header, or absent."""
+    value = data.get(name)
+    if isinstance(value, list) and value and all(isinstance(item, dict) for item in value):
+        return Problem(
+            f"[{name}] is written as an array of tables [[{name}]], but it is one table",
+            source,
+            name,
+            f"write its header with single brackets: [{name}]",
+        )
+    if value is not None:
+        return Problem(f"[{name}] must be a table, got {type(value).__name__}", source, name, f"write it as [{name}]")
+    close = difflib.get_close_matches(name, [str(k) for k in data if k not in dict(GCODE_TABLES)], n=1, cutoff=0.6)
+    if close:
+        return Problem(f"unknown table [{close[0]}]", source, close[0], f"did you mean '{name}'?")
+    return Problem(f"missing [{name}] table", source, name, f"add [{name}] (see protocols/paper.toml)")
+
+
 def press_spec_from_dict(data: dict, source: str = "<memory>", base_dir: str | Path | None = None) -> GcodeSpec:
     """The G-code sections of a protocol; paths in [files] are resolved from `base_dir` (default: the source's folder).
 
@@ -56,11 +77,14 @@ def press_spec_from_dict(data: dict, source: str = "<memory>", base_dir: str | P
     problems: list[Problem] = []
     base = Path(base_dir) if base_dir is not None else Path(source).parent
     tables: dict[str, Any] = {}
+    if not data:
+        raise ConfigError("the file is empty", file=source, fix="write its tables (see protocols/paper.toml)")
+    wrong = wrong_kind_problem(ProtocolFile, data, source)  # a layout or printer profile given as the protocol
+    if wrong is not None:
+        raise ConfigError(problems=[wrong])
     for name, schema in GCODE_TABLES:
         if not isinstance(data.get(name), dict):
-            problems.append(
-                Problem(f"missing [{name}] table", source, name, f"add [{name}] (see protocols/paper.toml)")
-            )
+            problems.append(_missing_table(data, name, source))
             continue
         if name == "files":  # the wiring is not the G-code's business
             partial, found = parse_partial(schema, data[name], source, name)

@@ -77,6 +77,13 @@ class ElectricalCheck:
     def headroom(self) -> float:
         return self.limit_v / self.peak_v
 
+    def summary(self) -> str:
+        return (
+            f"peak {self.peak_v:.2f} V (pair {self.largest_pair}, {self.largest_r_eq_ohm:.0f} ohm undeformed, "
+            f"with the press margin and R_on), limit {self.limit_v:.2f} V ({self.limit_name}), "
+            f"{self.headroom:.2f}x headroom"
+        )
+
 
 @dataclass(frozen=True)
 class Protocol:
@@ -138,15 +145,8 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
                 "set window <= live_samples",
             )
         )
-    if acq is not None and excitation_t is not None and excitation_t.frequency_hz >= acq.rate_hz / 2:
-        problems.append(
-            Problem(
-                f"excitation {excitation_t.frequency_hz} Hz is at or above Nyquist for {acq.rate_hz} Hz sampling",
-                source,
-                "excitation.frequency_hz",
-                "sample at least 2x faster than the excitation",
-            )
-        )
+    if acq is not None and excitation_t is not None:
+        problems += _timing_problems(excitation_t, acq, source)
     record: schema.RecordTable = tables.get("record") or schema.RecordTable()
     fsr: schema.FsrTable = tables.get("fsr") or schema.FsrTable()
     scene, scene_problems = parse_scene(tables.get("scene", {}), source, record_waveforms=record.waveforms)
@@ -165,7 +165,10 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
         # the press program's checks: bounds after calibration, depth, feeds
         from neatskin.gcode.spec import build_from_spec
 
-        _collect(problems, lambda: build_from_spec(press, layout=layout, profile=printer))
+        built: list[Problem] = []
+        _collect(built, lambda: build_from_spec(press, layout=layout, profile=printer))
+        reported = {p.field for p in problems}  # a field the schema refused (a non-ASCII name) is reported once
+        problems += [p for p in built if p.field not in reported]
     if layout is not None and wiring is not None and excitation_t is not None and acq is not None:
         electrical = check_electrical(layout, wiring, excitation_t, acq)
         problems += _electrical_problems(electrical, layout, wiring, excitation_t, source)
@@ -207,6 +210,75 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
     )
 
 
+def _timing_problems(excitation: schema.ExcitationTable, acq: schema.AcquisitionTable, source: str) -> list[Problem]:
+    """The excitation against the sampling: below Nyquist, and at least one whole period in the live window
+    (and in the RMS window): a kHz/Hz slip (rate_hz = 10, frequency_hz = 1) fails here, with the units said."""
+    f_hz, rate_hz = excitation.frequency_hz, acq.rate_hz
+    if f_hz >= rate_hz / 2:
+        return [
+            Problem(
+                f"excitation {f_hz:g} Hz is at or above Nyquist for {rate_hz:g} Hz sampling",
+                source,
+                "excitation.frequency_hz",
+                f"sample at least 2x faster than the excitation: acquisition.rate_hz > {2 * f_hz:g} "
+                "(both are in Hz: 10 kHz is rate_hz = 10000.0), or lower frequency_hz",
+            )
+        ]
+    samples_per_period = rate_hz / f_hz
+    for key, samples in (("live_samples", acq.live_samples), ("window", acq.window)):
+        if key == "window" and acq.demodulation != "rms":
+            continue
+        if samples < samples_per_period:
+            return [
+                Problem(
+                    f"the {key} of {samples} samples ({1000 * samples / rate_hz:g} ms at {rate_hz:g} Hz) holds "
+                    f"{samples / samples_per_period:.3g} periods of the {f_hz:g} Hz excitation; a resistance "
+                    "needs at least one whole period",
+                    source,
+                    "excitation.frequency_hz",
+                    f"frequency_hz is in Hz (1 kHz is 1000.0): set it >= {rate_hz / samples:g}, "
+                    f"or acquisition.{key} >= {math.ceil(samples_per_period)}",
+                )
+            ]
+    return []
+
+
+def _wiring_layout_problems(wiring: Any, layout: Any, wiring_path: Path) -> list[Problem]:
+    """A wiring's own `layout` reference must exist and name the protocol's skin (else it was drawn for another)."""
+    ref = getattr(wiring, "layout_path", None)
+    if not ref:
+        return []
+    from neatskin.layout import load_layout
+
+    target = (wiring_path.parent / ref).resolve()
+    if not target.is_file():
+        return [
+            Problem(
+                f"the wiring names layout {ref!r}, which does not exist (looked for {target})",
+                str(wiring_path),
+                "layout",
+                f"point layout at the protocol's skin file ({layout.source}), relative to the wiring file, "
+                "or remove the key",
+            )
+        ]
+    if target == Path(layout.source).resolve():
+        return []
+    try:
+        named = load_layout(target)
+    except ConfigError:
+        return []  # the protocol's layout is the one used; a broken other file is `mux table`'s to report
+    if named.name != layout.name:
+        return [
+            Problem(
+                f"the wiring was drawn for layout '{named.name}' ({ref}), the protocol uses '{layout.name}'",
+                str(wiring_path),
+                "layout",
+                f"use a wiring for '{layout.name}', or point its layout key at {layout.source}",
+            )
+        ]
+    return []
+
+
 def _referenced_files(
     files: schema.FilesTable | None, path: Path, overrides: dict[str, Path], problems: list[Problem]
 ) -> dict[str, Any]:
@@ -236,11 +308,12 @@ def _referenced_files(
                     f"{key} file {rel!r} {what} (looked for {resolved})",
                     str(path),
                     f"files.{key}",
-                    f"give a path to a TOML file, relative to {path.parent}",
+                    f"give a path to a TOML file, relative to the protocol's folder {path.parent.resolve()}",
                 )
             )
         else:
             out[key] = resolved
+    out["wiring_overridden"] = "wiring" in overrides  # resume's copy: its own layout key points nowhere useful
     return out
 
 
@@ -385,6 +458,8 @@ def _load_components(data: dict, source: str, paths: dict, problems: list[Proble
     layout = _collect(problems, load_layout, paths["layout"]) if paths["layout"] else None
     printer = _collect(problems, load_printer_profile, paths["printer"]) if paths["printer"] else None
     wiring = _collect(problems, load_wiring, paths["wiring"], layout) if paths["wiring"] and layout else None
+    if wiring is not None and not paths.get("wiring_overridden"):
+        problems.extend(_wiring_layout_problems(wiring, layout, paths["wiring"]))
     own_fields = {p.field for p in problems if p.file == source}
     spec_problems: list[Problem] = []
     press = _collect(spec_problems, press_spec_from_dict, data, source)
