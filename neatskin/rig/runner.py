@@ -8,7 +8,9 @@ the probe and leaves a campaign that `resume` finishes with no press lost or dup
 
 from __future__ import annotations
 
+import logging
 import math
+import os
 import shutil
 import signal
 import time
@@ -23,6 +25,8 @@ from neatskin.rig.protocol import Protocol, file_sha256, load_protocol
 
 INPUTS_DIR = "inputs"
 WIRE_LOG = "wire.log"
+PHYSICAL_LIMIT = "physical_limit.parquet"
+log = logging.getLogger(__name__)
 MAX_PRESS_ATTEMPTS = 3  # a press the FSR never saw is retried twice, then stored flagged
 
 
@@ -84,26 +88,113 @@ def build_plan(protocol: Protocol) -> Plan:
 
 def _copy_inputs(protocol: Protocol, folder: Path) -> dict[str, dict]:
     """Copy the protocol and the files it names into the campaign folder, so resume needs nothing else."""
+    from neatskin.datasets.durable import write_bytes_durably
+
     inputs = folder / INPUTS_DIR
     inputs.mkdir(parents=True, exist_ok=True)
     refs = {}
     for key, src in protocol.referenced_files.items():
         dst = inputs / f"{key}.toml"
         if not dst.exists():
-            shutil.copyfile(src, dst)
+            write_bytes_durably(dst, Path(src).read_bytes(), fsync=False)
         refs[key] = {"path": f"{INPUTS_DIR}/{key}.toml", "source": str(src), "sha256": file_sha256(dst)}
     return refs
 
 
 def _check_folder(folder: Path, resume: bool) -> None:
+    if folder.exists() and not folder.is_dir():
+        raise ConfigError(
+            f"{folder} is a file, not a campaign folder",
+            file=str(folder),
+            field="--out",
+            fix="give --out a folder name that does not exist yet",
+        )
     if resume:
         return
     if folder.exists() and any(folder.iterdir()):
+        from neatskin.datasets.lock import lock_state
+
+        held, holder = lock_state(folder)
+        running = f" (a campaign is running in it: {holder})" if held else ""
         raise ConfigError(
-            f"the output folder {folder} already holds files",
+            f"the output folder {folder} already holds files{running}",
             field="--out",
             fix=f"choose a new folder, or continue it with: neatskin campaign resume {folder}",
         )
+
+
+def _staging_name(folder: Path) -> Path:
+    import secrets
+
+    return folder.with_name(f".{folder.name}.staging-{secrets.token_hex(4)}")
+
+
+def _remove_stale_staging(folder: Path) -> None:
+    """Staging folders of runs killed before their rename (no live process holds their lock)."""
+    from neatskin.datasets.lock import lock_state
+
+    if not folder.parent.is_dir():
+        return
+    for entry in folder.parent.glob(f".{folder.name}.staging-*"):
+        if entry.is_dir() and not lock_state(entry)[0]:
+            shutil.rmtree(entry, ignore_errors=True)
+
+
+def _create_campaign_folder(protocol: Protocol, plan: Plan, folder: Path, rig_kind: str):
+    """Make the campaign folder in one atomic step: lock, inputs/ and manifest.json are built under a hidden
+    staging name and renamed into place, so a kill leaves either no campaign folder or one that resumes."""
+    from neatskin.datasets.durable import fsync_dir, write_error
+    from neatskin.datasets.lock import CampaignLock
+    from neatskin.datasets.manifest import create_manifest
+
+    _remove_stale_staging(folder)
+    staging = _staging_name(folder)
+    try:
+        staging.mkdir(parents=True)
+    except OSError as exc:
+        raise write_error(exc, staging) from exc
+    lock = CampaignLock(staging).acquire()
+    try:
+        refs = _copy_inputs(protocol, staging)
+        create_manifest(
+            staging,
+            campaign=protocol.name,
+            protocol_as_run=protocol.raw,
+            seed=protocol.seed,
+            **refs,
+            pairs=[[p.i, p.j] for p in protocol.layout.pairs],
+            rig={"kind": rig_kind},
+            labels=(
+                "fsr"
+                if protocol.fsr_enabled
+                else "motion sync only (no FSR in this protocol): presses are not force-checked"
+            ),
+            sweep={
+                "rate_hz": plan.sweep.rate_hz,
+                "samples": plan.sweep.n_samples,
+                "settle_samples": protocol.acquisition.settle_samples,
+                "live_samples": protocol.acquisition.live_samples,
+                "sweeps_per_press": plan.n_sweeps,
+                "hold_s": plan.hold_s,
+                "demodulation": protocol.acquisition.demodulation,
+                "window": protocol.acquisition.window,
+            },
+            counts={"planned": plan.n_presses, "completed": 0},
+            printer_time_estimate_s=plan.printer_time_s,
+        )
+        try:
+            if folder.exists():
+                folder.rmdir()  # empty (checked): the rename needs the name free
+            os.rename(staging, folder)
+            fsync_dir(folder.parent)
+        except OSError as exc:
+            raise write_error(exc, folder) from exc
+        lock.moved_to(folder)
+    except BaseException:
+        lock.release()
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return lock
 
 
 def run_campaign(
@@ -120,16 +211,73 @@ def run_campaign(
     printer_faults=None,
     connect_timeout_s: float | None = None,
 ) -> CampaignResult:
-    """Run (or resume) a campaign into `folder`; returns what was done."""
-    from neatskin.datasets.manifest import create_manifest, update_manifest, utc_now_iso
-    from neatskin.datasets.writer import CampaignWriter
+    """Run (or resume) a campaign into `folder`; returns what was done. The folder is locked while it runs:
+    a second run or resume into it gets a DataError naming this process."""
+    from neatskin.datasets.lock import CampaignLock
 
     folder = Path(folder)
     wall0 = time.perf_counter()
     _check_folder(folder, resume)
     plan = build_plan(protocol)  # every check that needs no hardware happens here, before any motion
-    created = not folder.exists()
-    folder.mkdir(parents=True, exist_ok=True)
+    rig_kind = "dry-run" if dry_run else "real"
+    if resume:
+        lock = CampaignLock(folder).acquire()
+    else:
+        lock = _create_campaign_folder(protocol, plan, folder, rig_kind)
+    try:
+        result, status = _run_locked(
+            protocol,
+            plan,
+            folder,
+            wall0,
+            created=not resume,
+            dry_run=dry_run,
+            port=port,
+            daq_kind=daq_kind,
+            progress=progress,
+            limit=limit,
+            printer_faults=printer_faults,
+            connect_timeout_s=connect_timeout_s,
+        )
+        if report and status == "complete":
+            _make_report(folder, progress)
+    finally:
+        lock.release()
+    return result
+
+
+def _make_report(folder: Path, progress: bool) -> None:
+    from neatskin.baselines.report import run_baselines
+    from neatskin.datasets.manifest import update_manifest, utc_now_iso
+
+    try:
+        run_baselines(folder, split="both", progress=progress)
+    except KeyboardInterrupt:
+        raise KeyboardInterrupt(
+            f"the campaign's data is complete in {folder}; only its baseline report was "
+            f"stopped: make it with neatskin campaign finish {folder}"
+        ) from None
+    update_manifest(folder, report={"path": "report.md", "written_at": utc_now_iso()})
+
+
+def _run_locked(
+    protocol,
+    plan,
+    folder,
+    wall0,
+    *,
+    created,
+    dry_run,
+    port,
+    daq_kind,
+    progress,
+    limit,
+    printer_faults,
+    connect_timeout_s,
+):
+    from neatskin.datasets.manifest import read_manifest, update_manifest, utc_now_iso
+    from neatskin.datasets.writer import CampaignWriter
+
     try:
         rig = _open_rig(
             protocol,
@@ -157,52 +305,38 @@ def run_campaign(
             "seed": protocol.seed,
             "rig": rig.kind,
         }
-        if resume and (folder / "manifest.json").exists():
-            update_manifest(folder, status="running", resumed_at=utc_now_iso(), rig=rig.description)
-        else:
-            create_manifest(
-                folder,
-                campaign=protocol.name,
-                protocol_as_run=protocol.raw,
-                seed=protocol.seed,
-                **refs,
-                pairs=[[p.i, p.j] for p in protocol.layout.pairs],
-                rig=rig.description,
-                labels=(
-                    "fsr"
-                    if protocol.fsr_enabled
-                    else "motion sync only (no FSR in this protocol): presses are not force-checked"
-                ),
-                sweep={
-                    "rate_hz": plan.sweep.rate_hz,
-                    "samples": plan.sweep.n_samples,
-                    "settle_samples": protocol.acquisition.settle_samples,
-                    "live_samples": protocol.acquisition.live_samples,
-                    "sweeps_per_press": plan.n_sweeps,
-                    "hold_s": plan.hold_s,
-                    "demodulation": protocol.acquisition.demodulation,
-                    "window": protocol.acquisition.window,
-                },
-                counts={"planned": plan.n_presses, "completed": 0},
-                printer_time_estimate_s=plan.printer_time_s,
+        resumed = {} if created else {"resumed_at": utc_now_iso()}
+        manifest = update_manifest(folder, status="running", rig=rig.description, **resumed)
+        known = manifest.get("parts_sha256") if isinstance(manifest.get("parts_sha256"), dict) else {}
+        # a dry run's presses are recomputed identically from (seed, press_id): a process kill must not lose
+        # what the OS holds (atomic renames do that), power loss may; the real rig fsyncs every press
+        writer = CampaignWriter(folder, protocol.layout.pairs, metadata, fsync=not dry_run, known_sha256=known)
+        try:
+            done = writer.completed_press_ids()
+            todo = [b for b in plan.program.presses if b.press_id not in done]
+            if limit is not None:
+                todo = todo[:limit]
+            written, flagged, interrupted = _press_loop(
+                protocol, plan, rig, writer, todo, pair_labels, len(done), progress
             )
-        writer = CampaignWriter(folder, protocol.layout.pairs, metadata)
-        done = writer.completed_press_ids()
-        todo = [b for b in plan.program.presses if b.press_id not in done]
-        if limit is not None:
-            todo = todo[:limit]
-        written, flagged, interrupted = _press_loop(protocol, plan, rig, writer, todo, pair_labels, len(done), progress)
-        completed = len(writer.completed_press_ids())
-        status = "complete" if completed == plan.n_presses else "interrupted"
-        if status == "complete":
-            _finish_program(rig, plan)
-            writer.finalize()
-        writer.close()
-        update_manifest(
-            folder, status=status, finished_at=utc_now_iso(), counts={"completed": completed, "flagged": flagged}
-        )
-        if status == "complete" and rig.skin is not None:
-            write_physical_limit(folder, protocol, plan, rig)
+            completed = len(writer.completed_press_ids())
+            status = "complete" if completed == plan.n_presses else "interrupted"
+            if status == "complete":
+                _finish_program(rig, plan)
+                _finish_data(folder, protocol, plan, rig, writer)
+            else:
+                update_manifest(
+                    folder,
+                    status=status,
+                    finished_at=utc_now_iso(),
+                    counts={"completed": completed, "flagged": flagged},
+                    parts_sha256=_parts_sha256(read_manifest(folder), writer),
+                )
+        except BaseException as exc:
+            _mark_stopped_with_parts(folder, exc, writer)
+            raise
+        finally:
+            writer.close()
     finally:
         rig.close()
     result = CampaignResult(
@@ -215,17 +349,63 @@ def run_campaign(
         time.perf_counter() - wall0,
         plan.printer_time_s,
     )
-    if report and status == "complete":
-        from neatskin.baselines.report import run_baselines
+    return result, status
 
-        try:
-            run_baselines(folder, split="both", progress=progress)
-        except KeyboardInterrupt:
-            raise KeyboardInterrupt(
-                f"the campaign's data is complete in {folder}; only its baseline report was "
-                f"stopped: make it with neatskin baselines {folder}"
-            ) from None
-    return result
+
+def _parts_sha256(manifest: dict, writer) -> dict[str, str]:
+    from neatskin.datasets.paths import press_parts
+
+    recorded = manifest.get("parts_sha256") if isinstance(manifest.get("parts_sha256"), dict) else {}
+    merged = {str(k): v for k, v in recorded.items()}
+    merged.update({str(k): v for k, v in writer.part_sha256.items()})
+    present = {str(i) for i in press_parts(writer.folder)}
+    return {k: merged[k] for k in sorted(merged, key=int) if k in present}
+
+
+def _mark_stopped_with_parts(folder: Path, exc: BaseException, writer) -> None:
+    from neatskin.datasets.manifest import read_manifest, update_manifest, utc_now_iso
+
+    try:
+        update_manifest(
+            folder,
+            status="interrupted",
+            finished_at=utc_now_iso(),
+            stopped_by=str(exc).splitlines()[0] if str(exc) else type(exc).__name__,
+            counts={"completed": len(writer.completed_press_ids())},
+            parts_sha256=_parts_sha256(read_manifest(folder), writer),
+        )
+    except Exception as again:  # the disk may still be full; the lock then tells info that nobody runs it
+        log.warning("cannot mark %s interrupted: %s", folder, again)
+
+
+def _finish_data(folder: Path, protocol: Protocol, plan: Plan, rig, writer) -> None:
+    """Consolidate, write the derived files, and only then say `complete` (with the files' sha256)."""
+    from neatskin.datasets.manifest import update_manifest, utc_now_iso
+    from neatskin.datasets.paths import CONSOLIDATED_NAME
+    from neatskin.datasets.writer import file_sha256
+
+    consolidated = writer.finalize()
+    files = {CONSOLIDATED_NAME: file_sha256(consolidated)}
+    if rig is not None and rig.skin is not None:
+        files[PHYSICAL_LIMIT] = file_sha256(write_physical_limit(folder, protocol, plan, rig))
+    flagged = _count_flagged(consolidated)
+    update_manifest(
+        folder,
+        status="complete",
+        finished_at=utc_now_iso(),
+        counts={"completed": plan.n_presses, "flagged": flagged},
+        files_sha256=files,
+        parts_sha256=None,
+    )
+
+
+def _count_flagged(path: Path) -> int:
+    import pyarrow.compute as pc
+
+    from neatskin.datasets.writer import read_parquet
+
+    flags = read_parquet(path, columns=["flags"]).column("flags")
+    return int(pc.sum(pc.greater(pc.list_value_length(flags), 0)).as_py() or 0)
 
 
 def _open_rig(protocol, plan, *, dry_run, port, daq_kind, printer_faults, connect_timeout_s, wire_log):
@@ -372,7 +552,7 @@ def write_physical_limit(folder: Path, protocol: Protocol, plan: Plan, rig) -> P
     table = pa.Table.from_pandas(
         pd.DataFrame({"position_id": ids.astype(np.int32), "x_mm": x, "y_mm": y, "crb_mm": crb}), preserve_index=False
     )
-    return write_table_durably(folder / "physical_limit.parquet", table)
+    return write_table_durably(folder / PHYSICAL_LIMIT, table)
 
 
 def _dr_noise_std_ohm(protocol, plan, rig, x, y, depth) -> np.ndarray:
@@ -407,21 +587,55 @@ def _typical_phases_s(plan, protocol) -> np.ndarray:
     return np.median(phase_durations_s(plan.program, protocol.printer), axis=0)
 
 
+INPUT_KEYS = ("protocol", "layout", "wiring", "printer")
+
+
+def _recorded_input_sha(folder: Path, manifest: dict) -> dict[str, str | None]:
+    """The sha256 each input file had when the campaign started: from the manifest, else from the parquet
+    metadata (every press file carries the same references), so deleting a hash switches no check off."""
+    from neatskin.datasets.reader import read_metadata
+
+    try:
+        metadata = read_metadata(folder)
+    except (DataError, OSError):
+        metadata = {}
+    out: dict[str, str | None] = {}
+    for key in INPUT_KEYS:
+        shas = [ref.get("sha256") for ref in (manifest.get(key), metadata.get(key)) if isinstance(ref, dict)]
+        shas = [sha for sha in shas if isinstance(sha, str)]
+        if len(set(shas)) > 1:
+            raise DataError(
+                f"the manifest's sha256 of {key} differs from the one the presses were written with",
+                file=str(folder / "manifest.json"),
+                field=f"{key}.sha256",
+                fix="restore the campaign's own manifest.json; a changed input starts a new campaign",
+            )
+        out[key] = shas[0] if shas else None
+    return out
+
+
 def _check_inputs_unchanged(folder: Path, manifest: dict) -> None:
     """The copies in inputs/ must be the files the campaign started with: a changed seed, layout or
     calibration would mix two campaigns in one dataset."""
     problems = []
-    for key in ("protocol", "layout", "wiring", "printer"):
-        ref = manifest.get(key)
-        if not isinstance(ref, dict) or "sha256" not in ref:
-            continue
-        path = folder / ref["path"]
-        actual = file_sha256(path) if path.is_file() else "missing"
-        if actual != ref["sha256"]:
+    for key, recorded in _recorded_input_sha(folder, manifest).items():
+        path = folder / INPUTS_DIR / f"{key}.toml"
+        if recorded is None:
             problems.append(
                 Problem(
-                    f"{ref['path']} is not the file this campaign started with (sha256 {actual[:12]}, "
-                    f"recorded {ref['sha256'][:12]})",
+                    f"no sha256 of {INPUTS_DIR}/{key}.toml is recorded, so the file cannot be checked",
+                    str(folder / "manifest.json"),
+                    f"{key}.sha256",
+                    "restore the campaign's own manifest.json (it records the sha256 of every input)",
+                )
+            )
+            continue
+        actual = file_sha256(path) if path.is_file() else "missing"
+        if actual != recorded:
+            problems.append(
+                Problem(
+                    f"{INPUTS_DIR}/{key}.toml is not the file this campaign started with (sha256 {actual[:12]}, "
+                    f"recorded {recorded[:12]})",
                     str(path),
                     key,
                     "restore the original file; to run changed settings, start a new campaign with a new --out folder",
@@ -431,25 +645,151 @@ def _check_inputs_unchanged(folder: Path, manifest: dict) -> None:
         raise DataError(problems=problems)
 
 
-def resume_campaign(folder: str | Path, **kwargs) -> CampaignResult:
-    """Finish a campaign from its folder: the protocol and files it ran with are the copies in inputs/."""
-    from neatskin.datasets.manifest import read_manifest
-
-    folder = Path(folder)
-    manifest = read_manifest(folder)
-    if manifest.get("status") == "complete":
-        report = "" if (folder / "report.md").exists() else f"; for its baseline report: neatskin baselines {folder}"
+def _rig_kind(folder: Path, manifest: dict) -> str:
+    rig = manifest.get("rig", {"kind": "dry-run"})
+    kind = rig.get("kind") if isinstance(rig, dict) else None
+    if kind not in ("dry-run", "real"):
         raise DataError(
-            f"campaign {folder} is already complete: every press is on disk",
+            f"rig must be a table with kind 'dry-run' or 'real', got {rig!r}",
             file=str(folder / "manifest.json"),
-            field="status",
-            fix=f"nothing to resume{report}",
+            field="rig",
+            fix='restore the manifest, or set "rig": {"kind": "dry-run"} (or "real") in it',
         )
-    _check_inputs_unchanged(folder, manifest)
-    protocol = load_protocol(
+    return kind
+
+
+def _load_inputs(folder: Path) -> Protocol:
+    return load_protocol(
         folder / INPUTS_DIR / "protocol.toml",
         file_overrides={k: folder / INPUTS_DIR / f"{k}.toml" for k in ("layout", "wiring", "printer")},
     )
-    rig_kind = (manifest.get("rig") or {}).get("kind", "dry-run")
-    kwargs.setdefault("dry_run", rig_kind == "dry-run")
-    return run_campaign(protocol, folder, resume=True, **kwargs)
+
+
+def resume_campaign(folder: str | Path, **kwargs) -> CampaignResult:
+    """Finish a campaign from its folder: the protocol and files it ran with are the copies in inputs/.
+    A complete campaign whose derived files (physical limit, report) are missing gets them regenerated."""
+    from neatskin.datasets.lock import CampaignLock
+    from neatskin.datasets.manifest import read_manifest
+
+    folder = Path(folder)
+    _check_folder(folder, resume=True)
+    read_manifest(folder)  # a clear error for a folder that is no campaign, before a lock file is made
+    with CampaignLock(folder):
+        manifest = read_manifest(folder)
+        kind = _rig_kind(folder, manifest)
+        _check_inputs_unchanged(folder, manifest)
+        if manifest.get("status") == "complete":
+            missing = missing_derived_files(folder, manifest, report=kwargs.get("report", True))
+            if missing:
+                return finish_campaign(folder, report=kwargs.get("report", True), progress=kwargs.get("progress", True))
+            raise DataError(
+                f"campaign {folder} is already complete: every press and derived file is on disk",
+                file=str(folder / "manifest.json"),
+                field="status",
+                fix="nothing to resume; check its files with: neatskin dataset validate " + str(folder),
+            )
+        kwargs.setdefault("dry_run", kind == "dry-run")
+        return run_campaign(_load_inputs(folder), folder, resume=True, **kwargs)
+
+
+def missing_derived_files(folder: Path, manifest: dict, *, report: bool = True) -> list[str]:
+    """What a complete campaign lacks: a consolidated file that is missing or differs from its recorded
+    sha256, the physical limit of a dry run, the report (when asked for)."""
+    from neatskin.datasets.paths import CONSOLIDATED_NAME
+    from neatskin.datasets.writer import file_sha256
+
+    recorded = manifest.get("files_sha256") if isinstance(manifest.get("files_sha256"), dict) else {}
+    missing = []
+    for name in (CONSOLIDATED_NAME, PHYSICAL_LIMIT):
+        path = folder / name
+        if name == PHYSICAL_LIMIT and _rig_kind(folder, manifest) != "dry-run":
+            continue
+        if not path.is_file() or (name in recorded and file_sha256(path) != recorded[name]):
+            missing.append(name)
+    if report and not (folder / "report.md").is_file():
+        missing.append("report.md")
+    return missing
+
+
+def finish_campaign(folder: str | Path, *, report: bool = True, progress: bool = True) -> CampaignResult:
+    """Make a campaign whose presses are all on disk complete: consolidate, restore a damaged presses.parquet
+    from its copy, write the physical limit (dry run) and the report when they are missing."""
+    from neatskin.datasets.lock import CampaignLock
+    from neatskin.datasets.manifest import read_manifest
+    from neatskin.datasets.writer import CampaignWriter
+
+    folder = Path(folder)
+    wall0 = time.perf_counter()
+    _check_folder(folder, resume=True)
+    read_manifest(folder)
+    with CampaignLock(folder):
+        manifest = read_manifest(folder)
+        kind = _rig_kind(folder, manifest)
+        _check_inputs_unchanged(folder, manifest)
+        protocol = _load_inputs(folder)
+        plan = build_plan(protocol)
+        _restore_consolidated(folder, manifest)
+        missing = missing_derived_files(folder, manifest, report=False)
+        if manifest.get("status") != "complete" or missing:
+            refs = _copy_inputs(protocol, folder)
+            metadata = {**{k: refs[k] for k in INPUT_KEYS}, "campaign": protocol.name, "seed": protocol.seed}
+            metadata["rig"] = kind
+            known = manifest.get("parts_sha256") if isinstance(manifest.get("parts_sha256"), dict) else {}
+            with CampaignWriter(folder, protocol.layout.pairs, metadata, fsync=True, known_sha256=known) as writer:
+                have = len(writer.completed_press_ids())
+                if have < plan.n_presses:
+                    raise DataError(
+                        f"{plan.n_presses - have} of {plan.n_presses} presses are not on disk yet",
+                        file=str(folder),
+                        fix=f"press them first: neatskin campaign resume {folder}",
+                    )
+                rig = (
+                    _open_rig(
+                        protocol,
+                        plan,
+                        dry_run=True,
+                        port=None,
+                        daq_kind="ni",
+                        printer_faults=None,
+                        connect_timeout_s=None,
+                        wire_log=None,
+                    )
+                    if kind == "dry-run"
+                    else None
+                )
+                try:
+                    _finish_data(folder, protocol, plan, rig, writer)
+                finally:
+                    if rig is not None:
+                        rig.close()
+        if report and not (folder / "report.md").is_file():
+            _make_report(folder, progress)
+    return CampaignResult(
+        folder, plan.n_presses, plan.n_presses, 0, 0, False, time.perf_counter() - wall0, plan.printer_time_s
+    )
+
+
+def _restore_consolidated(folder: Path, manifest: dict) -> None:
+    """A presses.parquet that is missing or differs from its recorded sha256 is restored from the copy
+    finalize kept, when that copy matches."""
+    from neatskin.datasets.durable import write_bytes_durably
+    from neatskin.datasets.paths import CONSOLIDATED_NAME, COPY_NAME
+    from neatskin.datasets.writer import file_sha256
+
+    recorded = (
+        (manifest.get("files_sha256") or {}).get(CONSOLIDATED_NAME)
+        if isinstance(manifest.get("files_sha256"), dict)
+        else None
+    )
+    main, copy = folder / CONSOLIDATED_NAME, folder / COPY_NAME
+    if recorded is None or (main.is_file() and file_sha256(main) == recorded):
+        return
+    if copy.is_file() and file_sha256(copy) == recorded:
+        log.warning("restoring %s from %s (it differed from its recorded sha256)", main, copy)
+        write_bytes_durably(main, copy.read_bytes())
+        return
+    raise DataError(
+        "presses.parquet differs from its recorded sha256 and no intact copy is left",
+        file=str(main),
+        fix="restore presses.parquet from a backup; its recorded sha256 is files_sha256 in manifest.json",
+    )
