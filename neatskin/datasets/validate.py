@@ -122,8 +122,7 @@ def _integrity_problems(folder: Path, manifest: dict | None, tables: list[tuple[
     ):
         problems.append(
             Problem(
-                "presses.parquet differs from the file the campaign finished with (sha256 and rows): damaged or "
-                "edited",
+                "presses.parquet differs from the file the campaign finished with (sha256 and rows): damaged or edited",
                 str(consolidated),
                 "files_sha256",
                 _unreadable_fix(consolidated),
