@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import shutil
 import signal
 import time
@@ -18,14 +17,23 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-import numpy as np
+from neatskin.errors import ConfigError, DataError
+from neatskin.rig.folder import (
+    INPUT_KEYS,
+    PHYSICAL_LIMIT,
+    check_folder,
+    check_inputs_unchanged,
+    copy_inputs,
+    create_campaign_folder,
+    load_inputs,
+    missing_derived_files,
+    restore_consolidated,
+    rig_kind,
+)
+from neatskin.rig.physlimit import write_physical_limit
+from neatskin.rig.protocol import Protocol
 
-from neatskin.errors import ConfigError, DataError, Problem
-from neatskin.rig.protocol import Protocol, file_sha256, load_protocol
-
-INPUTS_DIR = "inputs"
 WIRE_LOG = "wire.log"
-PHYSICAL_LIMIT = "physical_limit.parquet"
 log = logging.getLogger(__name__)
 MAX_PRESS_ATTEMPTS = 3  # a press the FSR never saw is retried twice, then stored flagged
 
@@ -86,117 +94,6 @@ def build_plan(protocol: Protocol) -> Plan:
     return Plan(program, sweep, n_sweeps, hold_s, total)
 
 
-def _copy_inputs(protocol: Protocol, folder: Path) -> dict[str, dict]:
-    """Copy the protocol and the files it names into the campaign folder, so resume needs nothing else."""
-    from neatskin.datasets.durable import write_bytes_durably
-
-    inputs = folder / INPUTS_DIR
-    inputs.mkdir(parents=True, exist_ok=True)
-    refs = {}
-    for key, src in protocol.referenced_files.items():
-        dst = inputs / f"{key}.toml"
-        if not dst.exists():
-            write_bytes_durably(dst, Path(src).read_bytes(), fsync=False)
-        refs[key] = {"path": f"{INPUTS_DIR}/{key}.toml", "source": str(src), "sha256": file_sha256(dst)}
-    return refs
-
-
-def _check_folder(folder: Path, resume: bool) -> None:
-    if folder.exists() and not folder.is_dir():
-        raise ConfigError(
-            f"{folder} is a file, not a campaign folder",
-            file=str(folder),
-            field="--out",
-            fix="give --out a folder name that does not exist yet",
-        )
-    if resume:
-        return
-    if folder.exists() and any(folder.iterdir()):
-        from neatskin.datasets.lock import lock_state
-
-        held, holder = lock_state(folder)
-        running = f" (a campaign is running in it: {holder})" if held else ""
-        raise ConfigError(
-            f"the output folder {folder} already holds files{running}",
-            field="--out",
-            fix=f"choose a new folder, or continue it with: neatskin campaign resume {folder}",
-        )
-
-
-def _staging_name(folder: Path) -> Path:
-    import secrets
-
-    return folder.with_name(f".{folder.name}.staging-{secrets.token_hex(4)}")
-
-
-def _remove_stale_staging(folder: Path) -> None:
-    """Staging folders of runs killed before their rename (no live process holds their lock)."""
-    from neatskin.datasets.lock import lock_state
-
-    if not folder.parent.is_dir():
-        return
-    for entry in folder.parent.glob(f".{folder.name}.staging-*"):
-        if entry.is_dir() and not lock_state(entry)[0]:
-            shutil.rmtree(entry, ignore_errors=True)
-
-
-def _create_campaign_folder(protocol: Protocol, plan: Plan, folder: Path, rig_kind: str):
-    """Make the campaign folder in one atomic step: lock, inputs/ and manifest.json are built under a hidden
-    staging name and renamed into place, so a kill leaves either no campaign folder or one that resumes."""
-    from neatskin.datasets.durable import fsync_dir, write_error
-    from neatskin.datasets.lock import CampaignLock
-    from neatskin.datasets.manifest import create_manifest
-
-    _remove_stale_staging(folder)
-    staging = _staging_name(folder)
-    try:
-        staging.mkdir(parents=True)
-    except OSError as exc:
-        raise write_error(exc, staging) from exc
-    lock = CampaignLock(staging).acquire()
-    try:
-        refs = _copy_inputs(protocol, staging)
-        create_manifest(
-            staging,
-            campaign=protocol.name,
-            protocol_as_run=protocol.raw,
-            seed=protocol.seed,
-            **refs,
-            pairs=[[p.i, p.j] for p in protocol.layout.pairs],
-            rig={"kind": rig_kind},
-            labels=(
-                "fsr"
-                if protocol.fsr_enabled
-                else "motion sync only (no FSR in this protocol): presses are not force-checked"
-            ),
-            sweep={
-                "rate_hz": plan.sweep.rate_hz,
-                "samples": plan.sweep.n_samples,
-                "settle_samples": protocol.acquisition.settle_samples,
-                "live_samples": protocol.acquisition.live_samples,
-                "sweeps_per_press": plan.n_sweeps,
-                "hold_s": plan.hold_s,
-                "demodulation": protocol.acquisition.demodulation,
-                "window": protocol.acquisition.window,
-            },
-            counts={"planned": plan.n_presses, "completed": 0},
-            printer_time_estimate_s=plan.printer_time_s,
-        )
-        try:
-            if folder.exists():
-                folder.rmdir()  # empty (checked): the rename needs the name free
-            os.rename(staging, folder)
-            fsync_dir(folder.parent)
-        except OSError as exc:
-            raise write_error(exc, folder) from exc
-        lock.moved_to(folder)
-    except BaseException:
-        lock.release()
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    return lock
-
-
 def run_campaign(
     protocol: Protocol,
     folder: str | Path,
@@ -217,13 +114,13 @@ def run_campaign(
 
     folder = Path(folder)
     wall0 = time.perf_counter()
-    _check_folder(folder, resume)
+    check_folder(folder, resume)
     plan = build_plan(protocol)  # every check that needs no hardware happens here, before any motion
-    rig_kind = "dry-run" if dry_run else "real"
+    kind = "dry-run" if dry_run else "real"
     if resume:
         lock = CampaignLock(folder).acquire()
     else:
-        lock = _create_campaign_folder(protocol, plan, folder, rig_kind)
+        lock = create_campaign_folder(protocol, plan, folder, kind)
     try:
         result, status = _run_locked(
             protocol,
@@ -294,7 +191,7 @@ def _run_locked(
             shutil.rmtree(folder, ignore_errors=True)
         raise
     try:
-        refs = _copy_inputs(protocol, folder)
+        refs = copy_inputs(protocol, folder)
         pair_labels = [p.label for p in protocol.layout.pairs]
         metadata = {
             "campaign": protocol.name,
@@ -533,138 +430,6 @@ def _finish_program(rig, plan) -> None:
     rig.driver.send_lines(plan.program.postamble, source="postamble")
 
 
-def write_physical_limit(folder: Path, protocol: Protocol, plan: Plan, rig) -> Path:
-    """Per position, the Cramér-Rao bound on the position error that the simulated skin and noise allow."""
-    import pandas as pd
-    import pyarrow as pa
-
-    from neatskin.baselines.crb import cramer_rao_bound_mm
-    from neatskin.datasets.writer import write_table_durably
-
-    blocks = {b.position_id: b for b in plan.program.presses}
-    ids = np.array(sorted(blocks))
-    x = np.array([blocks[i].x_mm for i in ids])
-    y = np.array([blocks[i].y_mm for i in ids])
-    depth = np.full(ids.shape, protocol.press.press.depth_mm)
-    jac = rig.skin.jacobian_mm(x, y, depth)  # (positions, pairs, 2) ohm / mm
-    std = _dr_noise_std_ohm(protocol, plan, rig, x, y, depth)
-    crb = np.array([cramer_rao_bound_mm(jac[k : k + 1], noise_std=std[k])[0] for k in range(len(ids))])
-    table = pa.Table.from_pandas(
-        pd.DataFrame({"position_id": ids.astype(np.int32), "x_mm": x, "y_mm": y, "crb_mm": crb}), preserve_index=False
-    )
-    return write_table_durably(folder / PHYSICAL_LIMIT, table)
-
-
-def _dr_noise_std_ohm(protocol, plan, rig, x, y, depth) -> np.ndarray:
-    """Std of one press's dR per pair (positions, pairs): the estimator noise of the baseline and pressed sweeps
-    that a press averages, drawn from the simulated DAQ's features path at the unpressed and pressed states."""
-    from neatskin.sim.daq import SimulatedDAQ
-
-    sweep, draws = plan.sweep, 64
-    pressed = rig.skin.pair_resistance_ohm(x, y, depth)
-    states = np.vstack([np.asarray(rig.skin.baseline_pair_resistance_ohm)[None], pressed])  # (1 + positions, pairs)
-    var = np.empty_like(states)
-    for k, state in enumerate(states):
-        daq = SimulatedDAQ(rig.daq.config, lambda t, s=state: np.broadcast_to(s, (len(t), s.size)), noise=rig.daq.noise)
-        est = daq.estimate_sweep(
-            sweep,
-            np.random.default_rng([protocol.seed, 10**6, k]),
-            0.0,
-            method=protocol.acquisition.demodulation,
-            window=protocol.acquisition.window,
-            n_sweeps=draws,
-        )
-        var[k] = est.resistance_ohm.var(axis=0)
-    durations = _typical_phases_s(plan, protocol)
-    n_base = max(1, int(durations[1] // sweep.duration_s))  # sweeps while descending through air
-    n_press = max(1, int(plan.hold_s // sweep.duration_s) - 1)  # whole sweeps inside the hold
-    return np.sqrt(var[0] / n_base + var[1:] / n_press)
-
-
-def _typical_phases_s(plan, protocol) -> np.ndarray:
-    from neatskin.gcode.motion import phase_durations_s
-
-    return np.median(phase_durations_s(plan.program, protocol.printer), axis=0)
-
-
-INPUT_KEYS = ("protocol", "layout", "wiring", "printer")
-
-
-def _recorded_input_sha(folder: Path, manifest: dict) -> dict[str, str | None]:
-    """The sha256 each input file had when the campaign started: from the manifest, else from the parquet
-    metadata (every press file carries the same references), so deleting a hash switches no check off."""
-    from neatskin.datasets.reader import read_metadata
-
-    try:
-        metadata = read_metadata(folder)
-    except (DataError, OSError):
-        metadata = {}
-    out: dict[str, str | None] = {}
-    for key in INPUT_KEYS:
-        shas = [ref.get("sha256") for ref in (manifest.get(key), metadata.get(key)) if isinstance(ref, dict)]
-        shas = [sha for sha in shas if isinstance(sha, str)]
-        if len(set(shas)) > 1:
-            raise DataError(
-                f"the manifest's sha256 of {key} differs from the one the presses were written with",
-                file=str(folder / "manifest.json"),
-                field=f"{key}.sha256",
-                fix="restore the campaign's own manifest.json; a changed input starts a new campaign",
-            )
-        out[key] = shas[0] if shas else None
-    return out
-
-
-def _check_inputs_unchanged(folder: Path, manifest: dict) -> None:
-    """The copies in inputs/ must be the files the campaign started with: a changed seed, layout or
-    calibration would mix two campaigns in one dataset."""
-    problems = []
-    for key, recorded in _recorded_input_sha(folder, manifest).items():
-        path = folder / INPUTS_DIR / f"{key}.toml"
-        if recorded is None:
-            problems.append(
-                Problem(
-                    f"no sha256 of {INPUTS_DIR}/{key}.toml is recorded, so the file cannot be checked",
-                    str(folder / "manifest.json"),
-                    f"{key}.sha256",
-                    "restore the campaign's own manifest.json (it records the sha256 of every input)",
-                )
-            )
-            continue
-        actual = file_sha256(path) if path.is_file() else "missing"
-        if actual != recorded:
-            problems.append(
-                Problem(
-                    f"{INPUTS_DIR}/{key}.toml is not the file this campaign started with (sha256 {actual[:12]}, "
-                    f"recorded {recorded[:12]})",
-                    str(path),
-                    key,
-                    "restore the original file; to run changed settings, start a new campaign with a new --out folder",
-                )
-            )
-    if problems:
-        raise DataError(problems=problems)
-
-
-def _rig_kind(folder: Path, manifest: dict) -> str:
-    rig = manifest.get("rig", {"kind": "dry-run"})
-    kind = rig.get("kind") if isinstance(rig, dict) else None
-    if kind not in ("dry-run", "real"):
-        raise DataError(
-            f"rig must be a table with kind 'dry-run' or 'real', got {rig!r}",
-            file=str(folder / "manifest.json"),
-            field="rig",
-            fix='restore the manifest, or set "rig": {"kind": "dry-run"} (or "real") in it',
-        )
-    return kind
-
-
-def _load_inputs(folder: Path) -> Protocol:
-    return load_protocol(
-        folder / INPUTS_DIR / "protocol.toml",
-        file_overrides={k: folder / INPUTS_DIR / f"{k}.toml" for k in ("layout", "wiring", "printer")},
-    )
-
-
 def resume_campaign(folder: str | Path, **kwargs) -> CampaignResult:
     """Finish a campaign from its folder: the protocol and files it ran with are the copies in inputs/.
     A complete campaign whose derived files (physical limit, report) are missing gets them regenerated."""
@@ -672,12 +437,12 @@ def resume_campaign(folder: str | Path, **kwargs) -> CampaignResult:
     from neatskin.datasets.manifest import read_manifest
 
     folder = Path(folder)
-    _check_folder(folder, resume=True)
+    check_folder(folder, resume=True)
     read_manifest(folder)  # a clear error for a folder that is no campaign, before a lock file is made
     with CampaignLock(folder):
         manifest = read_manifest(folder)
-        kind = _rig_kind(folder, manifest)
-        _check_inputs_unchanged(folder, manifest)
+        kind = rig_kind(folder, manifest)
+        check_inputs_unchanged(folder, manifest)
         if manifest.get("status") == "complete":
             missing = missing_derived_files(folder, manifest, report=kwargs.get("report", True))
             if missing:
@@ -689,26 +454,7 @@ def resume_campaign(folder: str | Path, **kwargs) -> CampaignResult:
                 fix="nothing to resume; check its files with: neatskin dataset validate " + str(folder),
             )
         kwargs.setdefault("dry_run", kind == "dry-run")
-        return run_campaign(_load_inputs(folder), folder, resume=True, **kwargs)
-
-
-def missing_derived_files(folder: Path, manifest: dict, *, report: bool = True) -> list[str]:
-    """What a complete campaign lacks: a consolidated file that is missing or differs from its recorded
-    sha256, the physical limit of a dry run, the report (when asked for)."""
-    from neatskin.datasets.paths import CONSOLIDATED_NAME
-    from neatskin.datasets.writer import file_sha256
-
-    recorded = manifest.get("files_sha256") if isinstance(manifest.get("files_sha256"), dict) else {}
-    missing = []
-    for name in (CONSOLIDATED_NAME, PHYSICAL_LIMIT):
-        path = folder / name
-        if name == PHYSICAL_LIMIT and _rig_kind(folder, manifest) != "dry-run":
-            continue
-        if not path.is_file() or (name in recorded and file_sha256(path) != recorded[name]):
-            missing.append(name)
-    if report and not (folder / "report.md").is_file():
-        missing.append("report.md")
-    return missing
+        return run_campaign(load_inputs(folder), folder, resume=True, **kwargs)
 
 
 def finish_campaign(folder: str | Path, *, report: bool = True, progress: bool = True) -> CampaignResult:
@@ -720,18 +466,18 @@ def finish_campaign(folder: str | Path, *, report: bool = True, progress: bool =
 
     folder = Path(folder)
     wall0 = time.perf_counter()
-    _check_folder(folder, resume=True)
+    check_folder(folder, resume=True)
     read_manifest(folder)
     with CampaignLock(folder):
         manifest = read_manifest(folder)
-        kind = _rig_kind(folder, manifest)
-        _check_inputs_unchanged(folder, manifest)
-        protocol = _load_inputs(folder)
+        kind = rig_kind(folder, manifest)
+        check_inputs_unchanged(folder, manifest)
+        protocol = load_inputs(folder)
         plan = build_plan(protocol)
-        _restore_consolidated(folder, manifest)
+        restore_consolidated(folder, manifest)
         missing = missing_derived_files(folder, manifest, report=False)
         if manifest.get("status") != "complete" or missing:
-            refs = _copy_inputs(protocol, folder)
+            refs = copy_inputs(protocol, folder)
             metadata = {**{k: refs[k] for k in INPUT_KEYS}, "campaign": protocol.name, "seed": protocol.seed}
             metadata["rig"] = kind
             known = manifest.get("parts_sha256") if isinstance(manifest.get("parts_sha256"), dict) else {}
@@ -766,30 +512,4 @@ def finish_campaign(folder: str | Path, *, report: bool = True, progress: bool =
             _make_report(folder, progress)
     return CampaignResult(
         folder, plan.n_presses, plan.n_presses, 0, 0, False, time.perf_counter() - wall0, plan.printer_time_s
-    )
-
-
-def _restore_consolidated(folder: Path, manifest: dict) -> None:
-    """A presses.parquet that is missing or differs from its recorded sha256 is restored from the copy
-    finalize kept, when that copy matches."""
-    from neatskin.datasets.durable import write_bytes_durably
-    from neatskin.datasets.paths import CONSOLIDATED_NAME, COPY_NAME
-    from neatskin.datasets.writer import file_sha256
-
-    recorded = (
-        (manifest.get("files_sha256") or {}).get(CONSOLIDATED_NAME)
-        if isinstance(manifest.get("files_sha256"), dict)
-        else None
-    )
-    main, copy = folder / CONSOLIDATED_NAME, folder / COPY_NAME
-    if recorded is None or (main.is_file() and file_sha256(main) == recorded):
-        return
-    if copy.is_file() and file_sha256(copy) == recorded:
-        log.warning("restoring %s from %s (it differed from its recorded sha256)", main, copy)
-        write_bytes_durably(main, copy.read_bytes())
-        return
-    raise DataError(
-        "presses.parquet differs from its recorded sha256 and no intact copy is left",
-        file=str(main),
-        fix="restore presses.parquet from a backup; its recorded sha256 is files_sha256 in manifest.json",
     )
