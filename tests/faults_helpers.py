@@ -3,11 +3,15 @@ in a child process that kills itself at a named stage, and the comparison with a
 
 from __future__ import annotations
 
+import contextlib
+import os
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import pandas as pd
+import pytest
 from conftest import PROTOCOLS, REPO
 
 SMOKE = PROTOCOLS / "smoke.toml"
@@ -81,3 +85,31 @@ def waveforms(folder: Path) -> pd.DataFrame:
     from neatskin.datasets.reader import read_waveforms
 
     return read_waveforms(folder)
+
+
+def make_reference(tmp_path_factory) -> Path:
+    """The smoke campaign, uninterrupted (no report)."""
+    folder = tmp_path_factory.mktemp("reference") / "run"
+    done = run_cli_child("none", "campaign", "run", str(SMOKE), "--dry-run", "--out", str(folder), "--no-report")
+    assert done.returncode == 0, done.stderr
+    return folder
+
+
+@contextlib.contextmanager
+def small_disk(where: Path, size: str) -> Iterator[Path]:
+    """A tmpfs of `size` mounted at `where` (a real full disk and a real read-only file system); skips the
+    test where mounting is not allowed (not root)."""
+    where.mkdir(parents=True, exist_ok=True)
+    if os.geteuid() != 0:
+        pytest.skip("mounting a small tmpfs needs root")
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)], capture_output=True)
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.decode().strip()}")
+    try:
+        yield where
+    finally:
+        subprocess.run(["umount", "-l", str(where)], capture_output=True)
+
+
+def remount(where: Path, options: str) -> None:
+    subprocess.run(["mount", "-o", f"remount,{options}", str(where)], check=True, capture_output=True)

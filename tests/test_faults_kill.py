@@ -6,7 +6,7 @@ import json
 
 import pandas as pd
 import pytest
-from faults_helpers import SMOKE, rows, run_cli_child, waveforms
+from faults_helpers import SMOKE, make_reference, rows, run_cli_child, waveforms
 
 from neatskin.cli import main
 from neatskin.datasets.curate import describe
@@ -16,10 +16,7 @@ from neatskin.rig.runner import resume_campaign
 
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("reference") / "run"
-    done = run_cli_child("none", "campaign", "run", str(SMOKE), "--dry-run", "--out", str(folder), "--no-report")
-    assert done.returncode == 0, done.stderr
-    return folder
+    return make_reference(tmp_path_factory)
 
 
 def _killed(stage, folder, *extra):

@@ -83,10 +83,22 @@ def _write_campaign(out: Path, table: pa.Table, metadata: dict[str, Any], manife
 def describe(path: str | os.PathLike) -> dict[str, Any]:
     """A summary of a dataset: presses, positions, repeats, pairs, flags, ranges, timing, manifest, files."""
     path = Path(path)
-    table = read_press_table(path)
+    manifest = _manifest_or_empty(path)
+    try:
+        table = read_press_table(path)
+    except DataError:
+        if not manifest:
+            raise
+        return {  # a campaign that has not finished a press yet: its state is still worth telling
+            "path": str(path),
+            "campaigns": [manifest.get("campaign")],
+            "presses": 0,
+            "status": campaign_status(path, manifest),
+            "seed": manifest.get("seed"),
+            "counts": manifest.get("counts"),
+        }
     df = table.drop_columns([c for c in table.column_names if c.startswith("R_ohm_")]).to_pandas()
     meta = decode_metadata(table.schema.metadata)
-    manifest = _manifest_or_empty(path)
     per_position = df.groupby("position_id").size()
     dr_cols = [c for c in df.columns if c.startswith("dR_ohm_")]
     mean_dr = df[dr_cols].mean()

@@ -158,8 +158,10 @@ class CampaignLock:
 
 
 def _access_fix(exc: OSError, folder: Path) -> str:
-    if exc.errno in (errno.EACCES, errno.EPERM):
+    if exc.errno == errno.EACCES:
         return f"give your user write permission on {folder} (e.g. chmod u+w {folder})"
+    if exc.errno == errno.EPERM:
+        return f"make {folder} writable for your user (chmod u+w; an immutable folder needs chattr -i)"
     if exc.errno == errno.EROFS:
         return f"{folder} is on a read-only file system: copy the campaign to a writable disk"
     if exc.errno == errno.ENOENT:

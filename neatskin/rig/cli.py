@@ -103,7 +103,8 @@ def _run(args: argparse.Namespace) -> int:
 def default_campaign_folder(name: str, now: datetime | None = None) -> Path:
     """runs/<name>-<date>-<time>, with the name reduced to letters, digits, '.', '_' and '-' (no leading dot),
     so no protocol name (`../../x`, `/etc/x`) can place the campaign outside runs/."""
-    safe = re.sub(r"[^A-Za-z0-9._-]+", "_", name).lstrip(".") or "campaign"
+    safe = re.sub(r"[^A-Za-z0-9._-]+", "_", name)
+    safe = re.sub(r"_+", "_", re.sub(r"\.{2,}", "_", safe)).strip("._-") or "campaign"
     folder = Path("runs") / f"{safe[:100]}-{(now or datetime.now()).strftime('%Y%m%d-%H%M%S')}"
     return folder
 
