@@ -8,7 +8,7 @@ full waveforms) on the same presses, relative to the RMS of dR.
     python benchmarks/bench_campaign.py                 # all 2,800 presses per scene
     python benchmarks/bench_campaign.py --presses 280   # a quicker look
 
-Scaling (issue 13): 280, 2,800 and 28,000-press dry runs of the paper protocol (its repeats scaled),
+Scaling (issue 13): 280, 2,800 and 28,000-press dry runs of the paper protocol (10, 100, 1,000 positions),
 each in a fresh process so its peak RSS is its own, optionally side by side with another checkout
 of the toolkit (e.g. the commit before a change) in the same run:
 
@@ -67,10 +67,10 @@ print(json.dumps({"presses": result.completed, "wall_s": wall, "cpu_s": cpu, "pe
 
 
 def scaled_protocol(root: Path, presses: int) -> Path:
-    """The paper protocol (100 positions) with its repeats set so that it has `presses` presses."""
-    if presses % 100:
-        raise SystemExit(f"--scaling sizes must be multiples of 100 (the paper's positions), got {presses}")
-    text = (REPO / "protocols" / "paper.toml").read_text().replace("repeats = 28", f"repeats = {presses // 100}")
+    """The paper protocol (28 repeats per position) with presses / 28 positions."""
+    if presses % 28:
+        raise SystemExit(f"--scaling sizes must be multiples of 28 (the paper's repeats), got {presses}")
+    text = (REPO / "protocols" / "paper.toml").read_text().replace("count = 100", f"count = {presses // 28}")
     path = root / f"paper-{presses}.toml"
     path.write_text(text)
     return path
@@ -114,7 +114,7 @@ def scaling(sizes: list[int], checkouts: dict[str, Path]) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scaling", help="comma-separated campaign sizes, e.g. 280,2800,28000 (multiples of 100)")
+    parser.add_argument("--scaling", help="comma-separated campaign sizes, e.g. 280,2800,28000 (multiples of 28)")
     parser.add_argument("--compare", type=Path, help="another checkout to run side by side (with --scaling)")
     parser.add_argument("--presses", type=int, default=None, help="presses per scene (default: the whole campaign)")
     parser.add_argument(
