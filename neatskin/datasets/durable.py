@@ -104,7 +104,10 @@ def write_durably(
 
 
 def write_bytes_durably(path: Path, data: bytes, *, fsync: bool = True) -> Path:
-    return write_durably(path, lambda handle: handle.write(data), fsync=fsync)
+    def write(handle: IO[bytes]) -> None:
+        handle.write(data)
+
+    return write_durably(path, write, fsync=fsync)
 
 
 def remove_temp_files(folder: Path) -> list[Path]:

@@ -11,7 +11,7 @@ import logging
 import os
 import shutil
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from neatskin.errors import ConfigError, DataError, Problem
 from neatskin.rig.protocol import Protocol, file_sha256, load_protocol
@@ -25,13 +25,13 @@ PHYSICAL_LIMIT = "physical_limit.parquet"
 log = logging.getLogger(__name__)
 
 
-def copy_inputs(protocol: Protocol, folder: Path) -> dict[str, dict]:
+def copy_inputs(protocol: Protocol, folder: Path) -> dict[str, Any]:
     """Copy the protocol and the files it names into the campaign folder, so resume needs nothing else."""
     from neatskin.datasets.durable import write_bytes_durably
 
     inputs = folder / INPUTS_DIR
     inputs.mkdir(parents=True, exist_ok=True)
-    refs = {}
+    refs: dict[str, Any] = {}
     for key, src in protocol.referenced_files.items():
         dst = inputs / f"{key}.toml"
         if not dst.exists():
@@ -220,7 +220,8 @@ def missing_derived_files(folder: Path, manifest: dict, *, report: bool = True) 
     from neatskin.datasets.paths import CONSOLIDATED_NAME
     from neatskin.datasets.writer import file_sha256
 
-    recorded = manifest.get("files_sha256") if isinstance(manifest.get("files_sha256"), dict) else {}
+    files = manifest.get("files_sha256")
+    recorded: dict[str, str] = files if isinstance(files, dict) else {}
     missing = []
     for name in (CONSOLIDATED_NAME, PHYSICAL_LIMIT):
         path = folder / name

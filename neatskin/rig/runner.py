@@ -16,6 +16,7 @@ import time
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from neatskin.errors import ConfigError, DataError
 from neatskin.rig.folder import (
@@ -33,6 +34,10 @@ from neatskin.rig.folder import (
 from neatskin.rig.physlimit import write_physical_limit
 from neatskin.rig.protocol import Protocol
 
+if TYPE_CHECKING:
+    from neatskin.acquisition.sequence import Sweep
+    from neatskin.gcode.program import PressProgram
+
 WIRE_LOG = "wire.log"
 log = logging.getLogger(__name__)
 MAX_PRESS_ATTEMPTS = 3  # a press the FSR never saw is retried twice, then stored flagged
@@ -40,8 +45,8 @@ MAX_PRESS_ATTEMPTS = 3  # a press the FSR never saw is retried twice, then store
 
 @dataclass(frozen=True)
 class Plan:
-    program: object  # neatskin.gcode.program.PressProgram
-    sweep: object  # neatskin.acquisition.sequence.Sweep
+    program: PressProgram
+    sweep: Sweep
     n_sweeps: int  # sweeps recorded per press, from parking above the target to lifted
     hold_s: float
     printer_time_s: float  # the G-code's estimate for the whole campaign
