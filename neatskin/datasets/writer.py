@@ -18,7 +18,7 @@ import hashlib
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 import pyarrow as pa
@@ -38,6 +38,9 @@ from neatskin.datasets.paths import (
 from neatskin.datasets.schema import RowEncoder, decode_metadata, press_schema
 from neatskin.errors import DataError
 from neatskin.layout import ElectrodePair
+
+FINALIZE_BATCH = 4096  # rows per row group of presses.parquet: finalize's memory stays flat as campaigns grow
+READ_BATCH = 128  # parts read back at a time
 
 
 class CampaignWriter:
@@ -85,9 +88,8 @@ class CampaignWriter:
                 remove_temp_files(sub)
         parts = press_parts(self.folder)
         self._completed = set(parts)
-        self._written: dict[int, pa.Table] = {}  # verified rows, so finalize need not read them back
         for press_id, path in parts.items():
-            self._written[press_id] = self._verified_part(press_id, path)
+            self._verified_part(press_id, path)
         consolidated = self.folder / CONSOLIDATED_NAME
         existing = [consolidated] if consolidated.exists() else []
         existing += list(parts.values())[:1]
@@ -191,7 +193,6 @@ class CampaignWriter:
             dir_fd=self._dir_fd,
         )
         self._completed.add(press_id)
-        self._written[press_id] = table
         self.part_sha256[press_id] = file_sha256(path)
         return path
 
@@ -223,16 +224,24 @@ class CampaignWriter:
             self._keep_copy(consolidated)
             return consolidated
         plain = self.schema.remove_metadata()
-        tables = [read_tables([consolidated], plain)] if consolidated.exists() else []
-        tables += [self._written[i].replace_schema_metadata(None) for i in parts if i in self._written]
-        tables.append(read_tables([p for i, p in parts.items() if i not in self._written], plain))
-        table = pa.concat_tables(tables)
-        table = deduplicate_sorted(table).replace_schema_metadata(self.schema.metadata)
-        write_durably(
-            consolidated,
-            lambda handle: pq.write_table(table, handle, row_group_size=1 << 16, write_page_checksum=True),
-            fsync=self.fsync,
-        )
+        if consolidated.exists():  # a finalize was killed half-way: the rare path, rows held in memory once
+            table = pa.concat_tables([read_tables([consolidated], plain), read_tables(list(parts.values()), plain)])
+            table = deduplicate_sorted(table).replace_schema_metadata(self.schema.metadata)
+            write_table_durably(consolidated, table, fsync=self.fsync)
+        else:  # the parts hold distinct ids, sorted by name: stream them, FINALIZE_BATCH parts per row group
+            paths = list(parts.values())
+
+            def stream(handle: IO[bytes]) -> None:
+                with pq.ParquetWriter(handle, self.schema, write_page_checksum=True) as out:
+                    group: list[pa.Table] = []
+                    for start in range(0, len(paths), READ_BATCH):
+                        # one compact table per READ_BATCH parts: a one-row table costs far more than its row
+                        group.append(read_tables(paths[start : start + READ_BATCH], plain).combine_chunks())
+                        if len(group) * READ_BATCH >= FINALIZE_BATCH or start + READ_BATCH >= len(paths):
+                            out.write_table(pa.concat_tables(group))
+                            group = []
+
+            write_durably(consolidated, stream, fsync=self.fsync)
         self._keep_copy(consolidated)  # before the parts go: a damaged presses.parquet stays recoverable
         for path in parts.values():
             path.unlink(missing_ok=True)
