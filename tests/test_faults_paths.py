@@ -162,3 +162,15 @@ def test_info_and_validate_agree(reference, tmp_path, capsys):
     assert main(["dataset", "info", str(folder)]) == 0
     out = capsys.readouterr().out
     assert "validation" in out and "problem(s)" in out.split("validation", 1)[1]
+
+
+@pytest.mark.parametrize("argv", [["skin", "press", "--x-mm", "10", "--y-mm", "10"], ["campaign", "check", str(SMOKE)]])
+def test_a_closed_stdout_ends_quietly_with_141(argv, monkeypatch, capsys):
+    """The reader left before we wrote (as `| head` does): no BrokenPipeError, the exit status of SIGPIPE."""
+    import os
+
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    with capsys.disabled(), open(write_end, "w") as closed:
+        monkeypatch.setattr(sys, "stdout", closed)
+        assert main(argv) == 141
