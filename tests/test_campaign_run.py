@@ -148,7 +148,7 @@ def test_dataset_info_says_whether_the_dataset_is_valid(smoke_run, tmp_path, cap
 
 def test_a_dry_run_does_not_fsync_per_press(tmp_path, monkeypatch):
     """The dry run's writer: atomic renames (a process kill loses nothing) but no fsync per press; the number
-    of fsyncs does not grow with the presses (the real rig's writer fsyncs every part: test_datasets_writer)."""
+    of fsyncs does not grow with the presses. The real rig builds its writer with fsync=True (rig/runner.py)."""
     import os
 
     protocol = load_protocol(PROTOCOLS / "smoke.toml")
