@@ -74,7 +74,7 @@ class CampaignWriter:
         if new_folder and fsync:
             fsync_dir(self.folder.parent)
         self._recover()
-        self._dir_fd = os.open(self._parts_dir, os.O_RDONLY)
+        self._dir_fd: int | None = os.open(self._parts_dir, os.O_RDONLY)
         self._position_dirs: set[Path] = set()
 
     # ---- resume ------------------------------------------------------------------------------
@@ -245,7 +245,7 @@ class CampaignWriter:
         self._keep_copy(consolidated)  # before the parts go: a damaged presses.parquet stays recoverable
         for path in parts.values():
             path.unlink(missing_ok=True)
-        if self.fsync:
+        if self.fsync and self._dir_fd is not None:
             os.fsync(self._dir_fd)
         return consolidated
 
