@@ -7,12 +7,22 @@ full waveforms) on the same presses, relative to the RMS of dR.
 
     python benchmarks/bench_campaign.py                 # all 2,800 presses per scene
     python benchmarks/bench_campaign.py --presses 280   # a quicker look
+
+Scaling (issue 13): 280, 2,800 and 28,000-press dry runs of the paper protocol (10, 100, 1,000 positions),
+each in a fresh process so its peak RSS is its own, optionally side by side with another checkout
+of the toolkit (e.g. the commit before a change) in the same run:
+
+    python benchmarks/bench_campaign.py --scaling 280,2800,28000 --compare /path/to/other/checkout
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import shutil
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -43,8 +53,69 @@ def scene_protocol(root: Path, fidelity: str, signal: str, record: bool) -> Path
     return path
 
 
+_CHILD = """
+import json, resource, sys, time
+from neatskin.rig.protocol import load_protocol
+from neatskin.rig.runner import run_campaign
+protocol = load_protocol(sys.argv[1])
+t0, c0 = time.perf_counter(), time.process_time()
+result = run_campaign(protocol, sys.argv[2], dry_run=True, progress=False, report=False)
+wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+print(json.dumps({"presses": result.completed, "wall_s": wall, "cpu_s": cpu, "peak_rss_mb": rss}))
+"""
+
+
+def scaled_protocol(root: Path, presses: int) -> Path:
+    """The paper protocol (28 repeats per position) with presses / 28 positions."""
+    if presses % 28:
+        raise SystemExit(f"--scaling sizes must be multiples of 28 (the paper's repeats), got {presses}")
+    text = (REPO / "protocols" / "paper.toml").read_text().replace("count = 100", f"count = {presses // 28}")
+    path = root / f"paper-{presses}.toml"
+    path.write_text(text)
+    return path
+
+
+def scaling(sizes: list[int], checkouts: dict[str, Path]) -> None:
+    """Each size in each checkout, in a fresh process: wall, CPU, peak RSS, and the ratios to the smallest."""
+    work = Path(tempfile.mkdtemp(prefix="bench-scaling-"))
+    rows = []
+    try:
+        for sub in ("skins", "wiring", "printers"):
+            shutil.copytree(REPO / "protocols" / sub, work / sub)
+        for size in sizes:
+            protocol = scaled_protocol(work, size)
+            for label, checkout in checkouts.items():
+                folder = work / f"run-{label}-{size}"
+                env = {**os.environ, "PYTHONPATH": str(checkout)}
+                done = subprocess.run(
+                    [sys.executable, "-c", _CHILD, str(protocol), str(folder)],
+                    env=env,
+                    capture_output=True,
+                    text=True,
+                    check=True,
+                )
+                row = {"checkout": label, **json.loads(done.stdout.strip().splitlines()[-1])}
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+                shutil.rmtree(folder, ignore_errors=True)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    table = pd.DataFrame(rows)
+    for label in checkouts:
+        mine = table[table.checkout == label]
+        first = mine.iloc[0]
+        table.loc[mine.index, "wall_x_smallest"] = mine.wall_s / first.wall_s
+        table.loc[mine.index, "presses_x_smallest"] = mine.presses / first.presses
+        table.loc[mine.index, "rss_x_smallest"] = mine.peak_rss_mb / first.peak_rss_mb
+    pd.set_option("display.width", 200)
+    print(table.to_string(index=False, float_format=lambda v: f"{v:,.3g}"))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scaling", help="comma-separated campaign sizes, e.g. 280,2800,28000 (multiples of 28)")
+    parser.add_argument("--compare", type=Path, help="another checkout to run side by side (with --scaling)")
     parser.add_argument("--presses", type=int, default=None, help="presses per scene (default: the whole campaign)")
     parser.add_argument(
         "--recorded-presses",
@@ -53,6 +124,12 @@ def main() -> None:
         help="presses for the scene that also writes every sample (default 280; it extrapolates)",
     )
     args = parser.parse_args()
+    if args.scaling:
+        checkouts = {"this": REPO}
+        if args.compare:
+            checkouts["compare"] = args.compare.resolve()
+        scaling([int(n) for n in args.scaling.split(",")], checkouts)
+        return
     work = Path(tempfile.mkdtemp(prefix="bench-campaign-"))
     try:
         for sub in ("skins", "wiring", "printers"):

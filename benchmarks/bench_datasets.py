@@ -5,12 +5,21 @@ press by press with durable parts, then finalized; side by side with fsync off a
 
 Prints presses/s, time per durable press, finalize time, read-back and validate times. Target: the
 writer's share of the dry-run paper campaign (60 s for everything) stays at a few ms per press.
+
+Memory as campaigns grow: the writer alone (no fsync, as a dry run writes) at several sizes, each in a
+fresh process, peak RSS after the presses and after finalize; optionally side by side with another
+checkout of the toolkit in the same run:
+
+    .venv/bin/python benchmarks/bench_datasets.py --memory 2800,28000 --compare /path/to/other/checkout
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import shutil
+import subprocess
 import sys
 import tempfile
 import time
@@ -76,9 +85,61 @@ def _timed(fn) -> float:
     return time.perf_counter() - t0
 
 
+_MEMORY_CHILD = """
+import json, resource, sys, tempfile, time, shutil
+from pathlib import Path
+from neatskin.datasets.writer import CampaignWriter
+from neatskin.layout import load_layout
+from neatskin.skin.synthetic import synthetic_rows
+layout = load_layout(sys.argv[1])
+n = int(sys.argv[2])
+template = synthetic_rows(layout, 1, 1, seed=0, campaign="c")[0]
+folder = Path(tempfile.mkdtemp(prefix="bench-memory-"))
+rss = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+try:
+    start = rss()
+    t0 = time.perf_counter()
+    writer = CampaignWriter(folder, layout.pairs, {"seed": 0, "campaign": "c"}, fsync=False)
+    for press_id in range(n):
+        writer.write_press({**template, "press_id": press_id})
+    written, t1 = rss(), time.perf_counter()
+    writer.finalize()
+    t2 = time.perf_counter()
+    print(json.dumps({"presses": n, "start_mb": start, "after_presses_mb": written, "after_finalize_mb": rss(),
+                      "write_s": t1 - t0, "finalize_s": t2 - t1}))
+finally:
+    shutil.rmtree(folder, ignore_errors=True)
+"""
+
+
+def memory(sizes: list[int], checkouts: dict[str, Path]) -> None:
+    """Peak RSS of the writer alone per campaign size and checkout, each in a fresh process."""
+    layout = REPO / "protocols" / "skins" / "paper.toml"
+    print(
+        f"{'checkout':<10}{'presses':>9}{'start MB':>10}{'presses MB':>12}{'finalize MB':>13}{'write s':>9}{'final s':>9}"
+    )
+    for size in sizes:
+        for label, checkout in checkouts.items():
+            done = subprocess.run(
+                [sys.executable, "-c", _MEMORY_CHILD, str(layout), str(size)],
+                env={**os.environ, "PYTHONPATH": str(checkout)},
+                capture_output=True,
+                text=True,
+                check=True,
+            )
+            r = json.loads(done.stdout.strip().splitlines()[-1])
+            print(
+                f"{label:<10}{r['presses']:>9}{r['start_mb']:>10.0f}{r['after_presses_mb']:>12.0f}"
+                f"{r['after_finalize_mb']:>13.0f}{r['write_s']:>9.1f}{r['finalize_s']:>9.1f}",
+                flush=True,
+            )
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--presses", type=int, default=2800)
+    parser.add_argument("--memory", help="comma-separated sizes: the writer's peak RSS per size (fresh processes)")
+    parser.add_argument("--compare", type=Path, help="another checkout to measure side by side (with --memory)")
     parser.add_argument(
         "--waveform-samples",
         type=int,
@@ -91,6 +152,10 @@ def main(argv: list[str] | None = None) -> int:
         help="where to write (default: a temp folder on the same disk as /tmp); fsync cost depends on the disk",
     )
     args = parser.parse_args(argv)
+    if args.memory:
+        checkouts = {"this": REPO, **({"compare": args.compare.resolve()} if args.compare else {})}
+        memory([int(n) for n in args.memory.split(",")], checkouts)
+        return 0
     layout = load_layout(REPO / "protocols" / "skins" / "paper.toml")
     repeats = 28
     rows = synthetic_rows(layout, -(-args.presses // repeats), repeats, seed=0)[: args.presses]

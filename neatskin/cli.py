@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from neatskin import __version__
@@ -53,7 +54,22 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt as exc:
         print(f"neatskin: interrupted{': ' + str(exc) if str(exc) else ''}", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        return _quiet_broken_pipe()
+    try:
+        sys.stdout.flush()  # a reader that left (`| head`) shows here, not as a traceback at exit
+    except BrokenPipeError:
+        return _quiet_broken_pipe()
     return int(result or 0)
+
+
+def _quiet_broken_pipe() -> int:
+    """The reader of our output went away (e.g. `neatskin dataset info X | head`): stop quietly, as Unix tools
+    do. stdout is pointed at /dev/null so the interpreter's own final flush does not fail again."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+    return 141  # 128 + SIGPIPE, what a shell reports for a tool killed by a closed pipe
 
 
 if __name__ == "__main__":

@@ -125,7 +125,8 @@ def test_a_pandas_round_trip_still_validates(smoke_run, tmp_path):
     df.loc[3, "dR_ohm_1_2"] = np.nan
     df.to_parquet(copy / "presses.parquet", index=False)
     problems = validate_dataset(copy)
-    assert len(problems) == 1 and problems[0].field == "dR_ohm_1_2" and "NaN" in problems[0].message
+    assert [p.field for p in problems] == ["dR_ohm_1_2", "files_sha256"] and "NaN" in problems[0].message
+    assert "damaged or edited" in problems[1].message  # the finished campaign's file was changed
 
 
 def test_dataset_info_says_whether_the_dataset_is_valid(smoke_run, tmp_path, capsys):
@@ -142,4 +143,22 @@ def test_dataset_info_says_whether_the_dataset_is_valid(smoke_run, tmp_path, cap
     df.loc[0, "x_mm"] = np.nan
     df.to_parquet(copy / "presses.parquet", index=False)
     assert main(["dataset", "info", str(copy)]) == 0
-    assert "1 problem(s), e.g. 1 NaN/null value(s) in 'x_mm'" in capsys.readouterr().out
+    assert "2 problem(s), e.g. 1 NaN/null value(s) in 'x_mm'" in capsys.readouterr().out
+
+
+def test_a_dry_run_does_not_fsync_per_press(tmp_path, monkeypatch):
+    """The dry run's writer: atomic renames (a process kill loses nothing) but no fsync per press; the number
+    of fsyncs does not grow with the presses. The real rig builds its writer with fsync=True (rig/runner.py)."""
+    import os
+
+    protocol = load_protocol(PROTOCOLS / "smoke.toml")
+    calls = []
+    real_fsync = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: calls.append(fd) or real_fsync(fd))
+    counts = []
+    for limit in (2, 6):
+        calls.clear()
+        result = run_campaign(protocol, tmp_path / f"l{limit}", dry_run=True, progress=False, report=False, limit=limit)
+        assert result.completed == limit
+        counts.append(len(calls))
+    assert counts[0] == counts[1] and counts[0] <= 8  # folder creation and manifest updates only

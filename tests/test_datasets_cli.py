@@ -61,7 +61,7 @@ def test_merge_split_export_plot(paper_layout, tmp_path, capsys):
     make(tmp_path / "a", paper_layout, seed=1)
     make(tmp_path / "b", paper_layout, seed=2)
     assert run(["dataset", "merge", str(tmp_path / "a"), str(tmp_path / "b"), "-o", str(tmp_path / "m")]) == 0
-    assert "position ids +8" in capsys.readouterr().out
+    assert "8 physical positions (merged ids 8..15)" in capsys.readouterr().out
     assert (
         run(
             [

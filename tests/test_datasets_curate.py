@@ -73,9 +73,10 @@ def test_merge_rekeys_and_keeps_provenance(paper_layout, tmp_path):
     assert df["campaign"].tolist() == ["a"] * 18 + ["b"] * 8
     np.testing.assert_array_equal(df.loc[18:, "dR_ohm_2_6"], [r["dR_ohm"][10] for r in b])
     meta = read_metadata(out)
-    assert [(s["press_id_offset"], s["position_id_offset"], s["presses"]) for s in meta["merged_from"]] == [
-        (0, 0, 18),
-        (18, 6, 8),
+    assert [(s["press_id_offset"], s["presses"]) for s in meta["merged_from"]] == [(0, 18), (18, 8)]
+    assert [s["position_ids"] for s in meta["merged_from"]] == [
+        {str(k): k for k in range(6)},
+        {str(k): 6 + k for k in range(4)},
     ]
     assert meta["merged_from"][1]["manifest"]["campaign"] == "b"
     assert validate_dataset(out) == []

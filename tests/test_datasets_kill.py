@@ -34,7 +34,7 @@ for row in rows:
 print("finalizing", flush=True)
 writer.finalize()
 print("finished", flush=True)
-""" % (N_POSITIONS, REPEATS)
+""" % (N_POSITIONS, REPEATS)  # noqa: UP031 (the template holds braces)
 
 
 def run_worker(folder, kill_after_lines=None, then_s=0.0, until_finalizing=False):

@@ -27,7 +27,16 @@ def register(subparsers) -> None:
         help="comma-separated: ridge,knn,kernel_ridge,extra_trees,mlp,lm_network,inversion (default: all; "
         "inversion, the physics baseline, needs the layout the manifest names)",
     )
-    parser.add_argument("--out", default=None, help="output folder (default: the dataset folder)")
+    parser.add_argument(
+        "--out",
+        default=None,
+        help="output folder (default: the dataset folder); a folder that already holds a report is refused",
+    )
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an existing report in the output folder (its report files and plots are removed first)",
+    )
     parser.add_argument(
         "--flagged",
         choices=("drop", "keep", "refuse"),
@@ -49,9 +58,41 @@ def register(subparsers) -> None:
     parser.set_defaults(handler=handler)
 
 
+REPORT_FILES = ("report.md", "baselines.csv", "baselines.parquet", "baselines_*.png")
+
+
+def _check_output(args: argparse.Namespace) -> None:
+    """A new report never lies beside files of an older one: refuse, or with --overwrite remove them first."""
+    from pathlib import Path
+
+    from neatskin.errors import ConfigError
+
+    if args.folds < 2:
+        raise ConfigError(
+            f"--folds {args.folds}: a k-fold split needs at least 2 folds",
+            field="--folds",
+            fix="pass --folds 2 or more (default 5)",
+        )
+    dataset = Path(args.dataset)
+    out = Path(args.out) if args.out is not None else (dataset if dataset.is_dir() else dataset.parent)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"{out} is a file, not a folder", field="--out", fix="give --out a folder")
+    old = sorted(p for pattern in REPORT_FILES for p in out.glob(pattern)) if out.is_dir() else []
+    if old and not args.overwrite:
+        raise ConfigError(
+            f"{out} already holds a baseline report ({', '.join(p.name for p in old[:3])}"
+            f"{', ...' if len(old) > 3 else ''})",
+            field="--out",
+            fix="write to a new folder with --out NEW_FOLDER, or replace it with --overwrite",
+        )
+    for path in old:
+        path.unlink()
+
+
 def handler(args: argparse.Namespace) -> int:
     from neatskin.baselines.report import run_baselines
 
+    _check_output(args)
     models = [m.strip() for m in args.models.split(",") if m.strip()] if args.models else None
     run_baselines(
         args.dataset,

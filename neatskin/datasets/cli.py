@@ -36,6 +36,11 @@ def register(subparsers) -> None:
     mer.add_argument("folders", type=Path, nargs="+", help="campaign folders (two or more)")
     mer.add_argument("-o", "--output", type=Path, required=True, help="new folder to write")
     mer.add_argument("--allow-mixed", action="store_true", help="merge campaigns on different layouts or wirings")
+    mer.add_argument(
+        "--allow-incomplete",
+        action="store_true",
+        help="merge campaigns that are interrupted, crashed or still running (recorded in the merged manifest)",
+    )
     mer.set_defaults(handler=_merge)
 
     spl = sub.add_parser("split", help="split into train/ and test/ by position (repeats never straddle)")
@@ -65,7 +70,7 @@ def _info(args: argparse.Namespace) -> int:
     from neatskin.datasets.validate import validate_dataset
 
     info = describe(args.path)
-    problems = validate_dataset(args.path, allow_flagged=True)
+    problems = validate_dataset(args.path)  # as `dataset validate` with its defaults: the two always agree
     info["validation"] = (
         "valid"
         if not problems
@@ -96,12 +101,14 @@ def _merge(args: argparse.Namespace) -> int:
     from neatskin.datasets.curate import merge
     from neatskin.datasets.reader import read_metadata
 
-    out = merge(args.folders, args.output, allow_mixed=args.allow_mixed)
+    out = merge(args.folders, args.output, allow_mixed=args.allow_mixed, allow_incomplete=args.allow_incomplete)
     sources = read_metadata(out)["merged_from"]
     for source in sources:
+        ids = sorted(set(source["position_ids"].values()))
+        span = f"{ids[0]}..{ids[-1]}" if ids else "none"
         print(
-            f"{source['folder']}: {source['presses']} presses, press ids +{source['press_id_offset']}, "
-            f"position ids +{source['position_id_offset']}"
+            f"{source['folder']} ({source['status']}): {source['presses']} presses, press ids "
+            f"+{source['press_id_offset']}, {len(ids)} physical positions (merged ids {span})"
         )
     print(f"wrote {out}")
     return 0
@@ -118,9 +125,9 @@ def _split(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from neatskin.datasets.curate import export
+    from neatskin.datasets.curate import export, export_format
 
-    fmt = args.format or ("csv" if args.output.suffix.lower() == ".csv" else "parquet")
+    fmt = export_format(args.output, args.format)
     print(f"wrote {export(args.path, args.output, fmt, drop_flagged=args.drop_flagged)}")
     return 0
 

@@ -27,6 +27,25 @@ from neatskin.datasets.writer import write_table_durably
 from neatskin.errors import DataError
 
 EXPORT_FORMATS = ("parquet", "csv")
+_SUFFIX_FORMATS = {".parquet": "parquet", ".pq": "parquet", ".csv": "csv"}
+
+
+def export_format(out: str | os.PathLike, format: str | None = None) -> str:
+    """The export format: the one named, else the one the output's suffix names (.parquet, .pq, .csv);
+    any other suffix is an error rather than a parquet file under a misleading name."""
+    if format is not None:
+        if format not in EXPORT_FORMATS:
+            raise DataError(f"unknown export format {format!r}", field="format", fix=f"use one of {EXPORT_FORMATS}")
+        return format
+    suffix = Path(out).suffix.lower()
+    if suffix not in _SUFFIX_FORMATS:
+        raise DataError(
+            f"cannot tell the export format from the suffix {suffix or '(none)'!r}",
+            file=str(out),
+            field="--format",
+            fix="name the file .parquet or .csv, or pass --format parquet|csv",
+        )
+    return _SUFFIX_FORMATS[suffix]
 
 
 def _manifest_or_empty(folder: Path) -> dict[str, Any]:
@@ -34,18 +53,6 @@ def _manifest_or_empty(folder: Path) -> dict[str, Any]:
         return read_manifest(folder) if folder.is_dir() else {}
     except DataError:
         return {}
-
-
-def _absolute_refs(folder: Path, manifest: dict[str, Any]) -> dict[str, Any]:
-    """The manifest's layout/wiring/printer references with paths made absolute (they may have been relative
-    to the source folder, which the output does not share)."""
-    out = {}
-    for key in ("layout", "wiring", "printer"):
-        path = resolve_manifest_path(folder, manifest, key)
-        if path is not None:
-            ref = manifest[key] if isinstance(manifest[key], dict) else {}
-            out[key] = {**ref, "path": str(path.resolve())}
-    return out
 
 
 def _empty_output(out: Path) -> None:
@@ -76,10 +83,22 @@ def _write_campaign(out: Path, table: pa.Table, metadata: dict[str, Any], manife
 def describe(path: str | os.PathLike) -> dict[str, Any]:
     """A summary of a dataset: presses, positions, repeats, pairs, flags, ranges, timing, manifest, files."""
     path = Path(path)
-    table = read_press_table(path)
+    manifest = _manifest_or_empty(path)
+    try:
+        table = read_press_table(path)
+    except DataError:
+        if not manifest:
+            raise
+        return {  # a campaign that has not finished a press yet: its state is still worth telling
+            "path": str(path),
+            "campaigns": [manifest.get("campaign")],
+            "presses": 0,
+            "status": campaign_status(path, manifest),
+            "seed": manifest.get("seed"),
+            "counts": manifest.get("counts"),
+        }
     df = table.drop_columns([c for c in table.column_names if c.startswith("R_ohm_")]).to_pandas()
     meta = decode_metadata(table.schema.metadata)
-    manifest = _manifest_or_empty(path)
     per_position = df.groupby("position_id").size()
     dr_cols = [c for c in df.columns if c.startswith("dR_ohm_")]
     mean_dr = df[dr_cols].mean()
@@ -101,7 +120,7 @@ def describe(path: str | os.PathLike) -> dict[str, Any]:
         "most_sensitive_pairs": [
             c.removeprefix("dR_ohm_").replace("_", "-") for c in mean_dr.abs().sort_values(ascending=False).index[:3]
         ],
-        "status": manifest.get("status"),
+        "status": campaign_status(path, manifest) if manifest else None,
         "seed": manifest.get("seed", meta.get("seed")),
         "layout": manifest.get("layout", meta.get("layout")),
         "software_version": meta.get("software_version"),
@@ -111,6 +130,21 @@ def describe(path: str | os.PathLike) -> dict[str, Any]:
             "waveform_parts": len(waveform_parts(path)) if path.is_dir() else 0,
         },
     }
+
+
+def campaign_status(folder: Path, manifest: dict[str, Any]) -> str:
+    """The manifest's status, told apart by the folder lock: `running (PID ..)` only while a live process
+    holds it; a `running` manifest whose process is gone is `crashed`."""
+    from neatskin.datasets.lock import lock_state
+
+    status = str(manifest.get("status"))
+    held, holder = lock_state(folder)
+    if held:
+        return f"running ({holder})"
+    if status == "running":
+        who = f" (last run by {holder})" if holder else ""
+        return f"crashed{who}: no process runs it; continue with neatskin campaign resume {folder}"
+    return status
 
 
 def format_description(info: dict[str, Any]) -> str:
@@ -125,15 +159,125 @@ def format_description(info: dict[str, Any]) -> str:
 # ---- merge ---------------------------------------------------------------------------------------
 
 
-def merge(folders: Sequence[str | os.PathLike], out: str | os.PathLike, *, allow_mixed: bool = False) -> Path:
-    """Merge campaigns into one dataset folder. Press ids and position ids are re-keyed: source k's ids are
-    shifted by the sum of (max id + 1) of the sources before it (offsets recorded under `merged_from`).
-    Refuses different pair sets always, and different layouts or wirings unless allow_mixed."""
+POSITION_TOLERANCE_MM = 0.01  # two presses this close (same layout and calibration) are one physical position
+
+
+def _ref_key(ref: Any) -> str | None:
+    """What identifies an input file across campaigns: its sha256, else its name, else its path."""
+    if isinstance(ref, dict):
+        for key in ("sha256", "name", "path"):
+            if ref.get(key) is not None:
+                return f"{key}:{ref[key]}"
+        return None
+    return None if ref is None else f"path:{ref}"
+
+
+def _check_sources(sources: list[Path], allow_incomplete: bool) -> list[str]:
+    """Refuse a folder named twice, and (unless allow_incomplete) a campaign that runs or is incomplete;
+    returns each source's status."""
+    seen: dict[Path, Path] = {}
+    for folder in sources:
+        key = folder.resolve()
+        if key in seen:
+            raise DataError(
+                f"the same dataset is named twice ({seen[key]} and {folder})",
+                file=str(folder),
+                field="folders",
+                fix="name each campaign once; merging a campaign with itself duplicates every press",
+            )
+        seen[key] = folder
+    statuses = []
+    for folder in sources:
+        if folder.is_file():
+            statuses.append("file")
+            continue
+        manifest = _manifest_or_empty(folder)
+        status = campaign_status(folder, manifest) if manifest else "no manifest (a plain dataset folder)"
+        statuses.append(status)
+        if manifest and status != "complete" and not allow_incomplete:
+            raise DataError(
+                f"the campaign is not complete (status: {status})",
+                file=str(folder),
+                field="status",
+                fix="finish it first (neatskin campaign resume), or merge what it holds with --allow-incomplete "
+                "(recorded in the merged manifest)",
+            )
+    return statuses
+
+
+def _physical_position_ids(
+    tables: list[pa.Table], calibration_keys: list[tuple[str | None, str | None]], tolerance_mm: float
+) -> list[dict[int, int]]:
+    """Per source, {source position id: merged position id}. Positions of sources on the same layout and
+    calibration that lie within tolerance_mm of each other share one id; ids are numbered in order of first
+    appearance (source order, then the source's position ids)."""
+    centers: dict[tuple[str | None, str | None], list[tuple[float, float, int]]] = {}
+    next_id = 0
+    maps = []
+    for table, key in zip(tables, calibration_keys):
+        frame = table.select(["position_id", "x_mm", "y_mm"]).to_pandas()
+        per_position = frame.groupby("position_id", sort=True)[["x_mm", "y_mm"]].first()
+        known = centers.setdefault(key, [])
+        mapping = {}
+        for pos, (x, y) in zip(per_position.index, per_position.to_numpy()):
+            match = None
+            if known:
+                xy = np.array([(cx, cy) for cx, cy, _ in known])
+                dist = np.hypot(xy[:, 0] - x, xy[:, 1] - y)
+                k = int(np.argmin(dist))
+                if dist[k] <= tolerance_mm:
+                    match = known[k][2]
+            if match is None:
+                match = next_id
+                next_id += 1
+                known.append((float(x), float(y), match))
+            mapping[int(pos)] = match
+        maps.append(mapping)
+    return maps
+
+
+def _copy_inputs(out: Path, sources: list[Path], manifests: list[dict[str, Any]]) -> dict[str, Any]:
+    """Give the output its own copies of the input files (the first source's as inputs/<key>.toml, every
+    source's under inputs/sources/<k>/), so it does not break when a source folder is deleted."""
+    import shutil
+
+    refs: dict[str, Any] = {}
+    for k, (folder, manifest) in enumerate(zip(sources, manifests)):
+        for key in ("protocol", "layout", "wiring", "printer"):
+            path = resolve_manifest_path(folder, manifest, key) if folder.is_dir() else None
+            if path is None or not path.is_file():
+                continue
+            targets = [out / "inputs" / f"{key}.toml"] if k == 0 else []
+            if len(sources) > 1:
+                targets.append(out / "inputs" / "sources" / str(k) / f"{key}.toml")
+            for target in targets:
+                target.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(path, target)
+            if k == 0:
+                ref = manifest[key] if isinstance(manifest.get(key), dict) else {}
+                refs[key] = {**ref, "path": f"inputs/{key}.toml", "source": str(path.resolve())}
+    return refs
+
+
+def merge(
+    folders: Sequence[str | os.PathLike],
+    out: str | os.PathLike,
+    *,
+    allow_mixed: bool = False,
+    allow_incomplete: bool = False,
+    tolerance_mm: float = POSITION_TOLERANCE_MM,
+) -> Path:
+    """Merge campaigns into one dataset folder. Press ids are re-keyed (source k's ids shifted by the sum of
+    (max id + 1) of the sources before it); position ids are physical: presses of campaigns on the same layout
+    and calibration within tolerance_mm share an id, so a grouped split never puts one spot on both sides.
+    Refuses different pair sets always, different layouts or wirings unless allow_mixed, a folder named twice,
+    and campaigns that run or are incomplete unless allow_incomplete (recorded in the manifest)."""
     sources = [Path(f) for f in folders]
     out = Path(out)
     if len(sources) < 2:
         raise DataError("merge needs at least two campaign folders", field="folders", fix="name two or more")
     _empty_output(out)
+    statuses = _check_sources(sources, allow_incomplete)
     loaded = []
     for folder in sources:
         table = read_press_table(folder)
@@ -157,11 +301,18 @@ def merge(folders: Sequence[str | os.PathLike], out: str | os.PathLike, *, allow
                     field=key,
                     fix="merge only campaigns on one skin and wiring, or pass --allow-mixed",
                 )
+    calibration = [
+        (_ref_key(m.get("layout", meta.get("layout"))), _ref_key(m.get("printer", meta.get("printer"))))
+        for _, _, meta, m in loaded
+    ]
+    position_maps = _physical_position_ids([t for _, t, _, _ in loaded], calibration, tolerance_mm)
     tables, provenance = [], []
-    press_offset = position_offset = 0
-    for folder, table, meta, manifest in loaded:
+    press_offset = 0
+    for (folder, table, meta, manifest), mapping, status in zip(loaded, position_maps, statuses):
         ids = table.column("press_id")
-        pos = table.column("position_id")
+        pos = table.column("position_id").to_numpy()
+        keys = np.array(sorted(mapping), dtype=np.int64)
+        new_pos = np.array([mapping[k] for k in keys], dtype=np.int32)[np.searchsorted(keys, pos)]
         shifted = table.set_column(
             table.schema.get_field_index("press_id"),
             table.schema.field("press_id"),
@@ -170,31 +321,39 @@ def merge(folders: Sequence[str | os.PathLike], out: str | os.PathLike, *, allow
         shifted = shifted.set_column(
             shifted.schema.get_field_index("position_id"),
             shifted.schema.field("position_id"),
-            pc.add(pos, pa.scalar(position_offset, pa.int32())),
+            pa.array(new_pos, pa.int32()),
         )
         tables.append(shifted.replace_schema_metadata(None))
         provenance.append(
             {
                 "folder": str(folder.resolve()),
+                "status": status,
                 "presses": table.num_rows,
                 "press_id_offset": press_offset,
-                "position_id_offset": position_offset,
+                "position_ids": {str(k): v for k, v in sorted(mapping.items())},
                 "metadata": {k: v for k, v in meta.items() if k != "pairs"},
                 "manifest": manifest,
             }
         )
         if table.num_rows:
             press_offset += int(pc.max(ids).as_py()) + 1
-            position_offset += int(pc.max(pos).as_py()) + 1
     merged = pa.concat_tables(tables)
-    refs = _absolute_refs(first_folder, first_manifest)
+    out.mkdir(parents=True, exist_ok=True)
+    refs = _copy_inputs(out, sources, [m for _, _, _, m in loaded])
     metadata = {
         "pairs": first_meta.get("pairs"),
         "software_version": first_meta.get("software_version"),
         "merged_from": provenance,
-        **{k: v for k, v in refs.items()},
+        **refs,
     }
-    manifest = {"kind": "merge", "allow_mixed": allow_mixed, "sources": [p["folder"] for p in provenance], **refs}
+    manifest = {
+        "kind": "merge",
+        "allow_mixed": allow_mixed,
+        "allow_incomplete": allow_incomplete,
+        "position_tolerance_mm": tolerance_mm,
+        "sources": [p["folder"] for p in provenance],
+        **refs,
+    }
     seeds = {json.dumps(m.get("seed", meta.get("seed"))) for _, _, meta, m in loaded}
     if len(seeds) == 1:
         metadata["seed"] = manifest["seed"] = json.loads(seeds.pop())
@@ -244,11 +403,12 @@ def split(
             "seed": seed,
             "position_ids": ids.tolist(),
         }
+        (out / name).mkdir(parents=True, exist_ok=True)
         manifest = {
             "kind": "split",
             "split": info,
             "campaign": source_manifest.get("campaign"),
-            **_absolute_refs(path, source_manifest),
+            **_copy_inputs(out / name, [path], [source_manifest]),
         }
         if "seed" in source_manifest or "seed" in meta:
             manifest["seed"] = source_manifest.get("seed", meta.get("seed"))

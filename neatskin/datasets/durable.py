@@ -6,13 +6,51 @@ hidden temp file (`.NAME.<random>.tmp`) that readers ignore and `remove_temp_fil
 
 from __future__ import annotations
 
+import errno
 import os
 import secrets
 from collections.abc import Callable
 from pathlib import Path
 from typing import IO
 
+import pyarrow as pa
+
+from neatskin.errors import DataError
+
 TEMP_SUFFIX = ".tmp"
+
+_WRITE_FIXES = {
+    errno.ENOSPC: "the disk is full: free space on it (or move the campaign to a bigger disk), then resume",
+    errno.EDQUOT: "your disk quota is used up: free space or raise the quota, then resume",
+    errno.EFBIG: "the file is larger than this process may write (ulimit -f) or than the file system allows: "
+    "raise the limit (ulimit -f unlimited) or use another disk, then resume",
+    errno.EACCES: "give your user write permission on the folder (chmod u+w), then resume",
+    errno.EPERM: "give your user write permission on the folder (chmod u+w), then resume",
+    errno.EROFS: "the file system is read-only: remount it read-write or copy the campaign to a writable disk, "
+    "then resume",
+    errno.EIO: "the disk reported an I/O error: check it (dmesg), copy the campaign elsewhere, then resume",
+}
+
+
+def write_error(exc: BaseException, path: str | os.PathLike) -> DataError:
+    """One clear DataError for a failed write of `path`, naming the file, the cause and a fix."""
+    code = getattr(exc, "errno", None)
+    if code is None and isinstance(exc, pa.ArrowException):  # pyarrow wraps the OS error in its text
+        text = str(exc)
+        code = next((c for c in _WRITE_FIXES if os.strerror(c) in text or f"errno {c}" in text.lower()), None)
+    reason = os.strerror(code) if code is not None else str(exc)
+    return DataError(
+        f"cannot write the file: {reason}",
+        file=str(path),
+        fix=_WRITE_FIXES.get(code, "check the disk and the folder's permissions, then resume")
+        if code is not None
+        else "check the disk and the folder's permissions, then resume",
+    )
+
+
+def is_write_failure(exc: BaseException) -> bool:
+    """An OS error that a fix on the user's side (space, limits, permissions) cures."""
+    return isinstance(exc, OSError) and exc.errno in _WRITE_FIXES
 
 
 def temp_path_for(path: Path) -> Path:
@@ -48,19 +86,28 @@ def write_durably(
             if fsync:
                 os.fsync(handle.fileno())
         os.replace(tmp, path)
+    except OSError as exc:  # pyarrow's IO errors are OSErrors too
+        tmp.unlink(missing_ok=True)
+        raise write_error(exc, path) from exc
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
     if fsync:
-        if dir_fd is None:
-            fsync_dir(path.parent)
-        else:
-            os.fsync(dir_fd)
+        try:
+            if dir_fd is None:
+                fsync_dir(path.parent)
+            else:
+                os.fsync(dir_fd)
+        except OSError as exc:
+            raise write_error(exc, path) from exc
     return path
 
 
 def write_bytes_durably(path: Path, data: bytes, *, fsync: bool = True) -> Path:
-    return write_durably(path, lambda handle: handle.write(data), fsync=fsync)
+    def write(handle: IO[bytes]) -> None:
+        handle.write(data)
+
+    return write_durably(path, write, fsync=fsync)
 
 
 def remove_temp_files(folder: Path) -> list[Path]:

@@ -2,7 +2,9 @@
 
 CAMPAIGN/
   manifest.json                      protocol as run, provenance, status, counts
+  campaign.lock                      who runs the campaign (PID, host, start); flock'ed while it runs
   presses.parquet                    all presses, one row each (after finalize)
+  presses.copy.parquet               a byte copy of presses.parquet kept by finalize, to restore a damaged one
   presses/part-000042.parquet        one durable part per press while the campaign runs
   waveforms/position_id=7/part-000042.parquet   raw samples of press 42 (hive-partitioned)
 """
@@ -14,6 +16,7 @@ from pathlib import Path
 
 MANIFEST_NAME = "manifest.json"
 CONSOLIDATED_NAME = "presses.parquet"
+COPY_NAME = "presses.copy.parquet"
 PRESSES_DIR = "presses"
 WAVEFORMS_DIR = "waveforms"
 _PART = re.compile(r"^part-(\d+)\.parquet$")

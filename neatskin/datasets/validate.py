@@ -14,7 +14,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from neatskin.datasets.manifest import MANIFEST_NAME, read_manifest, resolve_manifest_path
-from neatskin.datasets.paths import waveform_parts
+from neatskin.datasets.paths import CONSOLIDATED_NAME, COPY_NAME, part_press_id, press_parts, waveform_parts
 from neatskin.datasets.reader import press_files
 from neatskin.datasets.schema import BASE_FIELDS, decode_metadata, press_schema
 from neatskin.errors import ConfigError, DataError, Problem
@@ -53,14 +53,14 @@ def validate_dataset(
     metadata: dict[str, Any] = {}
     for file in files:
         try:
-            table = pq.read_table(file)
+            table = pq.read_table(file, page_checksum_verification=True)
         except (OSError, pa.ArrowException) as exc:
             problems.append(
                 Problem(
                     f"unreadable parquet file: {exc}",
                     str(file),
                     None,
-                    "move the file out of the folder; resume the campaign to press again",
+                    _unreadable_fix(file),
                 )
             )
             continue
@@ -77,6 +77,81 @@ def validate_dataset(
         problems += _waveform_problems(path, rows)
     if manifest is not None:
         problems += _manifest_problems(manifest, manifest_file, metadata, rows, pairs, layout)
+    if path.is_dir():
+        problems += _integrity_problems(path, manifest, tables)
+    return problems
+
+
+def _unreadable_fix(file: Path) -> str:
+    if file.name == CONSOLIDATED_NAME:
+        return (
+            f"restore it from its copy: neatskin campaign finish {file.parent} (or cp {file.parent / COPY_NAME} "
+            f"{file} when that copy's sha256 matches files_sha256 in manifest.json)"
+        )
+    return "move the file out of the folder; resume the campaign to press again"
+
+
+def _same_rows(path: Path, copy: Path, recorded_sha256: str) -> bool:
+    """Whether `path` holds the same rows as the campaign's intact copy: a file re-encoded without a change
+    (e.g. a pandas round trip) is fine, a changed value or a flipped bit is not."""
+    from neatskin.datasets.writer import file_sha256, read_parquet
+
+    if not copy.is_file() or file_sha256(copy) != recorded_sha256:
+        return False
+    try:
+        original = read_parquet(copy)
+        return original.equals(read_parquet(path).cast(original.schema))
+    except (OSError, pa.ArrowException, ValueError):
+        return False
+
+
+def _integrity_problems(folder: Path, manifest: dict | None, tables: list[tuple[Path, pa.Table]]) -> list[Problem]:
+    """Recorded sha256 (presses.parquet, committed parts) and parts whose content is not what their name says."""
+    from neatskin.datasets.writer import file_sha256
+
+    problems = []
+    manifest = manifest or {}
+    files = manifest.get("files_sha256") if isinstance(manifest.get("files_sha256"), dict) else {}
+    parts_sha = manifest.get("parts_sha256") if isinstance(manifest.get("parts_sha256"), dict) else {}
+    consolidated = folder / CONSOLIDATED_NAME
+    if (
+        CONSOLIDATED_NAME in files
+        and consolidated.is_file()
+        and file_sha256(consolidated) != files[CONSOLIDATED_NAME]
+        and not _same_rows(consolidated, folder / COPY_NAME, files[CONSOLIDATED_NAME])
+    ):
+        problems.append(
+            Problem(
+                "presses.parquet differs from the file the campaign finished with (sha256 and rows): damaged or edited",
+                str(consolidated),
+                "files_sha256",
+                _unreadable_fix(consolidated),
+            )
+        )
+    for press_id, part in press_parts(folder).items():
+        if str(press_id) in parts_sha and file_sha256(part) != parts_sha[str(press_id)]:
+            problems.append(
+                Problem(
+                    "the part changed after it was committed (sha256 differs from the manifest's)",
+                    str(part),
+                    "parts_sha256",
+                    "move the part out of presses/ and resume: the press is pressed again",
+                )
+            )
+    for file, table in tables:
+        expected = part_press_id(file)
+        if file.parent.name != "presses" or expected is None or "press_id" not in table.column_names:
+            continue
+        ids = table.column("press_id").to_pylist()
+        if ids != [expected]:
+            problems.append(
+                Problem(
+                    f"the part's name says press {expected} but it holds press id(s) {ids[:5]}",
+                    str(file),
+                    "press_id",
+                    "move the part out of presses/ and resume: the press is pressed again",
+                )
+            )
     return problems
 
 

@@ -14,19 +14,21 @@ DuckDB and Spark add position_id as a column).
 
 from __future__ import annotations
 
+import hashlib
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 import neatskin
-from neatskin.datasets.durable import fsync_dir, remove_temp_files, write_durably
+from neatskin.datasets.durable import fsync_dir, remove_temp_files, write_bytes_durably, write_durably
 from neatskin.datasets.paths import (
     CONSOLIDATED_NAME,
+    COPY_NAME,
     PRESSES_DIR,
     WAVEFORMS_DIR,
     part_name,
@@ -36,6 +38,9 @@ from neatskin.datasets.paths import (
 from neatskin.datasets.schema import RowEncoder, decode_metadata, press_schema
 from neatskin.errors import DataError
 from neatskin.layout import ElectrodePair
+
+FINALIZE_BATCH = 4096  # rows per row group of presses.parquet: finalize's memory stays flat as campaigns grow
+READ_BATCH = 128  # parts read back at a time
 
 
 class CampaignWriter:
@@ -52,9 +57,11 @@ class CampaignWriter:
         metadata: Mapping[str, Any],
         *,
         fsync: bool = True,
+        known_sha256: Mapping[int, str] | None = None,
     ) -> None:
         self.folder = Path(folder)
         self.fsync = fsync
+        self.part_sha256: dict[int, str] = {int(k): v for k, v in (known_sha256 or {}).items()}
         meta = {"software_version": neatskin.__version__, **dict(metadata)}
         self.schema = press_schema(pairs, meta)
         self.metadata = decode_metadata(self.schema.metadata)
@@ -67,7 +74,7 @@ class CampaignWriter:
         if new_folder and fsync:
             fsync_dir(self.folder.parent)
         self._recover()
-        self._dir_fd = os.open(self._parts_dir, os.O_RDONLY)
+        self._dir_fd: int | None = os.open(self._parts_dir, os.O_RDONLY)
         self._position_dirs: set[Path] = set()
 
     # ---- resume ------------------------------------------------------------------------------
@@ -81,18 +88,60 @@ class CampaignWriter:
                 remove_temp_files(sub)
         parts = press_parts(self.folder)
         self._completed = set(parts)
-        self._written: dict[int, pa.Table] = {}  # this session's rows, so finalize need not read them back
+        for press_id, path in parts.items():
+            self._verified_part(press_id, path)
         consolidated = self.folder / CONSOLIDATED_NAME
         existing = [consolidated] if consolidated.exists() else []
         existing += list(parts.values())[:1]
         for path in existing:
             self._check_compatible(path)
         if consolidated.exists():
-            ids = pq.read_table(consolidated, columns=["press_id"]).column("press_id").to_pylist()
+            ids = read_parquet(consolidated, columns=["press_id"]).column("press_id").to_pylist()
             self._completed.update(int(i) for i in ids)
         for press_id, path in waveform_parts(self.folder).items():
             if press_id not in self._completed:
                 path.unlink(missing_ok=True)  # orphan: its press was never committed
+
+    def _verified_part(self, press_id: int, path: Path) -> pa.Table:
+        """A committed part's row, refused unless it is intact (recorded sha256, page checksums), holds the
+        press its name says and belongs to this campaign (name and seed)."""
+        fix = (
+            f"move {path.name} out of {path.parent} (its press is pressed again on resume), "
+            "or restore the campaign's own file"
+        )
+        recorded = self.part_sha256.get(press_id)
+        if recorded is not None and file_sha256(path) != recorded:
+            raise DataError(
+                f"the part changed after it was committed (sha256 differs from the manifest's {recorded[:12]})",
+                file=str(path),
+                fix=fix,
+            )
+        try:
+            handle = pq.ParquetFile(path, page_checksum_verification=True)
+            meta = decode_metadata(handle.schema_arrow.metadata)
+            table = handle.read(use_threads=False)
+        except (OSError, pa.ArrowException) as exc:
+            raise DataError(f"cannot read a committed part: {exc}", file=str(path), fix=fix) from exc
+        ids = table.column("press_id").to_pylist() if "press_id" in table.column_names else []
+        if ids != [press_id]:
+            raise DataError(
+                f"the part's name says press {press_id} but it holds press id(s) {ids[:5]}",
+                file=str(path),
+                field="press_id",
+                fix=fix,
+            )
+        own = self.metadata.get("campaign")
+        found = table.column("campaign").to_pylist() if "campaign" in table.column_names else [None]
+        if own is not None and (found[0] != own or meta.get("seed") != self.metadata.get("seed")):
+            raise DataError(
+                f"the part belongs to another campaign ({found[0]!r}, seed {meta.get('seed')!r}), "
+                f"not {own!r} (seed {self.metadata.get('seed')!r})",
+                file=str(path),
+                field="campaign",
+                fix=fix,
+            )
+        self._check_compatible(path)
+        return table
 
     def _check_compatible(self, path: Path) -> None:
         try:
@@ -137,12 +186,14 @@ class CampaignWriter:
         # one-row files: column statistics and dictionaries cost time and help no reader
         write_durably(
             path,
-            lambda handle: pq.write_table(table, handle, write_statistics=False, use_dictionary=False),
+            lambda handle: pq.write_table(
+                table, handle, write_statistics=False, use_dictionary=False, write_page_checksum=True
+            ),
             fsync=self.fsync,
             dir_fd=self._dir_fd,
         )
         self._completed.add(press_id)
-        self._written[press_id] = table
+        self.part_sha256[press_id] = file_sha256(path)
         return path
 
     def _write_waveforms(self, press_id: int, position_id: int, waveforms: Mapping[str, np.ndarray]) -> Path:
@@ -156,7 +207,9 @@ class CampaignWriter:
                 fsync_dir(self.folder)
             self._position_dirs.add(folder)
         return write_durably(
-            folder / part_name(press_id), lambda handle: pq.write_table(table, handle), fsync=self.fsync
+            folder / part_name(press_id),
+            lambda handle: pq.write_table(table, handle, write_page_checksum=True),
+            fsync=self.fsync,
         )
 
     # ---- finalize ----------------------------------------------------------------------------
@@ -168,21 +221,39 @@ class CampaignWriter:
         consolidated = self.folder / CONSOLIDATED_NAME
         parts = press_parts(self.folder)
         if not parts and consolidated.exists():
+            self._keep_copy(consolidated)
             return consolidated
         plain = self.schema.remove_metadata()
-        tables = [read_tables([consolidated], plain)] if consolidated.exists() else []
-        tables += [self._written[i].replace_schema_metadata(None) for i in parts if i in self._written]
-        tables.append(read_tables([p for i, p in parts.items() if i not in self._written], plain))
-        table = pa.concat_tables(tables)
-        table = deduplicate_sorted(table).replace_schema_metadata(self.schema.metadata)
-        write_durably(
-            consolidated, lambda handle: pq.write_table(table, handle, row_group_size=1 << 16), fsync=self.fsync
-        )
+        if consolidated.exists():  # a finalize was killed half-way: the rare path, rows held in memory once
+            table = pa.concat_tables([read_tables([consolidated], plain), read_tables(list(parts.values()), plain)])
+            table = deduplicate_sorted(table).replace_schema_metadata(self.schema.metadata)
+            write_table_durably(consolidated, table, fsync=self.fsync)
+        else:  # the parts hold distinct ids, sorted by name: stream them, FINALIZE_BATCH parts per row group
+            paths = list(parts.values())
+
+            def stream(handle: IO[bytes]) -> None:
+                with pq.ParquetWriter(handle, self.schema, write_page_checksum=True) as out:
+                    group: list[pa.Table] = []
+                    for start in range(0, len(paths), READ_BATCH):
+                        # one compact table per READ_BATCH parts: a one-row table costs far more than its row
+                        group.append(read_tables(paths[start : start + READ_BATCH], plain).combine_chunks())
+                        if len(group) * READ_BATCH >= FINALIZE_BATCH or start + READ_BATCH >= len(paths):
+                            out.write_table(pa.concat_tables(group))
+                            group = []
+
+            write_durably(consolidated, stream, fsync=self.fsync)
+        self._keep_copy(consolidated)  # before the parts go: a damaged presses.parquet stays recoverable
         for path in parts.values():
             path.unlink(missing_ok=True)
-        if self.fsync:
+        if self.fsync and self._dir_fd is not None:
             os.fsync(self._dir_fd)
         return consolidated
+
+    def _keep_copy(self, consolidated: Path) -> None:
+        copy = self.folder / COPY_NAME
+        data = consolidated.read_bytes()
+        if not copy.exists() or copy.read_bytes() != data:
+            write_bytes_durably(copy, data, fsync=self.fsync)
 
     def close(self) -> None:
         if self._dir_fd is not None:
@@ -202,13 +273,28 @@ class CampaignWriter:
             pass
 
 
+def read_parquet(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
+    """One parquet file, its page checksums verified (a flipped bit is an error, not a changed value);
+    metadata dropped."""
+    handle = pq.ParquetFile(path, page_checksum_verification=True)
+    return handle.read(columns=columns, use_threads=False).replace_schema_metadata(None)
+
+
+def file_sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
 def read_tables(files: Sequence[Path], schema: pa.Schema) -> pa.Table:
     """Concatenate parquet files of one schema (metadata dropped). Reads file by file: for many one-row parts
     this is twice as fast as a pyarrow dataset scan."""
     tables = []
     for path in files:
         try:
-            table = pq.ParquetFile(path).read(use_threads=False).replace_schema_metadata(None)
+            table = read_parquet(path)
         except (OSError, pa.ArrowException) as exc:
             raise DataError(
                 f"cannot read a parquet part: {exc}",
@@ -258,4 +344,8 @@ def write_table_durably(path: str | os.PathLike, table: pa.Table, *, fsync: bool
     """Write a whole press table (with its metadata) as one parquet file, atomically and durably."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    return write_durably(path, lambda handle: pq.write_table(table, handle, row_group_size=1 << 16), fsync=fsync)
+    return write_durably(
+        path,
+        lambda handle: pq.write_table(table, handle, row_group_size=1 << 16, write_page_checksum=True),
+        fsync=fsync,
+    )

@@ -1,8 +1,9 @@
-"""`neatskin campaign run|resume|check`: a protocol in, a campaign dataset (and its baseline report) out."""
+"""`neatskin campaign run|resume|finish|check`: a protocol in, a campaign dataset (and its baseline report) out."""
 
 from __future__ import annotations
 
 import argparse
+import re
 from datetime import datetime
 from pathlib import Path
 
@@ -47,6 +48,16 @@ def register(subparsers) -> None:
     resume.add_argument("--quiet", action="store_true")
     resume.set_defaults(handler=_resume)
 
+    finish = sub.add_parser(
+        "finish",
+        help="complete a campaign whose presses are all on disk: consolidate, restore a damaged presses.parquet "
+        "from its copy, write the missing physical limit and report",
+    )
+    finish.add_argument("folder", type=Path)
+    finish.add_argument("--no-report", action="store_true", help="do not write a missing baseline report")
+    finish.add_argument("--quiet", action="store_true")
+    finish.set_defaults(handler=_finish)
+
     check = sub.add_parser("check", help="validate a protocol and print its plan and time estimate, moving nothing")
     check.add_argument("protocol", type=Path)
     check.set_defaults(handler=_check)
@@ -79,7 +90,7 @@ def _run(args: argparse.Namespace) -> int:
             field="--dry-run/--port",
             fix=f"e.g. neatskin campaign run {args.protocol} --dry-run",
         )
-    out = args.out or Path("runs") / f"{protocol.name}-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
+    out = args.out or default_campaign_folder(protocol.name)
     monitor = _start_monitor(out, args.monitor_port) if args.monitor else None
     try:
         result = run_campaign(
@@ -120,6 +131,23 @@ def _start_monitor(out: Path, port: int):
         except OSError:
             time.sleep(0.1)
     return proc
+
+
+def default_campaign_folder(name: str, now: datetime | None = None) -> Path:
+    """runs/<name>-<date>-<time>, with the name reduced to letters, digits, '.', '_' and '-' (no leading dot),
+    so no protocol name (`../../x`, `/etc/x`) can place the campaign outside runs/."""
+    safe = re.sub(r"[^A-Za-z0-9._-]+", "_", name)
+    safe = re.sub(r"_+", "_", re.sub(r"\.{2,}", "_", safe)).strip("._-") or "campaign"
+    folder = Path("runs") / f"{safe[:100]}-{(now or datetime.now()).strftime('%Y%m%d-%H%M%S')}"
+    return folder
+
+
+def _finish(args: argparse.Namespace) -> int:
+    from neatskin.rig.runner import finish_campaign
+
+    result = finish_campaign(args.folder, report=not args.no_report, progress=not args.quiet)
+    print(f"campaign complete: {result.completed}/{result.planned} presses in {result.folder}")
+    return 0
 
 
 def _resume(args: argparse.Namespace) -> int:

@@ -8,6 +8,7 @@ the probe and leaves a campaign that `resume` finishes with no press lost or dup
 
 from __future__ import annotations
 
+import logging
 import math
 import shutil
 import signal
@@ -15,21 +16,37 @@ import time
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
+from neatskin.errors import ConfigError, DataError
+from neatskin.rig.folder import (
+    INPUT_KEYS,
+    PHYSICAL_LIMIT,
+    check_folder,
+    check_inputs_unchanged,
+    copy_inputs,
+    create_campaign_folder,
+    load_inputs,
+    missing_derived_files,
+    restore_consolidated,
+    rig_kind,
+)
+from neatskin.rig.physlimit import write_physical_limit
+from neatskin.rig.protocol import Protocol
 
-from neatskin.errors import ConfigError, DataError, Problem
-from neatskin.rig.protocol import Protocol, file_sha256, load_protocol
+if TYPE_CHECKING:
+    from neatskin.acquisition.sequence import Sweep
+    from neatskin.gcode.program import PressProgram
 
-INPUTS_DIR = "inputs"
 WIRE_LOG = "wire.log"
+log = logging.getLogger(__name__)
 MAX_PRESS_ATTEMPTS = 3  # a press the FSR never saw is retried twice, then stored flagged
 
 
 @dataclass(frozen=True)
 class Plan:
-    program: object  # neatskin.gcode.program.PressProgram
-    sweep: object  # neatskin.acquisition.sequence.Sweep
+    program: PressProgram
+    sweep: Sweep
     n_sweeps: int  # sweeps recorded per press, from parking above the target to lifted
     hold_s: float
     printer_time_s: float  # the G-code's estimate for the whole campaign
@@ -82,30 +99,6 @@ def build_plan(protocol: Protocol) -> Plan:
     return Plan(program, sweep, n_sweeps, hold_s, total)
 
 
-def _copy_inputs(protocol: Protocol, folder: Path) -> dict[str, dict]:
-    """Copy the protocol and the files it names into the campaign folder, so resume needs nothing else."""
-    inputs = folder / INPUTS_DIR
-    inputs.mkdir(parents=True, exist_ok=True)
-    refs = {}
-    for key, src in protocol.referenced_files.items():
-        dst = inputs / f"{key}.toml"
-        if not dst.exists():
-            shutil.copyfile(src, dst)
-        refs[key] = {"path": f"{INPUTS_DIR}/{key}.toml", "source": str(src), "sha256": file_sha256(dst)}
-    return refs
-
-
-def _check_folder(folder: Path, resume: bool) -> None:
-    if resume:
-        return
-    if folder.exists() and any(folder.iterdir()):
-        raise ConfigError(
-            f"the output folder {folder} already holds files",
-            field="--out",
-            fix=f"choose a new folder, or continue it with: neatskin campaign resume {folder}",
-        )
-
-
 def run_campaign(
     protocol: Protocol,
     folder: str | Path,
@@ -120,16 +113,73 @@ def run_campaign(
     printer_faults=None,
     connect_timeout_s: float | None = None,
 ) -> CampaignResult:
-    """Run (or resume) a campaign into `folder`; returns what was done."""
-    from neatskin.datasets.manifest import create_manifest, update_manifest, utc_now_iso
-    from neatskin.datasets.writer import CampaignWriter
+    """Run (or resume) a campaign into `folder`; returns what was done. The folder is locked while it runs:
+    a second run or resume into it gets a DataError naming this process."""
+    from neatskin.datasets.lock import CampaignLock
 
     folder = Path(folder)
     wall0 = time.perf_counter()
-    _check_folder(folder, resume)
+    check_folder(folder, resume)
     plan = build_plan(protocol)  # every check that needs no hardware happens here, before any motion
-    created = not folder.exists()
-    folder.mkdir(parents=True, exist_ok=True)
+    kind = "dry-run" if dry_run else "real"
+    if resume:
+        lock = CampaignLock(folder).acquire()
+    else:
+        lock = create_campaign_folder(protocol, plan, folder, kind)
+    try:
+        result, status = _run_locked(
+            protocol,
+            plan,
+            folder,
+            wall0,
+            created=not resume,
+            dry_run=dry_run,
+            port=port,
+            daq_kind=daq_kind,
+            progress=progress,
+            limit=limit,
+            printer_faults=printer_faults,
+            connect_timeout_s=connect_timeout_s,
+        )
+        if report and status == "complete":
+            _make_report(folder, progress)
+    finally:
+        lock.release()
+    return result
+
+
+def _make_report(folder: Path, progress: bool) -> None:
+    from neatskin.baselines.report import run_baselines
+    from neatskin.datasets.manifest import update_manifest, utc_now_iso
+
+    try:
+        run_baselines(folder, split="both", progress=progress)
+    except KeyboardInterrupt:
+        raise KeyboardInterrupt(
+            f"the campaign's data is complete in {folder}; only its baseline report was "
+            f"stopped: make it with neatskin campaign finish {folder}"
+        ) from None
+    update_manifest(folder, report={"path": "report.md", "written_at": utc_now_iso()})
+
+
+def _run_locked(
+    protocol,
+    plan,
+    folder,
+    wall0,
+    *,
+    created,
+    dry_run,
+    port,
+    daq_kind,
+    progress,
+    limit,
+    printer_faults,
+    connect_timeout_s,
+):
+    from neatskin.datasets.manifest import read_manifest, update_manifest, utc_now_iso
+    from neatskin.datasets.writer import CampaignWriter
+
     try:
         rig = _open_rig(
             protocol,
@@ -146,7 +196,7 @@ def run_campaign(
             shutil.rmtree(folder, ignore_errors=True)
         raise
     try:
-        refs = _copy_inputs(protocol, folder)
+        refs = copy_inputs(protocol, folder)
         pair_labels = [p.label for p in protocol.layout.pairs]
         metadata = {
             "campaign": protocol.name,
@@ -157,52 +207,38 @@ def run_campaign(
             "seed": protocol.seed,
             "rig": rig.kind,
         }
-        if resume and (folder / "manifest.json").exists():
-            update_manifest(folder, status="running", resumed_at=utc_now_iso(), rig=rig.description)
-        else:
-            create_manifest(
-                folder,
-                campaign=protocol.name,
-                protocol_as_run=protocol.raw,
-                seed=protocol.seed,
-                **refs,
-                pairs=[[p.i, p.j] for p in protocol.layout.pairs],
-                rig=rig.description,
-                labels=(
-                    "fsr"
-                    if protocol.fsr_enabled
-                    else "motion sync only (no FSR in this protocol): presses are not force-checked"
-                ),
-                sweep={
-                    "rate_hz": plan.sweep.rate_hz,
-                    "samples": plan.sweep.n_samples,
-                    "settle_samples": protocol.acquisition.settle_samples,
-                    "live_samples": protocol.acquisition.live_samples,
-                    "sweeps_per_press": plan.n_sweeps,
-                    "hold_s": plan.hold_s,
-                    "demodulation": protocol.acquisition.demodulation,
-                    "window": protocol.acquisition.window,
-                },
-                counts={"planned": plan.n_presses, "completed": 0},
-                printer_time_estimate_s=plan.printer_time_s,
+        resumed = {} if created else {"resumed_at": utc_now_iso()}
+        manifest = update_manifest(folder, status="running", rig=rig.description, **resumed)
+        known = manifest.get("parts_sha256") if isinstance(manifest.get("parts_sha256"), dict) else {}
+        # a dry run's presses are recomputed identically from (seed, press_id): a process kill must not lose
+        # what the OS holds (atomic renames do that), power loss may; the real rig fsyncs every press
+        writer = CampaignWriter(folder, protocol.layout.pairs, metadata, fsync=not dry_run, known_sha256=known)
+        try:
+            done = writer.completed_press_ids()
+            todo = [b for b in plan.program.presses if b.press_id not in done]
+            if limit is not None:
+                todo = todo[:limit]
+            written, flagged, interrupted = _press_loop(
+                protocol, plan, rig, writer, todo, pair_labels, len(done), progress
             )
-        writer = CampaignWriter(folder, protocol.layout.pairs, metadata)
-        done = writer.completed_press_ids()
-        todo = [b for b in plan.program.presses if b.press_id not in done]
-        if limit is not None:
-            todo = todo[:limit]
-        written, flagged, interrupted = _press_loop(protocol, plan, rig, writer, todo, pair_labels, len(done), progress)
-        completed = len(writer.completed_press_ids())
-        status = "complete" if completed == plan.n_presses else "interrupted"
-        if status == "complete":
-            _finish_program(rig, plan)
-            writer.finalize()
-        writer.close()
-        update_manifest(
-            folder, status=status, finished_at=utc_now_iso(), counts={"completed": completed, "flagged": flagged}
-        )
-        if status == "complete" and rig.skin is not None:
-            write_physical_limit(folder, protocol, plan, rig)
+            completed = len(writer.completed_press_ids())
+            status = "complete" if completed == plan.n_presses else "interrupted"
+            if status == "complete":
+                _finish_program(rig, plan)
+                _finish_data(folder, protocol, plan, rig, writer)
+            else:
+                update_manifest(
+                    folder,
+                    status=status,
+                    finished_at=utc_now_iso(),
+                    counts={"completed": completed, "flagged": flagged},
+                    parts_sha256=_parts_sha256(read_manifest(folder), writer),
+                )
+        except BaseException as exc:
+            _mark_stopped_with_parts(folder, exc, writer)
+            raise
+        finally:
+            writer.close()
     finally:
         rig.close()
     result = CampaignResult(
@@ -215,17 +251,63 @@ def run_campaign(
         time.perf_counter() - wall0,
         plan.printer_time_s,
     )
-    if report and status == "complete":
-        from neatskin.baselines.report import run_baselines
+    return result, status
 
-        try:
-            run_baselines(folder, split="both", progress=progress)
-        except KeyboardInterrupt:
-            raise KeyboardInterrupt(
-                f"the campaign's data is complete in {folder}; only its baseline report was "
-                f"stopped: make it with neatskin baselines {folder}"
-            ) from None
-    return result
+
+def _parts_sha256(manifest: dict, writer) -> dict[str, str]:
+    from neatskin.datasets.paths import press_parts
+
+    recorded = manifest.get("parts_sha256") if isinstance(manifest.get("parts_sha256"), dict) else {}
+    merged = {str(k): v for k, v in recorded.items()}
+    merged.update({str(k): v for k, v in writer.part_sha256.items()})
+    present = {str(i) for i in press_parts(writer.folder)}
+    return {k: merged[k] for k in sorted(merged, key=int) if k in present}
+
+
+def _mark_stopped_with_parts(folder: Path, exc: BaseException, writer) -> None:
+    from neatskin.datasets.manifest import read_manifest, update_manifest, utc_now_iso
+
+    try:
+        update_manifest(
+            folder,
+            status="interrupted",
+            finished_at=utc_now_iso(),
+            stopped_by=str(exc).splitlines()[0] if str(exc) else type(exc).__name__,
+            counts={"completed": len(writer.completed_press_ids())},
+            parts_sha256=_parts_sha256(read_manifest(folder), writer),
+        )
+    except Exception as again:  # the disk may still be full; the lock then tells info that nobody runs it
+        log.warning("cannot mark %s interrupted: %s", folder, again)
+
+
+def _finish_data(folder: Path, protocol: Protocol, plan: Plan, rig, writer) -> None:
+    """Consolidate, write the derived files, and only then say `complete` (with the files' sha256)."""
+    from neatskin.datasets.manifest import update_manifest, utc_now_iso
+    from neatskin.datasets.paths import CONSOLIDATED_NAME
+    from neatskin.datasets.writer import file_sha256
+
+    consolidated = writer.finalize()
+    files = {CONSOLIDATED_NAME: file_sha256(consolidated)}
+    if rig is not None and rig.skin is not None:
+        files[PHYSICAL_LIMIT] = file_sha256(write_physical_limit(folder, protocol, plan, rig))
+    flagged = _count_flagged(consolidated)
+    update_manifest(
+        folder,
+        status="complete",
+        finished_at=utc_now_iso(),
+        counts={"completed": plan.n_presses, "flagged": flagged},
+        files_sha256=files,
+        parts_sha256=None,
+    )
+
+
+def _count_flagged(path: Path) -> int:
+    import pyarrow.compute as pc
+
+    from neatskin.datasets.writer import read_parquet
+
+    flags = read_parquet(path, columns=["flags"]).column("flags")
+    return int(pc.sum(pc.greater(pc.list_value_length(flags), 0)).as_py() or 0)
 
 
 def _open_rig(protocol, plan, *, dry_run, port, daq_kind, printer_faults, connect_timeout_s, wire_log):
@@ -372,103 +454,86 @@ def _finish_program(rig, plan) -> None:
     rig.driver.send_lines(plan.program.postamble, source="postamble")
 
 
-def write_physical_limit(folder: Path, protocol: Protocol, plan: Plan, rig) -> Path:
-    """Per position, the Cramér-Rao bound on the position error that the simulated skin and noise allow."""
-    import pandas as pd
-    import pyarrow as pa
-
-    from neatskin.baselines.crb import cramer_rao_bound_mm
-    from neatskin.datasets.writer import write_table_durably
-
-    blocks = {b.position_id: b for b in plan.program.presses}
-    ids = np.array(sorted(blocks))
-    x = np.array([blocks[i].x_mm for i in ids])
-    y = np.array([blocks[i].y_mm for i in ids])
-    depth = np.full(ids.shape, protocol.press.press.depth_mm)
-    jac = rig.skin.jacobian_mm(x, y, depth)  # (positions, pairs, 2) ohm / mm
-    std = _dr_noise_std_ohm(protocol, plan, rig, x, y, depth)
-    crb = np.array([cramer_rao_bound_mm(jac[k : k + 1], noise_std=std[k])[0] for k in range(len(ids))])
-    table = pa.Table.from_pandas(
-        pd.DataFrame({"position_id": ids.astype(np.int32), "x_mm": x, "y_mm": y, "crb_mm": crb}), preserve_index=False
-    )
-    return write_table_durably(folder / "physical_limit.parquet", table)
-
-
-def _dr_noise_std_ohm(protocol, plan, rig, x, y, depth) -> np.ndarray:
-    """Std of one press's dR per pair (positions, pairs): the estimator noise of the baseline and pressed sweeps
-    that a press averages, drawn from the simulated DAQ's features path at the unpressed and pressed states."""
-    from neatskin.sim.daq import SimulatedDAQ
-
-    sweep, draws = plan.sweep, 64
-    pressed = rig.skin.pair_resistance_ohm(x, y, depth)
-    states = np.vstack([np.asarray(rig.skin.baseline_pair_resistance_ohm)[None], pressed])  # (1 + positions, pairs)
-    var = np.empty_like(states)
-    for k, state in enumerate(states):
-        daq = SimulatedDAQ(rig.daq.config, lambda t, s=state: np.broadcast_to(s, (len(t), s.size)), noise=rig.daq.noise)
-        est = daq.estimate_sweep(
-            sweep,
-            np.random.default_rng([protocol.seed, 10**6, k]),
-            0.0,
-            method=protocol.acquisition.demodulation,
-            window=protocol.acquisition.window,
-            n_sweeps=draws,
-        )
-        var[k] = est.resistance_ohm.var(axis=0)
-    durations = _typical_phases_s(plan, protocol)
-    n_base = max(1, int(durations[1] // sweep.duration_s))  # sweeps while descending through air
-    n_press = max(1, int(plan.hold_s // sweep.duration_s) - 1)  # whole sweeps inside the hold
-    return np.sqrt(var[0] / n_base + var[1:] / n_press)
-
-
-def _typical_phases_s(plan, protocol) -> np.ndarray:
-    from neatskin.gcode.motion import phase_durations_s
-
-    return np.median(phase_durations_s(plan.program, protocol.printer), axis=0)
-
-
-def _check_inputs_unchanged(folder: Path, manifest: dict) -> None:
-    """The copies in inputs/ must be the files the campaign started with: a changed seed, layout or
-    calibration would mix two campaigns in one dataset."""
-    problems = []
-    for key in ("protocol", "layout", "wiring", "printer"):
-        ref = manifest.get(key)
-        if not isinstance(ref, dict) or "sha256" not in ref:
-            continue
-        path = folder / ref["path"]
-        actual = file_sha256(path) if path.is_file() else "missing"
-        if actual != ref["sha256"]:
-            problems.append(
-                Problem(
-                    f"{ref['path']} is not the file this campaign started with (sha256 {actual[:12]}, "
-                    f"recorded {ref['sha256'][:12]})",
-                    str(path),
-                    key,
-                    "restore the original file; to run changed settings, start a new campaign with a new --out folder",
-                )
-            )
-    if problems:
-        raise DataError(problems=problems)
-
-
 def resume_campaign(folder: str | Path, **kwargs) -> CampaignResult:
-    """Finish a campaign from its folder: the protocol and files it ran with are the copies in inputs/."""
+    """Finish a campaign from its folder: the protocol and files it ran with are the copies in inputs/.
+    A complete campaign whose derived files (physical limit, report) are missing gets them regenerated."""
+    from neatskin.datasets.lock import CampaignLock
     from neatskin.datasets.manifest import read_manifest
 
     folder = Path(folder)
-    manifest = read_manifest(folder)
-    if manifest.get("status") == "complete":
-        report = "" if (folder / "report.md").exists() else f"; for its baseline report: neatskin baselines {folder}"
-        raise DataError(
-            f"campaign {folder} is already complete: every press is on disk",
-            file=str(folder / "manifest.json"),
-            field="status",
-            fix=f"nothing to resume{report}",
-        )
-    _check_inputs_unchanged(folder, manifest)
-    protocol = load_protocol(
-        folder / INPUTS_DIR / "protocol.toml",
-        file_overrides={k: folder / INPUTS_DIR / f"{k}.toml" for k in ("layout", "wiring", "printer")},
+    check_folder(folder, resume=True)
+    read_manifest(folder)  # a clear error for a folder that is no campaign, before a lock file is made
+    with CampaignLock(folder):
+        manifest = read_manifest(folder)
+        kind = rig_kind(folder, manifest)
+        check_inputs_unchanged(folder, manifest)
+        if manifest.get("status") == "complete":
+            missing = missing_derived_files(folder, manifest, report=kwargs.get("report", True))
+            if missing:
+                return finish_campaign(folder, report=kwargs.get("report", True), progress=kwargs.get("progress", True))
+            raise DataError(
+                f"campaign {folder} is already complete: every press and derived file is on disk",
+                file=str(folder / "manifest.json"),
+                field="status",
+                fix="nothing to resume; check its files with: neatskin dataset validate " + str(folder),
+            )
+        kwargs.setdefault("dry_run", kind == "dry-run")
+        return run_campaign(load_inputs(folder), folder, resume=True, **kwargs)
+
+
+def finish_campaign(folder: str | Path, *, report: bool = True, progress: bool = True) -> CampaignResult:
+    """Make a campaign whose presses are all on disk complete: consolidate, restore a damaged presses.parquet
+    from its copy, write the physical limit (dry run) and the report when they are missing."""
+    from neatskin.datasets.lock import CampaignLock
+    from neatskin.datasets.manifest import read_manifest
+    from neatskin.datasets.writer import CampaignWriter
+
+    folder = Path(folder)
+    wall0 = time.perf_counter()
+    check_folder(folder, resume=True)
+    read_manifest(folder)
+    with CampaignLock(folder):
+        manifest = read_manifest(folder)
+        kind = rig_kind(folder, manifest)
+        check_inputs_unchanged(folder, manifest)
+        protocol = load_inputs(folder)
+        plan = build_plan(protocol)
+        restore_consolidated(folder, manifest)
+        missing = missing_derived_files(folder, manifest, report=False)
+        if manifest.get("status") != "complete" or missing:
+            refs = copy_inputs(protocol, folder)
+            metadata = {**{k: refs[k] for k in INPUT_KEYS}, "campaign": protocol.name, "seed": protocol.seed}
+            metadata["rig"] = kind
+            known = manifest.get("parts_sha256") if isinstance(manifest.get("parts_sha256"), dict) else {}
+            with CampaignWriter(folder, protocol.layout.pairs, metadata, fsync=True, known_sha256=known) as writer:
+                have = len(writer.completed_press_ids())
+                if have < plan.n_presses:
+                    raise DataError(
+                        f"{plan.n_presses - have} of {plan.n_presses} presses are not on disk yet",
+                        file=str(folder),
+                        fix=f"press them first: neatskin campaign resume {folder}",
+                    )
+                rig = (
+                    _open_rig(
+                        protocol,
+                        plan,
+                        dry_run=True,
+                        port=None,
+                        daq_kind="ni",
+                        printer_faults=None,
+                        connect_timeout_s=None,
+                        wire_log=None,
+                    )
+                    if kind == "dry-run"
+                    else None
+                )
+                try:
+                    _finish_data(folder, protocol, plan, rig, writer)
+                finally:
+                    if rig is not None:
+                        rig.close()
+        if report and not (folder / "report.md").is_file():
+            _make_report(folder, progress)
+    return CampaignResult(
+        folder, plan.n_presses, plan.n_presses, 0, 0, False, time.perf_counter() - wall0, plan.printer_time_s
     )
-    rig_kind = (manifest.get("rig") or {}).get("kind", "dry-run")
-    kwargs.setdefault("dry_run", rig_kind == "dry-run")
-    return run_campaign(protocol, folder, resume=True, **kwargs)

@@ -1,0 +1,260 @@
+"""The campaign folder: its atomic creation, the input copies in inputs/ and their checks, and the derived
+files a complete campaign must hold (what `resume` and `finish` verify and restore).
+
+A folder is created in one step: lock, inputs/ and manifest.json are built under a hidden staging name
+(`.NAME.staging-XXXX`) and renamed into place, so a kill leaves no folder or one that `resume` continues.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from neatskin.errors import ConfigError, DataError, Problem
+from neatskin.rig.protocol import Protocol, file_sha256, load_protocol
+
+if TYPE_CHECKING:
+    from neatskin.datasets.lock import CampaignLock
+    from neatskin.rig.runner import Plan
+
+INPUTS_DIR = "inputs"
+PHYSICAL_LIMIT = "physical_limit.parquet"
+log = logging.getLogger(__name__)
+
+
+def copy_inputs(protocol: Protocol, folder: Path) -> dict[str, Any]:
+    """Copy the protocol and the files it names into the campaign folder, so resume needs nothing else."""
+    from neatskin.datasets.durable import write_bytes_durably
+
+    inputs = folder / INPUTS_DIR
+    inputs.mkdir(parents=True, exist_ok=True)
+    refs: dict[str, Any] = {}
+    for key, src in protocol.referenced_files.items():
+        dst = inputs / f"{key}.toml"
+        if not dst.exists():
+            write_bytes_durably(dst, Path(src).read_bytes(), fsync=False)
+        refs[key] = {"path": f"{INPUTS_DIR}/{key}.toml", "source": str(src), "sha256": file_sha256(dst)}
+    return refs
+
+
+def check_folder(folder: Path, resume: bool) -> None:
+    if folder.exists() and not folder.is_dir():
+        raise ConfigError(
+            f"{folder} is a file, not a campaign folder",
+            file=str(folder),
+            field="--out",
+            fix="give --out a folder name that does not exist yet",
+        )
+    if resume:
+        return
+    if folder.exists() and any(folder.iterdir()):
+        from neatskin.datasets.lock import lock_state
+
+        held, holder = lock_state(folder)
+        running = f" (a campaign is running in it: {holder})" if held else ""
+        raise ConfigError(
+            f"the output folder {folder} already holds files{running}",
+            field="--out",
+            fix=f"choose a new folder, or continue it with: neatskin campaign resume {folder}",
+        )
+
+
+def _staging_name(folder: Path) -> Path:
+    import secrets
+
+    return folder.with_name(f".{folder.name}.staging-{secrets.token_hex(4)}")
+
+
+def _remove_stale_staging(folder: Path) -> None:
+    """Staging folders of runs killed before their rename (no live process holds their lock)."""
+    from neatskin.datasets.lock import lock_state
+
+    if not folder.parent.is_dir():
+        return
+    for entry in folder.parent.glob(f".{folder.name}.staging-*"):
+        if entry.is_dir() and not lock_state(entry)[0]:
+            shutil.rmtree(entry, ignore_errors=True)
+
+
+def create_campaign_folder(protocol: Protocol, plan: Plan, folder: Path, rig_kind: str) -> CampaignLock:
+    """Make the campaign folder in one atomic step: lock, inputs/ and manifest.json are built under a hidden
+    staging name and renamed into place, so a kill leaves either no campaign folder or one that resumes."""
+    from neatskin.datasets.durable import fsync_dir, write_error
+    from neatskin.datasets.lock import CampaignLock
+    from neatskin.datasets.manifest import create_manifest
+
+    _remove_stale_staging(folder)
+    staging = _staging_name(folder)
+    try:
+        staging.mkdir(parents=True)
+    except OSError as exc:
+        raise write_error(exc, staging) from exc
+    lock = CampaignLock(staging).acquire()
+    try:
+        refs = copy_inputs(protocol, staging)
+        create_manifest(
+            staging,
+            campaign=protocol.name,
+            protocol_as_run=protocol.raw,
+            seed=protocol.seed,
+            **refs,
+            pairs=[[p.i, p.j] for p in protocol.layout.pairs],
+            rig={"kind": rig_kind},
+            labels=(
+                "fsr"
+                if protocol.fsr_enabled
+                else "motion sync only (no FSR in this protocol): presses are not force-checked"
+            ),
+            sweep={
+                "rate_hz": plan.sweep.rate_hz,
+                "samples": plan.sweep.n_samples,
+                "settle_samples": protocol.acquisition.settle_samples,
+                "live_samples": protocol.acquisition.live_samples,
+                "sweeps_per_press": plan.n_sweeps,
+                "hold_s": plan.hold_s,
+                "demodulation": protocol.acquisition.demodulation,
+                "window": protocol.acquisition.window,
+            },
+            counts={"planned": plan.n_presses, "completed": 0},
+            printer_time_estimate_s=plan.printer_time_s,
+        )
+        try:
+            if folder.exists():
+                folder.rmdir()  # empty (checked): the rename needs the name free
+            os.rename(staging, folder)
+            fsync_dir(folder.parent)
+        except OSError as exc:
+            raise write_error(exc, folder) from exc
+        lock.moved_to(folder)
+    except BaseException:
+        lock.release()
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return lock
+
+
+INPUT_KEYS = ("protocol", "layout", "wiring", "printer")
+
+
+def _recorded_input_sha(folder: Path, manifest: dict) -> dict[str, str | None]:
+    """The sha256 each input file had when the campaign started: from the manifest, else from the parquet
+    metadata (every press file carries the same references), so deleting a hash switches no check off."""
+    from neatskin.datasets.reader import read_metadata
+
+    try:
+        metadata = read_metadata(folder)
+    except (DataError, OSError):
+        metadata = {}
+    out: dict[str, str | None] = {}
+    for key in INPUT_KEYS:
+        shas = [ref.get("sha256") for ref in (manifest.get(key), metadata.get(key)) if isinstance(ref, dict)]
+        shas = [sha for sha in shas if isinstance(sha, str)]
+        if len(set(shas)) > 1:
+            raise DataError(
+                f"the manifest's sha256 of {key} differs from the one the presses were written with",
+                file=str(folder / "manifest.json"),
+                field=f"{key}.sha256",
+                fix="restore the campaign's own manifest.json; a changed input starts a new campaign",
+            )
+        out[key] = shas[0] if shas else None
+    return out
+
+
+def check_inputs_unchanged(folder: Path, manifest: dict) -> None:
+    """The copies in inputs/ must be the files the campaign started with: a changed seed, layout or
+    calibration would mix two campaigns in one dataset."""
+    problems = []
+    for key, recorded in _recorded_input_sha(folder, manifest).items():
+        path = folder / INPUTS_DIR / f"{key}.toml"
+        if recorded is None:
+            problems.append(
+                Problem(
+                    f"no sha256 of {INPUTS_DIR}/{key}.toml is recorded, so the file cannot be checked",
+                    str(folder / "manifest.json"),
+                    f"{key}.sha256",
+                    "restore the campaign's own manifest.json (it records the sha256 of every input)",
+                )
+            )
+            continue
+        actual = file_sha256(path) if path.is_file() else "missing"
+        if actual != recorded:
+            problems.append(
+                Problem(
+                    f"{INPUTS_DIR}/{key}.toml is not the file this campaign started with (sha256 {actual[:12]}, "
+                    f"recorded {recorded[:12]})",
+                    str(path),
+                    key,
+                    "restore the original file; to run changed settings, start a new campaign with a new --out folder",
+                )
+            )
+    if problems:
+        raise DataError(problems=problems)
+
+
+def rig_kind(folder: Path, manifest: dict) -> str:
+    rig = manifest.get("rig", {"kind": "dry-run"})
+    kind = rig.get("kind") if isinstance(rig, dict) else None
+    if kind not in ("dry-run", "real"):
+        raise DataError(
+            f"rig must be a table with kind 'dry-run' or 'real', got {rig!r}",
+            file=str(folder / "manifest.json"),
+            field="rig",
+            fix='restore the manifest, or set "rig": {"kind": "dry-run"} (or "real") in it',
+        )
+    return kind
+
+
+def load_inputs(folder: Path) -> Protocol:
+    return load_protocol(
+        folder / INPUTS_DIR / "protocol.toml",
+        file_overrides={k: folder / INPUTS_DIR / f"{k}.toml" for k in ("layout", "wiring", "printer")},
+    )
+
+
+def missing_derived_files(folder: Path, manifest: dict, *, report: bool = True) -> list[str]:
+    """What a complete campaign lacks: a consolidated file that is missing or differs from its recorded
+    sha256, the physical limit of a dry run, the report (when asked for)."""
+    from neatskin.datasets.paths import CONSOLIDATED_NAME
+    from neatskin.datasets.writer import file_sha256
+
+    files = manifest.get("files_sha256")
+    recorded: dict[str, str] = files if isinstance(files, dict) else {}
+    missing = []
+    for name in (CONSOLIDATED_NAME, PHYSICAL_LIMIT):
+        path = folder / name
+        if name == PHYSICAL_LIMIT and rig_kind(folder, manifest) != "dry-run":
+            continue
+        if not path.is_file() or (name in recorded and file_sha256(path) != recorded[name]):
+            missing.append(name)
+    if report and not (folder / "report.md").is_file():
+        missing.append("report.md")
+    return missing
+
+
+def restore_consolidated(folder: Path, manifest: dict) -> None:
+    """A presses.parquet that is missing or differs from its recorded sha256 is restored from the copy
+    finalize kept, when that copy matches."""
+    from neatskin.datasets.durable import write_bytes_durably
+    from neatskin.datasets.paths import CONSOLIDATED_NAME, COPY_NAME
+    from neatskin.datasets.writer import file_sha256
+
+    recorded = (
+        (manifest.get("files_sha256") or {}).get(CONSOLIDATED_NAME)
+        if isinstance(manifest.get("files_sha256"), dict)
+        else None
+    )
+    main, copy = folder / CONSOLIDATED_NAME, folder / COPY_NAME
+    if recorded is None or (main.is_file() and file_sha256(main) == recorded):
+        return
+    if copy.is_file() and file_sha256(copy) == recorded:
+        log.warning("restoring %s from %s (it differed from its recorded sha256)", main, copy)
+        write_bytes_durably(main, copy.read_bytes())
+        return
+    raise DataError(
+        "presses.parquet differs from its recorded sha256 and no intact copy is left",
+        file=str(main),
+        fix="restore presses.parquet from a backup; its recorded sha256 is files_sha256 in manifest.json",
+    )

@@ -1,0 +1,135 @@
+"""Fault injection: write failures. A file too large for the process (RLIMIT_FSIZE), a full disk and a
+read-only file system (a small tmpfs), and a folder the user may not write: each is one clear error naming
+the file and a fix, the manifest says `interrupted`, and `resume` after the fix completes identically."""
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+
+import pandas as pd
+import pytest
+from faults_helpers import SMOKE, make_reference, remount, rows, run_cli_child, small_disk, waveforms
+
+from neatskin.datasets.curate import describe
+from neatskin.errors import DataError
+from neatskin.rig.runner import resume_campaign
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    return make_reference(tmp_path_factory)
+
+
+RUN = ("campaign", "run", str(SMOKE), "--dry-run", "--quiet", "--no-report")
+
+
+def _limit_file_size(limit_bytes):
+    def apply():
+        import resource
+
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # EFBIG as an error, not the default kill
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+
+    return apply
+
+
+def _assert_stopped_cleanly(done, folder, file_part, fix_part):
+    assert done.returncode == 2, (done.returncode, done.stderr)
+    assert "Traceback" not in done.stderr
+    error = done.stderr.strip().splitlines()[-1]
+    assert error.startswith("neatskin: error: ") and file_part in error and fix_part in error, error
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert manifest["status"] == "interrupted" and file_part in manifest["stopped_by"]
+    return manifest
+
+
+@pytest.mark.timeout(180)
+def test_file_too_large_is_one_clear_error_then_resume_completes(reference, tmp_path):
+    folder = tmp_path / "c"
+    # a waveform part is about 880 kB: the first one exceeds 500 kB, the manifest and inputs fit
+    done = run_cli_child("none", *RUN, "--out", str(folder), preexec_fn=_limit_file_size(500_000))
+    _assert_stopped_cleanly(done, folder, "waveforms/position_id=", "ulimit -f")
+    assert describe(folder)["status"] == "interrupted" and describe(folder)["presses"] == 0
+    result = resume_campaign(folder, progress=False, report=False)
+    assert result.completed == 12
+    pd.testing.assert_frame_equal(rows(folder), rows(reference), check_exact=True)
+    pd.testing.assert_frame_equal(waveforms(folder), waveforms(reference), check_exact=True)
+
+
+@pytest.mark.timeout(180)
+def test_full_disk_is_one_clear_error_then_resume_on_a_bigger_disk_completes(reference, tmp_path):
+    with small_disk(tmp_path / "disk", "2m") as disk:
+        folder = disk / "c"
+        done = run_cli_child("none", *RUN, "--out", str(folder))
+        manifest = _assert_stopped_cleanly(done, folder, str(disk), "disk is full")
+        assert "No space left on device" in manifest["stopped_by"]
+        assert not [p for p in folder.rglob("*.tmp")]  # no half-written temp file left behind
+        remount(disk, "size=64m")  # the fix: more space
+        result = resume_campaign(folder, progress=False, report=False)
+        assert result.completed == 12 and result.written_now == 12 - manifest["counts"]["completed"]
+        pd.testing.assert_frame_equal(rows(folder), rows(reference), check_exact=True)
+        ours, theirs = waveforms(folder), waveforms(reference)
+        pd.testing.assert_frame_equal(ours.drop(columns="fsr_v"), theirs.drop(columns="fsr_v"), check_exact=True)
+        differ = ours[ours.fsr_v != theirs.fsr_v]
+        print("fsr_v samples that differ after resume:", differ[["press_id", "sample"]].to_dict("records"))
+        assert len(differ) <= 1  # the dry probe's known defect: see test_resumed_fsr_waveform_is_bit_identical
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="sim/recorder.py (the dry-probe engineer's): DryProbe evaluates the printer trajectory at absolute "
+    "virtual times, which a resumed printer counts from another origin, so one FSR sample can round the other way",
+)
+@pytest.mark.timeout(180)
+def test_resumed_fsr_waveform_is_bit_identical(reference, tmp_path):
+    with small_disk(tmp_path / "disk", "2m") as disk:
+        folder = disk / "c"
+        run_cli_child("none", *RUN, "--out", str(folder))
+        remount(disk, "size=64m")
+        resume_campaign(folder, progress=False, report=False)
+        pd.testing.assert_frame_equal(waveforms(folder), waveforms(reference), check_exact=True)
+
+
+@pytest.mark.timeout(180)
+def test_read_only_file_system_is_one_clear_error_then_resume_completes(reference, tmp_path):
+    with small_disk(tmp_path / "disk", "64m") as disk:
+        folder = disk / "c"
+        done = run_cli_child("none", *RUN, "--out", str(folder), "--limit", "4")
+        assert done.returncode == 0, done.stderr
+        remount(disk, "ro")
+        with pytest.raises(DataError) as err:
+            resume_campaign(folder, progress=False, report=False)
+        assert err.value.file == str(folder / "campaign.lock") and "read-only" in str(err.value)
+        new = run_cli_child("none", *RUN, "--out", str(disk / "new"))
+        assert new.returncode == 2 and "Traceback" not in new.stderr and "read-only" in new.stderr.lower()
+        remount(disk, "rw")
+        result = resume_campaign(folder, progress=False, report=False)
+        assert (result.completed, result.written_now) == (12, 8)
+        pd.testing.assert_frame_equal(rows(folder), rows(reference), check_exact=True)
+
+
+@pytest.mark.timeout(180)
+def test_a_folder_the_user_may_not_write_is_one_clear_error(reference, tmp_path):
+    folder = tmp_path / "c"
+    shutil.copytree(reference, folder)
+    (folder / "presses.parquet").unlink()  # something for resume to do
+    (folder / "campaign.lock").unlink()
+    if os.geteuid() == 0:  # root writes through any mode bits; an immutable folder stops it for real (EPERM)
+        if subprocess.run(["chattr", "+i", str(folder)], capture_output=True).returncode != 0:
+            pytest.skip("chattr +i is not supported on this file system")
+        undo = ["chattr", "-i", str(folder)]
+    else:
+        os.chmod(folder, 0o555)
+        undo = ["chmod", "755", str(folder)]
+    try:
+        done = run_cli_child("none", "campaign", "resume", str(folder), "--no-report", "--quiet")
+    finally:
+        subprocess.run(undo, check=True)
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert str(folder / "campaign.lock") in done.stderr and "chmod u+w" in done.stderr
+    assert "Permission denied" in done.stderr or "Operation not permitted" in done.stderr
+    result = resume_campaign(folder, progress=False, report=False)  # after the fix
+    assert result.completed == 12 and result.written_now == 0
+    pd.testing.assert_frame_equal(rows(folder), rows(reference), check_exact=True)
