@@ -128,6 +128,12 @@ class AcquisitionTable:
 @dataclass(frozen=True)
 class FsrTable:
     enabled: bool = setting(True, doc="a force-sensing resistor labels each press")
+    pause_after_misses: int = setting(
+        3,
+        ge=0,
+        le=10_000,
+        doc="pause the campaign after this many presses in a row the FSR missed (0: never)",
+    )
 
 
 @dataclass(frozen=True)

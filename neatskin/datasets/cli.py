@@ -62,6 +62,8 @@ def register(subparsers) -> None:
     plot.add_argument("-o", "--output", type=Path, required=True, help="folder for the PNG files")
     plot.add_argument("--kind", choices=("sensitivity", "presses", "all"), default="all")
     plot.add_argument("--layout", type=Path, help="skin layout TOML (default: the one the manifest names)")
+    plot.add_argument("--press", type=int, metavar="ID", help="also one press: R per pair and FSR against time")
+    plot.add_argument("--drift", action="store_true", help="also every pair's baseline R against press order")
     plot.set_defaults(handler=_plot)
 
 
@@ -139,4 +141,11 @@ def _plot(args: argparse.Namespace) -> int:
         print(f"wrote {plot_sensitivity_map(args.path, args.output / 'sensitivity_map.png', args.layout)}")
     if args.kind in ("presses", "all"):
         print(f"wrote {plot_press_map(args.path, args.output / 'press_map.png', args.layout)}")
+    if args.press is not None or args.drift:
+        from neatskin.datasets.pressplots import plot_drift, plot_press
+
+        if args.press is not None:
+            print(f"wrote {plot_press(args.path, args.press, args.output / f'press-{args.press}.png')}")
+        if args.drift:
+            print(f"wrote {plot_drift(args.path, args.output / 'drift.png')}")
     return 0

@@ -33,7 +33,7 @@ def sensitivity_by_position(df: pd.DataFrame) -> pd.DataFrame:
     z = finite.max(axis=1).to_numpy(float)
     scale = np.nanmax(np.abs(z)) if np.isfinite(z).any() else 0.0
     out["z"] = z / scale if scale > 0 else z
-    out["best_pair"] = finite.idxmax(axis=1).str.removeprefix("dR_ohm_").str.replace("_", "-")
+    out["best_pair"] = finite.idxmax(axis=1).astype(str).str.removeprefix("dR_ohm_").str.replace("_", "-")
     return out.reset_index()
 
 
@@ -42,7 +42,7 @@ def layout_for(path: str | os.PathLike, layout: Layout | str | os.PathLike | Non
     if isinstance(layout, Layout):
         return layout
     if layout is not None:
-        return load_layout(layout)
+        return load_layout(Path(layout))
     path = Path(path)
     manifest = read_manifest(path if path.is_dir() else path.parent)
     layout_path = resolve_manifest_path(path if path.is_dir() else path.parent, manifest, "layout")

@@ -111,8 +111,10 @@ def _integrity_problems(folder: Path, manifest: dict | None, tables: list[tuple[
 
     problems = []
     manifest = manifest or {}
-    files = manifest.get("files_sha256") if isinstance(manifest.get("files_sha256"), dict) else {}
-    parts_sha = manifest.get("parts_sha256") if isinstance(manifest.get("parts_sha256"), dict) else {}
+    files_raw = manifest.get("files_sha256")
+    files: dict = files_raw if isinstance(files_raw, dict) else {}
+    parts_sha_raw = manifest.get("parts_sha256")
+    parts_sha: dict = parts_sha_raw if isinstance(parts_sha_raw, dict) else {}
     consolidated = folder / CONSOLIDATED_NAME
     if (
         CONSOLIDATED_NAME in files
@@ -319,7 +321,8 @@ def _content_problems(
                 )
             )
     if {"position_id", "x_mm", "y_mm"} <= set(rows.columns):
-        spread = rows.groupby("position_id")[["x_mm", "y_mm"]].agg(lambda s: s.max() - s.min()).max(axis=1)
+        grouped = rows.groupby("position_id")[["x_mm", "y_mm"]]
+        spread = (grouped.max() - grouped.min()).max(axis=1)
         moved = spread[spread > 1e-9]
         if len(moved):
             problems.append(
@@ -389,7 +392,8 @@ def _manifest_problems(
 ) -> list[Problem]:
     problems: list[Problem] = []
     n = int(rows["press_id"].nunique()) if "press_id" in rows else len(rows)
-    counts = manifest.get("counts") if isinstance(manifest.get("counts"), dict) else {}
+    counts_raw = manifest.get("counts")
+    counts: dict = counts_raw if isinstance(counts_raw, dict) else {}
     if counts.get("completed") is not None and counts["completed"] != n:
         problems.append(
             Problem(

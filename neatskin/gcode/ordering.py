@@ -41,14 +41,14 @@ def shorten_route(xy_mm: np.ndarray, start_xy_mm: np.ndarray | None = None, max_
         return np.arange(n)
     current = np.asarray(start_xy_mm, float) if start_xy_mm is not None else xy[0]
     left = np.ones(n, dtype=bool)
-    route = []
+    visits: list[int] = []
     for _ in range(n):
         d = np.where(left, np.linalg.norm(xy - current, axis=1), np.inf)
         k = int(np.argmin(d))
-        route.append(k)
+        visits.append(k)
         left[k] = False
         current = xy[k]
-    route = np.array(route)
+    route = np.array(visits)
     pts_all = xy if start_xy_mm is None else np.vstack([xy, np.asarray(start_xy_mm, float)[None]])
     head = [] if start_xy_mm is None else [n]  # the fixed start as an extra point at the front
     for _ in range(max_moves if max_moves is not None else 20 * n):

@@ -313,7 +313,7 @@ def _stratified(layout: Layout, spec: PositionSpec, rng: np.random.Generator) ->
                 return _on_channel(layout, rng, np.full(k, index), s)
         else:
 
-            def draw(k, index=index):
+            def draw(k, index=index, m=m, strata=strata, end=0.0):  # same signature as the channel branch's
                 return _in_face(layout, rng, index, k)
 
         out = np.vstack([out, _accept(layout, spec, draw, int(m), taken=out)])

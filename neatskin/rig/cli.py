@@ -178,4 +178,6 @@ def _check(args: argparse.Namespace) -> int:
         f"{plan.n_sweeps} sweeps recorded per press, hold {plan.hold_s} s"
     )
     print(f"  estimated rig time {plan.printer_time_s / 3600:.2f} h")
+    print(f"  resources (upper bounds): {protocol.resources.summary()}")
+    print(f"  electrical: {protocol.electrical.summary()}")
     return 0

@@ -43,7 +43,11 @@ def _dr_noise_std_ohm(protocol, plan, rig, x, y, depth) -> np.ndarray:
     states = np.vstack([np.asarray(rig.skin.baseline_pair_resistance_ohm)[None], pressed])  # (1 + positions, pairs)
     var = np.empty_like(states)
     for k, state in enumerate(states):
-        daq = SimulatedDAQ(rig.daq.config, lambda t, s=state: np.broadcast_to(s, (len(t), s.size)), noise=rig.daq.noise)
+
+        def constant(t: np.ndarray, s: np.ndarray = state) -> np.ndarray:
+            return np.broadcast_to(s, (len(t), s.size))
+
+        daq = SimulatedDAQ(rig.daq.config, constant, noise=rig.daq.noise)
         est = daq.estimate_sweep(
             sweep,
             np.random.default_rng([protocol.seed, 10**6, k]),

@@ -101,6 +101,7 @@ class Protocol:
     excitation: Excitation
     acquisition: AcquisitionSettings
     fsr_enabled: bool
+    fsr_pause_after_misses: int
     record_waveforms: bool
     scene: Scene
     raw: dict
@@ -202,6 +203,7 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
             acq.voltage_gain,
         ),
         fsr_enabled=fsr.enabled,
+        fsr_pause_after_misses=fsr.pause_after_misses,
         record_waveforms=record.waveforms,
         scene=scene,
         raw=data,

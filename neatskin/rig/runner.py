@@ -16,7 +16,7 @@ import time
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from neatskin.errors import ConfigError, DataError
 from neatskin.rig.folder import (
@@ -207,9 +207,10 @@ def _run_locked(
             "seed": protocol.seed,
             "rig": rig.kind,
         }
-        resumed = {} if created else {"resumed_at": utc_now_iso()}
+        resumed: dict[str, Any] = {} if created else {"resumed_at": utc_now_iso()}
         manifest = update_manifest(folder, status="running", rig=rig.description, **resumed)
-        known = manifest.get("parts_sha256") if isinstance(manifest.get("parts_sha256"), dict) else {}
+        known_raw = manifest.get("parts_sha256")
+        known: dict = known_raw if isinstance(known_raw, dict) else {}
         # a dry run's presses are recomputed identically from (seed, press_id): a process kill must not lose
         # what the OS holds (atomic renames do that), power loss may; the real rig fsyncs every press
         writer = CampaignWriter(folder, protocol.layout.pairs, metadata, fsync=not dry_run, known_sha256=known)
@@ -257,7 +258,9 @@ def _run_locked(
 def _parts_sha256(manifest: dict, writer) -> dict[str, str]:
     from neatskin.datasets.paths import press_parts
 
-    recorded = manifest.get("parts_sha256") if isinstance(manifest.get("parts_sha256"), dict) else {}
+    recorded_raw = manifest.get("parts_sha256")
+
+    recorded: dict = recorded_raw if isinstance(recorded_raw, dict) else {}
     merged = {str(k): v for k, v in recorded.items()}
     merged.update({str(k): v for k, v in writer.part_sha256.items()})
     present = {str(i) for i in press_parts(writer.folder)}
@@ -330,7 +333,7 @@ class _StopRequest:
 
     def __init__(self) -> None:
         self.requested = False
-        self._previous = None
+        self._previous: Any = None
 
     def __enter__(self):
         def handler(signum, frame):
@@ -387,14 +390,14 @@ def _press_loop(protocol, plan, rig, writer, todo, pair_labels, already_done, pr
 
 def _checkpoint(protocol, plan, driver, folder, stop):
     """The safe point between presses (neatskin.rig.control): pause lifts and waits, stop lifts and parks."""
-    from neatskin.rig.control import DEFAULT_FSR_MISS_LIMIT, Checkpoint
+    from neatskin.rig.control import Checkpoint
 
     post = plan.program.postamble  # lift to the safe height, park, lift, M400, done marker
     return Checkpoint(
         folder,
         lift=lambda: driver.send_lines((*post[:1], "M400"), source="pause lift"),
         park=lambda: driver.send_lines((*post[:3], "M400"), source="stop park"),
-        fsr_miss_limit=getattr(protocol, "fsr_pause_after_misses", DEFAULT_FSR_MISS_LIMIT),
+        fsr_miss_limit=protocol.fsr_pause_after_misses,
         interrupted=lambda: stop.requested,
     )
 
@@ -504,7 +507,8 @@ def finish_campaign(folder: str | Path, *, report: bool = True, progress: bool =
             refs = copy_inputs(protocol, folder)
             metadata = {**{k: refs[k] for k in INPUT_KEYS}, "campaign": protocol.name, "seed": protocol.seed}
             metadata["rig"] = kind
-            known = manifest.get("parts_sha256") if isinstance(manifest.get("parts_sha256"), dict) else {}
+            known_raw = manifest.get("parts_sha256")
+            known: dict = known_raw if isinstance(known_raw, dict) else {}
             with CampaignWriter(folder, protocol.layout.pairs, metadata, fsync=True, known_sha256=known) as writer:
                 have = len(writer.completed_press_ids())
                 if have < plan.n_presses:
