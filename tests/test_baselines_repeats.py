@@ -139,7 +139,7 @@ def test_folds_1_is_a_data_error_and_one_line_on_the_cli(tmp_path, capsys):
     folder = write_dataset(tmp_path / "ds", table(8, 3))
     assert main(["baselines", str(folder), "--models", "ridge", "--folds", "1", "--no-progress"]) == 2
     err = capsys.readouterr().err
-    assert "[folds]" in err and "--folds 2" in err and "Traceback" not in err
+    assert "folds]" in err and "--folds 2" in err and "Traceback" not in err
 
 
 def test_small_data_warnings_reach_the_report_and_the_terminal(tmp_path):

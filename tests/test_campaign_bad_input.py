@@ -286,7 +286,7 @@ def test_the_papers_2_mA_clips_at_the_mux_rails(protocols):
     assert [p.field for p in info.value.problems] == ["excitation.amplitude_a"]
     problem = info.value.problems[0]
     # 5625 ohm (corner to opposite corner, 1.5 R) x 1.5 + 2 x 100 + 10 = 8647.5 ohm; x 2 mA = 17.3 V
-    assert "2 mA x (5625 ohm (pair 4-8, undeformed) x 1.5 press margin" in problem.message
+    assert "2 mA x (5625 ohm (pair 2-6, undeformed) x 1.5 press margin" in problem.message
     assert "= 17.3 V peak, beyond the mux supply rails (-8 V .. +8 V): 8 V" in problem.message
     assert "lower amplitude_a to <= 0.925 mA" in problem.fix and "more conductive fluid" in problem.fix
 
@@ -385,7 +385,7 @@ def test_electrical_summary_of_the_smoke_campaign(protocols):
     # 0.5 mA x (5625 ohm x 1.5 + 2 x 100 ohm + 10 ohm) = 4.32375 V against the +-8 V rails
     summary = load_protocol(protocols / "smoke.toml").electrical.summary()
     assert summary == (
-        "peak 4.32 V (pair 4-8, 5625 ohm undeformed, with the press margin and R_on), "
+        "peak 4.32 V (pair 2-6, 5625 ohm undeformed, with the press margin and R_on), "
         "limit 8.00 V (mux supply rails (-8 V .. +8 V)), 1.85x headroom"
     )
 

@@ -66,7 +66,11 @@ def test_network_scene_skips_the_deformation_integral(tmp_path, monkeypatch):
 def test_missed_press_is_retried_then_flagged(tmp_path):
     """The skin lies 5 mm below where the printer was calibrated: a 3.5 mm press never touches it."""
     path = make_protocol(
-        tmp_path, *FEATURES, ("repeats = 2", "repeats = 1"), ("surface_error_mm = 0.0", "surface_error_mm = 5.0")
+        tmp_path,
+        *FEATURES,
+        ("repeats = 2", "repeats = 1"),
+        ("surface_error_mm = 0.0", "surface_error_mm = 5.0"),
+        ("[fsr]\nenabled = true", "[fsr]\nenabled = true\npause_after_misses = 0"),  # no automatic pause here
     )
     run_campaign(load_protocol(path), tmp_path / "run", progress=False, report=False)
     df = pd.read_parquet(tmp_path / "run" / "presses.parquet")

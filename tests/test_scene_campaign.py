@@ -125,7 +125,9 @@ def test_a_drift_rate_is_recovered_from_a_fixed_position_pressed_over_time(tmp_p
     r = df.filter(like="R_ohm_").drop(columns=df.filter(like="dR_ohm_").columns).to_numpy()
     slope = np.polyfit(hours, r / r[0], 1)[0]  # per pair, relative to the first press
     assert slope.shape == (28,)
-    np.testing.assert_allclose(slope, -0.4, rtol=2e-3)
+    # each pair's fit carries its own measurement noise (0.5 mA excitation); their mean averages it out
+    np.testing.assert_allclose(slope, -0.4, rtol=5e-3)
+    assert abs(slope.mean() / -0.4 - 1) < 5e-4
 
 
 def test_depth_jitter_and_placement_draws_have_their_set_spread(tmp_path):

@@ -407,7 +407,8 @@ def check_electrical(
     from neatskin.skin.network import equivalent_resistance
 
     r_eq = np.asarray(equivalent_resistance(layout, 1.0 / layout.channel_resistance_ohm))
-    k = int(np.argmax(r_eq))
+    # symmetric pairs tie up to rounding: name the first of them in pair order, whatever the solver's last bit
+    k = int(np.argmax(np.round(r_eq / r_eq.max(), 9)))
     e = wiring.electrical
     path_ohm = float(r_eq[k]) * excitation.press_margin + 2 * e.r_on_ohm + e.r_on_mismatch_ohm
     limits = {
