@@ -94,6 +94,7 @@ def test_short_hold_refused(protocols):
     assert info.value.field == "press.hold_s" and "hold_s >=" in info.value.problems[0].fix
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(60)
 def test_serial_port_that_never_answers(tmp_path):
     master, slave = os.openpty()

@@ -16,6 +16,8 @@ from conftest import PROTOCOLS
 from neatskin.rig.protocol import load_protocol
 from neatskin.rig.runner import resume_campaign, run_campaign
 
+pytestmark = pytest.mark.slow  # the fast lane, pytest -m 'not slow', leaves it out
+
 WALL_CLOCK = ["started_at", "finished_at"]
 
 

@@ -157,6 +157,7 @@ def test_real_run_never_builds_a_simulator(tmp_path):
     assert "neatskin: error:" in out.stderr and "nidaqmx" in out.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_ctrl_c_stops_after_the_press_in_flight_and_resumes(tmp_path):
     path = make_protocol(tmp_path, *FEATURES, ("repeats = 2", "repeats = 40"))

@@ -15,6 +15,8 @@ import pytest
 from neatskin.cli import main
 from neatskin.monitor.console import ConsoleSession
 
+pytestmark = pytest.mark.slow  # the fast lane, pytest -m 'not slow', leaves it out
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

@@ -8,11 +8,14 @@ import time
 
 import numpy as np
 import pandas as pd
+import pytest
 from conftest import PROTOCOLS
 
 from neatskin.datasets.reader import read_presses, read_waveforms
 from neatskin.datasets.writer import CampaignWriter
 from neatskin.skin.synthetic import synthetic_rows
+
+pytestmark = pytest.mark.slow  # the fast lane, pytest -m 'not slow', leaves it out
 
 N_POSITIONS, REPEATS = 40, 4  # 160 presses
 META = {"seed": 11, "protocol": {"name": "kill"}}
@@ -22,6 +25,7 @@ import sys, numpy as np
 from neatskin.layout import load_layout
 from neatskin.datasets.writer import CampaignWriter
 from neatskin.skin.synthetic import synthetic_rows
+
 layout = load_layout(sys.argv[2])
 rows = synthetic_rows(layout, %d, %d, seed=11)
 writer = CampaignWriter(sys.argv[1], layout.pairs, {"seed": 11, "protocol": {"name": "kill"}}, fsync=True)

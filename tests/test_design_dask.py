@@ -13,6 +13,8 @@ from neatskin.design.runner import run_study
 from neatskin.design.study import study_from_dict
 from neatskin.errors import ConfigError
 
+pytestmark = pytest.mark.slow  # the fast lane, pytest -m 'not slow', leaves it out
+
 distributed = pytest.importorskip("distributed")
 
 STUDY = {

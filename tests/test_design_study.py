@@ -163,6 +163,7 @@ def test_rerun_skips_what_is_done_and_refuses_another_study(tmp_path):
     assert info.value.field == "press_grid"
 
 
+@pytest.mark.slow
 def test_resume_after_sigkill_of_the_cli_gives_the_same_results_without_duplicates(tmp_path):
     text = SMALL.replace("press_grid = 8", "press_grid = 14").replace("restarts = 1", "restarts = 6")
     text = text.replace("sizes = [[3, 3], [4, 3]]", "sizes = [[3, 3], [4, 3], [4, 4]]")

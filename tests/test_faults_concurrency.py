@@ -19,6 +19,8 @@ from neatskin.datasets.reader import read_metadata, read_presses
 from neatskin.errors import DataError
 from neatskin.rig.runner import resume_campaign
 
+pytestmark = pytest.mark.slow  # the fast lane, pytest -m 'not slow', leaves it out
+
 
 @pytest.fixture(scope="module")
 def long_protocol(tmp_path_factory):

@@ -16,6 +16,8 @@ from neatskin.datasets.curate import describe
 from neatskin.errors import DataError
 from neatskin.rig.runner import resume_campaign
 
+pytestmark = pytest.mark.slow  # the fast lane, pytest -m 'not slow', leaves it out
+
 
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory):

@@ -13,6 +13,8 @@ from neatskin.datasets.curate import describe
 from neatskin.datasets.validate import validate_dataset
 from neatskin.rig.runner import resume_campaign
 
+pytestmark = pytest.mark.slow  # the fast lane, pytest -m 'not slow', leaves it out
+
 
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory):

@@ -18,6 +18,8 @@ from neatskin.datasets.validate import validate_dataset
 from neatskin.errors import DataError
 from neatskin.rig.cli import default_campaign_folder
 
+pytestmark = pytest.mark.slow  # the fast lane, pytest -m 'not slow', leaves it out
+
 
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory):

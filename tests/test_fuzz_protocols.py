@@ -19,6 +19,8 @@ from neatskin.errors import ConfigError, NeatskinError
 from neatskin.gcode.spec import build_from_protocol
 from neatskin.rig.protocol import load_protocol
 
+pytestmark = pytest.mark.slow  # the fast lane, pytest -m 'not slow', leaves it out
+
 PAPER = tomllib.loads((PROTOCOLS / "paper.toml").read_text())
 for _key in ("layout", "wiring", "printer"):  # absolute, so the mutated copy can live anywhere
     PAPER["files"][_key] = str(PROTOCOLS / PAPER["files"][_key])

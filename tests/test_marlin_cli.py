@@ -11,6 +11,8 @@ import pytest
 
 from neatskin.cli import main
 
+pytestmark = pytest.mark.slow  # the fast lane, pytest -m 'not slow', leaves it out
+
 REPO = Path(__file__).resolve().parent.parent
 
 

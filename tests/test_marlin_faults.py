@@ -22,6 +22,8 @@ from neatskin.marlin.replies import PROBE_TAG
 from neatskin.sim.faults import FaultConfig
 from neatskin.sim.printer import sim_printer_for_tests
 
+pytestmark = pytest.mark.slow  # the fast lane, pytest -m 'not slow', leaves it out
+
 QUICK = DriverConfig(
     boot_timeout_s=0.1,
     min_timeout_s=0.12,

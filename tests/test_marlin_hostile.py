@@ -11,6 +11,8 @@ from neatskin.marlin import errors as E
 from neatskin.marlin.driver import DriverConfig, MarlinDriver
 from neatskin.sim.scripted import DialectFirmware, FirmwareOnPty
 
+pytestmark = pytest.mark.slow  # the fast lane, pytest -m 'not slow', leaves it out
+
 # motion_time_scale=0: these peers take no time to move, so deadlines need no motion allowance
 QUICK = DriverConfig(
     boot_timeout_s=0.3, min_timeout_s=0.3, poll_s=0.01, probe_attempts=2, connect_attempts=6, motion_time_scale=0.0

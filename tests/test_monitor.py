@@ -252,6 +252,7 @@ def test_wire_tail_prefers_a_newer_m114_report(tmp_path):
     }
 
 
+@pytest.mark.slow
 def test_campaign_run_with_monitor_starts_and_stops_the_page(tmp_path):
     import os
     import socket

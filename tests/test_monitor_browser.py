@@ -21,6 +21,8 @@ from neatskin.datasets.paths import press_parts
 from neatskin.datasets.reader import read_presses
 from neatskin.tomlfile import resolve_path
 
+pytestmark = pytest.mark.slow  # the fast lane, pytest -m 'not slow', leaves it out
+
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
 SMOKE = resolve_path("protocols/smoke.toml")

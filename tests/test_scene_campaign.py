@@ -14,6 +14,8 @@ from neatskin.rig.protocol import load_protocol
 from neatskin.rig.runner import resume_campaign, run_campaign
 from neatskin.sim.scene import PAPER_LIKE, parse_scene
 
+pytestmark = pytest.mark.slow  # the fast lane, pytest -m 'not slow', leaves it out
+
 FEATURES = (("waveforms = true", "waveforms = false"), ('signal = "waveforms"', 'signal = "features"'))
 
 
