@@ -175,7 +175,7 @@ def part_report(dataset: str, seed: int) -> None:
     children0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     with tempfile.TemporaryDirectory() as out, warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        report = run_baselines(dataset, split="both", out=out, random_state=seed, progress=False, echo=False)
+        report = run_baselines(dataset, split="both", out=out, random_state=seed, progress=False)
     children = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (
         time.process_time() - cpu0 + (children.ru_utime - children0.ru_utime) + (children.ru_stime - children0.ru_stime)

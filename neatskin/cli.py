@@ -38,7 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
         except ModuleNotFoundError as exc:
             if exc.name != name:
                 raise
-            continue  # component not built yet
+            continue  # an optional component left out of this installation
         module.register(subparsers)
     return parser
 

@@ -146,9 +146,7 @@ def test_small_data_warnings_reach_the_report_and_the_terminal(tmp_path):
     df = table(6, 4)  # 24 presses, as in the issue
     folder = write_dataset(tmp_path / "ds", df)
     with pytest.warns(BaselineWarning) as caught:
-        report = run_baselines(
-            folder, split="both", models=["ridge"], n_splits=50, n_repeats=3, progress=False, echo=False
-        )
+        report = run_baselines(folder, split="both", models=["ridge"], n_splits=50, n_repeats=3, progress=False)
     shown = [str(w.message) for w in caught]
     for expected in ("--folds 50 cut to 6", "random split: only 1 test presses", "design split skipped"):
         assert any(expected in w for w in shown), expected
@@ -162,7 +160,7 @@ def test_errors_larger_than_the_skin_are_warned(tmp_path):
     df.loc[df.position_id == 0, ["x_mm", "y_mm"]] = 400.0  # one position far off the 30 mm skin
     folder = write_dataset(tmp_path / "ds", df, layout=True)
     with pytest.warns(BaselineWarning, match="larger than the skin"):
-        report = run_baselines(folder, models=["ridge"], n_repeats=5, progress=False, echo=False)
+        report = run_baselines(folder, models=["ridge"], n_repeats=5, progress=False)
     assert any("larger than the skin (30 mm)" in w for w in report.warnings)
 
 
@@ -175,7 +173,7 @@ def test_memorisation_is_flagged_on_a_random_split_of_a_noiseless_skin(tmp_path)
     df = table(20, 6, noise_ohm=0.0)
     folder = write_dataset(tmp_path / "ds", df, crb_mm=0.05)
     with pytest.warns(BaselineWarning, match="memorises"):
-        report = run_baselines(folder, split="random", models=["knn", "ridge"], n_repeats=4, progress=False, echo=False)
+        report = run_baselines(folder, split="random", models=["knn", "ridge"], n_repeats=4, progress=False)
     t = report.table.set_index(["model", "split"])
     assert t.loc[("knn", "random"), "below_bound"]
     assert t.loc[("knn", "random"), "mean_error_mm"] < 1e-9
@@ -219,7 +217,7 @@ def test_inversion_stands_beside_the_learned_models_in_the_report(tmp_path):
     for p, pair in enumerate(layout.pairs):
         df[f"dR_ohm_{pair.i}_{pair.j}"] = dr[:, p]
     folder = write_dataset(tmp_path / "ds", df, layout=True)
-    report = run_baselines(folder, models=["ridge", "inversion"], n_repeats=5, progress=False, echo=False)
+    report = run_baselines(folder, models=["ridge", "inversion"], n_repeats=5, progress=False)
     t = report.table.set_index("model")
     assert list(t.index) == ["ridge", "inversion"]
     assert t.loc["inversion", "fit_time_s"] == 0 and t.loc["inversion", "predict_time_per_sample_us"] > 0

@@ -55,7 +55,7 @@ def test_nan_in_a_pair_column_is_one_data_error_naming_file_column_and_fix(tmp_p
     df.loc[5, "dR_ohm_2_6"] = np.nan
     folder = write_dataset(tmp_path / "ds", df)
     with pytest.raises(DataError) as info:
-        run_baselines(folder, models=["ridge"], progress=False, echo=False)
+        run_baselines(folder, models=["ridge"], progress=False)
     err = info.value
     assert len(err.problems) == 1
     assert err.field == "dR_ohm_2_6"
@@ -150,9 +150,7 @@ def test_make_models_names_and_unknown_model():
 def test_report_writes_table_files_and_plots(tmp_path):
     folder = write_dataset(tmp_path / "ds", small_table(10, 4), layout=True, crb_mm=0.5)
     with pytest.warns(UserWarning):
-        report = run_baselines(
-            folder, split="both", models=["ridge", "knn", "lm_network"], progress=False, echo=False, n_repeats=3
-        )
+        report = run_baselines(folder, split="both", models=["ridge", "knn", "lm_network"], progress=False, n_repeats=3)
     table = report.table
     assert table[["model", "split"]].values.tolist() == [
         ["ridge", "grouped"],
@@ -189,8 +187,8 @@ def test_report_writes_table_files_and_plots(tmp_path):
 
 def test_report_is_deterministic_for_a_seed(tmp_path):
     folder = write_dataset(tmp_path / "ds", small_table(8, 3))
-    a = run_baselines(folder, models=["lm_network", "extra_trees"], out=tmp_path / "a", progress=False, echo=False)
-    b = run_baselines(folder, models=["lm_network", "extra_trees"], out=tmp_path / "b", progress=False, echo=False)
+    a = run_baselines(folder, models=["lm_network", "extra_trees"], out=tmp_path / "a", progress=False)
+    b = run_baselines(folder, models=["lm_network", "extra_trees"], out=tmp_path / "b", progress=False)
     cols = ["mean_error_mm", "mse_mm2", "within_probe_pct"]
     pd.testing.assert_frame_equal(a.table[cols], b.table[cols])
 
@@ -253,5 +251,5 @@ def test_on_a_dry_run_dataset_the_grouped_folds_keep_positions_apart(smoke_dry_r
     assert data.X.shape == (12, 28) and data.layout is not None and data.physical_limit is not None
     for train, test in grouped_folds(data.groups):
         assert not set(data.groups[train]) & set(data.groups[test])
-    report = run_baselines(smoke_dry_run, models=["ridge", "lm_network"], progress=False, echo=False)
+    report = run_baselines(smoke_dry_run, models=["ridge", "lm_network"], progress=False)
     assert report.bound_rms_mm is not None and np.isfinite(report.table["mean_error_mm"]).all()

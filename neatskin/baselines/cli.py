@@ -90,11 +90,11 @@ def _check_output(args: argparse.Namespace) -> None:
 
 
 def handler(args: argparse.Namespace) -> int:
-    from neatskin.baselines.report import run_baselines
+    from neatskin.baselines.report import report_summary, run_baselines
 
     _check_output(args)
     models = [m.strip() for m in args.models.split(",") if m.strip()] if args.models else None
-    run_baselines(
+    report = run_baselines(
         args.dataset,
         split=args.split,
         models=models,
@@ -107,4 +107,5 @@ def handler(args: argparse.Namespace) -> int:
         n_jobs=args.jobs,
         lm_restarts=args.lm_restarts,
     )
+    print(report_summary(report))
     return 0

@@ -173,7 +173,6 @@ def run_baselines(
     random_state: int | None = 0,
     n_splits: int = 5,
     progress: bool = True,
-    echo: bool = True,
     n_repeats: int = DEFAULT_REPEATS,
     n_jobs: int | None = None,
     backend: str | None = None,
@@ -281,9 +280,13 @@ def run_baselines(
         lm_restarts=lm_restarts,
     )
     files["report"].write_text(text, encoding="utf-8")
-    if echo:
-        print(format_table(table))
-        if bound is not None:
-            print(f"Cramér-Rao bound (RMS over positions): {bound:.3g} mm")
-        print(f"wrote {files['report']} ({elapsed:.1f} s)")
     return Report(tuple(results), table, bound, text, files, tuple(notes), elapsed)
+
+
+def report_summary(report: Report) -> str:
+    """What the terminal shows after a report: the table, the bound and where the report is (the CLIs print it)."""
+    lines = [format_table(report.table)]
+    if report.bound_rms_mm is not None:
+        lines.append(f"Cramér-Rao bound (RMS over positions): {report.bound_rms_mm:.3g} mm")
+    lines.append(f"wrote {report.files['report']} ({report.time_s:.1f} s)")
+    return "\n".join(lines)

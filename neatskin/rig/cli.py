@@ -108,6 +108,8 @@ def _run(args: argparse.Namespace) -> int:
         if monitor is not None:
             monitor.terminate()
             monitor.wait(10)
+    if result.report_summary:
+        print(result.report_summary)
     print(_summary(result))
     if monitor is not None:
         print(f"the live page stopped with the campaign; to look again: neatskin monitor {out}")
@@ -157,6 +159,8 @@ def _resume(args: argparse.Namespace) -> int:
     if args.port:
         kwargs.update(dry_run=False, port=args.port)
     result = resume_campaign(args.folder, **kwargs)
+    if result.report_summary:
+        print(result.report_summary)
     print(_summary(result))
     return 130 if result.interrupted else 0
 

@@ -8,6 +8,7 @@ the probe and leaves a campaign that `resume` finishes with no press lost or dup
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import shutil
@@ -66,6 +67,7 @@ class CampaignResult:
     interrupted: bool
     wall_s: float
     printer_time_s: float
+    report_summary: str | None = None  # the baseline report's table, for the CLI to show
 
 
 def build_plan(protocol: Protocol) -> Plan:
@@ -142,24 +144,25 @@ def run_campaign(
             connect_timeout_s=connect_timeout_s,
         )
         if report and status == "complete":
-            _make_report(folder, progress)
+            result = dataclasses.replace(result, report_summary=_make_report(folder, progress))
     finally:
         lock.release()
     return result
 
 
-def _make_report(folder: Path, progress: bool) -> None:
-    from neatskin.baselines.report import run_baselines
+def _make_report(folder: Path, progress: bool) -> str:
+    from neatskin.baselines.report import report_summary, run_baselines
     from neatskin.datasets.manifest import update_manifest, utc_now_iso
 
     try:
-        run_baselines(folder, split="both", progress=progress)
+        made = run_baselines(folder, split="both", progress=progress)
     except KeyboardInterrupt:
         raise KeyboardInterrupt(
             f"the campaign's data is complete in {folder}; only its baseline report was "
             f"stopped: make it with neatskin campaign finish {folder}"
         ) from None
     update_manifest(folder, report={"path": "report.md", "written_at": utc_now_iso()})
+    return report_summary(made)
 
 
 def _run_locked(
@@ -536,8 +539,7 @@ def finish_campaign(folder: str | Path, *, report: bool = True, progress: bool =
                 finally:
                     if rig is not None:
                         rig.close()
-        if report and not (folder / "report.md").is_file():
-            _make_report(folder, progress)
+        summary = _make_report(folder, progress) if report and not (folder / "report.md").is_file() else None
     return CampaignResult(
-        folder, plan.n_presses, plan.n_presses, 0, 0, False, time.perf_counter() - wall0, plan.printer_time_s
+        folder, plan.n_presses, plan.n_presses, 0, 0, False, time.perf_counter() - wall0, plan.printer_time_s, summary
     )

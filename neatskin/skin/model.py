@@ -1,5 +1,5 @@
 """SkinModel: the simulated skin the rest of the rig uses — press in, channel and pair resistances,
-probe force and position Jacobian out — plus the optional skin-side rig effects (SPEC level 3).
+probe force and position Jacobian out — plus the optional skin-side rig effects (docs/skin.md, the scene's variability sources).
 
 Fidelities:
 - "deformation": each channel's resistance is the integral of rho / A(s) along it under the
