@@ -176,7 +176,7 @@ def plot_bound_map(limit, path: Path, layout=None) -> Path:
     plt = _pyplot()
     columns = [("crb_mm", "electronics only")]
     if "crb_nuisance_mm" in limit.columns:
-        columns.append(("crb_nuisance_mm", "depth, drift and placement as nuisances"))
+        columns.append(("crb_nuisance_mm", "depth, drift, placement as nuisances"))
     x, y = limit["x_mm"].to_numpy(float), limit["y_mm"].to_numpy(float)
     values = np.concatenate([limit[c].to_numpy(float) for c, _ in columns])
     finite = values[np.isfinite(values) & (values > 0)]
@@ -198,7 +198,7 @@ def plot_bound_map(limit, path: Path, layout=None) -> Path:
             ax.legend(loc="upper right", fontsize=8)
         rms = float(np.sqrt(np.mean(bound * bound)))
         ax.set_title(
-            f"{label}\nmedian {np.median(bound):.3g} mm, RMS {rms:.3g} mm over {len(bound)} positions", fontsize=9
+            f"{label}\nmedian {np.median(bound):.3g} mm, RMS {rms:.3g} mm ({len(bound)} positions)", fontsize=9
         )
         ax.set_aspect("equal")
         ax.set_xlabel("x (mm)")
