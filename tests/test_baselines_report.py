@@ -211,6 +211,8 @@ def test_the_report_shows_both_bounds_and_flags_memorisation_by_the_electronics_
     assert "| electronics only (`crb_mm`): depth, fluid drift and landing point known | 0.5 |" in text
     assert "as nuisances (`crb_nuisance_mm`; priors in the file's metadata) | 3 |" in text
     assert "cannot beat it on average for presses at new positions" in text
+    ratio = table["rms_over_crb_nuisance"].min()
+    assert f"at {ratio:.3g} times the bound with nuisances" in text
     summary = report_summary(report)
     assert "electronics only: 0.5 mm" in summary and "nuisances: 3 mm" in summary
     assert "RMS/CRB " in summary and "RMS/CRBn" in summary

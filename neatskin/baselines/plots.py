@@ -218,4 +218,4 @@ def _median_spacing_mm(x: np.ndarray, y: np.ndarray) -> float:
 
     xy = np.column_stack([x, y])
     distance, _ = cKDTree(xy).query(xy, k=2)  # the first neighbour is the position itself
-    return float(np.median(distance[:, 1])) or 1.0
+    return float(np.median(np.asarray(distance)[:, 1])) or 1.0

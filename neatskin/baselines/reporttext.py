@@ -139,11 +139,11 @@ def _bound_text(bound: float, nuisance_bound: float | None, table: pd.DataFrame)
             "error over this bound.",
         ]
         if "rms_over_crb_nuisance" in table.columns:
-            closest = table.loc[table["rms_over_crb_nuisance"].idxmin()]
+            k = int(np.argmin(table["rms_over_crb_nuisance"].to_numpy(float)))
+            model, split, ratio = table["model"].iloc[k], table["split"].iloc[k], table["rms_over_crb_nuisance"].iloc[k]
             lines += [
                 "",
-                f"Closest to it: `{closest['model']}` ({closest['split']}) at {closest['rms_over_crb_nuisance']:.3g} "
-                "times the bound with nuisances.",
+                f"Closest to it: `{model}` ({split}) at {ratio:.3g} times the bound with nuisances.",
             ]
     return [*lines, ""]
 
