@@ -12,7 +12,7 @@ import pytest
 from neatskin.baselines.dataset import load_baseline_data
 from neatskin.baselines.evaluate import evaluate_model
 from neatskin.baselines.models import MODEL_NAMES, make_model, make_models
-from neatskin.baselines.report import run_baselines
+from neatskin.baselines.report import report_summary, run_baselines
 from neatskin.cli import main
 from neatskin.errors import DataError
 from neatskin.layout import load_layout
@@ -21,7 +21,13 @@ from neatskin.skin.synthetic import synthetic_presses
 REPO = Path(__file__).resolve().parent.parent
 
 
-def write_dataset(folder: Path, df: pd.DataFrame, layout: bool = False, crb_mm: float | None = None) -> Path:
+def write_dataset(
+    folder: Path,
+    df: pd.DataFrame,
+    layout: bool = False,
+    crb_mm: float | None = None,
+    crb_nuisance_mm: float | None = None,
+) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     df.to_parquet(folder / "presses.parquet", index=False)
     if layout:
@@ -30,14 +36,17 @@ def write_dataset(folder: Path, df: pd.DataFrame, layout: bool = False, crb_mm: 
         )
     if crb_mm is not None:
         pos = df.drop_duplicates("position_id")
-        pd.DataFrame(
+        limit = pd.DataFrame(
             {
                 "position_id": pos["position_id"],
                 "x_mm": pos["x_mm"],
                 "y_mm": pos["y_mm"],
                 "crb_mm": np.full(len(pos), crb_mm),
             }
-        ).to_parquet(folder / "physical_limit.parquet")
+        )
+        if crb_nuisance_mm is not None:
+            limit["crb_nuisance_mm"] = crb_nuisance_mm
+        limit.to_parquet(folder / "physical_limit.parquet")
     return folder
 
 
@@ -169,6 +178,7 @@ def test_report_writes_table_files_and_plots(tmp_path):
     assert (table["mean_error_mm"] <= table["mean_error_mm_hi"]).all()
     assert (table["within_probe_pct_lo"] >= 0).all() and (table["within_probe_pct_hi"] <= 100).all()
     assert report.bound_rms_mm == pytest.approx(0.5)
+    assert report.bound_nuisance_rms_mm is None and "rms_over_crb_nuisance" not in table.columns  # an older file
     assert (table["fit_time_s"] > 0).all() and (table["predict_time_per_sample_us"] > 0).all()
     back = pq.read_table(folder / "baselines.parquet").to_pandas()
     pd.testing.assert_frame_equal(back, table)
@@ -183,6 +193,32 @@ def test_report_writes_table_files_and_plots(tmp_path):
     assert any("design split skipped" in w for w in report.warnings)
     assert any("only 1 test presses per repeat" in w for w in report.warnings)
     assert text.index("## Warnings") < text.index("## The paper beside")
+
+
+def test_the_report_shows_both_bounds_and_flags_memorisation_by_the_electronics_one(tmp_path):
+    folder = write_dataset(tmp_path / "ds", small_table(10, 4), layout=True, crb_mm=0.5, crb_nuisance_mm=3.0)
+    with pytest.warns(UserWarning):
+        report = run_baselines(folder, split="both", models=["ridge", "knn"], progress=False, n_repeats=2)
+    table = report.table
+    assert report.bound_rms_mm == pytest.approx(0.5) and report.bound_nuisance_rms_mm == pytest.approx(3.0)
+    np.testing.assert_allclose(table["rms_over_crb_nuisance"], table["rms_error_mm"] / 3.0)
+    np.testing.assert_allclose(table["crb_nuisance_rms_mm"], 3.0)
+    # the flag keeps the electronics-only bound: a result between the two bounds is not memorisation
+    expected = (table["rms_error_mm"] < 0.5) | (table["median_error_mm"] < 0.25)
+    assert table["below_bound"].tolist() == expected.tolist()
+    text = (folder / "report.md").read_text()
+    assert "## Physical limit (`physical_limit.parquet`)" in text
+    assert "| electronics only (`crb_mm`): depth, fluid drift and landing point known | 0.5 |" in text
+    assert "as nuisances (`crb_nuisance_mm`; priors in the file's metadata) | 3 |" in text
+    assert "cannot beat it on average for presses at new positions" in text
+    ratio = table["rms_over_crb_nuisance"].min()
+    assert f"at {ratio:.3g} times the bound with nuisances" in text
+    summary = report_summary(report)
+    assert "electronics only: 0.5 mm" in summary and "nuisances: 3 mm" in summary
+    assert "RMS/CRB " in summary and "RMS/CRBn" in summary
+    assert report.files["bound map"] == folder / "baselines_bound_map.png"
+    assert (folder / "baselines_bound_map.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "`baselines_bound_map.png`" in text
 
 
 def test_report_is_deterministic_for_a_seed(tmp_path):
@@ -253,3 +289,6 @@ def test_on_a_dry_run_dataset_the_grouped_folds_keep_positions_apart(smoke_dry_r
         assert not set(data.groups[train]) & set(data.groups[test])
     report = run_baselines(smoke_dry_run, models=["ridge", "lm_network"], progress=False)
     assert report.bound_rms_mm is not None and np.isfinite(report.table["mean_error_mm"]).all()
+    # the smoke protocol's ideal scene has no nuisance: both bounds are the same
+    assert report.bound_nuisance_rms_mm == report.bound_rms_mm
+    assert (smoke_dry_run / "baselines_bound_map.png").is_file()

@@ -29,7 +29,7 @@ class BaselineData:
     pair_columns: tuple[str, ...]
     n_flagged_dropped: int
     layout: object | None  # neatskin.layout.Layout when the manifest names one
-    physical_limit: pd.DataFrame | None  # position_id, x_mm, y_mm, crb_mm
+    physical_limit: pd.DataFrame | None  # position_id, x_mm, y_mm, crb_mm[, crb_nuisance_mm]
     skin_fidelity: str | None = None  # the simulated skin's fidelity (dry runs), from the manifest
     probe_radius_mm: float | None = None  # from the manifest's rig description, when it gives one
 

@@ -1,4 +1,5 @@
-"""Report figures: error against compute time per split (log axes), and per-position error ellipses as paper Fig. 9."""
+"""Report figures: error against compute time per split (log axes), per-position error ellipses as paper Fig. 9, and
+the physical limit's bound map."""
 
 from __future__ import annotations
 
@@ -163,3 +164,58 @@ def plot_error_ellipses(
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def plot_bound_map(limit, path: Path, layout=None) -> Path:
+    """The physical limit over the skin: per pressed position, the electronics-only Cramér-Rao bound and, when
+    the dataset has it, the bound with depth, drift and placement as nuisances; one log colour scale for both.
+
+    Positions are drawn as squares at their (x, y); an unobservable position (+inf) is a red cross."""
+    from matplotlib.colors import LogNorm
+
+    plt = _pyplot()
+    columns = [("crb_mm", "electronics only")]
+    if "crb_nuisance_mm" in limit.columns:
+        columns.append(("crb_nuisance_mm", "depth, drift, placement as nuisances"))
+    x, y = limit["x_mm"].to_numpy(float), limit["y_mm"].to_numpy(float)
+    values = np.concatenate([limit[c].to_numpy(float) for c, _ in columns])
+    finite = values[np.isfinite(values) & (values > 0)]
+    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (1e-3, 1.0)
+    if hi <= lo * 1.01:  # one value: a decade around it, so the scale still reads
+        lo, hi = lo / np.sqrt(10.0), hi * np.sqrt(10.0)
+    norm = LogNorm(vmin=lo, vmax=hi)
+    spacing = _median_spacing_mm(x, y)
+    fig, axes = plt.subplots(1, len(columns), figsize=(5.0 * len(columns) + 1.0, 4.8), squeeze=False)
+    image = None
+    for ax, (column, label) in zip(axes[0], columns):
+        bound = limit[column].to_numpy(float)
+        ok = np.isfinite(bound) & (bound > 0)
+        _draw_layout(ax, layout)
+        size = max(8.0, min(400.0, (spacing * 72.0 / 25.4 * 1.6) ** 2))  # about one grid step wide
+        image = ax.scatter(x[ok], y[ok], c=bound[ok], norm=norm, cmap="viridis", marker="s", s=size)
+        if (~ok).any():
+            ax.plot(x[~ok], y[~ok], "x", color="tab:red", ms=7, label="unobservable (+inf)")
+            ax.legend(loc="upper right", fontsize=8)
+        rms = float(np.sqrt(np.mean(bound * bound)))
+        ax.set_title(
+            f"{label}\nmedian {np.median(bound):.3g} mm, RMS {rms:.3g} mm ({len(bound)} positions)", fontsize=9
+        )
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("y (mm)")
+    fig.colorbar(image, ax=axes[0].tolist(), label="Cramér-Rao bound on the RMS position error (mm, log)")
+    fig.suptitle("Physical limit per pressed position (physical_limit.parquet)", fontsize=10)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _median_spacing_mm(x: np.ndarray, y: np.ndarray) -> float:
+    """Median distance from a position to its nearest neighbour (1 mm for a single position)."""
+    if len(x) < 2:
+        return 1.0
+    from scipy.spatial import cKDTree
+
+    xy = np.column_stack([x, y])
+    distance, _ = cKDTree(xy).query(xy, k=2)  # the first neighbour is the position itself
+    return float(np.median(np.asarray(distance)[:, 1])) or 1.0

@@ -1,8 +1,17 @@
 """The physical limit of a dry run: per position, the Cramér-Rao bound on the position error that the
-simulated skin and its noise allow (physical_limit.parquet, beside the presses)."""
+simulated skin and its noise allow (physical_limit.parquet, beside the presses).
+
+Two bounds per position, both from `neatskin.skin.bound` with the same per-pair noise std:
+`crb_mm` with the electronics noise only (depth, drift and landing point known), and
+`crb_nuisance_mm` with the scene's press depth jitter, fluid drift and placement error as nuisance
+parameters (their priors, and what was assumed to get them, are in the parquet's schema metadata
+under `neatskin.physical_limit`). With no nuisance in the scene the two are equal.
+"""
 
 from __future__ import annotations
 
+import json
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -10,27 +19,108 @@ import numpy as np
 from neatskin.rig.folder import PHYSICAL_LIMIT
 from neatskin.rig.protocol import Protocol
 
+METADATA_KEY = b"neatskin.physical_limit"
+RESISTIVITY_TEMPCO_PER_K = -0.02  # the skin model's default, used when the skin does not say
+
+
+@dataclass(frozen=True)
+class NuisancePriors:
+    """Prior std of each nuisance per press: 0 = known exactly (assumed values are named in `basis`)."""
+
+    depth_std_mm: float
+    drift_std: float  # std of log(rho / rho0) over the campaign's presses
+    placement_std_mm: float  # per axis
+    basis: str = ""
+
+    @classmethod
+    def from_scene(cls, scene, campaign_s: float, tempco_per_k: float = RESISTIVITY_TEMPCO_PER_K) -> NuisancePriors:
+        """The scene's depth jitter and placement error as they are; the drift as the std of log rho over a
+        campaign of `campaign_s` seconds, the drift being a ramp sampled uniformly by the presses
+        (ptp / sqrt(12))."""
+        from neatskin.skin.variability import drift_resistivity_factor
+
+        temperature = float(getattr(scene, "temperature_drift_k_per_h", 0.0))
+        evaporation = float(getattr(scene, "evaporation_fraction_per_h", 0.0))
+        t = np.linspace(0.0, max(campaign_s, 0.0), 65)
+        log_rho = np.log(drift_resistivity_factor(t, temperature, evaporation, tempco_per_k))
+        drift = float(np.ptp(log_rho) / np.sqrt(12.0))
+        basis = (
+            f"depth_std_mm = scene depth_jitter_mm; placement_std_mm = scene placement_error_mm (per axis, "
+            f"the labels hold the commanded position); drift_std = ptp(log rho) / sqrt(12) over the campaign's "
+            f"{campaign_s:.0f} s (assumed: a ramp sampled uniformly by the presses; temperature "
+            f"{temperature:g} K/h at {tempco_per_k:g} /K, evaporation {evaporation:g} /h); the press's own "
+            "noise std per pair as for crb_mm; fabrication spread, displaced fluid and relaxation are "
+            "not nuisances here (assumed known to the estimator)"
+        )
+        return cls(
+            depth_std_mm=float(getattr(scene, "depth_jitter_mm", 0.0)),
+            drift_std=drift,
+            placement_std_mm=float(getattr(scene, "placement_error_mm", 0.0)),
+            basis=basis,
+        )
+
+    def as_kwargs(self) -> dict[str, float]:
+        """The keyword arguments of `neatskin.skin.bound.position_bound_mm`."""
+        return {k: v for k, v in asdict(self).items() if k != "basis"}
+
+
+def physical_limit_frame(ids, x_mm, y_mm, jacobian: np.ndarray, noise_std_ohm: np.ndarray, priors: NuisancePriors):
+    """position_id, x_mm, y_mm, crb_mm (electronics only) and crb_nuisance_mm, one row per position, from a
+    (positions, pairs, 4) `feature_jacobian` and the (positions, pairs) noise std, in one batch."""
+    import pandas as pd
+
+    from neatskin.skin.bound import position_bound_mm
+
+    return pd.DataFrame(
+        {
+            "position_id": np.asarray(ids).astype(np.int32),
+            "x_mm": np.asarray(x_mm, float),
+            "y_mm": np.asarray(y_mm, float),
+            "crb_mm": position_bound_mm(jacobian, noise_std_ohm),
+            "crb_nuisance_mm": position_bound_mm(jacobian, noise_std_ohm, **priors.as_kwargs()),
+        }
+    )
+
 
 def write_physical_limit(folder: Path, protocol: Protocol, plan, rig) -> Path:
-    """Per position, the Cramér-Rao bound on the position error that the simulated skin and noise allow."""
-    import pandas as pd
+    """Per position, the Cramér-Rao bounds on the position error that the simulated skin, its noise and
+    the scene's nuisances allow."""
     import pyarrow as pa
 
-    from neatskin.baselines.crb import cramer_rao_bound_mm
     from neatskin.datasets.writer import write_table_durably
+    from neatskin.skin.bound import feature_jacobian
 
     blocks = {b.position_id: b for b in plan.program.presses}
     ids = np.array(sorted(blocks))
     x = np.array([blocks[i].x_mm for i in ids])
     y = np.array([blocks[i].y_mm for i in ids])
     depth = np.full(ids.shape, protocol.press.press.depth_mm)
-    jac = rig.skin.jacobian_mm(x, y, depth)  # (positions, pairs, 2) ohm / mm
+    jac = feature_jacobian(rig.skin, x, y, depth)  # (positions, pairs, 4)
     std = _dr_noise_std_ohm(protocol, plan, rig, x, y, depth)
-    crb = np.array([cramer_rao_bound_mm(jac[k : k + 1], noise_std=std[k])[0] for k in range(len(ids))])
-    table = pa.Table.from_pandas(
-        pd.DataFrame({"position_id": ids.astype(np.int32), "x_mm": x, "y_mm": y, "crb_mm": crb}), preserve_index=False
+    priors = NuisancePriors.from_scene(
+        protocol.scene,
+        _campaign_s(protocol, plan),
+        float(getattr(rig.skin, "resistivity_tempco_per_k", RESISTIVITY_TEMPCO_PER_K)),
     )
+    frame = physical_limit_frame(ids, x, y, jac, std, priors)
+    table = pa.Table.from_pandas(frame, preserve_index=False)
+    meta = {
+        "crb_mm": "electronics noise only: depth, drift and landing point known",
+        "crb_nuisance_mm": "depth, drift and placement as nuisance parameters with the priors below",
+        "priors": priors.as_kwargs(),
+        "basis": priors.basis,
+        "depth_mm": float(protocol.press.press.depth_mm),
+    }
+    table = table.replace_schema_metadata({**(table.schema.metadata or {}), METADATA_KEY: json.dumps(meta).encode()})
     return write_table_durably(folder / PHYSICAL_LIMIT, table)
+
+
+def _campaign_s(protocol, plan) -> float:
+    """The campaign's duration for the drift: presses x the scene's press interval, else the G-code's time."""
+    interval_s = float(getattr(protocol.scene, "press_interval_s", 0.0))
+    if interval_s:
+        return interval_s * plan.n_presses
+    return float(plan.printer_time_s)
 
 
 def _dr_noise_std_ohm(protocol, plan, rig, x, y, depth) -> np.ndarray:
@@ -42,6 +132,8 @@ def _dr_noise_std_ohm(protocol, plan, rig, x, y, depth) -> np.ndarray:
     pressed = rig.skin.pair_resistance_ohm(x, y, depth)
     states = np.vstack([np.asarray(rig.skin.baseline_pair_resistance_ohm)[None], pressed])  # (1 + positions, pairs)
     var = np.empty_like(states)
+    # one DAQ per state: each state keeps its own random stream (seed, 10**6, k), so the std does not
+    # depend on how many positions the campaign has
     for k, state in enumerate(states):
 
         def constant(t: np.ndarray, s: np.ndarray = state) -> np.ndarray:

@@ -1,0 +1,87 @@
+"""physical_limit.parquet: the electronics-only bound and the bound with the scene's nuisances (depth, drift,
+placement), on a smoke dry run and on the paper skin with the paper-like scene's priors."""
+
+import json
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from conftest import PROTOCOLS
+
+from neatskin.baselines.crb import cramer_rao_bound_mm
+from neatskin.rig.physlimit import METADATA_KEY, NuisancePriors, physical_limit_frame
+from neatskin.rig.protocol import load_protocol
+from neatskin.rig.runner import run_campaign
+from neatskin.sim.scene import PAPER_LIKE, Scene
+from neatskin.skin.bound import feature_jacobian
+from neatskin.skin.model import SkinModel
+
+
+@pytest.fixture(scope="module")
+def smoke_limit(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("limit") / "campaign"
+    protocol = load_protocol(PROTOCOLS / "smoke.toml")
+    run_campaign(protocol, folder, dry_run=True, progress=False, report=False)
+    return protocol, pq.read_table(folder / "physical_limit.parquet")
+
+
+def test_the_smoke_run_writes_both_bounds_with_what_was_assumed(smoke_limit):
+    protocol, table = smoke_limit
+    assert table.column_names == ["position_id", "x_mm", "y_mm", "crb_mm", "crb_nuisance_mm"]
+    limit = table.to_pandas()
+    assert sorted(limit.position_id) == list(range(6))
+    assert np.isfinite(limit.crb_mm).all() and (limit.crb_mm > 0).all()
+    meta = json.loads(table.schema.metadata[METADATA_KEY])
+    assert meta["priors"] == {"depth_std_mm": 0.0, "drift_std": 0.0, "placement_std_mm": 0.0}
+    assert "assumed" in meta["basis"] and meta["depth_mm"] == protocol.press.press.depth_mm
+
+
+def test_the_ideal_scene_has_no_nuisance_so_the_bounds_are_equal(smoke_limit):
+    protocol, table = smoke_limit
+    assert protocol.scene.preset == "ideal"
+    limit = table.to_pandas()
+    np.testing.assert_array_equal(limit.crb_nuisance_mm.to_numpy(), limit.crb_mm.to_numpy())
+
+
+def test_the_electronics_bound_is_the_baselines_bound(paper_layout):
+    """The batched bound equals neatskin.baselines.crb per position (the writer's former per-position loop)."""
+    skin = SkinModel(paper_layout)
+    x, y = np.array([5.0, 15.0, 22.5]), np.array([5.0, 15.0, 7.5])
+    jac = feature_jacobian(skin, x, y, np.full(3, 3.5))
+    std = np.random.default_rng(1).uniform(0.05, 0.2, (3, jac.shape[1]))
+    frame = physical_limit_frame([0, 1, 2], x, y, jac, std, NuisancePriors(0.0, 0.0, 0.0))
+    expected = [cramer_rao_bound_mm(jac[k : k + 1, :, :2], noise_std=std[k])[0] for k in range(3)]
+    np.testing.assert_allclose(frame.crb_mm.to_numpy(), expected, rtol=1e-9)
+
+
+def test_paper_like_nuisances_never_lower_the_bound(paper_layout):
+    skin = SkinModel(paper_layout)
+    gx, gy = np.meshgrid(np.arange(1.0, 30.0, 2.0), np.arange(1.0, 30.0, 2.0))
+    x, y = gx.ravel(), gy.ravel()
+    jac = feature_jacobian(skin, x, y, np.full(x.size, 3.5))
+    std = np.full(jac.shape[:2], 0.1 * np.sqrt(2.0))
+    scene = Scene(fidelity="deformation", signal="features", noise=True, **PAPER_LIKE)
+    priors = NuisancePriors.from_scene(scene, 6.05 * 3600.0)
+    assert priors.depth_std_mm == 0.2 and priors.placement_std_mm == 1.35
+    frame = physical_limit_frame(np.arange(x.size), x, y, jac, std, priors)
+    electronics, nuisance = frame.crb_mm.to_numpy(), frame.crb_nuisance_mm.to_numpy()
+    assert np.all(nuisance >= electronics)
+    assert np.all(nuisance >= np.sqrt(2.0) * 1.35)  # the landing point's own spread, whatever the pairs see
+    depth_drift = physical_limit_frame(
+        np.arange(x.size), x, y, jac, std, NuisancePriors(priors.depth_std_mm, priors.drift_std, 0.0)
+    ).crb_nuisance_mm.to_numpy()
+    assert np.all(depth_drift >= electronics * (1 - 1e-12)) and np.any(depth_drift > 2 * electronics)
+
+
+def test_the_drift_prior_is_the_ramps_spread_in_log_rho():
+    scene = Scene(
+        fidelity="deformation",
+        signal="features",
+        noise=True,
+        placement_error_mm=0.0,
+        temperature_drift_k_per_h=0.5,
+        evaporation_fraction_per_h=0.0,
+    )
+    priors = NuisancePriors.from_scene(scene, 2 * 3600.0, tempco_per_k=-0.02)
+    assert priors.drift_std == pytest.approx(-np.log(1 - 0.02 * 0.5 * 2) / np.sqrt(12), rel=1e-12)
+    assert NuisancePriors.from_scene(scene, 0.0).drift_std == 0.0
