@@ -8,6 +8,7 @@ A test compares the committed file with this output, so the reference cannot dri
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import typing
 from typing import Any
 
@@ -95,7 +96,7 @@ def _rows(schema: type, prefix: str, out: list[str], nested: list[tuple[str, typ
 
 
 def render_schema(title: str, schema: type) -> str:
-    lines = [f"## {title}", "", (schema.__doc__ or "").strip(), ""]
+    lines = [f"## {title}", "", inspect.cleandoc(schema.__doc__ or ""), ""]
     top: list[str] = []
     nested: list[tuple[str, type, bool]] = []
     _rows(schema, "", top, nested)
@@ -108,7 +109,7 @@ def render_schema(title: str, schema: type) -> str:
         lines.append(f"### `{kind}`" + (" (required)" if required else " (optional)"))
         lines.append("")
         if table.__doc__ and not table.__doc__.startswith(table.__name__ + "("):
-            lines += [table.__doc__.strip(), ""]
+            lines += [inspect.cleandoc(table.__doc__), ""]
         rows: list[str] = []
         _rows(table, "", rows, [])
         lines += [*header, *rows, ""]
@@ -163,9 +164,11 @@ def render_markdown() -> str:
         parts.append(render_schema(title.capitalize(), schema))
     parts.append(MISTAKES)
     parts.append(
-        "## Scene\n\nThe protocol's `[scene]` (what a dry run simulates) is declared and read by "
-        "`neatskin/sim/scene.py`; see docs/campaigns.md. `campaign check` also refuses a "
-        "`surface_error_mm` beyond the skin's thickness and a `placement_error_mm` beyond 100 mm.\n"
+        "## Scene presets\n\nThe protocol's `[scene]` keys are listed above; the values each preset gives the knobs "
+        "left out of the table live in `neatskin/sim/scene.py` (`PRESETS`; what is fitted and what is assumed: "
+        "docs/skin.md). `campaign check` also refuses a `surface_error_mm` beyond the skin's thickness, a "
+        '`placement_error_mm` beyond 100 mm, `scene.signal = "features"` with `record.waveforms = true`, and '
+        "`hysteresis_fraction > 0` with `relaxation_time_s = 0`.\n"
     )
     return "\n".join(parts)
 

@@ -340,6 +340,15 @@ def parse_partial(schema: type, data: Any, source: str, where: str = "") -> tupl
     return (result or {}), walker.problems
 
 
+def parse_valid(schema: type[T], data: Any, source: str, where: str = "") -> tuple[dict[str, Any], list[Problem]]:
+    """The fields of one table that read cleanly (defaults for the absent ones, bad ones left out), and every problem.
+
+    For a table whose good values still feed cross-field checks (`schema(**good)` when every field has a default)."""
+    walker = _Walker(source)
+    result = walker.table(schema, data, where, valid=True)
+    return (result or {}), walker.problems
+
+
 def parse_tables(schema: type, data: Any, source: str) -> tuple[dict[str, Any], list[Problem]]:
     """Every top-level field of `schema` that reads cleanly (defaults included), and every problem.
 
