@@ -75,7 +75,16 @@ def _default(f: dataclasses.Field) -> str:
         return f'"{value}"'
     if value == ():
         return "none"
+    if isinstance(value, tuple):
+        return _toml(value)
     return f"{value!r}"
+
+
+def _toml(value: Any) -> str:
+    """A default as it is written in the file: [[3, 3]], ["boundary"]."""
+    if isinstance(value, tuple):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    return f'"{value}"' if isinstance(value, str) else repr(value)
 
 
 def _rows(schema: type, prefix: str, out: list[str], nested: list[tuple[str, type, bool]]) -> None:
@@ -103,16 +112,20 @@ def render_schema(title: str, schema: type) -> str:
     header = ["| key | type | unit | default | constraint | meaning |", "|---|---|---|---|---|---|"]
     if top:
         lines += ["Top-level keys:", "", *header, *top, ""]
-    for key, table, is_array in nested:
-        required = [f for f in dataclasses.fields(schema) if toml_key(f) == key and is_required(f)]
+    while nested:  # tables in order, a table's own sub-tables ([[electrodes.explicit]]) right after it
+        key, table, is_array = nested.pop(0)
+        owner = schema if "." not in key else None
+        required = [f for f in dataclasses.fields(owner) if toml_key(f) == key and is_required(f)] if owner else []
         kind = f"[[{key}]]" if is_array else f"[{key}]"
         lines.append(f"### `{kind}`" + (" (required)" if required else " (optional)"))
         lines.append("")
         if table.__doc__ and not table.__doc__.startswith(table.__name__ + "("):
             lines += [inspect.cleandoc(table.__doc__), ""]
         rows: list[str] = []
-        _rows(table, "", rows, [])
+        inner: list[tuple[str, type, bool]] = []
+        _rows(table, "", rows, inner)
         lines += [*header, *rows, ""]
+        nested[:0] = [(f"{key}.{sub}", tp, array) for sub, tp, array in inner]
     return "\n".join(lines)
 
 

@@ -1,6 +1,7 @@
-"""The schema of every TOML file kind (protocol and its scene, layout, wiring, printer profile): keys, units, ranges.
+"""The schema of every TOML file kind (protocol and its scene, layout, wiring, printer profile, study).
 
-This module is the one place where a file's keys and defaults are declared; the loaders
+This module (with `studyfile`, the design study's, kept apart for its length) is the one place where
+a file's keys and defaults are declared; the loaders
 (`rig.protocol`, `layout`, `acquisition.wiring`, `gcode.profile`, `gcode.spec`) parse with these
 schemas and then check what spans several keys; docs/config.md is generated from them
 (`python -m neatskin.config.docs`). The `[scene]` table's keys are declared here; its presets' values
@@ -15,6 +16,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from neatskin.config.schema import setting
+from neatskin.config.studyfile import StudyFile
 from neatskin.errors import Problem
 
 # ---- caps a run can execute (issue 10): anything beyond is refused by `campaign check` ------------
@@ -413,4 +415,5 @@ FILE_KINDS: dict[str, type] = {
     "layout": LayoutFile,
     "wiring": WiringFile,
     "printer profile": PrinterFile,
+    "design study": StudyFile,
 }
