@@ -85,7 +85,7 @@ def test_missing_table_and_choices():
     assert value is None
     assert [(p.field, p.message) for p in problems] == [
         ("inner", "missing [inner] table"),
-        ("items", "'items' needs at least 1 entries, got 0"),
+        ("items", "'items' needs at least 1 entry, got 0"),
     ]
 
 

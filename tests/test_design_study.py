@@ -65,7 +65,44 @@ def test_unknown_key_gets_a_did_you_mean(tmp_path):
 def test_negative_pitch_names_the_entry(tmp_path):
     err = _error(tmp_path, SMALL.replace("pitch_mm = [15.0]", "pitch_mm = [15.0, -2.0]"))
     assert err.field == "layouts.pitch_mm[1]"
-    assert "must be positive" in str(err) and "set pitch_mm > 0" in str(err)
+    assert "'pitch_mm' = -2.0 must be positive" in str(err) and "set pitch_mm to a number in mm (> 0)" in str(err)
+
+
+@pytest.mark.parametrize(
+    "old, new, field, text",
+    [
+        ("sizes = [[3, 3], [4, 3]]", "sizes = [[3, 3], [4, 1]]", "layouts.sizes[1][1]", "'sizes' = 1 is below 2"),
+        ("sizes = [[3, 3], [4, 3]]", "sizes = [3, 3]", "layouts.sizes", "'sizes' is a list of lists, got [3, 3]"),
+        ('"optimised"]', '"optimized"]', "electrodes.strategies[1]", "did you mean 'optimised'?"),
+        ("restarts = 1", "restarts = 1.5", "electrodes.restarts", "'restarts' must be an integer, got 1.5"),
+        ("seed = 5", "seed = 5\nfidelity = 2", "study.fidelity", "'fidelity' must be a non-empty string, got 2"),
+        ("[probes]", "[[probes]]", "probes", "written as an array of tables [[probes]]"),
+    ],
+)
+def test_a_bad_entry_is_one_problem_naming_it(tmp_path, old, new, field, text):
+    err = _error(tmp_path, SMALL.replace(old, new))
+    assert err.field == field and text in str(err)
+
+
+def test_a_sweep_may_be_one_value_and_the_schema_defaults_fill_the_rest(tmp_path):
+    study = load_study(
+        _write(tmp_path, SMALL.replace("pitch_mm = [15.0]", "pitch_mm = 12").replace("counts = [4, 6]", "counts = 4"))
+    )
+    assert study.pitch_mm == (12.0,) and study.counts == (4,) and study.sizes == ((3, 3), (4, 3))
+    assert (
+        study.name == "small"
+        and study.channel_width_mm == (2.0,)
+        and study.inversion.depth_offsets_mm == (-0.5, 0.0, 0.5)
+    )
+    assert load_study(_write(tmp_path, "[study]\nseed = 1\n", "bare.toml")).name == "bare"
+
+
+def test_an_explicit_placement_listing_a_junction_twice(tmp_path):
+    text = SMALL.replace('strategies = ["boundary", "optimised"]', 'strategies = ["explicit"]') + (
+        "\n[[electrodes.explicit]]\njunctions_mm = [[0, 0], [15, 0], [0, 0]]\n"
+    )
+    err = _error(tmp_path, text)
+    assert err.field == "electrodes.explicit[0].junctions_mm" and "two electrodes on the same junction" in str(err)
 
 
 def test_more_electrodes_than_junctions(tmp_path):

@@ -1,5 +1,5 @@
 """The one config layer: declarative schemas of every TOML file kind (`files`), the engine that reads them
-(`schema`), the generated reference (`docs`), and `TableReader` (key-by-key reading, kept for sim/scene.py)."""
+(`schema`) and the generated reference (`docs`)."""
 
 from neatskin.config.schema import (
     Constraint,
@@ -10,11 +10,9 @@ from neatskin.config.schema import (
     setting,
     unknown_key_problems,
 )
-from neatskin.config.tables import TableReader
 
 __all__ = [
     "Constraint",
-    "TableReader",
     "parse",
     "parse_collect",
     "parse_partial",

@@ -8,6 +8,7 @@ A test compares the committed file with this output, so the reference cannot dri
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import typing
 from typing import Any
 
@@ -74,7 +75,16 @@ def _default(f: dataclasses.Field) -> str:
         return f'"{value}"'
     if value == ():
         return "none"
+    if isinstance(value, tuple):
+        return _toml(value)
     return f"{value!r}"
+
+
+def _toml(value: Any) -> str:
+    """A default as it is written in the file: [[3, 3]], ["boundary"]."""
+    if isinstance(value, tuple):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    return f'"{value}"' if isinstance(value, str) else repr(value)
 
 
 def _rows(schema: type, prefix: str, out: list[str], nested: list[tuple[str, type, bool]]) -> None:
@@ -95,23 +105,27 @@ def _rows(schema: type, prefix: str, out: list[str], nested: list[tuple[str, typ
 
 
 def render_schema(title: str, schema: type) -> str:
-    lines = [f"## {title}", "", (schema.__doc__ or "").strip(), ""]
+    lines = [f"## {title}", "", inspect.cleandoc(schema.__doc__ or ""), ""]
     top: list[str] = []
     nested: list[tuple[str, type, bool]] = []
     _rows(schema, "", top, nested)
     header = ["| key | type | unit | default | constraint | meaning |", "|---|---|---|---|---|---|"]
     if top:
         lines += ["Top-level keys:", "", *header, *top, ""]
-    for key, table, is_array in nested:
-        required = [f for f in dataclasses.fields(schema) if toml_key(f) == key and is_required(f)]
+    while nested:  # tables in order, a table's own sub-tables ([[electrodes.explicit]]) right after it
+        key, table, is_array = nested.pop(0)
+        owner = schema if "." not in key else None
+        required = [f for f in dataclasses.fields(owner) if toml_key(f) == key and is_required(f)] if owner else []
         kind = f"[[{key}]]" if is_array else f"[{key}]"
         lines.append(f"### `{kind}`" + (" (required)" if required else " (optional)"))
         lines.append("")
         if table.__doc__ and not table.__doc__.startswith(table.__name__ + "("):
-            lines += [table.__doc__.strip(), ""]
+            lines += [inspect.cleandoc(table.__doc__), ""]
         rows: list[str] = []
-        _rows(table, "", rows, [])
+        inner: list[tuple[str, type, bool]] = []
+        _rows(table, "", rows, inner)
         lines += [*header, *rows, ""]
+        nested[:0] = [(f"{key}.{sub}", tp, array) for sub, tp, array in inner]
     return "\n".join(lines)
 
 
@@ -163,9 +177,11 @@ def render_markdown() -> str:
         parts.append(render_schema(title.capitalize(), schema))
     parts.append(MISTAKES)
     parts.append(
-        "## Scene\n\nThe protocol's `[scene]` (what a dry run simulates) is declared and read by "
-        "`neatskin/sim/scene.py`; see docs/campaigns.md. `campaign check` also refuses a "
-        "`surface_error_mm` beyond the skin's thickness and a `placement_error_mm` beyond 100 mm.\n"
+        "## Scene presets\n\nThe protocol's `[scene]` keys are listed above; the values each preset gives the knobs "
+        "left out of the table live in `neatskin/sim/scene.py` (`PRESETS`; what is fitted and what is assumed: "
+        "docs/skin.md). `campaign check` also refuses a `surface_error_mm` beyond the skin's thickness, a "
+        '`placement_error_mm` beyond 100 mm, `scene.signal = "features"` with `record.waveforms = true`, and '
+        "`hysteresis_fraction > 0` with `relaxation_time_s = 0`.\n"
     )
     return "\n".join(parts)
 

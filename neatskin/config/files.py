@@ -1,9 +1,11 @@
-"""The schema of every TOML file kind (protocol, layout, wiring, printer profile): each key, unit, default, range.
+"""The schema of every TOML file kind (protocol and its scene, layout, wiring, printer profile, study).
 
-This module is the one place where a file's keys and defaults are declared; the loaders
+This module (with `studyfile`, the design study's, kept apart for its length) is the one place where
+a file's keys and defaults are declared; the loaders
 (`rig.protocol`, `layout`, `acquisition.wiring`, `gcode.profile`, `gcode.spec`) parse with these
 schemas and then check what spans several keys; docs/config.md is generated from them
-(`python -m neatskin.config.docs`). The `[scene]` table is declared by `neatskin.sim.scene`.
+(`python -m neatskin.config.docs`). The `[scene]` table's keys are declared here; its presets' values
+live with the simulation (`neatskin.sim.scene.PRESETS`), which fills in every knob left out.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from neatskin.config.schema import setting
+from neatskin.config.studyfile import StudyFile
 from neatskin.errors import Problem
 
 # ---- caps a run can execute (issue 10): anything beyond is refused by `campaign check` ------------
@@ -141,6 +144,63 @@ class RecordTable:
     waveforms: bool = setting(False, doc="also store raw V, I, FSR samples (else per-press features only)")
 
 
+# ---- the protocol's [scene]: what a dry run simulates (values of the presets: neatskin.sim.scene) ------
+
+SCENE_PRESETS = ("ideal", "paper-like")
+FROM_PRESET = "from `preset`"
+
+
+def _knob(unit: str, doc: str, *, signed: bool = False, upper: float | None = None) -> Any:
+    """A variability knob: None in the schema means "the preset's value" (neatskin.sim.scene.PRESETS)."""
+    return setting(None, unit=unit, ge=None if signed else 0, le=upper, default_doc=FROM_PRESET, doc=doc)
+
+
+@dataclass(frozen=True)
+class SceneTable:
+    """What a dry run simulates: the skin model's fidelity, the signal level and the rig effects. A preset sets
+    every knob after `surface_error_mm` at once (`ideal`: all off; `paper-like`: fitted to the paper's error, see
+    docs/skin.md); a knob written in the table overrides the preset's value. Every source is off at 0."""
+
+    fidelity: str = setting(
+        "deformation", choices=("deformation", "network"), doc="skin model: the deformation integral, or the network"
+    )
+    signal: str = setting(
+        "features", choices=("features", "waveforms"), doc="simulate per-press features only, or raw waveforms"
+    )
+    noise: bool = setting(True, doc="measurement noise")
+    preset: str = setting("ideal", choices=SCENE_PRESETS, doc="sets every knob left out of the table")
+    surface_error_mm: float = setting(
+        0.0, unit="mm", doc="the real skin surface lies this far below the calibrated one (within the skin)"
+    )
+    placement_error_mm: float | None = _knob("mm", "std of the press position, per press (at most 100 mm)")
+    depth_jitter_mm: float | None = _knob("mm", "std of the press depth, per press (printer z, skin height)")
+    fabrication_spread_fraction: float | None = _knob(
+        "", "std of log(channel height), per channel, once per skin", upper=1.0
+    )
+    displaced_fluid_fraction: float | None = _knob(
+        "", "share of the displaced fluid the sealed channels keep", upper=1.0
+    )
+    temperature_drift_k_per_h: float | None = _knob(
+        "K/h", "fluid temperature ramp (negative: a cooling room)", signed=True
+    )
+    evaporation_fraction_per_h: float | None = _knob("1/h", "water lost through the silicone, per hour", upper=0.5)
+    press_interval_s: float | None = _knob(
+        "s", "campaign time between presses for drift and relaxation (0: the G-code's)"
+    )
+    hysteresis_fraction: float | None = _knob(
+        "", "dent kept right after the lift, as a share of the press depth", upper=0.99
+    )
+    relaxation_time_s: float | None = _knob("s", "viscoelastic relaxation time of that dent")
+    double_layer_capacitance_uf: float | None = _knob("uF", "per electrode, in series (0: no double layer)")
+    adc_skew_us: float | None = _knob("us", "the current is sampled this long after the voltage (multiplexed ADC)")
+    mains_pickup_mv: float | None = _knob("mV", "amplitude of the mains hum on the voltage channel")
+    mains_frequency_hz: float | None = _knob("Hz", "mains frequency of that hum")
+
+
+SCENE_KNOBS = tuple(f.name for f in dataclasses.fields(SceneTable) if f.default is None)
+"""The variability knobs: what a preset sets."""
+
+
 @dataclass(frozen=True)
 class ProtocolFile:
     """A campaign protocol (protocols/paper.toml)."""
@@ -153,9 +213,7 @@ class ProtocolFile:
     acquisition: AcquisitionTable
     fsr: FsrTable = FsrTable()
     record: RecordTable = RecordTable()
-    scene: dict[str, Any] = dataclasses.field(
-        default_factory=dict, metadata={"neatskin.table_doc": "the dry run's scene, see neatskin.sim.scene"}
-    )
+    scene: SceneTable = SceneTable()
 
 
 # ---- skin layout (protocols/skins/*.toml) ------------------------------------------------------------
@@ -357,4 +415,5 @@ FILE_KINDS: dict[str, type] = {
     "layout": LayoutFile,
     "wiring": WiringFile,
     "printer profile": PrinterFile,
+    "design study": StudyFile,
 }

@@ -43,6 +43,7 @@ class Constraint:
     max_len: int | None = None
     min_items: int = 0
     allow_empty: bool = False  # text may be ""
+    one_or_list: bool = False  # a list may be written as its one value (pitch_mm = 15.0 for [15.0])
     doc: str = ""
     example: str = ""  # a value to put in the fix when the key is missing
     default_doc: str = ""  # how a derived default (None in the schema) is computed
@@ -194,22 +195,31 @@ class _Walker:
         return self.scalar(tp, value, where, c, key)
 
     def sequence(self, args: tuple, value: Any, where: str, c: Constraint, key: str) -> tuple[Any, bool]:
+        if c.one_or_list and not isinstance(value, list) and len(args) == 2 and args[1] is Ellipsis:
+            value = [value]
         if not isinstance(value, list):
             self.problem(where, f"'{key}' must be a list, got {value!r}", _fix(key, c, tuple))
             return None, False
         if len(args) == 2 and args[1] is Ellipsis:
             item_types = [args[0]] * len(value)
+            if typing.get_origin(args[0]) is tuple and value and not any(isinstance(v, list) for v in value):
+                # sizes = [3, 3] for [[3, 3]]: one problem for the list, not one per number
+                self.problem(where, f"'{key}' is a list of lists, got {_short_repr(value)}", _fix(key, c, tuple))
+                return None, False
         else:
             item_types = list(args)
             if len(value) != len(args):
                 self.problem(where, f"'{key}' needs {len(args)} items, got {len(value)}", _fix(key, c, tuple))
                 return None, False
         if len(value) < c.min_items:
-            self.problem(where, f"'{key}' needs at least {c.min_items} entries, got {len(value)}", _fix(key, c, tuple))
+            entries = "entry" if c.min_items == 1 else "entries"
+            self.problem(
+                where, f"'{key}' needs at least {c.min_items} {entries}, got {len(value)}", _fix(key, c, tuple)
+            )
             return None, False
         items, ok = [], True
         for k, (item_tp, item) in enumerate(zip(item_types, value)):
-            item_c = dataclasses.replace(c, min_items=0)
+            item_c = dataclasses.replace(c, min_items=0, one_or_list=False)
             got, good = self.value(item_tp, item, f"{where}[{k}]", item_c, key)
             items.append(got)
             ok = ok and good
@@ -300,12 +310,16 @@ def describe_range(c: Constraint) -> str:
     if c.max_len is not None:
         parts.append(f"at most {c.max_len} characters")
     if c.min_items:
-        parts.append(f"at least {c.min_items} entries")
+        parts.append(f"at least {c.min_items} " + ("entry" if c.min_items == 1 else "entries"))
+    if c.one_or_list:
+        parts.append("one value for a list of one")
     return ", ".join(parts)
 
 
 def _fix(key: str, c: Constraint, tp: Any) -> str:
-    kind = {bool: "true or false", int: "a whole number", float: "a number", str: "text"}.get(tp, "a value")
+    kind = {bool: "true or false", int: "a whole number", float: "a number", str: "text", tuple: "a list"}.get(
+        tp, "a value"
+    )
     rng = describe_range(c)
     text = f"set {key} to {kind}" + (f" in {c.unit}" if c.unit else "") + (f" ({rng})" if rng else "")
     if c.example:
@@ -337,6 +351,15 @@ def parse_partial(schema: type, data: Any, source: str, where: str = "") -> tupl
     """Only the keys present in `data`, each checked against `schema` (absent keys are no problem)."""
     walker = _Walker(source)
     result = walker.table(schema, data, where, partial=True)
+    return (result or {}), walker.problems
+
+
+def parse_valid(schema: type[T], data: Any, source: str, where: str = "") -> tuple[dict[str, Any], list[Problem]]:
+    """The fields of one table that read cleanly (defaults for the absent ones, bad ones left out), and every problem.
+
+    For a table whose good values still feed cross-field checks (`schema(**good)` when every field has a default)."""
+    walker = _Walker(source)
+    result = walker.table(schema, data, where, valid=True)
     return (result or {}), walker.problems
 
 

@@ -1,5 +1,6 @@
-"""The design study file: what a study TOML may say, its validation (every problem at once, naming the file, the
-field and the fix), and the Study value it becomes. Expanding a study into candidates lives in `candidates.py`.
+"""The design study file: its validation (every problem at once, naming the file, the field and the fix) and the
+Study value it becomes; its keys, units and ranges are declared in `neatskin.config.studyfile`, the checks across
+keys (counts against the smallest grid, placements on junctions, depths inside the skin) are here. Expanding a study into candidates lives in `candidates.py`.
 
 A study names a family of grid layouts (sizes N x M, pitch, channel cross-section), electrode counts and placement
 strategies, probes (diameter, depth), the excitation and acquisition timing, the noise model, the scene and
@@ -8,35 +9,24 @@ optionally a learned-error estimate. protocols/studies/grid5.toml is the worked 
 
 from __future__ import annotations
 
-import difflib
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from neatskin.config import TableReader
+from neatskin.config import parse_tables
+from neatskin.config.studyfile import (
+    ElectrodesTable,
+    LayoutsTable,
+    ProbesTable,
+    StudyFile,
+    StudyTable,
+)
 from neatskin.design import fields
 from neatskin.design.fields import ExplicitPlacement
 from neatskin.design.inversion import InversionSpec
 from neatskin.errors import ConfigError, Problem
 from neatskin.tomlfile import read_toml, resolve_path
-
-STRATEGIES = ("boundary", "interior", "every_k", "explicit", "optimised")
-SCENES = ("ideal", "paper-like")
-FIDELITIES = ("deformation", "network")
-NOISE_MODELS = ("lockin", "fixed")
-CRITERIA = ("D", "A")
-LEARNED_MODELS = ("knn", "extra_trees")
-TOP_TABLES = (
-    "study",
-    "layouts",
-    "electrodes",
-    "probes",
-    "excitation",
-    "acquisition",
-    "noise",
-    "learned",
-    "inversion",
-)
 
 
 @dataclass(frozen=True)
@@ -100,30 +90,13 @@ def load_study(path: str | Path) -> Study:
 
 
 def study_from_dict(data: dict[str, Any], source: str = "<memory>") -> Study:
-    problems: list[Problem] = []
-    for key in data:
-        if key not in TOP_TABLES:
-            close = difflib.get_close_matches(key, TOP_TABLES, n=1)
-            fix = f"did you mean '{close[0]}'?" if close else f"remove it; known tables: {', '.join(TOP_TABLES)}"
-            problems.append(Problem(f"unknown table [{key}]", source, key, fix))
-
-    def table(name: str) -> TableReader:
-        raw = data.get(name, {})
-        if not isinstance(raw, dict):
-            problems.append(Problem(f"[{name}] must be a table", source, name, f"write it as [{name}]"))
-            raw = {}
-        return TableReader(raw, name, source, problems)
-
-    st = table("study")
-    name = st.text("name", Path(source).stem if source != "<memory>" else "study")
-    seed = st.integer("seed", 0, minimum=0)
-    description = st._get("description", "")
-    scene = st.choice("scene", SCENES, "ideal")
-    fidelity = st.choice("fidelity", FIDELITIES, "deformation")
-    crit = st.choice("criterion", CRITERIA, "D")
-    press_grid = st.integer("press_grid", 25, minimum=4)
-    st.check_unknown()
-    if scene == "paper-like":
+    """The Study a TOML table describes (schema: neatskin.config.studyfile); one ConfigError listing every problem."""
+    tables, problems = parse_tables(StudyFile, data, source)
+    st: StudyTable | None = tables.get("study")
+    lay: LayoutsTable | None = tables.get("layouts")
+    el: ElectrodesTable | None = tables.get("electrodes")
+    pr: ProbesTable | None = tables.get("probes")
+    if st is not None and st.scene == "paper-like":
         problems.append(
             Problem(
                 "scene 'paper-like' is not available yet (the variable paper-like skin is being added to skin/)",
@@ -132,45 +105,30 @@ def study_from_dict(data: dict[str, Any], source: str = "<memory>") -> Study:
                 'use scene = "ideal" for now',
             )
         )
-
-    lay = table("layouts")
-    sizes = fields.sizes(lay, problems, source)
-    pitch = fields.numbers(lay, "pitch_mm", [15.0], problems, source)
-    width = fields.numbers(lay, "channel_width_mm", [2.0], problems, source)
-    height = fields.numbers(lay, "channel_height_mm", [1.0], problems, source)
-    channel_depth = lay.number("channel_depth_mm", 2.0, positive=True, unit="mm")
-    thickness = lay.number("thickness_mm", 5.5, positive=True, unit="mm")
-    resistivity = lay.number("resistivity_ohm_m", 0.5, positive=True, unit="ohm m")
-    lay.check_unknown()
-    if channel_depth is not None and thickness is not None and channel_depth >= thickness:
+    if lay is not None and lay.channel_depth_mm >= lay.thickness_mm:
         problems.append(
             Problem(
-                f"channel_depth_mm = {channel_depth} is not inside the {thickness} mm skin",
+                f"channel_depth_mm = {lay.channel_depth_mm} is not inside the {lay.thickness_mm} mm skin",
                 source,
                 "layouts.channel_depth_mm",
                 "set channel_depth_mm below thickness_mm",
             )
         )
-
-    el = table("electrodes")
-    counts = fields.integers(el, "counts", [8], problems, source, minimum=2)
-    strategies = fields.choices(el, "strategies", STRATEGIES, ["boundary"], problems, source)
-    every_k = el.integer("every_k", 2, minimum=1)
-    restarts = el.integer("restarts", 8, minimum=0)
-    explicit = fields.explicit(el, problems, source)
-    el.check_unknown()
-    if "explicit" in strategies and not explicit:
-        problems.append(
-            Problem(
-                "strategy 'explicit' needs at least one [[electrodes.explicit]] placement",
-                source,
-                "electrodes.strategies",
-                "add [[electrodes.explicit]] with name and junctions_mm, or drop 'explicit'",
+    explicit: list[ExplicitPlacement] = []
+    if el is not None:
+        explicit = _explicit(el, problems, source)
+        if "explicit" in el.strategies and not el.explicit:
+            problems.append(
+                Problem(
+                    "strategy 'explicit' needs at least one [[electrodes.explicit]] placement",
+                    source,
+                    "electrodes.strategies",
+                    "add [[electrodes.explicit]] with name and junctions_mm, or drop 'explicit'",
+                )
             )
-        )
-    if sizes and counts:
-        smallest = min(sizes, key=lambda s: s[0] * s[1])
-        for k, count in enumerate(counts):
+    if lay is not None and el is not None:
+        smallest = min(lay.sizes, key=lambda s: s[0] * s[1])
+        for k, count in enumerate(el.counts):
             if count > smallest[0] * smallest[1]:
                 problems.append(
                     Problem(
@@ -181,116 +139,72 @@ def study_from_dict(data: dict[str, Any], source: str = "<memory>") -> Study:
                         f"use at most {smallest[0] * smallest[1]} electrodes, or larger grids",
                     )
                 )
-    if sizes and pitch:
-        fields.check_explicit_on_grid(explicit, sizes, pitch, problems, source)
-
-    pr = table("probes")
-    diameter = fields.numbers(pr, "diameter_mm", [5.5], problems, source)
-    depth = fields.numbers(pr, "depth_mm", [3.5], problems, source)
-    pr.check_unknown()
-    if thickness is not None:
-        for k, d in enumerate(depth):
-            if d >= thickness:
+        fields.check_explicit_on_grid(explicit, list(lay.sizes), list(lay.pitch_mm), problems, source)
+    if lay is not None and pr is not None:
+        for k, d in enumerate(pr.depth_mm):
+            if d >= lay.thickness_mm:
                 problems.append(
                     Problem(
-                        f"press depth {d} mm is not inside the {thickness} mm skin",
+                        f"press depth {d} mm is not inside the {lay.thickness_mm} mm skin",
                         source,
                         f"probes.depth_mm[{k}]",
                         "press less deep than the skin is thick",
                     )
                 )
-
-    ex = table("excitation")
-    amplitude = ex.number("amplitude_a", 0.002, positive=True, unit="A")
-    rails = ex.number("rails_v", 8.0, positive=True, unit="V")
-    ex.check_unknown()
-
-    acq = table("acquisition")
-    rate = acq.number("rate_hz", 10_000.0, positive=True, unit="Hz")
-    settle = acq.integer("settle_samples", 20, minimum=0)
-    live = acq.integer("live_samples", 100, minimum=1)
-    brk = acq.integer("break_samples", 2, minimum=2)
-    acq.check_unknown()
-
-    no = table("noise")
-    noise_model = no.choice("model", NOISE_MODELS, "lockin")
-    noise_std = no.number("std_ohm", 1.0, positive=True, unit="ohm")
-    v_noise = no.number("voltage_noise_v", 2e-3, minimum=0.0, unit="V")
-    i_noise = no.number("current_noise_a", 1e-7, minimum=0.0, unit="A")
-    quantise = no.boolean("quantise", True)
-    sweeps = no.integer("sweeps_per_press", 1, minimum=1)
-    no.check_unknown()
-
-    le = table("learned")
-    learned = LearnedSpec(
-        enabled=bool(le.boolean("enabled", False)),
-        positions=le.integer("positions", 120, minimum=8) or 120,
-        repeats=le.integer("repeats", 4, minimum=1) or 4,
-        seeds=le.integer("seeds", 3, minimum=1) or 3,
-        test_share=le.number("test_share", 0.25, minimum=0.05, maximum=0.8) or 0.25,
-        model=le.choice("model", LEARNED_MODELS, "knn") or "knn",
-    )
-    le.check_unknown()
-
-    inv = table("inversion")
-    offsets = fields.as_list(inv, "depth_offsets_mm", [-0.5, 0.0, 0.5])
-    if not offsets or not all(isinstance(o, (int, float)) and not isinstance(o, bool) for o in offsets):
-        problems.append(
-            Problem(
-                f"depth_offsets_mm must list numbers (mm), got {offsets!r}",
-                source,
-                "inversion.depth_offsets_mm",
-                "write depth_offsets_mm = [-0.5, 0.0, 0.5]",
-            )
-        )
-        offsets = [0.0]
-    inversion = InversionSpec(
-        enabled=bool(inv.boolean("enabled", False)),
-        draws=inv.integer("draws", 2, minimum=1) or 2,
-        library=inv.integer("library", 40, minimum=4) or 40,
-        depth_offsets_mm=tuple(float(o) for o in offsets),
-        iterations=inv.integer("iterations", 6, minimum=0) or 0,
-        starts=inv.integer("starts", 3, minimum=1) or 3,
-    )
-    inv.check_unknown()
-
     if problems:
         raise ConfigError(problems=problems)
+    return _study(StudyFile(**tables), explicit, source)
+
+
+def _explicit(el: ElectrodesTable, problems: list[Problem], source: str) -> list[ExplicitPlacement]:
+    """The explicit placements, each named, with no junction listed twice."""
+    out: list[ExplicitPlacement] = []
+    for k, entry in enumerate(el.explicit):
+        if len(set(entry.junctions_mm)) != len(entry.junctions_mm):
+            where = f"electrodes.explicit[{k}].junctions_mm"
+            problems.append(Problem("two electrodes on the same junction", source, where, "list each once"))
+            continue
+        out.append(ExplicitPlacement(entry.name or f"explicit{k + 1}", entry.junctions_mm))
+    return out
+
+
+def _study(f: StudyFile, explicit: list[ExplicitPlacement], source: str) -> Study:
+    st, lay, el, no = f.study, f.layouts, f.electrodes, f.noise
     return Study(
-        name=str(name),
+        name=st.name or (Path(source).stem if source != "<memory>" else "study"),
         source=source,
-        seed=int(seed or 0),
-        description=str(description),
-        scene=str(scene),
-        fidelity=str(fidelity),
-        criterion=str(crit),
-        press_grid=int(press_grid or 25),
-        sizes=tuple(sizes),
-        pitch_mm=tuple(pitch),
-        channel_width_mm=tuple(width),
-        channel_height_mm=tuple(height),
-        channel_depth_mm=float(channel_depth or 2.0),
-        thickness_mm=float(thickness or 5.5),
-        resistivity_ohm_m=float(resistivity or 0.5),
-        counts=tuple(counts),
-        strategies=tuple(strategies),
-        every_k=int(every_k or 2),
-        restarts=int(restarts if restarts is not None else 8),
+        seed=st.seed,
+        description=st.description,
+        scene=st.scene,
+        fidelity=st.fidelity,
+        criterion=st.criterion,
+        press_grid=st.press_grid,
+        sizes=lay.sizes,
+        pitch_mm=lay.pitch_mm,
+        channel_width_mm=lay.channel_width_mm,
+        channel_height_mm=lay.channel_height_mm,
+        channel_depth_mm=lay.channel_depth_mm,
+        thickness_mm=lay.thickness_mm,
+        resistivity_ohm_m=lay.resistivity_ohm_m,
+        counts=el.counts,
+        strategies=el.strategies,
+        every_k=el.every_k,
+        restarts=el.restarts,
         explicit=tuple(explicit),
-        probe_diameter_mm=tuple(diameter),
-        depth_mm=tuple(depth),
-        amplitude_a=float(amplitude or 0.002),
-        rails_v=float(rails or 8.0),
-        rate_hz=float(rate or 10_000.0),
-        settle_samples=int(settle if settle is not None else 20),
-        live_samples=int(live or 100),
-        break_samples=int(brk or 2),
-        noise_model=str(noise_model),
-        noise_std_ohm=float(noise_std or 1.0),
-        voltage_noise_v=float(v_noise if v_noise is not None else 2e-3),
-        current_noise_a=float(i_noise if i_noise is not None else 1e-7),
-        quantise=bool(quantise),
-        sweeps_per_press=int(sweeps or 1),
-        learned=learned,
-        inversion=inversion,
+        probe_diameter_mm=f.probes.diameter_mm,
+        depth_mm=f.probes.depth_mm,
+        amplitude_a=f.excitation.amplitude_a,
+        rails_v=f.excitation.rails_v,
+        rate_hz=f.acquisition.rate_hz,
+        settle_samples=f.acquisition.settle_samples,
+        live_samples=f.acquisition.live_samples,
+        break_samples=f.acquisition.break_samples,
+        noise_model=no.model,
+        noise_std_ohm=no.std_ohm,
+        voltage_noise_v=no.voltage_noise_v,
+        current_noise_a=no.current_noise_a,
+        quantise=no.quantise,
+        sweeps_per_press=no.sweeps_per_press,
+        learned=LearnedSpec(**dataclasses.asdict(f.learned)),
+        inversion=InversionSpec(**dataclasses.asdict(f.inversion)),
     )

@@ -1,18 +1,23 @@
 """The `[scene]` of a protocol: what a dry run simulates (the skin model's fidelity, the signal level, the rig effects).
 
-Each knob is one field of `Scene` with its unit in the name; `parse_scene` reads the protocol's
-`[scene]` table and reports every problem at once (the protocol loader collects them with the
-rest of the file's). A named preset (`scene.preset`) sets every variability knob at once;
-knobs written in the table override the preset's values. Every variability source is off at 0
-and then costs nothing: it draws nothing and changes no bit of the output.
+Each knob is one field of `Scene` with its unit in the name; the `[scene]` table's keys, units and
+ranges are declared once in `neatskin.config.files.SceneTable` (and so listed in docs/config.md).
+`parse_scene` reads the table through that schema and reports every problem at once (the protocol
+loader collects them with the rest of the file's). A named preset (`scene.preset`) sets every
+variability knob at once (this module holds the presets' values); knobs written in the table
+override them. Every variability source is off at 0 and then costs nothing: it draws nothing and
+changes no bit of the output.
 The physical basis of each knob and where its preset value comes from: docs/skin.md.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
+from typing import Any
 
-from neatskin.config import TableReader
+from neatskin.config.files import SCENE_KNOBS, SCENE_PRESETS, SceneTable
+from neatskin.config.schema import parse_valid
 from neatskin.errors import Problem
 
 
@@ -44,25 +49,9 @@ class Scene:
         return {k: v for k, v in asdict(self).items() if k in PRESET_KNOBS}
 
 
-# knob -> (unit, may be negative, upper bound)
-KNOBS: dict[str, tuple[str, bool, float | None]] = {
-    "placement_error_mm": ("mm", False, None),
-    "depth_jitter_mm": ("mm", False, None),
-    "fabrication_spread_fraction": ("", False, 1.0),
-    "displaced_fluid_fraction": ("", False, 1.0),
-    "temperature_drift_k_per_h": ("K/h", True, None),
-    "evaporation_fraction_per_h": ("1/h", False, 0.5),
-    "press_interval_s": ("s", False, None),
-    "hysteresis_fraction": ("", False, 0.99),
-    "relaxation_time_s": ("s", False, None),
-    "double_layer_capacitance_uf": ("uF", False, None),
-    "adc_skew_us": ("us", False, None),
-    "mains_pickup_mv": ("mV", False, None),
-    "mains_frequency_hz": ("Hz", False, None),
-}
-PRESET_KNOBS = tuple(KNOBS)
+PRESET_KNOBS = SCENE_KNOBS  # declared (unit, range, doc) in neatskin.config.files.SceneTable
 
-_IDEAL = {k: 0.0 for k in KNOBS} | {"relaxation_time_s": 30.0, "mains_frequency_hz": 50.0}
+_IDEAL = {k: 0.0 for k in PRESET_KNOBS} | {"relaxation_time_s": 30.0, "mains_frequency_hz": 50.0}
 # paper-like: fitted to the paper's 2.03 mm mean error and 82 % within 2.75 mm (28-5-2 LM network,
 # random 95/3/2 split) by benchmarks/fit_paper_like.py; the other knobs are assumed (docs/skin.md).
 PAPER_LIKE = _IDEAL | {
@@ -82,22 +71,29 @@ PAPER_LIKE = _IDEAL | {
     "mains_pickup_mv": 0.0,
 }
 PRESETS: dict[str, dict[str, float]] = {"ideal": _IDEAL, "paper-like": PAPER_LIKE}
+if tuple(PRESETS) != SCENE_PRESETS or any(set(p) != set(PRESET_KNOBS) for p in PRESETS.values()):
+    raise RuntimeError("the scene presets must match neatskin.config.files.SceneTable")  # pragma: no cover
 
 
-def parse_scene(raw: dict, source: str, *, record_waveforms: bool) -> tuple[Scene, list[Problem]]:
-    """The scene a `[scene]` table describes, and every problem found in it."""
-    scene_t = TableReader(raw, "scene", source)
-    fidelity = scene_t.choice("fidelity", ("deformation", "network"), "deformation")
-    signal = scene_t.choice("signal", ("features", "waveforms"), "features")
-    noise = scene_t.boolean("noise", True)
-    preset = scene_t.choice("preset", tuple(PRESETS), "ideal") or "ideal"
-    surface_error = scene_t.number("surface_error_mm", 0.0, unit="mm")
+def parse_scene(
+    raw: Mapping[str, Any] | SceneTable, source: str, *, record_waveforms: bool
+) -> tuple[Scene, list[Problem]]:
+    """The scene a `[scene]` table (raw, or already read by the protocol's schema) describes, and every problem.
+
+    A bad value is in the problems; the scene then holds the default in its place."""
+    problems: list[Problem] = []
+    if isinstance(raw, SceneTable):
+        table = raw
+    else:
+        good, problems = parse_valid(SceneTable, raw, source, "scene")
+        table = SceneTable(**good)
+    preset = PRESETS[table.preset]
     knobs: dict[str, float] = {}
-    for name, (unit, signed, upper) in KNOBS.items():
-        value = scene_t.number(name, PRESETS[preset][name], minimum=None if signed else 0.0, maximum=upper, unit=unit)
-        knobs[name] = PRESETS[preset][name] if value is None else value
-    if signal == "features" and record_waveforms:
-        scene_t.problems.append(
+    for name in PRESET_KNOBS:
+        value = getattr(table, name)
+        knobs[name] = preset[name] if value is None else value
+    if table.signal == "features" and record_waveforms:
+        problems.append(
             Problem(
                 "record.waveforms = true needs the waveforms to be simulated",
                 source,
@@ -106,7 +102,7 @@ def parse_scene(raw: dict, source: str, *, record_waveforms: bool) -> tuple[Scen
             )
         )
     if knobs["relaxation_time_s"] == 0 and knobs["hysteresis_fraction"] > 0:
-        scene_t.problems.append(
+        problems.append(
             Problem(
                 "a dent that relaxes in 0 s is no dent: hysteresis_fraction > 0 needs relaxation_time_s > 0",
                 source,
@@ -114,14 +110,12 @@ def parse_scene(raw: dict, source: str, *, record_waveforms: bool) -> tuple[Scen
                 "set relaxation_time_s > 0 (seconds), or hysteresis_fraction = 0",
             )
         )
-    scene_t.check_unknown()
-    # a bad value is in problems; the scene then holds the default in its place
     scene = Scene(
-        fidelity or "deformation",
-        signal or "features",
-        True if noise is None else noise,
-        surface_error_mm=surface_error or 0.0,
-        preset=preset,
+        table.fidelity,
+        table.signal,
+        table.noise,
+        surface_error_mm=table.surface_error_mm,
+        preset=table.preset,
         **knobs,
     )
-    return scene, scene_t.problems
+    return scene, problems
