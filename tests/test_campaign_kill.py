@@ -67,11 +67,14 @@ def test_sigkill_then_resume_equals_uninterrupted(kill_protocol, reference, tmp_
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
     )
-    # wait until some presses are durable, then kill at a random moment
+    # wait until a random number of presses is durable (the dry run is fast: a timer could outlast it),
+    # then kill at a random moment within the next press
+    rng = random.Random(run)
+    target = rng.randint(5, 60)
     deadline = time.monotonic() + 60
-    while time.monotonic() < deadline and not list((folder / "presses").glob("part-*.parquet")):
-        time.sleep(0.02)
-    time.sleep(random.Random(run).uniform(0.0, 1.5))
+    while time.monotonic() < deadline and len(list((folder / "presses").glob("part-*.parquet"))) < target:
+        time.sleep(0.005)
+    time.sleep(rng.uniform(0.0, 0.02))
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(10)
     done_before = len(list((folder / "presses").glob("part-*.parquet")))

@@ -76,10 +76,13 @@ def test_kill_during_the_report_then_resume_writes_the_report(reference, tmp_pat
     def fake_report(dataset, **kwargs):  # the real report takes a minute; the runner's part is what is tested
         made.append(dataset)
         (dataset / "report.md").write_text("report\n")
+        return "the report"
 
     monkeypatch.setattr("neatskin.baselines.report.run_baselines", fake_report)
+    monkeypatch.setattr("neatskin.baselines.report.report_summary", lambda report: f"summary of {report}")
     result = resume_campaign(folder, progress=False, report=True)
     assert (result.completed, result.written_now, made) == (12, 0, [folder])
+    assert result.report_summary == "summary of the report"  # handed to the CLI to print
     assert json.loads((folder / "manifest.json").read_text())["report"]["path"] == "report.md"
     pd.testing.assert_frame_equal(rows(folder), rows(reference), check_exact=True)
     with pytest.raises(Exception, match="already complete"):
