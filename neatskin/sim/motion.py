@@ -33,6 +33,11 @@ class Segment(NamedTuple):
     feed_mm_s: float
     accel_mm_s2: float
     linear: bool = False
+    duration_s: float | None = None  # the move's own time (t1_s - t0_s before rounding to the clock's origin)
+
+    @property
+    def own_duration_s(self) -> float:
+        return self.t1_s - self.t0_s if self.duration_s is None else self.duration_s
 
     @property
     def length_mm(self) -> float:
@@ -106,7 +111,7 @@ class Timeline:
         t0 = now_s if now_s > self.end_s else self.end_s
         duration = move.duration_s or 0.0
         return self._append(
-            Segment(t0, t0 + duration, move.start_mm, move.end_mm, move.feed_mm_s, move.accel_mm_s2)  # type: ignore[arg-type]
+            Segment(t0, t0 + duration, move.start_mm, move.end_mm, move.feed_mm_s, move.accel_mm_s2, False, duration)  # type: ignore[arg-type]
         )
 
     def add_move(self, now_s: float, target_mm: Xyz, feed_mm_s: float) -> Segment:
@@ -116,16 +121,16 @@ class Timeline:
         length = math.sqrt(sum(d * d for d in delta))
         t0 = max(now_s, self.end_s)
         duration = trapezoid_time_s(length, feed, accel) if length > 0 else 0.0
-        return self._append(Segment(t0, t0 + duration, start, target_mm, feed, accel))
+        return self._append(Segment(t0, t0 + duration, start, target_mm, feed, accel, False, duration))
 
     def add_homing(self, now_s: float, home_mm: Xyz, duration_s: float) -> Segment:
         t0 = max(now_s, self.end_s)
-        return self._append(Segment(t0, t0 + duration_s, self.end_mm, home_mm, 1.0, 1.0, linear=True))
+        return self._append(Segment(t0, t0 + duration_s, self.end_mm, home_mm, 1.0, 1.0, True, duration_s))
 
     def teleport(self, now_s: float, position_mm: Xyz) -> None:
         """A reset (power cycle): the probe stays where it was, nothing is queued any more."""
         here = self.position_mm(now_s)
-        self.segments = [Segment(now_s, now_s, here, position_mm, 1.0, 1.0, linear=True)]
+        self.segments = [Segment(now_s, now_s, here, position_mm, 1.0, 1.0, True, 0.0)]
         self._t0s = [now_s]
         self._t1s = [now_s]
 
@@ -140,6 +145,25 @@ class Timeline:
         if i < 0:
             return self.segments[0].p0_mm if self.segments else self.start_mm
         return self.segments[i].position_mm(t_s)
+
+
+GAP_GRID_S = 1e-6  # waits between moves are dwells (G4 P in ms, S in s): on this grid, whatever the clock's origin
+
+
+def relative_segments(segments: list[Segment], t0_s: float) -> list[Segment]:
+    """`segments` (the first one ended by t0_s) on a clock that starts at t0_s, with times that depend only on
+    the moves' own durations and the dwells between them, not on the absolute time t0_s (a resumed printer
+    counts from another origin, and `t1_s - t0_s` of an absolute timeline rounds differently there)."""
+    if not segments:
+        return []
+    first = segments[0]
+    end = -round((t0_s - first.t1_s) / GAP_GRID_S) * GAP_GRID_S if first.t1_s <= t0_s else first.t1_s - t0_s
+    out = [first._replace(t0_s=end - first.own_duration_s, t1_s=end, duration_s=first.own_duration_s)]
+    for prev, seg in zip(segments, segments[1:]):
+        start = end + round((seg.t0_s - prev.t1_s) / GAP_GRID_S) * GAP_GRID_S
+        end = start + seg.own_duration_s
+        out.append(seg._replace(t0_s=start, t1_s=end, duration_s=seg.own_duration_s))
+    return out
 
 
 def positions_mm(segments, times_s: np.ndarray) -> np.ndarray:
@@ -160,7 +184,7 @@ def positions_mm(segments, times_s: np.ndarray) -> np.ndarray:
         p0, p1 = np.asarray(seg.p0_mm, float), np.asarray(seg.p1_mm, float)
         length = float(np.linalg.norm(p1 - p0))
         tau = np.clip(times_s[mask] - seg.t0_s, 0.0, None)
-        duration = seg.t1_s - seg.t0_s
+        duration = seg.own_duration_s
         if length == 0 or duration <= 0:
             frac = np.ones_like(tau)
         elif seg.linear:

@@ -16,7 +16,7 @@ import numpy as np
 
 from neatskin.acquisition.demod import demodulate
 from neatskin.acquisition.record import PressRecord
-from neatskin.sim.motion import positions_mm
+from neatskin.sim.motion import positions_mm, relative_segments
 
 PRESS_SLOT_S = 1000.0  # each press owns [press_id * slot, (press_id + 1) * slot) of the dry run's sample clock
 STREAM_DAQ = 1
@@ -65,7 +65,7 @@ class DryProbe:
 
     def load(self, press_id: int, printer_t0_s: float, daq_t0_s: float, duration_s: float) -> None:
         """Take the printer's moves from t0 on for this press (the recording spans [t0, t0 + duration])."""
-        self._segments = self.segments_from(printer_t0_s)
+        self._segments = relative_segments(self.segments_from(printer_t0_s), printer_t0_s)
         self._printer_t0, self._daq_t0 = printer_t0_s, daq_t0_s
         self._offset = self.placement_error(press_id) if self.placement_error is not None else (0.0, 0.0)
         self._depth_offset, self._skin_kwargs, self._baseline = 0.0, {}, self._skin_baseline
@@ -84,8 +84,8 @@ class DryProbe:
 
     def state(self, times_s: np.ndarray) -> np.ndarray:
         """(times, 3): sensor x, y and depth below the surface (mm), rounded to 1 nm (G-code resolution is 1 um)."""
-        printer_t = (np.asarray(times_s, dtype=float) - self._daq_t0) + self._printer_t0
-        xyz = positions_mm(self._segments, printer_t)
+        press_t = np.asarray(times_s, dtype=float) - self._daq_t0  # the press's own clock, as its segments'
+        xyz = positions_mm(self._segments, press_t)
         sx, sy = self.calibration.to_sensor(xyz[:, 0], xyz[:, 1])
         state = np.stack(
             [
