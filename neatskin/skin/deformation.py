@@ -143,7 +143,9 @@ def _integrate(layout, x_mm, y_mm, depth_mm, probe_radius_mm, params, pinch_scal
     if scale is not None:
         p0 = np.minimum(1.0, p0 * scale.max())
     near_full = p0 > _GRADED_FROM_P0
-    for group, edges in ((~near_full, _PANEL_EDGES), (near_full, _graded_edges(p0[near_full]))):
+    untouched = depth <= 0  # exactly 1 (no volume) without the quadrature: `_factor_chunk` sets the same
+    out[untouched] = 0.0 if volume else 1.0
+    for group, edges in ((~near_full & ~untouched, _PANEL_EDGES), (near_full, _graded_edges(p0[near_full]))):
         idx = np.flatnonzero(group)
         for lo in range(0, idx.size, _CHUNK_PRESSES):
             sl = idx[lo : lo + _CHUNK_PRESSES]
