@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from neatskin.skin.deformation import PinchParams, nearest_point_factor, pinch_fraction, resistance_factor
+from neatskin.skin.deformation import (
+    PinchParams,
+    factor_and_length_fraction,
+    nearest_point_factor,
+    pinch_fraction,
+    pinched_length_fraction,
+    resistance_factor,
+)
 from neatskin.skin.layouts import grid_layout
 
 PROBE_MM = 2.75
@@ -133,3 +140,33 @@ def test_bad_params_are_refused():
         PinchParams(nodes_per_panel=0)
     with pytest.raises(ValueError, match="pinch_gain"):
         PinchParams(pinch_gain=-1.0)
+
+
+def test_one_pass_for_factor_and_length_fraction_gives_the_bits_of_two():
+    """The dry run's skin asks for both in one quadrature: the same bits as the two calls, for presses off the
+    skin, shallow, near full depth (graded panels) and shut, with per-channel heights."""
+    layout = grid_layout(3, 3)
+    rng = np.random.default_rng(5)
+    n = 40
+    x = rng.uniform(0, 20, n)
+    y = rng.uniform(0, 20, n)
+    thickness = layout.thickness_mm
+    depth = np.concatenate(
+        [
+            [-1.0, 0.0, np.nan],
+            rng.uniform(0.01, 0.6, n - 6) * thickness,
+            [0.97 * thickness, 0.99 * thickness, 1.5 * thickness],
+        ]
+    )
+    channel = layout.channels[0]  # the deep presses on a channel's middle
+    a, b = layout.junctions[channel.a], layout.junctions[channel.b]
+    x[-3:], y[-3:] = (a.x_mm + b.x_mm) / 2, (a.y_mm + b.y_mm) / 2
+    scale = rng.uniform(0.8, 1.25, layout.n_channels)
+    for pinch_scale in (None, scale):
+        factor, share = factor_and_length_fraction(layout, x, y, depth, 2.75, PinchParams(), pinch_scale)
+        expected_factor = resistance_factor(layout, x, y, depth, 2.75, PinchParams(), pinch_scale)
+        expected_share = pinched_length_fraction(layout, x, y, depth, 2.75, PinchParams(), pinch_scale)
+        np.testing.assert_array_equal(factor, expected_factor)
+        np.testing.assert_array_equal(share, expected_share)
+        assert np.all(factor[:3] == 1.0) and np.all(share[:3] == 0.0)
+        assert np.isinf(factor).any()  # some press shuts a channel

@@ -133,21 +133,42 @@ def pinched_length_fraction(
     return _integrate(layout, x_mm, y_mm, depth_mm, probe_radius_mm, params, pinch_scale, volume=True)
 
 
+def factor_and_length_fraction(
+    layout: Layout,
+    x_mm,
+    y_mm,
+    depth_mm,
+    probe_radius_mm,
+    params: PinchParams = PinchParams(),
+    pinch_scale: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """`resistance_factor` and `pinched_length_fraction` of the same presses from one pass of the quadrature
+    (the same nodes and operations up to the integrand's last step, so the same bits as the two calls)."""
+    both = _integrate(layout, x_mm, y_mm, depth_mm, probe_radius_mm, params, pinch_scale, volume=None)
+    return both[0], both[1]
+
+
 def _integrate(layout, x_mm, y_mm, depth_mm, probe_radius_mm, params, pinch_scale, *, volume):
+    """(presses, channels) of the factor (volume False), the length fraction (True), or both stacked (None)."""
     x, y, depth, radius = np.broadcast_arrays(
         *(np.atleast_1d(np.asarray(v, float)) for v in (x_mm, y_mm, depth_mm, probe_radius_mm))
     )
     scale = None if pinch_scale is None else np.asarray(pinch_scale, float).reshape(1, layout.n_channels)
-    out = np.empty((x.shape[0], layout.n_channels))
+    out = np.empty((x.shape[0], layout.n_channels) if volume is not None else (2, x.shape[0], layout.n_channels))
     p0 = np.minimum(1.0, params.pinch_gain * np.maximum(depth, 0.0) / layout.thickness_mm)
     if scale is not None:
         p0 = np.minimum(1.0, p0 * scale.max())
     near_full = p0 > _GRADED_FROM_P0
-    for group, edges in ((~near_full, _PANEL_EDGES), (near_full, _graded_edges(p0[near_full]))):
+    untouched = depth <= 0  # exactly 1 (no volume) without the quadrature: `_factor_chunk` sets the same
+    if volume is None:
+        out[0, untouched], out[1, untouched] = 1.0, 0.0
+    else:
+        out[untouched] = 0.0 if volume else 1.0
+    for group, edges in ((~near_full & ~untouched, _PANEL_EDGES), (near_full, _graded_edges(p0[near_full]))):
         idx = np.flatnonzero(group)
         for lo in range(0, idx.size, _CHUNK_PRESSES):
             sl = idx[lo : lo + _CHUNK_PRESSES]
-            out[sl] = _factor_chunk(layout, x[sl], y[sl], depth[sl], radius[sl], params, scale, volume, edges)
+            out[..., sl, :] = _factor_chunk(layout, x[sl], y[sl], depth[sl], radius[sl], params, scale, volume, edges)
     return out
 
 
@@ -179,11 +200,6 @@ def _factor_chunk(layout, x, y, depth, radius, params, scale=None, volume=False,
     foot_lo = np.clip(s0 - half_chord, 0.0, length)
     foot_hi = np.clip(s0 + half_chord, 0.0, length)
     foot = foot_hi - foot_lo
-    if volume:
-        inner = foot * p0  # exact: p = p0 under the probe
-    else:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inner = np.where(foot > 0, foot / (1.0 - p0), 0.0)
     # the two sides outside the footprint, each as panels [edge, edge + l] and [edge + l, end];
     # only (s - s0)^2 enters, and on side k, s - s0 = sign_k * (base_k + offset)
     base = np.stack([foot_hi - s0, s0 - foot_lo], axis=-1)  # (n, C, 2): footprint edge to s0 distance
@@ -213,9 +229,21 @@ def _factor_chunk(layout, x, y, depth, radius, params, scale=None, volume=False,
     r *= per_side(np.broadcast_to(-1.0 / (decay * decay), perp2.shape))
     np.exp(r, out=r)
     r *= per_side(np.broadcast_to(-p0, perp2.shape))  # -p
+    parts = (foot, p0, weights, width, live, active, side_len, length, touching)
+    if volume is not None:
+        return _finish_chunk(bool(volume), r, *parts)
+    factor = _finish_chunk(False, r.copy(), *parts)
+    return np.stack([factor, _finish_chunk(True, r, *parts)])
+
+
+def _finish_chunk(volume, r, foot, p0, weights, width, live, active, side_len, length, touching):
+    """The integrand's last step (in place on r, (q, panels, m) of -p) and the sums: R / R0 or the length share."""
     if volume:
+        inner = foot * p0  # exact: p = p0 under the probe
         np.negative(r, out=r)
     else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inner = np.where(foot > 0, foot / (1.0 - p0), 0.0)
         r += 1.0
         with np.errstate(divide="ignore"):
             np.reciprocal(r, out=r)

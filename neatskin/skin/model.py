@@ -26,6 +26,7 @@ import numpy as np
 from neatskin.layout import Layout
 from neatskin.skin.deformation import (
     PinchParams,
+    factor_and_length_fraction,
     nearest_point_factor,
     pinched_length_fraction,
     resistance_factor,
@@ -109,6 +110,10 @@ class SkinModel:
     def _heights(self) -> np.ndarray | None:
         return None if self.channel_height_factor is None else np.asarray(self.channel_height_factor, float)
 
+    @property
+    def _pinch_scale(self) -> np.ndarray | None:
+        return None if self._heights is None else 1.0 / self._heights
+
     @cached_property
     def channel_baseline_ohm(self) -> np.ndarray:
         """Undeformed resistance of every channel, (channels,): the layout's, over the fabricated heights."""
@@ -140,11 +145,20 @@ class SkinModel:
         channels) is added to every channel's R / R0 (a residual dent from earlier presses)."""
         x, y, depth = _as_presses(x_mm, y_mm, depth_mm)
         depth = self.effective_depth_mm(depth, peak_depth_mm)
-        factor = self.pinch_factor(x, y, depth)
+        widening = None
+        if self.displaced_fluid_fraction > 0 and self.fidelity == "deformation":  # one quadrature for both
+            factor, share = factor_and_length_fraction(
+                self.layout, x, y, depth, self.probe_radius_mm, self.pinch, self._pinch_scale
+            )
+            widening = self._widening(share * self.channel_volume_mm3)
+        else:
+            factor = self.pinch_factor(x, y, depth)
         if extra_factor is not None:
             factor = factor + np.asarray(extra_factor, float)
         if self.displaced_fluid_fraction > 0:
-            factor = factor / self.fluid_widening(x, y, depth)[:, None]
+            if widening is None:
+                widening = self.fluid_widening(x, y, depth)
+            factor = factor / widening[:, None]
         resistance = factor * self.channel_baseline_ohm
         temperature = self.temperature_c if temperature_c is None else temperature_c
         if temperature is not None:
@@ -173,7 +187,10 @@ class SkinModel:
         """1 + e per press, (n,): the uniform widening of every channel's cross-section that keeps the
         share `displaced_fluid_fraction` of the displaced volume dV in the network,
         (1 + e) (V - dV) = V - dV + f dV."""
-        lost = self.pinched_volume_mm3(x_mm, y_mm, depth_mm).sum(axis=1)
+        return self._widening(self.pinched_volume_mm3(x_mm, y_mm, depth_mm))
+
+    def _widening(self, pinched_volume_mm3: np.ndarray) -> np.ndarray:
+        lost = pinched_volume_mm3.sum(axis=1)
         total = float(self.channel_volume_mm3.sum())
         with np.errstate(divide="ignore", invalid="ignore"):
             return 1.0 + self.displaced_fluid_fraction * lost / np.maximum(total - lost, 0.0)
