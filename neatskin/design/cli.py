@@ -29,6 +29,25 @@ def register(subparsers) -> None:
     study.add_argument("--no-progress", action="store_true", help="no progress bar")
     study.add_argument("--no-png", action="store_true", help="skip the per-candidate map PNGs (parquet maps only)")
     study.set_defaults(handler=study_handler)
+    validate = commands.add_parser(
+        "validate",
+        help="the study's learned error against a dry-run campaign + baselines kNN, on the paper's layout",
+        description="For the paper's layout (the --protocol's skin, `ideal` scene): run a small dry-run campaign and "
+        "the baselines' kNN on a grouped split, compute the study's features-only estimate on the same positions, "
+        "repeats, k and folds, and write both with their spreads into OUT/report.md, section "
+        "'Validation against the full pipeline'.",
+    )
+    validate.add_argument("study", help="study TOML (its noise model and seed are used)")
+    validate.add_argument("--out", default=None, help="output folder (default out/design/<study name>)")
+    validate.add_argument(
+        "--protocol", default="protocols/paper.toml", help="campaign protocol the dry run is based on"
+    )
+    validate.add_argument("--positions", type=int, default=40, help="positions pressed (default 40)")
+    validate.add_argument("--repeats", type=int, default=4, help="presses per position (default 4)")
+    validate.add_argument("--split-repeats", type=int, default=5, help="grouped split repeats (default 5)")
+    validate.add_argument("--folds", type=int, default=5, help="grouped folds over positions (default 5)")
+    validate.add_argument("--no-progress", action="store_true", help="no progress bar")
+    validate.set_defaults(handler=validate_handler)
 
 
 def study_handler(args: argparse.Namespace) -> int:
@@ -71,4 +90,32 @@ def study_handler(args: argparse.Namespace) -> int:
         f"lowest capped mean bound: {best['placement']} {best['electrodes']} electrodes on "
         f"{best['nx']} x {best['ny']}: {best['bound_mean_capped_mm']:.3g} mm"
     )
+    return 0
+
+
+def validate_handler(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from neatskin.design.study import load_study
+    from neatskin.design.validate import AGREEMENT_SIGMAS, validate_study
+
+    study = load_study(args.study)
+    out = Path(args.out) if args.out else Path("out") / "design" / study.name
+    v = validate_study(
+        study,
+        out,
+        protocol=args.protocol,
+        positions=args.positions,
+        repeats=args.repeats,
+        split_repeats=args.split_repeats,
+        folds=args.folds,
+        progress=not args.no_progress,
+    )
+    print(f"study (features-only):     {v.study_mean_mm:.4f} +- {v.study_std_mm:.3f} mm")
+    print(
+        f"full pipeline (dry run):   {v.campaign_mean_mm:.4f} +- {v.campaign_std_mm:.3f} mm "
+        f"(95 % of the mean {v.campaign_low_mm:.3f} to {v.campaign_high_mm:.3f})"
+    )
+    verdict = "agree" if v.agree else "DISAGREE"
+    print(f"{verdict} within {AGREEMENT_SIGMAS:g} combined std; section written to {out / 'report.md'}")
     return 0
