@@ -62,10 +62,15 @@ def open_daq(kind: str, config: DaqConfig = DaqConfig(), **kwargs) -> Daq:
 
 
 def daq_config(protocol):
+    """The DAQ settings of a protocol, its electrical limits included (ADC range, voltage gain, compliance),
+    so a dry run clips where the protocol's rig would."""
     return DaqConfig(
         rate_hz=protocol.acquisition.rate_hz,
         amplitude_a=protocol.excitation.amplitude_a,
         frequency_hz=protocol.excitation.frequency_hz,
+        voltage_range_v=protocol.acquisition.adc_range_v,
+        voltage_gain=protocol.acquisition.voltage_gain,
+        compliance_v=protocol.excitation.compliance_v,
     )
 
 
