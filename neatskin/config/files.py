@@ -72,6 +72,13 @@ class FilesTable:
     layout: str = setting(max_len=MAX_PATH_LEN, doc="skin layout TOML, relative to the protocol's folder")
     wiring: str = setting(max_len=MAX_PATH_LEN, doc="mux wiring TOML, relative to the protocol's folder")
     printer: str = setting(max_len=MAX_PATH_LEN, doc="printer profile TOML, relative to the protocol's folder")
+    skin_profile: str | None = setting(
+        None,
+        max_len=MAX_PATH_LEN,
+        default_doc="none: the layout's own channels",
+        doc="skin profile TOML written by `neatskin skin fit`, relative to the protocol's folder: the dry run "
+        "simulates that skin (its channel resistances and pinch)",
+    )
 
 
 @dataclass(frozen=True)

@@ -62,10 +62,15 @@ def open_daq(kind: str, config: DaqConfig = DaqConfig(), **kwargs) -> Daq:
 
 
 def daq_config(protocol):
+    """The DAQ settings of a protocol, its electrical limits included (ADC range, voltage gain, compliance),
+    so a dry run clips where the protocol's rig would."""
     return DaqConfig(
         rate_hz=protocol.acquisition.rate_hz,
         amplitude_a=protocol.excitation.amplitude_a,
         frequency_hz=protocol.excitation.frequency_hz,
+        voltage_range_v=protocol.acquisition.adc_range_v,
+        voltage_gain=protocol.acquisition.voltage_gain,
+        compliance_v=protocol.excitation.compliance_v,
     )
 
 
@@ -80,15 +85,21 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
 
     scene = protocol.scene
     probe_radius = protocol.press.press.probe_diameter_mm / 2
+    heights = fabrication_heights(
+        protocol.layout.n_channels, getattr(scene, "fabrication_spread_fraction", 0.0), protocol.seed
+    )
+    profile = getattr(protocol, "skin_profile", None)  # a skin fitted by `neatskin skin fit`: its channels, its pinch
+    if profile is not None and profile.channel_height_factor is not None:
+        fitted = np.asarray(profile.channel_height_factor, float)
+        heights = tuple(float(h) for h in (fitted if heights is None else fitted * np.asarray(heights, float)))
     skin = SkinModel(
         protocol.layout,
         fidelity=scene.fidelity,
         probe_radius_mm=probe_radius,
         placement_sigma_mm=scene.placement_error_mm,
-        channel_height_factor=fabrication_heights(
-            protocol.layout.n_channels, getattr(scene, "fabrication_spread_fraction", 0.0), protocol.seed
-        ),
+        channel_height_factor=heights,
         displaced_fluid_fraction=getattr(scene, "displaced_fluid_fraction", 0.0),
+        **({} if profile is None else {"pinch": profile.pinch}),
     )
     kwargs = {} if printer_faults is None else {"faults": printer_faults}
     printer = SimulatedPrinter(protocol.printer, seed=protocol.seed, time_mode="virtual", **kwargs)
@@ -150,6 +161,7 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
             "surface_error_mm": scene.surface_error_mm,
             "probe_radius_mm": probe_radius,
             "preset": getattr(scene, "preset", "ideal"),
+            "skin_profile": None if profile is None else str(protocol.skin_profile_path),
             **(scene.variability() if hasattr(scene, "variability") else {}),
         },
     }

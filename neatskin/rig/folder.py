@@ -137,6 +137,7 @@ def create_campaign_folder(protocol: Protocol, plan: Plan, folder: Path, rig_kin
 
 
 INPUT_KEYS = ("protocol", "layout", "wiring", "printer")
+OPTIONAL_INPUT_KEYS = ("skin_profile",)  # copied and checked when the protocol names one
 
 
 def _recorded_input_sha(folder: Path, manifest: dict) -> dict[str, str | None]:
@@ -149,7 +150,8 @@ def _recorded_input_sha(folder: Path, manifest: dict) -> dict[str, str | None]:
     except (DataError, OSError):
         metadata = {}
     out: dict[str, str | None] = {}
-    for key in INPUT_KEYS:
+    optional = [key for key in OPTIONAL_INPUT_KEYS if key in manifest or (folder / INPUTS_DIR / f"{key}.toml").exists()]
+    for key in (*INPUT_KEYS, *optional):
         shas = [ref.get("sha256") for ref in (manifest.get(key), metadata.get(key)) if isinstance(ref, dict)]
         shas = [sha for sha in shas if isinstance(sha, str)]
         if len(set(shas)) > 1:
@@ -210,7 +212,11 @@ def rig_kind(folder: Path, manifest: dict) -> str:
 def load_inputs(folder: Path) -> Protocol:
     return load_protocol(
         folder / INPUTS_DIR / "protocol.toml",
-        file_overrides={k: folder / INPUTS_DIR / f"{k}.toml" for k in ("layout", "wiring", "printer")},
+        file_overrides={
+            k: folder / INPUTS_DIR / f"{k}.toml"
+            for k in ("layout", "wiring", "printer", "skin_profile")
+            if k != "skin_profile" or (folder / INPUTS_DIR / f"{k}.toml").is_file()
+        },
     )
 
 

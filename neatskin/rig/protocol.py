@@ -107,15 +107,20 @@ class Protocol:
     raw: dict
     resources: ResourceEstimate
     electrical: ElectricalCheck
+    skin_profile_path: Path | None = None  # [files] skin_profile, resolved
+    skin_profile: Any = None  # the SkinModel it describes (neatskin.skin.fit.load_skin_profile), or None
 
     @property
     def referenced_files(self) -> dict[str, Path]:
-        return {
+        files = {
             "protocol": self.path,
             "layout": self.layout_path,
             "wiring": self.wiring_path,
             "printer": self.printer_path,
         }
+        if self.skin_profile_path is not None:
+            files["skin_profile"] = self.skin_profile_path
+        return files
 
 
 def file_sha256(path: Path) -> str:
@@ -156,6 +161,9 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
     layout, wiring, printer, press = _load_components(data, source, file_paths, problems)
     if layout is not None and not scene_problems:
         problems += _scene_problems(scene, layout, source)
+    skin_profile = None
+    if layout is not None and press is not None and file_paths.get("skin_profile") is not None:
+        skin_profile = _load_skin_profile(file_paths["skin_profile"], layout, press, source, problems)
     resources = electrical = None
     resource_problems: list[Problem] = []  # a program too large to run is too large to build: check first
     if press is not None and printer is not None and acq is not None:
@@ -209,7 +217,23 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
         raw=data,
         resources=resources,
         electrical=electrical,
+        skin_profile_path=file_paths.get("skin_profile"),
+        skin_profile=skin_profile,
     )
+
+
+def _load_skin_profile(profile_path: Path, layout: Any, press: Any, source: str, problems: list[Problem]) -> Any:
+    """The SkinModel of `[files] skin_profile` on the protocol's layout, or None with its problems added."""
+    from neatskin.skin.fit import load_skin_profile
+
+    try:
+        return load_skin_profile(profile_path, layout, probe_radius_mm=press.press.probe_diameter_mm / 2)
+    except ConfigError as exc:
+        problems += [
+            Problem(p.message, p.file, p.field, f"{p.fix or 'fix the profile'} (it is files.skin_profile of {source})")
+            for p in exc.problems
+        ]
+        return None
 
 
 def _timing_problems(excitation: schema.ExcitationTable, acq: schema.AcquisitionTable, source: str) -> list[Problem]:
@@ -288,7 +312,8 @@ def _referenced_files(
     out: dict[str, Any] = {"layout": None, "wiring": None, "printer": None}
     if files is None:
         return out
-    for key in out:
+    keys = [*out, "skin_profile"] if files.skin_profile is not None else list(out)
+    for key in keys:
         rel = getattr(files, key)
         try:
             resolved = Path(overrides.get(key) or (path.parent / rel)).resolve()
