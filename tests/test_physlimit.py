@@ -85,3 +85,22 @@ def test_the_drift_prior_is_the_ramps_spread_in_log_rho():
     priors = NuisancePriors.from_scene(scene, 2 * 3600.0, tempco_per_k=-0.02)
     assert priors.drift_std == pytest.approx(-np.log(1 - 0.02 * 0.5 * 2) / np.sqrt(12), rel=1e-12)
     assert NuisancePriors.from_scene(scene, 0.0).drift_std == 0.0
+
+
+def test_a_scene_without_noise_has_a_zero_electronics_bound_and_a_report(tmp_path):
+    """`noise = false`: no estimator noise, so an identifiable position is measured exactly (bound 0, not a crash)."""
+    import shutil
+
+    import pandas as pd
+
+    root = tmp_path / "protocols"
+    for sub in ("skins", "wiring", "printers"):
+        shutil.copytree(PROTOCOLS / sub, root / sub)
+    text = (PROTOCOLS / "smoke.toml").read_text()
+    assert "\nnoise = true" in text
+    (root / "quiet.toml").write_text(text.replace("\nnoise = true", "\nnoise = false"))
+    result = run_campaign(load_protocol(root / "quiet.toml"), tmp_path / "run", progress=False, report=True)
+    limit = pd.read_parquet(tmp_path / "run" / "physical_limit.parquet")
+    assert result.completed == 12 and len(limit) == 6
+    assert (limit["crb_mm"] == 0.0).all() and (limit["crb_nuisance_mm"] == 0.0).all()  # the smoke scene is ideal
+    assert "Cramér-Rao" in (tmp_path / "run" / "report.md").read_text()

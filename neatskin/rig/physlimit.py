@@ -69,17 +69,25 @@ def physical_limit_frame(ids, x_mm, y_mm, jacobian: np.ndarray, noise_std_ohm: n
     (positions, pairs, 4) `feature_jacobian` and the (positions, pairs) noise std, in one batch."""
     import pandas as pd
 
-    from neatskin.skin.bound import position_bound_mm
-
     return pd.DataFrame(
         {
             "position_id": np.asarray(ids).astype(np.int32),
             "x_mm": np.asarray(x_mm, float),
             "y_mm": np.asarray(y_mm, float),
-            "crb_mm": position_bound_mm(jacobian, noise_std_ohm),
-            "crb_nuisance_mm": position_bound_mm(jacobian, noise_std_ohm, **priors.as_kwargs()),
+            "crb_mm": _bound_mm(jacobian, noise_std_ohm, {}),
+            "crb_nuisance_mm": _bound_mm(jacobian, noise_std_ohm, priors.as_kwargs()),
         }
     )
+
+
+def _bound_mm(jacobian: np.ndarray, noise_std_ohm: np.ndarray, priors: dict[str, float]) -> np.ndarray:
+    """The bound per position; a scene without measurement noise (`noise = false`) measures an identifiable
+    position, depth and drift exactly, so only the placement error (per axis, on top) is left."""
+    from neatskin.skin.bound import position_bound_mm
+
+    if np.all(np.asarray(noise_std_ohm) > 0):
+        return position_bound_mm(jacobian, noise_std_ohm, **priors)
+    return np.full(jacobian.shape[0], np.sqrt(2.0) * float(priors.get("placement_std_mm", 0.0)))
 
 
 def write_physical_limit(folder: Path, protocol: Protocol, plan, rig) -> Path:
