@@ -21,7 +21,7 @@ from collections.abc import Callable, Iterable
 from os import PathLike
 from typing import Any
 
-from neatskin.gcode.parse import parse_line, parse_program
+from neatskin.gcode.parse import GcodeLine, parse_line, parse_program
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.marlin import errors as E
 from neatskin.marlin.jobs import DriverConfig, Job
@@ -59,6 +59,11 @@ class MarlinDriver:
         self._stop = threading.Event()
         self._protocol = LineProtocol(config, profile, self.port_name)
         self._batch: list[Job] = []
+        # what callers block on: the reader wakes them only when one of these finished (or the session
+        # failed, or a drain ended), not for every `ok` of a batch: a waiter woken per line competes with
+        # the reader for the lock and the GIL on the hot path
+        self._awaited: list[Job] = []
+        self._draining = 0
 
     @classmethod
     def open(cls, url: str, baud_rate: int = 115200, **kwargs: Any) -> MarlinDriver:
@@ -209,22 +214,36 @@ class MarlinDriver:
                 else:
                     protocol.tick(self.clock())
                 self._flush()
-                self._cond.notify_all()
+                if self._should_wake():
+                    self._cond.notify_all()
+
+    def _should_wake(self) -> bool:
+        """Whether a blocked caller has something to see (called with the lock held)."""
+        if self._protocol.failure is not None:
+            return True
+        if self._draining and not self._protocol.in_flight:
+            return True
+        return any(job.done for job in self._awaited)
 
     def _flush(self) -> None:
-        """Write what the protocol asks for (called with the lock held)."""
-        channel = self._channel
-        for data in self._protocol.data_to_send():
-            if not self._log(">", data):
-                return
-            try:
-                if channel is None:
-                    raise OSError("the port is not open")
-                channel.write(data, self.config.write_timeout_s)
-            except Exception as exc:  # noqa: BLE001 - any port failure is a dead port
-                self._protocol.port_failed(f"write failed: {exc}")
-                self._protocol.data_to_send()
-                return
+        """Write what the protocol asks for, in one write (called with the lock held).
+
+        Several lines are due at once when lines are pipelined or replayed after a `Resend:`: one
+        write (and one wire-log entry) for them all lets the printer read them as one burst."""
+        pending = self._protocol.data_to_send()
+        if not pending:
+            return
+        data = pending[0] if len(pending) == 1 else b"".join(pending)
+        if not self._log(">", data):
+            return
+        try:
+            channel = self._channel
+            if channel is None:
+                raise OSError("the port is not open")
+            channel.write(data, self.config.write_timeout_s)
+        except Exception as exc:  # noqa: BLE001 - any port failure is a dead port
+            self._protocol.port_failed(f"write failed: {exc}")
+            self._protocol.data_to_send()
 
     def _log(self, direction: str, data: bytes) -> bool:
         """Append to the wire log; a failing log ends the session as such, not as a dead port."""
@@ -250,15 +269,21 @@ class MarlinDriver:
     def _wait(self, job: Job, progress: Callable[[], None] | None = None) -> None:
         """Until the protocol finishes job (it has a deadline for every line it sends)."""
         with self._cond:
-            while not job.done:
-                self._cond.wait(0.1)
-                if self._reader is None or not self._reader.is_alive():
-                    n, cmd = self._protocol.last_acked
-                    error = E.PortDead("the reader thread stopped", last_line=n, last_command=cmd, port=self.port_name)
-                    self._protocol.fail(error)
-                    job.finish(error)
-                if progress is not None:
-                    progress()
+            self._awaited.append(job)
+            try:
+                while not job.done:
+                    self._cond.wait(0.1)
+                    if self._reader is None or not self._reader.is_alive():
+                        n, cmd = self._protocol.last_acked
+                        error = E.PortDead(
+                            "the reader thread stopped", last_line=n, last_command=cmd, port=self.port_name
+                        )
+                        self._protocol.fail(error)
+                        job.finish(error)
+                    if progress is not None:
+                        progress()
+            finally:
+                self._awaited.remove(job)
         if job.error is not None:
             raise job.error
 
@@ -300,13 +325,11 @@ class MarlinDriver:
         `ok` cannot make this return before the printer ran the batch.
         """
         text = "\n".join(lines)
-        program = parse_program(text, source=source)
-        cleaned = [(_clean(line.raw), line) for line in program]
-        cleaned = [(c, line) for c, line in cleaned if c]
-        if not cleaned:
+        program = parse_program(text, source=source)  # parsed once: the protocol sizes deadlines from these
+        if not program:
             return 0
         batch = object()
-        jobs = [Job(c, line, batch) for c, line in cleaned]
+        jobs = [Job(_clean_parsed(line), line, batch) for line in program]
         self._batch = jobs
         last = jobs[-1]
         if self._protocol.confirming:
@@ -353,8 +376,12 @@ class MarlinDriver:
                 E.Interrupted("taken back before sending", last_line=n, last_command=cmd, port=self.port_name)
             )
             end = self.clock() + (timeout_s if timeout_s is not None else self.config.max_busy_s)
-            while self._protocol.in_flight and self._protocol.failure is None and self.clock() < end:
-                self._cond.wait(0.1)
+            self._draining += 1
+            try:
+                while self._protocol.in_flight and self._protocol.failure is None and self.clock() < end:
+                    self._cond.wait(0.1)
+            finally:
+                self._draining -= 1
         return self.batch_acknowledged()
 
     def sync(self) -> None:
@@ -385,6 +412,13 @@ class MarlinDriver:
             self._protocol.emergency_stop()
             self._flush()
             self._cond.notify_all()
+
+
+def _clean_parsed(line: GcodeLine) -> str:
+    """`_clean` for a line parse_program parsed already (the same checks, without parsing it again)."""
+    if line.line_number is not None or line.checksum is not None:
+        raise ValueError(f"send commands without N.. or *.. framing (the driver adds it), got {line.raw!r}")
+    return line.raw.split(";", 1)[0].strip()
 
 
 def _clean(command: str) -> str:

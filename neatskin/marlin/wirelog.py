@@ -3,11 +3,16 @@
 One line per write or read: UTC time with microseconds, elapsed seconds on the monotonic
 clock, direction (`>` host to printer, `<` printer to host) and the bytes as a Python bytes
 literal, so a corrupted byte or a missing newline is visible exactly as it was on the wire.
+
+Every entry is one `write(2)` on an append-only descriptor, as it happens: a killed process
+leaves every entry it made in the OS, and the post-mortem's last lines are the ones that matter.
+The UTC stamp's date and time of day are formatted once per second (the log sits on the
+driver's per-line path; `datetime.strftime` per entry cost more than the write itself).
 """
 
 from __future__ import annotations
 
-import datetime as _dt
+import os
 import threading
 import time
 from os import PathLike
@@ -15,25 +20,42 @@ from pathlib import Path
 
 
 class WireLog:
-    def __init__(self, path: str | PathLike) -> None:
+    def __init__(self, path: str | PathLike[str]) -> None:
         self.path = Path(path)
-        self._file = open(self.path, "a", encoding="ascii", buffering=1)
+        self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
         self._lock = threading.Lock()
         self._t0 = time.monotonic()
-        self.write("#", b"wire log opened")
+        self._second = -1
+        self._prefix = ""
+        try:
+            self.write("#", b"wire log opened")
+        except OSError:
+            self.close()
+            raise
 
     def write(self, direction: str, data: bytes) -> None:
-        stamp = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+        micros = time.time_ns() // 1000
+        second, fraction = divmod(micros, 1_000_000)
+        elapsed = time.monotonic() - self._t0
         with self._lock:
-            if not self._file.closed:
-                self._file.write(f"{stamp} {time.monotonic() - self._t0:12.6f} {direction} {data!r}\n")
+            if self._fd is None:
+                return
+            if second != self._second:
+                self._second = second
+                self._prefix = time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(second))
+            entry = f"{self._prefix}.{fraction:06d}Z {elapsed:12.6f} {direction} {data!r}\n".encode("ascii")
+            view = memoryview(entry)
+            while view:
+                view = view[os.write(self._fd, view) :]
 
     def close(self) -> None:
         with self._lock:
-            self._file.close()
+            if self._fd is not None:
+                os.close(self._fd)
+                self._fd = None
 
 
-def read_wire_log(path: str | PathLike) -> list[tuple[str, bytes]]:
+def read_wire_log(path: str | PathLike[str]) -> list[tuple[str, bytes]]:
     """(direction, bytes) for every entry of a wire log, in order (a helper for tests and post-mortems)."""
     import ast
 
