@@ -80,3 +80,45 @@ def test_phase_durations_by_hand(profile, paper_layout):
         + profile.homing_time_s
         + estimate_program_time(prog.postamble, profile, start_mm=(105.0, 95.0, 15.5)).total_s
     )
+
+
+def test_phase_durations_of_a_paper_campaign_equal_stepping_parsed_lines(profile, paper_layout):
+    """The clock's parse cache and its echo shortcut change no number: every phase of 200 presses equals,
+    to the bit, the sum over lines parsed one by one and stepped on a fresh machine."""
+    import numpy as np
+
+    from neatskin.gcode.motion import MotionClock, phase_durations_s
+    from neatskin.gcode.parse import parse_line
+    from neatskin.gcode.positions import PositionSet
+    from neatskin.gcode.program import PressSpec, build_program
+
+    rng = np.random.default_rng(3)
+    xs, ys = rng.uniform(0, 30, 100), rng.uniform(0, 30, 100)
+    ps = PositionSet(tuple(xs), tuple(ys), tuple("random" for _ in xs))
+    prog = build_program(paper_layout, ps, PressSpec(depth_mm=3.5, repeats=2, hold_s=1.2), profile)
+    fast = phase_durations_s(prog, profile)
+    clock = MotionClock(profile)
+    for line in prog.preamble:
+        clock.step(parse_line(line))
+    slow = np.array(
+        [
+            [sum(clock.step(parse_line(line)) for line in phase.lines) for phase in block.phases]
+            for block in prog.presses
+        ]
+    )
+    assert fast.shape == (200, 4) and np.array_equal(fast, slow)
+    assert any(line.startswith("M118 ") for line in prog.presses[0].phases[0].lines)  # the shortcut was taken
+
+
+def test_the_clock_still_refuses_a_malformed_line(profile):
+    from neatskin.gcode.motion import MotionClock
+    from neatskin.gcode.parse import GcodeSyntaxError
+
+    clock = MotionClock(profile)
+    assert clock.step("M118 E1 hello") == 0.0
+    with pytest.raises(GcodeSyntaxError):
+        clock.step("M118 E1 hello*x")
+    with pytest.raises(GcodeSyntaxError):
+        clock.step("G1 Xnan")
+    with pytest.raises(GcodeSyntaxError):
+        clock.step("G1 Xnan")  # a refused line is not cached as a good one

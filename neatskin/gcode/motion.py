@@ -38,6 +38,10 @@ class TimeEstimate:
         return self.motion_s + self.dwell_s + self.homing_s
 
 
+_UNPARSED = object()
+_PARSE_CACHE_LINES = 4096  # distinct lines kept parsed per clock: the repeated ones come first
+
+
 class MotionClock:
     """Steps through commands one at a time on the machine model (gcode.machine), summing the program's time.
 
@@ -53,9 +57,24 @@ class MotionClock:
         )
         self.motion_s = self.dwell_s = self.homing_s = self.path_mm = self.travel_xy_mm = 0.0
         self.moves = 0
+        self._parsed: dict[str, GcodeLine | None] = {}
+
+    def _parse(self, text: str) -> GcodeLine | None:
+        """parse_line, once per distinct text (a press program repeats most of its lines: `M400`, the
+        descend and lift moves); an echo (`M118 ...`, never a motion, never a syntax error without a
+        `*`) is not parsed at all."""
+        if text.startswith("M118 ") and "*" not in text:
+            return None
+        cached = self._parsed.get(text, _UNPARSED)
+        if cached is not _UNPARSED:
+            return cached  # type: ignore[return-value]
+        line = parse_line(text)
+        if len(self._parsed) < _PARSE_CACHE_LINES:
+            self._parsed[text] = line
+        return line
 
     def step(self, item: GcodeLine | str) -> float:
-        line = parse_line(item) if isinstance(item, str) else item
+        line = self._parse(item) if isinstance(item, str) else item
         if line is None:
             return 0.0
         event = self.machine.step(line)
