@@ -8,6 +8,8 @@ the counter is dropped silently; `marlin_version="2.0"` answers it with an error
 BUFSIZE-slot queue; moves go to a planner of `planner_buffer_size` slots (a full planner delays
 the `ok`). Time is a clock object: virtual (jumps to when the motion is done; no sleeping) or
 scaled real time. Faults (faults.FaultConfig) are drawn from a seeded numpy Generator.
+Its memory is bounded however long it runs: the latest `history_lines` executed commands (and
+`executed_count` of them all) and the latest `keep_segments` moves (sim.motion.Timeline).
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ _MOVES = frozenset({"G0", "G1"})
 _MODES = frozenset({"G90", "G91", "M82", "M83"})
 _SILENT = frozenset({"G0", "G1", "G4", "G28", "M400", "M999"})
 _OK = b"ok\n"
+_PARSE_CACHE_LINES = 1024  # distinct command texts kept parsed (the repeated ones come first)
 _QUIET = frozenset({"G21", "G90", "G91", "M17", "M82", "M83", "M104", "M106", "M107", "M117", "M140", "M220", "M221"})
 
 
@@ -81,6 +84,8 @@ class MarlinCore:
         ok_after_resend: bool = False,
         bufsize: int = 4,
         keepalive_s: float = 2.0,
+        history_lines: int = 10_000,
+        keep_segments: int = 4096,
     ) -> None:
         self.profile = profile
         self.faults = faults
@@ -92,13 +97,18 @@ class MarlinCore:
         self.ok_after_resend = ok_after_resend
         self.bufsize = bufsize
         self.keepalive_s = keepalive_s
-        self.timeline = Timeline(profile, tuple(profile.park_mm))
-        self.executed: list[tuple[int | None, str]] = []
-        self.clip_events: list[tuple[float, str, MaybeXyz, MaybeXyz]] = []
+        self.timeline = Timeline(profile, tuple(profile.park_mm), keep_segments)
+        # bounded, so memory stays flat as a campaign grows: the latest lines, and a count of them all
+        self.executed: collections.deque[tuple[int | None, str]] = collections.deque(maxlen=history_lines)
+        self.executed_count = 0
+        self.clip_events: collections.deque[tuple[float, str, MaybeXyz, MaybeXyz]] = collections.deque(
+            maxlen=history_lines
+        )
         self.out = bytearray()
         self.dead = False
         self.closed = False
         self.resets = 0
+        self._parsed: dict[str, tuple[str, GcodeLine | None]] = {}
         self._plain_ok = not (faults.drop_ok or faults.duplicate) and R.OK == "ok"
         self._boot()
 
@@ -236,13 +246,20 @@ class MarlinCore:
         return False
 
     def _enqueue(self, number: int | None, text: str) -> None:
-        """Queue a command, parsed once (Marlin parses at execution; the result is the same)."""
-        try:
-            line = parse_line(text)
-        except ConfigError:
-            line = None
-        code = line.code if line is not None else text.split(" ", 1)[0]
-        self.queue.append((number, text, code, line))
+        """Queue a command, parsed once (Marlin parses at execution; the result is the same).
+
+        A campaign repeats most of its lines (`M400`, the descend and lift moves): each distinct
+        text is parsed once (a bounded cache of immutable parses)."""
+        parsed = self._parsed.get(text)
+        if parsed is None:
+            try:
+                line = parse_line(text)
+            except ConfigError:
+                line = None
+            parsed = (line.code if line is not None else text.split(" ", 1)[0], line)
+            if len(self._parsed) < _PARSE_CACHE_LINES:
+                self._parsed[text] = parsed
+        self.queue.append((number, text, parsed[0], parsed[1]))
 
     def _corrupt(self, raw: bytes) -> bytes:
         # never the leading 'N': a line that loses it is taken unnumbered, a hole in Marlin's protocol
@@ -284,7 +301,7 @@ class MarlinCore:
         return None
 
     def _after_command(self) -> None:
-        count = len(self.executed)
+        count = self.executed_count
         if self.faults.reset_after is not None and count == self.faults.reset_after and self.resets == 0:
             self.reset()
         if self.faults.dead_after is not None and count >= self.faults.dead_after and not self.dead:
@@ -319,6 +336,7 @@ class MarlinCore:
         if moved:
             self._move(line)  # type: ignore[arg-type]
         self.executed.append((number, text))
+        self.executed_count += 1
         if self.faults.busy_storm and self.rng.random() < self.faults.busy_storm:
             for _ in range(int(self.rng.integers(3, 30))):
                 self._emit(f"echo:{R.BUSY_PROCESSING}")

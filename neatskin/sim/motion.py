@@ -75,15 +75,30 @@ def trapezoid_distance_mm(t_s: float, distance_mm: float, feed_mm_s: float, acce
     return min(distance_mm, d_a + v * t_c + v * td - 0.5 * a * td * td)
 
 
-class Timeline:
-    """Every move the printer made, in order; `end_s` is when the last queued one finishes."""
+class HistoryForgotten(LookupError):
+    """A question about a time before the oldest move a Timeline still keeps."""
 
-    def __init__(self, profile: PrinterProfile, start_mm: Xyz) -> None:
+
+class Timeline:
+    """The printer's recent moves, in order; `end_s` is when the last queued one finishes.
+
+    Memory stays flat however long a campaign runs: the timeline keeps the latest `keep_segments`
+    moves (trimmed in blocks of an eighth of that, so the cost per move stays constant), and `forget_before(t_s)` lets
+    a caller drop what it will never ask about. The firmware itself only asks about now and later;
+    a question about a time older than what is kept raises HistoryForgotten, never a wrong answer.
+    """
+
+    def __init__(self, profile: PrinterProfile, start_mm: Xyz, keep_segments: int = 4096) -> None:
+        if keep_segments < 2:
+            raise ValueError(f"keep_segments must be >= 2, got {keep_segments}")
         self.profile = profile
         self.start_mm = start_mm
+        self.keep_segments = keep_segments
         self.segments: list[Segment] = []
         self._t0s: list[float] = []
         self._t1s: list[float] = []  # non-decreasing: every segment starts when the previous one ends
+        self.forgotten = 0  # moves dropped from the front so far
+        self.forgotten_until_s = -math.inf  # no question about a time before this can be answered any more
 
     @property
     def end_s(self) -> float:
@@ -130,6 +145,9 @@ class Timeline:
     def teleport(self, now_s: float, position_mm: Xyz) -> None:
         """A reset (power cycle): the probe stays where it was, nothing is queued any more."""
         here = self.position_mm(now_s)
+        self.forgotten += len(self.segments)
+        if self.segments:
+            self.forgotten_until_s = max(self.forgotten_until_s, now_s)
         self.segments = [Segment(now_s, now_s, here, position_mm, 1.0, 1.0, True, 0.0)]
         self._t0s = [now_s]
         self._t1s = [now_s]
@@ -138,11 +156,44 @@ class Timeline:
         self.segments.append(segment)
         self._t0s.append(segment.t0_s)
         self._t1s.append(segment.t1_s)
+        if len(self.segments) >= self.keep_segments + max(1, self.keep_segments // 8):
+            self._drop(len(self.segments) - self.keep_segments)
         return segment
+
+    def forget_before(self, t_s: float) -> int:
+        """Drop the moves that ended before t_s, except the one the probe rests after at t_s
+        (`segments_from(t_s)` and `position_mm(t >= t_s)` stay answerable); the number dropped."""
+        k = bisect.bisect_right(self._t1s, t_s) - 1  # the last move ended by t_s: it stays
+        k = min(k, len(self.segments) - 1)
+        if k <= 0:
+            return 0
+        self._drop(k)
+        return k
+
+    def _drop(self, k: int) -> None:
+        self.forgotten_until_s = max(self.forgotten_until_s, self.segments[k - 1].t1_s)
+        self.forgotten += k
+        del self.segments[:k], self._t0s[:k], self._t1s[:k]
+
+    def _check(self, t_s: float) -> None:
+        if t_s < self.forgotten_until_s:
+            raise HistoryForgotten(
+                f"printer time {t_s:.6f} s is before the oldest move kept (ended {self.forgotten_until_s:.6f} s; "
+                f"{self.forgotten} moves forgotten, the latest {self.keep_segments} kept): "
+                "ask while the press is recent, or raise keep_segments"
+            )
+
+    def segments_from(self, t0_s: float) -> list[Segment]:
+        """The moves from the one the probe rests after at t0_s onwards (all of them if none ended by t0_s)."""
+        k = bisect.bisect_right(self._t1s, t0_s)  # moves [0, k) ended by t0_s; the probe rests after k - 1
+        if k == 0 and self.forgotten:  # the move the probe rested after is gone
+            self._check(min(t0_s, self.forgotten_until_s - 1e-9))
+        return self.segments[max(k - 1, 0) :]
 
     def position_mm(self, t_s: float) -> Xyz:
         i = bisect.bisect_right(self._t0s, t_s) - 1
         if i < 0:
+            self._check(t_s)
             return self.segments[0].p0_mm if self.segments else self.start_mm
         return self.segments[i].position_mm(t_s)
 

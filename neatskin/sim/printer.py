@@ -15,12 +15,16 @@ import time
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.sim.faults import FaultConfig
 from neatskin.sim.firmware import MarlinCore, ScaledClock, VirtualClock
+from neatskin.sim.motion import Segment
 from neatskin.sim.pty import PtyPair, open_pty, read_available, write_all
 from neatskin.tomlfile import resolve_path
 
 
 class SimulatedPrinter:
-    """A Marlin printer in software. time_mode "virtual" (no sleeping) or "scaled" (real time x speed)."""
+    """A Marlin printer in software. time_mode "virtual" (no sleeping) or "scaled" (real time x speed).
+
+    Its memory is bounded: it keeps the latest `history_lines` executed commands and clip events
+    and the latest `keep_segments` moves (about 1,000 paper presses), however long it runs."""
 
     def __init__(
         self,
@@ -33,6 +37,8 @@ class SimulatedPrinter:
         advanced_ok: bool = False,
         marlin_version: str = "2.1",
         ok_after_resend: bool = False,
+        history_lines: int = 10_000,
+        keep_segments: int = 4096,
     ) -> None:
         if time_mode not in ("virtual", "scaled"):
             raise ValueError(f"time_mode must be 'virtual' or 'scaled', got {time_mode!r}")
@@ -47,6 +53,8 @@ class SimulatedPrinter:
             advanced_ok=advanced_ok,
             marlin_version=marlin_version,
             ok_after_resend=ok_after_resend,
+            history_lines=history_lines,
+            keep_segments=keep_segments,
         )
         self.lock = threading.Condition(threading.RLock())
         self._pty: PtyPair | None = None
@@ -65,20 +73,30 @@ class SimulatedPrinter:
         with self.lock:
             return self.core.timeline.position_mm(self.core.clock.now() if t_s is None else t_s)
 
-    def segments(self, t0_s: float = 0.0) -> list:
-        """The moves (simmotion.Segment) from the one the probe rests after at t0_s onwards, in order."""
+    def segments(self, t0_s: float = 0.0) -> list[Segment]:
+        """The moves (sim.motion.Segment) from the one the probe rests after at t0_s onwards, in order.
+
+        The printer keeps its latest moves only (MarlinCore's `keep_segments`); a t0_s older than
+        those raises HistoryForgotten. `forget_before(t0_s)` says nothing before t0_s will be asked."""
         with self.lock:
-            segments = self.core.timeline.segments
-            k = len(segments)
-            while k > 0 and segments[k - 1].t1_s > t0_s:
-                k -= 1
-            return list(segments[max(k - 1, 0) :])
+            return self.core.timeline.segments_from(t0_s)
+
+    def forget_before(self, t_s: float) -> int:
+        """Drop the moves that ended before printer time t_s (the one the probe rests after stays)."""
+        with self.lock:
+            return self.core.timeline.forget_before(t_s)
 
     @property
     def executed(self) -> list[tuple[int | None, str]]:
-        """(line number, command) of every command the firmware executed, in order."""
+        """(line number, command) of the commands the firmware executed, in order: the latest
+        `history_lines` of them (MarlinCore); `executed_count` counts them all."""
         with self.lock:
             return list(self.core.executed)
+
+    @property
+    def executed_count(self) -> int:
+        with self.lock:
+            return self.core.executed_count
 
     @property
     def clip_events(self) -> list:
