@@ -505,6 +505,15 @@ def test_framed_input_and_bad_gcode_are_refused_before_sending(run):
 
     with pytest.raises(ConfigError):
         driver.send_lines(["G28", "X10 nonsense"])
+    for _ in range(2):  # the second time from the driver's parse cache: the same refusals
+        with pytest.raises(ConfigError) as info:
+            driver.send_lines(["G28", "X10 nonsense", "M400 ; sync", "Q2"], source="press 7 travel")
+        assert [(p.file, p.field) for p in info.value.problems] == [
+            ("press 7 travel", "line 2"),
+            ("press 7 travel", "line 4"),
+        ]
+        with pytest.raises(ValueError, match="framing"):
+            driver.send_lines(["G28", "N3 G1 X1*5"])
     peer.check()
     assert peer.extra_lines() == []
 

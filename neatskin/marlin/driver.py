@@ -21,7 +21,8 @@ from collections.abc import Callable, Iterable
 from os import PathLike
 from typing import Any
 
-from neatskin.gcode.parse import GcodeLine, parse_line, parse_program
+from neatskin.errors import Problem
+from neatskin.gcode.parse import GcodeLine, GcodeSyntaxError, parse_line
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.marlin import errors as E
 from neatskin.marlin.jobs import DriverConfig, Job
@@ -31,6 +32,8 @@ from neatskin.marlin.transport import Channel, Clock, SerialPort, channel_for
 from neatskin.marlin.wirelog import WireLog
 
 __all__ = ["DriverConfig", "MarlinDriver"]
+
+_PARSE_CACHE_LINES = 1024  # distinct lines kept parsed per driver (a campaign's repeated ones come first)
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +66,7 @@ class MarlinDriver:
         # failed, or a drain ended), not for every `ok` of a batch: a waiter woken per line competes with
         # the reader for the lock and the GIL on the hot path
         self._awaited: list[Job] = []
+        self._parsed: dict[str, tuple[str, GcodeLine | None]] = {}
         self._draining = 0
 
     @classmethod
@@ -324,12 +328,11 @@ class MarlinDriver:
         a probe (`M118 E1 neatskin-probe N`) whose echo proves that every line ran, so a duplicated
         `ok` cannot make this return before the printer ran the batch.
         """
-        text = "\n".join(lines)
-        program = parse_program(text, source=source)  # parsed once: the protocol sizes deadlines from these
+        program = self._parse_batch(lines, source)  # the protocol sizes deadlines from these parses
         if not program:
             return 0
         batch = object()
-        jobs = [Job(_clean_parsed(line), line, batch) for line in program]
+        jobs = [Job(command, line, batch) for command, line in program]
         self._batch = jobs
         last = jobs[-1]
         if self._protocol.confirming:
@@ -356,6 +359,36 @@ class MarlinDriver:
         if progress is not None:
             progress(len(jobs), len(jobs))
         return len(jobs)
+
+    def _parse_batch(self, lines: Iterable[str], source: str) -> list[tuple[str, GcodeLine]]:
+        """(command, parsed line) of every command, as parse_program and `_clean` give them; one
+        GcodeSyntaxError listing every bad line. A campaign sends the same lines press after press
+        (`M400`, the descend and lift moves): each distinct text is parsed once (a bounded cache)."""
+        cache = self._parsed
+        out: list[tuple[str, GcodeLine]] = []
+        problems: list[Problem] = []
+        framed: ValueError | None = None
+        for number, text in enumerate("\n".join(lines).splitlines(), start=1):
+            hit = cache.get(text)
+            if hit is None:
+                try:
+                    parsed = parse_line(text, source=source, line_no=number)
+                    hit = (_clean_parsed(parsed), parsed) if parsed is not None else ("", None)
+                except GcodeSyntaxError as exc:
+                    problems.extend(exc.problems)
+                    continue
+                except ValueError as exc:  # framing the driver adds itself: after every syntax error
+                    framed = framed or exc
+                    continue
+                if len(cache) < _PARSE_CACHE_LINES:
+                    cache[text] = hit
+            if hit[1] is not None:
+                out.append(hit)  # type: ignore[arg-type]  # not None: checked
+        if problems:
+            raise GcodeSyntaxError(problems=problems)
+        if framed is not None:
+            raise framed
+        return out
 
     def batch_acknowledged(self) -> int:
         """How many commands of the latest send_lines batch the printer acknowledged (a prefix, in order)."""
