@@ -1,6 +1,12 @@
 """The simulated printer's hot path, side by side: this tree's simulator against another tree's, in one run.
 
 Run: PYTHONPATH=. .venv/bin/python benchmarks/bench_sim_printer.py --base /tmp/base [--lines 2000] [--rounds 3]
+     [--presses 400] [--only-presses]
+
+First table: the dry run's own G-code path, per paper press (5 send_lines, 15 lines): the simulated
+printer on a pty served from a thread of the driver's process, with a wire log, as `campaign run
+--dry-run` sets it up; one line in flight, and pipelined (`ok N P B` and up to 4 lines in flight).
+Wall ms, CPU ms (process_time: all threads) and context switches per press, median of the rounds.
 
 `--base` is a checkout of the commit to compare with (e.g. `git worktree add /tmp/base 74b806b`).
 Every peer runs in its own process (its own GIL), as a real printer does: `neatskin sim printer
@@ -52,6 +58,79 @@ for line in lines:
     core.receive(line); core.step(); core.take_output()
 print(n / (time.process_time() - start))
 """
+
+# The dry run's own set-up: the simulated printer on a pty served from a thread of the driver's process (it
+# shares the GIL), a wire log, and the paper press's 5 send_lines calls (travel, descend, press, hold, lift).
+PRESSES = """
+import json, os, resource, sys, tempfile, time
+from neatskin.marlin.driver import DriverConfig, MarlinDriver
+from neatskin.rig.protocol import load_protocol
+from neatskin.rig.runner import build_plan
+from neatskin.sim.printer import SimulatedPrinter
+n, mode = int(sys.argv[1]), sys.argv[2]
+protocol = load_protocol("protocols/paper.toml")
+plan = build_plan(protocol)
+pipelined = mode == "pipelined"
+printer = SimulatedPrinter(protocol.printer, seed=1, time_mode="virtual", advanced_ok=pipelined)
+config = DriverConfig(motion_time_scale=0.0, max_in_flight=4 if pipelined else 1)
+with tempfile.TemporaryDirectory() as tmp:
+    driver = MarlinDriver.open(printer.start_pty(), config=config, wire_log=os.path.join(tmp, "wire.log"))
+    driver.connect(boot_timeout_s=3.0)
+    driver.send_lines(plan.program.preamble)
+    hold = (f"G4 P{int(round(plan.hold_s * 1000))}", "M400")
+    usage, cpu, start = resource.getrusage(resource.RUSAGE_SELF), time.process_time(), time.perf_counter()
+    for block in plan.program.presses[:n]:
+        for phase in block.phases:
+            driver.send_lines(phase.lines)
+            if phase.name == "press":
+                driver.send_lines(hold)
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu
+    after = resource.getrusage(resource.RUSAGE_SELF)
+    switches = (after.ru_nvcsw - usage.ru_nvcsw) + (after.ru_nivcsw - usage.ru_nivcsw)
+    driver.close()
+printer.stop()
+print(json.dumps({"wall_ms": 1e3 * wall / n, "cpu_ms": 1e3 * cpu / n, "switches": switches / n}))
+"""
+
+
+def presses(tree: Path, n: int, mode: str) -> dict[str, float]:
+    """Per press of the paper dry run's G-code path in `tree`: wall ms, CPU ms, context switches."""
+    import json
+
+    out = subprocess.run(
+        [sys.executable, "-c", PRESSES, str(n), mode], cwd=tree, env=_env(tree), capture_output=True, text=True
+    )
+    if out.returncode:
+        raise RuntimeError(f"{tree}: {out.stderr.strip().splitlines()[-1:]}")
+    return json.loads(out.stdout)
+
+
+def press_table(trees: dict[str, Path], n: int, rounds: int) -> None:
+    """The paper press through driver, pty and simulated printer, side by side, rounds alternating trees."""
+    import statistics
+
+    runs: dict[tuple[str, str], list[dict[str, float]]] = {}
+    for _ in range(rounds):
+        for mode in ("one in flight", "pipelined"):
+            for name, tree in trees.items():
+                runs.setdefault((mode, name), []).append(presses(tree, n, mode.split()[0]))
+    print(f"paper presses ({n} per run, 15 lines in 5 send_lines each), in-process printer on a pty, wire log;")
+    print(f"median (min-max) of {rounds} alternating rounds; pipelined = `ok N P B` + max_in_flight=4")
+    print(
+        f"{'':16s} {'tree':>5s} {'wall ms/press':>20s} {'CPU ms/press':>20s} {'switches/press':>15s} {'wall this/base':>14s}"
+    )
+    for (mode, name), results in runs.items():
+        cells = []
+        for key in ("wall_ms", "cpu_ms"):
+            values = [r[key] for r in results]
+            cells.append(f"{statistics.median(values):6.3f} ({min(values):.3f}-{max(values):.3f})")
+        switches = statistics.median(r["switches"] for r in results)
+        base = runs.get((mode, "base"))
+        ratio = ""
+        if name == "this" and base:
+            ratio = f"{statistics.median(r['wall_ms'] for r in results) / statistics.median(r['wall_ms'] for r in base):14.2f}"
+        print(f"{mode:16s} {name:>5s} {cells[0]:>20s} {cells[1]:>20s} {switches:15.1f} {ratio:>14s}")
+    print()
 
 
 def _env(tree: Path) -> dict[str, str]:
@@ -129,8 +208,13 @@ def main() -> int:
     parser.add_argument("--base", type=Path, required=True, help="a checkout of the commit to compare with")
     parser.add_argument("--lines", type=int, default=2000)
     parser.add_argument("--rounds", type=int, default=3, help="alternating rounds; each row is the best")
+    parser.add_argument("--presses", type=int, default=400, help="paper presses per run of the press table")
+    parser.add_argument("--only-presses", action="store_true", help="print the press table only")
     args = parser.parse_args()
     trees = {"base": args.base.resolve(), "this": HERE}
+    press_table(trees, args.presses, args.rounds)
+    if args.only_presses:
+        return 0
     lines = framed_lines(args.lines)
     commands = [f"G1 X{10 + i % 100} Y{20 + i % 50} F6000" for i in range(args.lines)]
     hello = [b"N0 M110 N0*125\n", b"G28\n"]
