@@ -141,15 +141,20 @@ def _read_ok(port) -> None:
         got += chunk
 
 
+HOST_CPU_US: list[float] = []  # host CPU (this process, all threads) per line of each driver_rate call
+
+
 def driver_rate(port, commands: list[str], warmup: list[str], config: DriverConfig = CONFIG) -> float:
     driver = MarlinDriver(port, config=config)
     try:
         driver.connect()
         for command in warmup:
             driver.send(command)
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         driver.send_lines(commands)
-        return len(commands) / (time.perf_counter() - start)
+        wall = time.perf_counter() - start
+        HOST_CPU_US.append(1e6 * (time.process_time() - cpu) / len(commands))
+        return len(commands) / wall
     finally:
         driver.close()
 
@@ -212,23 +217,30 @@ class ApiSerial(serial.Serial):
 def driver_rows(commands: list[str], repeats: int) -> dict[str, float]:
     """The driver against the echo peer and the simulated printer, each in its own process (lines/s)."""
 
-    def run(kind: str, warmup: list[str], port_type: type = serial.Serial) -> float:
+    cpu: dict[str, float] = {}
+
+    def run(kind: str, warmup: list[str], port_type: type = serial.Serial, name: str = "") -> float:
         def once() -> float:
             peer = PeerProcess(kind)
             try:
                 port = port_type()
                 port.port = peer.path
-                return driver_rate(port, commands, warmup)
+                rate = driver_rate(port, commands, warmup)
+                cpu[name] = min(cpu.get(name, float("inf")), HOST_CPU_US[-1])
+                return rate
             finally:
                 peer.stop()
 
         return max(once() for _ in range(repeats))
 
-    return {
-        "driver vs echo peer": run("echo", []),
-        "driver vs sim printer": run("sim", ["G28"]),
+    rows = {
+        "driver vs echo peer": run("echo", [], name="driver vs echo peer"),
+        "driver vs sim printer": run("sim", ["G28"], name="driver vs sim printer"),
         "driver vs sim printer, pyserial API channel": run("sim", ["G28"], ApiSerial),
     }
+    # the driver's own CPU per line (its process, reader thread included): the figure machine load does not move
+    rows.update({f"{name}: host CPU us/line (lower is better)": us for name, us in cpu.items() if name})
+    return rows
 
 
 def against(rev: str, commands: list[str], repeats: int) -> dict[str, float]:
@@ -276,13 +288,16 @@ def main() -> int:
             runs_before.append(against(args.against, commands, 1))
             runs_now.append(driver_rows(commands, 1))
         print(f"{args.lines} lines, one in flight, peers in their own process, {args.repeats} alternating runs")
-        print(f"{'lines/s: median (min-max)':44s} {args.against[:12]:>20s} {'this tree':>20s} {'ratio':>6s}")
+        print(f"{'lines/s (or us): median (min-max)':62s} {args.against[:12]:>20s} {'this tree':>20s} {'ratio':>6s}")
         for name in runs_now[0]:
+            if name not in runs_before[0]:
+                continue
             now = [run[name] for run in runs_now]
             before = [run[name] for run in runs_before]
             ratio = statistics.median(now) / statistics.median(before)
-            cells = [f"{statistics.median(v):6.0f} ({min(v):.0f}-{max(v):.0f})" for v in (before, now)]
-            print(f"{name:44s} {cells[0]:>20s} {cells[1]:>20s} {ratio:6.2f}")
+            cells = [f"{statistics.median(v):6.1f} ({min(v):.1f}-{max(v):.1f})" for v in (before, now)]
+            print(f"{name:62s} {cells[0]:>20s} {cells[1]:>20s} {ratio:6.2f}")
+        print(f"load average: {os.getloadavg()[0]:.2f} (1 min) on {os.cpu_count()} cores")
         print()
     rows: dict[str, float] = {}
 
