@@ -408,6 +408,7 @@ class MarlinDriver:
             self._protocol.cancel_queued(
                 E.Interrupted("taken back before sending", last_line=n, last_command=cmd, port=self.port_name)
             )
+            self._cond.notify_all()  # a caller blocked on a job taken back sees it now
             end = self.clock() + (timeout_s if timeout_s is not None else self.config.max_busy_s)
             self._draining += 1
             try:
