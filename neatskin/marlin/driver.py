@@ -21,10 +21,9 @@ from collections.abc import Callable, Iterable
 from os import PathLike
 from typing import Any
 
-from neatskin.errors import Problem
-from neatskin.gcode.parse import GcodeLine, GcodeSyntaxError, parse_line
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.marlin import errors as E
+from neatskin.marlin.commands import CommandParser, clean_command
 from neatskin.marlin.jobs import DriverConfig, Job
 from neatskin.marlin.linestate import LineProtocol
 from neatskin.marlin.replies import Position, parse_m114, parse_m119
@@ -32,8 +31,6 @@ from neatskin.marlin.transport import Channel, Clock, SerialPort, channel_for
 from neatskin.marlin.wirelog import WireLog
 
 __all__ = ["DriverConfig", "MarlinDriver"]
-
-_PARSE_CACHE_LINES = 1024  # distinct lines kept parsed per driver (a campaign's repeated ones come first)
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +63,7 @@ class MarlinDriver:
         # failed, or a drain ended), not for every `ok` of a batch: a waiter woken per line competes with
         # the reader for the lock and the GIL on the hot path
         self._awaited: list[Job] = []
-        self._parsed: dict[str, tuple[str, GcodeLine | None]] = {}
+        self._commands = CommandParser()
         self._draining = 0
 
     @classmethod
@@ -300,7 +297,7 @@ class MarlinDriver:
         strict: raise CommandRejected when Marlin refuses it (`Unknown command`, `Home XYZ First`).
         Once the printer has sent an unexplained `ok`, each command is confirmed by a probe's echo.
         """
-        command = _clean(command)
+        command = clean_command(command)
         job = Job(command)
         jobs = [job]
         if self._protocol.confirming:
@@ -328,7 +325,7 @@ class MarlinDriver:
         a probe (`M118 E1 neatskin-probe N`) whose echo proves that every line ran, so a duplicated
         `ok` cannot make this return before the printer ran the batch.
         """
-        program = self._parse_batch(lines, source)  # the protocol sizes deadlines from these parses
+        program = self._commands.parse_batch(lines, source)  # the protocol sizes deadlines from these
         if not program:
             return 0
         batch = object()
@@ -359,36 +356,6 @@ class MarlinDriver:
         if progress is not None:
             progress(len(jobs), len(jobs))
         return len(jobs)
-
-    def _parse_batch(self, lines: Iterable[str], source: str) -> list[tuple[str, GcodeLine]]:
-        """(command, parsed line) of every command, as parse_program and `_clean` give them; one
-        GcodeSyntaxError listing every bad line. A campaign sends the same lines press after press
-        (`M400`, the descend and lift moves): each distinct text is parsed once (a bounded cache)."""
-        cache = self._parsed
-        out: list[tuple[str, GcodeLine]] = []
-        problems: list[Problem] = []
-        framed: ValueError | None = None
-        for number, text in enumerate("\n".join(lines).splitlines(), start=1):
-            hit = cache.get(text)
-            if hit is None:
-                try:
-                    parsed = parse_line(text, source=source, line_no=number)
-                    hit = (_clean_parsed(parsed), parsed) if parsed is not None else ("", None)
-                except GcodeSyntaxError as exc:
-                    problems.extend(exc.problems)
-                    continue
-                except ValueError as exc:  # framing the driver adds itself: after every syntax error
-                    framed = framed or exc
-                    continue
-                if len(cache) < _PARSE_CACHE_LINES:
-                    cache[text] = hit
-            if hit[1] is not None:
-                out.append(hit)  # type: ignore[arg-type]  # not None: checked
-        if problems:
-            raise GcodeSyntaxError(problems=problems)
-        if framed is not None:
-            raise framed
-        return out
 
     def batch_acknowledged(self) -> int:
         """How many commands of the latest send_lines batch the printer acknowledged (a prefix, in order)."""
@@ -446,21 +413,3 @@ class MarlinDriver:
             self._protocol.emergency_stop()
             self._flush()
             self._cond.notify_all()
-
-
-def _clean_parsed(line: GcodeLine) -> str:
-    """`_clean` for a line parse_program parsed already (the same checks, without parsing it again)."""
-    if line.line_number is not None or line.checksum is not None:
-        raise ValueError(f"send commands without N.. or *.. framing (the driver adds it), got {line.raw!r}")
-    return line.raw.split(";", 1)[0].strip()
-
-
-def _clean(command: str) -> str:
-    """Drop a comment and surrounding blanks; refuse framing the driver adds itself."""
-    text = command.split(";", 1)[0].strip()
-    if "\n" in text or "\r" in text:
-        raise ValueError(f"one command per call, got {command!r}")
-    parsed = parse_line(text) if text else None
-    if parsed is not None and (parsed.line_number is not None or parsed.checksum is not None):
-        raise ValueError(f"send commands without N.. or *.. framing (the driver adds it), got {command!r}")
-    return text
