@@ -1,9 +1,13 @@
 """Benchmark: generate and validate the paper campaign (100 positions x 28 presses) and compare the wall
 time with the printer time the program will take.
 
-    .venv/bin/python benchmarks/bench_gcode.py [--repeats 5]
+    .venv/bin/python benchmarks/bench_gcode.py [--repeats 5] [--against DIR]
 
 Prints one table (best of --repeats runs per stage) and the ratio estimated printer time / generation time.
+`--against DIR` (a checkout of another commit, e.g. `git worktree add /tmp/base 80806b2`) adds, in the
+same run, build_plan's motion-time estimate (gcode.motion.phase_durations_s on the paper campaign: every
+phase of every press) timed in a subprocess of each tree, alternating, with a check that both trees give
+the same durations to the bit.
 """
 
 from __future__ import annotations
@@ -23,6 +27,51 @@ from neatskin.gcode.spec import load_gcode_spec
 from neatskin.layout import load_layout
 
 PROTOCOL = Path(__file__).resolve().parent.parent / "protocols" / "paper.toml"
+HERE = Path(__file__).resolve().parent.parent
+PHASES = """
+import hashlib, json, time
+from neatskin.gcode.motion import phase_durations_s
+from neatskin.gcode.spec import build_from_spec
+from neatskin.rig.protocol import load_protocol
+protocol = load_protocol("protocols/paper.toml")
+program, _, _ = build_from_spec(protocol.press, hold_in_gcode=False, layout=protocol.layout, profile=protocol.printer)
+start = time.perf_counter()
+durations = phase_durations_s(program, protocol.printer)
+wall = time.perf_counter() - start
+print(json.dumps({"s": wall, "digest": hashlib.sha256(durations.tobytes()).hexdigest(), "shape": durations.shape}))
+"""
+
+
+def phase_durations_against(base: Path, rounds: int) -> None:
+    """build_plan's estimate in this tree and in base, alternating subprocesses (each its own start-up)."""
+    import json
+    import os
+    import statistics
+    import subprocess
+    import sys
+
+    times: dict[str, list[float]] = {"base": [], "this": []}
+    digests: dict[str, set[str]] = {"base": set(), "this": set()}
+    for _ in range(rounds):
+        for name, tree in (("base", base.resolve()), ("this", HERE)):
+            out = subprocess.run(
+                [sys.executable, "-c", PHASES],
+                cwd=tree,
+                env={**os.environ, "PYTHONPATH": str(tree)},
+                capture_output=True,
+                text=True,
+                check=True,
+            )
+            result = json.loads(out.stdout)
+            times[name].append(result["s"])
+            digests[name].add(result["digest"])
+    cells = {k: f"{1e3 * statistics.median(v):7.1f} ({1e3 * min(v):.1f}-{1e3 * max(v):.1f})" for k, v in times.items()}
+    ratio = statistics.median(times["this"]) / statistics.median(times["base"])
+    same = digests["this"] == digests["base"] and len(digests["this"]) == 1
+    print(f"phase_durations_s (build_plan's estimate, paper campaign), ms median (min-max) of {rounds} rounds:")
+    print(f"  base {cells['base']}   this tree {cells['this']}   this/base {ratio:.2f}")
+    print(f"  durations identical to the bit: {'yes' if same else 'NO'}; load {os.getloadavg()[0]:.1f}")
+    print()
 
 
 def best_of(repeats: int, fn):
@@ -37,7 +86,10 @@ def best_of(repeats: int, fn):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--against", type=Path, default=None, help="a checkout of the commit to compare with")
     args = parser.parse_args()
+    if args.against is not None:
+        phase_durations_against(args.against, args.repeats)
 
     spec = load_gcode_spec(PROTOCOL)
     layout = load_layout(spec.layout_path)
