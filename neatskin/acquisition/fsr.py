@@ -8,10 +8,16 @@ opening (running minimum then maximum over a window longer than a press) tracks 
 baseline drift, and a hysteresis threshold on the force above the baseline (on above
 on_threshold_n, off below off_threshold_n) with debounce (presses shorter than min_press_s
 dropped, gaps shorter than min_gap_s merged) gives onset, offset and peak per press.
+
+It runs once per press of a campaign, so each step is a handful of whole-array operations: a selection
+network for the median, block means and interpolation on the block grid without a search, hysteresis from
+the run starts alone. Each fast step equals the plain numpy / scipy call value for value (the plain
+version is kept as the oracle in tests/fsr_reference.py) and hands non-finite input to that call.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -117,81 +123,201 @@ def detect_presses(
     if n == 0:
         empty = np.zeros(0, dtype=np.int64)
         return PressDetection(empty, empty, empty, np.zeros(0), expected, rate_hz, np.zeros(0))
-    k = max(1, int(spike_samples)) | 1
-    clean = ndimage.median_filter(force, size=k, mode="nearest")
+    clean = _median_filter(force, max(1, int(spike_samples)) | 1)
     min_len, min_gap = int(round(min_press_s * rate_hz)), int(round(min_gap_s * rate_hz))
+    # both baselines work on block means (~2 ms): spikes are already median-filtered out
+    block = max(1, int(rate_hz // 500))
+    m = n // block
+    blocks = _block_means(clean, m, block) if m >= 3 else None
     # pass 1: a running-minimum baseline (below the truth where the drift is convex) finds the presses;
     # pass 2: the baseline is the smoothed trace outside them, bridged linearly across each press
-    rough = _baseline(clean, rate_hz, baseline_window_s)
+    rough = _baseline(clean, blocks, block, rate_hz, baseline_window_s)
     onset, offset = _debounce(*_hysteresis(clean - rough, on_threshold_n, off_threshold_n), min_len, min_gap)
-    baseline = _bridged_baseline(clean, rate_hz, onset, offset)
+    baseline = _bridged_baseline(clean, blocks, block, rate_hz, onset, offset)
     above = clean - baseline
     onset, offset = _debounce(*_hysteresis(above, on_threshold_n, off_threshold_n), min_len, min_gap)
     # peak on a 5 ms average, so white noise does not bias it up; one argmax per press, not per sample
     smooth = ndimage.uniform_filter1d(above, max(1, int(round(0.005 * rate_hz))), mode="nearest")
     peak_index = np.array([a + int(np.argmax(smooth[a:b])) for a, b in zip(onset, offset)], dtype=np.int64)
     peak = smooth[peak_index] if peak_index.size else np.zeros(0)
-    return PressDetection(onset, offset, peak_index.astype(np.int64), peak, expected, rate_hz, baseline)
+    return PressDetection(onset, offset, peak_index, peak, expected, rate_hz, baseline)
 
 
-def _baseline(force: np.ndarray, rate_hz: float, window_s: float | None) -> np.ndarray:
+# Median of 7 by Devillard's 13-exchange selection network ("Fast median search", 1998), written as
+# (low, high, keep) triples: keep says which of min and max later exchanges read ("both", "min", "max").
+_MEDIAN7_NETWORK = (
+    (0, 5, "both"),
+    (0, 3, "both"),
+    (1, 6, "both"),
+    (2, 4, "both"),
+    (0, 1, "max"),
+    (3, 5, "both"),
+    (2, 6, "both"),
+    (2, 3, "max"),
+    (3, 6, "min"),
+    (4, 5, "min"),
+    (1, 4, "both"),
+    (1, 3, "max"),
+    (3, 4, "min"),
+)
+
+
+def _median_filter(force: np.ndarray, size: int) -> np.ndarray:
+    """`ndimage.median_filter(force, size, mode="nearest")`, value for value; a window of 7 on a finite trace
+    by a selection network of whole-array min / max (a few microseconds each, where the rank filter's
+    per-sample selection costs ~10 ns a sample)."""
+    n = force.shape[0]
+    if size != 7 or n < 7 or not np.isfinite(force).all():
+        return ndimage.median_filter(force, size=size, mode="nearest")
+    padded = np.concatenate([np.full(3, force[0]), force, np.full(3, force[-1])])
+    p: list[np.ndarray] = [padded[k : k + n] for k in range(7)]  # views: each exchange writes new arrays
+    for lo, hi, keep in _MEDIAN7_NETWORK:
+        a, b = p[lo], p[hi]
+        if keep != "max":
+            p[lo] = np.minimum(a, b)
+        if keep != "min":
+            p[hi] = np.maximum(a, b)
+    return p[3]
+
+
+def _baseline(
+    force: np.ndarray, blocks: np.ndarray | None, block: int, rate_hz: float, window_s: float | None
+) -> np.ndarray:
     n = force.shape[0]
     window_s = window_s if window_s is not None else max(2.0, n / rate_hz / 2)
-    # work on block medians (~2 ms) so a long window stays cheap
-    block = max(1, int(rate_hz // 500))
-    m = n // block
-    if m < 3:
+    if blocks is None:
         return np.full(n, float(np.median(force)))
-    blocks = force[: m * block].reshape(m, block).mean(axis=1)  # spikes are already median-filtered out
     size = max(3, int(round(window_s * rate_hz / block)) | 1)
     opened = ndimage.maximum_filter1d(ndimage.minimum_filter1d(blocks, size, mode="nearest"), size, mode="nearest")
     # smooth the staircase of the opening, then back to the sample grid
     smooth = ndimage.uniform_filter1d(opened, max(1, size // 4), mode="nearest")
-    centres = (np.arange(m) + 0.5) * block
-    return np.interp(np.arange(n), centres, smooth)
+    return _interp_blocks(smooth, n, block)
 
 
-def _bridged_baseline(force: np.ndarray, rate_hz: float, onset: np.ndarray, offset: np.ndarray) -> np.ndarray:
+def _bridged_baseline(
+    force: np.ndarray, blocks: np.ndarray | None, block: int, rate_hz: float, onset: np.ndarray, offset: np.ndarray
+) -> np.ndarray:
     n = force.shape[0]
-    block = max(1, int(rate_hz // 500))
-    m = n // block
-    if m < 3:
+    if blocks is None:
         return np.full(n, float(np.median(force)))
-    blocks = force[: m * block].reshape(m, block).mean(axis=1)  # spikes are already median-filtered out
-    smooth = ndimage.uniform_filter1d(blocks, max(1, int(round(0.05 * rate_hz / block))), mode="nearest")
+    m = blocks.shape[0]
+    window = max(1, int(round(0.05 * rate_hz / block)))
+    smooth = ndimage.uniform_filter1d(blocks, window, mode="nearest")
     margin = int(round(0.1 * rate_hz))  # keep 100 ms around each press out of the baseline
-    inside = np.zeros(n + 1, dtype=np.int64)
-    np.add.at(inside, np.maximum(onset - margin, 0), 1)
-    np.add.at(inside, np.minimum(offset + margin, n), -1)
-    pressed = np.cumsum(inside[:n]) > 0
-    centres = (np.arange(m) + 0.5) * block
-    free = ~pressed[(centres).astype(np.int64)]
-    if free.sum() < 2:
+    # a block is pressed when its centre sample lies within a press widened by the margin
+    centre_sample = _block_centre_samples(m, block)
+    first = np.searchsorted(centre_sample, np.maximum(onset - margin, 0)).tolist()
+    stop = np.searchsorted(centre_sample, np.minimum(offset + margin, n)).tolist()
+    free = np.ones(m, dtype=bool)
+    for a, b in zip(first, stop):  # one slice per press
+        free[a:b] = False
+    if np.count_nonzero(free) < 2:
         return np.full(n, float(np.median(force)))
-    # the smoothing window must not reach into a press: use only blocks whose 50 ms window is free
-    free &= (
-        ndimage.minimum_filter1d(free.astype(np.int8), max(1, int(round(0.05 * rate_hz / block))), mode="nearest") > 0
-    )
-    if free.sum() < 2:
+    # the smoothing window must not reach into a press: use only blocks whose 50 ms window is free, i.e.
+    # `ndimage.minimum_filter1d(free, window, mode="nearest")`, whose window is [k - window // 2, k + reach]
+    reach = window - window // 2 - 1
+    for a, b in zip(first, stop):
+        if a < b:
+            free[max(a - reach, 0) : b + window // 2] = False
+    if np.count_nonzero(free) < 2:
         return np.full(n, float(np.median(force)))
-    return np.interp(np.arange(n), centres[free], smooth[free])
+    return _interp_free_blocks(smooth, free, n, block)
+
+
+@functools.lru_cache(maxsize=8)
+def _block_centre_samples(m: int, block: int) -> np.ndarray:
+    """The sample index each block is judged by: int((k + 0.5) * block), read only."""
+    centres = ((np.arange(m) + 0.5) * block).astype(np.int64)
+    centres.flags.writeable = False
+    return centres
+
+
+def _interp_blocks(values: np.ndarray, n: int, block: int) -> np.ndarray:
+    """`np.interp(np.arange(n), (np.arange(m) + 0.5) * block, values)`, value for value, without the search:
+    sample k * block + r lies at a fixed offset from a block centre, so each offset r is one column."""
+    m = values.shape[0]
+    if not np.isfinite(values).all():
+        return np.interp(np.arange(n), (np.arange(m) + 0.5) * block, values)
+    half = 0.5 * block
+    slope = (values[1:] - values[:-1]) / float(block)  # np.interp's (dy[j+1] - dy[j]) / (dx[j+1] - dx[j])
+    out = np.empty(n)
+    grid = out[: m * block].reshape(m, block)
+    head = values[:-1]
+    for r in range(block):
+        if r < half:  # between the previous block's centre and this one's; left of the first centre
+            np.add(slope * (r + half), head, out=grid[1:, r])
+            grid[0, r] = values[0]
+        elif r > half:  # between this block's centre and the next one's; right of the last centre
+            np.add(slope * (r - half), head, out=grid[:-1, r])
+            grid[-1, r] = values[-1]
+        else:  # on a centre
+            grid[:, r] = values
+    out[m * block :] = values[-1]
+    return out
+    out[m * block :] = values[-1]
+    return out
+
+
+def _interp_free_blocks(values: np.ndarray, free: np.ndarray, n: int, block: int) -> np.ndarray:
+    """`np.interp(np.arange(n), centres[free], values[free])`, value for value: the interpolation over all
+    blocks, then each run of blocks that are not free bridged from the free block before to the one after."""
+    if not np.isfinite(values).all():
+        centres = (np.arange(values.shape[0]) + 0.5) * block
+        return np.interp(np.arange(n), centres[free], values[free])
+    out = _interp_blocks(values, n, block)
+    kept = np.flatnonzero(free)
+    first, last = int(kept[0]), int(kept[-1])
+    half = 0.5 * block
+    # samples left of the first free centre take its value, right of the last free centre the last one's
+    out[: int(np.ceil(first * block + half))] = values[first]
+    out[int(np.ceil(last * block + half)) :] = values[last]
+    jumps = np.flatnonzero(np.diff(kept) > 1)
+    for a, b in zip(kept[jumps].tolist(), kept[jumps + 1].tolist()):
+        ca, cb = a * block + half, b * block + half
+        slope = (values[b] - values[a]) / (cb - ca)
+        lo, hi = int(np.floor(ca)) + 1, int(np.ceil(cb))  # the samples strictly between the two centres
+        np.add(slope * (np.arange(lo - ca, hi - ca)), values[a], out=out[lo:hi])
+    return out
 
 
 def _hysteresis(x: np.ndarray, on: float, off: float) -> tuple[np.ndarray, np.ndarray]:
-    """Intervals [onset, offset) where x went above `on` and has not yet fallen below `off`."""
-    event = np.zeros(x.shape[0], dtype=np.int8)
-    event[x >= on] = 1
-    event[x < off] = -1
-    idx = np.where(event != 0, np.arange(x.shape[0]), -1)
-    last = np.maximum.accumulate(idx)
-    state = np.where(last >= 0, event[np.maximum(last, 0)] == 1, False)
-    edges = np.diff(np.concatenate([[False], state, [False]]).astype(np.int8))
-    return np.flatnonzero(edges == 1).astype(np.int64), np.flatnonzero(edges == -1).astype(np.int64)
+    """Intervals [onset, offset) where x went above `on` and has not yet fallen below `off`.
+
+    The state changes only where a run of samples above `on` (or below `off`) begins: a high run start is an
+    onset when it is the first, or a low run started since the previous high one; a low run start is an
+    offset when a high run started since the previous low one (or before the first)."""
+    n = x.shape[0]
+    high = np.zeros(n + 1, dtype=bool)
+    low = np.zeros(n + 1, dtype=bool)
+    np.greater_equal(x, on, out=high[1:])
+    np.less(x, off, out=low[1:])
+    high_at = np.flatnonzero(high[1:] > high[:-1])  # sample indices where a high run begins
+    low_at = np.flatnonzero(low[1:] > low[:-1])
+    lows_before = np.searchsorted(low_at, high_at)
+    highs_before = np.searchsorted(high_at, low_at)
+    onset = high_at[np.concatenate(([True], lows_before[1:] > lows_before[:-1]))[: high_at.size]]
+    offset = low_at[np.concatenate((highs_before[:1] > 0, highs_before[1:] > highs_before[:-1]))]
+    if high_at.size and (low_at.size == 0 or high_at[-1] > low_at[-1]):
+        offset = np.concatenate([offset, [n]])
+    return onset.astype(np.int64), offset.astype(np.int64)
+
+
+def _block_means(force: np.ndarray, m: int, block: int) -> np.ndarray:
+    """`force[: m * block].reshape(m, block).mean(axis=1)`, value for value: numpy sums fewer than 8 values
+    in order, so short blocks are summed column by column (a reduction over a short axis is slow)."""
+    grid = force[: m * block].reshape(m, block)
+    if block >= 8:
+        return grid.mean(axis=1)
+    total = grid[:, 0].copy()
+    for r in range(1, block):
+        total += grid[:, r]
+    return total / float(block)
 
 
 def _debounce(onset: np.ndarray, offset: np.ndarray, min_len: int, min_gap: int) -> tuple[np.ndarray, np.ndarray]:
-    if onset.size == 0:
-        return onset, offset
+    if onset.size <= 1:
+        long_enough = offset - onset >= min_len
+        return onset[long_enough], offset[long_enough]
     gap = onset[1:] - offset[:-1]
     keep_start = np.concatenate([[True], gap >= min_gap])  # a short gap merges with the previous press
     group = np.cumsum(keep_start) - 1
