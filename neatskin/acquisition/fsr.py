@@ -13,6 +13,7 @@ It runs once per press of a campaign, so each step is a handful of whole-array o
 network for the median, block means and interpolation on the block grid without a search, hysteresis from
 the run starts alone. Each fast step equals the plain numpy / scipy call value for value (the plain
 version is kept as the oracle in tests/fsr_reference.py) and hands non-finite input to that call.
+scipy.ndimage (a few hundred ms to import) is imported by the functions that use it, on first use.
 """
 
 from __future__ import annotations
@@ -21,7 +22,6 @@ import functools
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
 
 from neatskin.errors import ConfigError
 
@@ -109,6 +109,8 @@ def detect_presses(
     baseline_window_s must exceed the longest press (default: the whole trace's length / 2,
     at least 2 s); the baseline under a press is the running minimum around it.
     """
+    from scipy import ndimage
+
     if units not in ("n", "v"):
         raise ConfigError(f"units must be 'n' or 'v', got {units!r}", field="units", fix="use 'n' or 'v'")
     if not 0 < off_threshold_n < on_threshold_n:
@@ -168,6 +170,8 @@ def _median_filter(force: np.ndarray, size: int) -> np.ndarray:
     per-sample selection costs ~10 ns a sample)."""
     n = force.shape[0]
     if size != 7 or n < 7 or not np.isfinite(force).all():
+        from scipy import ndimage
+
         return ndimage.median_filter(force, size=size, mode="nearest")
     padded = np.concatenate([np.full(3, force[0]), force, np.full(3, force[-1])])
     p: list[np.ndarray] = [padded[k : k + n] for k in range(7)]  # views: each exchange writes new arrays
@@ -183,6 +187,8 @@ def _median_filter(force: np.ndarray, size: int) -> np.ndarray:
 def _baseline(
     force: np.ndarray, blocks: np.ndarray | None, block: int, rate_hz: float, window_s: float | None
 ) -> np.ndarray:
+    from scipy import ndimage
+
     n = force.shape[0]
     window_s = window_s if window_s is not None else max(2.0, n / rate_hz / 2)
     if blocks is None:
@@ -197,6 +203,8 @@ def _baseline(
 def _bridged_baseline(
     force: np.ndarray, blocks: np.ndarray | None, block: int, rate_hz: float, onset: np.ndarray, offset: np.ndarray
 ) -> np.ndarray:
+    from scipy import ndimage
+
     n = force.shape[0]
     if blocks is None:
         return np.full(n, float(np.median(force)))
