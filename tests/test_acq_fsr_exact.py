@@ -123,7 +123,17 @@ def test_block_means_and_block_interpolation_match_numpy(block):
     )
     free = rng.random(m) > 0.3
     free[100:300] = False
+    free[:3] = False  # a gap at each end: the ends take the nearest free block's value
+    free[-2:] = False
+    edges = np.flatnonzero(np.diff(np.r_[1, free.astype(int), 1]))
+    gaps = [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
+    assert fsr._union(gaps, m) == gaps
     np.testing.assert_array_equal(
-        fsr._interp_free_blocks(means, free, x.size, block),
+        fsr._interp_free_blocks(means, gaps, x.size, block),
         np.interp(np.arange(x.size), centres[free], means[free]),
     )
+
+
+def test_union_merges_overlapping_and_touching_runs_and_clips():
+    assert fsr._union([(5, 8), (-3, 2), (7, 9), (9, 12), (20, 30), (14, 14)], 25) == [(0, 2), (5, 12), (20, 25)]
+    assert fsr._union([], 10) == []

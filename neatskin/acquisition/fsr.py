@@ -19,6 +19,7 @@ scipy.ndimage (a few hundred ms to import) is imported by the functions that use
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -214,22 +215,31 @@ def _bridged_baseline(
     margin = int(round(0.1 * rate_hz))  # keep 100 ms around each press out of the baseline
     # a block is pressed when its centre sample lies within a press widened by the margin
     centre_sample = _block_centre_samples(m, block)
-    first = np.searchsorted(centre_sample, np.maximum(onset - margin, 0)).tolist()
-    stop = np.searchsorted(centre_sample, np.minimum(offset + margin, n)).tolist()
-    free = np.ones(m, dtype=bool)
-    for a, b in zip(first, stop):  # one slice per press
-        free[a:b] = False
-    if np.count_nonzero(free) < 2:
+    first = centre_sample.searchsorted(np.maximum(onset - margin, 0)).tolist()
+    stop = centre_sample.searchsorted(np.minimum(offset + margin, n)).tolist()
+    if m - sum(b - a for a, b in _union(zip(first, stop), m)) < 2:
         return np.full(n, float(np.median(force)))
-    # the smoothing window must not reach into a press: use only blocks whose 50 ms window is free, i.e.
-    # `ndimage.minimum_filter1d(free, window, mode="nearest")`, whose window is [k - window // 2, k + reach]
+    # the smoothing window must not reach into a press: use only blocks whose 50 ms window is free, i.e. what
+    # `ndimage.minimum_filter1d(free, window, mode="nearest")` leaves, its window being [k - window // 2, k + reach]
     reach = window - window // 2 - 1
-    for a, b in zip(first, stop):
-        if a < b:
-            free[max(a - reach, 0) : b + window // 2] = False
-    if np.count_nonzero(free) < 2:
+    gaps = _union(((a - reach, b + window // 2) for a, b in zip(first, stop) if a < b), m)
+    if m - sum(b - a for a, b in gaps) < 2:
         return np.full(n, float(np.median(force)))
-    return _interp_free_blocks(smooth, free, n, block)
+    return _interp_free_blocks(smooth, gaps, n, block)
+
+
+def _union(intervals, m: int) -> list[tuple[int, int]]:
+    """The [start, stop) block runs that the intervals cover, clipped to [0, m), sorted, disjoint and not touching."""
+    runs: list[tuple[int, int]] = []
+    for a, b in sorted(intervals):
+        a, b = max(a, 0), min(b, m)
+        if a >= b:
+            continue
+        if runs and a <= runs[-1][1]:
+            runs[-1] = (runs[-1][0], max(runs[-1][1], b))
+        else:
+            runs.append((a, b))
+    return runs
 
 
 @functools.lru_cache(maxsize=8)
@@ -266,25 +276,31 @@ def _interp_blocks(values: np.ndarray, n: int, block: int) -> np.ndarray:
     return out
 
 
-def _interp_free_blocks(values: np.ndarray, free: np.ndarray, n: int, block: int) -> np.ndarray:
-    """`np.interp(np.arange(n), centres[free], values[free])`, value for value: the interpolation over all
-    blocks, then each run of blocks that are not free bridged from the free block before to the one after."""
+def _interp_free_blocks(values: np.ndarray, gaps: list[tuple[int, int]], n: int, block: int) -> np.ndarray:
+    """`np.interp(np.arange(n), centres[free], values[free])`, value for value, where the blocks that are not free
+    are the runs `gaps` (from `_union`): the interpolation over all blocks, then each gap bridged from the free
+    block before it to the one after it."""
+    m = values.shape[0]
     if not np.isfinite(values).all():
-        centres = (np.arange(values.shape[0]) + 0.5) * block
-        return np.interp(np.arange(n), centres[free], values[free])
+        free = np.ones(m, dtype=bool)
+        for a, b in gaps:
+            free[a:b] = False
+        return np.interp(np.arange(n), ((np.arange(m) + 0.5) * block)[free], values[free])
     out = _interp_blocks(values, n, block)
-    kept = np.flatnonzero(free)
-    first, last = int(kept[0]), int(kept[-1])
     half = 0.5 * block
+    first = gaps[0][1] if gaps and gaps[0][0] == 0 else 0
+    last = gaps[-1][0] - 1 if gaps and gaps[-1][1] == m else m - 1
     # samples left of the first free centre take its value, right of the last free centre the last one's
-    out[: int(np.ceil(first * block + half))] = values[first]
-    out[int(np.ceil(last * block + half)) :] = values[last]
-    jumps = np.flatnonzero(np.diff(kept) > 1)
-    for a, b in zip(kept[jumps].tolist(), kept[jumps + 1].tolist()):
+    out[: math.ceil(first * block + half)] = values[first]
+    out[math.ceil(last * block + half) :] = values[last]
+    for a, b in gaps:
+        if a == 0 or b == m:
+            continue
+        a -= 1  # bridged from the free block before the gap to the free block after it (b)
         ca, cb = a * block + half, b * block + half
         slope = (values[b] - values[a]) / (cb - ca)
-        lo, hi = int(np.floor(ca)) + 1, int(np.ceil(cb))  # the samples strictly between the two centres
-        np.add(slope * (np.arange(lo - ca, hi - ca)), values[a], out=out[lo:hi])
+        lo, hi = math.floor(ca) + 1, math.ceil(cb)  # the samples strictly between the two centres
+        np.add(slope * np.arange(lo - ca, hi - ca), values[a], out=out[lo:hi])
     return out
 
 
@@ -299,10 +315,10 @@ def _hysteresis(x: np.ndarray, on: float, off: float) -> tuple[np.ndarray, np.nd
     low = np.zeros(n + 1, dtype=bool)
     np.greater_equal(x, on, out=high[1:])
     np.less(x, off, out=low[1:])
-    high_at = np.flatnonzero(high[1:] > high[:-1])  # sample indices where a high run begins
-    low_at = np.flatnonzero(low[1:] > low[:-1])
-    lows_before = np.searchsorted(low_at, high_at)
-    highs_before = np.searchsorted(high_at, low_at)
+    high_at = (high[1:] > high[:-1]).nonzero()[0]  # sample indices where a high run begins
+    low_at = (low[1:] > low[:-1]).nonzero()[0]
+    lows_before = low_at.searchsorted(high_at)
+    highs_before = high_at.searchsorted(low_at)
     onset = high_at[np.concatenate(([True], lows_before[1:] > lows_before[:-1]))[: high_at.size]]
     offset = low_at[np.concatenate((highs_before[:1] > 0, highs_before[1:] > highs_before[:-1]))]
     if high_at.size and (low_at.size == 0 or high_at[-1] > low_at[-1]):
