@@ -137,3 +137,13 @@ def test_block_means_and_block_interpolation_match_numpy(block):
 def test_union_merges_overlapping_and_touching_runs_and_clips():
     assert fsr._union([(5, 8), (-3, 2), (7, 9), (9, 12), (20, 30), (14, 14)], 25) == [(0, 2), (5, 12), (20, 25)]
     assert fsr._union([], 10) == []
+
+
+def test_newtons_in_place_is_the_divider_formula_and_leaves_the_trace_alone():
+    model = FsrModel(vcc_v=3.3, rm_ohm=4_700.0)
+    volts = np.random.default_rng(2).uniform(-0.5, 4.0, 1000)
+    before = volts.copy()
+    v = np.clip(volts, 0.0, 0.999 * 3.3)
+    np.testing.assert_array_equal(model.newtons(volts), model.knee_n * v / (3.3 - v))
+    np.testing.assert_array_equal(volts, before)
+    assert model.newtons(1.65) == model.knee_n * 1.65 / (3.3 - 1.65)

@@ -53,7 +53,11 @@ class FsrModel:
     def newtons(self, fsr_v: np.ndarray) -> np.ndarray:
         """Invert the divider; volts at or above Vcc map to the force at 99.9 % of Vcc, below 0 to 0 N."""
         v = np.clip(np.asarray(fsr_v, dtype=float), 0.0, 0.999 * self.vcc_v)
-        return self.knee_n * v / (self.vcc_v - v)
+        if not isinstance(v, np.ndarray) or v.ndim == 0:
+            return self.knee_n * v / (self.vcc_v - v)
+        below = np.subtract(self.vcc_v, v)
+        np.multiply(v, self.knee_n, out=v)  # knee_n * v / (vcc_v - v), in place: once a press, on every sample
+        return np.divide(v, below, out=v)
 
 
 @dataclass(frozen=True, eq=False)
@@ -263,7 +267,7 @@ def _interp_blocks(values: np.ndarray, n: int, block: int) -> np.ndarray:
     head = values[:-1]
     for r in range(block):
         if r < half:  # between the previous block's centre and this one's; left of the first centre
-            np.add(slope * (r + half), head, out=grid[1:, r])
+            np.add(slope if r + half == 1.0 else slope * (r + half), head, out=grid[1:, r])  # x * 1.0 == x
             grid[0, r] = values[0]
         elif r > half:  # between this block's centre and the next one's; right of the last centre
             np.add(slope * (r - half), head, out=grid[:-1, r])
