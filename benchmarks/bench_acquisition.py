@@ -285,7 +285,8 @@ def labelling_table(checkouts: dict[str, Path], presses: int, rounds: int) -> No
     total = [best[n]["fsr_label"] + best[n]["press_values"] for n in names]
     print(f"{'labelling ms/press (target 0.3)':>30}" + "".join(f"{v:>12.3f}" for v in total))
     for what, seen in digests.items():
-        print(f"{what}: {'identical outputs' if len(seen) == 1 else 'OUTPUTS DIFFER'} across checkouts")
+        if len(names) > 1:
+            print(f"{what}: {'identical outputs' if len(seen) == 1 else 'OUTPUTS DIFFER'} across checkouts")
 
 
 def main() -> None:
