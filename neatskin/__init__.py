@@ -1,8 +1,18 @@
-"""neatskin-rig: press campaigns on the NeatSkin impedance-tomography skin."""
+"""neatskin-rig: press campaigns on the NeatSkin impedance-tomography skin.
 
-from importlib.metadata import PackageNotFoundError, version
+`neatskin.__version__` is looked up on first use (importlib.metadata costs tens of milliseconds), so
+`import neatskin` and `neatskin --help` stay light.
+"""
 
-try:
-    __version__ = version("neatskin-rig")
-except PackageNotFoundError:  # running from a source tree without installing
-    __version__ = "0.0.0+unknown"
+
+def __getattr__(name: str) -> str:
+    if name != "__version__":
+        raise AttributeError(f"module 'neatskin' has no attribute {name!r}")
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        value = version("neatskin-rig")
+    except PackageNotFoundError:  # running from a source tree without installing
+        value = "0.0.0+unknown"
+    globals()["__version__"] = value
+    return value

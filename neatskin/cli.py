@@ -11,7 +11,6 @@ import importlib
 import os
 import sys
 
-from neatskin import __version__
 from neatskin.errors import NeatskinError
 
 COMMAND_MODULES = (
@@ -30,7 +29,7 @@ COMMAND_MODULES = (
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="neatskin", description=__doc__.splitlines()[0])
-    parser.add_argument("--version", action="version", version=f"neatskin-rig {__version__}")
+    parser.add_argument("--version", action=_VersionAction, help="show program's version number and exit")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMAND_MODULES:
         try:
@@ -41,6 +40,19 @@ def build_parser() -> argparse.ArgumentParser:
             continue  # an optional component left out of this installation
         module.register(subparsers)
     return parser
+
+
+class _VersionAction(argparse.Action):
+    """argparse's "version" action, with the version looked up only when asked for."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None) -> None:
+        super().__init__(option_strings=option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        import neatskin
+
+        print(f"neatskin-rig {neatskin.__version__}")  # to stdout, as argparse's own version action
+        parser.exit()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -8,14 +8,21 @@ opening (running minimum then maximum over a window longer than a press) tracks 
 baseline drift, and a hysteresis threshold on the force above the baseline (on above
 on_threshold_n, off below off_threshold_n) with debounce (presses shorter than min_press_s
 dropped, gaps shorter than min_gap_s merged) gives onset, offset and peak per press.
+
+It runs once per press of a campaign, so each step is a handful of whole-array operations: a selection
+network for the median, block means and interpolation on the block grid without a search, hysteresis from
+the run starts alone. Each fast step equals the plain numpy / scipy call value for value (the plain
+version is kept as the oracle in tests/fsr_reference.py) and hands non-finite input to that call.
+scipy.ndimage (a few hundred ms to import) is imported by the functions that use it, on first use.
 """
 
 from __future__ import annotations
 
+import functools
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
 
 from neatskin.errors import ConfigError
 
@@ -46,7 +53,11 @@ class FsrModel:
     def newtons(self, fsr_v: np.ndarray) -> np.ndarray:
         """Invert the divider; volts at or above Vcc map to the force at 99.9 % of Vcc, below 0 to 0 N."""
         v = np.clip(np.asarray(fsr_v, dtype=float), 0.0, 0.999 * self.vcc_v)
-        return self.knee_n * v / (self.vcc_v - v)
+        if not isinstance(v, np.ndarray) or v.ndim == 0:
+            return self.knee_n * v / (self.vcc_v - v)
+        below = np.subtract(self.vcc_v, v)
+        np.multiply(v, self.knee_n, out=v)  # knee_n * v / (vcc_v - v), in place: once a press, on every sample
+        return np.divide(v, below, out=v)
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,6 +114,8 @@ def detect_presses(
     baseline_window_s must exceed the longest press (default: the whole trace's length / 2,
     at least 2 s); the baseline under a press is the running minimum around it.
     """
+    from scipy import ndimage
+
     if units not in ("n", "v"):
         raise ConfigError(f"units must be 'n' or 'v', got {units!r}", field="units", fix="use 'n' or 'v'")
     if not 0 < off_threshold_n < on_threshold_n:
@@ -117,81 +130,222 @@ def detect_presses(
     if n == 0:
         empty = np.zeros(0, dtype=np.int64)
         return PressDetection(empty, empty, empty, np.zeros(0), expected, rate_hz, np.zeros(0))
-    k = max(1, int(spike_samples)) | 1
-    clean = ndimage.median_filter(force, size=k, mode="nearest")
+    clean = _median_filter(force, max(1, int(spike_samples)) | 1)
     min_len, min_gap = int(round(min_press_s * rate_hz)), int(round(min_gap_s * rate_hz))
+    # both baselines work on block means (~2 ms): spikes are already median-filtered out
+    block = max(1, int(rate_hz // 500))
+    m = n // block
+    blocks = _block_means(clean, m, block) if m >= 3 else None
     # pass 1: a running-minimum baseline (below the truth where the drift is convex) finds the presses;
     # pass 2: the baseline is the smoothed trace outside them, bridged linearly across each press
-    rough = _baseline(clean, rate_hz, baseline_window_s)
+    rough = _baseline(clean, blocks, block, rate_hz, baseline_window_s)
     onset, offset = _debounce(*_hysteresis(clean - rough, on_threshold_n, off_threshold_n), min_len, min_gap)
-    baseline = _bridged_baseline(clean, rate_hz, onset, offset)
+    baseline = _bridged_baseline(clean, blocks, block, rate_hz, onset, offset)
     above = clean - baseline
     onset, offset = _debounce(*_hysteresis(above, on_threshold_n, off_threshold_n), min_len, min_gap)
     # peak on a 5 ms average, so white noise does not bias it up; one argmax per press, not per sample
     smooth = ndimage.uniform_filter1d(above, max(1, int(round(0.005 * rate_hz))), mode="nearest")
     peak_index = np.array([a + int(np.argmax(smooth[a:b])) for a, b in zip(onset, offset)], dtype=np.int64)
     peak = smooth[peak_index] if peak_index.size else np.zeros(0)
-    return PressDetection(onset, offset, peak_index.astype(np.int64), peak, expected, rate_hz, baseline)
+    return PressDetection(onset, offset, peak_index, peak, expected, rate_hz, baseline)
 
 
-def _baseline(force: np.ndarray, rate_hz: float, window_s: float | None) -> np.ndarray:
+# Median of 7 by Devillard's 13-exchange selection network ("Fast median search", 1998), written as
+# (low, high, keep) triples: keep says which of min and max later exchanges read ("both", "min", "max").
+_MEDIAN7_NETWORK = (
+    (0, 5, "both"),
+    (0, 3, "both"),
+    (1, 6, "both"),
+    (2, 4, "both"),
+    (0, 1, "max"),
+    (3, 5, "both"),
+    (2, 6, "both"),
+    (2, 3, "max"),
+    (3, 6, "min"),
+    (4, 5, "min"),
+    (1, 4, "both"),
+    (1, 3, "max"),
+    (3, 4, "min"),
+)
+
+
+def _median_filter(force: np.ndarray, size: int) -> np.ndarray:
+    """`ndimage.median_filter(force, size, mode="nearest")`, value for value; a window of 7 on a finite trace
+    by a selection network of whole-array min / max (a few microseconds each, where the rank filter's
+    per-sample selection costs ~10 ns a sample)."""
+    n = force.shape[0]
+    if size != 7 or n < 7 or not np.isfinite(force).all():
+        from scipy import ndimage
+
+        return ndimage.median_filter(force, size=size, mode="nearest")
+    padded = np.concatenate([np.full(3, force[0]), force, np.full(3, force[-1])])
+    p: list[np.ndarray] = [padded[k : k + n] for k in range(7)]  # views: each exchange writes new arrays
+    for lo, hi, keep in _MEDIAN7_NETWORK:
+        a, b = p[lo], p[hi]
+        if keep != "max":
+            p[lo] = np.minimum(a, b)
+        if keep != "min":
+            p[hi] = np.maximum(a, b)
+    return p[3]
+
+
+def _baseline(
+    force: np.ndarray, blocks: np.ndarray | None, block: int, rate_hz: float, window_s: float | None
+) -> np.ndarray:
+    from scipy import ndimage
+
     n = force.shape[0]
     window_s = window_s if window_s is not None else max(2.0, n / rate_hz / 2)
-    # work on block medians (~2 ms) so a long window stays cheap
-    block = max(1, int(rate_hz // 500))
-    m = n // block
-    if m < 3:
+    if blocks is None:
         return np.full(n, float(np.median(force)))
-    blocks = force[: m * block].reshape(m, block).mean(axis=1)  # spikes are already median-filtered out
     size = max(3, int(round(window_s * rate_hz / block)) | 1)
     opened = ndimage.maximum_filter1d(ndimage.minimum_filter1d(blocks, size, mode="nearest"), size, mode="nearest")
     # smooth the staircase of the opening, then back to the sample grid
     smooth = ndimage.uniform_filter1d(opened, max(1, size // 4), mode="nearest")
-    centres = (np.arange(m) + 0.5) * block
-    return np.interp(np.arange(n), centres, smooth)
+    return _interp_blocks(smooth, n, block)
 
 
-def _bridged_baseline(force: np.ndarray, rate_hz: float, onset: np.ndarray, offset: np.ndarray) -> np.ndarray:
+def _bridged_baseline(
+    force: np.ndarray, blocks: np.ndarray | None, block: int, rate_hz: float, onset: np.ndarray, offset: np.ndarray
+) -> np.ndarray:
+    from scipy import ndimage
+
     n = force.shape[0]
-    block = max(1, int(rate_hz // 500))
-    m = n // block
-    if m < 3:
+    if blocks is None:
         return np.full(n, float(np.median(force)))
-    blocks = force[: m * block].reshape(m, block).mean(axis=1)  # spikes are already median-filtered out
-    smooth = ndimage.uniform_filter1d(blocks, max(1, int(round(0.05 * rate_hz / block))), mode="nearest")
+    m = blocks.shape[0]
+    window = max(1, int(round(0.05 * rate_hz / block)))
+    smooth = ndimage.uniform_filter1d(blocks, window, mode="nearest")
     margin = int(round(0.1 * rate_hz))  # keep 100 ms around each press out of the baseline
-    inside = np.zeros(n + 1, dtype=np.int64)
-    np.add.at(inside, np.maximum(onset - margin, 0), 1)
-    np.add.at(inside, np.minimum(offset + margin, n), -1)
-    pressed = np.cumsum(inside[:n]) > 0
-    centres = (np.arange(m) + 0.5) * block
-    free = ~pressed[(centres).astype(np.int64)]
-    if free.sum() < 2:
+    # a block is pressed when its centre sample lies within a press widened by the margin
+    centre_sample = _block_centre_samples(m, block)
+    first = centre_sample.searchsorted(np.maximum(onset - margin, 0)).tolist()
+    stop = centre_sample.searchsorted(np.minimum(offset + margin, n)).tolist()
+    if m - sum(b - a for a, b in _union(zip(first, stop), m)) < 2:
         return np.full(n, float(np.median(force)))
-    # the smoothing window must not reach into a press: use only blocks whose 50 ms window is free
-    free &= (
-        ndimage.minimum_filter1d(free.astype(np.int8), max(1, int(round(0.05 * rate_hz / block))), mode="nearest") > 0
-    )
-    if free.sum() < 2:
+    # the smoothing window must not reach into a press: use only blocks whose 50 ms window is free, i.e. what
+    # `ndimage.minimum_filter1d(free, window, mode="nearest")` leaves, its window being [k - window // 2, k + reach]
+    reach = window - window // 2 - 1
+    gaps = _union(((a - reach, b + window // 2) for a, b in zip(first, stop) if a < b), m)
+    if m - sum(b - a for a, b in gaps) < 2:
         return np.full(n, float(np.median(force)))
-    return np.interp(np.arange(n), centres[free], smooth[free])
+    return _interp_free_blocks(smooth, gaps, n, block)
+
+
+def _union(intervals, m: int) -> list[tuple[int, int]]:
+    """The [start, stop) block runs that the intervals cover, clipped to [0, m), sorted, disjoint and not touching."""
+    runs: list[tuple[int, int]] = []
+    for a, b in sorted(intervals):
+        a, b = max(a, 0), min(b, m)
+        if a >= b:
+            continue
+        if runs and a <= runs[-1][1]:
+            runs[-1] = (runs[-1][0], max(runs[-1][1], b))
+        else:
+            runs.append((a, b))
+    return runs
+
+
+@functools.lru_cache(maxsize=8)
+def _block_centre_samples(m: int, block: int) -> np.ndarray:
+    """The sample index each block is judged by: int((k + 0.5) * block), read only."""
+    centres = ((np.arange(m) + 0.5) * block).astype(np.int64)
+    centres.flags.writeable = False
+    return centres
+
+
+def _interp_blocks(values: np.ndarray, n: int, block: int) -> np.ndarray:
+    """`np.interp(np.arange(n), (np.arange(m) + 0.5) * block, values)`, value for value, without the search:
+    sample k * block + r lies at a fixed offset from a block centre, so each offset r is one column."""
+    m = values.shape[0]
+    if not np.isfinite(values).all():
+        return np.interp(np.arange(n), (np.arange(m) + 0.5) * block, values)
+    half = 0.5 * block
+    slope = (values[1:] - values[:-1]) / float(block)  # np.interp's (dy[j+1] - dy[j]) / (dx[j+1] - dx[j])
+    out = np.empty(n)
+    grid = out[: m * block].reshape(m, block)
+    head = values[:-1]
+    for r in range(block):
+        if r < half:  # between the previous block's centre and this one's; left of the first centre
+            np.add(slope if r + half == 1.0 else slope * (r + half), head, out=grid[1:, r])  # x * 1.0 == x
+            grid[0, r] = values[0]
+        elif r > half:  # between this block's centre and the next one's; right of the last centre
+            np.add(slope * (r - half), head, out=grid[:-1, r])
+            grid[-1, r] = values[-1]
+        else:  # on a centre
+            grid[:, r] = values
+    out[m * block :] = values[-1]
+    return out
+    out[m * block :] = values[-1]
+    return out
+
+
+def _interp_free_blocks(values: np.ndarray, gaps: list[tuple[int, int]], n: int, block: int) -> np.ndarray:
+    """`np.interp(np.arange(n), centres[free], values[free])`, value for value, where the blocks that are not free
+    are the runs `gaps` (from `_union`): the interpolation over all blocks, then each gap bridged from the free
+    block before it to the one after it."""
+    m = values.shape[0]
+    if not np.isfinite(values).all():
+        free = np.ones(m, dtype=bool)
+        for a, b in gaps:
+            free[a:b] = False
+        return np.interp(np.arange(n), ((np.arange(m) + 0.5) * block)[free], values[free])
+    out = _interp_blocks(values, n, block)
+    half = 0.5 * block
+    first = gaps[0][1] if gaps and gaps[0][0] == 0 else 0
+    last = gaps[-1][0] - 1 if gaps and gaps[-1][1] == m else m - 1
+    # samples left of the first free centre take its value, right of the last free centre the last one's
+    out[: math.ceil(first * block + half)] = values[first]
+    out[math.ceil(last * block + half) :] = values[last]
+    for a, b in gaps:
+        if a == 0 or b == m:
+            continue
+        a -= 1  # bridged from the free block before the gap to the free block after it (b)
+        ca, cb = a * block + half, b * block + half
+        slope = (values[b] - values[a]) / (cb - ca)
+        lo, hi = math.floor(ca) + 1, math.ceil(cb)  # the samples strictly between the two centres
+        np.add(slope * np.arange(lo - ca, hi - ca), values[a], out=out[lo:hi])
+    return out
 
 
 def _hysteresis(x: np.ndarray, on: float, off: float) -> tuple[np.ndarray, np.ndarray]:
-    """Intervals [onset, offset) where x went above `on` and has not yet fallen below `off`."""
-    event = np.zeros(x.shape[0], dtype=np.int8)
-    event[x >= on] = 1
-    event[x < off] = -1
-    idx = np.where(event != 0, np.arange(x.shape[0]), -1)
-    last = np.maximum.accumulate(idx)
-    state = np.where(last >= 0, event[np.maximum(last, 0)] == 1, False)
-    edges = np.diff(np.concatenate([[False], state, [False]]).astype(np.int8))
-    return np.flatnonzero(edges == 1).astype(np.int64), np.flatnonzero(edges == -1).astype(np.int64)
+    """Intervals [onset, offset) where x went above `on` and has not yet fallen below `off`.
+
+    The state changes only where a run of samples above `on` (or below `off`) begins: a high run start is an
+    onset when it is the first, or a low run started since the previous high one; a low run start is an
+    offset when a high run started since the previous low one (or before the first)."""
+    n = x.shape[0]
+    high = np.zeros(n + 1, dtype=bool)
+    low = np.zeros(n + 1, dtype=bool)
+    np.greater_equal(x, on, out=high[1:])
+    np.less(x, off, out=low[1:])
+    high_at = (high[1:] > high[:-1]).nonzero()[0]  # sample indices where a high run begins
+    low_at = (low[1:] > low[:-1]).nonzero()[0]
+    lows_before = low_at.searchsorted(high_at)
+    highs_before = high_at.searchsorted(low_at)
+    onset = high_at[np.concatenate(([True], lows_before[1:] > lows_before[:-1]))[: high_at.size]]
+    offset = low_at[np.concatenate((highs_before[:1] > 0, highs_before[1:] > highs_before[:-1]))]
+    if high_at.size and (low_at.size == 0 or high_at[-1] > low_at[-1]):
+        offset = np.concatenate([offset, [n]])
+    return onset.astype(np.int64), offset.astype(np.int64)
+
+
+def _block_means(force: np.ndarray, m: int, block: int) -> np.ndarray:
+    """`force[: m * block].reshape(m, block).mean(axis=1)`, value for value: numpy sums fewer than 8 values
+    in order, so short blocks are summed column by column (a reduction over a short axis is slow)."""
+    grid = force[: m * block].reshape(m, block)
+    if block >= 8:
+        return grid.mean(axis=1)
+    total = grid[:, 0].copy()
+    for r in range(1, block):
+        total += grid[:, r]
+    return total / float(block)
 
 
 def _debounce(onset: np.ndarray, offset: np.ndarray, min_len: int, min_gap: int) -> tuple[np.ndarray, np.ndarray]:
-    if onset.size == 0:
-        return onset, offset
+    if onset.size <= 1:
+        long_enough = offset - onset >= min_len
+        return onset[long_enough], offset[long_enough]
     gap = onset[1:] - offset[:-1]
     keep_start = np.concatenate([[True], gap >= min_gap])  # a short gap merges with the previous press
     group = np.cumsum(keep_start) - 1

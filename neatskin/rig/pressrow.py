@@ -8,6 +8,7 @@ press the G-code commanded that never touched the skin.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,24 +27,21 @@ class PressValues:
     n_pressed: int
 
 
-def _mean_over(estimates: PairEstimates, use: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-pair mean of the sweeps selected by `use` (sweeps, pairs) and the OR of their flags."""
-    count = use.sum(axis=0)
-    r = np.where(use, estimates.resistance_ohm, 0.0)
-    with np.errstate(invalid="ignore"):
-        total = r.sum(axis=0)
-        inf = (use & np.isinf(estimates.resistance_ohm)).any(axis=0)
-    mean = np.where(inf, np.inf, total / np.maximum(count, 1))
-    flags = np.bitwise_or.reduce(np.where(use, estimates.flags, 0).astype(np.uint8), axis=0)
-    return np.where(count > 0, mean, np.nan), flags
-
-
 def press_values(estimates: PairEstimates, marks: dict[str, int], pair_labels: list[str]) -> PressValues:
+    """Per pair, the mean of the baseline sweeps and of the pressed sweeps (inf when any of them is an open
+    circuit, NaN when there is none), their difference and the flags of the sweeps used."""
     start, stop = estimates.windows[..., 0], estimates.windows[..., 1]
     baseline_use = stop <= marks["contact"]
     pressed_use = (start >= marks["hold_start"]) & (stop <= marks["hold_end"])
-    r_b, f_b = _mean_over(estimates, baseline_use)
-    r_p, f_p = _mean_over(estimates, pressed_use)
+    use = np.stack([baseline_use, pressed_use])  # (2, sweeps, pairs): baseline, pressed
+    r = estimates.resistance_ohm
+    count = use.sum(axis=1)
+    with np.errstate(invalid="ignore"):
+        total = np.where(use, r, 0.0).sum(axis=1)
+    open_circuit = (use & np.isinf(r)).any(axis=1)
+    mean = np.where(open_circuit, np.inf, total / np.maximum(count, 1))
+    (r_b, r_p) = np.where(count > 0, mean, np.nan)
+    bits = np.bitwise_or.reduce(np.where(use, estimates.flags, 0).astype(np.uint8), axis=(0, 1))
     flags: list[str] = []
     if not baseline_use.any():
         flags.append("no_baseline_sweep")
@@ -52,12 +50,16 @@ def press_values(estimates: PairEstimates, marks: dict[str, int], pair_labels: l
     both_open = np.isinf(r_b) & np.isinf(r_p)
     with np.errstate(invalid="ignore"):
         delta = np.where(both_open, 0.0, r_p - r_b)
-    for label, bits in zip(pair_labels, f_b | f_p):
-        for name in flag_names(int(bits)):
-            flags.append(f"{name}:{label}")
+    for pair in np.flatnonzero(bits).tolist():
+        flags.extend(f"{name}:{pair_labels[pair]}" for name in _flag_names(int(bits[pair])))
     return PressValues(
         r_p, r_b, delta, tuple(flags), int(baseline_use.any(axis=1).sum()), int(pressed_use.all(axis=1).sum())
     )
+
+
+@functools.lru_cache(maxsize=256)
+def _flag_names(bits: int) -> tuple[str, ...]:
+    return flag_names(bits)
 
 
 @dataclass(frozen=True)
