@@ -12,7 +12,7 @@ import unicodedata
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from neatskin import __version__
+import neatskin
 from neatskin.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -60,7 +60,7 @@ def marker(press_id: int, phase: str) -> str:
 def header_lines(program: PressProgram) -> list[str]:
     p = program
     lines = [
-        f"; neatskin-rig {__version__} press program",
+        f"; neatskin-rig {neatskin.__version__} press program",
         f"; protocol: {safe_text(p.name, 'campaign.name')}",
         f"; seed: {p.seed}",
         f"; layout: {safe_text(p.layout_name, 'skin.name')}",

@@ -22,12 +22,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-from matplotlib.path import Path as PolygonPath
 
 from neatskin.errors import ConfigError
 from neatskin.layout import Layout
+
+if TYPE_CHECKING:  # matplotlib (0.3 s to import) only where a point-in-polygon test runs
+    from matplotlib.path import Path as PolygonPath
 
 STRATEGIES = ("paper", "grid", "stratified")
 _DECIMALS = 3
@@ -164,6 +167,8 @@ def classify(layout: Layout, x_mm, y_mm) -> tuple[str, ...]:
 
 
 def _face_paths(layout: Layout) -> list[PolygonPath]:
+    from matplotlib.path import Path as PolygonPath
+
     return [PolygonPath(layout.xy_mm[list(face)]) for face in layout.faces]
 
 
@@ -189,6 +194,8 @@ def _on_channel(layout: Layout, rng: np.random.Generator, channel: np.ndarray, s
 def _in_face(layout: Layout, rng: np.random.Generator, face: int, n: int) -> np.ndarray:
     """n points uniform inside a face polygon and off every channel strip (rejection from its bounding box)."""
     pts = layout.xy_mm[list(layout.faces[face])]
+    from matplotlib.path import Path as PolygonPath
+
     poly = PolygonPath(pts)
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     half_width = np.array([c.width_mm / 2 for c in layout.channels])

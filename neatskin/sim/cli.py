@@ -63,5 +63,5 @@ def sim_printer_handler(args: argparse.Namespace) -> int:
         pass
     finally:
         sim.stop()
-        print(f"stopped after {len(sim.executed)} commands", file=sys.stderr)
+        print(f"stopped after {sim.executed_count} commands", file=sys.stderr)
     return 0
