@@ -22,7 +22,7 @@ import hashlib
 import logging
 import os
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
@@ -78,6 +78,7 @@ class CampaignWriter:
         known_sha256: Mapping[int, str] | None = None,
         batch_presses: int = 1,
         batch_s: float = DRY_RUN_BATCH_S,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if int(batch_presses) < 1 or not batch_s > 0:
             raise DataError(
@@ -87,7 +88,7 @@ class CampaignWriter:
             )
         self.folder = Path(folder)
         self.fsync = fsync
-        self.batch_presses, self.batch_s = int(batch_presses), float(batch_s)
+        self.batch_presses, self.batch_s, self._clock = int(batch_presses), float(batch_s), clock
         self._batch: list[CheckedRow] = []
         self._batch_ids: set[int] = set()
         self._batch_started = 0.0
@@ -246,11 +247,11 @@ class CampaignWriter:
         if waveforms:
             self._write_waveforms(press_id, int(row["position_id"]), waveforms)
         if not self._batch:
-            self._batch_started = time.monotonic()
+            self._batch_started = self._clock()
         self._batch.append(checked)
         self._batch_ids.add(press_id)
         path = self._parts_dir / part_name(self._batch[0].press_id)
-        if len(self._batch) >= self.batch_presses or time.monotonic() - self._batch_started >= self.batch_s:
+        if len(self._batch) >= self.batch_presses or self._clock() - self._batch_started >= self.batch_s:
             self.flush()
         return path
 
