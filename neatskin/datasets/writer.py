@@ -47,16 +47,17 @@ from neatskin.layout import ElectrodePair
 
 FINALIZE_BATCH = 4096  # rows per row group of presses.parquet: finalize's memory stays flat as campaigns grow
 READ_BATCH = 128  # parts read back at a time
-DRY_RUN_PARTS = 256  # a dry run writes about this many parts, so a kill loses at most ~1/256 of its presses
-MAX_BATCH_PRESSES = 256
+MAX_BATCH_PRESSES = 256  # presses per part of a batched dry run: a kill loses at most these, recomputed on resume
 DRY_RUN_BATCH_S = 1.0  # a batch waits at most this long, so the live monitor sees presses land every second
+BATCH_FROM_PRESSES = 512  # shorter dry runs take seconds: they keep one part per press, as the real rig writes
 log = logging.getLogger(__name__)
 
 
 def dry_run_batch_presses(planned: int) -> int:
-    """Presses per part for a dry run of `planned` presses: about DRY_RUN_PARTS parts whatever its size (at
-    most MAX_BATCH_PRESSES presses each); a campaign under 2 x DRY_RUN_PARTS presses keeps one per press."""
-    return max(1, min(MAX_BATCH_PRESSES, int(planned) // DRY_RUN_PARTS))
+    """Presses per part for a dry run of `planned` presses: MAX_BATCH_PRESSES (each part also closes after
+    DRY_RUN_BATCH_S), or 1 for a campaign under BATCH_FROM_PRESSES presses (the smoke protocol, short tests),
+    whose parts are then exactly the real rig's."""
+    return MAX_BATCH_PRESSES if int(planned) >= BATCH_FROM_PRESSES else 1
 
 
 class CampaignWriter:
