@@ -54,6 +54,7 @@ finally:
 
 _CAMPAIGN_CHILD = r"""
 import functools, json, shutil, sys, tempfile, time
+import pandas  # pyarrow imports it at the first tz-aware timestamp array: a one-time cost, not the writer's
 from pathlib import Path
 import neatskin.datasets.writer as w
 from neatskin.rig.protocol import load_protocol
