@@ -19,10 +19,12 @@ from conftest import PROTOCOLS
 
 import neatskin.datasets.writer as writer_module
 import neatskin.rig.runner as runner
+from neatskin.datasets.curate import describe
 from neatskin.datasets.durable import write_error
 from neatskin.datasets.paths import press_parts
 from neatskin.datasets.reader import read_presses
 from neatskin.errors import DataError
+from neatskin.monitor.state import CampaignView
 from neatskin.rig.control import Checkpoint, read_state, request_control
 from neatskin.rig.protocol import load_protocol
 from neatskin.rig.runner import resume_campaign, run_campaign
@@ -158,6 +160,8 @@ def test_a_pause_shows_every_press_pressed(features_protocol, reference, tmp_pat
     assert read_state(folder).get("state") == "paused", result
     on_disk = read_presses(folder)["press_id"].tolist()
     assert on_disk == pressed == list(range(len(pressed))) and 3 <= len(pressed) < 120
+    assert describe(folder)["presses"] == len(pressed)  # what `neatskin dataset info` shows
+    assert CampaignView(folder).snapshot()["counts"]["done"] == len(pressed)  # what the monitor shows
     request_control(folder, "continue", by="test")
     thread.join(120)
     assert "error" not in result and result["r"].completed == 120
