@@ -103,11 +103,11 @@ def write_durably(
     return path
 
 
-def write_bytes_durably(path: Path, data: bytes, *, fsync: bool = True) -> Path:
+def write_bytes_durably(path: Path, data: bytes, *, fsync: bool = True, dir_fd: int | None = None) -> Path:
     def write(handle: IO[bytes]) -> None:
         handle.write(data)
 
-    return write_durably(path, write, fsync=fsync)
+    return write_durably(path, write, fsync=fsync, dir_fd=dir_fd)
 
 
 def remove_temp_files(folder: Path) -> list[Path]:

@@ -5,7 +5,8 @@ CAMPAIGN/
   campaign.lock                      who runs the campaign (PID, host, start); flock'ed while it runs
   presses.parquet                    all presses, one row each (after finalize)
   presses.copy.parquet               a byte copy of presses.parquet kept by finalize, to restore a damaged one
-  presses/part-000042.parquet        one durable part per press while the campaign runs
+  presses/part-000042.parquet        durable presses while the campaign runs: press 42 and, in a dry run's
+                                     batched part, the presses after it (ids strictly increasing)
   waveforms/position_id=7/part-000042.parquet   raw samples of press 42 (hive-partitioned)
 """
 
@@ -27,13 +28,14 @@ def part_name(press_id: int) -> str:
 
 
 def part_press_id(path: Path) -> int | None:
-    """The press id of a durable part file, or None for anything else (temp files included)."""
+    """The press id of a durable part file (of its first row), or None for anything else (temp files
+    included)."""
     match = _PART.match(path.name)
     return int(match.group(1)) if match else None
 
 
 def press_parts(folder: Path) -> dict[int, Path]:
-    """{press_id: part path} of the durable press parts in CAMPAIGN/presses/."""
+    """{first press id: part path} of the durable press parts in CAMPAIGN/presses/."""
     parts_dir = Path(folder) / PRESSES_DIR
     if not parts_dir.is_dir():
         return {}

@@ -18,7 +18,7 @@ import pyarrow.parquet as pq
 
 from neatskin.datasets.paths import CONSOLIDATED_NAME, WAVEFORMS_DIR, part_press_id, press_parts
 from neatskin.datasets.schema import decode_metadata, parse_pair_column
-from neatskin.datasets.writer import deduplicate_sorted, read_tables
+from neatskin.datasets.tables import deduplicate_sorted, read_tables
 from neatskin.errors import DataError
 from neatskin.layout import ElectrodePair
 

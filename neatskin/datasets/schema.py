@@ -13,6 +13,7 @@ import json
 import math
 import re
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -155,12 +156,35 @@ def _timestamp_us(value: Any, key: str) -> int:
     )
 
 
+_INT_RANGES = {pa.int32(): (-(2**31), 2**31 - 1), pa.int64(): (-(2**63), 2**63 - 1)}
+
+
+@dataclass(frozen=True)
+class CheckedRow:
+    """One press row with every key checked and every value converted to what its column stores (epoch
+    microseconds for timestamps); `pair_values_ohm` holds R then dR in the layout's pair order."""
+
+    values: tuple[Any, ...]  # one per BASE_FIELDS entry
+    pair_values_ohm: np.ndarray
+
+    @property
+    def press_id(self) -> int:
+        return int(self.values[_PRESS_ID])
+
+
+_PRESS_ID = BASE_COLUMNS.index("press_id")
+
+
 class RowEncoder:
-    """Turns press-row dicts into one-row arrow tables of a fixed schema, checking every key.
+    """Turns press-row dicts into arrow tables of a fixed schema, checking every key.
 
     A row gives each fixed column by name, and the pair values either per column (`R_ohm_1_2`, ...) or as
     two arrays `R_ohm` and `dR_ohm` of shape (pairs,) in the layout's pair order. `fsr_*` may be absent
     (null: a protocol without an FSR) and `flags` may be absent (no flags).
+
+    `check(row)` does every check of one row (the first problem raises, in column order); `table_of(checked)`
+    builds one arrow array per column for many checked rows at once, so a batch of presses costs about what
+    one press did. `table(row)` is the one-row table, the same as `table_of([check(row)])`.
     """
 
     def __init__(self, schema: pa.Schema) -> None:
@@ -170,6 +194,13 @@ class RowEncoder:
         self._known = set(BASE_COLUMNS) | set(self.pair_names) | {"R_ohm", "dR_ohm"}
 
     def table(self, row: Mapping[str, Any]) -> pa.Table:
+        return self.table_of([self.check(row)])
+
+    def rows_table(self, rows: Sequence[Mapping[str, Any]]) -> pa.Table:
+        """Many rows as one table; the first bad row raises what `table(row)` would."""
+        return self.table_of([self.check(row) for row in rows])
+
+    def check(self, row: Mapping[str, Any]) -> CheckedRow:
         unknown = sorted(set(row) - self._known)
         if unknown:
             raise DataError(
@@ -180,32 +211,24 @@ class RowEncoder:
         missing = [c for c in BASE_COLUMNS if c not in row and c not in NULLABLE_COLUMNS and c != "flags"]
         if missing:
             raise DataError(f"press row lacks {', '.join(missing)}", field=missing[0], fix="give every fixed column")
+        values = tuple(_column_value(f, row.get(f.name)) for f in BASE_FIELDS)
+        return CheckedRow(values, self._pair_values(row))
+
+    def table_of(self, rows: Sequence[CheckedRow]) -> pa.Table:
+        """The table of checked rows, one arrow array per column."""
         arrays: list[pa.Array] = []
-        for f in BASE_FIELDS:
-            value = row.get(f.name)
-            if f.name in ("started_at", "finished_at"):
-                value = _timestamp_us(value, f.name)
-            elif f.name == "flags":
-                value = [] if value is None else [str(v) for v in value]
-            elif value is None:
-                if not f.nullable:
-                    raise DataError(f"'{f.name}' is None", field=f.name, fix="give a value")
-            elif f.name == "campaign":
-                value = str(value)
-            elif pa.types.is_integer(f.type):
-                value = int(value)
-            else:
-                value = float(value)
+        for k, f in enumerate(BASE_FIELDS):
+            column = [r.values[k] for r in rows]
             try:
-                arrays.append(pa.array([value], f.type))
-            except (pa.ArrowInvalid, pa.ArrowTypeError, OverflowError) as exc:
-                raise DataError(
-                    f"'{f.name}' = {value!r} does not fit {f.type}: {exc}",
-                    field=f.name,
-                    fix=f"give a value of type {f.type}",
-                ) from exc
-        pair_values = pa.array(self._pair_values(row), pa.float64())
-        arrays.extend(pair_values.slice(k, 1) for k in range(len(pair_values)))
+                arrays.append(pa.array(column, f.type))
+            except (pa.ArrowInvalid, pa.ArrowTypeError, OverflowError):
+                for value in column:  # name the value that does not fit, as one row would
+                    _fits(f, value)
+                raise
+        pairs = np.empty((len(self.pair_names), len(rows)), dtype=np.float64)
+        for k, r in enumerate(rows):
+            pairs[:, k] = r.pair_values_ohm
+        arrays.extend(pa.array(column, pa.float64()) for column in pairs)
         return pa.Table.from_arrays(arrays, schema=self.schema)
 
     def _pair_values(self, row: Mapping[str, Any]) -> np.ndarray:
@@ -229,3 +252,38 @@ class RowEncoder:
                 fix="give R_ohm_i_j and dR_ohm_i_j for every pair, or arrays R_ohm and dR_ohm",
             )
         return np.array([row[c] for c in self.pair_names], dtype=np.float64)
+
+
+def _column_value(f: pa.Field, value: Any) -> Any:
+    """A row's value for column `f`, converted as stored and checked to fit (DataError naming the field)."""
+    if f.name in ("started_at", "finished_at"):
+        value = _timestamp_us(value, f.name)
+    elif f.name == "flags":
+        return [] if value is None else [str(v) for v in value]
+    elif value is None:
+        if not f.nullable:
+            raise DataError(f"'{f.name}' is None", field=f.name, fix="give a value")
+        return None
+    elif f.name == "campaign":
+        return str(value)
+    elif pa.types.is_integer(f.type):
+        value = int(value)
+    else:
+        return float(value)
+    _fits(f, value)
+    return value
+
+
+def _fits(f: pa.Field, value: Any) -> None:
+    """Raise the DataError arrow's own conversion gives when an integer (or timestamp) does not fit `f`."""
+    low, high = _INT_RANGES.get(f.type, _INT_RANGES[pa.int64()])
+    if value is None or not isinstance(value, int) or low <= value <= high:
+        return
+    try:
+        pa.array([value], f.type)
+    except (pa.ArrowInvalid, pa.ArrowTypeError, OverflowError) as exc:
+        raise DataError(
+            f"'{f.name}' = {value!r} does not fit {f.type}: {exc}",
+            field=f.name,
+            fix=f"give a value of type {f.type}",
+        ) from exc

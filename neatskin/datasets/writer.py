@@ -1,11 +1,15 @@
-"""The crash-safe campaign writer: one durable parquet part per press, raw waveforms beside them, and a
+"""The crash-safe campaign writer: durable parquet parts of presses, raw waveforms beside them, and a
 crash-safe finalize that consolidates the parts into presses.parquet.
 
-Durability: `write_press` returns only when the press's part is complete on disk (temp file, fsync,
-atomic rename, fsync of the folder). The press part is the commit record: waveforms are written first,
+Durability: by default (the real rig) every press is one part and `write_press` returns only when it is
+complete on disk (temp file, fsync, atomic rename, fsync of the folder). With a batch (a dry run, whose
+presses are recomputed identically from (seed, press_id)), presses wait in memory until `batch_presses` of
+them or `batch_s` seconds have gathered, or until `flush()`, and are then written as one part. A part is
+named after the press id of its first row and holds one or more rows whose press ids strictly increase;
+one-row parts are the per-press parts. The part is the commit record: waveforms are written first,
 so a kill between the two leaves an orphan waveform part that the next writer deletes (the press is
 not in `completed_press_ids()` and will be pressed again). A kill inside a write leaves only a hidden
-temp file, which readers ignore and the next writer removes.
+temp file, which readers ignore and the next writer removes; a kill with presses in the batch loses them.
 
 Waveforms are stored one row per sample: columns press_id (int64), sample (int32) and one column per
 named signal, in `waveforms/position_id=K/part-{press_id:06d}.parquet` (hive partitioning, so pyarrow,
@@ -15,8 +19,10 @@ DuckDB and Spark add position_id as a column).
 from __future__ import annotations
 
 import hashlib
+import logging
 import os
-from collections.abc import Mapping, Sequence
+import time
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
@@ -35,12 +41,42 @@ from neatskin.datasets.paths import (
     press_parts,
     waveform_parts,
 )
-from neatskin.datasets.schema import RowEncoder, decode_metadata, press_schema
+from neatskin.datasets.schema import CheckedRow, RowEncoder, decode_metadata, press_schema
+from neatskin.datasets.tables import (  # re-exported: callers import them from here
+    deduplicate_sorted,
+    file_sha256,
+    read_parquet,
+    read_tables,
+    waveform_table,
+    write_table_durably,
+)
 from neatskin.errors import DataError
 from neatskin.layout import ElectrodePair
 
+__all__ = [
+    "CampaignWriter",
+    "deduplicate_sorted",
+    "dry_run_batch_presses",
+    "file_sha256",
+    "read_parquet",
+    "read_tables",
+    "waveform_table",
+    "write_table_durably",
+]
+
 FINALIZE_BATCH = 4096  # rows per row group of presses.parquet: finalize's memory stays flat as campaigns grow
 READ_BATCH = 128  # parts read back at a time
+MAX_BATCH_PRESSES = 256  # presses per part of a batched dry run: a kill loses at most these, recomputed on resume
+DRY_RUN_BATCH_S = 1.0  # a batch waits at most this long, so the live monitor sees presses land every second
+BATCH_FROM_PRESSES = 512  # shorter dry runs take seconds: they keep one part per press, as the real rig writes
+log = logging.getLogger(__name__)
+
+
+def dry_run_batch_presses(planned: int) -> int:
+    """Presses per part for a dry run of `planned` presses: MAX_BATCH_PRESSES (each part also closes after
+    DRY_RUN_BATCH_S), or 1 for a campaign under BATCH_FROM_PRESSES presses (the smoke protocol, short tests),
+    whose parts are then exactly the real rig's."""
+    return MAX_BATCH_PRESSES if int(planned) >= BATCH_FROM_PRESSES else 1
 
 
 class CampaignWriter:
@@ -48,6 +84,8 @@ class CampaignWriter:
 
     `metadata` (JSON-serialisable values) goes into every file's key-value metadata under `neatskin.`;
     `software_version` defaults to neatskin.__version__. `fsync=False` is for tests and throwaway runs only.
+    `batch_presses` > 1 (with `batch_s`) gathers presses into one part, for runs whose presses can be
+    recomputed (the dry run): call `flush()` (or `close()`) to make the gathered presses durable.
     """
 
     def __init__(
@@ -58,9 +96,23 @@ class CampaignWriter:
         *,
         fsync: bool = True,
         known_sha256: Mapping[int, str] | None = None,
+        batch_presses: int = 1,
+        batch_s: float = DRY_RUN_BATCH_S,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
+        if int(batch_presses) < 1 or not batch_s > 0:
+            raise DataError(
+                f"batch_presses = {batch_presses} and batch_s = {batch_s} must be >= 1 and > 0",
+                field="batch_presses",
+                fix="use batch_presses=1 for one durable part per press",
+            )
         self.folder = Path(folder)
         self.fsync = fsync
+        self.batch_presses, self.batch_s, self._clock = int(batch_presses), float(batch_s), clock
+        self._batch: list[CheckedRow] = []
+        self._batch_ids: set[int] = set()
+        self._batch_started = 0.0
+        self._part_last: dict[int, int] = {}  # first press id of a part -> its last press id
         self.part_sha256: dict[int, str] = {int(k): v for k, v in (known_sha256 or {}).items()}
         meta = {"software_version": neatskin.__version__, **dict(metadata)}
         self.schema = press_schema(pairs, meta)
@@ -87,9 +139,20 @@ class CampaignWriter:
             for sub in self._waveforms_dir.iterdir():
                 remove_temp_files(sub)
         parts = press_parts(self.folder)
-        self._completed = set(parts)
+        self._completed: set[int] = set()
         for press_id, path in parts.items():
-            self._verified_part(press_id, path)
+            ids = self._verified_part(press_id, path).column("press_id").to_pylist()
+            twice = self._completed.intersection(ids)
+            if twice:
+                raise DataError(
+                    f"press id(s) {sorted(twice)[:5]} are in this part and in another part",
+                    file=str(path),
+                    field="press_id",
+                    fix=f"move {path.name} out of {path.parent} (its presses are pressed again on resume), "
+                    "or restore the campaign's own files",
+                )
+            self._completed.update(ids)
+            self._part_last[press_id] = ids[-1]
         consolidated = self.folder / CONSOLIDATED_NAME
         existing = [consolidated] if consolidated.exists() else []
         existing += list(parts.values())[:1]
@@ -103,8 +166,9 @@ class CampaignWriter:
                 path.unlink(missing_ok=True)  # orphan: its press was never committed
 
     def _verified_part(self, press_id: int, path: Path) -> pa.Table:
-        """A committed part's row, refused unless it is intact (recorded sha256, page checksums), holds the
-        press its name says and belongs to this campaign (name and seed)."""
+        """A committed part's rows, refused unless it is intact (recorded sha256, page checksums), holds press
+        ids that start with the one its name says and strictly increase, and belongs to this campaign (name
+        and seed)."""
         fix = (
             f"move {path.name} out of {path.parent} (its press is pressed again on resume), "
             "or restore the campaign's own file"
@@ -123,18 +187,29 @@ class CampaignWriter:
         except (OSError, pa.ArrowException) as exc:
             raise DataError(f"cannot read a committed part: {exc}", file=str(path), fix=fix) from exc
         ids = table.column("press_id").to_pylist() if "press_id" in table.column_names else []
-        if ids != [press_id]:
+        if not ids or ids[0] != press_id:
             raise DataError(
                 f"the part's name says press {press_id} but it holds press id(s) {ids[:5]}",
                 file=str(path),
                 field="press_id",
                 fix=fix,
             )
+        steps = np.diff(np.asarray(ids, dtype=np.int64))
+        if (steps <= 0).any():
+            k = int(np.argmax(steps <= 0))
+            raise DataError(
+                f"the part's press ids do not strictly increase (press {ids[k]} then {ids[k + 1]})",
+                file=str(path),
+                field="press_id",
+                fix=fix,
+            )
         own = self.metadata.get("campaign")
         found = table.column("campaign").to_pylist() if "campaign" in table.column_names else [None]
-        if own is not None and (found[0] != own or meta.get("seed") != self.metadata.get("seed")):
+        foreign = next((c for c in found if c != own), None) if own is not None else None
+        if own is not None and (foreign is not None or not found or meta.get("seed") != self.metadata.get("seed")):
+            shown = foreign if foreign is not None else (found[0] if found else None)
             raise DataError(
-                f"the part belongs to another campaign ({found[0]!r}, seed {meta.get('seed')!r}), "
+                f"the part belongs to another campaign ({shown!r}, seed {meta.get('seed')!r}), "
                 f"not {own!r} (seed {self.metadata.get('seed')!r})",
                 file=str(path),
                 field="campaign",
@@ -163,37 +238,62 @@ class CampaignWriter:
             )
 
     def completed_press_ids(self) -> set[int]:
-        """Ids of the presses that are durable (in a part or in the consolidated file)."""
+        """Ids of the presses that are durable (in a part or in the consolidated file); a press still in the
+        batch is not."""
         return set(self._completed)
+
+    def batched_press_ids(self) -> set[int]:
+        """Ids of the presses written but still in the batch, durable at the next flush."""
+        return set(self._batch_ids)
 
     # ---- writing -----------------------------------------------------------------------------
 
     def write_press(self, row: Mapping[str, Any], waveforms: Mapping[str, np.ndarray] | None = None) -> Path:
-        """Make one press durable; returns its part's path. Refuses a press id that is already durable."""
-        table = self._encoder.table(row)
-        press_id = int(row["press_id"])
+        """Add one press; with batch_presses=1 it is durable when this returns, else once its batch is written.
+        Returns the path of the part that holds (or will hold) it. Refuses a press id already written."""
+        checked = self._encoder.check(row)
+        press_id = checked.press_id
         if press_id < 0:
             raise DataError(f"press_id must be >= 0, got {press_id}", field="press_id", fix="number presses from 0")
-        if press_id in self._completed:
+        if press_id in self._completed or press_id in self._batch_ids:
+            where = "durable" if press_id in self._completed else "written (in the batch not yet on disk)"
             raise DataError(
-                f"press {press_id} is already durable in {self.folder}",
+                f"press {press_id} is already {where} in {self.folder}",
                 field="press_id",
                 fix="skip the ids in completed_press_ids() when resuming",
             )
+        if self._batch and press_id <= self._batch[-1].press_id:
+            self.flush()  # a part's press ids strictly increase
         if waveforms:
             self._write_waveforms(press_id, int(row["position_id"]), waveforms)
-        path = self._parts_dir / part_name(press_id)
-        # one-row files: column statistics and dictionaries cost time and help no reader
-        write_durably(
-            path,
-            lambda handle: pq.write_table(
-                table, handle, write_statistics=False, use_dictionary=False, write_page_checksum=True
-            ),
-            fsync=self.fsync,
-            dir_fd=self._dir_fd,
+        if not self._batch:
+            self._batch_started = self._clock()
+        self._batch.append(checked)
+        self._batch_ids.add(press_id)
+        path = self._parts_dir / part_name(self._batch[0].press_id)
+        if len(self._batch) >= self.batch_presses or self._clock() - self._batch_started >= self.batch_s:
+            self.flush()
+        return path
+
+    def flush(self) -> Path | None:
+        """Write the batch as one part (atomically; fsync'd when the writer fsyncs); returns its path, or None
+        when the batch is empty. A failed write drops the batch (its presses are not durable and are pressed
+        again on resume) and raises the DataError naming the file."""
+        if not self._batch:
+            return None
+        rows, self._batch, self._batch_ids = self._batch, [], set()
+        first, last = rows[0].press_id, rows[-1].press_id
+        path = self._parts_dir / part_name(first)
+        # small files: column statistics and dictionaries cost time and help no reader
+        sink = pa.BufferOutputStream()
+        pq.write_table(
+            self._encoder.table_of(rows), sink, write_statistics=False, use_dictionary=False, write_page_checksum=True
         )
-        self._completed.add(press_id)
-        self.part_sha256[press_id] = file_sha256(path)
+        data = sink.getvalue().to_pybytes()
+        write_bytes_durably(path, data, fsync=self.fsync, dir_fd=self._dir_fd)
+        self._completed.update(r.press_id for r in rows)
+        self._part_last[first] = last
+        self.part_sha256[first] = hashlib.sha256(data).hexdigest()
         return path
 
     def _write_waveforms(self, press_id: int, position_id: int, waveforms: Mapping[str, np.ndarray]) -> Path:
@@ -215,31 +315,41 @@ class CampaignWriter:
     # ---- finalize ----------------------------------------------------------------------------
 
     def finalize(self) -> Path:
-        """Consolidate every durable press into presses.parquet (sorted by press_id, this writer's metadata)
-        and then delete the parts. Crash-safe and idempotent: the consolidated file is replaced atomically
-        before any part is deleted, and readers deduplicate a press found in both."""
+        """Write the batch, consolidate every durable press into presses.parquet (sorted by press_id, this
+        writer's metadata, row groups of FINALIZE_BATCH rows) and then delete the parts. Crash-safe and
+        idempotent: the consolidated file is replaced atomically before any part is deleted, and readers
+        deduplicate a press found in both."""
+        self.flush()
         consolidated = self.folder / CONSOLIDATED_NAME
         parts = press_parts(self.folder)
         if not parts and consolidated.exists():
             self._keep_copy(consolidated)
             return consolidated
         plain = self.schema.remove_metadata()
-        if consolidated.exists():  # a finalize was killed half-way: the rare path, rows held in memory once
-            table = pa.concat_tables([read_tables([consolidated], plain), read_tables(list(parts.values()), plain)])
+        if consolidated.exists() or not self._parts_in_order(parts):
+            # a finalize was killed half-way (or parts interleave): the rare path, rows held in memory once
+            tables = [read_tables([consolidated], plain)] if consolidated.exists() else []
+            table = pa.concat_tables([*tables, read_tables(list(parts.values()), plain)])
             table = deduplicate_sorted(table).replace_schema_metadata(self.schema.metadata)
             write_table_durably(consolidated, table, fsync=self.fsync)
-        else:  # the parts hold distinct ids, sorted by name: stream them, FINALIZE_BATCH parts per row group
+        else:  # the parts hold distinct ids, in order by name: stream them, FINALIZE_BATCH rows per row group
             paths = list(parts.values())
 
             def stream(handle: IO[bytes]) -> None:
                 with pq.ParquetWriter(handle, self.schema, write_page_checksum=True) as out:
-                    group: list[pa.Table] = []
+                    pending: list[pa.Table] = []
+                    rows = 0
                     for start in range(0, len(paths), READ_BATCH):
                         # one compact table per READ_BATCH parts: a one-row table costs far more than its row
-                        group.append(read_tables(paths[start : start + READ_BATCH], plain).combine_chunks())
-                        if len(group) * READ_BATCH >= FINALIZE_BATCH or start + READ_BATCH >= len(paths):
-                            out.write_table(pa.concat_tables(group))
-                            group = []
+                        chunk = read_tables(paths[start : start + READ_BATCH], plain).combine_chunks()
+                        pending.append(chunk)
+                        rows += chunk.num_rows
+                        last = start + READ_BATCH >= len(paths)
+                        while rows >= FINALIZE_BATCH or (last and rows):
+                            table = pa.concat_tables(pending).combine_chunks()
+                            group = min(rows, FINALIZE_BATCH)
+                            out.write_table(table.slice(0, group), row_group_size=FINALIZE_BATCH)
+                            pending, rows = [table.slice(group)], rows - group
 
             write_durably(consolidated, stream, fsync=self.fsync)
         self._keep_copy(consolidated)  # before the parts go: a damaged presses.parquet stays recoverable
@@ -249,6 +359,16 @@ class CampaignWriter:
             os.fsync(self._dir_fd)
         return consolidated
 
+    def _parts_in_order(self, parts: Mapping[int, Path]) -> bool:
+        """True when every part's ids are known and each part starts after the one before it ends."""
+        previous_last = -1
+        for first in parts:
+            last = self._part_last.get(first)
+            if last is None or first <= previous_last:
+                return False
+            previous_last = last
+        return True
+
     def _keep_copy(self, consolidated: Path) -> None:
         copy = self.folder / COPY_NAME
         data = consolidated.read_bytes()
@@ -256,6 +376,13 @@ class CampaignWriter:
             write_bytes_durably(copy, data, fsync=self.fsync)
 
     def close(self) -> None:
+        """Write the batch, then release the folder."""
+        try:
+            self.flush()
+        finally:
+            self._close_dir()
+
+    def _close_dir(self) -> None:
         if self._dir_fd is not None:
             os.close(self._dir_fd)
             self._dir_fd = None
@@ -263,89 +390,17 @@ class CampaignWriter:
     def __enter__(self) -> CampaignWriter:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, kind: type[BaseException] | None, *exc: object) -> None:
+        if kind is None:
+            self.close()
+            return
+        try:  # leaving on an error: keep the batch if the disk lets us, but never hide the error
+            self.close()
+        except Exception as again:
+            log.warning("the batch of presses was not written (resume presses them again): %s", again)
 
     def __del__(self) -> None:
         try:
-            self.close()
+            self._close_dir()  # never writes: a writer dropped without close() loses its batch, as a kill would
         except Exception:
             pass
-
-
-def read_parquet(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
-    """One parquet file, its page checksums verified (a flipped bit is an error, not a changed value);
-    metadata dropped."""
-    handle = pq.ParquetFile(path, page_checksum_verification=True)
-    return handle.read(columns=columns, use_threads=False).replace_schema_metadata(None)
-
-
-def file_sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
-def read_tables(files: Sequence[Path], schema: pa.Schema) -> pa.Table:
-    """Concatenate parquet files of one schema (metadata dropped). Reads file by file: for many one-row parts
-    this is twice as fast as a pyarrow dataset scan."""
-    tables = []
-    for path in files:
-        try:
-            table = read_parquet(path)
-        except (OSError, pa.ArrowException) as exc:
-            raise DataError(
-                f"cannot read a parquet part: {exc}",
-                file=str(path),
-                fix="move the damaged file out of the campaign folder, then resume",
-            ) from exc
-        if not table.schema.equals(schema):
-            if table.schema.names != schema.names or table.schema.types != schema.types:
-                raise DataError(
-                    "the file's columns differ from the campaign's schema",
-                    file=str(path),
-                    fix="run `neatskin dataset validate` on the folder for the details",
-                )
-            table = table.cast(schema)  # only nullability differs
-        tables.append(table)
-    return pa.concat_tables(tables) if tables else schema.empty_table()
-
-
-def deduplicate_sorted(table: pa.Table) -> pa.Table:
-    """Rows sorted by press_id, the first occurrence of each press id kept."""
-    ids = table.column("press_id").to_numpy()
-    order = np.argsort(ids, kind="stable")
-    _, first = np.unique(ids[order], return_index=True)
-    return table.take(pa.array(order[first]))
-
-
-def waveform_table(press_id: int, waveforms: Mapping[str, np.ndarray]) -> pa.Table:
-    """One row per sample: press_id, sample, then each named 1-D signal (all of one length)."""
-    arrays = {name: np.asarray(values) for name, values in waveforms.items()}
-    lengths = {name: a.shape for name, a in arrays.items()}
-    if any(len(shape) != 1 for shape in lengths.values()) or len(set(lengths.values())) != 1:
-        raise DataError(
-            f"waveforms must be 1-D arrays of one length, got shapes {lengths}",
-            field="waveforms",
-            fix="pass one 1-D array per signal, sample-aligned (e.g. voltage_v, current_a, fsr_v)",
-        )
-    reserved = {"press_id", "sample", "position_id"} & set(arrays)
-    if reserved:
-        raise DataError(f"waveform name(s) {sorted(reserved)} are reserved", field="waveforms", fix="rename the signal")
-    n = next(iter(lengths.values()))[0]
-    columns = {"press_id": np.full(n, press_id, dtype=np.int64), "sample": np.arange(n, dtype=np.int32)}
-    columns.update(arrays)
-    return pa.table(columns)
-
-
-def write_table_durably(path: str | os.PathLike, table: pa.Table, *, fsync: bool = True) -> Path:
-    """Write a whole press table (with its metadata) as one parquet file, atomically and durably."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    return write_durably(
-        path,
-        lambda handle: pq.write_table(table, handle, row_group_size=1 << 16, write_page_checksum=True),
-        fsync=fsync,
-    )

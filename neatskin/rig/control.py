@@ -142,8 +142,10 @@ def fsr_miss_cause(n_misses: int, press_ids: Sequence[int]) -> str:
 class Checkpoint:
     """The safe point between presses. `after_press(press_id, flags)` returns True to go on, False to stop.
 
-    `lift()` raises the probe to the safe height (pause); `park()` lifts and parks it (stop). `interrupted()`
-    lets a Ctrl-C end a pause. The runner calls nothing else; every wait polls the request file with a cap.
+    `lift()` raises the probe to the safe height (pause); `park()` lifts and parks it (stop). `flush()` makes
+    the presses a batching writer holds durable, before any pause or stop, so the monitor and `campaign info`
+    show every press pressed. `interrupted()` lets a Ctrl-C end a pause. The runner calls nothing else; every
+    wait polls the request file with a cap.
     """
 
     def __init__(
@@ -152,6 +154,7 @@ class Checkpoint:
         *,
         lift: Callable[[], None],
         park: Callable[[], None],
+        flush: Callable[[], object] = lambda: None,
         fsr_miss_limit: int = DEFAULT_FSR_MISS_LIMIT,
         interrupted: Callable[[], bool] = lambda: False,
         poll_s: float = POLL_S,
@@ -160,7 +163,7 @@ class Checkpoint:
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.folder = Path(folder)
-        self._lift, self._park, self._interrupted = lift, park, interrupted
+        self._lift, self._park, self._flush, self._interrupted = lift, park, flush, interrupted
         self.fsr_miss_limit = int(fsr_miss_limit)
         self.poll_s, self.max_pause_s = poll_s, max_pause_s
         self._sleep, self._clock = sleep, clock
@@ -183,7 +186,8 @@ class Checkpoint:
         return fresh
 
     def after_press(self, press_id: int, flags: Sequence[str]) -> bool:
-        """Called once the press is durable: True to run the next press, False to stop here."""
+        """Called once the press is written (durable, or in a batch that a pause or stop flushes first): True
+        to run the next press, False to stop here."""
         self._missed = [*self._missed, press_id] if "fsr_missed" in flags else []
         pause_by: str | None = None
         for request in self._new_requests():  # in order: a pause then a continue cancel out
@@ -210,12 +214,14 @@ class Checkpoint:
             reason,
             self.folder,
         )
+        self._flush()
         self._park()
         self._write_state("stopped", reason)
         return False
 
     def _pause(self, reason: str, *, auto: bool) -> bool:
         self.pauses += 1
+        self._flush()
         self._lift()
         self._write_state("paused", reason, auto=auto)
         deadline = self._clock() + self.max_pause_s

@@ -1,9 +1,12 @@
 """The campaign runner: executes a protocol's plan press by press against a rig, writing each press durably.
 
 The plan (G-code press blocks, the mux sweep, the sweeps per press) is built and checked from
-the protocol before anything moves; the rig (dry run or real) only executes it. Each finished
-press is durable on disk before the next starts; Ctrl-C stops after the press in flight, lifts
-the probe and leaves a campaign that `resume` finishes with no press lost or duplicated.
+the protocol before anything moves; the rig (dry run or real) only executes it. On the real rig each
+finished press is durable on disk (fsync'd) before the next starts; a dry run writes its presses in
+batches (neatskin.datasets.writer.dry_run_batch_presses), each flushed before the loop ends, pauses or
+stops, since a kill's lost batch is recomputed identically from (seed, press_id). Ctrl-C stops after the
+press in flight, lifts the probe and leaves a campaign that `resume` finishes with no press lost or
+duplicated.
 """
 
 from __future__ import annotations
@@ -181,7 +184,7 @@ def _run_locked(
     connect_timeout_s,
 ):
     from neatskin.datasets.manifest import read_manifest, update_manifest, utc_now_iso
-    from neatskin.datasets.writer import CampaignWriter
+    from neatskin.datasets.writer import CampaignWriter, dry_run_batch_presses
 
     try:
         rig = _open_rig(
@@ -214,9 +217,16 @@ def _run_locked(
         manifest = update_manifest(folder, status="running", rig=rig.description, **resumed)
         known_raw = manifest.get("parts_sha256")
         known: dict = known_raw if isinstance(known_raw, dict) else {}
-        # a dry run's presses are recomputed identically from (seed, press_id): a process kill must not lose
-        # what the OS holds (atomic renames do that), power loss may; the real rig fsyncs every press
-        writer = CampaignWriter(folder, protocol.layout.pairs, metadata, fsync=not dry_run, known_sha256=known)
+        # a dry run's presses are recomputed identically from (seed, press_id): a kill may lose its batch and
+        # power loss what the OS held, resume presses them again; the real rig fsyncs every press, one a part
+        writer = CampaignWriter(
+            folder,
+            protocol.layout.pairs,
+            metadata,
+            fsync=not dry_run,
+            known_sha256=known,
+            batch_presses=dry_run_batch_presses(plan.n_presses) if dry_run else 1,
+        )
         try:
             done = writer.completed_press_ids()
             todo = [b for b in plan.program.presses if b.press_id not in done]
@@ -273,6 +283,10 @@ def _parts_sha256(manifest: dict, writer) -> dict[str, str]:
 def _mark_stopped_with_parts(folder: Path, exc: BaseException, writer) -> None:
     from neatskin.datasets.manifest import read_manifest, update_manifest, utc_now_iso
 
+    try:  # the presses in the batch are complete: keep them if the disk lets us
+        writer.flush()
+    except Exception as again:  # e.g. the disk is full: the batch is lost, resume presses it again
+        log.warning("the last batch of presses was not written (resume presses it again): %s", again)
     try:
         update_manifest(
             folder,
@@ -371,7 +385,7 @@ def _press_loop(protocol, plan, rig, writer, todo, pair_labels, already_done, pr
     )
     interrupted = False
     with _StopRequest() as stop:
-        checkpoint = _checkpoint(protocol, plan, driver, writer.folder, stop)
+        checkpoint = _checkpoint(protocol, plan, driver, writer, stop)
         for block in todo:
             row, waveforms = _run_press(protocol, plan, rig, block, pair_labels)
             writer.write_press(row, waveforms)
@@ -386,18 +400,21 @@ def _press_loop(protocol, plan, rig, writer, todo, pair_labels, already_done, pr
             if block is not todo[-1] and not checkpoint.after_press(block.press_id, row["flags"]):
                 interrupted = True
                 break
+        writer.flush()  # every press of this run is durable before the loop says it ended
         checkpoint.finished("stopped" if interrupted else "finished")
     bar.close()
     return written, flagged, interrupted
 
 
-def _checkpoint(protocol, plan, driver, folder, stop):
-    """The safe point between presses (neatskin.rig.control): pause lifts and waits, stop lifts and parks."""
+def _checkpoint(protocol, plan, driver, writer, stop):
+    """The safe point between presses (neatskin.rig.control): pause lifts and waits, stop lifts and parks;
+    both write the writer's batch first, so what a paused campaign shows is every press pressed."""
     from neatskin.rig.control import Checkpoint
 
     post = plan.program.postamble  # lift to the safe height, park, lift, M400, done marker
     return Checkpoint(
-        folder,
+        writer.folder,
+        flush=writer.flush,
         lift=lambda: driver.send_lines((*post[:1], "M400"), source="pause lift"),
         park=lambda: driver.send_lines((*post[:3], "M400"), source="stop park"),
         fsr_miss_limit=protocol.fsr_pause_after_misses,
