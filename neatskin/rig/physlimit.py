@@ -13,8 +13,6 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from types import SimpleNamespace
-from typing import Any
 
 import numpy as np
 
@@ -166,30 +164,6 @@ def _dr_noise_std_ohm(protocol, plan, rig, x, y, depth) -> np.ndarray:
 
 
 def _typical_phases_s(plan, protocol) -> np.ndarray:
-    """The median printer time of each phase over the campaign's presses (gcode.motion.phase_durations_s)."""
-    from neatskin.gcode.motion import phase_durations_s
-
-    return np.median(phase_durations_s(_parsed_once(plan.program), protocol.printer), axis=0)
-
-
-def _parsed_once(program) -> SimpleNamespace:
-    """The program with each distinct line parsed once (the motion clock takes parsed lines as they are): a
-    campaign repeats a few hundred distinct lines thousands of times, and parsing was half the clock's time."""
-    from neatskin.gcode.parse import parse_line
-
-    parsed: dict[str, Any] = {}
-
-    def lines(texts) -> tuple:
-        out = []
-        for text in texts:
-            line = parsed.get(text, parsed)  # the dict itself marks "not parsed yet"
-            if line is parsed:
-                line = parsed[text] = parse_line(text) if isinstance(text, str) else text
-            out.append(line)
-        return tuple(out)
-
-    presses = [
-        SimpleNamespace(phases=[SimpleNamespace(lines=lines(phase.lines)) for phase in block.phases])
-        for block in program.presses
-    ]
-    return SimpleNamespace(preamble=lines(program.preamble), presses=presses)
+    """The median printer time of each phase over the campaign's presses (the plan's
+    gcode.motion.phase_durations_s, computed once when the plan was built)."""
+    return np.median(plan.phase_s, axis=0)

@@ -39,6 +39,8 @@ from neatskin.rig.physlimit import write_physical_limit
 from neatskin.rig.protocol import Protocol
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from neatskin.acquisition.sequence import Sweep
     from neatskin.gcode.program import PressProgram
 
@@ -54,6 +56,7 @@ class Plan:
     n_sweeps: int  # sweeps recorded per press, from parking above the target to lifted
     hold_s: float
     printer_time_s: float  # the G-code's estimate for the whole campaign
+    phase_s: np.ndarray  # (presses, [travel, descend, press, lift]) printer seconds, gcode.motion.phase_durations_s
 
     @property
     def n_presses(self) -> int:
@@ -101,7 +104,7 @@ def build_plan(protocol: Protocol) -> Plan:
     per_press = durations[:, 1:].sum(axis=1) + hold_s
     n_sweeps = int(math.ceil((per_press.max() + 0.5) / sweep.duration_s))
     total = float(durations.sum() + hold_s * len(program.presses))
-    return Plan(program, sweep, n_sweeps, hold_s, total)
+    return Plan(program, sweep, n_sweeps, hold_s, total, durations)
 
 
 def run_campaign(
