@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -354,10 +355,9 @@ def estimator_moments(
     else:
         n_sweeps = r.shape[0]
         first = start_sample + np.arange(n_sweeps)[:, None] * sweep.n_samples + sweep.live_windows[None, :, 0]
-        sin2 = _sine(first[..., None] + np.arange(n_live), config.samples_per_period) ** 2
         c = demod.window_counts(n_live, window)
         n_win = n_live - window + 1
-        s = (c**2 * sin2).sum(axis=-1)
+        s = _weighted_sin2_sums(first, config.samples_per_period, n_live, window)
         dc_v2, dc_i2 = noise.voltage_offset_v**2, noise.current_offset_a**2
         mean = np.sqrt((v0**2 / 2 + sigma_v2 + dc_v2) / (amp**2 / 2 + sigma_i2 + dc_i2))  # RMS rectifies
         rel_var = 4.0 / (window * n_win) ** 2 * s * rel_lin + 2.0 * (c**2).sum() / (window * n_win) ** 2 * (
@@ -365,6 +365,30 @@ def estimator_moments(
         )
         blocks = max(1, n_live // window)
     return mean, r * np.sqrt(rel_var), blocks
+
+
+def _weighted_sin2_sums(first: np.ndarray, samples_per_period: float, n_live: int, window: int) -> np.ndarray:
+    """sum_k c_k^2 sin^2 over each live window starting at sample `first` (any shape), c the moving windows'
+    sample counts. With a whole number of samples per period the sum depends only on first mod the period:
+    it is looked up from one row per phase, each summed as the full computation sums it (the same bits)."""
+    whole = round(samples_per_period)
+    if abs(samples_per_period - whole) >= 1e-9:
+        from neatskin.acquisition.demod import window_counts
+
+        c = window_counts(n_live, window)
+        return (c**2 * _sine(first[..., None] + np.arange(n_live), samples_per_period) ** 2).sum(axis=-1)
+    return _phase_sin2_sums(whole, n_live, window)[first % whole]
+
+
+@lru_cache(maxsize=16)
+def _phase_sin2_sums(whole: int, n_live: int, window: int) -> np.ndarray:
+    from neatskin.acquisition.demod import window_counts
+
+    c = window_counts(n_live, window)
+    sin2 = _sine(np.arange(whole)[:, None] + np.arange(n_live), whole) ** 2  # (phases, live)
+    sums = (c**2 * sin2).sum(axis=-1)
+    sums.flags.writeable = False
+    return sums
 
 
 def _sine(index: np.ndarray, samples_per_period: float, phase: float = 0.0) -> np.ndarray:

@@ -35,6 +35,8 @@ class PressConditions:
     depth_offset_mm: float = 0.0  # depth jitter: the probe goes this much deeper than commanded
     resistivity_factor: float | None = None  # drift of the fluid's resistivity (None = none)
     extra_factor: np.ndarray | None = None  # (channels,) residual dents of earlier presses, added to R / R0
+    # R_eq of every pair before the press (dents and drift included), when computed ahead for a block of presses
+    baseline_pair_resistance_ohm: np.ndarray | None = None
 
 
 class DryProbe:
@@ -77,7 +79,9 @@ class DryProbe:
                 self._skin_kwargs["resistivity_factor"] = c.resistivity_factor
             if c.extra_factor is not None:
                 self._skin_kwargs["extra_factor"] = c.extra_factor[None, :]
-            if c.extra_factor is not None:
+            if c.baseline_pair_resistance_ohm is not None:
+                self._baseline = c.baseline_pair_resistance_ohm
+            elif c.extra_factor is not None:
                 self._baseline = self.skin.pair_resistance_ohm(0.0, 0.0, 0.0, **self._skin_kwargs)[0]
             elif c.resistivity_factor is not None:  # a uniform rho scales every R_eq by the same factor: no solve
                 self._baseline = self._skin_baseline * c.resistivity_factor
@@ -97,19 +101,61 @@ class DryProbe:
         )
         return np.round(state, 6)
 
+    def may_touch(self, times_s: np.ndarray) -> np.ndarray:
+        """Indices of the times at which the probe may be in the skin: those in a move (or the rest after it)
+        that reaches below the surface. Every other time is above it (depth <= 0), so its state is not needed."""
+        press_t = np.asarray(times_s, dtype=float) - self._daq_t0
+        segments = self._segments
+        if not segments:
+            return np.arange(press_t.size)
+        contact_z = self.surface_z_mm + self._depth_offset + _CONTACT_MARGIN_MM
+        low = [min(seg.p0_mm[2], seg.p1_mm[2]) < contact_z for seg in segments]
+        if not any(low):
+            return np.empty(0, dtype=np.intp)
+        # the move (or rest) in force at each time: the last one started by then; before the first, its start
+        reaches = np.array([segments[0].p0_mm[2] < contact_z, *low])
+        index = np.searchsorted(np.array([seg.t0_s for seg in segments]), press_t, side="right")
+        return np.flatnonzero(reaches[index])
+
     def pair_resistance_ohm(self, times_s: np.ndarray) -> np.ndarray:
-        state = self.state(times_s)
-        out = np.broadcast_to(self._baseline, (len(state), self._baseline.size)).copy()
+        times_s = np.asarray(times_s, dtype=float)
+        out = np.broadcast_to(self._baseline, (times_s.size, self._baseline.size)).copy()
+        near = self.may_touch(times_s)
+        if near.size == 0:
+            return out
+        state = self.state(times_s[near])
         touching = state[:, 2] > 0
         if touching.any():
-            unique, inverse = np.unique(state[touching], axis=0, return_inverse=True)
+            unique, inverse = _unique_states(state[touching])
             r = self.skin.pair_resistance_ohm(unique[:, 0], unique[:, 1], unique[:, 2], **self._skin_kwargs)
-            out[touching] = r[inverse.reshape(-1)]
+            out[near[touching]] = r[inverse]
         return out
 
     def force_n(self, times_s: np.ndarray) -> np.ndarray:
-        depth = self.state(times_s)[:, 2]
-        return np.asarray(self.skin.contact_force_n(np.maximum(depth, 0.0)), dtype=float).reshape(-1)
+        times_s = np.asarray(times_s, dtype=float)
+        depth = np.zeros(times_s.size)  # above the skin the force is exactly 0 (contact_force_n of depth <= 0)
+        near = self.may_touch(times_s)
+        if near.size:
+            press_t = times_s[near] - self._daq_t0
+            z = positions_mm(self._segments, press_t)[:, 2]
+            depth[near] = np.maximum(np.round(self.surface_z_mm - z + self._depth_offset, 6), 0.0)
+        return np.asarray(self.skin.contact_force_n(depth), dtype=float).reshape(-1)
+
+
+_CONTACT_MARGIN_MM = 1e-3  # a move that ends this close above the surface still counts as reaching it
+
+
+def _unique_states(states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """np.unique(states, axis=0, return_inverse=True), sorted the same way; when the probe stays at one (x, y),
+    as it does through a vertical press, by the depth column alone (a 1-D sort instead of a row sort)."""
+    x, y = states[:, 0], states[:, 1]
+    if np.all(x == x[0]) and np.all(y == y[0]):
+        depth, inverse = np.unique(states[:, 2], return_inverse=True)
+        unique = np.empty((depth.size, 3))
+        unique[:, 0], unique[:, 1], unique[:, 2] = x[0], y[0], depth
+        return unique, inverse.reshape(-1)
+    unique, inverse = np.unique(states, axis=0, return_inverse=True)
+    return unique, inverse.reshape(-1)
 
 
 class SimulatedRecorder:
