@@ -207,33 +207,35 @@ def _factor_chunk(layout, x, y, depth, radius, params, scale=None, volume=False,
     # beyond r = a + CUTOFF * l the pinch is below 1e-16: that stretch is exactly its length
     reach = np.sqrt(np.maximum((a + _CUTOFF_DECAYS * decay) ** 2 - perp2, 0.0)) - half_chord
     active = np.minimum(np.maximum(reach, 0.0)[..., None], side_len)  # (n, C, 2)
-    edges = np.minimum(decay[..., None, None] * panel_edges, active[..., None])
-    edges[..., -1] = active
-    p_start = base[..., None] + edges[..., :-1]  # (n, C, 2 sides, panels)
-    p_width = np.diff(edges, axis=-1)
-    # integrate only the sides with something left to integrate (far channels have none), laid
-    # out as (q, panels, sides) so every broadcast operand is a contiguous block
+    # integrate only the sides with something left to integrate (far channels have none), laid out as
+    # (q, panels, sides) so every broadcast operand is a contiguous block; each live side's press and
+    # channel quantities are gathered by index (the values a broadcast to (n, C, 2) would hold)
     live = np.flatnonzero(active > 0)
-    panels = p_width.shape[-1]
-    width = np.ascontiguousarray(p_width.reshape(-1, panels)[live].T)  # (panels, m)
-    begin = np.ascontiguousarray(p_start.reshape(-1, panels)[live].T)
-    per_side = lambda v: np.broadcast_to(v[..., None], active.shape).reshape(-1)[live]  # noqa: E731
+    side_of = live >> 1  # flat (press, channel) index of each live side
+    press_of = side_of // length.size
+    side_active = active.reshape(-1)[live]
+    edges = np.minimum(panel_edges[:, None] * decay.reshape(-1)[press_of], side_active)  # (panels + 1, m)
+    edges[-1] = side_active
+    width = edges[1:] - edges[:-1]  # (panels, m)
+    begin = base.reshape(-1)[live] + edges[:-1]
+    per_press = lambda v: v.reshape(-1)[press_of if v.shape[-1] == 1 else side_of]  # noqa: E731
     nodes, weights = _gauss_legendre(params.nodes_per_panel)
     r = nodes[:, None, None] * width  # (q, panels, m), in place from here: one pass per operation
     r += begin
     np.multiply(r, r, out=r)
-    r += per_side(perp2)
+    r += perp2.reshape(-1)[side_of]
     np.sqrt(r, out=r)
-    r -= per_side(np.broadcast_to(a, perp2.shape))
+    r -= per_press(a)
     np.multiply(r, r, out=r)  # outside the footprint r >= a, so this is (r - a)^2
-    r *= per_side(np.broadcast_to(-1.0 / (decay * decay), perp2.shape))
+    r *= per_press(-1.0 / (decay * decay))
     np.exp(r, out=r)
-    r *= per_side(np.broadcast_to(-p0, perp2.shape))  # -p
+    r *= per_press(-p0)  # -p
     parts = (foot, p0, weights, width, live, active, side_len, length, touching)
     if volume is not None:
         return _finish_chunk(bool(volume), r, *parts)
-    factor = _finish_chunk(False, r.copy(), *parts)
-    return np.stack([factor, _finish_chunk(True, r, *parts)])
+    share = _finish_chunk(True, r, *parts)  # leaves p in r
+    np.negative(r, out=r)  # -p again, exactly
+    return np.stack([_finish_chunk(False, r, *parts), share])
 
 
 def _finish_chunk(volume, r, foot, p0, weights, width, live, active, side_len, length, touching):
