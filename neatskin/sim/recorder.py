@@ -137,7 +137,7 @@ class DryProbe:
         near = self.may_touch(times_s)
         if near.size:
             press_t = times_s[near] - self._daq_t0
-            z = _positions_mm(self._segments, press_t)[:, 2]
+            z = _positions_mm(self._segments, press_t, slice(2, 3))[:, 0]
             depth[near] = np.maximum(np.round(self.surface_z_mm - z + self._depth_offset, 6), 0.0)
         return np.asarray(self.skin.contact_force_n(depth), dtype=float).reshape(-1)
 
@@ -145,23 +145,24 @@ class DryProbe:
 _CONTACT_MARGIN_MM = 1e-3  # a move that ends this close above the surface still counts as reaching it
 
 
-def _positions_mm(segments: list, times_s: np.ndarray) -> np.ndarray:
-    """`neatskin.sim.motion.positions_mm` for times in increasing order (a sample clock), by slices instead of
-    masks: each move's times are one contiguous run. The same arithmetic per time, so the same bits (tested);
-    unordered times go to positions_mm itself."""
+def _positions_mm(segments: list, times_s: np.ndarray, axes: slice = slice(None)) -> np.ndarray:
+    """`neatskin.sim.motion.positions_mm(segments, times_s)[:, axes]` for times in increasing order (a sample
+    clock), by slices instead of masks: each move's times are one contiguous run. The same arithmetic per time
+    and axis, so the same bits (tested); unordered times go to positions_mm itself."""
     times_s = np.asarray(times_s, dtype=float)
     if not segments or times_s.ndim != 1 or (times_s.size > 1 and np.any(times_s[1:] < times_s[:-1])):
-        return positions_mm(segments, times_s)
-    out = np.empty((times_s.size, 3))
+        return positions_mm(segments, times_s)[:, axes]
+    out = np.empty((times_s.size, len(range(3)[axes])))
     t0s = np.array([seg.t0_s for seg in segments])
     bounds = np.searchsorted(times_s, t0s, side="left")  # times before segment k's start end at bounds[k]
-    out[: bounds[0]] = segments[0].p0_mm
+    out[: bounds[0]] = np.asarray(segments[0].p0_mm, float)[axes]
     stops = [*bounds[1:], times_s.size]
     for seg, lo, hi in zip(segments, bounds, stops):
         if hi <= lo:
             continue
         p0, p1 = np.asarray(seg.p0_mm, float), np.asarray(seg.p1_mm, float)
         length = float(np.linalg.norm(p1 - p0))
+        p0, step = p0[axes], (p1 - p0)[axes]
         tau = np.clip(times_s[lo:hi] - seg.t0_s, 0.0, None)
         duration = seg.own_duration_s
         if length == 0 or duration <= 0:
@@ -180,7 +181,7 @@ def _positions_mm(segments: list, times_s: np.ndarray) -> np.ndarray:
                 np.where(tau < t_a + t_c, d_a + v * (tau - t_a), d_a + v * t_c + v * td - 0.5 * a * td * td),
             )
             frac = np.minimum(dist, length) / length
-        out[lo:hi] = p0 + frac[:, None] * (p1 - p0)
+        out[lo:hi] = p0 + frac[:, None] * step
     return out
 
 
