@@ -174,12 +174,15 @@ def _positions_mm(segments: list, times_s: np.ndarray, axes: slice = slice(None)
             v = min(seg.feed_mm_s, float(np.sqrt(a * length)))
             t_a, d_a = v / a, v * v / (2 * a)
             t_c = max(0.0, (length - 2 * d_a) / v)
-            td = np.clip(tau - t_a - t_c, 0.0, t_a)
-            dist = np.where(
-                tau < t_a,
-                0.5 * a * tau * tau,
-                np.where(tau < t_a + t_c, d_a + v * (tau - t_a), d_a + v * t_c + v * td - 0.5 * a * td * td),
-            )
+            # tau increases: the accelerating, cruising and braking phases are three runs (positions_mm's
+            # np.where picks the same expression per time)
+            cruise, brake = np.searchsorted(tau, (t_a, t_a + t_c), side="left")
+            dist = np.empty_like(tau)
+            accel_tau, cruise_tau = tau[:cruise], tau[cruise:brake]
+            dist[:cruise] = 0.5 * a * accel_tau * accel_tau
+            dist[cruise:brake] = d_a + v * (cruise_tau - t_a)
+            td = np.clip(tau[brake:] - t_a - t_c, 0.0, t_a)
+            dist[brake:] = d_a + v * t_c + v * td - 0.5 * a * td * td
             frac = np.minimum(dist, length) / length
         out[lo:hi] = p0 + frac[:, None] * step
     return out
