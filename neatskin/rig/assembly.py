@@ -287,15 +287,16 @@ class _DentBlocks:
         factor = self.skin.pinch_factor(unique[:, 0], unique[:, 1], unique[:, 2])
         rows = np.split(inverse.reshape(-1), np.cumsum([c for c in counts if c])[:-1])
         dented = [k for k, c in enumerate(counts) if c]
-        for k, row in zip(dented, rows):
-            extras[k] = (factor[row] - 1.0).sum(axis=0)
+        summed = [(factor[row] - 1.0).sum(axis=0) for row in rows]  # in dent order, as one press alone sums them
+        for k, extra in zip(dented, summed):
+            extras[k] = extra
         zero = np.zeros(len(dented))
         drifts = [self.drift(first + k) for k in dented]
         solved = self.skin.pair_resistance_ohm(
             zero,
             zero,
             zero,
-            extra_factor=np.stack([extras[k] for k in dented]),
+            extra_factor=np.stack(summed),
             resistivity_factor=None if drifts[0] is None else np.array(drifts),
         )
         baselines = np.empty((len(per_press), solved.shape[1]))
