@@ -250,7 +250,9 @@ def _finish_chunk(volume, r, foot, p0, weights, width, live, active, side_len, l
         with np.errstate(divide="ignore"):
             np.reciprocal(r, out=r)
     side_integral = np.zeros(active.size)
-    side_integral[live] = np.sum(np.tensordot(weights, r, axes=(0, 0)) * width, axis=0)
+    # np.tensordot(weights, r, axes=(0, 0)) is this one dot of (1, q) by (q, panels * m), without its reshaping
+    nodes_sum = np.dot(weights[None, :], r.reshape(r.shape[0], -1)).reshape(width.shape)
+    side_integral[live] = np.sum(nodes_sum * width, axis=0)
     beyond = 0.0 if volume else side_len - active  # past the reach p < 1e-16: exactly its length (or no volume)
     outer = np.sum(side_integral.reshape(active.shape) + beyond, axis=-1)
     factor = (inner + outer) / length
