@@ -353,8 +353,7 @@ def estimator_moments(
         rel_var = 2.0 / n_live * rel_lin
         blocks = max(1, n_live // max(1, int(round(config.samples_per_period))))
     else:
-        n_sweeps = r.shape[0]
-        first = start_sample + np.arange(n_sweeps)[:, None] * sweep.n_samples + sweep.live_windows[None, :, 0]
+        first = start_sample + np.arange(r.shape[0])[:, None] * sweep.n_samples + sweep.live_windows[None, :, 0]
         c = demod.window_counts(n_live, window)
         n_win = n_live - window + 1
         s = _weighted_sin2_sums(first, config.samples_per_period, n_live, window)
@@ -369,24 +368,23 @@ def estimator_moments(
 
 def _weighted_sin2_sums(first: np.ndarray, samples_per_period: float, n_live: int, window: int) -> np.ndarray:
     """sum_k c_k^2 sin^2 over each live window starting at sample `first` (any shape), c the moving windows'
-    sample counts. With a whole number of samples per period the sum depends only on first mod the period:
-    it is looked up from one row per phase, each summed as the full computation sums it (the same bits)."""
+    sample counts. With a whole number of samples per period it depends only on first mod the period: looked
+    up from one row per phase, each summed as the full computation sums it (the same bits)."""
     whole = round(samples_per_period)
     if abs(samples_per_period - whole) >= 1e-9:
-        from neatskin.acquisition.demod import window_counts
-
-        c = window_counts(n_live, window)
-        return (c**2 * _sine(first[..., None] + np.arange(n_live), samples_per_period) ** 2).sum(axis=-1)
+        return _sin2_sums(first[..., None] + np.arange(n_live), samples_per_period, n_live, window)
     return _phase_sin2_sums(whole, n_live, window)[first % whole]
+
+
+def _sin2_sums(index: np.ndarray, samples_per_period: float, n_live: int, window: int) -> np.ndarray:
+    from neatskin.acquisition.demod import window_counts
+
+    return (window_counts(n_live, window) ** 2 * _sine(index, samples_per_period) ** 2).sum(axis=-1)
 
 
 @lru_cache(maxsize=16)
 def _phase_sin2_sums(whole: int, n_live: int, window: int) -> np.ndarray:
-    from neatskin.acquisition.demod import window_counts
-
-    c = window_counts(n_live, window)
-    sin2 = _sine(np.arange(whole)[:, None] + np.arange(n_live), whole) ** 2  # (phases, live)
-    sums = (c**2 * sin2).sum(axis=-1)
+    sums = _sin2_sums(np.arange(whole)[:, None] + np.arange(n_live), whole, n_live, window)  # (phases,)
     sums.flags.writeable = False
     return sums
 
