@@ -114,8 +114,13 @@ class DryProbe:
             return np.empty(0, dtype=np.intp)
         # the move (or rest) in force at each time: the last one started by then; before the first, its start
         reaches = np.array([segments[0].p0_mm[2] < contact_z, *low])
-        index = np.searchsorted(np.array([seg.t0_s for seg in segments]), press_t, side="right")
-        return np.flatnonzero(reaches[index])
+        t0s = np.array([seg.t0_s for seg in segments])
+        if press_t.size > 1 and np.any(press_t[1:] < press_t[:-1]):
+            return np.flatnonzero(reaches[np.searchsorted(t0s, press_t, side="right")])
+        # a sample clock: the times in force of each move are one run, [its start, the next one's start)
+        edges = [0, *np.searchsorted(press_t, t0s, side="left").tolist(), press_t.size]
+        runs = [np.arange(lo, hi) for lo, hi, reach in zip(edges, edges[1:], reaches) if reach and hi > lo]
+        return np.concatenate(runs) if runs else np.empty(0, dtype=np.intp)
 
     def pair_resistance_ohm(self, times_s: np.ndarray) -> np.ndarray:
         times_s = np.asarray(times_s, dtype=float)
@@ -133,13 +138,14 @@ class DryProbe:
 
     def force_n(self, times_s: np.ndarray) -> np.ndarray:
         times_s = np.asarray(times_s, dtype=float)
-        depth = np.zeros(times_s.size)  # above the skin the force is exactly 0 (contact_force_n of depth <= 0)
+        force = np.zeros(times_s.size)  # above the skin the force is exactly 0 (contact_force_n of depth <= 0)
         near = self.may_touch(times_s)
         if near.size:
             press_t = times_s[near] - self._daq_t0
             z = _positions_mm(self._segments, press_t, slice(2, 3))[:, 0]
-            depth[near] = np.maximum(np.round(self.surface_z_mm - z + self._depth_offset, 6), 0.0)
-        return np.asarray(self.skin.contact_force_n(depth), dtype=float).reshape(-1)
+            depth = np.maximum(np.round(self.surface_z_mm - z + self._depth_offset, 6), 0.0)
+            force[near] = np.asarray(self.skin.contact_force_n(depth), dtype=float).reshape(-1)
+        return force
 
 
 _CONTACT_MARGIN_MM = 1e-3  # a move that ends this close above the surface still counts as reaching it
