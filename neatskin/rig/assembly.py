@@ -190,7 +190,8 @@ def press_conditions(protocol, skin):
     Placement error, depth jitter (each its own random stream keyed by (seed, press_id)), drift of
     the fluid's resistivity and the residual dents of earlier presses (both from the press's
     campaign time, press_id x press_interval_s, and the commanded presses before it), so a resumed
-    campaign gets exactly what an uninterrupted one would have."""
+    campaign gets exactly what an uninterrupted one would have. The dents, and the baseline R_eq they
+    leave, are computed for blocks of presses fixed by press id (`_DentBlocks`); the probe looks them up."""
     from neatskin.sim.recorder import STREAM_DEPTH, PressConditions
     from neatskin.skin.variability import Relaxation, drift_resistivity_factor
 
