@@ -88,6 +88,9 @@ def test_the_probe_evaluates_the_skin_only_where_it_may_touch_with_the_same_bits
     _, want_force = reference_probe(probe, fsr_times)
     got_r = probe.pair_resistance_ohm(slot_times)
     assert got_r.tobytes() == want_r.tobytes()
+    pairs = np.arange(slot_times.size) % 28  # each slot's own pair, as the DAQ asks
+    own = probe.slot_resistance_ohm(slot_times, pairs)
+    assert own.tobytes() == want_r[np.arange(slot_times.size), pairs].tobytes()
     assert probe.force_n(fsr_times).tobytes() == want_force.tobytes()
     touching = probe.state(slot_times)[:, 2] > 0
     assert 200 < touching.sum() < 400  # the press does reach into the skin, and the lift leaves it
@@ -165,3 +168,36 @@ def _interval(protocol):
 
     plan = build_plan(protocol)
     return plan.printer_time_s / max(plan.n_presses, 1)
+
+
+def test_the_daq_reads_the_same_estimates_through_the_slot_source(skin):
+    """SimulatedDAQ with slot_resistance_ohm (each slot's own pair only) gives the estimates of the full
+    (times, pairs) source bit for bit, on the features path and the waveform path."""
+    from neatskin.acquisition.daq.base import DaqConfig
+    from neatskin.acquisition.sequence import build_sweep
+    from neatskin.acquisition.wiring import load_wiring
+    from neatskin.sim.daq import NoiseModel, SimulatedDAQ
+
+    calibration = Calibration(offset_x_mm=100.0, offset_y_mm=100.0, surface_z_mm=SURFACE_Z_MM)
+    segments = press_segments()
+    probe = DryProbe(skin, calibration, lambda t0_s: segments)
+    probe.load(3, 0.0, 3000.0, 8.54)
+    sweep = build_sweep(load_wiring(PROTOCOLS / "wiring" / "paper.toml", skin.layout))
+    noise = NoiseModel(drift_per_s=1e-4)
+    both = [
+        SimulatedDAQ(DaqConfig(amplitude_a=5e-4), probe.pair_resistance_ohm, probe.force_n, noise=noise),
+        SimulatedDAQ(
+            DaqConfig(amplitude_a=5e-4),
+            probe.pair_resistance_ohm,
+            probe.force_n,
+            noise=noise,
+            slot_resistance_ohm=probe.slot_resistance_ohm,
+        ),
+    ]
+    features = [d.estimate_sweep(sweep, np.random.default_rng(1), 3000.0, "rms", 10, n_sweeps=25) for d in both]
+    assert features[0].resistance_ohm.tobytes() == features[1].resistance_ohm.tobytes()
+    assert features[0].uncertainty_ohm.tobytes() == features[1].uncertainty_ohm.tobytes()
+    touched = features[0].resistance_ohm.std(axis=0) > 50.0  # the press moves the pairs it reaches
+    assert touched.any() and not touched.all()
+    waves = [d.acquire(sweep, 2, rng=np.random.default_rng(2), start_time_s=3003.0) for d in both]
+    assert waves[0].samples.tobytes() == waves[1].samples.tobytes()

@@ -137,7 +137,13 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
         conditions=press_conditions(protocol, skin),
     )
     noise = interface_noise(NoiseModel() if scene.noise else NoiseModel.none(), scene)
-    daq = SimulatedDAQ(daq_config(protocol), probe.pair_resistance_ohm, probe.force_n, noise=noise)
+    daq = SimulatedDAQ(
+        daq_config(protocol),
+        probe.pair_resistance_ohm,
+        probe.force_n,
+        noise=noise,
+        slot_resistance_ohm=probe.slot_resistance_ohm,
+    )
     recorder = SimulatedRecorder(
         daq,
         sweep,

@@ -38,6 +38,7 @@ from neatskin.acquisition.sequence import Sweep
 from neatskin.errors import ConfigError
 
 ResistanceSource = Callable[[np.ndarray], np.ndarray]
+SlotResistanceSource = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (times, pair index) -> (times,)
 ForceSource = Callable[[np.ndarray], np.ndarray]
 
 
@@ -99,6 +100,7 @@ class SimulatedDAQ(Daq):
         noise: NoiseModel = NoiseModel(),
         fsr: FsrModel = FsrModel(),
         resistance_sampling: str = "per_pair",
+        slot_resistance_ohm: SlotResistanceSource | None = None,
     ) -> None:
         if resistance_sampling not in ("per_pair", "per_sample"):
             raise ConfigError(
@@ -112,6 +114,8 @@ class SimulatedDAQ(Daq):
         self.noise = noise
         self.fsr = fsr
         self.resistance_sampling = resistance_sampling
+        # optional: each time's own pair only, the values pair_resistance_ohm(times)[k, pair[k]] would give
+        self.slot_resistance_ohm = slot_resistance_ohm
 
     # ---- shared pieces --------------------------------------------------------------------
 
@@ -122,6 +126,10 @@ class SimulatedDAQ(Daq):
         """(sweeps, pairs) resistance of each pair at the middle of its live window, drift included."""
         mid = sweep.live_windows.mean(axis=1)  # (pairs,)
         t = (start + np.arange(n_sweeps)[:, None] * sweep.n_samples + mid[None, :]) / self.config.rate_hz
+        if self.slot_resistance_ohm is not None:
+            pairs = np.broadcast_to(np.arange(sweep.n_pairs), t.shape).reshape(-1)
+            r = np.asarray(self.slot_resistance_ohm(t.ravel(), pairs), dtype=float).reshape(t.shape)
+            return r * (1.0 + self.noise.drift_per_s * t)
         r_all = np.asarray(self.pair_resistance_ohm(t.ravel()), dtype=float)
         if r_all.shape != (t.size, sweep.n_pairs):
             raise ConfigError(

@@ -123,18 +123,35 @@ class DryProbe:
         return np.concatenate(runs) if runs else np.empty(0, dtype=np.intp)
 
     def pair_resistance_ohm(self, times_s: np.ndarray) -> np.ndarray:
+        """(times, pairs) R_eq of every pair at each time: the baseline where the probe is out of the skin."""
         times_s = np.asarray(times_s, dtype=float)
         out = np.broadcast_to(self._baseline, (times_s.size, self._baseline.size)).copy()
-        near = self.may_touch(times_s)
-        if near.size == 0:
-            return out
-        state = self.state(times_s[near])
-        touching = state[:, 2] > 0
-        if touching.any():
-            unique, inverse = _unique_states(state[touching])
-            r = self.skin.pair_resistance_ohm(unique[:, 0], unique[:, 1], unique[:, 2], **self._skin_kwargs)
-            out[near[touching]] = r[inverse]
+        rows, r, inverse = self._in_skin(times_s)
+        if rows.size:
+            out[rows] = r[inverse]
         return out
+
+    def slot_resistance_ohm(self, times_s: np.ndarray, pair_index: np.ndarray) -> np.ndarray:
+        """(times,) R_eq of one pair per time, pair_resistance_ohm(times_s)[k, pair_index[k]] without the rest."""
+        times_s = np.asarray(times_s, dtype=float)
+        pair_index = np.asarray(pair_index, dtype=np.intp)
+        out = self._baseline[pair_index]
+        rows, r, inverse = self._in_skin(times_s)
+        if rows.size:
+            out[rows] = r[inverse, pair_index[rows]]
+        return out
+
+    def _in_skin(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The times the probe is in the skin (indices), R_eq of their distinct states, and each time's state."""
+        near = self.may_touch(times_s)
+        if near.size:
+            state = self.state(times_s[near])
+            touching = state[:, 2] > 0
+            if touching.any():
+                unique, inverse = _unique_states(state[touching])
+                r = self.skin.pair_resistance_ohm(unique[:, 0], unique[:, 1], unique[:, 2], **self._skin_kwargs)
+                return near[touching], r, inverse
+        return np.empty(0, dtype=np.intp), np.empty((0, self._baseline.size)), np.empty(0, dtype=np.intp)
 
     def force_n(self, times_s: np.ndarray) -> np.ndarray:
         times_s = np.asarray(times_s, dtype=float)
