@@ -8,7 +8,7 @@ from conftest import PROTOCOLS
 
 from neatskin.gcode.calibration import Calibration
 from neatskin.layout import load_layout
-from neatskin.sim.daq import _sine, _weighted_sin2_sums
+from neatskin.sim.moments import _sine, _weighted_sin2_sums
 from neatskin.sim.motion import Segment, positions_mm
 from neatskin.sim.recorder import DryProbe, PressConditions, _positions_mm, _unique_states
 from neatskin.skin.model import SkinModel
