@@ -25,15 +25,15 @@ def skin():
     )
 
 
-def press_segments(x=112.3, y=101.7):
+def press_segments(x=112.3, y=101.7, drag_mm=0.0):
     """A press as the printer runs it, on the press's own clock: a zero-length start, descend to contact, on to
-    3.5 mm at 2 mm/s, a 1.2 s dwell (a gap between moves), lift; then a sideways travel."""
+    3.5 mm at 2 mm/s, a 1.2 s dwell (a gap between moves), lift (dragged sideways by drag_mm); then a travel."""
     top, contact, deep = (x, y, 15.5), (x, y, SURFACE_Z_MM), (x, y, 2.0)
     return [
         Segment(0.0, 0.0, top, top, 100.0, 500.0, False, 0.0),
         Segment(0.0, 2.05, top, contact, 5.0, 100.0, False, 2.05),
         Segment(2.05, 3.82, contact, deep, 2.0, 100.0, False, 1.77),
-        Segment(5.02, 7.77, deep, top, 5.0, 100.0, False, 2.75),
+        Segment(5.02, 7.77, deep, (x + drag_mm, y, 15.5), 5.0, 100.0, False, 2.75),
         Segment(7.77, 8.0, top, (x + 3.0, y - 1.0, 15.5), 1.0, 1.0, True, 0.23),
     ]
 
@@ -74,14 +74,17 @@ def reference_probe(probe, times_s):
     return out, force
 
 
-@pytest.mark.parametrize("depth_offset_mm", [0.0, 0.17, -0.3])
-def test_the_probe_evaluates_the_skin_only_where_it_may_touch_with_the_same_bits(skin, depth_offset_mm):
+@pytest.mark.parametrize("depth_offset_mm, drag_mm", [(0.0, 0.0), (0.17, 0.0), (-0.3, 0.0), (0.0, 0.6)])
+def test_the_probe_evaluates_the_skin_only_where_it_may_touch_with_the_same_bits(skin, depth_offset_mm, drag_mm):
+    """A vertical press takes x, y once and dedups by depth; a press dragged sideways on the lift takes the
+    general path (a row sort); both give the straightforward evaluation's bits."""
     calibration = Calibration(offset_x_mm=100.0, offset_y_mm=100.0, rotation_deg=1.5, surface_z_mm=SURFACE_Z_MM)
-    segments = press_segments()
+    segments = press_segments(drag_mm=drag_mm)
     conditions = PressConditions(dx_mm=0.4, dy_mm=-0.2, depth_offset_mm=depth_offset_mm, resistivity_factor=1.01)
     probe = DryProbe(skin, calibration, lambda t0_s: segments, conditions=lambda press_id: conditions)
     daq_t0 = 7 * 1000.0
     probe.load(7, 0.0, daq_t0, 8.54)
+    assert probe._held_xy() == (drag_mm == 0.0)
     slot_times = daq_t0 + np.arange(0.0061, 8.54, 0.0122)
     fsr_times = daq_t0 + np.arange(0.0, 8.54, 0.001)
     want_r, _ = reference_probe(probe, slot_times)

@@ -108,19 +108,32 @@ class DryProbe:
         segments = self._segments
         if not segments:
             return np.arange(press_t.size)
-        contact_z = self.surface_z_mm + self._depth_offset + _CONTACT_MARGIN_MM
-        low = [min(seg.p0_mm[2], seg.p1_mm[2]) < contact_z for seg in segments]
-        if not any(low):
+        reaches, t0s = self._reaches()
+        if not reaches.any():
             return np.empty(0, dtype=np.intp)
-        # the move (or rest) in force at each time: the last one started by then; before the first, its start
-        reaches = np.array([segments[0].p0_mm[2] < contact_z, *low])
-        t0s = np.array([seg.t0_s for seg in segments])
         if press_t.size > 1 and np.any(press_t[1:] < press_t[:-1]):
             return np.flatnonzero(reaches[np.searchsorted(t0s, press_t, side="right")])
         # a sample clock: the times in force of each move are one run, [its start, the next one's start)
         edges = [0, *np.searchsorted(press_t, t0s, side="left").tolist(), press_t.size]
         runs = [np.arange(lo, hi) for lo, hi, reach in zip(edges, edges[1:], reaches) if reach and hi > lo]
         return np.concatenate(runs) if runs else np.empty(0, dtype=np.intp)
+
+    def _reaches(self) -> tuple[np.ndarray, np.ndarray]:
+        """Whether the probe may be below the surface in force of each move (index 0: before the first move, at
+        its start; k: move k - 1 and the rest after it), and the moves' start times."""
+        contact_z = self.surface_z_mm + self._depth_offset + _CONTACT_MARGIN_MM
+        segments = self._segments
+        low = [min(seg.p0_mm[2], seg.p1_mm[2]) < contact_z for seg in segments]
+        return np.array([segments[0].p0_mm[2] < contact_z, *low]), np.array([seg.t0_s for seg in segments])
+
+    def _held_xy(self) -> bool:
+        """Every move that may reach into the skin is vertical, all at one (x, y), and the probe does not start
+        in the skin: then every time in the skin has the same x, y (p0 + frac * 0 = p0, bit for bit)."""
+        reaches, _ = self._reaches()
+        if reaches[0]:
+            return False
+        xy = {(s.p0_mm[0], s.p0_mm[1], s.p1_mm[0], s.p1_mm[1]) for s, r in zip(self._segments, reaches[1:]) if r}
+        return len(xy) == 1 and all(x0 == x1 and y0 == y1 for x0, y0, x1, y1 in xy)
 
     def pair_resistance_ohm(self, times_s: np.ndarray) -> np.ndarray:
         """(times, pairs) R_eq of every pair at each time: the baseline where the probe is out of the skin."""
@@ -144,14 +157,25 @@ class DryProbe:
     def _in_skin(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The times the probe is in the skin (indices), R_eq of their distinct states, and each time's state."""
         near = self.may_touch(times_s)
-        if near.size:
+        unique = None
+        if near.size and self._segments and self._held_xy():  # a vertical press: x, y once, depths by the z axis
+            z = _positions_mm(self._segments, times_s[near] - self._daq_t0, slice(2, 3))[:, 0]
+            depth = np.round(self.surface_z_mm - z + self._depth_offset, 6)  # state()'s depth column
+            touching = depth > 0
+            if touching.any():
+                depths, inverse = np.unique(depth[touching], return_inverse=True)
+                unique = np.empty((depths.size, 3))
+                unique[:, :2] = self.state(times_s[near][touching][:1])[0, :2]
+                unique[:, 2] = depths
+        elif near.size:
             state = self.state(times_s[near])
             touching = state[:, 2] > 0
             if touching.any():
                 unique, inverse = _unique_states(state[touching])
-                r = self.skin.pair_resistance_ohm(unique[:, 0], unique[:, 1], unique[:, 2], **self._skin_kwargs)
-                return near[touching], r, inverse
-        return np.empty(0, dtype=np.intp), np.empty((0, self._baseline.size)), np.empty(0, dtype=np.intp)
+        if unique is None:
+            return np.empty(0, dtype=np.intp), np.empty((0, self._baseline.size)), np.empty(0, dtype=np.intp)
+        r = self.skin.pair_resistance_ohm(unique[:, 0], unique[:, 1], unique[:, 2], **self._skin_kwargs)
+        return near[touching], r, inverse.reshape(-1)
 
     def force_n(self, times_s: np.ndarray) -> np.ndarray:
         times_s = np.asarray(times_s, dtype=float)
