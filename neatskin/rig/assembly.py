@@ -16,6 +16,7 @@ from neatskin.acquisition.daq.base import Daq, DaqConfig
 from neatskin.errors import ConfigError, HardwareError
 
 DAQ_KINDS = ("simulated", "ni")
+DENT_BLOCK_PRESSES = 256  # presses whose residual dents are computed together (at most the solver's small batch)
 
 
 @dataclass
@@ -136,7 +137,13 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
         conditions=press_conditions(protocol, skin),
     )
     noise = interface_noise(NoiseModel() if scene.noise else NoiseModel.none(), scene)
-    daq = SimulatedDAQ(daq_config(protocol), probe.pair_resistance_ohm, probe.force_n, noise=noise)
+    daq = SimulatedDAQ(
+        daq_config(protocol),
+        probe.pair_resistance_ohm,
+        probe.force_n,
+        noise=noise,
+        slot_resistance_ohm=probe.slot_resistance_ohm,
+    )
     recorder = SimulatedRecorder(
         daq,
         sweep,
@@ -189,7 +196,8 @@ def press_conditions(protocol, skin):
     Placement error, depth jitter (each its own random stream keyed by (seed, press_id)), drift of
     the fluid's resistivity and the residual dents of earlier presses (both from the press's
     campaign time, press_id x press_interval_s, and the commanded presses before it), so a resumed
-    campaign gets exactly what an uninterrupted one would have."""
+    campaign gets exactly what an uninterrupted one would have. The dents, and the baseline R_eq they
+    leave, are computed for blocks of presses fixed by press id (`_DentBlocks`); the probe looks them up."""
     from neatskin.sim.recorder import STREAM_DEPTH, PressConditions
     from neatskin.skin.variability import Relaxation, drift_resistivity_factor
 
@@ -218,28 +226,89 @@ def press_conditions(protocol, skin):
         commanded = np.array([(b.x_mm, b.y_mm, depth) for b in program.presses])
     relaxation = Relaxation(scene.hysteresis_fraction, scene.relaxation_time_s, interval_s) if relaxing else None
 
+    def drift(press_id: int) -> float | None:
+        if not drifting:
+            return None
+        return float(
+            drift_resistivity_factor(
+                press_id * interval_s,
+                scene.temperature_drift_k_per_h,
+                scene.evaporation_fraction_per_h,
+                skin.resistivity_tempco_per_k,
+            )
+        )
+
+    dents = None if relaxation is None or commanded is None else _DentBlocks(relaxation, commanded, skin, drift)
+
     def conditions(press_id: int) -> PressConditions:
         depth_offset = 0.0
         if jitter:
             depth_offset = float(np.random.default_rng([protocol.seed, press_id, STREAM_DEPTH]).normal(0.0, jitter))
-        factor = None
-        if drifting:
-            factor = float(
-                drift_resistivity_factor(
-                    press_id * interval_s,
-                    scene.temperature_drift_k_per_h,
-                    scene.evaporation_fraction_per_h,
-                    skin.resistivity_tempco_per_k,
-                )
-            )
-        extra = None
-        if relaxation is not None and commanded is not None:
-            dents = relaxation.residual_dents(press_id, commanded)
-            if len(dents):
-                extra = (skin.pinch_factor(dents[:, 0], dents[:, 1], dents[:, 2]) - 1.0).sum(axis=0)
-        return PressConditions(depth_offset_mm=depth_offset, resistivity_factor=factor, extra_factor=extra)
+        factor = drift(press_id)
+        extra = baseline = None
+        if dents is not None:
+            extra, baseline = dents.press(press_id)
+        return PressConditions(
+            depth_offset_mm=depth_offset,
+            resistivity_factor=factor,
+            extra_factor=extra,
+            baseline_pair_resistance_ohm=baseline,
+        )
 
     return conditions
+
+
+class _DentBlocks:
+    """The residual dents' extra R / R0 of every channel, and the pair resistances they leave before each press,
+    computed for a block of DENT_BLOCK_PRESSES presses at a time (one quadrature for the block's distinct dents,
+    one batched solve for its baselines) and looked up per press.
+
+    A block is fixed by the press ids it holds, never by where a run started, so a resumed campaign gets what an
+    uninterrupted one would have, bit for bit. Each baseline includes its press's drift of the resistivity."""
+
+    def __init__(self, relaxation, commanded_mm: np.ndarray, skin, drift: Callable[[int], float | None]) -> None:
+        self.relaxation, self.commanded_mm, self.skin, self.drift = relaxation, commanded_mm, skin, drift
+        self._blocks: dict[int, tuple[list[np.ndarray | None], np.ndarray]] = {}
+
+    def press(self, press_id: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+        block, k = divmod(press_id, DENT_BLOCK_PRESSES)
+        if block not in self._blocks:
+            if len(self._blocks) >= 2:  # presses run in id order: the block before the last is done
+                del self._blocks[min(self._blocks)]
+            self._blocks[block] = self._compute(block)
+        extras, baselines = self._blocks[block]
+        extra = extras[k]
+        return (None, None) if extra is None else (extra, baselines[k])
+
+    def _compute(self, block: int) -> tuple[list[np.ndarray | None], np.ndarray]:
+        first = block * DENT_BLOCK_PRESSES
+        ids = range(first, min(first + DENT_BLOCK_PRESSES, len(self.commanded_mm)))  # the program's presses only
+        per_press = [self.relaxation.residual_dents(press_id, self.commanded_mm) for press_id in ids]
+        counts = [len(d) for d in per_press]
+        extras: list[np.ndarray | None] = [None] * len(per_press)
+        baselines = np.empty((0, len(self.skin.layout.pairs)))
+        if not any(counts):
+            return extras, baselines
+        # the presses of one position leave the same dents at the same ages: each distinct dent once
+        unique, inverse = np.unique(np.concatenate([d for d in per_press if len(d)]), axis=0, return_inverse=True)
+        factor = self.skin.pinch_factor(unique[:, 0], unique[:, 1], unique[:, 2])
+        rows = np.split(inverse.reshape(-1), np.cumsum([c for c in counts if c])[:-1])
+        dented = [k for k, c in enumerate(counts) if c]
+        summed = [(factor[row] - 1.0).sum(axis=0) for row in rows]  # in dent order, as one press alone sums them
+        for k, extra in zip(dented, summed):
+            extras[k] = extra
+        zero = np.zeros(len(dented))
+        drifts = [self.drift(first + k) for k in dented]
+        solved = self.skin.pair_resistance_ohm(
+            zero,
+            zero,
+            zero,
+            extra_factor=np.stack(summed),
+            resistivity_factor=None if drifts[0] is None else np.array(drifts),
+        )
+        baselines = np.empty((len(per_press), solved.shape[1]))
+        baselines[dented] = solved
+        return extras, baselines
 
 
 def build_real_rig(

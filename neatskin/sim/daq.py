@@ -35,8 +35,10 @@ from neatskin.acquisition.estimates import PairEstimates, PairFlag
 from neatskin.acquisition.fsr import FsrModel
 from neatskin.acquisition.sequence import Sweep
 from neatskin.errors import ConfigError
+from neatskin.sim.moments import _sine, effective_noise_var, estimator_moments
 
 ResistanceSource = Callable[[np.ndarray], np.ndarray]
+SlotResistanceSource = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (times, pair index) -> (times,)
 ForceSource = Callable[[np.ndarray], np.ndarray]
 
 
@@ -98,6 +100,7 @@ class SimulatedDAQ(Daq):
         noise: NoiseModel = NoiseModel(),
         fsr: FsrModel = FsrModel(),
         resistance_sampling: str = "per_pair",
+        slot_resistance_ohm: SlotResistanceSource | None = None,
     ) -> None:
         if resistance_sampling not in ("per_pair", "per_sample"):
             raise ConfigError(
@@ -111,6 +114,8 @@ class SimulatedDAQ(Daq):
         self.noise = noise
         self.fsr = fsr
         self.resistance_sampling = resistance_sampling
+        # optional: each time's own pair only, the values pair_resistance_ohm(times)[k, pair[k]] would give
+        self.slot_resistance_ohm = slot_resistance_ohm
 
     # ---- shared pieces --------------------------------------------------------------------
 
@@ -121,6 +126,10 @@ class SimulatedDAQ(Daq):
         """(sweeps, pairs) resistance of each pair at the middle of its live window, drift included."""
         mid = sweep.live_windows.mean(axis=1)  # (pairs,)
         t = (start + np.arange(n_sweeps)[:, None] * sweep.n_samples + mid[None, :]) / self.config.rate_hz
+        if self.slot_resistance_ohm is not None:
+            pairs = np.broadcast_to(np.arange(sweep.n_pairs), t.shape).reshape(-1)
+            r = np.asarray(self.slot_resistance_ohm(t.ravel(), pairs), dtype=float).reshape(t.shape)
+            return r * (1.0 + self.noise.drift_per_s * t)
         r_all = np.asarray(self.pair_resistance_ohm(t.ravel()), dtype=float)
         if r_all.shape != (t.size, sweep.n_pairs):
             raise ConfigError(
@@ -316,70 +325,6 @@ class SimulatedDAQ(Daq):
 
     def effective_noise_var(self) -> tuple[float, float]:
         return effective_noise_var(self.config, self.noise)
-
-
-def effective_noise_var(config: DaqConfig, noise: NoiseModel) -> tuple[float, float]:
-    """Variance of the white noise on V and I (physical units), quantisation (lsb^2 / 12) included."""
-    lsb_phys = config.lsb_ai_v * config.to_physical
-    q = lsb_phys**2 / 12 if noise.quantise else np.zeros(3)
-    return noise.voltage_noise_v**2 + float(q[0]), noise.current_noise_a**2 + float(q[1])
-
-
-def estimator_moments(
-    resistance_ohm: np.ndarray,
-    sweep: Sweep,
-    config: DaqConfig,
-    noise: NoiseModel,
-    method: str = "lockin",
-    window: int = 10,
-    start_sample: int = 0,
-) -> tuple[np.ndarray, np.ndarray, int]:
-    """Mean and std of one sweep's estimate of each pair under the noise model, and the demodulator's block count.
-
-    resistance_ohm: (sweeps, pairs) true values (finite, unclipped). Pure: the analytic statistics the
-    features-only path draws from (docs/acquisition.md gives the formulas).
-    """
-    from neatskin.acquisition import demod
-
-    r = np.asarray(resistance_ohm, dtype=float)
-    amp = config.amplitude_a
-    sigma_v2, sigma_i2 = effective_noise_var(config, noise)
-    v0 = r * amp
-    n_live = sweep.timing.live_samples
-    rel_lin = sigma_v2 / v0**2 + sigma_i2 / amp**2
-    if method == "lockin":
-        mean = r
-        rel_var = 2.0 / n_live * rel_lin
-        blocks = max(1, n_live // max(1, int(round(config.samples_per_period))))
-    else:
-        n_sweeps = r.shape[0]
-        first = start_sample + np.arange(n_sweeps)[:, None] * sweep.n_samples + sweep.live_windows[None, :, 0]
-        sin2 = _sine(first[..., None] + np.arange(n_live), config.samples_per_period) ** 2
-        c = demod.window_counts(n_live, window)
-        n_win = n_live - window + 1
-        s = (c**2 * sin2).sum(axis=-1)
-        dc_v2, dc_i2 = noise.voltage_offset_v**2, noise.current_offset_a**2
-        mean = np.sqrt((v0**2 / 2 + sigma_v2 + dc_v2) / (amp**2 / 2 + sigma_i2 + dc_i2))  # RMS rectifies
-        rel_var = 4.0 / (window * n_win) ** 2 * s * rel_lin + 2.0 * (c**2).sum() / (window * n_win) ** 2 * (
-            sigma_v2**2 / v0**4 + sigma_i2**2 / amp**4
-        )
-        blocks = max(1, n_live // window)
-    return mean, r * np.sqrt(rel_var), blocks
-
-
-def _sine(index: np.ndarray, samples_per_period: float, phase: float = 0.0) -> np.ndarray:
-    """sin(2 pi index / samples_per_period + phase), from a table when a period is a whole number of samples."""
-    whole = round(samples_per_period)
-    if abs(samples_per_period - whole) < 1e-9:
-        table = (
-            np.sin(2 * np.pi * np.arange(whole) / whole + phase)
-            if phase
-            else np.sin(2 * np.pi * np.arange(whole) / whole)
-        )
-        return table[index % whole]
-    if phase:
-        return np.sin(2 * np.pi * index / samples_per_period + phase)
-    return np.sin(2 * np.pi * index / samples_per_period)
 
 
 def _switch_sample(sweep: Sweep) -> np.ndarray:

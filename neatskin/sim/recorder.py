@@ -35,6 +35,8 @@ class PressConditions:
     depth_offset_mm: float = 0.0  # depth jitter: the probe goes this much deeper than commanded
     resistivity_factor: float | None = None  # drift of the fluid's resistivity (None = none)
     extra_factor: np.ndarray | None = None  # (channels,) residual dents of earlier presses, added to R / R0
+    # R_eq of every pair before the press (dents and drift included), when computed ahead for a block of presses
+    baseline_pair_resistance_ohm: np.ndarray | None = None
 
 
 class DryProbe:
@@ -77,7 +79,9 @@ class DryProbe:
                 self._skin_kwargs["resistivity_factor"] = c.resistivity_factor
             if c.extra_factor is not None:
                 self._skin_kwargs["extra_factor"] = c.extra_factor[None, :]
-            if c.extra_factor is not None:
+            if c.baseline_pair_resistance_ohm is not None:
+                self._baseline = c.baseline_pair_resistance_ohm
+            elif c.extra_factor is not None:
                 self._baseline = self.skin.pair_resistance_ohm(0.0, 0.0, 0.0, **self._skin_kwargs)[0]
             elif c.resistivity_factor is not None:  # a uniform rho scales every R_eq by the same factor: no solve
                 self._baseline = self._skin_baseline * c.resistivity_factor
@@ -85,7 +89,7 @@ class DryProbe:
     def state(self, times_s: np.ndarray) -> np.ndarray:
         """(times, 3): sensor x, y and depth below the surface (mm), rounded to 1 nm (G-code resolution is 1 um)."""
         press_t = np.asarray(times_s, dtype=float) - self._daq_t0  # the press's own clock, as its segments'
-        xyz = positions_mm(self._segments, press_t)
+        xyz = _positions_mm(self._segments, press_t)
         sx, sy = self.calibration.to_sensor(xyz[:, 0], xyz[:, 1])
         state = np.stack(
             [
@@ -97,19 +101,151 @@ class DryProbe:
         )
         return np.round(state, 6)
 
+    def may_touch(self, times_s: np.ndarray) -> np.ndarray:
+        """Indices of the times at which the probe may be in the skin: those in a move (or the rest after it)
+        that reaches below the surface. Every other time is above it (depth <= 0), so its state is not needed."""
+        press_t = np.asarray(times_s, dtype=float) - self._daq_t0
+        segments = self._segments
+        if not segments:
+            return np.arange(press_t.size)
+        reaches, t0s = self._reaches()
+        if not reaches.any():
+            return np.empty(0, dtype=np.intp)
+        if press_t.size > 1 and np.any(press_t[1:] < press_t[:-1]):
+            return np.flatnonzero(reaches[np.searchsorted(t0s, press_t, side="right")])
+        # a sample clock: the times in force of each move are one run, [its start, the next one's start)
+        edges = [0, *np.searchsorted(press_t, t0s, side="left").tolist(), press_t.size]
+        runs = [np.arange(lo, hi) for lo, hi, reach in zip(edges, edges[1:], reaches) if reach and hi > lo]
+        return np.concatenate(runs) if runs else np.empty(0, dtype=np.intp)
+
+    def _reaches(self) -> tuple[np.ndarray, np.ndarray]:
+        """Whether the probe may be below the surface in force of each move (index 0: before the first move, at
+        its start; k: move k - 1 and the rest after it), and the moves' start times."""
+        contact_z = self.surface_z_mm + self._depth_offset + _CONTACT_MARGIN_MM
+        segments = self._segments
+        low = [min(seg.p0_mm[2], seg.p1_mm[2]) < contact_z for seg in segments]
+        return np.array([segments[0].p0_mm[2] < contact_z, *low]), np.array([seg.t0_s for seg in segments])
+
+    def _held_xy(self) -> bool:
+        """Every move that may reach into the skin is vertical, all at one (x, y), and the probe does not start
+        in the skin: then every time in the skin has the same x, y (p0 + frac * 0 = p0, bit for bit)."""
+        reaches, _ = self._reaches()
+        if reaches[0]:
+            return False
+        xy = {(s.p0_mm[0], s.p0_mm[1], s.p1_mm[0], s.p1_mm[1]) for s, r in zip(self._segments, reaches[1:]) if r}
+        return len(xy) == 1 and all(x0 == x1 and y0 == y1 for x0, y0, x1, y1 in xy)
+
     def pair_resistance_ohm(self, times_s: np.ndarray) -> np.ndarray:
-        state = self.state(times_s)
-        out = np.broadcast_to(self._baseline, (len(state), self._baseline.size)).copy()
-        touching = state[:, 2] > 0
-        if touching.any():
-            unique, inverse = np.unique(state[touching], axis=0, return_inverse=True)
-            r = self.skin.pair_resistance_ohm(unique[:, 0], unique[:, 1], unique[:, 2], **self._skin_kwargs)
-            out[touching] = r[inverse.reshape(-1)]
+        """(times, pairs) R_eq of every pair at each time: the baseline where the probe is out of the skin."""
+        times_s = np.asarray(times_s, dtype=float)
+        out = np.broadcast_to(self._baseline, (times_s.size, self._baseline.size)).copy()
+        rows, r, inverse = self._in_skin(times_s)
+        if rows.size:
+            out[rows] = r[inverse]
         return out
 
+    def slot_resistance_ohm(self, times_s: np.ndarray, pair_index: np.ndarray) -> np.ndarray:
+        """(times,) R_eq of one pair per time, pair_resistance_ohm(times_s)[k, pair_index[k]] without the rest."""
+        times_s = np.asarray(times_s, dtype=float)
+        pair_index = np.asarray(pair_index, dtype=np.intp)
+        out = self._baseline[pair_index]
+        rows, r, inverse = self._in_skin(times_s)
+        if rows.size:
+            out[rows] = r[inverse, pair_index[rows]]
+        return out
+
+    def _in_skin(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The times the probe is in the skin (indices), R_eq of their distinct states, and each time's state."""
+        near = self.may_touch(times_s)
+        unique = None
+        if near.size and self._segments and self._held_xy():  # a vertical press: x, y once, depths by the z axis
+            z = _positions_mm(self._segments, times_s[near] - self._daq_t0, slice(2, 3))[:, 0]
+            depth = np.round(self.surface_z_mm - z + self._depth_offset, 6)  # state()'s depth column
+            touching = depth > 0
+            if touching.any():
+                depths, inverse = np.unique(depth[touching], return_inverse=True)
+                unique = np.empty((depths.size, 3))
+                unique[:, :2] = self.state(times_s[near][touching][:1])[0, :2]
+                unique[:, 2] = depths
+        elif near.size:
+            state = self.state(times_s[near])
+            touching = state[:, 2] > 0
+            if touching.any():
+                unique, inverse = _unique_states(state[touching])
+        if unique is None:
+            return np.empty(0, dtype=np.intp), np.empty((0, self._baseline.size)), np.empty(0, dtype=np.intp)
+        r = self.skin.pair_resistance_ohm(unique[:, 0], unique[:, 1], unique[:, 2], **self._skin_kwargs)
+        return near[touching], r, inverse.reshape(-1)
+
     def force_n(self, times_s: np.ndarray) -> np.ndarray:
-        depth = self.state(times_s)[:, 2]
-        return np.asarray(self.skin.contact_force_n(np.maximum(depth, 0.0)), dtype=float).reshape(-1)
+        times_s = np.asarray(times_s, dtype=float)
+        force = np.zeros(times_s.size)  # above the skin the force is exactly 0 (contact_force_n of depth <= 0)
+        near = self.may_touch(times_s)
+        if near.size:
+            press_t = times_s[near] - self._daq_t0
+            z = _positions_mm(self._segments, press_t, slice(2, 3))[:, 0]
+            depth = np.maximum(np.round(self.surface_z_mm - z + self._depth_offset, 6), 0.0)
+            force[near] = np.asarray(self.skin.contact_force_n(depth), dtype=float).reshape(-1)
+        return force
+
+
+_CONTACT_MARGIN_MM = 1e-3  # a move that ends this close above the surface still counts as reaching it
+
+
+def _positions_mm(segments: list, times_s: np.ndarray, axes: slice = slice(None)) -> np.ndarray:
+    """`neatskin.sim.motion.positions_mm(segments, times_s)[:, axes]` for times in increasing order (a sample
+    clock), by slices instead of masks: each move's times are one contiguous run. The same arithmetic per time
+    and axis, so the same bits (tested); unordered times go to positions_mm itself."""
+    times_s = np.asarray(times_s, dtype=float)
+    if not segments or times_s.ndim != 1 or (times_s.size > 1 and np.any(times_s[1:] < times_s[:-1])):
+        return positions_mm(segments, times_s)[:, axes]
+    out = np.empty((times_s.size, len(range(3)[axes])))
+    t0s = np.array([seg.t0_s for seg in segments])
+    bounds = np.searchsorted(times_s, t0s, side="left")  # times before segment k's start end at bounds[k]
+    out[: bounds[0]] = np.asarray(segments[0].p0_mm, float)[axes]
+    stops = [*bounds[1:], times_s.size]
+    for seg, lo, hi in zip(segments, bounds, stops):
+        if hi <= lo:
+            continue
+        p0, p1 = np.asarray(seg.p0_mm, float), np.asarray(seg.p1_mm, float)
+        length = float(np.linalg.norm(p1 - p0))
+        p0, step = p0[axes], (p1 - p0)[axes]
+        tau = np.clip(times_s[lo:hi] - seg.t0_s, 0.0, None)
+        duration = seg.own_duration_s
+        if length == 0 or duration <= 0:
+            frac = np.ones_like(tau)
+        elif seg.linear:
+            frac = np.minimum(tau / duration, 1.0)
+        else:
+            a = seg.accel_mm_s2
+            v = min(seg.feed_mm_s, float(np.sqrt(a * length)))
+            t_a, d_a = v / a, v * v / (2 * a)
+            t_c = max(0.0, (length - 2 * d_a) / v)
+            # tau increases: the accelerating, cruising and braking phases are three runs (positions_mm's
+            # np.where picks the same expression per time)
+            cruise, brake = np.searchsorted(tau, (t_a, t_a + t_c), side="left")
+            dist = np.empty_like(tau)
+            accel_tau, cruise_tau = tau[:cruise], tau[cruise:brake]
+            dist[:cruise] = 0.5 * a * accel_tau * accel_tau
+            dist[cruise:brake] = d_a + v * (cruise_tau - t_a)
+            td = np.clip(tau[brake:] - t_a - t_c, 0.0, t_a)
+            dist[brake:] = d_a + v * t_c + v * td - 0.5 * a * td * td
+            frac = np.minimum(dist, length) / length
+        out[lo:hi] = p0 + frac[:, None] * step
+    return out
+
+
+def _unique_states(states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """np.unique(states, axis=0, return_inverse=True), sorted the same way; when the probe stays at one (x, y),
+    as it does through a vertical press, by the depth column alone (a 1-D sort instead of a row sort)."""
+    x, y = states[:, 0], states[:, 1]
+    if np.all(x == x[0]) and np.all(y == y[0]):
+        depth, inverse = np.unique(states[:, 2], return_inverse=True)
+        unique = np.empty((depth.size, 3))
+        unique[:, 0], unique[:, 1], unique[:, 2] = x[0], y[0], depth
+        return unique, inverse.reshape(-1)
+    unique, inverse = np.unique(states, axis=0, return_inverse=True)
+    return unique, inverse.reshape(-1)
 
 
 class SimulatedRecorder:

@@ -189,11 +189,16 @@ def _dense_chunk(layout: Layout, g: np.ndarray) -> np.ndarray:
 def _grounded(layout: Layout, g: np.ndarray) -> np.ndarray:
     """All pairs from the electrodes' grounded Laplacian (every conductance > 0: one connected network)."""
     n = layout.n_junctions
-    ends = layout.channel_ends
+    electrodes = [int(j) for j in layout.electrode_junctions]
+    # the junctions numbered electrodes first (in Layout.electrodes order), so the elimination needs no reordering
+    order = electrodes + [j for j in range(n) if j not in electrodes]
+    position = np.empty(n, dtype=np.intp)
+    position[order] = np.arange(n)
+    ends = position[layout.channel_ends]
     w = np.zeros((n, n, g.shape[0]))
     w[ends[:, 0], ends[:, 1]] = g.T
     w[ends[:, 1], ends[:, 0]] = g.T
-    w = _eliminate(w, [int(j) for j in layout.electrode_junctions])  # (k, k, presses), zero diagonal
+    w = _eliminate(w, list(range(len(electrodes))))  # (k, k, presses), zero diagonal
     k = w.shape[0]
     # press-major and contiguous, so every press is computed the same way whatever the batch (bit for bit)
     lap = -np.ascontiguousarray(np.moveaxis(w, -1, 0))  # (presses, k, k)
