@@ -174,3 +174,45 @@ def test_orphan_and_misplaced_waveform_parts(paper_layout, tmp_path):
     problems = validate_dataset(tmp_path)
     assert sorted(p.field for p in problems) == ["position_id", "press_id"]
     assert all("1 waveform part(s)" in p.message for p in problems)
+
+
+def _merge_parts(folder, ids, name_id):
+    """Replace the parts of `ids` by one part named for press `name_id` holding their rows in that order."""
+    parts = folder / "presses"
+    tables = [pq.read_table(parts / f"part-{i:06d}.parquet") for i in ids]
+    for i in ids:
+        (parts / f"part-{i:06d}.parquet").unlink()
+    pq.write_table(pa.concat_tables(tables), parts / f"part-{name_id:06d}.parquet")
+
+
+def test_part_of_several_rows_with_increasing_ids_is_valid(paper_layout, tmp_path):
+    make_campaign(tmp_path, paper_layout, finalize=False)
+    _merge_parts(tmp_path, [5, 6, 7], 5)
+    _merge_parts(tmp_path, [10, 12], 10)  # a gap is fine: ids need only increase
+    assert sorted(p.name for p in (tmp_path / "presses").iterdir())[4:7] == [
+        "part-000004.parquet",
+        "part-000005.parquet",
+        "part-000008.parquet",
+    ]
+    assert validate_dataset(tmp_path) == []
+
+
+@pytest.mark.parametrize(
+    ("ids", "name_id", "shown"),
+    [
+        ([6, 7], 5, "[6, 7]"),  # the name says 5, the first row is 6
+        ([5, 7, 6], 5, "[5, 7, 6]"),  # not increasing
+        ([7, 7], 7, "[7, 7]"),  # a repeated id (the same row twice)
+    ],
+)
+def test_part_whose_ids_do_not_start_at_its_name_or_do_not_increase(paper_layout, tmp_path, ids, name_id, shown):
+    make_campaign(tmp_path, paper_layout, finalize=False)
+    _merge_parts(tmp_path, sorted(set(ids)), 99)
+    table = pq.read_table(tmp_path / "presses" / "part-000099.parquet")
+    order = [sorted(set(ids)).index(i) for i in ids]
+    (tmp_path / "presses" / "part-000099.parquet").unlink()
+    pq.write_table(table.take(pa.array(order)), tmp_path / "presses" / f"part-{name_id:06d}.parquet")
+    problems = [p for p in validate_dataset(tmp_path) if "the part's name says" in p.message]
+    p = only(problems)
+    assert p.message == f"the part's name says press {name_id} but it holds press id(s) {shown}"
+    assert p.field == "press_id" and p.file.endswith(f"part-{name_id:06d}.parquet") and "resume" in p.fix

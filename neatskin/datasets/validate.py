@@ -145,7 +145,7 @@ def _integrity_problems(folder: Path, manifest: dict | None, tables: list[tuple[
         if file.parent.name != "presses" or expected is None or "press_id" not in table.column_names:
             continue
         ids = table.column("press_id").to_pylist()
-        if ids != [expected]:
+        if not part_ids_valid(expected, ids):
             problems.append(
                 Problem(
                     f"the part's name says press {expected} but it holds press id(s) {ids[:5]}",
@@ -155,6 +155,14 @@ def _integrity_problems(folder: Path, manifest: dict | None, tables: list[tuple[
                 )
             )
     return problems
+
+
+def part_ids_valid(first_press_id: int, ids: list) -> bool:
+    """A part `part-{N:06d}.parquet` holds one or more rows: its press ids start with N and strictly increase
+    (a part of one row holding press N is the common case)."""
+    if not ids or ids[0] != first_press_id or any(i is None for i in ids):
+        return False
+    return all(a < b for a, b in zip(ids, ids[1:]))
 
 
 # ---- pieces ----------------------------------------------------------------------------------------
