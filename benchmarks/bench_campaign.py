@@ -129,6 +129,7 @@ def scaling(sizes: list[int], checkouts: dict[str, Path], trace: bool = False) -
                 done = subprocess.run(
                     [sys.executable, "-c", _CHILD, str(protocol), str(folder), mode],
                     env=env,
+                    cwd=checkout,  # `python -c` puts the working directory first on sys.path, before PYTHONPATH
                     capture_output=True,
                     text=True,
                 )

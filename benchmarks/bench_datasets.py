@@ -123,6 +123,7 @@ def memory(sizes: list[int], checkouts: dict[str, Path]) -> None:
             done = subprocess.run(
                 [sys.executable, "-c", _MEMORY_CHILD, str(layout), str(size)],
                 env={**os.environ, "PYTHONPATH": str(checkout)},
+                cwd=checkout,  # `python -c` puts the working directory first on sys.path, before PYTHONPATH
                 capture_output=True,
                 text=True,
                 check=True,
@@ -190,6 +191,7 @@ def run_command(args: list[str], checkout: Path) -> dict:
     done = subprocess.run(
         [sys.executable, "-c", _COMMAND_CHILD, *args],
         env={**os.environ, "PYTHONPATH": str(checkout)},
+        cwd=checkout,  # `python -c` puts the working directory first on sys.path, before PYTHONPATH
         capture_output=True,
         text=True,
     )
@@ -261,8 +263,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.source is None:
             parser.error("--merged needs --source CAMPAIGN_FOLDER (e.g. a paper dry run)")
         checkouts = {"this": REPO, **({"compare": args.compare.resolve()} if args.compare else {})}
-        root = args.folder or Path(tempfile.mkdtemp(prefix="bench-merged-"))
-        merged(args.source, args.merged, checkouts, args.baselines_args.split(), root)
+        root = (args.folder or Path(tempfile.mkdtemp(prefix="bench-merged-"))).resolve()
+        merged(args.source.resolve(), args.merged, checkouts, args.baselines_args.split(), root)
         return 0
     if args.memory:
         checkouts = {"this": REPO, **({"compare": args.compare.resolve()} if args.compare else {})}
