@@ -6,6 +6,7 @@ or pair column, a NaN or infinite value, no presses left after dropping flagged 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -81,15 +82,26 @@ def _rig_skin(folder: Path) -> dict:
 
 def check_table(df: pd.DataFrame, source: str, expected_pairs: list[str] | None = None) -> list[str]:
     """The dR pair columns to learn from, after refusing missing columns and non-finite values."""
+    ids = df["press_id"].to_numpy() if "press_id" in df.columns else df.index.to_numpy()
+    return _checked_pairs(list(df.columns), lambda c: df[c].to_numpy(), ids, source, expected_pairs)
+
+
+def _checked_pairs(
+    names: list[str],
+    values_of: Callable[[str], np.ndarray],
+    press_ids: np.ndarray,
+    source: str,
+    expected_pairs: list[str] | None,
+) -> list[str]:
     for column in ("x_mm", "y_mm", "position_id"):
-        if column not in df.columns:
+        if column not in names:
             raise DataError(
                 f"missing column {column!r}",
                 file=source,
                 field=column,
                 fix="the baselines need x_mm, y_mm and position_id per press; re-export the dataset",
             )
-    found = sorted((c for c in df.columns if c.startswith("dR_ohm_")), key=_pair_sort_key)
+    found = sorted((c for c in names if c.startswith("dR_ohm_")), key=_pair_sort_key)
     wanted = expected_pairs or found
     if not wanted:
         raise DataError(
@@ -98,7 +110,7 @@ def check_table(df: pd.DataFrame, source: str, expected_pairs: list[str] | None 
             field="dR_ohm_*",
             fix="the dataset must hold one resistance-change column per electrode pair",
         )
-    missing = [c for c in wanted if c not in df.columns]
+    missing = [c for c in wanted if c not in names]
     if missing:
         raise DataError(
             f"missing pair column {missing[0]!r} ({len(missing)} of {len(wanted)} missing)",
@@ -107,11 +119,10 @@ def check_table(df: pd.DataFrame, source: str, expected_pairs: list[str] | None 
             fix="every electrode pair of the layout needs its dR_ohm column; re-run or re-export the campaign",
         )
     for column in ("x_mm", "y_mm", *wanted):
-        values = pd.to_numeric(df[column], errors="coerce").to_numpy(dtype=float)
+        values = _as_float(values_of(column))
         bad = ~np.isfinite(values)
         if bad.any():
-            rows = df.index[bad]
-            ids = df["press_id"].to_numpy()[bad][:5].tolist() if "press_id" in df.columns else rows[:5].tolist()
+            ids = press_ids[bad][:5].tolist()
             raise DataError(
                 f"{int(bad.sum())} NaN or infinite values (press_id {ids})",
                 file=source,
@@ -119,6 +130,13 @@ def check_table(df: pd.DataFrame, source: str, expected_pairs: list[str] | None 
                 fix="flag those presses (they are dropped by default) or drop them with the dataset tools",
             )
     return wanted
+
+
+def _as_float(values: np.ndarray) -> np.ndarray:
+    """float64 values; anything that is not a number becomes NaN (and is refused by the caller)."""
+    if values.dtype.kind == "f":
+        return values.astype(np.float64, copy=False)
+    return pd.to_numeric(pd.Series(values), errors="coerce").to_numpy(dtype=float)
 
 
 def _read_columns(path: Path) -> tuple[pa.Table, dict]:
@@ -186,21 +204,29 @@ def load_baseline_data(dataset: str | Path, flagged: str = "drop") -> BaselineDa
     if flagged == "drop" and is_flagged.any():
         table = table.filter(pa.array(~is_flagged))
         dropped = int(is_flagged.sum())
-    table = table.drop_columns([c for c in ("flags",) if c in table.column_names])
-    df = table.to_pandas(split_blocks=True, self_destruct=True)  # frees each column as it is converted
-    del table
-    if len(df) == 0:
+    if table.num_rows == 0:
         raise DataError(
             "no presses left to learn from" + (f" after dropping {dropped} flagged" if dropped else ""),
             file=source,
             field="flags",
             fix="record presses without flags, or pass flagged='keep'",
         )
-    pairs = check_table(df, source, expected)
-    groups = df["position_id"].to_numpy()
+
+    def values_of(column: str) -> np.ndarray:
+        return table.column(column).to_numpy(zero_copy_only=False)
+
+    ids = values_of("press_id") if "press_id" in table.column_names else np.arange(table.num_rows)
+    pairs = _checked_pairs(table.column_names, values_of, ids, source, expected)
+    X = np.empty((table.num_rows, len(pairs)), dtype=np.float64)  # column by column: no second full table
+    for k, column in enumerate(pairs):
+        X[:, k] = _as_float(values_of(column))
+    y = np.column_stack([_as_float(values_of("x_mm")), _as_float(values_of("y_mm"))])
+    groups = values_of("position_id")
     merged = "merged_from" in metadata  # `dataset merge` made position ids physical across its campaigns
-    if not merged and "campaign" in df.columns and df["campaign"].nunique() > 1:  # concatenated: ids repeat
-        groups = pd.factorize(df["campaign"].astype(str) + "/" + df["position_id"].astype(str))[0]
+    if not merged and "campaign" in table.column_names:
+        campaigns = table.column("campaign").to_pandas()
+        if campaigns.nunique() > 1:  # concatenated campaigns: their position ids repeat
+            groups = pd.factorize(campaigns.astype(str) + "/" + pd.Series(groups).astype(str))[0]
     limit = None
     limit_path = folder / PHYSICAL_LIMIT_NAME
     if limit_path.is_file():
@@ -216,8 +242,8 @@ def load_baseline_data(dataset: str | Path, flagged: str = "drop") -> BaselineDa
     radius = skin.get("probe_radius_mm")
     return BaselineData(
         source=source,
-        X=df[pairs].to_numpy(dtype=np.float64),
-        y=df[["x_mm", "y_mm"]].to_numpy(dtype=np.float64),
+        X=X,
+        y=y,
         groups=np.asarray(groups, dtype=np.int64),
         pair_columns=tuple(pairs),
         n_flagged_dropped=dropped,
