@@ -76,11 +76,13 @@ finalize = CampaignWriter.finalize
 
 def timed_finalize(self):
     phases["presses_peak_mb"], phases["rss_before_finalize_mb"] = peak_mb(), rss_mb()
+    import pyarrow
+    phases["arrow_before_finalize_mb"] = pyarrow.total_allocated_bytes() / 2**20
     if trace:
         phases["top_growth"] = [
             f"{s.size / 2**20:.1f} MB {s.count} blocks {s.traceback[0].filename.split('site-packages/')[-1]}:"
             f"{s.traceback[0].lineno}"
-            for s in tracemalloc.take_snapshot().statistics("lineno")[:12]
+            for s in tracemalloc.take_snapshot().statistics("lineno")[:20]
         ]
     t0 = time.perf_counter()
     try:
@@ -180,7 +182,7 @@ def main() -> None:
     parser.add_argument(
         "--trace",
         action="store_true",
-        help="with --scaling: tracemalloc in each run (slower), printing the 12 lines holding most memory "
+        help="with --scaling: tracemalloc in each run (slower), printing the 20 lines holding most memory "
         "when finalize starts",
     )
     parser.add_argument("--presses", type=int, default=None, help="presses per scene (default: the whole campaign)")
