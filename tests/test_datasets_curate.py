@@ -113,6 +113,38 @@ def test_merge_streams_sources_into_fixed_row_groups(paper_layout, tmp_path, mon
     assert validate_dataset(out, allow_flagged=True) == []
 
 
+def test_merge_leaves_out_presses_written_while_it_merges(paper_layout, tmp_path, monkeypatch):
+    """A running campaign merged with --allow-incomplete may commit a press between merge's plan and its
+    stream: that press is left out (its id would overlap the next source's), the counts stay consistent."""
+    import neatskin.datasets.merging as merging
+
+    campaign(tmp_path / "a", paper_layout, 3, 2, seed=1, name="a")
+    rows_b = synthetic_rows(paper_layout, 3, 2, seed=2, campaign="b")
+    create_manifest(
+        tmp_path / "b", fsync=False, campaign="b", seed=2, layout=LAYOUT_REF, wiring={"name": "paper-wiring"}
+    )
+    with CampaignWriter(tmp_path / "b", paper_layout.pairs, {"seed": 2, "layout": LAYOUT_REF}, fsync=False) as writer:
+        for row in rows_b[:4]:
+            writer.write_press(row)
+    update_manifest(tmp_path / "b", fsync=False, status="interrupted")
+    campaign(tmp_path / "c", paper_layout, 2, 2, seed=3, name="c")
+    plan = merging._plan_source
+
+    def plan_then_press(folder):
+        planned = plan(folder)
+        if folder.name == "b":  # the campaign goes on: press 4 commits after b was planned
+            with CampaignWriter(folder, paper_layout.pairs, {"seed": 2, "layout": LAYOUT_REF}, fsync=False) as w:
+                w.write_press(rows_b[4])
+        return planned
+
+    monkeypatch.setattr(merging, "_plan_source", plan_then_press)
+    out = merge([tmp_path / "a", tmp_path / "b", tmp_path / "c"], tmp_path / "m", allow_incomplete=True)
+    df = read_presses(out)
+    assert df["press_id"].tolist() == list(range(14))
+    assert df["campaign"].tolist() == ["a"] * 6 + ["b"] * 4 + ["c"] * 4
+    assert json.loads((out / "manifest.json").read_text())["counts"]["completed"] == 14
+
+
 def test_merge_refuses_mixed_layouts_and_wirings_unless_told(paper_layout, tmp_path):
     campaign(tmp_path / "a", paper_layout, seed=1)
     campaign(tmp_path / "b", paper_layout, seed=2, layout_ref={**LAYOUT_REF, "name": "finer-grid"})

@@ -166,6 +166,24 @@ def _rekeyed(table: pa.Table, press_offset: int, mapping: dict[int, int], schema
     return table if table.schema.equals(schema) else table.cast(schema)
 
 
+def _as_planned(folder: Path, plan: _SourcePlan) -> pa.Table:
+    """A source's rows as its plan saw them: a campaign still running (--allow-incomplete) may have added
+    presses since, which are left out (their ids would overlap the next source's); anything else that
+    changed is an error."""
+    table = read_press_table(folder)
+    if plan.max_press_id is None:
+        table = table.slice(0, 0)
+    elif table.num_rows and pc.max(table.column("press_id")).as_py() > plan.max_press_id:
+        table = table.filter(pc.less_equal(table.column("press_id"), pa.scalar(plan.max_press_id, pa.int64())))
+    if table.num_rows != plan.presses:
+        raise DataError(
+            f"the dataset changed while it was merged ({plan.presses} presses, then {table.num_rows})",
+            file=str(folder),
+            fix="merge again once nothing writes to it",
+        )
+    return table
+
+
 def merge(
     folders: Sequence[str | os.PathLike],
     out: str | os.PathLike,
@@ -258,8 +276,8 @@ def merge(
     plain = first.schema.remove_metadata()
 
     def tables() -> Iterator[pa.Table]:
-        for folder, mapping, offset in zip(sources, position_maps, offsets):
-            yield _rekeyed(read_press_table(folder), offset, mapping, plain)
+        for folder, plan, mapping, offset in zip(sources, plans, position_maps, offsets):
+            yield _rekeyed(_as_planned(folder, plan), offset, mapping, plain)
 
     _stream_table(out / CONSOLIDATED_NAME, plain.with_metadata(encode_metadata(metadata)), tables())
     n_rows = sum(p.presses for p in plans)
