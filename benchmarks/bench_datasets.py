@@ -11,6 +11,13 @@ fresh process, peak RSS after the presses and after finalize; optionally side by
 checkout of the toolkit in the same run:
 
     .venv/bin/python benchmarks/bench_datasets.py --memory 2800,28000 --compare /path/to/other/checkout
+
+A 280,000-press merged dataset (issue 13): 100 relabelled copies of one finished campaign (e.g. a paper dry
+run), merged, validated and reported on, each command in a fresh process (wall, CPU, peak RSS); --folder
+keeps the copies for the next run:
+
+    .venv/bin/python benchmarks/bench_datasets.py --merged 100 --source runs/paper --folder /tmp/m100 \
+        --compare /path/to/other/checkout --baselines-args "--models ridge --repeats 1"
 """
 
 from __future__ import annotations
