@@ -13,6 +13,9 @@ each in a fresh process so its peak RSS is its own, optionally side by side with
 of the toolkit (e.g. the commit before a change) in the same run:
 
     python benchmarks/bench_campaign.py --scaling 280,2800,28000 --compare /path/to/other/checkout
+    python benchmarks/bench_campaign.py --scaling 2800 --trace      # what holds the memory at finalize
+
+It prints a markdown table (docs/campaigns.md, "Scaling") with each size's ratios to the size before.
 """
 
 from __future__ import annotations
@@ -54,15 +57,49 @@ def scene_protocol(root: Path, fidelity: str, signal: str, record: bool) -> Path
 
 
 _CHILD = """
-import json, resource, sys, time
+import json, os, resource, sys, time, tracemalloc
+t_start = time.perf_counter()
+from neatskin.datasets.writer import CampaignWriter
 from neatskin.rig.protocol import load_protocol
 from neatskin.rig.runner import run_campaign
+
+def peak_mb():
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+def rss_mb():
+    with open("/proc/self/statm") as handle:
+        return int(handle.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+trace = sys.argv[3] == "trace"
+phases = {"imports_s": time.perf_counter() - t_start, "imports_peak_mb": peak_mb()}
+finalize = CampaignWriter.finalize
+
+def timed_finalize(self):
+    phases["presses_peak_mb"], phases["rss_before_finalize_mb"] = peak_mb(), rss_mb()
+    import pyarrow
+    phases["arrow_before_finalize_mb"] = pyarrow.total_allocated_bytes() / 2**20
+    if trace:
+        phases["top_growth"] = [
+            f"{s.size / 2**20:.1f} MB {s.count} blocks {s.traceback[0].filename.split('site-packages/')[-1]}:"
+            f"{s.traceback[0].lineno}"
+            for s in tracemalloc.take_snapshot().statistics("lineno")[:20]
+        ]
+    t0 = time.perf_counter()
+    try:
+        return finalize(self)
+    finally:
+        phases["finalize_s"], phases["finalize_peak_mb"] = time.perf_counter() - t0, peak_mb()
+
+CampaignWriter.finalize = timed_finalize
+if trace:
+    tracemalloc.start()
 protocol = load_protocol(sys.argv[1])
 t0, c0 = time.perf_counter(), time.process_time()
 result = run_campaign(protocol, sys.argv[2], dry_run=True, progress=False, report=False)
 wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-print(json.dumps({"presses": result.completed, "wall_s": wall, "cpu_s": cpu, "peak_rss_mb": rss}))
+row = {"presses": result.completed, "wall_s": wall, "cpu_s": cpu, "peak_rss_mb": peak_mb(), **phases}
+row["load_1min"] = os.getloadavg()[0]
+print(json.dumps(row))
 """
 
 
@@ -76,8 +113,10 @@ def scaled_protocol(root: Path, presses: int) -> Path:
     return path
 
 
-def scaling(sizes: list[int], checkouts: dict[str, Path]) -> None:
-    """Each size in each checkout, in a fresh process: wall, CPU, peak RSS, and the ratios to the smallest."""
+def scaling(sizes: list[int], checkouts: dict[str, Path], trace: bool = False) -> None:
+    """Each size in each checkout, in a fresh process: wall, CPU, peak RSS (after imports, after the presses,
+    after finalize, at the end: the physical limit and the manifest come after finalize), and each size's ratios to the size before it (linear time: ~10x per 10x presses; flat
+    memory: ~1x)."""
     work = Path(tempfile.mkdtemp(prefix="bench-scaling-"))
     rows = []
     try:
@@ -88,34 +127,64 @@ def scaling(sizes: list[int], checkouts: dict[str, Path]) -> None:
             for label, checkout in checkouts.items():
                 folder = work / f"run-{label}-{size}"
                 env = {**os.environ, "PYTHONPATH": str(checkout)}
+                mode = "trace" if trace else "plain"
                 done = subprocess.run(
-                    [sys.executable, "-c", _CHILD, str(protocol), str(folder)],
+                    [sys.executable, "-c", _CHILD, str(protocol), str(folder), mode],
                     env=env,
+                    cwd=checkout,  # `python -c` puts the working directory first on sys.path, before PYTHONPATH
                     capture_output=True,
                     text=True,
-                    check=True,
                 )
+                if done.returncode:
+                    raise SystemExit(f"{label} {size} failed:\n{done.stderr[-3000:]}")
                 row = {"checkout": label, **json.loads(done.stdout.strip().splitlines()[-1])}
+                for line in row.pop("top_growth", []):
+                    print(f"  {label} {size}: {line}")
                 rows.append(row)
                 print(json.dumps(row), flush=True)
                 shutil.rmtree(folder, ignore_errors=True)
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    table = pd.DataFrame(rows)
-    for label in checkouts:
-        mine = table[table.checkout == label]
-        first = mine.iloc[0]
-        table.loc[mine.index, "wall_x_smallest"] = mine.wall_s / first.wall_s
-        table.loc[mine.index, "presses_x_smallest"] = mine.presses / first.presses
-        table.loc[mine.index, "rss_x_smallest"] = mine.peak_rss_mb / first.peak_rss_mb
-    pd.set_option("display.width", 200)
-    print(table.to_string(index=False, float_format=lambda v: f"{v:,.3g}"))
+    print_scaling_table(pd.DataFrame(rows))
+
+
+def print_scaling_table(table: pd.DataFrame) -> None:
+    """The scaling table as markdown: per checkout and size, the measures and the ratios to the size before."""
+    print(
+        "\n| checkout | presses | wall s | CPU s | peak RSS MB | peak: presses, finalize MB | finalize s | load | "
+        "presses x | wall x | CPU x | RSS x |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for label, mine in table.groupby("checkout", sort=False):
+        previous = None
+        for _, r in mine.iterrows():
+            ratios = ["", "", "", ""]
+            if previous is not None:
+                ratios = [
+                    f"{r.presses / previous.presses:.1f}",
+                    f"{r.wall_s / previous.wall_s:.2f}",
+                    f"{r.cpu_s / previous.cpu_s:.2f}",
+                    f"{r.peak_rss_mb / previous.peak_rss_mb:.2f}",
+                ]
+            print(
+                f"| {label} | {int(r.presses):,} | {r.wall_s:.1f} | {r.cpu_s:.1f} | {r.peak_rss_mb:.0f} | "
+                f"{r.get('presses_peak_mb', float('nan')):.0f}, {r.get('finalize_peak_mb', float('nan')):.0f} | "
+                f"{r.get('finalize_s', float('nan')):.2f} | "
+                f"{r.get('load_1min', float('nan')):.1f} | {' | '.join(ratios)} |"
+            )
+            previous = r
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scaling", help="comma-separated campaign sizes, e.g. 280,2800,28000 (multiples of 28)")
     parser.add_argument("--compare", type=Path, help="another checkout to run side by side (with --scaling)")
+    parser.add_argument(
+        "--trace",
+        action="store_true",
+        help="with --scaling: tracemalloc in each run (slower), printing the 20 lines holding most memory "
+        "when finalize starts",
+    )
     parser.add_argument("--presses", type=int, default=None, help="presses per scene (default: the whole campaign)")
     parser.add_argument(
         "--recorded-presses",
@@ -128,7 +197,7 @@ def main() -> None:
         checkouts = {"this": REPO}
         if args.compare:
             checkouts["compare"] = args.compare.resolve()
-        scaling([int(n) for n in args.scaling.split(",")], checkouts)
+        scaling([int(n) for n in args.scaling.split(",")], checkouts, trace=args.trace)
         return
     work = Path(tempfile.mkdtemp(prefix="bench-campaign-"))
     try:

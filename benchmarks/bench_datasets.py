@@ -11,6 +11,13 @@ fresh process, peak RSS after the presses and after finalize; optionally side by
 checkout of the toolkit in the same run:
 
     .venv/bin/python benchmarks/bench_datasets.py --memory 2800,28000 --compare /path/to/other/checkout
+
+A 280,000-press merged dataset (issue 13): 100 relabelled copies of one finished campaign (e.g. a paper dry
+run), merged, validated and reported on, each command in a fresh process (wall, CPU, peak RSS); --folder
+keeps the copies for the next run:
+
+    .venv/bin/python benchmarks/bench_datasets.py --merged 100 --source runs/paper --folder /tmp/m100 \
+        --compare /path/to/other/checkout --baselines-args "--models ridge --repeats 1"
 """
 
 from __future__ import annotations
@@ -123,6 +130,7 @@ def memory(sizes: list[int], checkouts: dict[str, Path]) -> None:
             done = subprocess.run(
                 [sys.executable, "-c", _MEMORY_CHILD, str(layout), str(size)],
                 env={**os.environ, "PYTHONPATH": str(checkout)},
+                cwd=checkout,  # `python -c` puts the working directory first on sys.path, before PYTHONPATH
                 capture_output=True,
                 text=True,
                 check=True,
@@ -131,6 +139,99 @@ def memory(sizes: list[int], checkouts: dict[str, Path]) -> None:
             print(
                 f"{label:<10}{r['presses']:>9}{r['start_mb']:>10.0f}{r['after_presses_mb']:>12.0f}"
                 f"{r['after_finalize_mb']:>13.0f}{r['write_s']:>9.1f}{r['finalize_s']:>9.1f}",
+                flush=True,
+            )
+
+
+# ---- a 100-campaign merged dataset ---------------------------------------------------------------
+
+
+def copy_campaign(source: Path, target: Path, index: int) -> Path:
+    """A copy of a finished campaign folder relabelled as campaign `<name>-<index>` with seed `<seed> + index`:
+    the campaign column, the parquet metadata, presses.copy.parquet, the manifest (campaign, seed, the protocol
+    as run) and the sha256 it records for presses.parquet are rewritten together, so `dataset validate` accepts
+    the copy as a complete campaign. The measured rows are the source's (only the labels differ); the wire log
+    is not copied."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from neatskin.datasets.manifest import read_manifest, write_manifest
+    from neatskin.datasets.schema import decode_metadata, encode_metadata
+    from neatskin.datasets.writer import file_sha256, write_table_durably
+
+    manifest = read_manifest(source)
+    name, seed = f"{manifest['campaign']}-{index:03d}", int(manifest["seed"]) + index
+    target.mkdir(parents=True)
+    shutil.copytree(source / "inputs", target / "inputs")
+    for extra in ("physical_limit.parquet",):
+        if (source / extra).is_file():
+            shutil.copyfile(source / extra, target / extra)
+    table = pq.read_table(source / "presses.parquet")
+    meta = {**decode_metadata(table.schema.metadata), "campaign": name, "seed": seed}
+    column = table.schema.get_field_index("campaign")
+    table = table.set_column(column, table.schema.field(column), pa.array([name] * table.num_rows, pa.string()))
+    write_table_durably(target / "presses.parquet", table.replace_schema_metadata(encode_metadata(meta)), fsync=False)
+    shutil.copyfile(target / "presses.parquet", target / "presses.copy.parquet")
+    manifest.update(campaign=name, seed=seed)
+    manifest["files_sha256"] = {**manifest["files_sha256"], "presses.parquet": file_sha256(target / "presses.parquet")}
+    as_run = manifest.get("protocol_as_run", {}).get("campaign")
+    if isinstance(as_run, dict):
+        as_run.update(name=name, seed=seed)
+    write_manifest(target, manifest, fsync=False)
+    return target
+
+
+_COMMAND_CHILD = """
+import json, resource, sys, time
+from neatskin.cli import main
+t0, c0 = time.perf_counter(), time.process_time()
+status = main(sys.argv[1:])
+wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+print(json.dumps({"status": status, "wall_s": wall, "cpu_s": cpu, "peak_rss_mb": rss}))
+"""
+
+
+def run_command(args: list[str], checkout: Path) -> dict:
+    """One `neatskin ...` command in a fresh process of `checkout`: wall, CPU, peak RSS (imports excluded
+    from the times, included in the RSS)."""
+    done = subprocess.run(
+        [sys.executable, "-c", _COMMAND_CHILD, *args],
+        env={**os.environ, "PYTHONPATH": str(checkout)},
+        cwd=checkout,  # `python -c` puts the working directory first on sys.path, before PYTHONPATH
+        capture_output=True,
+        text=True,
+    )
+    lines = done.stdout.strip().splitlines()
+    if done.returncode not in (0, 1) or not lines or not lines[-1].startswith("{"):
+        raise SystemExit(f"neatskin {' '.join(args)} failed ({done.returncode}):\n{done.stderr[-3000:]}")
+    return json.loads(lines[-1])
+
+
+def merged(source: Path, copies: int, checkouts: dict[str, Path], baselines_args: list[str], root: Path) -> None:
+    """`copies` relabelled copies of `source` merged, validated and reported on, per checkout."""
+    root.mkdir(parents=True, exist_ok=True)
+    campaigns = root / "campaigns"
+    if not campaigns.is_dir():
+        t0 = time.perf_counter()
+        for k in range(copies):
+            copy_campaign(source, campaigns / f"c{k:03d}", k)
+        print(f"made {copies} campaigns in {time.perf_counter() - t0:.1f} s", flush=True)
+    folders = sorted(str(p) for p in campaigns.iterdir())[:copies]
+    print(f"{'checkout':<10}{'command':<12}{'wall s':>9}{'CPU s':>9}{'peak RSS MB':>13}  result")
+    for label, checkout in checkouts.items():
+        out = root / f"merged-{label}"
+        shutil.rmtree(out, ignore_errors=True)
+        steps = {
+            "merge": ["dataset", "merge", *folders, "-o", str(out)],
+            "validate": ["dataset", "validate", str(out)],
+            "baselines": ["baselines", str(out), "--no-progress", "--overwrite", *baselines_args],
+        }
+        for step, args in steps.items():
+            r = run_command(args, checkout)
+            print(
+                f"{label:<10}{step:<12}{r['wall_s']:>9.1f}{r['cpu_s']:>9.1f}{r['peak_rss_mb']:>13.0f}  "
+                f"exit {r['status']}",
                 flush=True,
             )
 
@@ -151,7 +252,27 @@ def main(argv: list[str] | None = None) -> int:
         type=Path,
         help="where to write (default: a temp folder on the same disk as /tmp); fsync cost depends on the disk",
     )
+    parser.add_argument(
+        "--merged",
+        type=int,
+        metavar="N",
+        help="merge N relabelled copies of --source, then validate and report on the merged dataset",
+    )
+    parser.add_argument("--source", type=Path, help="a finished campaign folder to copy (with --merged)")
+    parser.add_argument(
+        "--baselines-args",
+        default="",
+        help="extra arguments of `neatskin baselines` on the merged dataset (with --merged), e.g. "
+        "'--models ridge --repeats 1'",
+    )
     args = parser.parse_args(argv)
+    if args.merged:
+        if args.source is None:
+            parser.error("--merged needs --source CAMPAIGN_FOLDER (e.g. a paper dry run)")
+        checkouts = {"this": REPO, **({"compare": args.compare.resolve()} if args.compare else {})}
+        root = (args.folder or Path(tempfile.mkdtemp(prefix="bench-merged-"))).resolve()
+        merged(args.source.resolve(), args.merged, checkouts, args.baselines_args.split(), root)
+        return 0
     if args.memory:
         checkouts = {"this": REPO, **({"compare": args.compare.resolve()} if args.compare else {})}
         memory([int(n) for n in args.memory.split(",")], checkouts)

@@ -174,3 +174,91 @@ def test_orphan_and_misplaced_waveform_parts(paper_layout, tmp_path):
     problems = validate_dataset(tmp_path)
     assert sorted(p.field for p in problems) == ["position_id", "press_id"]
     assert all("1 waveform part(s)" in p.message for p in problems)
+
+
+def _merge_parts(folder, ids, name_id):
+    """Replace the parts of `ids` by one part named for press `name_id` holding their rows in that order."""
+    parts = folder / "presses"
+    tables = [pq.read_table(parts / f"part-{i:06d}.parquet") for i in ids]
+    for i in ids:
+        (parts / f"part-{i:06d}.parquet").unlink()
+    pq.write_table(pa.concat_tables(tables), parts / f"part-{name_id:06d}.parquet")
+
+
+def test_part_of_several_rows_with_increasing_ids_is_valid(paper_layout, tmp_path):
+    make_campaign(tmp_path, paper_layout, finalize=False)
+    _merge_parts(tmp_path, [5, 6, 7], 5)
+    _merge_parts(tmp_path, [10, 12], 10)  # a gap is fine: ids need only increase
+    assert sorted(p.name for p in (tmp_path / "presses").iterdir())[4:7] == [
+        "part-000004.parquet",
+        "part-000005.parquet",
+        "part-000008.parquet",
+    ]
+    assert validate_dataset(tmp_path) == []
+
+
+@pytest.mark.parametrize(
+    ("ids", "name_id", "shown"),
+    [
+        ([6, 7], 5, "[6, 7]"),  # the name says 5, the first row is 6
+        ([5, 7, 6], 5, "[5, 7, 6]"),  # not increasing
+        ([7, 7], 7, "[7, 7]"),  # a repeated id (the same row twice)
+    ],
+)
+def test_part_whose_ids_do_not_start_at_its_name_or_do_not_increase(paper_layout, tmp_path, ids, name_id, shown):
+    make_campaign(tmp_path, paper_layout, finalize=False)
+    _merge_parts(tmp_path, sorted(set(ids)), 99)
+    table = pq.read_table(tmp_path / "presses" / "part-000099.parquet")
+    order = [sorted(set(ids)).index(i) for i in ids]
+    (tmp_path / "presses" / "part-000099.parquet").unlink()
+    pq.write_table(table.take(pa.array(order)), tmp_path / "presses" / f"part-{name_id:06d}.parquet")
+    problems = [p for p in validate_dataset(tmp_path) if "the part's name says" in p.message]
+    p = only(problems)
+    assert p.message == f"the part's name says press {name_id} but it holds press id(s) {shown}"
+    assert p.field == "press_id" and p.file.endswith(f"part-{name_id:06d}.parquet") and "resume" in p.fix
+
+
+def test_problems_found_across_row_groups_as_in_one_piece(paper_layout, tmp_path):
+    """Validation reads row group by row group: NaNs, flags and duplicates in different groups of one file
+    are counted together, and a press in a part that is the same row as in presses.parquet is no duplicate."""
+    rows = synthetic_rows(paper_layout, 5, 3, seed=9, campaign="val")
+    for k in (2, 13):
+        rows[k]["dR_ohm"] = rows[k]["dR_ohm"].copy()
+        rows[k]["dR_ohm"][27] = np.nan
+    rows[6]["flags"] = ["fsr_missed"]
+    rows[11]["flags"] = ["fsr_missed"]
+    make_campaign(tmp_path, paper_layout, rows)
+    path = tmp_path / "presses.parquet"
+    table = pq.read_table(path)
+    copy = table.slice(9, 1)  # press 9 again, one value changed: a duplicate with a different row
+    k = copy.schema.get_field_index("x_mm")
+    changed = copy.set_column(k, copy.schema.field(k), pa.array([copy.column("x_mm")[0].as_py() + 0.5]))
+    pq.write_table(pa.concat_tables([table, changed]), path, row_group_size=4)
+    assert pq.ParquetFile(path).metadata.num_row_groups == 4
+    pq.write_table(table.slice(5, 1), tmp_path / "presses" / "part-000005.parquet")  # the same row: fine
+    problems = {p.field: p for p in validate_dataset(tmp_path)}
+    assert problems["dR_ohm_7_8"].message == "2 NaN/null value(s) in 'dR_ohm_7_8' (press ids 2, 13)"
+    assert problems["flags"].message.startswith("2 flagged press(es) (fsr_missed: 2; press ids 6, 11)")
+    assert problems["press_id"].message == "duplicate press id(s) with different rows: 9"
+    assert problems["position_id"].message == "position id(s) 3 have presses at different x/y"
+    assert set(problems) == {"dR_ohm_7_8", "flags", "press_id", "position_id"}
+
+
+def test_file_damaged_in_a_later_row_group_is_unreadable_as_a_whole(paper_layout, tmp_path):
+    make_campaign(tmp_path, paper_layout, finalize=False)
+    parts = tmp_path / "presses"
+    big = pa.concat_tables([pq.read_table(parts / f"part-{i:06d}.parquet") for i in range(3, 15)])
+    for i in range(4, 15):
+        (parts / f"part-{i:06d}.parquet").unlink()
+    pq.write_table(big, parts / "part-000003.parquet", row_group_size=4, write_page_checksum=True)
+    data = bytearray((parts / "part-000003.parquet").read_bytes())
+    handle = pq.ParquetFile(parts / "part-000003.parquet")
+    last = handle.metadata.row_group(2).column(40)  # a dR column of the last group
+    offset = last.data_page_offset + last.total_compressed_size - 20
+    data[offset] ^= 0xFF
+    (parts / "part-000003.parquet").write_bytes(bytes(data))
+    problems = validate_dataset(tmp_path)
+    unreadable = [p for p in problems if p.message.startswith("unreadable parquet file")]
+    assert len(unreadable) == 1 and unreadable[0].file.endswith("part-000003.parquet")
+    # nothing of the damaged part counts: 3 presses (0, 1, 2) remain against the manifest's 15
+    assert any(p.field == "counts.completed" and "holds 3 presses" in p.message for p in problems)

@@ -1,4 +1,5 @@
-"""Curation of finished campaigns: describe, merge (re-keyed, provenance kept), split by position, export.
+"""Curation of finished campaigns: describe, merge (re-keyed, provenance kept; in merging.py), split by position,
+export.
 
 Every output is a folder (or file) that the reader, the validator and tools without this toolkit read
 like a campaign: presses.parquet with `neatskin.` metadata, plus manifest.json for folders.
@@ -8,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -19,10 +19,10 @@ import pyarrow.compute as pc
 
 from neatskin.datasets.durable import write_bytes_durably
 from neatskin.datasets.manifest import create_manifest, read_manifest, resolve_manifest_path, utc_now_iso
+from neatskin.datasets.merging import POSITION_TOLERANCE_MM, merge  # noqa: F401 (curate.merge is the API)
 from neatskin.datasets.paths import CONSOLIDATED_NAME, press_parts, waveform_parts
 from neatskin.datasets.reader import read_press_table
 from neatskin.datasets.schema import decode_metadata, encode_metadata
-from neatskin.datasets.validate import same_file_ref
 from neatskin.datasets.writer import write_table_durably
 from neatskin.errors import DataError
 
@@ -156,86 +156,6 @@ def format_description(info: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-# ---- merge ---------------------------------------------------------------------------------------
-
-
-POSITION_TOLERANCE_MM = 0.01  # two presses this close (same layout and calibration) are one physical position
-
-
-def _ref_key(ref: Any) -> str | None:
-    """What identifies an input file across campaigns: its sha256, else its name, else its path."""
-    if isinstance(ref, dict):
-        for key in ("sha256", "name", "path"):
-            if ref.get(key) is not None:
-                return f"{key}:{ref[key]}"
-        return None
-    return None if ref is None else f"path:{ref}"
-
-
-def _check_sources(sources: list[Path], allow_incomplete: bool) -> list[str]:
-    """Refuse a folder named twice, and (unless allow_incomplete) a campaign that runs or is incomplete;
-    returns each source's status."""
-    seen: dict[Path, Path] = {}
-    for folder in sources:
-        key = folder.resolve()
-        if key in seen:
-            raise DataError(
-                f"the same dataset is named twice ({seen[key]} and {folder})",
-                file=str(folder),
-                field="folders",
-                fix="name each campaign once; merging a campaign with itself duplicates every press",
-            )
-        seen[key] = folder
-    statuses = []
-    for folder in sources:
-        if folder.is_file():
-            statuses.append("file")
-            continue
-        manifest = _manifest_or_empty(folder)
-        status = campaign_status(folder, manifest) if manifest else "no manifest (a plain dataset folder)"
-        statuses.append(status)
-        if manifest and status != "complete" and not allow_incomplete:
-            raise DataError(
-                f"the campaign is not complete (status: {status})",
-                file=str(folder),
-                field="status",
-                fix="finish it first (neatskin campaign resume), or merge what it holds with --allow-incomplete "
-                "(recorded in the merged manifest)",
-            )
-    return statuses
-
-
-def _physical_position_ids(
-    tables: list[pa.Table], calibration_keys: list[tuple[str | None, str | None]], tolerance_mm: float
-) -> list[dict[int, int]]:
-    """Per source, {source position id: merged position id}. Positions of sources on the same layout and
-    calibration that lie within tolerance_mm of each other share one id; ids are numbered in order of first
-    appearance (source order, then the source's position ids)."""
-    centers: dict[tuple[str | None, str | None], list[tuple[float, float, int]]] = {}
-    next_id = 0
-    maps = []
-    for table, key in zip(tables, calibration_keys):
-        frame = table.select(["position_id", "x_mm", "y_mm"]).to_pandas()
-        per_position = frame.groupby("position_id", sort=True)[["x_mm", "y_mm"]].first()
-        known = centers.setdefault(key, [])
-        mapping = {}
-        for pos, (x, y) in zip(per_position.index, per_position.to_numpy()):
-            match = None
-            if known:
-                xy = np.array([(cx, cy) for cx, cy, _ in known])
-                dist = np.hypot(xy[:, 0] - x, xy[:, 1] - y)
-                k = int(np.argmin(dist))
-                if dist[k] <= tolerance_mm:
-                    match = known[k][2]
-            if match is None:
-                match = next_id
-                next_id += 1
-                known.append((float(x), float(y), match))
-            mapping[int(pos)] = match
-        maps.append(mapping)
-    return maps
-
-
 def _copy_inputs(out: Path, sources: list[Path], manifests: list[dict[str, Any]]) -> dict[str, Any]:
     """Give the output its own copies of the input files (the first source's as inputs/<key>.toml, every
     source's under inputs/sources/<k>/), so it does not break when a source folder is deleted."""
@@ -257,107 +177,6 @@ def _copy_inputs(out: Path, sources: list[Path], manifests: list[dict[str, Any]]
                 ref = manifest[key] if isinstance(manifest.get(key), dict) else {}
                 refs[key] = {**ref, "path": f"inputs/{key}.toml", "source": str(path.resolve())}
     return refs
-
-
-def merge(
-    folders: Sequence[str | os.PathLike],
-    out: str | os.PathLike,
-    *,
-    allow_mixed: bool = False,
-    allow_incomplete: bool = False,
-    tolerance_mm: float = POSITION_TOLERANCE_MM,
-) -> Path:
-    """Merge campaigns into one dataset folder. Press ids are re-keyed (source k's ids shifted by the sum of
-    (max id + 1) of the sources before it); position ids are physical: presses of campaigns on the same layout
-    and calibration within tolerance_mm share an id, so a grouped split never puts one spot on both sides.
-    Refuses different pair sets always, different layouts or wirings unless allow_mixed, a folder named twice,
-    and campaigns that run or are incomplete unless allow_incomplete (recorded in the manifest)."""
-    sources = [Path(f) for f in folders]
-    out = Path(out)
-    if len(sources) < 2:
-        raise DataError("merge needs at least two campaign folders", field="folders", fix="name two or more")
-    _empty_output(out)
-    statuses = _check_sources(sources, allow_incomplete)
-    loaded = []
-    for folder in sources:
-        table = read_press_table(folder)
-        loaded.append((folder, table, decode_metadata(table.schema.metadata), _manifest_or_empty(folder)))
-    first_folder, first_table, first_meta, first_manifest = loaded[0]
-    for folder, table, meta, manifest in loaded[1:]:
-        if table.schema.names != first_table.schema.names:
-            raise DataError(
-                f"its electrode pairs differ from those of {first_folder}",
-                file=str(folder),
-                field="pairs",
-                fix="only campaigns measuring the same pairs can share one table",
-            )
-        for key in ("layout", "wiring"):
-            a = first_manifest.get(key, first_meta.get(key))
-            b = manifest.get(key, meta.get(key))
-            if not allow_mixed and a is not None and b is not None and not same_file_ref(a, b):
-                raise DataError(
-                    f"{key} {b!r} differs from {a!r} of {first_folder}",
-                    file=str(folder),
-                    field=key,
-                    fix="merge only campaigns on one skin and wiring, or pass --allow-mixed",
-                )
-    calibration = [
-        (_ref_key(m.get("layout", meta.get("layout"))), _ref_key(m.get("printer", meta.get("printer"))))
-        for _, _, meta, m in loaded
-    ]
-    position_maps = _physical_position_ids([t for _, t, _, _ in loaded], calibration, tolerance_mm)
-    tables, provenance = [], []
-    press_offset = 0
-    for (folder, table, meta, manifest), mapping, status in zip(loaded, position_maps, statuses):
-        ids = table.column("press_id")
-        pos = table.column("position_id").to_numpy()
-        keys = np.array(sorted(mapping), dtype=np.int64)
-        new_pos = np.array([mapping[k] for k in keys], dtype=np.int32)[np.searchsorted(keys, pos)]
-        shifted = table.set_column(
-            table.schema.get_field_index("press_id"),
-            table.schema.field("press_id"),
-            pc.add(ids, pa.scalar(press_offset, pa.int64())),
-        )
-        shifted = shifted.set_column(
-            shifted.schema.get_field_index("position_id"),
-            shifted.schema.field("position_id"),
-            pa.array(new_pos, pa.int32()),
-        )
-        tables.append(shifted.replace_schema_metadata(None))
-        provenance.append(
-            {
-                "folder": str(folder.resolve()),
-                "status": status,
-                "presses": table.num_rows,
-                "press_id_offset": press_offset,
-                "position_ids": {str(k): v for k, v in sorted(mapping.items())},
-                "metadata": {k: v for k, v in meta.items() if k != "pairs"},
-                "manifest": manifest,
-            }
-        )
-        if table.num_rows:
-            press_offset += int(pc.max(ids).as_py()) + 1
-    merged = pa.concat_tables(tables)
-    out.mkdir(parents=True, exist_ok=True)
-    refs = _copy_inputs(out, sources, [m for _, _, _, m in loaded])
-    metadata = {
-        "pairs": first_meta.get("pairs"),
-        "software_version": first_meta.get("software_version"),
-        "merged_from": provenance,
-        **refs,
-    }
-    manifest = {
-        "kind": "merge",
-        "allow_mixed": allow_mixed,
-        "allow_incomplete": allow_incomplete,
-        "position_tolerance_mm": tolerance_mm,
-        "sources": [p["folder"] for p in provenance],
-        **refs,
-    }
-    seeds = {json.dumps(m.get("seed", meta.get("seed"))) for _, _, meta, m in loaded}
-    if len(seeds) == 1:
-        metadata["seed"] = manifest["seed"] = json.loads(seeds.pop())
-    return _write_campaign(out, merged, metadata, manifest)
 
 
 # ---- split ---------------------------------------------------------------------------------------

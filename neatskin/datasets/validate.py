@@ -1,21 +1,26 @@
 """Dataset validation: every problem in a campaign folder (schema, NaNs, duplicate press ids, positions
 outside the layout, flagged presses, manifest consistency), one Problem each, naming file, column and fix.
+
+The rows are read once, row group by row group (datasets/scan.py): memory holds one row group of full rows
+plus a few key columns per press, so a merged dataset of 280,000 presses validates in bounded memory.
 """
 
 from __future__ import annotations
 
 import os
-from collections import Counter, defaultdict
+from collections import defaultdict
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from neatskin.datasets.manifest import MANIFEST_NAME, read_manifest, resolve_manifest_path
 from neatskin.datasets.paths import CONSOLIDATED_NAME, COPY_NAME, part_press_id, press_parts, waveform_parts
 from neatskin.datasets.reader import press_files
+from neatskin.datasets.scan import DatasetScan, read_schema, scan_files
 from neatskin.datasets.schema import BASE_FIELDS, decode_metadata, press_schema
 from neatskin.errors import ConfigError, DataError, Problem
 from neatskin.layout import ElectrodePair, Layout, load_layout
@@ -49,37 +54,38 @@ def validate_dataset(
     except DataError as exc:
         return problems + list(exc.problems)
 
-    tables: list[tuple[Path, pa.Table]] = []
-    metadata: dict[str, Any] = {}
+    try:
+        first_schema = next(_readable_schemas(files))
+    except StopIteration:
+        first_schema = None
+    metadata = decode_metadata(first_schema.metadata) if first_schema is not None else {}
+    pairs = _expected_pairs(layout, manifest, metadata, first_schema if first_schema is not None else pa.schema([]))
+    expected = press_schema(pairs)
+    nullable = {f.name: f.nullable for f in BASE_FIELDS}
+    scan = scan_files(files, expected, nullable)
+    for file, error in scan.unreadable:
+        problems.append(Problem(f"unreadable parquet file: {error}", str(file), None, _unreadable_fix(file)))
+    if not scan.files:
+        return problems
+    problems += _schema_problems(list(zip(scan.files, scan.schemas)), expected)
+    problems += _content_problems(scan, expected, layout, allow_flagged)
+    has_keys = {"press_id", "position_id"} <= scan.columns
+    if path.is_dir() and has_keys:
+        problems += _waveform_problems(path, scan.keys)
+    if manifest is not None:
+        problems += _manifest_problems(manifest, manifest_file, metadata, scan, pairs, layout)
+    if path.is_dir():
+        problems += _integrity_problems(path, manifest, scan)
+    return problems
+
+
+def _readable_schemas(files: list[Path]) -> Iterator[pa.Schema]:
+    """The schemas of the files that can be opened, in order (the first gives the dataset's metadata)."""
     for file in files:
         try:
-            table = pq.read_table(file, page_checksum_verification=True)
-        except (OSError, pa.ArrowException) as exc:
-            problems.append(
-                Problem(
-                    f"unreadable parquet file: {exc}",
-                    str(file),
-                    None,
-                    _unreadable_fix(file),
-                )
-            )
+            yield read_schema(file)
+        except (OSError, pa.ArrowException):
             continue
-        metadata = metadata or decode_metadata(table.schema.metadata)
-        tables.append((file, table))
-    if not tables:
-        return problems
-    pairs = _expected_pairs(layout, manifest, metadata, tables[0][1].schema)
-    expected = press_schema(pairs)
-    problems += _schema_problems(tables, expected)
-    rows = pd.concat([_frame(file, table) for file, table in tables], ignore_index=True)
-    problems += _content_problems(rows, expected, layout, allow_flagged)
-    if path.is_dir() and "press_id" in rows and "position_id" in rows:
-        problems += _waveform_problems(path, rows)
-    if manifest is not None:
-        problems += _manifest_problems(manifest, manifest_file, metadata, rows, pairs, layout)
-    if path.is_dir():
-        problems += _integrity_problems(path, manifest, tables)
-    return problems
 
 
 def _unreadable_fix(file: Path) -> str:
@@ -105,7 +111,7 @@ def _same_rows(path: Path, copy: Path, recorded_sha256: str) -> bool:
         return False
 
 
-def _integrity_problems(folder: Path, manifest: dict | None, tables: list[tuple[Path, pa.Table]]) -> list[Problem]:
+def _integrity_problems(folder: Path, manifest: dict | None, scan: DatasetScan) -> list[Problem]:
     """Recorded sha256 (presses.parquet, committed parts) and parts whose content is not what their name says."""
     from neatskin.datasets.writer import file_sha256
 
@@ -140,12 +146,13 @@ def _integrity_problems(folder: Path, manifest: dict | None, tables: list[tuple[
                     "move the part out of presses/ and resume: the press is pressed again",
                 )
             )
-    for file, table in tables:
+    ids_by_file = scan.keys.groupby("file", sort=False)["press_id"]
+    for index, (file, schema) in enumerate(zip(scan.files, scan.schemas)):
         expected = part_press_id(file)
-        if file.parent.name != "presses" or expected is None or "press_id" not in table.column_names:
+        if file.parent.name != "presses" or expected is None or "press_id" not in schema.names:
             continue
-        ids = table.column("press_id").to_pylist()
-        if ids != [expected]:
+        ids = [int(i) for i in ids_by_file.get_group(index)] if index in ids_by_file.groups else []
+        if not part_ids_valid(expected, ids):
             problems.append(
                 Problem(
                     f"the part's name says press {expected} but it holds press id(s) {ids[:5]}",
@@ -155,6 +162,14 @@ def _integrity_problems(folder: Path, manifest: dict | None, tables: list[tuple[
                 )
             )
     return problems
+
+
+def part_ids_valid(first_press_id: int, ids: list) -> bool:
+    """A part `part-{N:06d}.parquet` holds one or more rows: its press ids start with N and strictly increase
+    (a part of one row holding press N is the common case)."""
+    if not ids or ids[0] != first_press_id or any(i is None for i in ids):
+        return False
+    return all(a < b for a, b in zip(ids, ids[1:]))
 
 
 # ---- pieces ----------------------------------------------------------------------------------------
@@ -199,11 +214,11 @@ def _where(files: list[Path]) -> str:
     return str(files[0]) if len(files) == 1 else f"{files[0]} (and {len(files) - 1} more files)"
 
 
-def _schema_problems(tables: list[tuple[Path, pa.Table]], expected: pa.Schema) -> list[Problem]:
+def _schema_problems(schemas: list[tuple[Path, pa.Schema]], expected: pa.Schema) -> list[Problem]:
     grouped: dict[tuple[str, str, str], list[Path]] = defaultdict(list)
     want = {f.name: f.type for f in expected}
-    for file, table in tables:
-        names = table.schema.names
+    for file, schema in schemas:
+        names = schema.names
         missing = [n for n in expected.names if n not in names]
         extra = [n for n in names if n not in want]
         if missing:
@@ -223,7 +238,7 @@ def _schema_problems(tables: list[tuple[Path, pa.Table]], expected: pa.Schema) -
                     "drop these columns, or check that the manifest names the campaign's layout",
                 )
             ].append(file)
-        for field in table.schema:
+        for field in schema:
             if field.name in want and not _equivalent_type(field.type, want[field.name]):
                 grouped[
                     (
@@ -250,77 +265,66 @@ def _equivalent_type(have: pa.DataType, want: pa.DataType) -> bool:
     return False
 
 
-def _frame(file: Path, table: pa.Table) -> pd.DataFrame:
-    columns = {}
-    for name in table.column_names:
-        col = table.column(name)
-        columns[name] = col.to_pylist() if pa.types.is_list(col.type) else col.to_numpy(zero_copy_only=False)
-    df = pd.DataFrame(columns)
-    df["__file"] = str(file)
-    return df
-
-
 def _ids(series: pd.Series, limit: int = 8) -> str:
     values = sorted({int(v) for v in series if pd.notna(v)})
     text = ", ".join(str(v) for v in values[:limit])
     return text + (f", ... ({len(values)} in all)" if len(values) > limit else "")
 
 
+def _files(scan: DatasetScan, indices: Any) -> str:
+    return _where([scan.files[int(i)] for i in sorted(set(indices))])
+
+
 def _content_problems(
-    rows: pd.DataFrame, expected: pa.Schema, layout: Layout | None, allow_flagged: bool
+    scan: DatasetScan, expected: pa.Schema, layout: Layout | None, allow_flagged: bool
 ) -> list[Problem]:
     problems: list[Problem] = []
-    base_nullable = {f.name: f.nullable for f in BASE_FIELDS}
-    has_ids = "press_id" in rows
+    rows = scan.keys
+    has_ids = "press_id" in scan.columns
     for field in expected:
-        if field.name not in rows:
+        bad = scan.nulls.get(field.name)
+        if bad is None or not bad.count:
             continue
-        col = rows[field.name]
-        bad = col.isna()
-        if base_nullable.get(field.name, False) or not bad.any():
-            continue
-        files = sorted(set(rows.loc[bad, "__file"]))
-        which = f" (press ids {_ids(rows.loc[bad, 'press_id'])})" if has_ids else ""
+        ids = np.concatenate(bad.press_ids) if bad.press_ids else np.array([])
+        which = f" (press ids {_ids(pd.Series(ids))})" if has_ids else ""
         problems.append(
             Problem(
-                f"{int(bad.sum())} NaN/null value(s) in '{field.name}'{which}",
-                _where([Path(f) for f in files]),
+                f"{bad.count} NaN/null value(s) in '{field.name}'{which}",
+                _files(scan, bad.files),
                 field.name,
                 "re-press those presses (drop them and resume the campaign) or drop the rows",
             )
         )
     if not has_ids:
         return problems
-    plain = [c for c in rows.columns if c not in ("flags", "__file")]
-    distinct = rows.drop_duplicates(subset=plain)  # a press both in a part and in presses.parquet is fine
-    dup = distinct["press_id"].duplicated(keep=False)
+    # a press both in a part and in presses.parquet is fine: duplicates count only with different rows
+    distinct = rows.drop_duplicates(subset=["press_id", "row_hash"])
+    dup = distinct["press_id"].duplicated(keep=False) & distinct["press_id"].notna()
     if dup.any():
-        files = sorted(set(distinct.loc[dup, "__file"]))
         problems.append(
             Problem(
                 f"duplicate press id(s) with different rows: {_ids(distinct.loc[dup, 'press_id'])}",
-                _where([Path(f) for f in files]),
+                _files(scan, distinct.loc[dup, "file"]),
                 "press_id",
                 "keep one row per press id (re-key with `neatskin dataset merge` if two campaigns were concatenated)",
             )
         )
-    if layout is not None and {"x_mm", "y_mm"} <= set(rows.columns):
+    if layout is not None and {"x_mm", "y_mm"} <= scan.columns:
         x0, y0, x1, y1 = layout.bounds_mm
         tol = max(c.width_mm for c in layout.channels) / 2
         x, y = rows["x_mm"].to_numpy(float), rows["y_mm"].to_numpy(float)
         out = (x < x0 - tol) | (x > x1 + tol) | (y < y0 - tol) | (y > y1 + tol)
         if out.any():
-            files = sorted(set(rows.loc[out, "__file"]))
             problems.append(
                 Problem(
                     f"{int(out.sum())} press(es) outside the layout '{layout.name}' bounds x {x0:g}..{x1:g} mm, "
                     f"y {y0:g}..{y1:g} mm (+/- {tol:g} mm) (press ids {_ids(rows.loc[out, 'press_id'])})",
-                    _where([Path(f) for f in files]),
+                    _files(scan, rows.loc[out, "file"]),
                     "x_mm, y_mm",
                     "check the calibration and the layout the manifest names; drop the rows if the presses missed the skin",
                 )
             )
-    if {"position_id", "x_mm", "y_mm"} <= set(rows.columns):
+    if {"position_id", "x_mm", "y_mm"} <= scan.columns:
         grouped = rows.groupby("position_id")[["x_mm", "y_mm"]]
         spread = (grouped.max() - grouped.min()).max(axis=1)
         moved = spread[spread > 1e-9]
@@ -328,32 +332,31 @@ def _content_problems(
             problems.append(
                 Problem(
                     f"position id(s) {_ids(pd.Series(moved.index))} have presses at different x/y",
-                    _where(sorted({Path(f) for f in rows["__file"]})),
+                    _files(scan, range(len(scan.files))),
                     "position_id",
                     "give every distinct (x_mm, y_mm) its own position_id",
                 )
             )
-    if "flags" in rows and not allow_flagged:
-        flagged = rows["flags"].map(lambda f: f is not None and len(f) > 0)
-        if flagged.any():
-            counts = Counter(flag for f in rows.loc[flagged, "flags"] for flag in f)
-            files = sorted(set(rows.loc[flagged, "__file"]))
-            problems.append(
-                Problem(
-                    f"{int(flagged.sum())} flagged press(es) ({', '.join(f'{k}: {v}' for k, v in counts.most_common())}; "
-                    f"press ids {_ids(rows.loc[flagged, 'press_id'])})",
-                    _where([Path(f) for f in files]),
-                    "flags",
-                    "inspect them; drop them with `neatskin dataset export --drop-flagged`, or accept them with "
-                    "--allow-flagged",
-                )
+    flagged = rows["flagged"].to_numpy(bool)
+    if "flags" in scan.columns and not allow_flagged and flagged.any():
+        counts = scan.flag_counts
+        problems.append(
+            Problem(
+                f"{int(flagged.sum())} flagged press(es) ({', '.join(f'{k}: {v}' for k, v in counts.most_common())}; "
+                f"press ids {_ids(rows.loc[flagged, 'press_id'])})",
+                _files(scan, rows.loc[flagged, "file"]),
+                "flags",
+                "inspect them; drop them with `neatskin dataset export --drop-flagged`, or accept them with "
+                "--allow-flagged",
             )
+        )
     return problems
 
 
 def _waveform_problems(folder: Path, rows: pd.DataFrame) -> list[Problem]:
     """Waveform parts must belong to a press of the dataset and sit in that press's position partition."""
-    position_of = dict(zip(rows["press_id"].astype(int), rows["position_id"].astype(int)))
+    known = rows[["press_id", "position_id"]].dropna()
+    position_of = dict(zip(known["press_id"].astype(int), known["position_id"].astype(int)))
     orphans, misplaced = [], []
     for press_id, part in waveform_parts(folder).items():
         if press_id not in position_of:
@@ -386,12 +389,13 @@ def _manifest_problems(
     manifest: dict,
     manifest_file: str,
     metadata: dict,
-    rows: pd.DataFrame,
+    scan: DatasetScan,
     pairs: tuple[ElectrodePair, ...],
     layout: Layout | None,
 ) -> list[Problem]:
     problems: list[Problem] = []
-    n = int(rows["press_id"].nunique()) if "press_id" in rows else len(rows)
+    rows = scan.keys
+    n = int(rows["press_id"].nunique()) if "press_id" in scan.columns else len(rows)
     counts_raw = manifest.get("counts")
     counts: dict = counts_raw if isinstance(counts_raw, dict) else {}
     if counts.get("completed") is not None and counts["completed"] != n:
@@ -445,8 +449,8 @@ def _manifest_problems(
                 "name the layout the presses were recorded on",
             )
         )
-    if manifest.get("campaign") and "campaign" in rows:
-        other = sorted(set(rows["campaign"].dropna()) - {manifest["campaign"]})
+    if manifest.get("campaign") and "campaign" in scan.columns:
+        other = sorted(scan.campaigns - {manifest["campaign"]})
         if other:
             problems.append(
                 Problem(

@@ -1,0 +1,164 @@
+"""One streaming pass over a dataset's press files for validation: schemas, nulls, flags, campaigns, a hash of
+every row and the few key columns per row (press id, position, x, y), read row group by row group so that
+memory holds one row group of full rows (4,096 in a campaign's or a merge's presses.parquet), never the
+whole dataset.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+KEY_COLUMNS = ("press_id", "position_id", "x_mm", "y_mm")
+
+
+@dataclass
+class NullRows:
+    """Where one column holds nulls (or NaN): how many rows, in which files (by index), for which press ids."""
+
+    count: int = 0
+    files: set[int] = field(default_factory=set)
+    press_ids: list[np.ndarray] = field(default_factory=list)
+
+
+@dataclass
+class DatasetScan:
+    """What validation needs from the rows, gathered without holding them.
+
+    `keys` has one row per row read (duplicates across files included): press_id, position_id, x_mm, y_mm
+    (float, NaN where a file lacks the column), file (index into `files`), row_hash (of every column of the
+    expected schema but flags) and flagged."""
+
+    files: list[Path] = field(default_factory=list)  # readable files, in reading order
+    schemas: list[pa.Schema] = field(default_factory=list)
+    unreadable: list[tuple[Path, str]] = field(default_factory=list)
+    keys: pd.DataFrame = field(default_factory=pd.DataFrame)
+    nulls: dict[str, NullRows] = field(default_factory=dict)
+    flag_counts: Counter = field(default_factory=Counter)
+    campaigns: set[str] = field(default_factory=set)
+    columns: set[str] = field(default_factory=set)  # every column some readable file has
+
+
+def read_schema(file: Path) -> pa.Schema:
+    """A press file's arrow schema (with its key-value metadata); raises what pyarrow raises."""
+    return pq.read_schema(file)
+
+
+def scan_files(files: Sequence[Path], expected: pa.Schema, nullable: dict[str, bool]) -> DatasetScan:
+    """Read every file row group by row group (page checksums verified). A file that fails anywhere counts as
+    unreadable as a whole: nothing it held enters the scan, as when it was read in one piece."""
+    scan = DatasetScan()
+    keys: list[pd.DataFrame] = []
+    for file in files:
+        part = DatasetScan()
+        part_keys: list[pd.DataFrame] = []
+        try:
+            handle = pq.ParquetFile(file, page_checksum_verification=True)
+            schema = handle.schema_arrow
+            for group in range(handle.metadata.num_row_groups):  # iter_batches would read ahead: memory grows
+                table = handle.read_row_group(group, use_threads=False)
+                part_keys.append(_scan_batch(part, table, expected, nullable, len(scan.files)))
+            if handle.metadata.num_row_groups == 0:
+                part_keys.append(_scan_batch(part, schema.empty_table(), expected, nullable, len(scan.files)))
+        except (OSError, pa.ArrowException) as exc:
+            scan.unreadable.append((file, str(exc)))
+            continue
+        scan.files.append(file)
+        scan.schemas.append(schema)
+        keys.extend(part_keys)
+        scan.columns.update(schema.names)
+        scan.flag_counts.update(part.flag_counts)
+        scan.campaigns.update(part.campaigns)
+        for name, rows in part.nulls.items():
+            total = scan.nulls.setdefault(name, NullRows())
+            total.count += rows.count
+            total.files.update(rows.files)
+            total.press_ids.extend(rows.press_ids)
+    scan.keys = pd.concat(keys, ignore_index=True) if keys else pd.DataFrame(columns=[*KEY_COLUMNS, "file"])
+    return scan
+
+
+def _scan_batch(
+    scan: DatasetScan, table: pa.Table, expected: pa.Schema, nullable: dict[str, bool], file_index: int
+) -> pd.DataFrame:
+    n = table.num_rows
+    table = _as_expected_types(table, expected)
+    names = set(table.column_names)
+    ids = table.column("press_id").to_numpy(zero_copy_only=False).astype(float) if "press_id" in names else None
+    for want in expected:
+        if want.name not in names or nullable.get(want.name, False):
+            continue
+        column = table.column(want.name)
+        floating = pa.types.is_floating(column.type)
+        bad = pc.is_null(column, nan_is_null=True) if floating else pc.is_null(column)
+        count = pc.sum(bad).as_py() or 0
+        if count:
+            rows = scan.nulls.setdefault(want.name, NullRows())
+            rows.count += count
+            rows.files.add(file_index)
+            if ids is not None:
+                rows.press_ids.append(ids[bad.to_numpy(zero_copy_only=False)])
+    keys = pd.DataFrame(
+        {
+            name: table.column(name).to_numpy(zero_copy_only=False).astype(float)
+            if name in names
+            else np.full(n, np.nan)
+            for name in KEY_COLUMNS
+        }
+    )
+    keys["file"] = np.full(n, file_index, dtype=np.int32)
+    keys["row_hash"] = _row_hashes(table, expected)
+    keys["flagged"] = np.zeros(n, dtype=bool)
+    flags = table.column("flags") if "flags" in names else None
+    if flags is not None and (pa.types.is_list(flags.type) or pa.types.is_large_list(flags.type)):
+        flagged = pc.fill_null(pc.greater(pc.list_value_length(flags), 0), False)
+        keys["flagged"] = flagged.to_numpy(zero_copy_only=False)
+        if keys["flagged"].any():
+            values = pc.list_flatten(flags.filter(flagged))
+            scan.flag_counts.update(v for v in values.to_pylist() if v is not None)
+    if "campaign" in names:
+        scan.campaigns.update(v for v in pc.unique(table.column("campaign")).to_pylist() if v is not None)
+    return keys
+
+
+def _as_expected_types(table: pa.Table, expected: pa.Schema) -> pa.Table:
+    """Columns cast to the expected schema's types where the cast keeps the values (string for large_string,
+    timestamp units, a list of nulls): rows that hold the same values then hash alike."""
+    want = {f.name: f.type for f in expected}
+    for k, name in enumerate(table.column_names):
+        target = want.get(name)
+        if target is None or table.schema.field(k).type == target:
+            continue
+        try:
+            table = table.set_column(k, pa.field(name, target), table.column(k).cast(target))
+        except (pa.ArrowException, ValueError):
+            pass  # a column of another type: reported by the schema check
+    return table
+
+
+def _row_hashes(table: pa.Table, expected: pa.Schema) -> np.ndarray:
+    """A 64-bit hash per row over the expected columns (flags excluded; a missing column hashes as NaN)."""
+    n = table.num_rows
+    columns: dict[str, np.ndarray] = {}
+    for want in expected:
+        if want.name == "flags":
+            continue
+        if want.name in table.column_names:
+            column = table.column(want.name)
+            if pa.types.is_list(column.type) or pa.types.is_large_list(column.type):
+                columns[want.name] = np.array([repr(v) for v in column.to_pylist()], dtype=object)
+            else:
+                columns[want.name] = column.to_numpy(zero_copy_only=False)
+        else:
+            columns[want.name] = np.full(n, np.nan)
+    if not columns:
+        return np.zeros(n, dtype=np.uint64)
+    return pd.util.hash_pandas_object(pd.DataFrame(columns), index=False).to_numpy()
