@@ -22,6 +22,9 @@ process), with the load average. With --against DIR the same report runs on anot
 times, and the table gives the wall-time ratio per round.
 
     python benchmarks/bench_baselines.py RUN --report-only --against /tmp/base --rounds 2
+
+--pieces: CPU time of the report's main-process pieces, the Fig. 9 ellipse figure (7 panels x
+every position) and the inversion of every press, per checkout in a child, side by side.
 """
 
 from __future__ import annotations
@@ -169,7 +172,15 @@ def main(argv=None) -> int:
     parser.add_argument("--split", default="both", help="the report's --split (default both, as the main job)")
     parser.add_argument("--against", type=Path, help="another checkout: its report measured side by side")
     parser.add_argument("--rounds", type=int, default=1, help="alternating report rounds per checkout")
+    parser.add_argument("--pieces", action="store_true", help="only the ellipse figure and the inversion (CPU s)")
+    parser.add_argument("--pieces-here", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.pieces_here:
+        pieces_here(args.dataset)
+        return 0
+    if args.pieces:
+        part_pieces(args.dataset, args.against, args.rounds)
+        return 0
     if args.report_only:
         if not args.dataset:
             parser.error("--report-only needs DATASET")
@@ -183,6 +194,63 @@ def main(argv=None) -> int:
     if args.report and args.dataset:
         part_report(args.dataset, args.split, args.against, args.rounds)
     return 0
+
+
+def pieces_here(dataset: str) -> None:
+    """CPU time of the report's main-process pieces in this process: Fig. 9 ellipses and the inversion."""
+    import tempfile
+
+    from neatskin.baselines.dataset import load_baseline_data
+    from neatskin.baselines.evaluate import ModelResult
+    from neatskin.baselines.inversion import skin_inversion
+    from neatskin.baselines.metrics import position_errors
+    from neatskin.baselines.plots import plot_error_ellipses
+
+    data = load_baseline_data(dataset)
+    rng = np.random.default_rng(0)
+    results = []
+    for i in range(7):  # the grouped split's panels: 7 models, every position once
+        pred = data.y + rng.normal(0.0, 1.5, data.y.shape)
+        pe = position_errors(data.y, pred)
+        results.append(ModelResult(f"m{i}", "grouped", (pe,), 0.1, 1e-5, len(pred), data.y, pred, data.groups))
+    with tempfile.TemporaryDirectory() as tmp:
+        plot_error_ellipses(results[:1], Path(tmp) / "warm.png", data.layout)
+        ellipses = []
+        for _ in range(3):
+            t0 = time.process_time()
+            plot_error_ellipses(results, Path(tmp) / "ellipses.png", data.layout)
+            ellipses.append(time.process_time() - t0)
+    t0 = time.process_time()
+    skin_inversion(data.layout, data.X, fidelity=data.skin_fidelity or "deformation")
+    inversion = time.process_time() - t0
+    print(f"{min(ellipses):.3f} {inversion:.3f}")
+
+
+def part_pieces(dataset: str, against: Path | None, rounds: int) -> None:
+    """The ellipse figure and the inversion, each checkout in a child process, alternating."""
+    checkouts = {"this": REPO} | ({"against": against.resolve()} if against is not None else {})
+    best: dict[str, list[float]] = {}
+    for _ in range(rounds):
+        for name, checkout in checkouts.items():
+            env = dict(os.environ, PYTHONPATH=str(checkout))
+            out = subprocess.run(
+                [sys.executable, __file__, dataset, "--pieces-here"],
+                env=env,
+                capture_output=True,
+                text=True,
+                check=True,
+            )
+            values = [float(v) for v in out.stdout.split()[-2:]]
+            best[name] = [min(a, b) for a, b in zip(best.get(name, values), values)]
+    print(
+        f"\nreport pieces, CPU s (best of {rounds} round(s); ellipses best of 3 draws), load {os.getloadavg()[0]:.2f}"
+    )
+    print(f"{'checkout':<9} {'Fig. 9 ellipses, 7 x 100 positions':>36} {'inversion, every press':>24}")
+    for name, (ell, inv) in best.items():
+        print(f"{name:<9} {ell:>36.2f} {inv:>24.2f}")
+    if against is not None:
+        (e1, i1), (e0, i0) = best["this"], best["against"]
+        print(f"{'ratio':<9} {e1 / e0:>35.2f}x {i1 / i0:>23.2f}x")
 
 
 @dataclass(frozen=True)
