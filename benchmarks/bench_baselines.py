@@ -19,7 +19,7 @@ DATASET --split both`: 10 repeats, every split and model, the inversion), each r
 wall time, CPU time (the command and the worker processes it waited for) and peak RSS (its largest
 process), with the load average. With --against DIR the same report runs on another checkout
 (e.g. the base commit: `git worktree add /tmp/base HEAD~3`) alternating with this one, --rounds
-times, and the table gives the wall-time ratio per round.
+times (the first to run alternates too), and the table gives the wall-time ratio per round.
 
     python benchmarks/bench_baselines.py RUN --report-only --against /tmp/base --rounds 2
 
@@ -287,7 +287,10 @@ def part_report(dataset: str, split: str, against: Path | None, rounds: int) -> 
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(rounds):
-            for name, checkout in checkouts.items():
+            # who goes first alternates: on a shared machine the load drifts, and the second run of a round would
+            # otherwise always meet a different load than the first
+            order = list(checkouts.items()) if r % 2 == 0 else list(reversed(checkouts.items()))
+            for name, checkout in order:
                 runs[name].append(run_report(checkout, dataset, split, Path(tmp) / f"{name}-{r}"))
     load_after = os.getloadavg()
     print(
