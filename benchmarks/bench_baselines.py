@@ -23,6 +23,9 @@ times (the first to run alternates too), and the table gives the wall-time ratio
 
     python benchmarks/bench_baselines.py RUN --report-only --against /tmp/base --rounds 2
 
+--timeline: the report's tasks in 2 processes, costliest first against the given order, alternating:
+wall time, busy time and how long one worker sat idle at the end while the other finished.
+
 --pieces: CPU time of the report's main-process pieces, the Fig. 9 ellipse figure (7 panels x
 every position) and the inversion of every press, per checkout in a child, side by side.
 """
@@ -174,7 +177,11 @@ def main(argv=None) -> int:
     parser.add_argument("--rounds", type=int, default=1, help="alternating report rounds per checkout")
     parser.add_argument("--pieces", action="store_true", help="only the ellipse figure and the inversion (CPU s)")
     parser.add_argument("--pieces-here", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--timeline", action="store_true", help="only the task order: idle worker time at the end")
     args = parser.parse_args(argv)
+    if args.timeline:
+        part_timeline(args.dataset, args.rounds)
+        return 0
     if args.pieces_here:
         pieces_here(args.dataset)
         return 0
@@ -251,6 +258,47 @@ def part_pieces(dataset: str, against: Path | None, rounds: int) -> None:
     if against is not None:
         (e1, i1), (e0, i0) = best["this"], best["against"]
         print(f"{'ratio':<9} {e1 / e0:>35.2f}x {i1 / i0:>23.2f}x")
+
+
+def _timed(func, args):
+    """A task's output with its start, end (epoch s) and worker pid."""
+    started = time.time()
+    out = func(*args)
+    return out, started, time.time(), os.getpid()
+
+
+def part_timeline(dataset: str, rounds: int) -> None:
+    """The report's tasks (every fit and the inversion) in 2 processes, costliest first and in the given
+    order, alternating: per order the wall time and how long a worker sat idle while the other finished."""
+    from neatskin.baselines.dataset import load_baseline_data
+    from neatskin.baselines.evaluate import fit_tasks, repeat_splits
+    from neatskin.baselines.inversion import skin_inversion
+    from neatskin.baselines.models import INVERSION_COST_S_PER_PRESS, MODEL_NAMES, fit_cost_s
+    from neatskin.baselines.tasks import Task, run_tasks
+
+    data = load_baseline_data(dataset)
+    reps = {s: repeat_splits(s, data.groups, 10)[0] for s in ("grouped", "random", "design")}
+    rows = int(np.mean([len(r.train) for rr in reps.values() for r in rr]))
+    models = make_models(MODEL_NAMES, n_rows=rows, lm_restarts=1)
+    tasks = fit_tasks(models, data.X, data.y, data.groups, reps, {n: fit_cost_s(n, rows) for n in MODEL_NAMES})
+    inversion = (data.layout, data.X, data.skin_fidelity or "deformation", 2.75)
+    tasks.append(Task(("inversion",), INVERSION_COST_S_PER_PRESS * len(data.y), skin_inversion, inversion))
+    print(f"\nthe report's {len(tasks)} tasks in 2 processes, {rounds} alternating round(s)")
+    print(f"{'order':<16} {'wall s':>7} {'busy s':>7} {'one worker idle at the end, s':>30}  load")
+    for r in range(rounds):
+        for order in ("costliest first", "given order") if r % 2 == 0 else ("given order", "costliest first"):
+            cost = (lambda t: t.cost_s) if order == "costliest first" else (lambda t: 0.0)
+            timed = [Task(t.key, cost(t), _timed, (t.func, t.args)) for t in tasks]
+            t0 = time.time()
+            out = run_tasks(timed, n_jobs=2)
+            wall = time.time() - t0
+            ends: dict[int, float] = {}
+            busy = 0.0
+            for _, started, ended, pid in out.values():
+                ends[pid] = max(ends.get(pid, 0.0), ended)
+                busy += ended - started
+            idle = max(ends.values()) - min(ends.values())
+            print(f"{order:<16} {wall:>7.1f} {busy:>7.1f} {idle:>30.2f}  {os.getloadavg()[0]:.1f}")
 
 
 @dataclass(frozen=True)
