@@ -146,3 +146,19 @@ def test_restart_problem_reproduces_the_restart_it_names():
         assert len(p["x_val"]) == 18 and len(p["x_train"]) == 72
         run = train_lm(p["w0"], p["x_train"], p["y_train"], p["x_val"], p["y_val"], 5)
         assert run.val_mse == pytest.approx(model.val_mse_[k], rel=1e-12)
+
+
+def test_restarts_in_processes_give_the_same_network():
+    from joblib import parallel_config
+
+    rng = np.random.default_rng(9)
+    X = rng.random((160, 6))
+    y = np.column_stack([np.tanh(2 * X[:, 0] - X[:, 1]), X[:, 2] * X[:, 3]])
+    here = LMNetworkRegressor(n_restarts=4, max_epochs=40, random_state=3, n_jobs=1).fit(X, y)
+    pool = LMNetworkRegressor(n_restarts=4, max_epochs=40, random_state=3, n_jobs=2).fit(X, y)
+    with parallel_config(n_jobs=2):  # n_jobs=None follows the enclosing joblib configuration
+        context = LMNetworkRegressor(n_restarts=4, max_epochs=40, random_state=3).fit(X, y)
+    for other in (pool, context):
+        np.testing.assert_array_equal(other.weights_, here.weights_)
+        np.testing.assert_array_equal(other.val_mse_, here.val_mse_)
+        assert other.n_epochs_.tolist() == here.n_epochs_.tolist()

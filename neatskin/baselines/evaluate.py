@@ -10,8 +10,9 @@
   position has 6 predictions and its error ellipse is never degenerate.
 - `repeat_splits`: n (seed, split) repeats of a split, each one fit. Grouped repeat r is fold
   r mod k of the k-fold partition seeded random_state + r // k.
-- `evaluate_models`: every (model, split, repeat) fit as one task, run in processes through
-  joblib (its backend can be Dask); per repeat the held-out errors, pooled and summarised.
+- `evaluate_models`: every (model, split, repeat) fit as one task (`fit_tasks`), run in processes
+  through joblib, costliest first (`neatskin.baselines.tasks`; its backend can be Dask); per
+  repeat the held-out errors, pooled and summarised (`collect_results`).
 
 Anything that makes a figure weak (few test rows, folds cut) is returned as a warning text.
 """
@@ -28,6 +29,7 @@ from sklearn.base import BaseEstimator, clone
 from sklearn.model_selection import GroupKFold
 
 from neatskin.baselines.metrics import Interval, PositionErrors, position_errors, summarise_repeats
+from neatskin.baselines.tasks import Task, run_tasks
 from neatskin.errors import DataError
 
 logger = logging.getLogger(__name__)
@@ -322,6 +324,50 @@ def result_from_predictions(
     return _collect(name, split, repeats, outputs, y, groups)
 
 
+def fit_tasks(
+    estimators: Mapping[str, BaseEstimator],
+    X: np.ndarray,
+    y: np.ndarray,
+    groups: np.ndarray,
+    split_repeats: Mapping[str, Sequence[Repeat]],
+    costs_s: Mapping[str, float] | None = None,
+) -> list[Task]:
+    """One task per (split, model, repeat), keyed so; costs_s: estimated seconds per fit of each model (ordering).
+
+    The grouped split's fits get the training rows' position ids (an estimator that validates on
+    held-out positions uses them); fits on a split by row do not: there the LM validates on random
+    rows, as the paper did.
+    """
+    check_arrays(X, y)
+    costs_s = costs_s or {}
+    return [
+        Task(
+            (s, n, rep.index),
+            float(costs_s.get(n, 1.0)),
+            fit_predict,
+            (estimators[n], X, y, groups if s == "grouped" else None, rep.train, rep.test),
+        )
+        for s, reps in split_repeats.items()
+        for n in estimators
+        for rep in reps
+    ]
+
+
+def collect_results(
+    names: Sequence[str],
+    split_repeats: Mapping[str, Sequence[Repeat]],
+    outputs: Mapping,
+    y: np.ndarray,
+    groups: np.ndarray,
+) -> list[ModelResult]:
+    """The fit tasks' outputs (keyed as `fit_tasks` keys them) as results in (split, model) order."""
+    return [
+        _collect(n, s, reps, [outputs[(s, n, rep.index)] for rep in reps], y, groups)
+        for s, reps in split_repeats.items()
+        for n in names
+    ]
+
+
 def evaluate_models(
     estimators: Mapping[str, BaseEstimator],
     X: np.ndarray,
@@ -331,42 +377,18 @@ def evaluate_models(
     n_jobs: int = 1,
     backend: str | None = None,
     progress=None,
+    costs_s: Mapping[str, float] | None = None,
 ) -> list[ModelResult]:
-    """Every (split, model, repeat) fit as one joblib task; results in (split, model) order.
+    """Every (split, model, repeat) fit as one task (see `fit_tasks`); results in (split, model) order.
 
     n_jobs: processes (1 = in this process, -1 = every core). backend: a joblib backend name
     ("loky" by default; "dask" with a dask.distributed client registered).
-    progress: optional callable(done_tasks, total_tasks).
-    The grouped split's fits get the training rows' position ids (an estimator that validates on
-    held-out positions uses them); fits on a split by row do not.
+    progress: optional callable(done_tasks, total_tasks). costs_s: estimated seconds per fit by
+    model name: in processes the costliest fits start first (the results do not depend on it).
     """
-    from joblib import Parallel, delayed, parallel_backend
-
-    check_arrays(X, y)
-    tasks = [(s, n, rep) for s, reps in split_repeats.items() for n in estimators for rep in reps]
-    # held-out positions for validation only on the grouped split: on a split by row (random, design) the
-    # LM validates on random rows, as the paper did
-    calls = (
-        delayed(fit_predict)(estimators[n], X, y, groups if s == "grouped" else None, rep.train, rep.test)
-        for s, n, rep in tasks
-    )
-    outputs: list[tuple[np.ndarray, float, float]] = []
-    if n_jobs == 1 and backend is None:
-        for call in calls:
-            func, args, kwargs = call
-            outputs.append(func(*args, **kwargs))
-            if progress is not None:
-                progress(len(outputs), len(tasks))
-    else:
-        with parallel_backend(backend or "loky", n_jobs=n_jobs):
-            for out in Parallel(return_as="generator")(calls):
-                outputs.append(out)
-                if progress is not None:
-                    progress(len(outputs), len(tasks))
-    by_key: dict[tuple[str, str], list[tuple[np.ndarray, float, float]]] = {}
-    for (s, n, _), out in zip(tasks, outputs):
-        by_key.setdefault((s, n), []).append(out)
-    return [_collect(n, s, split_repeats[s], by_key[(s, n)], y, groups) for s in split_repeats for n in estimators]
+    tasks = fit_tasks(estimators, X, y, groups, split_repeats, costs_s)
+    outputs = run_tasks(tasks, n_jobs=n_jobs, backend=backend, progress=progress)
+    return collect_results(list(estimators), split_repeats, outputs, y, groups)
 
 
 def evaluate_model(

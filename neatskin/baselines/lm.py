@@ -15,7 +15,8 @@ to [0, 1], trained by our own vectorised Levenberg-Marquardt loop:
   (position ids) in `fit`, a restart's validation rows are whole positions it does not train
   on, so on a split over positions the stop and the choice see new positions, as the test does.
 - restarts run in `n_jobs` processes through joblib (its backend, e.g. Dask, is the caller's
-  choice); each restart is a pure function of its seed, so the result does not depend on n_jobs.
+  choice; n_jobs=None follows an enclosing `joblib.parallel_config`, else 1), one restart per
+  dispatch; each restart is a pure function of its seed, so the result does not depend on n_jobs.
 
 `fit_with_scipy_lm` solves the same least-squares problem (same scaling, same initial
 weights, same training rows) with `scipy.optimize.least_squares(method="lm")`; tests and the
@@ -370,12 +371,16 @@ class LMNetworkRegressor(RegressorMixin, BaseEstimator):
         return self
 
     def _run_restarts(self, xs: np.ndarray, ys: np.ndarray, n_val: int, seeds: np.ndarray) -> list[LMRun]:
-        n_jobs = 1 if self.n_jobs is None else int(self.n_jobs)
-        if n_jobs == 1 or len(seeds) == 1:
+        if self.n_jobs == 1 or len(seeds) == 1:
             return [self._fit_one(xs, ys, n_val, int(seed)) for seed in seeds]
         from joblib import Parallel, delayed
 
-        return Parallel(n_jobs=n_jobs)(delayed(self._fit_one)(xs, ys, n_val, int(seed)) for seed in seeds)
+        # n_jobs None: joblib's default, 1 unless an enclosing `joblib.parallel_config(n_jobs=...)` says more
+        # (scikit-learn's convention). One restart per dispatch: restarts differ up to 5x in epochs, and
+        # batching two of them would leave a core idle at the end.
+        return Parallel(n_jobs=self.n_jobs, batch_size=1)(
+            delayed(self._fit_one)(xs, ys, n_val, int(seed)) for seed in seeds
+        )
 
     def _restart_setup(self, n_rows: int, n_inputs: int, n_outputs: int, n_val: int, seed: int):
         """(train rows, val rows, initial weights) of one restart, all drawn from its seed.

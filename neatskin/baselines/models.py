@@ -26,6 +26,13 @@ MODEL_NAMES = ("ridge", "knn", "kernel_ridge", "extra_trees", "mlp", "lm_network
 PHYSICS_MODELS = ("inversion",)  # no training: see neatskin.baselines.inversion
 SMALL_ROWS = 500  # below this many training rows the costly models get small defaults
 
+# Seconds per fit on the paper dry run's ~2,700 training rows (one core, load ~1-3: rough), and how a fit's
+# cost grows with the rows (exponent). Used for nothing but running the costliest tasks first.
+_FIT_COST_S = {"ridge": 0.005, "knn": 0.003, "kernel_ridge": 0.7, "extra_trees": 1.2, "mlp": 1.2, "lm_network": 0.5}
+_COST_EXPONENT = {"kernel_ridge": 2.0}
+_COST_ROWS = 2700
+INVERSION_COST_S_PER_PRESS = 2.5e-3  # the physics inversion, per press (all presses in one task)
+
 DESCRIPTIONS = {
     "ridge": "linear: standardised features, ridge with alpha by leave-one-out CV",
     "knn": "5 nearest neighbours (distance-weighted) on standardised features",
@@ -76,6 +83,12 @@ def make_model(
         restarts = lm_restarts if lm_restarts is not None else (3 if small else 10)
         return LMNetworkRegressor(n_hidden=5, n_restarts=restarts, val_fraction=3 / 98, random_state=random_state)
     raise DataError(f"unknown model {name!r}", field="models", fix=f"choose from {', '.join(MODEL_NAMES)}")
+
+
+def fit_cost_s(name: str, n_rows: int) -> float:
+    """Rough seconds for one fit of model `name` on n_rows training rows (only to order tasks)."""
+    scale = max(n_rows, 1) / _COST_ROWS
+    return _FIT_COST_S.get(name, 1.0) * scale ** _COST_EXPONENT.get(name, 1.0)
 
 
 def make_models(

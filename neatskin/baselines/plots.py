@@ -110,7 +110,11 @@ def _draw_layout(ax, layout) -> None:
 def plot_error_ellipses(
     results: list[ModelResult], path: Path, layout=None, max_positions: int | None = None, seed: int = 0
 ) -> Path:
-    """One panel per model: probe circles at true positions, mean predictions, 1-std ellipses, error lines."""
+    """One panel per model: probe circles at true positions, mean predictions, 1-std ellipses, error lines.
+
+    Each panel's shapes are drawn as one collection per kind (circles, ellipses, lines), not one
+    artist per position: the same picture, drawn in a fraction of the time."""
+    from matplotlib.collections import LineCollection, PatchCollection
     from matplotlib.patches import Circle, Ellipse
 
     plt = _pyplot()
@@ -124,22 +128,18 @@ def plot_error_ellipses(
         if max_positions is not None and len(keep) > max_positions:
             keep = np.sort(np.random.default_rng(seed).choice(keep, max_positions, replace=False))
         _draw_layout(ax, layout)
-        for g in keep:
-            t, m = ell.true_mm[g], ell.mean_pred_mm[g]
-            hit = ell.centre_error_mm[g] <= PROBE_RADIUS_MM
-            ax.add_patch(Circle(t, PROBE_RADIUS_MM, fill=False, color="tab:blue", lw=0.6))
-            ax.add_patch(
-                Ellipse(
-                    m,
-                    2 * ell.std_axes_mm[g, 0],
-                    2 * ell.std_axes_mm[g, 1],
-                    angle=np.degrees(ell.angle_rad[g]),
-                    color="tab:green",
-                    alpha=0.45,
-                )
-            )
-            ax.plot([t[0], m[0]], [t[1], m[1]], color="black" if hit else "tab:red", lw=0.8)
-            ax.plot(m[0], m[1], ".", color="tab:green", ms=3)
+        true_mm, mean_mm = ell.true_mm[keep], ell.mean_pred_mm[keep]
+        hit = ell.centre_error_mm[keep] <= PROBE_RADIUS_MM
+        circles = [Circle(t, PROBE_RADIUS_MM) for t in true_mm]
+        ax.add_collection(PatchCollection(circles, facecolor="none", edgecolor="tab:blue", linewidth=0.6))
+        ellipses = [
+            Ellipse(m, 2 * a[0], 2 * a[1], angle=np.degrees(angle))
+            for m, a, angle in zip(mean_mm, ell.std_axes_mm[keep], ell.angle_rad[keep])
+        ]
+        ax.add_collection(PatchCollection(ellipses, color="tab:green", alpha=0.45))
+        segments = np.stack([true_mm, mean_mm], axis=1)
+        ax.add_collection(LineCollection(segments, colors=np.where(hit, "black", "tab:red").tolist(), linewidths=0.8))
+        ax.plot(mean_mm[:, 0], mean_mm[:, 1], ".", color="tab:green", ms=3)
         ax.set_aspect("equal")
         # one view for every panel: the pressed area and a probe diameter around it, so panels compare;
         # a mean prediction that lands outside is drawn to the edge and counted in the title

@@ -27,13 +27,23 @@ from neatskin.baselines.evaluate import (
     SPLITS,
     BaselineWarning,
     ModelResult,
-    evaluate_models,
+    collect_results,
+    fit_tasks,
     repeat_splits,
     result_from_predictions,
 )
 from neatskin.baselines.metrics import PROBE_RADIUS_MM
-from neatskin.baselines.models import DESCRIPTIONS, MODEL_NAMES, PHYSICS_MODELS, SMALL_ROWS, make_models
+from neatskin.baselines.models import (
+    DESCRIPTIONS,
+    INVERSION_COST_S_PER_PRESS,
+    MODEL_NAMES,
+    PHYSICS_MODELS,
+    SMALL_ROWS,
+    fit_cost_s,
+    make_models,
+)
 from neatskin.baselines.reporttext import markdown_report
+from neatskin.baselines.tasks import Task, run_tasks
 from neatskin.errors import DataError
 
 logger = logging.getLogger(__name__)
@@ -203,6 +213,7 @@ def run_baselines(
     """
     from tqdm.auto import tqdm
 
+    from neatskin.baselines.inversion import skin_inversion
     from neatskin.baselines.plots import plot_bound_map, plot_error_ellipses, plot_error_vs_time
 
     started = time.perf_counter()
@@ -230,26 +241,37 @@ def run_baselines(
     estimators = make_models(
         learned, random_state=random_state, n_features=data.X.shape[1], n_rows=train_rows, lm_restarts=lm_restarts
     )
-    bar = tqdm(total=len(splits) * len(learned) * n_repeats, desc="baselines", unit="fit", disable=not progress)
+    tasks = fit_tasks(
+        estimators, data.X, data.y, data.groups, split_repeats, {n: fit_cost_s(n, train_rows) for n in learned}
+    )
+    if physics:  # one task beside the fits: it needs no training, and runs while they do
+        tasks.append(
+            Task(
+                ("inversion",),
+                INVERSION_COST_S_PER_PRESS * n_rows,
+                skin_inversion,
+                (data.layout, data.X, data.skin_fidelity or "deformation", data.probe_radius_mm or PROBE_RADIUS_MM),
+            )
+        )
+    bar = tqdm(total=len(tasks), desc="baselines", unit="task", disable=not progress)
 
     def advance(done: int, total: int) -> None:
         bar.update(done - bar.n)
 
-    learned_results = evaluate_models(
-        estimators, data.X, data.y, data.groups, split_repeats, n_jobs=n_jobs, backend=backend, progress=advance
-    )
+    out_dir.mkdir(parents=True, exist_ok=True)
+    files: dict[str, Path] = {}
+
+    def bound_map() -> None:  # needs no fit: drawn here while the workers fit
+        if data.physical_limit is not None and len(data.physical_limit):
+            files["bound map"] = plot_bound_map(data.physical_limit, out_dir / "baselines_bound_map.png", data.layout)
+
+    outputs = run_tasks(tasks, n_jobs=n_jobs, backend=backend, progress=advance, meanwhile=bound_map)
     bar.close()
+    learned_results = collect_results(learned, split_repeats, outputs, data.y, data.groups)
     results = []
     physics_results = []
     if physics:
-        from neatskin.baselines.inversion import skin_inversion
-
-        inv = skin_inversion(
-            data.layout,
-            data.X,
-            fidelity=data.skin_fidelity or "deformation",
-            probe_radius_mm=data.probe_radius_mm or PROBE_RADIUS_MM,
-        )
+        inv = outputs[("inversion",)]
         per_row_s = inv.time_s / max(n_rows, 1)
         for s in splits:
             physics_results.append(
@@ -263,17 +285,19 @@ def run_baselines(
     notes += result_warnings(table, data, bound)
     _warn(notes)
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    files = {
-        "table (CSV)": out_dir / f"{TABLE_NAME}.csv",
-        "table (parquet)": out_dir / f"{TABLE_NAME}.parquet",
-        "error vs time": out_dir / "baselines_error_vs_time.png",
-    }
+    bound_map_file = files.pop("bound map", None)
+    files.update(
+        {
+            "table (CSV)": out_dir / f"{TABLE_NAME}.csv",
+            "table (parquet)": out_dir / f"{TABLE_NAME}.parquet",
+            "error vs time": out_dir / "baselines_error_vs_time.png",
+        }
+    )
     table.to_csv(files["table (CSV)"], index=False)
     table.to_parquet(files["table (parquet)"], index=False)
     plot_error_vs_time(results, files["error vs time"], bound, table)
-    if data.physical_limit is not None and len(data.physical_limit):
-        files["bound map"] = plot_bound_map(data.physical_limit, out_dir / "baselines_bound_map.png", data.layout)
+    if bound_map_file is not None:
+        files["bound map"] = bound_map_file
     for s in splits:
         if s == "random":  # one prediction per test position: Fig. 9 is drawn from the 11 x 6 design instead
             continue

@@ -1,0 +1,119 @@
+"""The report's task runner: outputs by key whatever the order, costliest first in parallel, work done meanwhile;
+a report in processes gives the same numbers as one in this process."""
+
+import json
+import threading
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from neatskin.baselines.inversion import _diverse_starts
+from neatskin.baselines.models import fit_cost_s
+from neatskin.baselines.report import run_baselines
+from neatskin.baselines.tasks import Task, costliest_first, run_tasks
+from neatskin.layout import load_layout
+from neatskin.skin.synthetic import synthetic_presses
+
+REPO = Path(__file__).resolve().parent.parent
+PAPER_SKIN = REPO / "protocols" / "skins" / "paper.toml"
+
+
+def _square(x: int) -> int:
+    return x * x
+
+
+def test_costliest_first_keeps_the_given_order_among_equal_costs():
+    tasks = [Task(k, c, _square, (k,)) for k, c in [(1, 0.5), (2, 3.0), (3, 0.5), (4, 3.0), (5, 1.0)]]
+    assert [t.key for t in costliest_first(tasks)] == [2, 4, 5, 1, 3]
+
+
+def test_serial_tasks_run_in_the_given_order_after_the_meanwhile_work():
+    calls = []
+
+    def record(x):
+        calls.append(x)
+        return -x
+
+    tasks = [Task(("t", k), cost, record, (k,)) for k, cost in [(0, 1.0), (1, 9.0), (2, 5.0)]]
+    progress = []
+    out = run_tasks(tasks, meanwhile=lambda: calls.append("meanwhile"), progress=lambda d, t: progress.append((d, t)))
+    assert calls == ["meanwhile", 0, 1, 2]
+    assert out == {("t", 0): 0, ("t", 1): -1, ("t", 2): -2}
+    assert progress == [(1, 3), (2, 3), (3, 3)]
+
+
+def test_in_a_pool_the_costliest_task_starts_first():
+    started = []
+    lock = threading.Lock()
+
+    def record(x):
+        with lock:
+            started.append(x)
+        return x
+
+    tasks = [Task(k, cost, record, (k,)) for k, cost in [("cheap", 0.1), ("dear", 10.0), ("middle", 1.0)]]
+    meanwhile = []
+    out = run_tasks(tasks, n_jobs=1, backend="threading", meanwhile=lambda: meanwhile.append(1))
+    assert started == ["dear", "middle", "cheap"]
+    assert out == {"cheap": "cheap", "dear": "dear", "middle": "middle"}
+    assert meanwhile == [1]
+
+
+def test_processes_give_every_output_by_key():
+    tasks = [Task(("sq", k), float(k % 3), _square, (k,)) for k in range(12)]
+    assert run_tasks(tasks, n_jobs=2) == {("sq", k): k * k for k in range(12)}
+
+
+def test_duplicate_keys_are_refused():
+    with pytest.raises(ValueError, match="unique"):
+        run_tasks([Task(1, 0.0, _square, (1,)), Task(1, 0.0, _square, (2,))])
+
+
+def test_fit_costs_order_the_models_as_measured():
+    order = sorted(
+        ["ridge", "knn", "kernel_ridge", "extra_trees", "mlp", "lm_network"], key=lambda n: -fit_cost_s(n, 2700)
+    )
+    assert order[:2] == ["extra_trees", "mlp"] and order[-2:] == ["ridge", "knn"]
+    assert fit_cost_s("kernel_ridge", 5400) == pytest.approx(4 * fit_cost_s("kernel_ridge", 2700))
+    assert fit_cost_s("mlp", 5400) == pytest.approx(2 * fit_cost_s("mlp", 2700))
+
+
+def test_diverse_starts_are_those_of_the_norm_based_rule():
+    rng = np.random.default_rng(3)
+    grid_xy = np.round(rng.uniform(-0.5, 30.5, (400, 2)), 1)  # ties at exactly the separation happen on a grid
+    grid_dr = rng.normal(size=(400, 6))
+    dr = rng.normal(size=(70, 6))
+    got = _diverse_starts(grid_xy, grid_dr, dr, 3, 3.0, chunk=32)
+    g2 = np.einsum("gp,gp->g", grid_dr, grid_dr)
+    expected = np.empty_like(got)
+    for i, row in enumerate(dr):
+        dist = g2 - 2.0 * grid_dr @ row
+        for j in range(3):
+            best = int(np.argmin(dist))
+            expected[i, j] = best
+            dist[np.linalg.norm(grid_xy - grid_xy[best], axis=1) < 3.0] = np.inf
+    np.testing.assert_array_equal(got, expected)
+    assert all(len(set(r)) == 3 for r in got.tolist())
+
+
+def test_a_report_in_processes_equals_one_in_this_process(tmp_path):
+    df = synthetic_presses(load_layout(PAPER_SKIN), 10, 8, seed=2, noise_ohm=1.0)
+    df.insert(0, "campaign", "synthetic")
+    folder = tmp_path / "ds"
+    folder.mkdir()
+    df.to_parquet(folder / "presses.parquet", index=False)
+    (folder / "manifest.json").write_text(json.dumps({"layout": {"path": str(PAPER_SKIN)}, "status": "complete"}))
+    kwargs = dict(split="both", models=["ridge", "knn", "lm_network", "inversion"], n_repeats=2, progress=False)
+    with pytest.warns(UserWarning):
+        here = run_baselines(folder, out=tmp_path / "here", n_jobs=1, **kwargs)
+    with pytest.warns(UserWarning):
+        pool = run_baselines(folder, out=tmp_path / "pool", n_jobs=2, **kwargs)
+    timing = ["fit_time_s", "predict_time_per_sample_us"]
+    assert here.table["split"].unique().tolist() == ["grouped", "random", "design"]
+    assert len(here.table) == 12  # 3 learners and the inversion on each split
+    pd.testing.assert_frame_equal(here.table.drop(columns=timing), pool.table.drop(columns=timing))
+    inv_here = next(r for r in here.results if r.model == "inversion" and r.split == "grouped")
+    inv_pool = next(r for r in pool.results if r.model == "inversion" and r.split == "grouped")
+    np.testing.assert_array_equal(inv_here.y_pred_mm, inv_pool.y_pred_mm)
