@@ -331,26 +331,50 @@ def fit_tasks(
     groups: np.ndarray,
     split_repeats: Mapping[str, Sequence[Repeat]],
     costs_s: Mapping[str, float] | None = None,
+    row_caps: Mapping[str, int] | None = None,
 ) -> list[Task]:
     """One task per (split, model, repeat), keyed so; costs_s: estimated seconds per fit of each model (ordering).
 
     The grouped split's fits get the training rows' position ids (an estimator that validates on
     held-out positions uses them); fits on a split by row do not: there the LM validates on random
-    rows, as the paper did.
+    rows, as the paper did. row_caps: a model with more training rows than its cap trains on
+    `even_draw` of them (keyed by the repeat's seed); its test rows are all the repeat's.
     """
     check_arrays(X, y)
-    costs_s = costs_s or {}
+    costs_s, row_caps = costs_s or {}, row_caps or {}
+
+    def train_rows(name: str, rep: Repeat) -> np.ndarray:
+        cap = row_caps.get(name)
+        return rep.train if cap is None else even_draw(rep.train, groups, cap, rep.seed)
+
     return [
         Task(
             (s, n, rep.index),
             float(costs_s.get(n, 1.0)),
             fit_predict,
-            (estimators[n], X, y, groups if s == "grouped" else None, rep.train, rep.test),
+            (estimators[n], X, y, groups if s == "grouped" else None, train_rows(n, rep), rep.test),
         )
         for s, reps in split_repeats.items()
         for n in estimators
         for rep in reps
     ]
+
+
+def even_draw(rows: np.ndarray, groups: np.ndarray, cap: int, seed: int) -> np.ndarray:
+    """At most `cap` of `rows` (sorted), drawn as evenly as possible over their positions (groups): every
+    position gives its k-th row (in a random order keyed by seed) before any gives its (k+1)-th.
+    Rows unchanged when there are no more than cap."""
+    rows = np.asarray(rows)
+    if len(rows) <= cap:
+        return rows
+    shuffled = rows[np.random.default_rng(seed).permutation(len(rows))]
+    _, group = np.unique(np.asarray(groups)[shuffled], return_inverse=True)
+    by_group = np.argsort(group, kind="stable")  # each position's rows together, in the shuffled order
+    starts = np.searchsorted(group[by_group], group[by_group])  # first index of each row's position
+    rank = np.empty(len(rows), dtype=np.int64)
+    rank[by_group] = np.arange(len(rows)) - starts  # the row's turn within its position
+    chosen = np.lexsort((np.arange(len(rows)), rank))[:cap]  # turn 0 of every position, then turn 1, ...
+    return np.sort(shuffled[chosen])
 
 
 def collect_results(
@@ -378,6 +402,7 @@ def evaluate_models(
     backend: str | None = None,
     progress=None,
     costs_s: Mapping[str, float] | None = None,
+    row_caps: Mapping[str, int] | None = None,
 ) -> list[ModelResult]:
     """Every (split, model, repeat) fit as one task (see `fit_tasks`); results in (split, model) order.
 
@@ -386,7 +411,7 @@ def evaluate_models(
     progress: optional callable(done_tasks, total_tasks). costs_s: estimated seconds per fit by
     model name: in processes the costliest fits start first (the results do not depend on it).
     """
-    tasks = fit_tasks(estimators, X, y, groups, split_repeats, costs_s)
+    tasks = fit_tasks(estimators, X, y, groups, split_repeats, costs_s, row_caps)
     outputs = run_tasks(tasks, n_jobs=n_jobs, backend=backend, progress=progress)
     return collect_results(list(estimators), split_repeats, outputs, y, groups)
 

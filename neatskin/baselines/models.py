@@ -33,6 +33,15 @@ _COST_EXPONENT = {"kernel_ridge": 2.0}
 _COST_ROWS = 2700
 INVERSION_COST_S_PER_PRESS = 2.5e-3  # the physics inversion, per press (all presses in one task)
 
+# Above these many training rows a model trains on an even draw over the positions (`even_draw`), so a
+# merged dataset of 100 campaigns (280,000 presses) stays within memory and minutes: kernel ridge's kernel
+# matrix is rows^2 x 8 bytes (5,000 rows: 200 MB; 224,000: 400 GB), the trees' nodes, the LM's Jacobian
+# and the neighbours' distances grow with the rows. Chosen (assumed, not fitted) as 2x to 9x the paper's
+# 2,240 training rows, so the paper's campaign and anything up to a few merged campaigns is never capped.
+# Ridge uses every row.
+TRAIN_ROW_CAP = {"kernel_ridge": 5_000, "extra_trees": 20_000, "mlp": 20_000, "lm_network": 20_000, "knn": 20_000}
+INVERSION_MAX_PRESSES = 20_000  # above this the physics inversion (2.5 ms a press) runs only when named
+
 DESCRIPTIONS = {
     "ridge": "linear: standardised features, ridge with alpha by leave-one-out CV",
     "knn": "5 nearest neighbours (distance-weighted) on standardised features",

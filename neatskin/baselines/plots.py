@@ -138,7 +138,9 @@ def plot_error_ellipses(
         ]
         ax.add_collection(PatchCollection(ellipses, color="tab:green", alpha=0.45))
         segments = np.stack([true_mm, mean_mm], axis=1)
-        ax.add_collection(LineCollection(segments, colors=np.where(hit, "black", "tab:red").tolist(), linewidths=0.8))
+        ax.add_collection(
+            LineCollection(list(segments), colors=np.where(hit, "black", "tab:red").tolist(), linewidths=0.8)
+        )
         ax.plot(mean_mm[:, 0], mean_mm[:, 1], ".", color="tab:green", ms=3)
         ax.set_aspect("equal")
         # one view for every panel: the pressed area and a probe diameter around it, so panels compare;

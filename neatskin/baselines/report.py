@@ -36,9 +36,11 @@ from neatskin.baselines.metrics import PROBE_RADIUS_MM
 from neatskin.baselines.models import (
     DESCRIPTIONS,
     INVERSION_COST_S_PER_PRESS,
+    INVERSION_MAX_PRESSES,
     MODEL_NAMES,
     PHYSICS_MODELS,
     SMALL_ROWS,
+    TRAIN_ROW_CAP,
     fit_cost_s,
     make_models,
 )
@@ -184,6 +186,14 @@ def _resolve(split: str | Iterable[str], models: Iterable[str] | None, data: Bas
         if models is not None:
             notes.append("inversion skipped: the dataset names no layout (manifest.json), so there is no forward model")
         physics = ()
+    n_rows = len(data.y)
+    if physics and models is None and n_rows > INVERSION_MAX_PRESSES:
+        cpu_min = INVERSION_COST_S_PER_PRESS * n_rows / 60
+        notes.append(
+            f"inversion skipped: {n_rows:,} presses would take about {cpu_min:.0f} CPU minutes "
+            f"(more than {INVERSION_MAX_PRESSES:,} presses); name it (--models ...,inversion) to run it anyway"
+        )
+        physics = ()
     return splits, learned, physics, notes, implied
 
 
@@ -241,9 +251,16 @@ def run_baselines(
     estimators = make_models(
         learned, random_state=random_state, n_features=data.X.shape[1], n_rows=train_rows, lm_restarts=lm_restarts
     )
-    tasks = fit_tasks(
-        estimators, data.X, data.y, data.groups, split_repeats, {n: fit_cost_s(n, train_rows) for n in learned}
-    )
+    caps = {n: TRAIN_ROW_CAP[n] for n in learned if train_rows > TRAIN_ROW_CAP.get(n, train_rows)}
+    if caps:
+        capped = ", ".join(f"{n} on {cap:,}" for n, cap in caps.items())
+        notes.append(
+            f"{train_rows:,} training rows per fit: {capped}, drawn evenly over the positions (keyed by the "
+            "repeat's seed; models.TRAIN_ROW_CAP bounds their memory and time); the other models and every "
+            "test row use all rows"
+        )
+    costs = {n: fit_cost_s(n, min(train_rows, caps.get(n, train_rows))) for n in learned}
+    tasks = fit_tasks(estimators, data.X, data.y, data.groups, split_repeats, costs, caps)
     if physics:  # one task beside the fits: it needs no training, and runs while they do
         tasks.append(
             Task(
