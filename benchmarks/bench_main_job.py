@@ -4,7 +4,7 @@ The main job is one command, `neatskin campaign run protocols/paper.toml --dry-r
 install excluded). Its phases are measured as the commands a user can also run on their own:
 
     campaign   neatskin campaign run PROTOCOL --dry-run --no-report   (the presses, finalize, bound)
-    report     neatskin baselines CAMPAIGN                             (the baseline report)
+    report     neatskin baselines CAMPAIGN --split both                (the baseline report, as the main job makes it)
     main job   neatskin campaign run PROTOCOL --dry-run                (both, as the README runs it)
 
 Each phase is a child process; its CPU time and peak RSS come from the kernel's accounting of that
@@ -66,7 +66,7 @@ def phases(checkout: Path, protocol: Path, work: Path) -> dict[str, Measurement]
         checkout,
         work,
     )
-    out["report"] = run_child([*neatskin, "baselines", str(campaign)], checkout, work)
+    out["report"] = run_child([*neatskin, "baselines", str(campaign), "--split", "both"], checkout, work)
     out["main job"] = run_child(
         [*neatskin, "campaign", "run", str(protocol), "--dry-run", "--quiet", "--out", str(work / "main")],
         checkout,

@@ -75,7 +75,7 @@ def test_fit_costs_order_the_models_as_measured():
     order = sorted(
         ["ridge", "knn", "kernel_ridge", "extra_trees", "mlp", "lm_network"], key=lambda n: -fit_cost_s(n, 2700)
     )
-    assert order[:2] == ["extra_trees", "mlp"] and order[-2:] == ["ridge", "knn"]
+    assert order[0] == "mlp" and order[-2:] == ["ridge", "knn"]  # 50 trees fit in about half the MLP's time
     assert fit_cost_s("kernel_ridge", 5400) == pytest.approx(4 * fit_cost_s("kernel_ridge", 2700))
     assert fit_cost_s("mlp", 5400) == pytest.approx(2 * fit_cost_s("mlp", 2700))
 
