@@ -105,6 +105,23 @@ def test_finalize_gives_the_same_file_whatever_the_batching(paper_layout, tmp_pa
     assert not list((tmp_path / "b7" / "presses").iterdir())
 
 
+def test_finalize_reads_back_about_one_row_group_at_a_time(paper_layout, tmp_path, monkeypatch):
+    import neatskin.datasets.writer as writer_module
+
+    monkeypatch.setattr(writer_module, "FINALIZE_BATCH", 16)
+    rows = synthetic_rows(paper_layout, 10, 5, seed=4)  # 50 presses in parts of 7 (the last of 1)
+    writer = CampaignWriter(tmp_path, paper_layout.pairs, META, fsync=False, batch_presses=7, batch_s=3600)
+    for row in rows:
+        writer.write_press(row)
+    writer.flush()
+    groups = writer._read_groups(press_parts(tmp_path))
+    sizes = [sum(len(part_ids(tmp_path)[int(p.stem[5:])]) for p in group) for group in groups]
+    assert sizes == [21, 21, 8]  # closed once they may hold 16 rows: never the whole campaign at once
+    writer.finalize()
+    writer.close()
+    assert pd.read_parquet(tmp_path / "presses.parquet").press_id.tolist() == list(range(50))
+
+
 def test_the_batch_encoder_equals_one_row_encoding(paper_layout):
     encoder = RowEncoder(press_schema(paper_layout.pairs, META))
     rows = synthetic_rows(paper_layout, 4, 3, seed=5)

@@ -18,9 +18,11 @@ DuckDB and Spark add position_id as a column).
 
 from __future__ import annotations
 
+import filecmp
 import hashlib
 import logging
 import os
+import shutil
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -65,7 +67,7 @@ __all__ = [
 ]
 
 FINALIZE_BATCH = 4096  # rows per row group of presses.parquet: finalize's memory stays flat as campaigns grow
-READ_BATCH = 128  # parts read back at a time
+READ_BATCH = 128  # at most this many parts read back at a time (one-row parts: a one-row table costs more than its row)
 MAX_BATCH_PRESSES = 256  # presses per part of a batched dry run: a kill loses at most these, recomputed on resume
 DRY_RUN_BATCH_S = 1.0  # a batch waits at most this long, so the live monitor sees presses land every second
 BATCH_FROM_PRESSES = 512  # shorter dry runs take seconds: they keep one part per press, as the real rig writes
@@ -333,18 +335,17 @@ class CampaignWriter:
             table = deduplicate_sorted(table).replace_schema_metadata(self.schema.metadata)
             write_table_durably(consolidated, table, fsync=self.fsync)
         else:  # the parts hold distinct ids, in order by name: stream them, FINALIZE_BATCH rows per row group
-            paths = list(parts.values())
+            reads = self._read_groups(parts)
 
             def stream(handle: IO[bytes]) -> None:
                 with pq.ParquetWriter(handle, self.schema, write_page_checksum=True) as out:
                     pending: list[pa.Table] = []
                     rows = 0
-                    for start in range(0, len(paths), READ_BATCH):
-                        # one compact table per READ_BATCH parts: a one-row table costs far more than its row
-                        chunk = read_tables(paths[start : start + READ_BATCH], plain).combine_chunks()
+                    for k, paths in enumerate(reads):
+                        chunk = read_tables(paths, plain).combine_chunks()
                         pending.append(chunk)
                         rows += chunk.num_rows
-                        last = start + READ_BATCH >= len(paths)
+                        last = k == len(reads) - 1
                         while rows >= FINALIZE_BATCH or (last and rows):
                             table = pa.concat_tables(pending).combine_chunks()
                             group = min(rows, FINALIZE_BATCH)
@@ -359,6 +360,20 @@ class CampaignWriter:
             os.fsync(self._dir_fd)
         return consolidated
 
+    def _read_groups(self, parts: Mapping[int, Path]) -> list[list[Path]]:
+        """The parts (in order) in groups read back together: up to READ_BATCH parts, closed as soon as they
+        may hold FINALIZE_BATCH rows, so finalize holds about one row group whatever the parts' size."""
+        groups: list[list[Path]] = []
+        current: list[Path] = []
+        rows = 0
+        for first, path in parts.items():
+            current.append(path)
+            rows += self._part_last[first] - first + 1  # at most: ids strictly increase from the name's
+            if len(current) >= READ_BATCH or rows >= FINALIZE_BATCH:
+                groups.append(current)
+                current, rows = [], 0
+        return [*groups, current] if current else groups
+
     def _parts_in_order(self, parts: Mapping[int, Path]) -> bool:
         """True when every part's ids are known and each part starts after the one before it ends."""
         previous_last = -1
@@ -371,9 +386,14 @@ class CampaignWriter:
 
     def _keep_copy(self, consolidated: Path) -> None:
         copy = self.folder / COPY_NAME
-        data = consolidated.read_bytes()
-        if not copy.exists() or copy.read_bytes() != data:
-            write_bytes_durably(copy, data, fsync=self.fsync)
+        if copy.exists() and filecmp.cmp(consolidated, copy, shallow=False):
+            return
+
+        def stream(handle: IO[bytes]) -> None:  # block by block: a large campaign's file is never held whole
+            with open(consolidated, "rb") as source:
+                shutil.copyfileobj(source, handle, 1 << 20)
+
+        write_durably(copy, stream, fsync=self.fsync)
 
     def close(self) -> None:
         """Write the batch, then release the folder."""
