@@ -144,6 +144,7 @@ def _read_columns(path: Path) -> tuple[pa.Table, dict]:
     times: a third of the bytes), deduplicated by press id as read_presses does, and the file metadata."""
     from neatskin.datasets.reader import press_files
     from neatskin.datasets.schema import decode_metadata
+    from neatskin.datasets.tables import unreadable_presses
     from neatskin.datasets.writer import deduplicate_sorted
 
     files = press_files(path)
@@ -157,11 +158,7 @@ def _read_columns(path: Path) -> tuple[pa.Table, dict]:
             for group in range(handle.metadata.num_row_groups):
                 tables.append(handle.read_row_group(group, columns=columns, use_threads=False))
     except (OSError, pa.ArrowException) as exc:
-        raise DataError(
-            f"cannot read the presses: {exc}",
-            file=str(path),
-            fix="run `neatskin dataset validate` on the folder to find the damaged file",
-        ) from exc
+        raise unreadable_presses(exc, path) from exc
     if not tables:
         tables.append(schema.empty_table().select(wanted))
     table = pa.concat_tables([t.replace_schema_metadata(None) for t in tables], promote_options="permissive")

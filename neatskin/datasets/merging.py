@@ -22,6 +22,7 @@ from neatskin.datasets.manifest import create_manifest, utc_now_iso
 from neatskin.datasets.paths import CONSOLIDATED_NAME
 from neatskin.datasets.reader import press_files, read_press_table
 from neatskin.datasets.schema import decode_metadata, encode_metadata
+from neatskin.datasets.tables import unreadable_presses
 from neatskin.datasets.validate import same_file_ref
 from neatskin.datasets.writer import FINALIZE_BATCH, deduplicate_sorted, read_parquet
 from neatskin.errors import DataError
@@ -131,11 +132,7 @@ def _plan_source(folder: Path) -> _SourcePlan:
         try:
             tables.append(read_parquet(path, columns=["press_id", "position_id", "x_mm", "y_mm", "flags"]))
         except (OSError, pa.ArrowException) as exc:
-            raise DataError(
-                f"cannot read the presses: {exc}",
-                file=str(path),
-                fix="run `neatskin dataset validate` on the folder to find the damaged file",
-            ) from exc
+            raise unreadable_presses(exc, path) from exc
     keys = deduplicate_sorted(pa.concat_tables(tables, promote_options="permissive"))
     frame = keys.select(["position_id", "x_mm", "y_mm"]).to_pandas()
     schema = pq.read_schema(files[0])

@@ -18,7 +18,7 @@ import pyarrow.parquet as pq
 
 from neatskin.datasets.paths import CONSOLIDATED_NAME, WAVEFORMS_DIR, part_press_id, press_parts
 from neatskin.datasets.schema import decode_metadata, parse_pair_column
-from neatskin.datasets.tables import deduplicate_sorted, read_tables
+from neatskin.datasets.tables import deduplicate_sorted, read_tables, unreadable_presses
 from neatskin.errors import DataError
 from neatskin.layout import ElectrodePair
 
@@ -54,11 +54,7 @@ def read_press_table(path: str | os.PathLike, *, deduplicate: bool = True) -> pa
         schema = pq.read_schema(files[0])
         table = read_tables(files, schema.remove_metadata())
     except (OSError, pa.ArrowException) as exc:
-        raise DataError(
-            f"cannot read the presses: {exc}",
-            file=str(path),
-            fix="run `neatskin dataset validate` on the folder to find the damaged file",
-        ) from exc
+        raise unreadable_presses(exc, path) from exc
     if deduplicate:
         table = deduplicate_sorted(table)
     return table.replace_schema_metadata(schema.metadata)

@@ -18,6 +18,15 @@ from neatskin.datasets.durable import write_durably
 from neatskin.errors import DataError
 
 
+def unreadable_presses(exc: Exception, path: str | os.PathLike) -> DataError:
+    """The one error for a presses file (or a dataset folder) pyarrow cannot read."""
+    return DataError(
+        f"cannot read the presses: {exc}",
+        file=str(path),
+        fix="run `neatskin dataset validate` on the folder to find the damaged file",
+    )
+
+
 def read_parquet(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
     """One parquet file, its page checksums verified (a flipped bit is an error, not a changed value);
     metadata dropped."""
