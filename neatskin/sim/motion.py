@@ -233,24 +233,30 @@ def positions_mm(segments, times_s: np.ndarray) -> np.ndarray:
         seg = segments[k]
         mask = index == k
         p0, p1 = np.asarray(seg.p0_mm, float), np.asarray(seg.p1_mm, float)
-        length = float(np.linalg.norm(p1 - p0))
-        tau = np.clip(times_s[mask] - seg.t0_s, 0.0, None)
-        duration = seg.own_duration_s
-        if length == 0 or duration <= 0:
-            frac = np.ones_like(tau)
-        elif seg.linear:
-            frac = np.minimum(tau / duration, 1.0)
-        else:
-            a = seg.accel_mm_s2
-            v = min(seg.feed_mm_s, float(np.sqrt(a * length)))
-            t_a, d_a = v / a, v * v / (2 * a)
-            t_c = max(0.0, (length - 2 * d_a) / v)
-            td = np.clip(tau - t_a - t_c, 0.0, t_a)
-            dist = np.where(
-                tau < t_a,
-                0.5 * a * tau * tau,
-                np.where(tau < t_a + t_c, d_a + v * (tau - t_a), d_a + v * t_c + v * td - 0.5 * a * td * td),
-            )
-            frac = np.minimum(dist, length) / length
+        frac = segment_fraction(seg, np.clip(times_s[mask] - seg.t0_s, 0.0, None))
         out[mask] = p0 + frac[:, None] * (p1 - p0)
     return out
+
+
+def segment_fraction(seg, tau: np.ndarray) -> np.ndarray:
+    """The share of the move's length covered tau >= 0 seconds after it started (any order of tau): linear,
+    or the trapezoid of accelerating, cruising and braking, each time by its own phase's expression."""
+    length = float(np.linalg.norm(np.asarray(seg.p1_mm, float) - np.asarray(seg.p0_mm, float)))
+    duration = seg.own_duration_s
+    if length == 0 or duration <= 0:
+        return np.ones_like(tau)
+    if seg.linear:
+        return np.minimum(tau / duration, 1.0)
+    a = seg.accel_mm_s2
+    v = min(seg.feed_mm_s, float(np.sqrt(a * length)))
+    t_a, d_a = v / a, v * v / (2 * a)
+    t_c = max(0.0, (length - 2 * d_a) / v)
+    accel = tau < t_a
+    cruise = ~accel & (tau < t_a + t_c)
+    brake = ~accel & ~cruise  # what is neither (NaN included), as np.where's else-branch
+    dist = np.empty_like(tau)
+    dist[accel] = 0.5 * a * tau[accel] * tau[accel]
+    dist[cruise] = d_a + v * (tau[cruise] - t_a)
+    td = np.clip(tau[brake] - t_a - t_c, 0.0, t_a)
+    dist[brake] = d_a + v * t_c + v * td - 0.5 * a * td * td
+    return np.minimum(dist, length) / length

@@ -16,7 +16,7 @@ import numpy as np
 
 from neatskin.acquisition.demod import demodulate
 from neatskin.acquisition.record import PressRecord
-from neatskin.sim.motion import positions_mm, relative_segments
+from neatskin.sim.motion import positions_mm, relative_segments, segment_fraction
 
 PRESS_SLOT_S = 1000.0  # each press owns [press_id * slot, (press_id + 1) * slot) of the dry run's sample clock
 STREAM_DAQ = 1
@@ -208,30 +208,8 @@ def _positions_mm(segments: list, times_s: np.ndarray, axes: slice = slice(None)
         if hi <= lo:
             continue
         p0, p1 = np.asarray(seg.p0_mm, float), np.asarray(seg.p1_mm, float)
-        length = float(np.linalg.norm(p1 - p0))
-        p0, step = p0[axes], (p1 - p0)[axes]
-        tau = np.clip(times_s[lo:hi] - seg.t0_s, 0.0, None)
-        duration = seg.own_duration_s
-        if length == 0 or duration <= 0:
-            frac = np.ones_like(tau)
-        elif seg.linear:
-            frac = np.minimum(tau / duration, 1.0)
-        else:
-            a = seg.accel_mm_s2
-            v = min(seg.feed_mm_s, float(np.sqrt(a * length)))
-            t_a, d_a = v / a, v * v / (2 * a)
-            t_c = max(0.0, (length - 2 * d_a) / v)
-            # tau increases: the accelerating, cruising and braking phases are three runs (positions_mm's
-            # np.where picks the same expression per time)
-            cruise, brake = np.searchsorted(tau, (t_a, t_a + t_c), side="left")
-            dist = np.empty_like(tau)
-            accel_tau, cruise_tau = tau[:cruise], tau[cruise:brake]
-            dist[:cruise] = 0.5 * a * accel_tau * accel_tau
-            dist[cruise:brake] = d_a + v * (cruise_tau - t_a)
-            td = np.clip(tau[brake:] - t_a - t_c, 0.0, t_a)
-            dist[brake:] = d_a + v * t_c + v * td - 0.5 * a * td * td
-            frac = np.minimum(dist, length) / length
-        out[lo:hi] = p0 + frac[:, None] * step
+        frac = segment_fraction(seg, np.clip(times_s[lo:hi] - seg.t0_s, 0.0, None))
+        out[lo:hi] = p0[axes] + frac[:, None] * (p1 - p0)[axes]
     return out
 
 
