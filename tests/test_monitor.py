@@ -104,7 +104,8 @@ def test_state_of_a_finished_campaign(served, finished):
     assert s["drift"]["baseline_pct"][0][0] == 0.0 and len(s["drift"]["baseline_pct"]) == 28
     assert s["layout"]["name"] and len(s["layout"]["channels"]) == 12 and len(s["layout"]["electrodes"]) == 8
     assert s["printer"]["source"] == "commanded" and s["printer"]["Z"] == pytest.approx(60.0)  # parked
-    assert s["wire_tail"][-1].endswith("< b'echo:NS program=done\\nok\\n'")
+    # the dry run's printer has ADVANCED_OK, so its oks name the line: `ok N190 P16 B3`
+    assert re.search(r"< b'echo:NS program=done\\nok N\d+ P\d+ B\d+\\n'$", s["wire_tail"][-1]), s["wire_tail"][-1]
     assert s["server"] == {"controls": True, "remote": False, "bound_to": "127.0.0.1"}
 
 
@@ -249,6 +250,22 @@ def test_wire_tail_prefers_a_newer_m114_report(tmp_path):
         "Y": 112.89,
         "Z": 5.5,
         "at": "2026-01-01T00:00:01.000000Z",
+    }
+
+
+def test_wire_tail_reads_every_line_of_a_pipelined_write(tmp_path):
+    """Lines sent together (ADVANCED_OK, several in flight) are one wire-log entry: the last move in it counts."""
+    (tmp_path / "wire.log").write_text(
+        "2026-01-01T00:00:00.000000Z     0.1 > b'N7 G0 Z15.5 F300*30\\nN8 G0 X0 Y200 F6000*68\\nN9 G0 Z60 F300*1\\n"
+        "N10 M400*39\\n'\n"
+        "2026-01-01T00:00:00.100000Z     0.2 < b'ok N7 P16 B0\\nok N8 P15 B1\\nok N9 P14 B2\\nok N10 P16 B3\\n'\n"
+    )
+    assert wire_tail(tmp_path)[1] == {
+        "source": "commanded",
+        "X": 0.0,
+        "Y": 200.0,
+        "Z": 60.0,
+        "at": "2026-01-01T00:00:00.000000Z",
     }
 
 

@@ -37,7 +37,8 @@ DRIFT_MAX_POINTS = 600  # presses per drift line sent to the page (a 2,800-press
 RATE_WINDOW_PRESSES = 20  # rate over the last presses, so a pause or a resume a day later does not skew it
 _AXIS = re.compile(r"\b([XYZ])(-?\d+(?:\.\d*)?)")
 _REPORT = re.compile(r"X:(-?\d+(?:\.\d*)?) Y:(-?\d+(?:\.\d*)?) Z:(-?\d+(?:\.\d*)?)")
-_SENT = re.compile(r"> b'N\d+ (G[01]\b[^*]*)\*")
+# a sent G0/G1 line; one wire-log entry holds every line of one write (pipelined lines: several, `\n`-separated)
+_SENT = re.compile(r"(?:> b'|\\n)N\d+ (G[01]\b[^*]*)\*")
 
 
 def _finite(values: Any) -> list[float | None]:
@@ -215,8 +216,9 @@ def wire_tail(folder: Path) -> tuple[list[str], dict[str, Any] | None]:
             axes = dict(zip("XYZ", map(float, report.groups())))
             position = {"source": "M114", **axes, "at": line[:27]}
             continue
-        sent = _SENT.search(line)
-        if sent:
+        if "> b'" not in line:
+            continue
+        for sent in _SENT.finditer(line):
             axes = {**axes, **{a: float(v) for a, v in _AXIS.findall(sent.group(1))}}
             position = {"source": "commanded", **axes, "at": line[:27]}
     return lines[-WIRE_TAIL_LINES:], position

@@ -16,6 +16,9 @@ from neatskin.acquisition.daq.base import Daq, DaqConfig
 from neatskin.errors import ConfigError, HardwareError
 
 DAQ_KINDS = ("simulated", "ni")
+# lines a campaign's driver may have in flight, real rig and dry run alike: more than one only when the firmware
+# names its lines (`ok N.. P.. B..`, Marlin's ADVANCED_OK); a stock Marlin without it gets one line at a time
+CAMPAIGN_MAX_IN_FLIGHT = 4
 DENT_BLOCK_PRESSES = 256  # presses whose residual dents are computed together (at most the solver's small batch)
 
 
@@ -103,14 +106,18 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
         **({} if profile is None else {"pinch": profile.pinch}),
     )
     kwargs = {} if printer_faults is None else {"faults": printer_faults}
-    printer = SimulatedPrinter(protocol.printer, seed=protocol.seed, time_mode="virtual", **kwargs)
+    # a Marlin built with ADVANCED_OK (`ok N.. P.. B..`), so the driver pipelines as it would on such a printer
+    printer = SimulatedPrinter(protocol.printer, seed=protocol.seed, time_mode="virtual", advanced_ok=True, **kwargs)
     closers: list[Callable[[], None]] = []
     try:
         pty_path = printer.start_pty()
         closers.append(printer.stop)
         # the printer's clock is virtual: its moves take no wall time, so deadlines need no motion allowance
         driver = MarlinDriver.open(
-            pty_path, protocol.printer.baud_rate, wire_log=wire_log, config=DriverConfig(motion_time_scale=0.0)
+            pty_path,
+            protocol.printer.baud_rate,
+            wire_log=wire_log,
+            config=DriverConfig(motion_time_scale=0.0, max_in_flight=CAMPAIGN_MAX_IN_FLIGHT),
         )
         closers.append(driver.close)
         driver.connect(boot_timeout_s=connect_timeout_s)
@@ -323,12 +330,17 @@ def build_real_rig(
 ) -> Rig:
     """The printer on a serial port and the DAQ; errors are HardwareErrors raised before any motion."""
     from neatskin.acquisition.fsr import FsrModel
-    from neatskin.marlin.driver import MarlinDriver
+    from neatskin.marlin.driver import DriverConfig, MarlinDriver
     from neatskin.rig.recorder import ThreadedRecorder
 
     closers: list[Callable[[], None]] = []
     try:  # the printer first: a port that does not answer is the commonest set-up mistake
-        driver = MarlinDriver.open(port, baud_rate or protocol.printer.baud_rate, wire_log=wire_log)
+        driver = MarlinDriver.open(
+            port,
+            baud_rate or protocol.printer.baud_rate,
+            wire_log=wire_log,
+            config=DriverConfig(max_in_flight=CAMPAIGN_MAX_IN_FLIGHT),
+        )
         closers.append(driver.close)
         driver.connect(boot_timeout_s=connect_timeout_s)
         daq = open_daq(daq_kind, daq_config(protocol))
