@@ -123,6 +123,37 @@ def test_auto_pause_after_n_fsr_misses_in_a_row_names_the_cause(campaign_dir):
     )
 
 
+@pytest.mark.parametrize(
+    ("continue_after_s", "timeout_s", "rehomed"),
+    [(130.0, 120.0, True), (60.0, 120.0, False), (130.0, 0.0, False), (120.0, 120.0, True)],
+)
+def test_a_pause_longer_than_the_stepper_timeout_homes_again_before_going_on(
+    campaign_dir, continue_after_s, timeout_s, rehomed
+):
+    rig = FakeRig(campaign_dir)
+    rig.calls.append("continue-sent")  # the test sends the continue itself, at continue_after_s
+
+    def sleep(dt: float) -> None:
+        rig.t += dt
+        if rig.t == continue_after_s:
+            request_control(campaign_dir, "continue", by="test")
+
+    cp = Checkpoint(
+        campaign_dir,
+        lift=lambda: rig.calls.append("lift"),
+        park=lambda: rig.calls.append("park"),
+        rehome=lambda: rig.calls.append("rehome"),
+        stepper_timeout_s=timeout_s,
+        sleep=sleep,
+        clock=lambda: rig.t,
+        poll_s=10.0,
+    )
+    request_control(campaign_dir, "pause", by="test")
+    assert cp.after_press(0, []) is True
+    assert rig.calls == ["continue-sent", "lift", *(["rehome"] if rehomed else [])]
+    assert rig.t == pytest.approx(continue_after_s)
+
+
 def test_a_pause_has_a_deadline(campaign_dir):
     rig = FakeRig(campaign_dir)
     rig.calls.append("continue-sent")  # no continue will come

@@ -324,6 +324,13 @@ class PrinterTable:
     planner_buffer_size: int = setting(16, gt=0, le=10_000, doc="BLOCK_BUFFER_SIZE: moves queued ahead")
     rx_buffer_size: int = setting(128, gt=0, le=1_000_000, doc="RX_BUFFER_SIZE: bytes of serial input")
     homing_time_s: float = setting(20.0, unit="s", gt=0, le=3_600, doc="G28 of all axes, worst case")
+    stepper_timeout_s: float = setting(
+        120.0,
+        unit="s",
+        ge=0,
+        le=86_400,
+        doc="DEFAULT_STEPPER_DEACTIVE_TIME: idle steppers go off after this (0: never); a longer pause re-homes",
+    )
 
 
 @dataclass(frozen=True)

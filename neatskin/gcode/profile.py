@@ -52,6 +52,7 @@ class PrinterProfile:
     planner_buffer_size: int = 16
     rx_buffer_size: int = 128
     homing_time_s: float = 20.0
+    stepper_timeout_s: float = 120.0  # Marlin's DEFAULT_STEPPER_DEACTIVE_TIME (0: the steppers never go off)
     firmware: str = "Marlin"
     description: str = ""
     source: str = "<memory>"
@@ -103,6 +104,7 @@ def printer_profile_from_dict(data: dict, source: str = "<memory>") -> PrinterPr
         planner_buffer_size=printer.planner_buffer_size,
         rx_buffer_size=printer.rx_buffer_size,
         homing_time_s=printer.homing_time_s,
+        stepper_timeout_s=printer.stepper_timeout_s,
         firmware=printer.firmware,
         description=printer.description,
         source=source,

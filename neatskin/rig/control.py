@@ -144,8 +144,10 @@ class Checkpoint:
 
     `lift()` raises the probe to the safe height (pause); `park()` lifts and parks it (stop). `flush()` makes
     the presses a batching writer holds durable, before any pause or stop, so the monitor and `campaign info`
-    show every press pressed. `interrupted()` lets a Ctrl-C end a pause. The runner calls nothing else; every
-    wait polls the request file with a cap.
+    show every press pressed. `interrupted()` lets a Ctrl-C end a pause. `rehome()` homes the printer again when
+    a pause outlasted the firmware's stepper timeout (Marlin turns idle steppers off after
+    DEFAULT_STEPPER_DEACTIVE_TIME, and a carriage nudged while they are off would put every later press in the
+    wrong place without a word). The runner calls nothing else; every wait polls the request file with a cap.
     """
 
     def __init__(
@@ -161,9 +163,12 @@ class Checkpoint:
         max_pause_s: float = MAX_PAUSE_S,
         sleep: Callable[[float], None] = time.sleep,
         clock: Callable[[], float] = time.monotonic,
+        rehome: Callable[[], None] | None = None,
+        stepper_timeout_s: float = 0.0,
     ) -> None:
         self.folder = Path(folder)
         self._lift, self._park, self._flush, self._interrupted = lift, park, flush, interrupted
+        self._rehome, self.stepper_timeout_s = rehome, float(stepper_timeout_s)
         self.fsr_miss_limit = int(fsr_miss_limit)
         self.poll_s, self.max_pause_s = poll_s, max_pause_s
         self._sleep, self._clock = sleep, clock
@@ -224,7 +229,8 @@ class Checkpoint:
         self._flush()
         self._lift()
         self._write_state("paused", reason, auto=auto)
-        deadline = self._clock() + self.max_pause_s
+        idle_since = self._clock()  # the lift was the last move
+        deadline = idle_since + self.max_pause_s
         while self._clock() < deadline:
             if self._interrupted():
                 return self._stop("Ctrl-C during a pause")
@@ -235,6 +241,14 @@ class Checkpoint:
                 paused, by = request.action == "pause", request.by
             if not paused:
                 log.warning("campaign continues (%s)", by)
+                idle_s = self._clock() - idle_since
+                if self._rehome is not None and 0 < self.stepper_timeout_s <= idle_s:
+                    log.warning(
+                        "the pause (%.0f s) outlasted the printer's stepper timeout (%.0f s): homing again first",
+                        idle_s,
+                        self.stepper_timeout_s,
+                    )
+                    self._rehome()
                 self._missed = []
                 self._write_state("running", None)
                 return True
