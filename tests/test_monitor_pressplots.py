@@ -60,6 +60,19 @@ def test_press_series_from_features_without_waveforms(campaign, tmp_path):
     assert s.time_s[1] == row["fsr_onset_s"] and s.fsr.max() == row["fsr_peak_n"]
 
 
+def test_the_manifest_records_the_mux_visiting_order(campaign):
+    from neatskin.acquisition.wiring import load_wiring
+    from neatskin.layout import load_layout
+
+    sweep = json.loads((campaign / "manifest.json").read_text())["sweep"]
+    wiring = load_wiring(campaign / "inputs" / "wiring.toml", load_layout(campaign / "inputs" / "layout.toml"))
+    assert sweep["pair_order"] == list(range(28))  # the sweep's "pairs" order: layout.pairs order
+    # slot k's chip and address are those the board file wires pair pair_order[k] to
+    routes = [(wiring.routes[p].chip, wiring.routes[p].address) for p in sweep["pair_order"]]
+    assert list(zip(sweep["mux_chip"], sweep["mux_address"])) == routes
+    assert len(set(routes)) == 28 and len(set(sweep["mux_chip"])) == 7  # 7 chips, 4 pairs each
+
+
 def test_a_wrong_pair_order_is_caught_not_drawn(campaign, tmp_path):
     folder = tmp_path / "reordered"
     shutil.copytree(campaign, folder)

@@ -117,6 +117,11 @@ def create_campaign_folder(protocol: Protocol, plan: Plan, folder: Path, rig_kin
                 "hold_s": plan.hold_s,
                 "demodulation": protocol.acquisition.demodulation,
                 "window": protocol.acquisition.window,
+                # the mux's visiting order: slot k of every sweep measures pair pair_order[k] (layout.pairs
+                # index), through chip mux_chip[k] at address mux_address[k]
+                "pair_order": [int(k) for k in plan.sweep.order],
+                "mux_chip": [int(plan.sweep.chip[k]) for k in plan.sweep.order],
+                "mux_address": [int(plan.sweep.address[k]) for k in plan.sweep.order],
             },
             counts={"planned": plan.n_presses, "completed": 0},
             printer_time_estimate_s=plan.printer_time_s,
