@@ -14,6 +14,7 @@ import pandas as pd
 from neatskin.design.evaluate import CandidateResult
 from neatskin.design.runner import MAPS, PARTS
 from neatskin.design.study import Study
+from neatskin.design.validate import existing_section
 
 ERROR_COLUMN = "bound_mean_capped_mm"
 PARETO_COLUMNS = (ERROR_COLUMN, "electrodes", "sweep_time_s")
@@ -297,4 +298,8 @@ def write_report(out_dir: Path, study: Study, frame: pd.DataFrame) -> None:
         ),
         "",
     ]
+    # `design validate` writes its section into this report; a study re-run (or resumed) after it keeps it
+    kept = existing_section(out_dir / "report.md")
+    if kept is not None:
+        lines += [kept.rstrip("\n"), ""]
     write_bytes_durably(out_dir / "report.md", "\n".join(lines).encode())
