@@ -1,5 +1,6 @@
 """Reading the toolkit's TOML files (protocols, layouts, wirings, printer profiles) with errors that name the file,
-the one capped text reader (TOML files and G-code programs alike), and the one resolver of the packaged defaults (`protocols/`, shipped as package data in `neatskin/protocols/`)."""
+the one capped text reader (TOML files and G-code programs alike), and the one resolver of the packaged defaults
+(`protocols/`, shipped as package data in `neatskin/protocols/`)."""
 
 from __future__ import annotations
 
