@@ -84,4 +84,6 @@ def test_the_study_assumes_the_protocols_defaults():
     }
     shared = ("r_on_ohm", "r_on_mismatch_ohm", "compliance_v", "press_margin", "adc_range_v", "voltage_gain")
     assert {k: study_defaults[k] for k in shared} == {k: protocol_defaults[k] for k in shared}
-    assert study_defaults["rails_v"] == protocol_defaults["supply_positive_v"] == -protocol_defaults["supply_negative_v"]
+    assert (
+        study_defaults["rails_v"] == protocol_defaults["supply_positive_v"] == -protocol_defaults["supply_negative_v"]
+    )
