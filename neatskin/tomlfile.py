@@ -1,5 +1,6 @@
 """Reading the toolkit's TOML files (protocols, layouts, wirings, printer profiles) with errors that name the file,
-and the one resolver of the packaged defaults (`protocols/`, shipped as package data in `neatskin/protocols/`)."""
+the one capped text reader (TOML files and G-code programs alike), and the one resolver of the packaged defaults
+(`protocols/`, shipped as package data in `neatskin/protocols/`)."""
 
 from __future__ import annotations
 
@@ -41,39 +42,64 @@ def resolve_path(path: str | Path) -> Path:
     return packaged if _exists(packaged) else given
 
 
-def read_text_capped(path: Path, what: str, fix: str, max_bytes: int = MAX_TOML_BYTES) -> str:
-    """The UTF-8 text of a regular file of at most max_bytes; anything else is one ConfigError naming the file."""
+def read_text_capped(
+    path: str | os.PathLike[str],
+    what: str,
+    fix: str,
+    max_bytes: int = MAX_TOML_BYTES,
+    *,
+    kind: str = "TOML file",
+    refuse_nul: bool = False,
+) -> str:
+    """The UTF-8 text of a regular file of at most max_bytes, past a byte-order mark; anything else is one
+    ConfigError naming the file, what was read (`what`, e.g. "protocol file", "G-code file") and the fix.
+
+    `kind` names what such a file is ("TOML file", "G-code file"), for the messages; `refuse_nul` refuses a file
+    with a NUL byte (a parquet or an image decodes as UTF-8 up to its first non-ASCII byte; a text file has none).
+    A device or a pipe is refused before anything is read: a serial port named by mistake would block the read."""
+    name = os.fspath(path)
+    wrong_file = f"name the right file; {fix}"
     try:
-        with open(path, "rb") as handle:
+        with open(name, "rb") as handle:
             mode = os.fstat(handle.fileno()).st_mode
             if not stat.S_ISREG(mode):
                 raise ConfigError(
                     f"{what} is not a regular file (a device, folder or pipe)",
-                    file=str(path),
-                    fix=f"name a TOML file; {fix}",
+                    file=_short(name),
+                    fix=f"name a {kind}; {fix}",
                 )
             data = handle.read(max_bytes + 1)
     except OSError as exc:
         reason = exc.strerror or str(exc)
-        raise ConfigError(f"cannot read {what}: {reason}", file=_short(path), fix=fix) from exc
+        raise ConfigError(f"cannot read {what}: {reason}", file=_short(name), fix=fix) from exc
     if len(data) > max_bytes:
         raise ConfigError(
-            f"{what} is larger than {max_bytes // 2**20} MiB: not a TOML file of this toolkit",
-            file=str(path),
-            fix=f"name the right file; {fix}",
+            f"{what} is larger than {max_bytes // 2**20} MiB: not a {kind} of this toolkit",
+            file=_short(name),
+            fix=wrong_file,
+        )
+    nul = data.find(b"\0") if refuse_nul else -1
+    if nul >= 0:
+        raise ConfigError(
+            f"{what} holds NUL bytes (the first at byte {nul}): a binary file (parquet, image, ...), not a {kind}",
+            file=_short(name),
+            field="<encoding>",
+            fix=wrong_file,
         )
     try:
-        return data.decode("utf-8")
+        text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ConfigError(
-            f"{what} is not UTF-8 text (byte {exc.start}: {data[exc.start : exc.start + 1]!r})",
-            file=str(path),
+            f"{what} is not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start})",
+            file=_short(name),
             field="<encoding>",
-            fix="save the file as UTF-8 (TOML files are UTF-8), or name the right file",
-        ) from exc
+            fix=f"save the file as UTF-8 ({kind}s are UTF-8 text), or {wrong_file}",
+        ) from None
+    # a byte-order mark (Windows Notepad writes one) is neither TOML nor G-code, but it hides nothing: read past it
+    return text.removeprefix("\ufeff")
 
 
-def _short(path: Path) -> str:
+def _short(path: str | os.PathLike[str]) -> str:
     text = str(path)
     return text if len(text) <= 300 else f"{text[:150]}...{text[-100:]} ({len(text)} characters)"
 
@@ -87,8 +113,7 @@ def read_toml(
     """Parse a TOML file; a missing, unreadable, non-regular, oversized or non-UTF-8 file, or a syntax error,
     is one ConfigError naming the file (and the line)."""
     path = resolve_path(path)
-    # a byte-order mark (Windows Notepad writes one) is not TOML, but it hides nothing: read past it
-    text = read_text_capped(path, what, fix).removeprefix("\ufeff")
+    text = read_text_capped(path, what, fix)
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

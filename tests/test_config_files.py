@@ -3,7 +3,7 @@
 import pytest
 
 from neatskin.errors import ConfigError
-from neatskin.tomlfile import MAX_TOML_BYTES, read_toml, resolve_path
+from neatskin.tomlfile import MAX_TOML_BYTES, read_text_capped, read_toml, resolve_path
 
 
 def test_non_utf8_file(tmp_path):
@@ -11,7 +11,9 @@ def test_non_utf8_file(tmp_path):
     path.write_bytes(b'[campaign]\nname = "caf\xe9"\n')
     with pytest.raises(ConfigError) as info:
         read_toml(path, "protocol file")
-    assert info.value.file == str(path) and "not UTF-8 text (byte 22: b'\\xe9')" in str(info.value)
+    assert info.value.file == str(path) and "protocol file is not UTF-8 text (byte 0xe9 at offset 22)" in str(
+        info.value
+    )
     assert "save the file as UTF-8" in info.value.problems[0].fix
 
 
@@ -68,3 +70,37 @@ def test_gcode_generate_names_the_protocol_field_of_an_unreadable_printer(tmp_pa
     err = capsys.readouterr().err
     assert err.startswith(f"neatskin: error: {protocol}: [files.printer]: printer profile is not a regular file")
     assert not out.exists() and not (tmp_path / "p.gcode.tmp").exists()
+
+
+def test_the_one_capped_reader_refuses_nul_bytes_only_when_asked(tmp_path):
+    path = tmp_path / "data.parquet"
+    path.write_bytes(b"PAR1\x15\x04\x15\x10\x00\x00PAR1")
+    assert read_text_capped(path, "notes", "name the notes file") == "PAR1\x15\x04\x15\x10\x00\x00PAR1"
+    with pytest.raises(ConfigError) as info:
+        read_text_capped(path, "G-code file", "give a .gcode file", kind="G-code file", refuse_nul=True)
+    assert (info.value.file, info.value.field) == (str(path), "<encoding>")
+    assert str(info.value) == (
+        f"{path}: [<encoding>]: G-code file holds NUL bytes (the first at byte 8): a binary file (parquet, image, "
+        "...), not a G-code file (fix: name the right file; give a .gcode file)"
+    )
+
+
+def test_the_one_capped_reader_names_the_kind_of_file_in_every_message(tmp_path):
+    big = tmp_path / "big.gcode"
+    big.write_bytes(b"G4 P1\n" * 200)
+    with pytest.raises(ConfigError) as info:
+        read_text_capped(big, "G-code file", "give a .gcode file", 1000, kind="G-code file")
+    assert str(info.value) == (
+        f"{big}: G-code file is larger than 0 MiB: not a G-code file of this toolkit "
+        "(fix: name the right file; give a .gcode file)"
+    )
+    latin = tmp_path / "latin.gcode"
+    latin.write_bytes(b"\xef\xbb\xbfG28 ; caf\xe9\n")
+    with pytest.raises(ConfigError) as info:
+        read_text_capped(latin, "G-code file", "give a .gcode file", kind="G-code file")
+    assert info.value.problems[0].message == "G-code file is not UTF-8 text (byte 0xe9 at offset 12)"
+    assert info.value.problems[0].fix == (
+        "save the file as UTF-8 (G-code files are UTF-8 text), or name the right file; give a .gcode file"
+    )
+    latin.write_bytes(b"\xef\xbb\xbfG28 ; cafe\n")
+    assert read_text_capped(latin, "G-code file", "give a .gcode file", kind="G-code file") == "G28 ; cafe\n"

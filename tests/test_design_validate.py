@@ -76,3 +76,25 @@ def test_tiny_validation_writes_both_estimates_and_they_agree(tmp_path, capsys):
     assert sorted(p.name for p in (tmp_path / "validation").iterdir() if p.name.startswith("campaign")) == [
         "campaign-15x2"
     ]
+
+
+def test_a_study_rerun_after_validate_keeps_its_section(tmp_path):
+    # the worked study's committed report once lost it this way: `design study` rewrote report.md whole
+    from neatskin.design.runner import run_study
+    from neatskin.design.study import study_from_dict
+
+    study = study_from_dict(
+        {
+            "study": {"name": "tiny", "press_grid": 4},
+            "layouts": {"sizes": [[3, 3]]},
+            "electrodes": {"counts": [4], "strategies": ["boundary"]},
+        }
+    )
+    run_study(study, tmp_path, pngs=False)
+    first = (tmp_path / "report.md").read_text()
+    assert SECTION not in first
+    write_section(tmp_path / "report.md", SECTION + "\n\nmeasured\n")
+    validated = (tmp_path / "report.md").read_text()
+    assert validated == first.rstrip("\n") + "\n\n" + SECTION + "\n\nmeasured\n"
+    run_study(study, tmp_path, pngs=False)
+    assert (tmp_path / "report.md").read_text() == validated

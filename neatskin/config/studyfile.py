@@ -82,6 +82,14 @@ class ProbesTable:
 class StudyExcitationTable:
     amplitude_a: float = setting(0.002, unit="A", gt=0, doc="peak excitation current")
     rails_v: float = setting(8.0, unit="V", gt=0, doc="the mux supply rails (+-): the signal must stay within")
+    # the rest as a protocol's [excitation] and its wiring's [electrical] (same defaults, a test holds them equal):
+    # the study runs the protocol's own electrical check on each candidate skin
+    r_on_ohm: float = setting(100.0, unit="ohm", ge=0, le=1e5, doc="assumed mux on-resistance of one switch")
+    r_on_mismatch_ohm: float = setting(10.0, unit="ohm", ge=0, le=1e5, doc="assumed R_on difference of switches")
+    compliance_v: float = setting(50.0, unit="V", gt=0, le=1_000, doc="the galvanostat's output voltage limit")
+    press_margin: float = setting(
+        1.5, ge=1, le=100, doc="largest pair R_eq under a press, as a multiple of the undeformed skin's"
+    )
 
 
 @dataclass(frozen=True)
@@ -90,6 +98,8 @@ class StudyAcquisitionTable:
     settle_samples: int = setting(20, ge=0, doc="discarded after every mux switch")
     live_samples: int = setting(100, ge=1, doc="measured samples per pair and sweep")
     break_samples: int = setting(2, ge=2, doc="break-before-make samples per switch")
+    adc_range_v: float = setting(10.0, unit="V", gt=0, le=100, doc="AI input range (+-) of the voltage channel")
+    voltage_gain: float = setting(0.5, gt=0, le=1_000, doc="AI volts per volt across the pair (monitor divider)")
 
 
 @dataclass(frozen=True)

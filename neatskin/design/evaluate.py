@@ -1,6 +1,7 @@
 """One candidate's evaluation, a pure function of the study and the candidate (so a local and a Dask run agree):
 its layout and placement (optimised here when asked), the bound map over a press grid with depth as nuisance and
-its summary, the sweep time, the excitation compliance against the mux rails, and optionally a learned error.
+its summary, the sweep time, the campaign protocol's electrical check (design/electrical.py), and optionally a
+learned error.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from neatskin.design.bound import (
     summarise_mm,
 )
 from neatskin.design.candidates import Candidate, boundary_walk, every_k_nodes
+from neatskin.design.electrical import candidate_electrical, electrical_columns
 from neatskin.design.optimise import RIDGE_PER_MM2, PairInformation, greedy_exchange
 from neatskin.design.sensitivity import grounded_inverse, press_jacobian
 from neatskin.design.study import Study
@@ -131,7 +133,10 @@ def evaluate_candidate(study: Study, candidate: Candidate) -> CandidateResult:
     bound_known = bound_mm(position_information(info, depth_known=True))
     pressed = pj.pressed_pair_ohm(ea, eb)
     max_pair_ohm = float(max(np.max(pressed), np.max(pj.baseline_pair_ohm[ea, eb])))
-    peak_v = study.amplitude_a * max_pair_ohm
+    # electrodes numbered in junction order: the same set draws the same noise, whatever the placement's order
+    canonical = tuple(sorted(nodes, key=lambda n: (n[1], n[0])))
+    placed = layout if candidate.strategy != "optimised" else candidate_layout(study, candidate, canonical)
+    electrical = candidate_electrical(study, placed)
     pairs = int(a.size)
     slot = study.break_samples + study.settle_samples + study.live_samples
     cap = candidate.pitch_mm / 2.0
@@ -160,10 +165,8 @@ def evaluate_candidate(study: Study, candidate: Candidate) -> CandidateResult:
         "presses": int(x.size),
         "sweep_time_s": pairs * slot / study.rate_hz,
         "noise_std_median_ohm": float(np.median(sigma)),
-        "max_pair_ohm": max_pair_ohm,
-        "peak_voltage_v": peak_v,
         "rails_v": study.rails_v,
-        "compliant": bool(math.isfinite(peak_v) and peak_v <= study.rails_v),
+        **electrical_columns(electrical, max_pair_ohm, study.press_margin),
         "learned_error_mean_mm": math.nan,
         "learned_error_std_mm": math.nan,
         "learned_seeds": 0,
@@ -171,8 +174,6 @@ def evaluate_candidate(study: Study, candidate: Candidate) -> CandidateResult:
     if study.learned.enabled:
         from neatskin.design.learned import learned_error_mm
 
-        # electrodes numbered in junction order: the same set draws the same noise, whatever the placement's order
-        canonical = tuple(sorted(nodes, key=lambda n: (n[1], n[0])))
         errors = learned_error_mm(candidate_layout(study, candidate, canonical), study, candidate, noise)
         row.update(
             learned_error_mean_mm=float(np.mean(errors)),

@@ -14,6 +14,7 @@ import pandas as pd
 from neatskin.design.evaluate import CandidateResult
 from neatskin.design.runner import MAPS, PARTS
 from neatskin.design.study import Study
+from neatskin.design.validate import existing_section
 
 ERROR_COLUMN = "bound_mean_capped_mm"
 PARETO_COLUMNS = (ERROR_COLUMN, "electrodes", "sweep_time_s")
@@ -226,8 +227,14 @@ def write_report(out_dir: Path, study: Study, frame: pd.DataFrame) -> None:
         f"{study.sweeps_per_press} sweep(s) per press); the baseline is assumed known exactly. Assumed, not fitted.",
         f"- **sweep time** per measurement = pairs x (break {study.break_samples} + settle {study.settle_samples} "
         f"+ live {study.live_samples} samples) / {study.rate_hz:g} Hz.",
-        f"- **peak V** = excitation amplitude {study.amplitude_a:g} A x the largest pair R_eq over the presses; "
-        f"compliant when within the mux rails of +-{study.rails_v:g} V (an assumed supply, set `rails_v`).",
+        f"- **peak V**: a campaign protocol's own electrical check (`neatskin.rig.protocol.electrical_check`) on "
+        f"each candidate skin: {study.amplitude_a * 1e3:g} mA x (largest pair R_eq of the undeformed skin x "
+        f"{study.press_margin:g} press margin + 2 x {study.r_on_ohm:g} ohm R_on + {study.r_on_mismatch_ohm:g} ohm "
+        f"mismatch), against the lowest of the mux rails (+-{study.rails_v:g} V), the galvanostat compliance "
+        f"({study.compliance_v:g} V) and the ADC range over the voltage gain ({study.adc_range_v:g} V / "
+        f"{study.voltage_gain:g}); **limit V** is that lowest limit. All assumed (the study's `[excitation]` and "
+        "`[acquisition]` keys), not measured; candidates.parquet also holds the largest pair R_eq over the "
+        "simulated presses (`max_pair_ohm`) and whether the press margin covers it (`press_margin_covers`).",
     ]
     if inverted:
         inv = study.inversion
@@ -251,11 +258,11 @@ def write_report(out_dir: Path, study: Study, frame: pd.DataFrame) -> None:
         "## Candidates",
         "",
         "| grid | placement | electrodes | pairs | sweep (ms) | bound median (mm) | bound p90 (mm) | capped mean (mm) "
-        "| known-depth median (mm) | peak V | rails ok |"
+        "| known-depth median (mm) | peak V | limit V | within |"
         + (" inversion mean (mm) | inversion median / p90 (mm) |" if inverted else "")
         + (" learned (mm) |" if learned else "")
         + " Pareto (per skin) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|"
         + ("---|---|" if inverted else "")
         + ("---|" if learned else "")
         + "---|",
@@ -275,7 +282,7 @@ def write_report(out_dir: Path, study: Study, frame: pd.DataFrame) -> None:
             f"| {row['pairs']} | {row['sweep_time_s'] * 1e3:.1f} | {_fmt(row['bound_median_mm'])} "
             f"| {_fmt(row['bound_p90_mm'])} | {_fmt(row['bound_mean_capped_mm'])} "
             f"| {_fmt(row['bound_known_depth_median_mm'])} | {row['peak_voltage_v']:.2f} "
-            f"| {'yes' if row['compliant'] else '**no**'} |{inversion_cell}{learned_cell} {'**yes**' if front[k] else ''} |"
+            f"| {row['electrical_limit_v']:.2f} | {'yes' if row['compliant'] else '**no**'} |{inversion_cell}{learned_cell} {'**yes**' if front[k] else ''} |"
         )
     lines += _comparison(frame, learned, inverted, study.criterion)
     lines += [
@@ -291,4 +298,8 @@ def write_report(out_dir: Path, study: Study, frame: pd.DataFrame) -> None:
         ),
         "",
     ]
+    # `design validate` writes its section into this report; a study re-run (or resumed) after it keeps it
+    kept = existing_section(out_dir / "report.md")
+    if kept is not None:
+        lines += [kept.rstrip("\n"), ""]
     write_bytes_durably(out_dir / "report.md", "\n".join(lines).encode())

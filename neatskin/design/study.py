@@ -69,6 +69,12 @@ class Study:
     depth_mm: tuple[float, ...] = (3.5,)
     amplitude_a: float = 0.002
     rails_v: float = 8.0
+    r_on_ohm: float = 100.0
+    r_on_mismatch_ohm: float = 10.0
+    compliance_v: float = 50.0
+    press_margin: float = 1.5
+    adc_range_v: float = 10.0
+    voltage_gain: float = 0.5
     rate_hz: float = 10_000.0
     settle_samples: int = 20
     live_samples: int = 100
@@ -195,6 +201,12 @@ def _study(f: StudyFile, explicit: list[ExplicitPlacement], source: str) -> Stud
         depth_mm=f.probes.depth_mm,
         amplitude_a=f.excitation.amplitude_a,
         rails_v=f.excitation.rails_v,
+        r_on_ohm=f.excitation.r_on_ohm,
+        r_on_mismatch_ohm=f.excitation.r_on_mismatch_ohm,
+        compliance_v=f.excitation.compliance_v,
+        press_margin=f.excitation.press_margin,
+        adc_range_v=f.acquisition.adc_range_v,
+        voltage_gain=f.acquisition.voltage_gain,
         rate_hz=f.acquisition.rate_hz,
         settle_samples=f.acquisition.settle_samples,
         live_samples=f.acquisition.live_samples,

@@ -289,12 +289,21 @@ def validation_markdown(v: Validation, study: Study) -> str:
     )
 
 
+_SECTION_RE = re.compile(re.escape(SECTION) + r".*?(?=^## |\Z)", re.S | re.M)
+
+
+def existing_section(report: Path) -> str | None:
+    """The validation section of report.md as written, or None (no report, or no section in it)."""
+    text = report.read_text(encoding="utf-8") if report.exists() else ""
+    found = _SECTION_RE.search(text)
+    return found.group(0) if found else None
+
+
 def write_section(report: Path, section: str) -> None:
     """Put the section into report.md, replacing an earlier one (up to the next `## ` heading)."""
     text = report.read_text(encoding="utf-8") if report.exists() else ""
-    pattern = re.compile(re.escape(SECTION) + r".*?(?=^## |\Z)", re.S | re.M)
-    if pattern.search(text):
-        text = pattern.sub(lambda _: section, text)
+    if _SECTION_RE.search(text):
+        text = _SECTION_RE.sub(lambda _: section, text)
     else:
         text = (text.rstrip("\n") + "\n\n" if text else "") + section
     report.parent.mkdir(parents=True, exist_ok=True)

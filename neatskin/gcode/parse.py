@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import NoReturn
 
 from neatskin.errors import ConfigError, Problem
+from neatskin.tomlfile import read_text_capped
 
 # Commands whose argument is free text, not letter/number parameters.
 TEXT_COMMANDS = frozenset({"M23", "M28", "M30", "M32", "M117", "M118", "M928"})
@@ -148,38 +149,17 @@ MAX_PROGRAM_BYTES = 64 * 1024 * 1024  # the paper campaign's program is about 1 
 
 
 def read_program_file(path: str | os.PathLike[str], max_bytes: int = MAX_PROGRAM_BYTES) -> str:
-    """The text of a G-code file: at most max_bytes, no NUL bytes, UTF-8. Anything else is one ConfigError
-    naming the file and the fix (a parquet, a binary or a device is never read past the cap)."""
-    name = os.fspath(path)
-    try:
-        with open(name, "rb") as handle:
-            data = handle.read(max_bytes + 1)
-    except OSError as exc:
-        raise ConfigError(
-            f"cannot read G-code file: {exc.strerror or exc}", file=name, fix="check the path; give a G-code text file"
-        ) from exc
-    if len(data) > max_bytes:
-        raise ConfigError(
-            f"larger than {max_bytes // (1024 * 1024)} MiB: not a press program",
-            file=name,
-            fix="give the .gcode file written by `neatskin gcode generate`",
-        )
-    nul = data.find(b"\0")
-    if nul >= 0:
-        raise ConfigError(
-            f"holds NUL bytes (the first at byte {nul}): a binary file (parquet, image, ...), not G-code text",
-            file=name,
-            fix="give the .gcode file written by `neatskin gcode generate`",
-        )
-    try:
-        # a byte-order mark (an editor on Windows) is not G-code, but hides nothing: read past it
-        return data.decode("utf-8").removeprefix("\ufeff")
-    except UnicodeDecodeError as exc:
-        raise ConfigError(
-            f"is not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start})",
-            file=name,
-            fix="give a G-code text file in ASCII or UTF-8",
-        ) from None
+    """The text of a G-code file: a regular file of at most max_bytes, no NUL bytes, UTF-8 (read past a
+    byte-order mark). Anything else is one ConfigError naming the file and the fix (a device is refused unread,
+    a parquet or a binary never read past the cap); the toolkit's one capped reader, `tomlfile.read_text_capped`."""
+    return read_text_capped(
+        path,
+        "G-code file",
+        "check the path; give the .gcode file written by `neatskin gcode generate`",
+        max_bytes,
+        kind="G-code file",
+        refuse_nul=True,
+    )
 
 
 def _normalise_number(digits: str) -> str:

@@ -77,6 +77,11 @@ class ElectricalCheck:
     def headroom(self) -> float:
         return self.limit_v / self.peak_v
 
+    @property
+    def within_limit(self) -> bool:
+        """The verdict: the protocol is refused (and a design candidate marked not compliant) when False."""
+        return self.peak_v <= self.limit_v
+
     def summary(self) -> str:
         return (
             f"peak {self.peak_v:.2f} V (pair {self.largest_pair}, {self.largest_r_eq_ohm:.0f} ohm undeformed, "
@@ -427,6 +432,29 @@ def check_electrical(
 ) -> ElectricalCheck:
     """Worst-case peak voltage: amplitude x (largest pair R_eq of the undeformed skin x press margin
     + 2 R_on + R_on mismatch), against the lowest of the mux rails, the compliance and the ADC's reach."""
+    return electrical_check(
+        layout,
+        wiring.electrical,
+        amplitude_a=excitation.amplitude_a,
+        press_margin=excitation.press_margin,
+        compliance_v=excitation.compliance_v,
+        adc_range_v=acq.adc_range_v,
+        voltage_gain=acq.voltage_gain,
+    )
+
+
+def electrical_check(
+    layout: Any,
+    electrical: schema.ElectricalTable,
+    *,
+    amplitude_a: float,
+    press_margin: float,
+    compliance_v: float,
+    adc_range_v: float,
+    voltage_gain: float,
+) -> ElectricalCheck:
+    """`check_electrical` on plain values: a layout, the mux chips' [electrical] limits and the excitation and ADC
+    numbers (the design study calls it for each candidate skin, with the wiring it assumes)."""
     import numpy as np
 
     from neatskin.skin.network import equivalent_resistance
@@ -434,23 +462,23 @@ def check_electrical(
     r_eq = np.asarray(equivalent_resistance(layout, 1.0 / layout.channel_resistance_ohm))
     # symmetric pairs tie up to rounding: name the first of them in pair order, whatever the solver's last bit
     k = int(np.argmax(np.round(r_eq / r_eq.max(), 9)))
-    e = wiring.electrical
-    path_ohm = float(r_eq[k]) * excitation.press_margin + 2 * e.r_on_ohm + e.r_on_mismatch_ohm
+    e = electrical
+    path_ohm = float(r_eq[k]) * press_margin + 2 * e.r_on_ohm + e.r_on_mismatch_ohm
     limits = {
         f"mux supply rails ({e.supply_negative_v:g} V .. +{e.supply_positive_v:g} V)": min(
             e.supply_positive_v, -e.supply_negative_v
         ),
-        "galvanostat compliance (excitation.compliance_v)": excitation.compliance_v,
-        "ADC range over the voltage gain (acquisition.adc_range_v / voltage_gain)": acq.adc_range_v / acq.voltage_gain,
+        "galvanostat compliance (excitation.compliance_v)": compliance_v,
+        "ADC range over the voltage gain (acquisition.adc_range_v / voltage_gain)": adc_range_v / voltage_gain,
     }
     name = min(limits, key=lambda n: limits[n])
-    return ElectricalCheck(layout.pairs[k].label, float(r_eq[k]), excitation.amplitude_a * path_ohm, limits[name], name)
+    return ElectricalCheck(layout.pairs[k].label, float(r_eq[k]), amplitude_a * path_ohm, limits[name], name)
 
 
 def _electrical_problems(
     check: ElectricalCheck, layout: Any, wiring: Any, excitation: schema.ExcitationTable, source: str
 ) -> list[Problem]:
-    if check.peak_v <= check.limit_v:
+    if check.within_limit:
         return []
     e = wiring.electrical
     amp_max = excitation.amplitude_a * check.limit_v / check.peak_v
