@@ -103,7 +103,7 @@ def test_lockin_noise_is_the_simulated_daqs_estimator_std():
 
     r = np.array([[1000.0, 3750.0, 5625.0]])
     _, std, _ = estimator_moments(r, _Sweep(), config, noise, "lockin")
-    ours = pair_noise(Study(name="t", source="<t>")).std(r[0])
+    ours = pair_noise(Study(name="t", source="<t>", amplitude_a=config.amplitude_a)).std(r[0])  # the same current
     np.testing.assert_allclose(ours, std[0], rtol=1e-12)
 
 
@@ -116,7 +116,7 @@ def test_model_inversion_attains_the_bound_where_the_bound_is_small(paper_grid):
     from neatskin.design.study import Study
 
     x, y = press_grid_mm(paper_grid, 10)
-    noise = pair_noise(Study(name="t", source="<t>"))
+    noise = pair_noise(Study(name="t", source="<t>", amplitude_a=0.002))  # the paper's 2 mA: the SNR this needs
     pj = press_jacobian(paper_grid, paper_grid.electrode_junctions, x, y, 3.5, 2.75, "deformation")
     a, b = np.triu_indices(8, 1)
     bound = bound_mm(position_information(fisher(pj.pair_jacobian(a, b), noise.std(pj.baseline_pair_ohm[a, b]))))

@@ -80,7 +80,9 @@ class ProbesTable:
 
 @dataclass(frozen=True)
 class StudyExcitationTable:
-    amplitude_a: float = setting(0.002, unit="A", gt=0, doc="peak excitation current")
+    amplitude_a: float = setting(
+        0.0005, unit="A", gt=0, doc="peak excitation current (the paper's 2 mA exceeds the mux rails: docs/design.md)"
+    )
     rails_v: float = setting(8.0, unit="V", gt=0, doc="the mux supply rails (+-): the signal must stay within")
     # the rest as a protocol's [excitation] and its wiring's [electrical] (same defaults, a test holds them equal):
     # the study runs the protocol's own electrical check on each candidate skin
