@@ -98,10 +98,10 @@ def write_physical_limit(folder: Path, protocol: Protocol, plan, rig) -> Path:
     from neatskin.datasets.writer import write_table_durably
     from neatskin.skin.bound import feature_jacobian
 
-    blocks = {b.position_id: b for b in plan.program.presses}
-    ids = np.array(sorted(blocks))
-    x = np.array([blocks[i].x_mm for i in ids])
-    y = np.array([blocks[i].y_mm for i in ids])
+    positions = plan.program.positions
+    ids = np.unique(plan.program.presses.position_ids)  # the positions pressed, in id order
+    x = np.asarray(positions.x_mm, dtype=float)[ids]
+    y = np.asarray(positions.y_mm, dtype=float)[ids]
     depth = np.full(ids.shape, protocol.press.press.depth_mm)
     jac = feature_jacobian(rig.skin, x, y, depth)  # (positions, pairs, 4)
     std = _dr_noise_std_ohm(protocol, plan, rig, x, y, depth)
