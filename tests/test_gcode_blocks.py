@@ -2,6 +2,7 @@
 presses without copying text, and a 28,000-press plan's memory does not grow with its G-code text."""
 
 import hashlib
+import os
 import pickle
 import shutil
 import sys
@@ -11,6 +12,8 @@ import numpy as np
 import pytest
 from conftest import PROTOCOLS
 
+from neatskin.errors import ConfigError
+from neatskin.gcode import emit
 from neatskin.gcode.blocks import PressBlock, PressBlocks
 from neatskin.gcode.positions import PositionSpec, generate_positions
 from neatskin.gcode.profile import load_printer_profile
@@ -109,3 +112,22 @@ def test_a_28000_press_plan_does_not_hold_its_gcode_text(tmp_path):
     assert peak < 8 * 2**20, f"building the plan peaked at {peak / 2**20:.1f} MB"
     assert held < 4 * 2**20, f"the plan holds {held / 2**20:.1f} MB"
     assert np.array_equal(plan.program.presses.position_ids, np.repeat(np.arange(1000), 28))
+
+
+def test_write_lines_atomic_writes_the_program_text_block_by_block(program, tmp_path, monkeypatch):
+    monkeypatch.setattr(emit, "WRITE_BLOCK_LINES", 7)  # several blocks and a partial last one
+    out = tmp_path / "p.gcode"
+    written = emit.write_lines_atomic(out, emit.program_lines(program), "ascii", "--output")
+    assert out.read_bytes() == program.text().encode("ascii")
+    assert (
+        written == program.text().count("\n") == 18 * 14 + 19
+    )  # a comment and 13 commands a press; 7 header lines, 5 + 5 commands, 2 comments
+
+
+def test_write_lines_atomic_leaves_the_old_file_when_a_later_block_fails(tmp_path):
+    out = tmp_path / "p.gcode"
+    out.write_text("old\n")
+    with pytest.raises(ConfigError, match="cannot write 'é' \\(U\\+00E9\\) as ascii") as info:
+        emit.write_lines_atomic(out, ["G28"] * (emit.WRITE_BLOCK_LINES + 1) + ["; café"], "ascii", "--output")
+    assert info.value.field == "--output"
+    assert sorted(os.listdir(tmp_path)) == ["p.gcode"] and out.read_text() == "old\n"
