@@ -49,7 +49,7 @@ def register(subparsers) -> None:
 
 def _generate(args: argparse.Namespace) -> int:
     from neatskin.errors import ConfigError
-    from neatskin.gcode.emit import check_output_path, write_text_atomic
+    from neatskin.gcode.emit import check_output_path, program_lines, write_lines_atomic, write_text_atomic
     from neatskin.gcode.motion import estimate_program_time
     from neatskin.gcode.spec import build_from_protocol
 
@@ -57,8 +57,7 @@ def _generate(args: argparse.Namespace) -> int:
         if path is not None:
             check_output_path(path, option)
     program, layout, profile = build_from_protocol(args.protocol, hold_in_gcode=not args.no_hold)
-    text = program.text()
-    write_text_atomic(args.output, text, "ascii", "--output")
+    n_lines = write_lines_atomic(args.output, program_lines(program), "ascii", "--output")  # never held whole
     if args.positions is not None:
         ps = program.positions
         rows = ["position_id,x_mm,y_mm,feature"] + [
@@ -68,7 +67,7 @@ def _generate(args: argparse.Namespace) -> int:
     if args.plot is not None:
         from neatskin.gcode.plot import plot_positions
 
-        visits = [b.position_id for b in program.presses]
+        visits = program.presses.position_ids.tolist()
         route = [p for k, p in enumerate(visits) if k == 0 or p != visits[k - 1]]
         try:
             plot_positions(
@@ -86,10 +85,7 @@ def _generate(args: argparse.Namespace) -> int:
                 fix="give --plot a writable .png path",
             ) from exc
     estimate = estimate_program_time(program.command_lines(), profile)
-    print(
-        f"wrote {args.output}: {len(program.positions)} positions, {len(program.presses)} presses, "
-        f"{text.count(chr(10))} lines"
-    )
+    print(f"wrote {args.output}: {len(program.positions)} positions, {len(program.presses)} presses, {n_lines} lines")
     print(
         f"estimated printer time: {_hms(estimate.total_s)} (motion {_hms(estimate.motion_s)}, "
         f"dwell {_hms(estimate.dwell_s)}, homing {_hms(estimate.homing_s)})"

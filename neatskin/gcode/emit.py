@@ -1,4 +1,4 @@
-"""G-code text: number formatting, the header, preamble and postamble, and the program as one string.
+"""G-code text: number formatting, the header, preamble and postamble, and the program as lines or one string.
 
 User text (campaign, layout and printer names) only ever lands in comments, and `safe_text`
 refuses anything that could end a comment or start a command there: newline, carriage return,
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import unicodedata
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -79,21 +80,26 @@ def preamble_lines() -> tuple[str, ...]:
     return ("G21", "G90", "M211 S1", "G28", "M400")
 
 
-def program_text(program: PressProgram) -> str:
-    """The whole program as text, one command per line, ending in a newline."""
-    out = header_lines(program)
-    out.append("; preamble")
-    out.extend(program.preamble)
+def program_lines(program: PressProgram) -> Iterator[str]:
+    """The program's file lines (header and comments included, no newlines), made as they are read."""
+    yield from header_lines(program)
+    yield "; preamble"
+    yield from program.preamble
     for block in program.presses:
-        out.append(
+        yield (
             f"; press {block.press_id} position {block.position_id} repeat {block.repeat} "
             f"sensor x={fmt(block.x_mm)} y={fmt(block.y_mm)}"
         )
         for phase in block.phases:
-            out.extend(phase.lines)
-    out.append("; postamble")
-    out.extend(program.postamble)
-    return "\n".join(out) + "\n"
+            yield from phase.lines
+    yield "; postamble"
+    yield from program.postamble
+
+
+def program_text(program: PressProgram) -> str:
+    """The whole program as text, one command per line, ending in a newline (write_lines_atomic writes
+    program_lines without holding it)."""
+    return "\n".join(program_lines(program)) + "\n"
 
 
 def check_output_path(path: Path, option: str) -> None:
@@ -118,8 +124,39 @@ def write_text_atomic(path: Path, text: str, encoding: str, option: str) -> None
     """Write `text` to `path` through a temp file and a rename: either the whole file or nothing (no temp
     file left behind on any failure). Encoding and file system failures are one ConfigError naming the file."""
     check_output_path(path, option)
+    _write_atomic(path, (_encode(text, encoding, path, option),), option)
+
+
+WRITE_BLOCK_LINES = 4096  # lines encoded and written at a time by write_lines_atomic
+
+
+def write_lines_atomic(path: Path, lines: Iterable[str], encoding: str, option: str) -> int:
+    """write_text_atomic for `lines` (each written with a newline), WRITE_BLOCK_LINES at a time, so a large
+    program's text is never held whole; returns the number of lines written. The same errors, and no temp
+    file left on any failure (an encoding failure may leave the folder it created)."""
+    check_output_path(path, option)
+    written = 0
+
+    def blocks() -> Iterator[bytes]:
+        nonlocal written
+        block: list[str] = []
+        for line in lines:
+            block.append(line)
+            if len(block) == WRITE_BLOCK_LINES:
+                written += len(block)
+                yield _encode("\n".join(block) + "\n", encoding, path, option)
+                block = []
+        if block:
+            written += len(block)
+            yield _encode("\n".join(block) + "\n", encoding, path, option)
+
+    _write_atomic(path, blocks(), option)
+    return written
+
+
+def _encode(text: str, encoding: str, path: Path, option: str) -> bytes:
     try:
-        data = text.encode(encoding)
+        return text.encode(encoding)
     except UnicodeEncodeError as exc:
         bad = exc.object[exc.start : exc.end]
         raise ConfigError(
@@ -128,11 +165,16 @@ def write_text_atomic(path: Path, text: str, encoding: str, option: str) -> None
             field=option,
             fix="use ASCII in the names that land in the file (campaign, layout and printer names)",
         ) from None
+
+
+def _write_atomic(path: Path, data: Iterable[bytes], option: str) -> None:
+    """Write the blocks of `data` to `path` through a temp file and a rename: the whole file or nothing."""
     tmp = path.with_name(path.name + ".tmp")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with open(tmp, "wb") as handle:
-            handle.write(data)
+            for block in data:
+                handle.write(block)
         os.replace(tmp, path)
     except OSError as exc:
         _remove(tmp)

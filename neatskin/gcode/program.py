@@ -8,7 +8,9 @@ A press is four phases, each starting with an `M118 E1 NS press=<id> phase=<name
   lift    (back to the safe height)
 With `hold_in_gcode=True` (a file for standalone streaming) the press phase holds with
 `G4 P<ms>` before its final M400; for the runner the acquisition itself is the hold.
-Everything is checked by bounds.check_press_plan before any line is formatted.
+Everything is checked by bounds.check_press_plan before any line is formatted. The program holds
+its presses as numbers and formats each block's lines when it is asked for (gcode.blocks), so its
+memory does not grow with the G-code text of a large campaign.
 """
 
 from __future__ import annotations
@@ -21,12 +23,15 @@ import numpy as np
 
 from neatskin.errors import ConfigError
 from neatskin.gcode import emit
+from neatskin.gcode.blocks import Phase, PressBlock, PressBlocks, PressTemplate
 from neatskin.gcode.bounds import DEPTH_MARGIN_MM, check_press_plan
 from neatskin.gcode.calibration import Calibration
 from neatskin.gcode.ordering import ORDERS, press_order, route_length_mm, shorten_route
 from neatskin.gcode.positions import PositionSet
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.layout import Layout
+
+__all__ = ["PHASES", "Phase", "PressBlock", "PressBlocks", "PressProgram", "PressSpec", "build_program"]
 
 PHASES = ("travel", "descend", "press", "lift")
 
@@ -70,31 +75,6 @@ class PressSpec:
 
 
 @dataclass(frozen=True)
-class Phase:
-    name: str
-    lines: tuple[str, ...]
-    acquire: str | None = None
-
-
-@dataclass(frozen=True)
-class PressBlock:
-    press_id: int
-    position_id: int
-    repeat: int
-    x_mm: float  # sensor frame
-    y_mm: float
-    phases: tuple[Phase, ...]
-    feature: str = ""
-    printer_xyz_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the press target in the printer frame
-
-    def phase(self, name: str) -> Phase:
-        for phase in self.phases:
-            if phase.name == name:
-                return phase
-        raise KeyError(name)
-
-
-@dataclass(frozen=True)
 class PressProgram:
     name: str
     seed: int
@@ -105,7 +85,7 @@ class PressProgram:
     hold_in_gcode: bool
     calibration: Calibration
     positions: PositionSet
-    presses: tuple[PressBlock, ...]
+    presses: PressBlocks  # each block's G-code is formatted when it is asked for (gcode.blocks)
     preamble: tuple[str, ...]
     postamble: tuple[str, ...]
     route_mm: float  # xy route between positions, from the first to the last
@@ -171,42 +151,21 @@ def build_program(
     route = route_length_mm(xy, pos_ids[np.r_[True, np.diff(pos_ids) != 0]]) if len(order) else 0.0
 
     z_safe = emit.fmt(cal.surface_z_mm + profile.safe_height_mm)
-    z_contact = emit.fmt(cal.surface_z_mm)
     z_press_mm = cal.surface_z_mm - press.depth_mm
     f_z, f_travel, f_press = (
         emit.feed(profile.z_feed_mm_s),
         emit.feed(profile.travel_feed_mm_s),
         emit.feed(profile.press_feed_mm_s),
     )
-    hold = (f"G4 P{int(round(press.hold_s * 1000))}",) if hold_in_gcode and press.hold_s > 0 else ()
-    blocks = []
-    for k in range(len(order)):
-        pid, pos = int(press_ids[k]), int(pos_ids[k])
-        sx, sy = emit.fmt(float(px[k])), emit.fmt(float(py[k]))
-        phases = (
-            Phase(
-                "travel",
-                (emit.marker(pid, "travel"), f"G0 Z{z_safe} F{f_z}", f"G0 X{sx} Y{sy} F{f_travel}", "M400"),
-                "baseline",
-            ),
-            Phase("descend", (emit.marker(pid, "descend"), f"G1 Z{z_contact} F{f_z}", "M400")),
-            Phase(
-                "press", (emit.marker(pid, "press"), f"G1 Z{emit.fmt(z_press_mm)} F{f_press}", *hold, "M400"), "pressed"
-            ),
-            Phase("lift", (emit.marker(pid, "lift"), f"G0 Z{z_safe} F{f_z}", "M400")),
-        )
-        blocks.append(
-            PressBlock(
-                pid,
-                pos,
-                int(repeats[k]),
-                positions.x_mm[pos],
-                positions.y_mm[pos],
-                phases,
-                positions.features[pos],
-                (float(px[k]), float(py[k]), z_press_mm),
-            )
-        )
+    template = PressTemplate(
+        safe_line=f"G0 Z{z_safe} F{f_z}",
+        contact_line=f"G1 Z{emit.fmt(cal.surface_z_mm)} F{f_z}",
+        press_line=f"G1 Z{emit.fmt(z_press_mm)} F{f_press}",
+        hold_lines=(f"G4 P{int(round(press.hold_s * 1000))}",) if hold_in_gcode and press.hold_s > 0 else (),
+        travel_feed=f_travel,
+        z_press_mm=z_press_mm,
+    )
+    blocks = PressBlocks(template, positions, pos_ids, repeats, px, py)
     park = profile.park_mm
     postamble = (
         f"G0 Z{z_safe} F{f_z}",
@@ -225,7 +184,7 @@ def build_program(
         hold_in_gcode,
         cal,
         positions,
-        tuple(blocks),
+        blocks,
         emit.preamble_lines(),
         postamble,
         route,

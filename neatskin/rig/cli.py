@@ -171,7 +171,7 @@ def _check(args: argparse.Namespace) -> int:
 
     protocol = load_protocol(args.protocol)
     plan = build_plan(protocol)
-    positions = len({b.position_id for b in plan.program.presses})
+    positions = len(set(plan.program.presses.position_ids.tolist()))  # no block needs formatting to count
     print(f"{protocol.path}: ok")
     print(
         f"  {plan.n_presses} presses ({positions} positions), layout {protocol.layout.name} "

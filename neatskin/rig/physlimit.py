@@ -21,6 +21,7 @@ from neatskin.rig.protocol import Protocol
 
 METADATA_KEY = b"neatskin.physical_limit"
 RESISTIVITY_TEMPCO_PER_K = -0.02  # the skin model's default, used when the skin does not say
+POSITION_CHUNK = 128  # positions evaluated at once: the skin's work arrays stay this size as campaigns grow
 
 
 @dataclass(frozen=True)
@@ -98,12 +99,12 @@ def write_physical_limit(folder: Path, protocol: Protocol, plan, rig) -> Path:
     from neatskin.datasets.writer import write_table_durably
     from neatskin.skin.bound import feature_jacobian
 
-    blocks = {b.position_id: b for b in plan.program.presses}
-    ids = np.array(sorted(blocks))
-    x = np.array([blocks[i].x_mm for i in ids])
-    y = np.array([blocks[i].y_mm for i in ids])
+    positions = plan.program.positions
+    ids = np.unique(plan.program.presses.position_ids)  # the positions pressed, in id order
+    x = np.asarray(positions.x_mm, dtype=float)[ids]
+    y = np.asarray(positions.y_mm, dtype=float)[ids]
     depth = np.full(ids.shape, protocol.press.press.depth_mm)
-    jac = feature_jacobian(rig.skin, x, y, depth)  # (positions, pairs, 4)
+    jac = _by_chunks(lambda *c: feature_jacobian(rig.skin, *c), x, y, depth)  # (positions, pairs, 4)
     std = _dr_noise_std_ohm(protocol, plan, rig, x, y, depth)
     priors = NuisancePriors.from_scene(
         protocol.scene,
@@ -123,6 +124,18 @@ def write_physical_limit(folder: Path, protocol: Protocol, plan, rig) -> Path:
     return write_table_durably(folder / PHYSICAL_LIMIT, table)
 
 
+def _by_chunks(evaluate, x: np.ndarray, y: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """evaluate(x, y, depth) over POSITION_CHUNK positions at a time, stacked: each position's row is computed
+    on its own, so the result is the one-call result while the memory stays that of one chunk."""
+    if len(x) <= POSITION_CHUNK:
+        return np.asarray(evaluate(x, y, depth), float)
+    parts = [
+        np.asarray(evaluate(x[k : k + POSITION_CHUNK], y[k : k + POSITION_CHUNK], depth[k : k + POSITION_CHUNK]), float)
+        for k in range(0, len(x), POSITION_CHUNK)
+    ]
+    return np.concatenate(parts)
+
+
 def _campaign_s(protocol, plan) -> float:
     """The campaign's duration for the drift: presses x the scene's press interval, else the G-code's time."""
     interval_s = float(getattr(protocol.scene, "press_interval_s", 0.0))
@@ -137,7 +150,7 @@ def _dr_noise_std_ohm(protocol, plan, rig, x, y, depth) -> np.ndarray:
     from neatskin.sim.daq import SimulatedDAQ
 
     sweep, draws = plan.sweep, 64
-    pressed = rig.skin.pair_resistance_ohm(x, y, depth)
+    pressed = _by_chunks(rig.skin.pair_resistance_ohm, x, y, depth)
     states = np.vstack([np.asarray(rig.skin.baseline_pair_resistance_ohm)[None], pressed])  # (1 + positions, pairs)
     var = np.empty_like(states)
     # one DAQ per state: each state keeps its own random stream (seed, 10**6, k), so the std does not

@@ -232,7 +232,7 @@ def _run_locked(
         )
         try:
             done = writer.completed_press_ids()
-            todo = [b for b in plan.program.presses if b.press_id not in done]
+            todo = plan.program.presses.excluding(done)  # a view: each block's G-code is made when pressed
             if limit is not None:
                 todo = todo[:limit]
             written, flagged, interrupted = _press_loop(
