@@ -115,6 +115,23 @@ def _cluster_covariance(influence: np.ndarray) -> np.ndarray:
     return clusters / max(clusters - 1, 1) * (influence.T @ influence)
 
 
+def _jackknife_covariance(design: np.ndarray, target: np.ndarray, cluster: np.ndarray) -> np.ndarray:
+    """The leave-one-cluster-out jackknife covariance of the linear least-squares fit design @ coef = target:
+    (C - 1) / C sum_c (coef_-c - mean)(coef_-c - mean)^T over the C clusters (an index per row) that hold rows;
+    +inf with fewer than 2 clusters (MacKinnon and White 1985's jackknife, by cluster: CR3)."""
+    clusters, cluster = np.unique(cluster, return_inverse=True)
+    n_clusters = len(clusters)
+    per_ata = np.zeros((n_clusters, design.shape[1], design.shape[1]))
+    np.add.at(per_ata, cluster, design[:, :, None] * design[:, None, :])
+    per_atb = _sum_by_cluster(cluster, design * target[:, None], n_clusters)
+    ata, atb = per_ata.sum(axis=0), per_atb.sum(axis=0)
+    if n_clusters < 2:
+        return np.full((design.shape[1], design.shape[1]), np.inf)
+    left_out = np.stack([np.linalg.lstsq(ata - per_ata[c], atb - per_atb[c], rcond=None)[0] for c in range(n_clusters)])
+    deviation = left_out - left_out.mean(axis=0)
+    return (n_clusters - 1) / n_clusters * (deviation.T @ deviation)
+
+
 def _sum_by_cluster(cluster: np.ndarray, values: np.ndarray, n_clusters: int) -> np.ndarray:
     """Rows of `values` (n, m) summed per cluster index (n,) -> (n_clusters, m)."""
     out = np.zeros((n_clusters, values.shape[1]))
@@ -280,13 +297,12 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
     row_position = np.repeat(np.flatnonzero(repeats), n_pairs)
     keep = np.isfinite(a[:, 1]) & np.isfinite(b)
     coef, _ = nnls(a[keep], b[keep])
-    res = b[keep] - a[keep] @ coef
-    # the same sandwich by position: a position's pairs share its placement draws, and a sample
-    # variance's own spread grows with its size
-    bread = np.linalg.pinv(a[keep].T @ a[keep])
-    score = _sum_by_cluster(row_position[keep], a[keep] * res[:, None], n_positions)
-    cov_v = _cluster_covariance(score[repeats] @ bread)
-    quantile_v = float(student_t.ppf(0.975, max(int(repeats.sum()) - 1, 1)))
+    # its intervals by the jackknife over positions (CR3: leave one position out, refit the linear fit): a
+    # position's pairs share its placement draws, a sample variance's own spread grows with its size,
+    # and the few positions on the steepest slopes carry most of the placement (the sandwich's
+    # C / (C - 1) u u^T understates their leverage: 82 instead of 87 % coverage, docs/skin.md)
+    cov_v = _jackknife_covariance(a[keep], b[keep], row_position[keep])
+    quantile_v = float(student_t.ppf(0.975, max(len(np.unique(row_position[keep])) - 1, 1)))
     noise = _sqrt_interval(float(coef[0]), math.sqrt(cov_v[0, 0]), quantile_v)
     placement = _sqrt_interval(float(coef[1]), math.sqrt(cov_v[1, 1]), quantile_v)
     if placement.value == 0:
