@@ -42,6 +42,8 @@ from neatskin.skin.network import equivalent_resistance
 
 Z95 = 1.96  # the normal quantile; the intervals use Student's t on (positions - 1) degrees of freedom
 MIN_POSITIONS_FOR_PINCH = 4
+BOOTSTRAP_REPLICATES = 400  # the noise and placement intervals' simulated campaigns
+BOOTSTRAP_SEED = 2024  # fixed: one campaign always gets the same intervals
 
 
 @dataclass(frozen=True)
@@ -82,9 +84,8 @@ def _interval(value: float, se: float, quantile: float = Z95) -> FittedValue:
     return FittedValue(float(value), (float(value - quantile * se), float(value + quantile * se)))
 
 
-def _sqrt_interval(variance: float, se: float, quantile: float) -> FittedValue:
-    """sqrt(variance) with the variance's interval mapped through the square root (clipped at 0)."""
-    low, high = variance - quantile * se, variance + quantile * se
+def _sqrt_interval(variance: float, low: float, high: float) -> FittedValue:
+    """sqrt(variance) with the variance's interval (low, high) mapped through the square root (clipped at 0)."""
     return FittedValue(math.sqrt(max(variance, 0.0)), (math.sqrt(max(low, 0.0)), math.sqrt(max(high, 0.0))))
 
 
@@ -127,7 +128,7 @@ def _jackknife_covariance(design: np.ndarray, target: np.ndarray, cluster: np.nd
     ata, atb = per_ata.sum(axis=0), per_atb.sum(axis=0)
     if n_clusters < 2:
         return np.full((design.shape[1], design.shape[1]), np.inf)
-    left_out = np.stack([np.linalg.lstsq(ata - per_ata[c], atb - per_atb[c], rcond=None)[0] for c in range(n_clusters)])
+    left_out = np.einsum("cij,cj->ci", np.linalg.pinv(ata[None] - per_ata), atb[None] - per_atb)
     deviation = left_out - left_out.mean(axis=0)
     return (n_clusters - 1) / n_clusters * (deviation.T @ deviation)
 
@@ -174,7 +175,7 @@ def load_campaign(folder: str | Path) -> tuple[Layout, dict, dict[str, np.ndarra
 
 def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
     """Fit the skin model to the campaign in `folder` (see the module docstring)."""
-    from scipy.optimize import least_squares, nnls
+    from scipy.optimize import least_squares
     from scipy.stats import t as student_t
 
     layout, _, c = load_campaign(folder)
@@ -286,25 +287,8 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
     se_p = np.sqrt(np.diag(cov_p))
     correlation = float(cov_p[0, 1] / (se_p[0] * se_p[1]))
     # 4. placement and noise from the repeats' variance against |J|^2
-    skin = skin_for(sol_p.x)
-    jac = skin.jacobian_mm(px, py, pd_)
-    grad2 = np.nansum(jac**2, axis=-1)  # (positions, pairs)
-    repeats = counts >= 2
-    spread = _sum_by_cluster(inverse, (dr - mean_dr[inverse]) ** 2, n_positions)
-    var = spread / np.maximum(counts - 1, 1)[:, None]
-    a = np.column_stack([np.ones(int(repeats.sum()) * n_pairs), grad2[repeats].ravel()])
-    b = var[repeats].ravel()
-    row_position = np.repeat(np.flatnonzero(repeats), n_pairs)
-    keep = np.isfinite(a[:, 1]) & np.isfinite(b)
-    coef, _ = nnls(a[keep], b[keep])
-    # its intervals by the jackknife over positions (CR3: leave one position out, refit the linear fit): a
-    # position's pairs share its placement draws, a sample variance's own spread grows with its size,
-    # and the few positions on the steepest slopes carry most of the placement (the sandwich's
-    # C / (C - 1) u u^T understates their leverage: 82 instead of 87 % coverage, docs/skin.md)
-    cov_v = _jackknife_covariance(a[keep], b[keep], row_position[keep])
-    quantile_v = float(student_t.ppf(0.975, max(len(np.unique(row_position[keep])) - 1, 1)))
-    noise = _sqrt_interval(float(coef[0]), math.sqrt(cov_v[0, 0]), quantile_v)
-    placement = _sqrt_interval(float(coef[1]), math.sqrt(cov_v[1, 1]), quantile_v)
+    slope = skin_for(sol_p.x).jacobian_mm(px, py, pd_)  # (positions, pairs, 2)
+    noise, placement = _placement_and_noise(dr, inverse, counts, slope)
     if placement.value == 0:
         notes.append("placement_error_mm is at its bound 0: the repeats' spread does not grow with the slope")
     return SkinFit(
@@ -319,6 +303,76 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
         rms_residual_ohm=float(np.sqrt(np.mean(sol_p.fun**2))),
         notes=tuple(notes),
     )
+
+
+def _variance_rows(var: np.ndarray, grad2: np.ndarray, repeats: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The variance regression's rows, one per (repeated position, pair): design [1, |J|^2], target, position."""
+    design = np.column_stack([np.ones(var[repeats].size), grad2[repeats].ravel()])
+    target = var[repeats].ravel()
+    position = np.repeat(np.flatnonzero(repeats), var.shape[1])
+    keep = np.isfinite(design[:, 1]) & np.isfinite(target)
+    return design[keep], target[keep], position[keep]
+
+
+def _repeat_variance(dr: np.ndarray, inverse: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Each position's sample variance of dR over its repeats, (positions, pairs)."""
+    mean = _sum_by_cluster(inverse, dr, len(counts)) / counts[:, None]
+    spread = _sum_by_cluster(inverse, (dr - mean[inverse]) ** 2, len(counts))
+    return spread / np.maximum(counts - 1, 1)[:, None]
+
+
+def _variance_fit(design: np.ndarray, target: np.ndarray, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(noise^2, s_p^2) by non-negative least squares, and their jackknife standard errors by position."""
+    from scipy.optimize import nnls
+
+    coef, _ = nnls(design, target)
+    return coef, np.sqrt(np.diag(_jackknife_covariance(design, target, position)))
+
+
+def _placement_and_noise(
+    dr: np.ndarray, inverse: np.ndarray, counts: np.ndarray, slope: np.ndarray
+) -> tuple[FittedValue, FittedValue]:
+    """Reading noise and placement error from the repeats' variance, noise^2 + s_p^2 |J|^2, with bootstrap-t intervals.
+
+    The standard errors are the jackknife's by position; the quantiles are not Student's but those of
+    the studentised error (estimate* - estimate) / se* over `BOOTSTRAP_REPLICATES` campaigns simulated
+    from the fit, position by position (every press displaced by N(0, s_p^2) along the local slope
+    `slope` (positions, pairs, 2), every reading with N(0, noise^2)). A few positions on the steepest
+    slopes carry most of the placement, so its standard error is itself noisy and low when the
+    estimate is low; Student's quantiles then cover 87 % (docs/skin.md). The intervals are formed
+    for the variances and mapped through the square root."""
+    from scipy.stats import t as student_t
+
+    repeats = counts >= 2
+    grad2 = np.nansum(slope**2, axis=-1)
+    design, target, position = _variance_rows(_repeat_variance(dr, inverse, counts), grad2, repeats)
+    coef, se = _variance_fit(design, target, position)
+    rng = np.random.default_rng(BOOTSTRAP_SEED)
+    repeated = repeats[inverse]
+    press_position = inverse[repeated]
+    local = np.nan_to_num(slope[press_position])  # (repeated presses, pairs, 2)
+    noise_sd, placement_sd = np.sqrt(coef)
+    studentised = np.full((BOOTSTRAP_REPLICATES, 2), np.nan)
+    sim_counts = np.maximum(np.bincount(press_position, minlength=len(counts)), 1)
+    for b in range(BOOTSTRAP_REPLICATES):
+        moved = rng.normal(0.0, placement_sd, (len(press_position), 2))
+        sim = np.einsum("npk,nk->np", local, moved) + rng.normal(0.0, noise_sd, local.shape[:2])
+        var = _repeat_variance(sim, press_position, sim_counts)
+        d, t, pos = _variance_rows(var, grad2, repeats)
+        coef_b, se_b = _variance_fit(d, t, pos)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            studentised[b] = np.where(se_b > 0, (coef_b - coef) / se_b, np.nan)
+    student = float(student_t.ppf(0.975, max(len(np.unique(position)) - 1, 1)))
+    fitted = []
+    for k in range(2):
+        column = studentised[:, k][np.isfinite(studentised[:, k])]
+        if coef[k] <= 0 or len(column) < BOOTSTRAP_REPLICATES // 2:
+            # at the bound 0 the fit simulates no such spread, so nothing to studentise: Student's t
+            low_q, high_q = -student, student
+        else:
+            low_q, high_q = np.quantile(column, [0.025, 0.975])
+        fitted.append(_sqrt_interval(float(coef[k]), float(coef[k] - high_q * se[k]), float(coef[k] - low_q * se[k])))
+    return fitted[0], fitted[1]
 
 
 def load_skin_profile(path: str | Path, layout: Layout, probe_radius_mm: float = 2.75) -> SkinModel:
