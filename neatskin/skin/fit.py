@@ -10,19 +10,20 @@ Steps, each a least-squares problem through the forward model (`SkinModel`):
 4. placement and noise: the variance of dR over a position's repeats is, to first order,
    noise^2 + s_p^2 |d dR / d(x, y)|^2 per pair; a non-negative linear fit across positions and
    pairs gives both.
-Intervals come from one cluster-robust (by position) sandwich over the stacked estimating
-equations of steps 1 to 3, and another over step 4 (see `_cluster_covariance`): each position's
-presses move every estimate by a first-order influence (its baselines' deviations through the
-drift slope and the channel fit, its mean dR's residual through the pinch fit and, via the channels'
-and the slope's influence, the pinch), and the covariance is the spread of those influences over
-positions, C / (C - 1) sum_c u_c u_c^T, with Student-t quantiles on C - 1 degrees of freedom. This
-holds when the residuals' spread differs from pair to pair and position to position (it does: the
-log baselines' noise scales as 1 / R, dR's placement spread as the slope) and when a position's
-pairs move together (the placement error). The noise and placement intervals are formed on the
-variance scale (noise^2, s_p^2) and mapped through the square root. The earlier s^2 (J^T J)^-1
-intervals covered the channel resistances 86 % of the time (z std 1.35 over 200 seeds) and the
-placement error 16 % (docs/skin.md). A parameter the data cannot separate from the others (a
-singular direction of J^T J) is named in a DataError, not returned as a number.
+Intervals (docs/skin.md says why these): steps 1 to 3 share one cluster-robust sandwich by
+position over their stacked estimating equations (`_cluster_covariance`). Each position's presses
+move every estimate by a first-order influence u_c: its baselines' deviations move the drift slope
+and, through the mean log baseline, the channels; its mean dR's residual moves the pinch, and so do
+the channels' and the slope's own moves (the same baseline readings sit in dR = R - R_base). The
+covariance is C / (C - 1) sum_c u_c u_c^T over the C positions (the slope's u_c divided by 1 - its
+leverage), with Student-t quantiles on C - 1 degrees of freedom. It holds when the residuals'
+spread differs from pair to pair and position to position (the log baselines' noise scales as
+1 / R, dR's placement spread as the slope) and when a position's pairs move together (its placement
+draws). Step 4's noise and placement intervals are a parametric bootstrap-t by position
+(`_placement_and_noise`), formed for noise^2 and s_p^2 and mapped through the square root. The
+point estimates are those of the steps above; only the intervals come from here. A parameter the
+data cannot separate from the others (a singular direction of J^T J) is named in a DataError, not
+returned as a number.
 """
 
 from __future__ import annotations
@@ -122,8 +123,9 @@ def _jackknife_covariance(design: np.ndarray, target: np.ndarray, cluster: np.nd
     +inf with fewer than 2 clusters (MacKinnon and White 1985's jackknife, by cluster: CR3)."""
     clusters, cluster = np.unique(cluster, return_inverse=True)
     n_clusters = len(clusters)
-    per_ata = np.zeros((n_clusters, design.shape[1], design.shape[1]))
-    np.add.at(per_ata, cluster, design[:, :, None] * design[:, None, :])
+    m = design.shape[1]
+    per_ata = _sum_by_cluster(cluster, (design[:, :, None] * design[:, None, :]).reshape(-1, m * m), n_clusters)
+    per_ata = per_ata.reshape(n_clusters, m, m)
     per_atb = _sum_by_cluster(cluster, design * target[:, None], n_clusters)
     ata, atb = per_ata.sum(axis=0), per_atb.sum(axis=0)
     if n_clusters < 2:
@@ -135,9 +137,7 @@ def _jackknife_covariance(design: np.ndarray, target: np.ndarray, cluster: np.nd
 
 def _sum_by_cluster(cluster: np.ndarray, values: np.ndarray, n_clusters: int) -> np.ndarray:
     """Rows of `values` (n, m) summed per cluster index (n,) -> (n_clusters, m)."""
-    out = np.zeros((n_clusters, values.shape[1]))
-    np.add.at(out, cluster, values)
-    return out
+    return np.stack([np.bincount(cluster, values[:, k], n_clusters) for k in range(values.shape[1])], axis=1)
 
 
 def load_campaign(folder: str | Path) -> tuple[Layout, dict, dict[str, np.ndarray]]:
@@ -176,7 +176,7 @@ def load_campaign(folder: str | Path) -> tuple[Layout, dict, dict[str, np.ndarra
 def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
     """Fit the skin model to the campaign in `folder` (see the module docstring)."""
     from scipy.optimize import least_squares
-    from scipy.stats import t as student_t
+    from scipy.special import stdtrit
 
     layout, _, c = load_campaign(folder)
     source = str(folder)
@@ -280,7 +280,7 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
     own = -(to_theta * sol_p.fun).reshape(2, n_positions, n_pairs).sum(axis=2).T
     influence_p = own - influence_r @ (to_theta @ d_res).T - influence_k * (to_theta @ d_res_dk)[None, :]
     cov = _cluster_covariance(np.hstack([influence_k, influence_r, influence_p]))
-    quantile = float(student_t.ppf(0.975, n_positions - 1))
+    quantile = float(stdtrit(n_positions - 1, 0.975))
     se_k = math.sqrt(cov[0, 0])
     channels = tuple(
         FittedValue(float(v), (float(v * math.exp(-quantile * s)), float(v * math.exp(quantile * s))))
@@ -344,7 +344,7 @@ def _placement_and_noise(
     slopes carry most of the placement, so its standard error is itself noisy and low when the
     estimate is low; Student's quantiles then cover 87 % (docs/skin.md). The intervals are formed
     for the variances and mapped through the square root."""
-    from scipy.stats import t as student_t
+    from scipy.special import stdtrit
 
     repeats = counts >= 2
     grad2 = np.nansum(slope**2, axis=-1)
@@ -365,7 +365,7 @@ def _placement_and_noise(
         coef_b, se_b = _variance_fit(d, t, pos)
         with np.errstate(divide="ignore", invalid="ignore"):
             studentised[b] = np.where(se_b > 0, (coef_b - coef) / se_b, np.nan)
-    student = float(student_t.ppf(0.975, max(len(np.unique(position)) - 1, 1)))
+    student = float(stdtrit(max(len(np.unique(position)) - 1, 1), 0.975))
     fitted = []
     for k in range(2):
         column = studentised[:, k][np.isfinite(studentised[:, k])]
