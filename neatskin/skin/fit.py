@@ -369,7 +369,7 @@ def _placement_and_noise(
     fitted = []
     for k in range(2):
         column = studentised[:, k][np.isfinite(studentised[:, k])]
-        if coef[k] <= 0 or len(column) < BOOTSTRAP_REPLICATES // 2:
+        if coef[k] <= 0 or len(column) < max(BOOTSTRAP_REPLICATES // 2, 1):
             # at the bound 0 the fit simulates no such spread, so nothing to studentise: Student's t
             low_q, high_q = -student, student
         else:
