@@ -340,7 +340,7 @@ def _placement_and_noise(
     The standard errors are the jackknife's by position; the quantiles are not Student's but those of
     the studentised error (estimate* - estimate) / se* over `BOOTSTRAP_REPLICATES` campaigns simulated
     from the fit, position by position (every press displaced by N(0, s_p^2) along the local slope
-    `slope` (positions, pairs, 2), every reading with N(0, noise^2)). A few positions on the steepest
+    `slope` (positions, pairs, 2), every dR with N(0, noise^2)). A few positions on the steepest
     slopes carry most of the placement, so its standard error is itself noisy and low when the
     estimate is low; Student's quantiles then cover 87 % (docs/skin.md). The intervals are formed
     for the variances and mapped through the square root."""
