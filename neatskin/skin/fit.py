@@ -10,9 +10,20 @@ Steps, each a least-squares problem through the forward model (`SkinModel`):
 4. placement and noise: the variance of dR over a position's repeats is, to first order,
    noise^2 + s_p^2 |d dR / d(x, y)|^2 per pair; a non-negative linear fit across positions and
    pairs gives both.
-Intervals are +-1.96 standard errors from the local Jacobian (s^2 (J^T J)^-1). A parameter the
-data cannot separate from the others (a singular direction of J^T J) is named in a DataError,
-not returned as a number.
+Intervals (docs/skin.md says why these): steps 1 to 3 share one cluster-robust sandwich by
+position over their stacked estimating equations (`_cluster_covariance`). Each position's presses
+move every estimate by a first-order influence u_c: its baselines' deviations move the drift slope
+and, through the mean log baseline, the channels; its mean dR's residual moves the pinch, and so do
+the channels' and the slope's own moves (the same baseline readings sit in dR = R - R_base). The
+covariance is C / (C - 1) sum_c u_c u_c^T over the C positions (the slope's u_c divided by 1 - its
+leverage), with Student-t quantiles on C - 1 degrees of freedom. It holds when the residuals'
+spread differs from pair to pair and position to position (the log baselines' noise scales as
+1 / R, dR's placement spread as the slope) and when a position's pairs move together (its placement
+draws). Step 4's noise and placement intervals are a parametric bootstrap-t by position
+(`_placement_and_noise`), formed for noise^2 and s_p^2 and mapped through the square root. The
+point estimates are those of the steps above; only the intervals come from here. A parameter the
+data cannot separate from the others (a singular direction of J^T J) is named in a DataError, not
+returned as a number.
 """
 
 from __future__ import annotations
@@ -30,8 +41,10 @@ from neatskin.skin.deformation import PinchParams
 from neatskin.skin.model import SkinModel
 from neatskin.skin.network import equivalent_resistance
 
-Z95 = 1.96
+Z95 = 1.96  # the normal quantile; the intervals use Student's t on (positions - 1) degrees of freedom
 MIN_POSITIONS_FOR_PINCH = 4
+BOOTSTRAP_REPLICATES = 400  # the noise and placement intervals' simulated campaigns
+BOOTSTRAP_SEED = 2024  # fixed: one campaign always gets the same intervals
 
 
 @dataclass(frozen=True)
@@ -68,12 +81,17 @@ class SkinFit:
         return "\n".join(lines) + "\n"
 
 
-def _interval(value: float, se: float) -> FittedValue:
-    return FittedValue(float(value), (float(value - Z95 * se), float(value + Z95 * se)))
+def _interval(value: float, se: float, quantile: float = Z95) -> FittedValue:
+    return FittedValue(float(value), (float(value - quantile * se), float(value + quantile * se)))
 
 
-def _covariance(jac: np.ndarray, residual: np.ndarray, names: list[str], source: str) -> np.ndarray:
-    """s^2 (J^T J)^-1, or a DataError naming the parameters along a direction the data do not see."""
+def _sqrt_interval(variance: float, low: float, high: float) -> FittedValue:
+    """sqrt(variance) with the variance's interval (low, high) mapped through the square root (clipped at 0)."""
+    return FittedValue(math.sqrt(max(variance, 0.0)), (math.sqrt(max(low, 0.0)), math.sqrt(max(high, 0.0))))
+
+
+def _identified_inverse(jac: np.ndarray, names: list[str], source: str) -> np.ndarray:
+    """(J^T J)^-1, or a DataError naming the parameters along a direction the data do not see."""
     jtj = jac.T @ jac
     values, vectors = np.linalg.eigh(jtj)
     weak = values <= 1e-10 * max(values.max(), np.finfo(float).tiny)
@@ -86,8 +104,40 @@ def _covariance(jac: np.ndarray, residual: np.ndarray, names: list[str], source:
             field=", ".join(culprits),
             fix="record presses at more positions (on and between channels) and in press order over time",
         )
-    dof = max(jac.shape[0] - jac.shape[1], 1)
-    return float(residual @ residual) / dof * np.linalg.inv(jtj)
+    return np.linalg.inv(jtj)
+
+
+def _cluster_covariance(influence: np.ndarray) -> np.ndarray:
+    """The cluster-robust covariance C / (C - 1) sum_c u_c u_c^T of per-cluster influences u_c, (C, m) -> (m, m).
+
+    u_c is the first-order change of the estimates that cluster c's data make (their sum is the
+    estimates' error); clusters are independent, observations within one need not be, nor share a
+    variance (Liang and Zeger 1986; Cameron and Miller 2015, with their C / (C - 1) correction)."""
+    clusters = influence.shape[0]
+    return clusters / max(clusters - 1, 1) * (influence.T @ influence)
+
+
+def _jackknife_covariance(design: np.ndarray, target: np.ndarray, cluster: np.ndarray) -> np.ndarray:
+    """The leave-one-cluster-out jackknife covariance of the linear least-squares fit design @ coef = target:
+    (C - 1) / C sum_c (coef_-c - mean)(coef_-c - mean)^T over the C clusters (an index per row) that hold rows;
+    +inf with fewer than 2 clusters (MacKinnon and White 1985's jackknife, by cluster: CR3)."""
+    clusters, cluster = np.unique(cluster, return_inverse=True)
+    n_clusters = len(clusters)
+    m = design.shape[1]
+    per_ata = _sum_by_cluster(cluster, (design[:, :, None] * design[:, None, :]).reshape(-1, m * m), n_clusters)
+    per_ata = per_ata.reshape(n_clusters, m, m)
+    per_atb = _sum_by_cluster(cluster, design * target[:, None], n_clusters)
+    ata, atb = per_ata.sum(axis=0), per_atb.sum(axis=0)
+    if n_clusters < 2:
+        return np.full((design.shape[1], design.shape[1]), np.inf)
+    left_out = np.einsum("cij,cj->ci", np.linalg.pinv(ata[None] - per_ata), atb[None] - per_atb)
+    deviation = left_out - left_out.mean(axis=0)
+    return (n_clusters - 1) / n_clusters * (deviation.T @ deviation)
+
+
+def _sum_by_cluster(cluster: np.ndarray, values: np.ndarray, n_clusters: int) -> np.ndarray:
+    """Rows of `values` (n, m) summed per cluster index (n,) -> (n_clusters, m)."""
+    return np.stack([np.bincount(cluster, values[:, k], n_clusters) for k in range(values.shape[1])], axis=1)
 
 
 def load_campaign(folder: str | Path) -> tuple[Layout, dict, dict[str, np.ndarray]]:
@@ -126,6 +176,7 @@ def load_campaign(folder: str | Path) -> tuple[Layout, dict, dict[str, np.ndarra
 def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
     """Fit the skin model to the campaign in `folder` (see the module docstring)."""
     from scipy.optimize import least_squares
+    from scipy.special import stdtrit
 
     layout, _, c = load_campaign(folder)
     source = str(folder)
@@ -135,6 +186,7 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
         raise DataError(f"{source}: fewer than 3 presses with finite R", field="R_ohm", fix="record more presses")
     hours, base, dr = c["hours"][ok], base[ok], c["dR"][ok]
     x, y, depth, position = c["x"][ok], c["y"][ok], c["depth"][ok], c["position"][ok]
+    n_presses, n_pairs = base.shape
     notes = []
     # 1. drift: log R_base = a_pair + k t
     span = float(np.ptp(hours))
@@ -147,11 +199,9 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
             field="drift_per_h",
             fix="fit a campaign recorded in press order over time",
         )
-    k = float((centred_t[:, None] * centred_b).sum() / (centred_t**2).sum() / base.shape[1])
-    resid = centred_b - k * centred_t[:, None]
-    se_k = math.sqrt(
-        float((resid**2).sum()) / max(resid.size - base.shape[1] - 1, 1) / (base.shape[1] * (centred_t**2).sum())
-    )
+    stt = float((centred_t**2).sum())
+    k = float((centred_t[:, None] * centred_b).sum() / stt / n_pairs)
+    resid = centred_b - k * centred_t[:, None]  # each press's log-baseline deviation, (presses, pairs)
     # 2. channel baselines from the drift-corrected mean baseline
     target = np.exp(np.mean(logb - k * hours[:, None], axis=0))
 
@@ -161,27 +211,23 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
     start = np.log(layout.channel_resistance_ohm)
     sol = least_squares(baseline_residual, start, method="lm")
     names = [f"channel_resistance_ohm[{ch.name}]" for ch in layout.channels]
-    cov_r = _covariance(np.asarray(sol.jac), sol.fun, names, source)
-    # the drift slope's error moves every channel's baseline together (target is extrapolated to t = 0)
-    cov_r = cov_r + (se_k * float(hours.mean())) ** 2
+    jac_r = np.asarray(sol.jac)
+    to_log_r = _identified_inverse(jac_r, names, source) @ jac_r.T  # d log r / d log target
     r_channels = np.exp(sol.x)
-    channels = tuple(
-        FittedValue(float(v), (float(v * math.exp(-Z95 * s)), float(v * math.exp(Z95 * s))))
-        for v, s in zip(r_channels, np.sqrt(np.diag(cov_r)))
-    )
     heights = tuple(float(h) for h in layout.channel_resistance_ohm / r_channels)
     # 3. pinch from the per-position mean dR
     ids, inverse = np.unique(position, return_inverse=True)
-    if len(ids) < MIN_POSITIONS_FOR_PINCH:
+    n_positions = len(ids)
+    if n_positions < MIN_POSITIONS_FOR_PINCH:
         raise DataError(
-            f"{source} pressed {len(ids)} position(s): pinch_gain, decay_ratio and placement_error_mm "
+            f"{source} pressed {n_positions} position(s): pinch_gain, decay_ratio and placement_error_mm "
             "cannot be told apart from where the presses were",
             field="pinch_gain, decay_ratio, placement_error_mm",
             fix=f"record presses at {MIN_POSITIONS_FOR_PINCH} or more positions, on and between channels",
         )
     counts = np.bincount(inverse)
     dr = dr * np.exp(-k * hours)[:, None]  # back to the resistivity at t = 0, where the baselines were fitted
-    mean_dr = np.stack([np.bincount(inverse, dr[:, p]) for p in range(dr.shape[1])], axis=1) / counts[:, None]
+    mean_dr = _sum_by_cluster(inverse, dr, n_positions) / counts[:, None]
     px = np.bincount(inverse, x) / counts
     py = np.bincount(inverse, y) / counts
     pd_ = np.bincount(inverse, depth) / counts
@@ -194,16 +240,18 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
             channel_height_factor=channel_heights,
         )
 
-    def pinch_residual(theta, channel_heights=heights):
+    def pinch_model(theta, channel_heights=heights):
         skin = skin_for(theta, channel_heights)
-        model = skin.pair_resistance_ohm(px, py, pd_) - skin.baseline_pair_resistance_ohm
+        return skin.pair_resistance_ohm(px, py, pd_) - skin.baseline_pair_resistance_ohm
+
+    def pinch_residual(theta, channel_heights=heights):
+        model = pinch_model(theta, channel_heights)
         return np.where(np.isfinite(model), model - mean_dr, 0.0).ravel()
 
     sol_p = least_squares(pinch_residual, [1.0, 0.5], bounds=([0.05, 0.05], [5.0, 5.0]), x_scale=[0.1, 0.1])
     jac_p = np.asarray(sol_p.jac)
-    cov_p = _covariance(jac_p, sol_p.fun, ["pinch_gain", "decay_ratio"], source)
-    # the channels' own uncertainty, carried into the pinch by the delta method:
-    # d theta / d log R = -(J^T J)^-1 J^T d residual / d log R
+    to_theta = _identified_inverse(jac_p, ["pinch_gain", "decay_ratio"], source) @ jac_p.T  # d theta / d (-residual)
+    # d residual / d log r, by forward differences (a channel's resistance up by `step` in log)
     step = 1e-4
     d_res = np.column_stack(
         [
@@ -215,42 +263,119 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
             for c in range(len(heights))
         ]
     )
-    gain = -np.linalg.solve(jac_p.T @ jac_p, jac_p.T @ d_res)
-    cov_p = cov_p + gain @ cov_r @ gain.T
+    # d residual / d k: the mean dR was scaled by exp(-k t) press by press
+    live = np.isfinite(pinch_model(sol_p.x)).ravel()
+    d_res_dk = np.where(
+        live, (_sum_by_cluster(inverse, hours[:, None] * dr, n_positions) / counts[:, None]).ravel(), 0.0
+    )
+    # each position's influence on (k, log r, theta): its presses' baseline deviations move the slope and,
+    # through the mean log baseline, the channels; its mean dR's residual moves the pinch, as do the
+    # channels' and the slope's own moves (the same baseline readings sit in dR = R - R_base)
+    influence_k = _sum_by_cluster(inverse, (centred_t * resid.sum(axis=1) / (n_pairs * stt))[:, None], n_positions)
+    # a position early or late in the campaign pulls the slope more than its residuals show (its leverage
+    # h_c = sum t^2 / S_tt); the leave-one-position-out change is u_c / (1 - h_c) (CR3; z std 1.04 -> 1.00)
+    influence_k = influence_k / (1.0 - np.bincount(inverse, centred_t**2, n_positions) / stt)[:, None]
+    influence_target = _sum_by_cluster(inverse, resid / n_presses, n_positions) - influence_k * hours.mean()
+    influence_r = influence_target @ to_log_r.T
+    own = -(to_theta * sol_p.fun).reshape(2, n_positions, n_pairs).sum(axis=2).T
+    influence_p = own - influence_r @ (to_theta @ d_res).T - influence_k * (to_theta @ d_res_dk)[None, :]
+    cov = _cluster_covariance(np.hstack([influence_k, influence_r, influence_p]))
+    quantile = float(stdtrit(n_positions - 1, 0.975))
+    se_k = math.sqrt(cov[0, 0])
+    channels = tuple(
+        FittedValue(float(v), (float(v * math.exp(-quantile * s)), float(v * math.exp(quantile * s))))
+        for v, s in zip(r_channels, np.sqrt(np.diag(cov)[1:-2]))
+    )
+    cov_p = cov[-2:, -2:]
     se_p = np.sqrt(np.diag(cov_p))
     correlation = float(cov_p[0, 1] / (se_p[0] * se_p[1]))
     # 4. placement and noise from the repeats' variance against |J|^2
-    skin = skin_for(sol_p.x)
-    jac = skin.jacobian_mm(px, py, pd_)
-    grad2 = np.nansum(jac**2, axis=-1)  # (positions, pairs)
-    repeats = counts >= 2
-    spread = [np.bincount(inverse, (dr[:, p] - mean_dr[inverse, p]) ** 2) for p in range(dr.shape[1])]
-    var = np.stack(spread, axis=1) / np.maximum(counts - 1, 1)[:, None]
-    a = np.column_stack([np.ones(int(repeats.sum()) * dr.shape[1]), grad2[repeats].ravel()])
-    b = var[repeats].ravel()
-    keep = np.isfinite(a[:, 1]) & np.isfinite(b)
-    from scipy.optimize import nnls
-
-    coef, _ = nnls(a[keep], b[keep])
-    res = b[keep] - a[keep] @ coef
-    cov_v = float(res @ res) / max(keep.sum() - 2, 1) * np.linalg.pinv(a[keep].T @ a[keep])
-    noise, placement = math.sqrt(coef[0]), math.sqrt(coef[1])
-    se_noise = math.sqrt(cov_v[0, 0]) / (2 * max(noise, 1e-12))
-    se_place = math.sqrt(cov_v[1, 1]) / (2 * max(placement, 1e-12))
-    if placement == 0:
+    slope = skin_for(sol_p.x).jacobian_mm(px, py, pd_)  # (positions, pairs, 2)
+    noise, placement = _placement_and_noise(dr, inverse, counts, slope)
+    if placement.value == 0:
         notes.append("placement_error_mm is at its bound 0: the repeats' spread does not grow with the slope")
     return SkinFit(
         source=source,
         channel_resistance_ohm=channels,
-        pinch_gain=_interval(sol_p.x[0], se_p[0]),
-        decay_ratio=_interval(sol_p.x[1], se_p[1]),
-        placement_error_mm=_interval(placement, se_place),
-        noise_ohm=_interval(noise, se_noise),
-        drift_per_h=_interval(k, se_k),
+        pinch_gain=_interval(sol_p.x[0], se_p[0], quantile),
+        decay_ratio=_interval(sol_p.x[1], se_p[1], quantile),
+        placement_error_mm=placement,
+        noise_ohm=noise,
+        drift_per_h=_interval(k, se_k, quantile),
         pinch_correlation=correlation,
         rms_residual_ohm=float(np.sqrt(np.mean(sol_p.fun**2))),
         notes=tuple(notes),
     )
+
+
+def _variance_rows(var: np.ndarray, grad2: np.ndarray, repeats: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The variance regression's rows, one per (repeated position, pair): design [1, |J|^2], target, position."""
+    design = np.column_stack([np.ones(var[repeats].size), grad2[repeats].ravel()])
+    target = var[repeats].ravel()
+    position = np.repeat(np.flatnonzero(repeats), var.shape[1])
+    keep = np.isfinite(design[:, 1]) & np.isfinite(target)
+    return design[keep], target[keep], position[keep]
+
+
+def _repeat_variance(dr: np.ndarray, inverse: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Each position's sample variance of dR over its repeats, (positions, pairs)."""
+    mean = _sum_by_cluster(inverse, dr, len(counts)) / counts[:, None]
+    spread = _sum_by_cluster(inverse, (dr - mean[inverse]) ** 2, len(counts))
+    return spread / np.maximum(counts - 1, 1)[:, None]
+
+
+def _variance_fit(design: np.ndarray, target: np.ndarray, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(noise^2, s_p^2) by non-negative least squares, and their jackknife standard errors by position."""
+    from scipy.optimize import nnls
+
+    coef, _ = nnls(design, target)
+    return coef, np.sqrt(np.diag(_jackknife_covariance(design, target, position)))
+
+
+def _placement_and_noise(
+    dr: np.ndarray, inverse: np.ndarray, counts: np.ndarray, slope: np.ndarray
+) -> tuple[FittedValue, FittedValue]:
+    """Reading noise and placement error from the repeats' variance, noise^2 + s_p^2 |J|^2, with bootstrap-t intervals.
+
+    The standard errors are the jackknife's by position; the quantiles are not Student's but those of
+    the studentised error (estimate* - estimate) / se* over `BOOTSTRAP_REPLICATES` campaigns simulated
+    from the fit, position by position (every press displaced by N(0, s_p^2) along the local slope
+    `slope` (positions, pairs, 2), every dR with N(0, noise^2)). A few positions on the steepest
+    slopes carry most of the placement, so its standard error is itself noisy and low when the
+    estimate is low; Student's quantiles then cover 87 % (docs/skin.md). The intervals are formed
+    for the variances and mapped through the square root."""
+    from scipy.special import stdtrit
+
+    repeats = counts >= 2
+    grad2 = np.nansum(slope**2, axis=-1)
+    design, target, position = _variance_rows(_repeat_variance(dr, inverse, counts), grad2, repeats)
+    coef, se = _variance_fit(design, target, position)
+    rng = np.random.default_rng(BOOTSTRAP_SEED)
+    repeated = repeats[inverse]
+    press_position = inverse[repeated]
+    local = np.nan_to_num(slope[press_position])  # (repeated presses, pairs, 2)
+    noise_sd, placement_sd = np.sqrt(coef)
+    studentised = np.full((BOOTSTRAP_REPLICATES, 2), np.nan)
+    sim_counts = np.maximum(np.bincount(press_position, minlength=len(counts)), 1)
+    for b in range(BOOTSTRAP_REPLICATES):
+        moved = rng.normal(0.0, placement_sd, (len(press_position), 2))
+        sim = np.einsum("npk,nk->np", local, moved) + rng.normal(0.0, noise_sd, local.shape[:2])
+        var = _repeat_variance(sim, press_position, sim_counts)
+        d, t, pos = _variance_rows(var, grad2, repeats)
+        coef_b, se_b = _variance_fit(d, t, pos)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            studentised[b] = np.where(se_b > 0, (coef_b - coef) / se_b, np.nan)
+    student = float(stdtrit(max(len(np.unique(position)) - 1, 1), 0.975))
+    fitted = []
+    for k in range(2):
+        column = studentised[:, k][np.isfinite(studentised[:, k])]
+        if coef[k] <= 0 or len(column) < max(BOOTSTRAP_REPLICATES // 2, 1):
+            # at the bound 0 the fit simulates no such spread, so nothing to studentise: Student's t
+            low_q, high_q = -student, student
+        else:
+            low_q, high_q = np.quantile(column, [0.025, 0.975])
+        fitted.append(_sqrt_interval(float(coef[k]), float(coef[k] - high_q * se[k]), float(coef[k] - low_q * se[k])))
+    return fitted[0], fitted[1]
 
 
 def load_skin_profile(path: str | Path, layout: Layout, probe_radius_mm: float = 2.75) -> SkinModel:
