@@ -8,7 +8,10 @@ install excluded). Its phases are measured as the commands a user can also run o
     main job   neatskin campaign run PROTOCOL --dry-run                (both, as the README runs it)
 
 Each phase is a child process; its CPU time and peak RSS come from the kernel's accounting of that
-child (os.wait4), so nothing of this script is counted. With --against DIR the same phases run on
+child (os.wait4), so nothing of this script is counted. The kernel's peak RSS is that of the largest
+single process (the child or one of its descendants); the dry run's skin worker and the report's fit
+workers run beside the main process, so the table also gives the peak of the whole process tree's
+summed RSS, sampled every 0.1 s from /proc (a sampled peak: a spike shorter than that can be missed). With --against DIR the same phases run on
 another checkout of the toolkit (e.g. the previous commit: `git worktree add /tmp/prev HEAD~1`)
 side by side, alternating, and the table gives the ratio.
 
@@ -25,6 +28,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,6 +42,45 @@ class Measurement:
     cpu_s: float
     peak_rss_mb: float
     ok: bool
+    tree_rss_mb: float = 0.0  # peak of the process tree's summed RSS, sampled
+
+
+def _tree_rss_mb(root: int) -> float:
+    """Summed RSS (MB) of `root` and its descendants now, from /proc (Linux; 0 elsewhere)."""
+    children: dict[int, list[int]] = {}
+    rss: dict[int, int] = {}
+    try:
+        entries = os.listdir("/proc")
+    except OSError:
+        return 0.0
+    for entry in entries:
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat", "rb") as handle:
+                fields = handle.read().rsplit(b")", 1)[1].split()
+        except OSError:
+            continue
+        pid = int(entry)
+        children.setdefault(int(fields[1]), []).append(pid)  # fields[1] is the ppid
+        rss[pid] = int(fields[21])  # pages
+    total, todo = 0, [root]
+    while todo:
+        pid = todo.pop()
+        total += rss.get(pid, 0)
+        todo.extend(children.get(pid, ()))
+    return total * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+class _TreeSampler(threading.Thread):
+    def __init__(self, root: int, every_s: float = 0.1) -> None:
+        super().__init__(daemon=True)
+        self.root, self.every_s, self.peak_mb = root, every_s, 0.0
+        self.done = threading.Event()
+
+    def run(self) -> None:
+        while not self.done.wait(self.every_s):
+            self.peak_mb = max(self.peak_mb, _tree_rss_mb(self.root))
 
 
 def run_child(argv: list[str], checkout: Path, cwd: Path) -> Measurement:
@@ -45,15 +88,20 @@ def run_child(argv: list[str], checkout: Path, cwd: Path) -> Measurement:
     env = dict(os.environ, PYTHONPATH=str(checkout))
     started = time.perf_counter()
     child = subprocess.Popen(argv, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    sampler = _TreeSampler(child.pid)
+    sampler.start()
     _, status, usage = os.wait4(child.pid, 0)
     wall = time.perf_counter() - started
+    sampler.done.set()
+    sampler.join()
     child.returncode = os.waitstatus_to_exitcode(status)
     if child.returncode != 0:
         err = child.stderr.read().decode(errors="replace") if child.stderr else ""
         print(f"  ! {' '.join(argv[2:])} exited {child.returncode}: {err.strip()[-400:]}", file=sys.stderr)
     if child.stderr:
         child.stderr.close()
-    return Measurement(wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024.0, child.returncode == 0)
+    cpu = usage.ru_utime + usage.ru_stime
+    return Measurement(wall, cpu, usage.ru_maxrss / 1024.0, child.returncode == 0, sampler.peak_mb)
 
 
 def phases(checkout: Path, protocol: Path, work: Path) -> dict[str, Measurement]:
@@ -103,13 +151,18 @@ def main() -> None:
         f"load average (1, 5, 15 min) before {load_before[0]:.2f} {load_before[1]:.2f} {load_before[2]:.2f}, "
         f"after {load_after[0]:.2f} {load_after[1]:.2f} {load_after[2]:.2f}"
     )
-    header = f"{'checkout':<9} {'phase':<10} {'wall s':>8} {'cpu s':>8} {'peak RSS MB':>12} {'ok':>4}"
+    header = (
+        f"{'checkout':<9} {'phase':<10} {'wall s':>8} {'cpu s':>8} {'peak RSS MB':>12} {'tree RSS MB':>12} {'ok':>4}"
+    )
     if args.against:
         header += f" {'wall vs against':>16}"
     print(header)
     for name in checkouts:
         for phase, m in best[name].items():
-            line = f"{name:<9} {phase:<10} {m.wall_s:>8.1f} {m.cpu_s:>8.1f} {m.peak_rss_mb:>12.0f} {'yes' if m.ok else 'NO':>4}"
+            line = (
+                f"{name:<9} {phase:<10} {m.wall_s:>8.1f} {m.cpu_s:>8.1f} {m.peak_rss_mb:>12.0f} "
+                f"{m.tree_rss_mb:>12.0f} {'yes' if m.ok else 'NO':>4}"
+            )
             if args.against and name == "this":
                 other = best["against"].get(phase)
                 line += f" {m.wall_s / other.wall_s:>15.2f}x" if other else ""
