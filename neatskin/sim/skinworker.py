@@ -204,9 +204,10 @@ class SkinWorker:
             with contextlib.suppress(OSError):
                 conn.send(None)
         if process is not None:
-            process.join(CLOSE_TIMEOUT_S)
+            process.join(0.0 if self._broken is not None else CLOSE_TIMEOUT_S)  # a hung worker is not waited for
             if process.is_alive():
-                log.warning("the skin worker (pid %s) did not end; terminating it", process.pid)
+                if self._broken is None:
+                    log.warning("the skin worker (pid %s) did not end; terminating it", process.pid)
                 process.terminate()
                 process.join(CLOSE_TIMEOUT_S)
                 if process.is_alive():
