@@ -152,12 +152,19 @@ class SkinWorker:
     def start(self) -> SkinWorker:
         ctx = multiprocessing.get_context(self.context)
         ours, theirs = ctx.Pipe(duplex=True)
-        process = ctx.Process(target=serve, args=(theirs, self.factory), name="neatskin-skin-worker", daemon=True)
+        process = ctx.Process(target=serve, args=(theirs,), name="neatskin-skin-worker", daemon=True)
         with _sigint_ignored():  # the child starts with SIGINT ignored, before its first line could catch it
             process.start()
         theirs.close()  # ours is then the pipe's only other end: the worker sees EOF when this process dies
         self._process, self._conn = process, ours
         log.debug("skin worker started, pid %s", process.pid)
+        # the factory (the protocol, ~70 kB) goes over our pipe, not in spawn's start-up data: spawn writes that
+        # to a pipe the child reads only after importing the main module, so a payload over the pipe's 64 kB
+        # would hold start() until then (and forever if the child dies first)
+        try:
+            ours.send(self.factory)
+        except OSError:
+            self._fail(self._died(0))
         return self
 
     def submit(self, job: EstimateJob) -> int:
@@ -267,9 +274,15 @@ class SkinWorker:
         if process is not None:
             process.join(0.5)
         code = None if process is None else process.exitcode
+        hint = (
+            ""
+            if self._ready
+            else " (it never started: a Python script that runs a campaign must guard its top level with "
+            '`if __name__ == "__main__":`, which multiprocessing\'s spawn re-imports, or set NEATSKIN_SKIN_WORKER=off)'
+        )
         return HardwareError(
             f"the dry run's skin worker (pid {self.pid}) ended (exit code {code}) before press {press_id}'s "
-            "estimates; the presses before it are written, `neatskin campaign resume` presses the rest"
+            f"estimates{hint}; the presses before it are written, `neatskin campaign resume` presses the rest"
         )
 
 
@@ -289,9 +302,14 @@ def _sigint_ignored() -> Iterator[None]:
         signal.signal(signal.SIGINT, previous)
 
 
-def serve(conn: Connection, factory: EstimatorFactory) -> None:
-    """The worker's loop: build the estimator, say ready, answer each job in order; end on None or EOF."""
+def serve(conn: Connection) -> None:
+    """The worker's loop: receive the factory and build the estimator, say ready, answer each job in order;
+    end on None or EOF."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the main process handles it
+    try:
+        factory = conn.recv()
+    except (EOFError, OSError):
+        return
     try:
         estimate = factory()
     except Exception as exc:
