@@ -240,12 +240,10 @@ def _unique_states(states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return unique, inverse.reshape(-1)
 
 
-def features_estimates(
-    daq, sweep, probe: DryProbe, press_id: int, n_sweeps: int, *, seed: int, method: str, window: int
-):
-    """The features-only scene's pair estimates of a press whose moves the probe has loaded: the one computation
-    the inline recorder and the skin worker (neatskin.sim.skinworker) share, on the stream keyed by
-    (seed, press_id)."""
+def features_estimates(daq, sweep, press_id: int, n_sweeps: int, *, seed: int, method: str, window: int):
+    """The features-only scene's pair estimates of a press, read by `daq` from the probe that has loaded the
+    press's moves: the one computation the inline recorder and the skin worker (neatskin.sim.skinworker) share,
+    on the stream keyed by (seed, press_id)."""
     rng = np.random.default_rng([seed, press_id, STREAM_DAQ])
     return daq.estimate_sweep(sweep, rng, press_id * PRESS_SLOT_S, method=method, window=window, n_sweeps=n_sweeps)
 
@@ -319,7 +317,7 @@ class SimulatedRecorder:
                 }
         else:
             estimates = features_estimates(
-                self.daq, sweep, self.probe, press_id, n_sweeps, seed=self.seed, method=self.method, window=self.window
+                self.daq, sweep, press_id, n_sweeps, seed=self.seed, method=self.method, window=self.window
             )
             if self.fsr_enabled:
                 fsr_v = self._fsr_trace(first, n, press_id)

@@ -72,7 +72,6 @@ class PressEstimator:
         return features_estimates(
             self.daq,
             self.sweep,
-            self.probe,
             job.press_id,
             job.n_sweeps,
             seed=self.seed,
@@ -144,10 +143,6 @@ class SkinWorker:
     @property
     def pid(self) -> int | None:
         return None if self._process is None else self._process.pid
-
-    @property
-    def in_flight(self) -> int:
-        return self._submitted - self._received
 
     def start(self) -> SkinWorker:
         ctx = multiprocessing.get_context(self.context)
