@@ -224,7 +224,7 @@ def _children_once_pressing(proc: subprocess.Popen, folder: Path) -> set[int]:
     deadline = time.monotonic() + 120
     while not (folder.is_dir() and press_parts(folder)) and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.02)
-    assert proc.poll() is None and press_parts(folder), proc.stderr.read() if proc.poll() is not None else "timeout"
+    assert proc.poll() is None and press_parts(folder), proc.communicate()[1] if proc.poll() is not None else "timeout"
     tasks = Path(f"/proc/{proc.pid}/task")
     return {int(c) for task in tasks.iterdir() for c in (task / "children").read_text().split()}
 
@@ -241,7 +241,7 @@ def test_sigkill_of_the_campaign_leaves_no_worker_and_resume_equals_inline(
         assert children
         for pid in children:  # the worker ignores Ctrl-C (SIGINT) from its start
             status = Path(f"/proc/{pid}/status").read_text()
-            ignored = int(re.search(r"SigIgn:\s+([0-9a-f]+)", status).group(1), 16)
+            ignored = int(re.findall(r"SigIgn:\s+([0-9a-f]+)", status)[0], 16)
             assert ignored & (1 << (signal.SIGINT - 1)), pid
     finally:
         os.kill(proc.pid, signal.SIGKILL)

@@ -145,7 +145,9 @@ class SkinWorker:
         return None if self._process is None else self._process.pid
 
     def start(self) -> SkinWorker:
-        ctx = multiprocessing.get_context(self.context)
+        ctx: Any = multiprocessing.get_context(
+            self.context
+        )  # SpawnContext or ForkServerContext (typeshed: BaseContext)
         ours, theirs = ctx.Pipe(duplex=True)
         process = ctx.Process(target=serve, args=(theirs,), name="neatskin-skin-worker", daemon=True)
         with _sigint_ignored():  # the child starts with SIGINT ignored, before its first line could catch it
