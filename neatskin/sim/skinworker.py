@@ -15,6 +15,7 @@ has a deadline; its failure, death or silence is one HardwareError naming the pr
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import logging
 import multiprocessing
@@ -137,6 +138,7 @@ class SkinWorker:
         self._conn: Connection | None = None
         self._ready = False
         self._submitted = self._received = 0
+        self._pending: collections.deque[int] = collections.deque()  # press ids submitted, not yet answered
         self._broken: HardwareError | None = None  # once failed, every later call raises this at once
         self.wait_s = 0.0  # how long the caller waited for answers (the worker behind), logged at close
 
@@ -167,10 +169,9 @@ class SkinWorker:
     def submit(self, job: EstimateJob) -> int:
         """Queue a press; returns its ticket (the order it will come back in)."""
         conn = self._connection()
-        try:
-            conn.send(job)
-        except OSError:
-            raise self._fail(self._died(job.press_id)) from None
+        with contextlib.suppress(OSError):  # the worker is gone: result() still reads the answers it sent, then
+            conn.send(job)  # names the first press it owes
+        self._pending.append(job.press_id)
         self._submitted += 1
         return self._submitted - 1
 
@@ -187,6 +188,7 @@ class SkinWorker:
                 continue
             if message[0] == "ok" and message[1] == press_id:
                 self._received += 1
+                self._pending.popleft()
                 return message[2]
             if message[0] == "error":
                 what = "could not start" if message[1] is None else f"failed on press {message[1]}"
@@ -267,6 +269,8 @@ class SkinWorker:
         return error
 
     def _died(self, press_id: int) -> HardwareError:
+        """The error for a worker that is gone, naming the first press it owes (else `press_id`)."""
+        press_id = self._pending[0] if self._pending else press_id
         process = self._process
         if process is not None:
             process.join(0.5)
