@@ -19,6 +19,7 @@ DAQ_KINDS = ("simulated", "ni")
 # lines a campaign's driver may have in flight, real rig and dry run alike: more than one only when the firmware
 # names its lines (`ok N.. P.. B..`, Marlin's ADVANCED_OK); a stock Marlin without it gets one line at a time
 CAMPAIGN_MAX_IN_FLIGHT = 4
+SKIN_WORKER_ENV = "NEATSKIN_SKIN_WORKER"  # on | off: force the dry run's skin worker either way (benchmarks)
 DENT_BLOCK_PRESSES = 256  # presses whose residual dents are computed together (at most the solver's small batch)
 
 
@@ -32,6 +33,7 @@ class Rig:
     closers: list[Callable[[], None]] = field(default_factory=list)
     skin: object | None = None  # the simulated skin (dry run only)
     daq: object | None = None
+    skin_worker: object | None = None  # neatskin.sim.skinworker.SkinWorker when a dry run defers its estimates
 
     def close(self) -> None:
         for close in reversed(self.closers):
@@ -78,37 +80,66 @@ def daq_config(protocol):
     )
 
 
-def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=None, printer_faults=None) -> Rig:
-    """The simulated printer on a real pty (reached through pyserial), the simulated skin and DAQ."""
+def use_skin_worker(protocol, planned: int | None, skin_worker: bool | None = None) -> bool:
+    """Whether a dry run computes its pair estimates in a worker process (neatskin.sim.skinworker).
+
+    `skin_worker` True or False forces it (tests, benchmarks), as does SKIN_WORKER_ENV=on|off; by default a
+    features scene of at least the batching writer's BATCH_FROM_PRESSES planned presses on a machine with a
+    second core does, and everything else (the smoke protocol, short tests, the waveforms scene) stays inline."""
+    import os
+
+    from neatskin.datasets.writer import BATCH_FROM_PRESSES
+
+    if protocol.scene.signal != "features":
+        return False
+    if skin_worker is None:
+        forced = os.environ.get(SKIN_WORKER_ENV, "").strip().lower()
+        if forced in ("on", "off"):
+            return forced == "on"
+        if forced:
+            raise ConfigError(
+                f"{SKIN_WORKER_ENV}={forced!r} is not a skin worker setting",
+                field=SKIN_WORKER_ENV,
+                fix="set it to on or off, or unset it for the default",
+            )
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        return planned is not None and planned >= BATCH_FROM_PRESSES and cores >= 2
+    return bool(skin_worker)
+
+
+def build_dry_rig(
+    protocol,
+    sweep,
+    *,
+    connect_timeout_s: float = 0.2,
+    wire_log=None,
+    printer_faults=None,
+    planned: int | None = None,
+    skin_worker: bool | None = None,
+) -> Rig:
+    """The simulated printer on a real pty (reached through pyserial), the simulated skin and DAQ.
+
+    With a skin worker (`use_skin_worker(protocol, planned, skin_worker)`) the pair estimates are computed in
+    its own process, started first so its start-up overlaps the printer's connect; the main process keeps
+    the FSR (the probe's depth alone) and the rest of the skin for the physical limit."""
     from neatskin.marlin.driver import DriverConfig, MarlinDriver
-    from neatskin.sim.daq import NoiseModel, SimulatedDAQ
     from neatskin.sim.printer import SimulatedPrinter
-    from neatskin.sim.recorder import STREAM_PLACEMENT, DryProbe, SimulatedRecorder
-    from neatskin.skin.model import SkinModel, placement_error_mm
-    from neatskin.skin.variability import fabrication_heights
+    from neatskin.sim.recorder import SimulatedRecorder
 
     scene = protocol.scene
-    probe_radius = protocol.press.press.probe_diameter_mm / 2
-    heights = fabrication_heights(
-        protocol.layout.n_channels, getattr(scene, "fabrication_spread_fraction", 0.0), protocol.seed
-    )
-    profile = getattr(protocol, "skin_profile", None)  # a skin fitted by `neatskin skin fit`: its channels, its pinch
-    if profile is not None and profile.channel_height_factor is not None:
-        fitted = np.asarray(profile.channel_height_factor, float)
-        heights = tuple(float(h) for h in (fitted if heights is None else fitted * np.asarray(heights, float)))
-    skin = SkinModel(
-        protocol.layout,
-        fidelity=scene.fidelity,
-        probe_radius_mm=probe_radius,
-        placement_sigma_mm=scene.placement_error_mm,
-        channel_height_factor=heights,
-        displaced_fluid_fraction=getattr(scene, "displaced_fluid_fraction", 0.0),
-        **({} if profile is None else {"pinch": profile.pinch}),
-    )
+    closers: list[Callable[[], None]] = []
+    worker = None
+    if use_skin_worker(protocol, planned, skin_worker):
+        import functools
+
+        from neatskin.sim.skinworker import SkinWorker
+
+        worker = SkinWorker(functools.partial(skin_estimator, protocol, sweep)).start()
+        closers.append(worker.close)
+    skin = dry_skin(protocol)
     kwargs = {} if printer_faults is None else {"faults": printer_faults}
     # a Marlin built with ADVANCED_OK (`ok N.. P.. B..`), so the driver pipelines as it would on such a printer
     printer = SimulatedPrinter(protocol.printer, seed=protocol.seed, time_mode="virtual", advanced_ok=True, **kwargs)
-    closers: list[Callable[[], None]] = []
     try:
         pty_path = printer.start_pty()
         closers.append(printer.stop)
@@ -121,36 +152,13 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
         )
         closers.append(driver.close)
         driver.connect(boot_timeout_s=connect_timeout_s)
-    except Exception:
+    except BaseException:
         for close in reversed(closers):
             close()
         raise
 
-    calibration = protocol.printer.calibration
-    placement = None
-    if scene.placement_error_mm > 0:
-
-        def placement(press_id: int) -> tuple[float, float]:
-            rng = np.random.default_rng([protocol.seed, press_id, STREAM_PLACEMENT])
-            dx, dy = placement_error_mm(0.0, 0.0, scene.placement_error_mm, rng)
-            return float(np.asarray(dx).reshape(-1)[0]), float(np.asarray(dy).reshape(-1)[0])
-
-    probe = DryProbe(
-        skin,
-        calibration,
-        printer.segments,
-        placement_error=placement,
-        surface_error_mm=scene.surface_error_mm,
-        conditions=press_conditions(protocol, skin),
-    )
-    noise = interface_noise(NoiseModel() if scene.noise else NoiseModel.none(), scene)
-    daq = SimulatedDAQ(
-        daq_config(protocol),
-        probe.pair_resistance_ohm,
-        probe.force_n,
-        noise=noise,
-        slot_resistance_ohm=probe.slot_resistance_ohm,
-    )
+    probe = dry_probe(protocol, skin, printer.segments, force_only=worker is not None)
+    daq = dry_daq(protocol, probe)
     recorder = SimulatedRecorder(
         daq,
         sweep,
@@ -162,7 +170,9 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
         window=protocol.acquisition.window,
         fsr_enabled=protocol.fsr_enabled,
         keep_waveforms=protocol.record_waveforms,
+        worker=worker,
     )
+    profile = getattr(protocol, "skin_profile", None)
     description = {
         "kind": "dry-run",
         "printer": "simulated Marlin on " + pty_path,
@@ -173,13 +183,98 @@ def build_dry_rig(protocol, sweep, *, connect_timeout_s: float = 0.2, wire_log=N
             "noise": scene.noise,
             "placement_error_mm": scene.placement_error_mm,
             "surface_error_mm": scene.surface_error_mm,
-            "probe_radius_mm": probe_radius,
+            "probe_radius_mm": protocol.press.press.probe_diameter_mm / 2,
             "preset": getattr(scene, "preset", "ideal"),
             "skin_profile": None if profile is None else str(protocol.skin_profile_path),
             **(scene.variability() if hasattr(scene, "variability") else {}),
         },
     }
-    return Rig("dry-run", driver, recorder, daq.fsr, description, closers, skin=skin, daq=daq)
+    return Rig("dry-run", driver, recorder, daq.fsr, description, closers, skin=skin, daq=daq, skin_worker=worker)
+
+
+def dry_skin(protocol):
+    """The dry run's simulated skin (SkinModel) of a protocol: its layout, scene and fitted profile."""
+    from neatskin.skin.model import SkinModel
+    from neatskin.skin.variability import fabrication_heights
+
+    scene = protocol.scene
+    heights = fabrication_heights(
+        protocol.layout.n_channels, getattr(scene, "fabrication_spread_fraction", 0.0), protocol.seed
+    )
+    profile = getattr(protocol, "skin_profile", None)  # a skin fitted by `neatskin skin fit`: its channels, its pinch
+    if profile is not None and profile.channel_height_factor is not None:
+        fitted = np.asarray(profile.channel_height_factor, float)
+        heights = tuple(float(h) for h in (fitted if heights is None else fitted * np.asarray(heights, float)))
+    return SkinModel(
+        protocol.layout,
+        fidelity=scene.fidelity,
+        probe_radius_mm=protocol.press.press.probe_diameter_mm / 2,
+        placement_sigma_mm=scene.placement_error_mm,
+        channel_height_factor=heights,
+        displaced_fluid_fraction=getattr(scene, "displaced_fluid_fraction", 0.0),
+        **({} if profile is None else {"pinch": profile.pinch}),
+    )
+
+
+def dry_probe(protocol, skin, segments_from: Callable[[float], list], *, force_only: bool = False):
+    """The dry probe on `skin` along the moves `segments_from(t0)` gives. `force_only`: the main process's probe
+    beside a skin worker, which needs the depth alone (the FSR): no placement error, drift or dents."""
+    from neatskin.sim.recorder import STREAM_PLACEMENT, DryProbe
+    from neatskin.skin.model import placement_error_mm
+
+    scene = protocol.scene
+    placement = None
+    if scene.placement_error_mm > 0 and not force_only:
+
+        def placement(press_id: int) -> tuple[float, float]:
+            rng = np.random.default_rng([protocol.seed, press_id, STREAM_PLACEMENT])
+            dx, dy = placement_error_mm(0.0, 0.0, scene.placement_error_mm, rng)
+            return float(np.asarray(dx).reshape(-1)[0]), float(np.asarray(dy).reshape(-1)[0])
+
+    return DryProbe(
+        skin,
+        protocol.printer.calibration,
+        segments_from,
+        placement_error=placement,
+        surface_error_mm=scene.surface_error_mm,
+        conditions=press_conditions(protocol, skin, force_only=force_only),
+    )
+
+
+def dry_daq(protocol, probe):
+    """The simulated DAQ reading `probe` with the protocol's electrical limits and the scene's noise."""
+    from neatskin.sim.daq import NoiseModel, SimulatedDAQ
+
+    scene = protocol.scene
+    noise = interface_noise(NoiseModel() if scene.noise else NoiseModel.none(), scene)
+    return SimulatedDAQ(
+        daq_config(protocol),
+        probe.pair_resistance_ohm,
+        probe.force_n,
+        noise=noise,
+        slot_resistance_ohm=probe.slot_resistance_ohm,
+    )
+
+
+def skin_estimator(protocol, sweep):
+    """The skin worker's estimator (built in the worker; neatskin.sim.skinworker pickles this function by name):
+    the same skin, conditions and DAQ as the inline dry rig, with a probe that is given each press's moves."""
+    from neatskin.sim.skinworker import PressEstimator
+
+    skin = dry_skin(protocol)
+    probe = dry_probe(protocol, skin, _no_printer)
+    return PressEstimator(
+        dry_daq(protocol, probe),
+        sweep,
+        probe,
+        seed=protocol.seed,
+        method=protocol.acquisition.demodulation,
+        window=protocol.acquisition.window,
+    )
+
+
+def _no_printer(t0_s: float) -> list:
+    raise RuntimeError("the skin worker has no printer: give the probe each press's moves (DryProbe.load_segments)")
 
 
 def interface_noise(noise, scene):
@@ -197,8 +292,9 @@ def interface_noise(noise, scene):
     return dataclasses.replace(noise, **changes) if changes else noise
 
 
-def press_conditions(protocol, skin):
+def press_conditions(protocol, skin, *, force_only: bool = False):
     """The per-press variability of the scene as a pure function of press_id, or None when every source is off.
+    `force_only`: the depth jitter alone (what the FSR needs), for the main process beside a skin worker.
 
     Placement error, depth jitter (each its own random stream keyed by (seed, press_id)), drift of
     the fluid's resistivity and the residual dents of earlier presses (both from the press's
@@ -214,6 +310,8 @@ def press_conditions(protocol, skin):
         getattr(scene, "temperature_drift_k_per_h", 0.0) or getattr(scene, "evaporation_fraction_per_h", 0.0)
     )
     relaxing = bool(getattr(scene, "hysteresis_fraction", 0.0))
+    if force_only:  # drift and dents change resistances only: the skin worker's probe has them
+        drifting = relaxing = False
     if not (jitter or drifting or relaxing):
         return None
     commanded = None

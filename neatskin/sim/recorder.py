@@ -11,12 +11,16 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from neatskin.acquisition.demod import demodulate
 from neatskin.acquisition.record import PressRecord
 from neatskin.sim.motion import positions_mm, relative_segments, segment_fraction
+
+if TYPE_CHECKING:
+    from neatskin.sim.skinworker import DeferredRecord, SkinWorker
 
 PRESS_SLOT_S = 1000.0  # each press owns [press_id * slot, (press_id + 1) * slot) of the dry run's sample clock
 STREAM_DAQ = 1
@@ -67,8 +71,18 @@ class DryProbe:
 
     def load(self, press_id: int, printer_t0_s: float, daq_t0_s: float, duration_s: float) -> None:
         """Take the printer's moves from t0 on for this press (the recording spans [t0, t0 + duration])."""
-        self._segments = relative_segments(self.segments_from(printer_t0_s), printer_t0_s)
-        self._printer_t0, self._daq_t0 = printer_t0_s, daq_t0_s
+        self._printer_t0 = printer_t0_s
+        self.load_segments(press_id, relative_segments(self.segments_from(printer_t0_s), printer_t0_s), daq_t0_s)
+
+    @property
+    def segments(self) -> list:
+        """The loaded press's moves on its own clock (sim.motion.relative_segments), as `load_segments` takes them."""
+        return self._segments
+
+    def load_segments(self, press_id: int, segments: list, daq_t0_s: float) -> None:
+        """Take a press's moves already on its own clock (what `segments` gave after `load`, e.g. in the skin
+        worker, which has no printer), and the press's conditions."""
+        self._segments, self._daq_t0 = list(segments), daq_t0_s
         self._offset = self.placement_error(press_id) if self.placement_error is not None else (0.0, 0.0)
         self._depth_offset, self._skin_kwargs, self._baseline = 0.0, {}, self._skin_baseline
         if self.conditions is not None:
@@ -226,8 +240,19 @@ def _unique_states(states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return unique, inverse.reshape(-1)
 
 
+def features_estimates(daq, sweep, press_id: int, n_sweeps: int, *, seed: int, method: str, window: int):
+    """The features-only scene's pair estimates of a press, read by `daq` from the probe that has loaded the
+    press's moves: the one computation the inline recorder and the skin worker (neatskin.sim.skinworker) share,
+    on the stream keyed by (seed, press_id)."""
+    rng = np.random.default_rng([seed, press_id, STREAM_DAQ])
+    return daq.estimate_sweep(sweep, rng, press_id * PRESS_SLOT_S, method=method, window=window, n_sweeps=n_sweeps)
+
+
 class SimulatedRecorder:
-    """Dry-run recorder: computes the press's acquisition from the simulated printer's trajectory."""
+    """Dry-run recorder: computes the press's acquisition from the simulated printer's trajectory.
+
+    With a skin worker (neatskin.sim.skinworker, features scene only), `end_deferred` computes the FSR trace
+    at once and leaves the pair estimates to the worker's process; `end` stays the inline path."""
 
     def __init__(
         self,
@@ -242,10 +267,14 @@ class SimulatedRecorder:
         window: int,
         fsr_enabled: bool,
         keep_waveforms: bool,
+        worker: SkinWorker | None = None,
     ) -> None:
+        if worker is not None and signal != "features":
+            raise ValueError("a skin worker computes the features scene only; the waveforms scene stays inline")
         self.daq, self.sweep, self.probe, self.clock = daq, sweep, probe, clock
         self.seed, self.signal, self.method, self.window = seed, signal, method, window
         self.fsr_enabled, self.keep_waveforms = fsr_enabled, keep_waveforms
+        self.worker = worker
         self._press: int | None = None
 
     def begin(self, press_id: int, n_sweeps: int) -> None:
@@ -256,19 +285,27 @@ class SimulatedRecorder:
     def mark(self, name: str) -> None:
         self._marks[name] = self.clock()
 
-    def end(self) -> PressRecord:
+    def _load(self) -> tuple[int, int, int, int]:
+        """Load the press's moves into the probe: (press_id, sweeps, first sample, samples)."""
         if self._press is None:
             raise RuntimeError("end() without begin()")
         press_id, n_sweeps, sweep = self._press, self._n_sweeps, self.sweep
-        rate = sweep.rate_hz
-        duration = n_sweeps * sweep.duration_s
         daq_t0 = press_id * PRESS_SLOT_S
-        self.probe.load(press_id, self._t0, daq_t0, duration)
-        rng = np.random.default_rng([self.seed, press_id, STREAM_DAQ])
-        first = int(round(daq_t0 * rate))
-        n = n_sweeps * sweep.n_samples
+        self.probe.load(press_id, self._t0, daq_t0, n_sweeps * sweep.duration_s)
+        return press_id, n_sweeps, int(round(daq_t0 * sweep.rate_hz)), n_sweeps * sweep.n_samples
+
+    def _sample_marks(self, first: int) -> dict[str, int]:
+        return {k: first + int(round((t - self._t0) * self.sweep.rate_hz)) for k, t in self._marks.items()}
+
+    def end(self) -> PressRecord:
+        if self.worker is not None:  # the worker's probe holds the conditions (dents, drift) this one leaves out
+            return self.end_deferred().submit().result()
+        press_id, n_sweeps, first, n = self._load()
+        sweep, rate = self.sweep, self.sweep.rate_hz
+        daq_t0 = press_id * PRESS_SLOT_S
         waveforms = fsr_v = None
         if self.signal == "waveforms":
+            rng = np.random.default_rng([self.seed, press_id, STREAM_DAQ])
             acq = self.daq.acquire(sweep, n_sweeps, rng=rng, start_time_s=daq_t0)
             estimates = demodulate(acq, sweep, method=self.method, window=self.window)
             fsr_v = acq.fsr_v if self.fsr_enabled else None
@@ -279,15 +316,39 @@ class SimulatedRecorder:
                     "fsr_v": acq.fsr_v.astype(np.float32),
                 }
         else:
-            estimates = self.daq.estimate_sweep(
-                sweep, rng, daq_t0, method=self.method, window=self.window, n_sweeps=n_sweeps
+            estimates = features_estimates(
+                self.daq, sweep, press_id, n_sweeps, seed=self.seed, method=self.method, window=self.window
             )
             if self.fsr_enabled:
                 fsr_v = self._fsr_trace(first, n, press_id)
-        marks = {k: first + int(round((t - self._t0) * rate)) for k, t in self._marks.items()}
+        marks = self._sample_marks(first)
         self._press = None
         fsr_rate = rate if self.signal == "waveforms" else rate / FSR_DECIMATION
         return PressRecord(estimates, first, n, rate, marks, fsr_v, waveforms, fsr_rate)
+
+    def end_deferred(self) -> DeferredRecord:
+        """The press's FSR trace and marks now (the runner's retry decision needs the label before the next
+        press); its pair estimates once the caller `submit`s the record to the skin worker and asks its
+        `result`. Only a press that is kept is submitted: a retried attempt costs the worker nothing."""
+        if self.worker is None:
+            raise RuntimeError("end_deferred() needs a skin worker (neatskin.sim.skinworker.SkinWorker)")
+        press_id, n_sweeps, first, n = self._load()
+        fsr_v = self._fsr_trace(first, n, press_id) if self.fsr_enabled else None
+        from neatskin.sim.skinworker import DeferredRecord, EstimateJob
+
+        job = EstimateJob(press_id, n_sweeps, tuple(self.probe.segments))
+        record = DeferredRecord(
+            first,
+            n,
+            self.sweep.rate_hz,
+            self._sample_marks(first),
+            fsr_v,
+            self.sweep.rate_hz / FSR_DECIMATION,
+            job,
+            self.worker,
+        )
+        self._press = None
+        return record
 
     def _fsr_trace(self, first: int, n: int, press_id: int) -> np.ndarray:
         """The FSR channel alone, every FSR_DECIMATION-th sample (the features-only scene generates no V and I

@@ -1,0 +1,341 @@
+"""The dry run's second core: one worker process that computes each kept press's pair estimates (the simulated
+skin and DAQ), in press order, while the main process runs the next presses' G-code, FSR label and writing.
+
+The main process holds one GIL for the driver, the simulated printer and the runner; the skin's per-depth
+evaluation is arithmetic that threads cannot share. So the features scene's estimates (`features_estimates`,
+the same function the inline recorder calls, on the same random stream keyed by (seed, press_id)) run in a
+`multiprocessing` spawn process (never fork: the main process has threads), fed one `EstimateJob` per press
+(the press's moves on its own clock) and answering in the order it was fed. The FSR trace is not deferred:
+the runner's retry decision needs the label before the next press.
+
+The worker ignores SIGINT (Ctrl-C reaches the whole process group; the main process stops cleanly and then
+closes the worker), and it exits by itself when the main process goes away (EOF on its pipe). Every wait on it
+has a deadline; its failure, death or silence is one HardwareError naming the press.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import logging
+import multiprocessing
+import signal
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection, wait
+from typing import Any, Protocol
+
+import numpy as np
+
+from neatskin.acquisition.estimates import PairEstimates
+from neatskin.acquisition.record import PressRecord
+from neatskin.errors import HardwareError
+from neatskin.sim.recorder import PRESS_SLOT_S, DryProbe, features_estimates
+
+log = logging.getLogger(__name__)
+
+START_TIMEOUT_S = 120.0  # the worker's imports and skin model, on a loaded machine
+PRESS_TIMEOUT_S = 60.0  # one press's estimates take milliseconds; this is a hang, not a slow press
+CLOSE_TIMEOUT_S = 5.0
+CONTEXT = "spawn"
+
+
+@dataclass(frozen=True)
+class EstimateJob:
+    """What the worker needs of one press: its id (the random stream, the conditions) and its moves."""
+
+    press_id: int
+    n_sweeps: int
+    segments: tuple  # sim.motion.Segment of the press, on its own clock (DryProbe.segments after load)
+
+
+class Estimator(Protocol):
+    def __call__(self, job: EstimateJob) -> PairEstimates: ...
+
+
+class EstimatorFactory(Protocol):
+    """Builds the worker's Estimator in the worker; picklable (a module-level function, or a partial of one)."""
+
+    def __call__(self) -> Estimator: ...
+
+
+class PressEstimator:
+    """The worker's side: a probe with no printer (it is given each press's moves), the simulated DAQ reading it."""
+
+    def __init__(self, daq: Any, sweep: Any, probe: DryProbe, *, seed: int, method: str, window: int) -> None:
+        self.daq, self.sweep, self.probe = daq, sweep, probe
+        self.seed, self.method, self.window = seed, method, window
+
+    def __call__(self, job: EstimateJob) -> PairEstimates:
+        self.probe.load_segments(job.press_id, list(job.segments), job.press_id * PRESS_SLOT_S)
+        return features_estimates(
+            self.daq,
+            self.sweep,
+            job.press_id,
+            job.n_sweeps,
+            seed=self.seed,
+            method=self.method,
+            window=self.window,
+        )
+
+
+@dataclass
+class DeferredRecord:
+    """A press recorded except its pair estimates: the FSR trace and marks (PressRecord's fields of those
+    names) now, the estimates from the worker once `submit`ted, by `result()`."""
+
+    first_sample: int
+    n_samples: int
+    rate_hz: float
+    marks: dict[str, int]
+    fsr_v: np.ndarray | None
+    fsr_rate_hz: float
+    job: EstimateJob
+    worker: SkinWorker = field(repr=False)
+    ticket: int | None = None
+
+    @property
+    def press_id(self) -> int:
+        return self.job.press_id
+
+    def submit(self) -> DeferredRecord:
+        """Send the press to the worker (once)."""
+        if self.ticket is None:
+            self.ticket = self.worker.submit(self.job)
+        return self
+
+    def result(self) -> PressRecord:
+        """The whole record, waiting for the worker's estimates (with a deadline)."""
+        if self.ticket is None:
+            raise RuntimeError(f"press {self.press_id}: result() before submit()")
+        estimates = self.worker.result(self.ticket, self.press_id)
+        return PressRecord(
+            estimates, self.first_sample, self.n_samples, self.rate_hz, self.marks, self.fsr_v, None, self.fsr_rate_hz
+        )
+
+
+class SkinWorker:
+    """One worker process computing EstimateJobs in the order they are submitted; results come back in that order.
+
+    `start()` launches it (its imports and model build overlap whatever the caller does next); `close()` ends it.
+    """
+
+    def __init__(
+        self,
+        factory: EstimatorFactory,
+        *,
+        start_timeout_s: float = START_TIMEOUT_S,
+        press_timeout_s: float = PRESS_TIMEOUT_S,
+        context: str = CONTEXT,
+    ) -> None:
+        if context == "fork":
+            raise ValueError("the skin worker must not fork a process that has threads: use spawn or forkserver")
+        self.factory = factory
+        self.start_timeout_s, self.press_timeout_s, self.context = start_timeout_s, press_timeout_s, context
+        self._process: Any = None
+        self._conn: Connection | None = None
+        self._ready = False
+        self._submitted = self._received = 0
+        self._pending: collections.deque[int] = collections.deque()  # press ids submitted, not yet answered
+        self._broken: HardwareError | None = None  # once failed, every later call raises this at once
+        self.wait_s = 0.0  # how long the caller waited for answers (the worker behind), logged at close
+
+    @property
+    def pid(self) -> int | None:
+        return None if self._process is None else self._process.pid
+
+    def start(self) -> SkinWorker:
+        ctx: Any = multiprocessing.get_context(
+            self.context
+        )  # SpawnContext or ForkServerContext (typeshed: BaseContext)
+        ours, theirs = ctx.Pipe(duplex=True)
+        process = ctx.Process(target=serve, args=(theirs,), name="neatskin-skin-worker", daemon=True)
+        with _sigint_ignored():  # the child starts with SIGINT ignored, before its first line could catch it
+            process.start()
+        theirs.close()  # ours is then the pipe's only other end: the worker sees EOF when this process dies
+        self._process, self._conn = process, ours
+        log.debug("skin worker started, pid %s", process.pid)
+        # the factory (the protocol, ~70 kB) goes over our pipe, not in spawn's start-up data: spawn writes that
+        # to a pipe the child reads only after importing the main module, so a payload over the pipe's 64 kB
+        # would hold start() until then (and forever if the child dies first)
+        try:
+            ours.send(self.factory)
+        except OSError:
+            self._fail(self._died(0))
+        return self
+
+    def submit(self, job: EstimateJob) -> int:
+        """Queue a press; returns its ticket (the order it will come back in)."""
+        conn = self._connection()
+        with contextlib.suppress(OSError):  # the worker is gone: result() still reads the answers it sent, then
+            conn.send(job)  # names the first press it owes
+        self._pending.append(job.press_id)
+        self._submitted += 1
+        return self._submitted - 1
+
+    def result(self, ticket: int, press_id: int) -> PairEstimates:
+        """The estimates of the press with this ticket, the next one due."""
+        if self._broken is not None:
+            raise self._broken
+        if ticket != self._received:
+            raise RuntimeError(f"press {press_id}: the skin worker answers in order; ticket {self._received} is next")
+        while True:
+            message = self._receive(press_id)
+            if message[0] == "ready":
+                self._ready = True
+                continue
+            if message[0] == "ok" and message[1] == press_id:
+                self._received += 1
+                self._pending.popleft()
+                return message[2]
+            if message[0] == "error":
+                what = "could not start" if message[1] is None else f"failed on press {message[1]}"
+                raise self._fail(
+                    HardwareError(
+                        f"the dry run's skin worker {what}: {message[2]}; the presses before it are written, "
+                        "`neatskin campaign resume` presses the rest"
+                    )
+                )
+            raise RuntimeError(f"press {press_id}: unexpected answer from the skin worker: {message[:2]!r}")
+
+    def close(self) -> None:
+        """Ask the worker to end, and end it if it does not within CLOSE_TIMEOUT_S."""
+        process, conn = self._process, self._conn
+        self._process = self._conn = None
+        if process is not None:
+            log.debug("skin worker: %d presses, the caller waited %.2f s for them", self._received, self.wait_s)
+        if conn is not None:
+            with contextlib.suppress(OSError):
+                conn.send(None)
+        if process is not None:
+            process.join(0.0 if self._broken is not None else CLOSE_TIMEOUT_S)  # a hung worker is not waited for
+            if process.is_alive():
+                if self._broken is None:
+                    log.warning("the skin worker (pid %s) did not end; terminating it", process.pid)
+                process.terminate()
+                process.join(CLOSE_TIMEOUT_S)
+                if process.is_alive():
+                    process.kill()
+                    process.join(CLOSE_TIMEOUT_S)
+        if conn is not None:
+            conn.close()
+
+    def _connection(self) -> Connection:
+        if self._broken is not None:
+            raise self._broken
+        if self._conn is None:
+            raise RuntimeError("the skin worker is not running: start() it first")
+        return self._conn
+
+    def _receive(self, press_id: int) -> tuple:
+        conn = self._connection()
+        if conn.poll():
+            return self._recv(conn, press_id)
+        started = time.perf_counter()
+        try:
+            return self._wait_receive(conn, press_id)
+        finally:
+            self.wait_s += time.perf_counter() - started
+
+    def _recv(self, conn: Connection, press_id: int) -> tuple:
+        try:
+            return conn.recv()
+        except (EOFError, OSError):
+            raise self._fail(self._died(press_id)) from None
+
+    def _wait_receive(self, conn: Connection, press_id: int) -> tuple:
+        timeout = self.press_timeout_s if self._ready else self.start_timeout_s
+        deadline = time.monotonic() + timeout
+        while True:
+            if conn.poll():  # data, or EOF when the worker is gone (its answers already sent still come first)
+                return self._recv(conn, press_id)
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise self._fail(
+                    HardwareError(
+                        f"the dry run's skin worker (pid {self.pid}) gave no estimates for press {press_id} within "
+                        f"{timeout:.0f} s; the presses before it are written, `neatskin campaign resume` presses "
+                        "the rest"
+                    )
+                )
+            ready = wait([conn, self._process.sentinel], remaining)
+            if ready and conn not in ready and not conn.poll():
+                raise self._fail(self._died(press_id))
+
+    def _fail(self, error: HardwareError) -> HardwareError:
+        self._broken = error
+        return error
+
+    def _died(self, press_id: int) -> HardwareError:
+        """The error for a worker that is gone, naming the first press it owes (else `press_id`)."""
+        press_id = self._pending[0] if self._pending else press_id
+        process = self._process
+        if process is not None:
+            process.join(0.5)
+        code = None if process is None else process.exitcode
+        hint = (
+            ""
+            if self._ready
+            else " (it never started: a Python script that runs a campaign must guard its top level with "
+            '`if __name__ == "__main__":`, which multiprocessing\'s spawn re-imports, or set NEATSKIN_SKIN_WORKER=off)'
+        )
+        return HardwareError(
+            f"the dry run's skin worker (pid {self.pid}) ended (exit code {code}) before press {press_id}'s "
+            f"estimates{hint}; the presses before it are written, `neatskin campaign resume` presses the rest"
+        )
+
+
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    if threading.current_thread() is not threading.main_thread():
+        yield  # only the main thread may touch signal handlers; the worker ignores SIGINT from its first line
+        return
+    previous = signal.getsignal(signal.SIGINT)
+    if previous is None:  # a handler not set from Python: leave it alone
+        yield
+        return
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def serve(conn: Connection) -> None:
+    """The worker's loop: receive the factory and build the estimator, say ready, answer each job in order;
+    end on None or EOF."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the main process handles it
+    try:
+        factory = conn.recv()
+    except (EOFError, OSError):
+        return
+    try:
+        estimate = factory()
+    except Exception as exc:
+        _send(conn, ("error", None, f"{type(exc).__name__}: {exc}"))
+        return
+    if not _send(conn, ("ready",)):
+        return
+    while True:
+        try:
+            job = conn.recv()
+        except (EOFError, OSError):  # the main process closed its end or died: nobody wants the rest
+            return
+        if job is None:
+            return
+        try:
+            message: tuple = ("ok", job.press_id, estimate(job))
+        except Exception as exc:
+            message = ("error", job.press_id, f"{type(exc).__name__}: {exc}")
+        if not _send(conn, message):
+            return
+
+
+def _send(conn: Connection, message: tuple) -> bool:
+    try:
+        conn.send(message)
+    except OSError:
+        return False
+    return True
