@@ -167,7 +167,9 @@ def test_a_pause_has_a_deadline(campaign_dir):
 # ---- real dry-run campaigns -------------------------------------------------------------------------------------
 
 
-def _run_in_thread(folder: Path, resume: bool = False):
+def _run_in_thread(folder: Path, resume: bool = False, stepper_timeout_s: float | None = None):
+    import dataclasses
+
     from neatskin.rig.protocol import load_protocol
     from neatskin.rig.runner import resume_campaign, run_campaign
 
@@ -178,7 +180,11 @@ def _run_in_thread(folder: Path, resume: bool = False):
             if resume:
                 result["r"] = resume_campaign(folder, progress=False, report=False)
             else:
-                result["r"] = run_campaign(load_protocol(SMOKE), folder, progress=False, report=False)
+                protocol = load_protocol(SMOKE)
+                if stepper_timeout_s is not None:
+                    printer = dataclasses.replace(protocol.printer, stepper_timeout_s=stepper_timeout_s)
+                    protocol = dataclasses.replace(protocol, printer=printer)
+                result["r"] = run_campaign(protocol, folder, progress=False, report=False)
         except BaseException as exc:  # surfaced by the test
             result["error"] = exc
 
@@ -224,6 +230,27 @@ def test_pause_then_continue_gives_the_rows_of_an_uninterrupted_run(tmp_path, re
     thread.join(120)
     assert "error" not in result and result["r"].completed == 12 and not result["r"].interrupted
     assert read_state(folder)["pauses"] == 1
+    _same_rows(read_presses(folder), reference)
+
+
+def test_a_pause_past_the_stepper_timeout_homes_again_and_changes_no_row(tmp_path, reference):
+    from neatskin.marlin.wirelog import read_wire_log
+
+    folder = tmp_path / "run"
+    thread, result = _run_in_thread(folder, stepper_timeout_s=0.05)  # Marlin's 120 s, shortened
+    _wait_for(lambda: len(press_parts(folder)) >= 2)
+    request_control(folder, "pause", by="test")
+    _wait_for(lambda: read_state(folder).get("state") == "paused")
+    time.sleep(0.3)
+    main(["campaign", "continue", str(folder)])
+    thread.join(120)
+    assert "error" not in result and result["r"].completed == 12
+    sent = b"".join(data for kind, data in read_wire_log(folder / "wire.log") if kind == ">")
+    homes = [line for line in sent.split(b"\n") if b" G28*" in line]
+    assert len(homes) == 2  # the program's start, and once after the pause
+    # the second G28 comes after the pause's lift, and the probe is back at the safe height before the next press
+    after = sent[sent.index(homes[1]) :].split(b"\n")
+    assert any(b"M118 E1 NS press=" in line for line in after)
     _same_rows(read_presses(folder), reference)
 
 

@@ -328,7 +328,9 @@ def press_conditions(protocol, skin, *, force_only: bool = False):
             protocol.press, hold_in_gcode=False, layout=protocol.layout, profile=protocol.printer
         )
         depth = protocol.press.press.depth_mm
-        commanded = np.array([(b.x_mm, b.y_mm, depth) for b in program.presses])
+        ids = program.presses.position_ids  # press k presses position ids[k]: no block's G-code is formatted
+        xs, ys = np.asarray(program.positions.x_mm, float), np.asarray(program.positions.y_mm, float)
+        commanded = np.column_stack([xs[ids], ys[ids], np.full(ids.size, depth)])
     relaxation = Relaxation(scene.hysteresis_fraction, scene.relaxation_time_s, interval_s) if relaxing else None
 
     def drift(press_id: int) -> float | None:

@@ -486,6 +486,9 @@ def _checkpoint(protocol, plan, driver, writer, stop, flush=None):
         park=lambda: driver.send_lines((*post[:3], "M400"), source="stop park"),
         fsr_miss_limit=protocol.fsr_pause_after_misses,
         interrupted=lambda: stop.requested,
+        # a pause that outlasted the stepper timeout: home as the program began, then back up to the safe height
+        rehome=lambda: driver.send_lines((*plan.program.preamble, *post[:1], "M400"), source="re-home"),
+        stepper_timeout_s=protocol.printer.stepper_timeout_s,
     )
 
 
