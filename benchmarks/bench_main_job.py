@@ -11,7 +11,9 @@ Each phase is a child process; its CPU time and peak RSS come from the kernel's 
 child (os.wait4), so nothing of this script is counted. The kernel's peak RSS is that of the largest
 single process (the child or one of its descendants); the dry run's skin worker and the report's fit
 workers run beside the main process, so the table also gives the peak of the whole process tree's
-summed RSS, sampled every 0.1 s from /proc (a sampled peak: a spike shorter than that can be missed). With --against DIR the same phases run on
+summed PSS (proportional set size: a page shared by n processes, such as the libraries' code or the
+report's memory-mapped features, counts 1/n in each, so the sum is the memory the tree really holds),
+sampled every 0.1 s from /proc/PID/smaps_rollup (a sampled peak: a shorter spike can be missed). With --against DIR the same phases run on
 another checkout of the toolkit (e.g. the previous commit: `git worktree add /tmp/prev HEAD~1`)
 side by side, alternating, and the table gives the ratio.
 
@@ -42,13 +44,23 @@ class Measurement:
     cpu_s: float
     peak_rss_mb: float
     ok: bool
-    tree_rss_mb: float = 0.0  # peak of the process tree's summed RSS, sampled
+    tree_pss_mb: float = 0.0  # peak of the process tree's summed PSS, sampled
 
 
-def _tree_rss_mb(root: int) -> float:
-    """Summed RSS (MB) of `root` and its descendants now, from /proc (Linux; 0 elsewhere)."""
+def _pss_kb(pid: int) -> int:
+    try:
+        with open(f"/proc/{pid}/smaps_rollup", "rb") as handle:
+            for line in handle:
+                if line.startswith(b"Pss:"):
+                    return int(line.split()[1])
+    except (OSError, ValueError):
+        pass
+    return 0
+
+
+def _tree_pss_mb(root: int) -> float:
+    """Summed PSS (MB) of `root` and its descendants now, from /proc (Linux; 0 elsewhere)."""
     children: dict[int, list[int]] = {}
-    rss: dict[int, int] = {}
     try:
         entries = os.listdir("/proc")
     except OSError:
@@ -61,15 +73,13 @@ def _tree_rss_mb(root: int) -> float:
                 fields = handle.read().rsplit(b")", 1)[1].split()
         except OSError:
             continue
-        pid = int(entry)
-        children.setdefault(int(fields[1]), []).append(pid)  # fields[1] is the ppid
-        rss[pid] = int(fields[21])  # pages
-    total, todo = 0, [root]
+        children.setdefault(int(fields[1]), []).append(int(entry))  # fields[1] is the ppid
+    total_kb, todo = 0, [root]
     while todo:
         pid = todo.pop()
-        total += rss.get(pid, 0)
+        total_kb += _pss_kb(pid)
         todo.extend(children.get(pid, ()))
-    return total * os.sysconf("SC_PAGE_SIZE") / 2**20
+    return total_kb / 1024.0
 
 
 class _TreeSampler(threading.Thread):
@@ -80,7 +90,7 @@ class _TreeSampler(threading.Thread):
 
     def run(self) -> None:
         while not self.done.wait(self.every_s):
-            self.peak_mb = max(self.peak_mb, _tree_rss_mb(self.root))
+            self.peak_mb = max(self.peak_mb, _tree_pss_mb(self.root))
 
 
 def run_child(argv: list[str], checkout: Path, cwd: Path) -> Measurement:
@@ -105,7 +115,12 @@ def run_child(argv: list[str], checkout: Path, cwd: Path) -> Measurement:
 
 
 def phases(checkout: Path, protocol: Path, work: Path) -> dict[str, Measurement]:
-    """The three phases on one checkout, each in a fresh campaign folder."""
+    """The three phases on one checkout, each in a fresh campaign folder. A protocol inside this checkout is
+    run from the same relative path in the other one (its own protocols, which its schema accepts)."""
+    try:
+        protocol = checkout / protocol.relative_to(REPO.resolve())
+    except ValueError:
+        pass
     neatskin = [sys.executable, "-m", "neatskin"]
     out = {}
     campaign = work / "campaign"
@@ -152,7 +167,7 @@ def main() -> None:
         f"after {load_after[0]:.2f} {load_after[1]:.2f} {load_after[2]:.2f}"
     )
     header = (
-        f"{'checkout':<9} {'phase':<10} {'wall s':>8} {'cpu s':>8} {'peak RSS MB':>12} {'tree RSS MB':>12} {'ok':>4}"
+        f"{'checkout':<9} {'phase':<10} {'wall s':>8} {'cpu s':>8} {'peak RSS MB':>12} {'tree PSS MB':>12} {'ok':>4}"
     )
     if args.against:
         header += f" {'wall vs against':>16}"
@@ -161,7 +176,7 @@ def main() -> None:
         for phase, m in best[name].items():
             line = (
                 f"{name:<9} {phase:<10} {m.wall_s:>8.1f} {m.cpu_s:>8.1f} {m.peak_rss_mb:>12.0f} "
-                f"{m.tree_rss_mb:>12.0f} {'yes' if m.ok else 'NO':>4}"
+                f"{m.tree_pss_mb:>12.0f} {'yes' if m.ok else 'NO':>4}"
             )
             if args.against and name == "this":
                 other = best["against"].get(phase)
