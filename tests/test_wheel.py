@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -14,13 +15,25 @@ REPO = Path(__file__).resolve().parent.parent
 PIP = [sys.executable, "-m", "pip"]
 
 
+def _source_copy(root: Path) -> Path:
+    """What the wheel is built from, copied: setuptools builds in the source's own `build/` folder, so two
+    test workers building from the checkout at once remove each other's files (seen: `[Errno 2]` mid-build)."""
+    source = root / "source"
+    source.mkdir()
+    for name in ("pyproject.toml", "README.md", "LICENSE"):
+        shutil.copy2(REPO / name, source / name)
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
+    shutil.copytree(REPO / "neatskin", source / "neatskin", symlinks=True, ignore=ignore)
+    return source
+
+
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory) -> Path:
     """The package built as a wheel and installed (without dependencies) into a folder of its own."""
     root = tmp_path_factory.mktemp("wheel")
     wheels, target = root / "wheels", root / "site"
     subprocess.run(
-        [*PIP, "wheel", "--no-deps", "-q", "-w", str(wheels), str(REPO)],
+        [*PIP, "wheel", "--no-deps", "-q", "-w", str(wheels), str(_source_copy(root))],
         check=True,
         timeout=600,
         cwd=root,
