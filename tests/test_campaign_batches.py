@@ -18,7 +18,7 @@ import pytest
 from conftest import PROTOCOLS
 
 import neatskin.datasets.writer as writer_module
-import neatskin.rig.runner as runner
+import neatskin.rig.pressing as pressing
 from neatskin.datasets.curate import describe
 from neatskin.datasets.durable import write_error
 from neatskin.datasets.paths import press_parts
@@ -89,14 +89,14 @@ def test_a_limit_leaves_every_press_on_disk(features_protocol, reference, tmp_pa
 
 
 def test_an_error_in_the_loop_still_writes_the_batch(features_protocol, reference, tmp_path, batches, monkeypatch):
-    run_press = runner._run_press
+    run_press = pressing._run_press
 
     def fail_at_20(protocol, plan, rig, block, pair_labels):
         if block.press_id == 20:
             raise RuntimeError("the printer caught fire")
         return run_press(protocol, plan, rig, block, pair_labels)
 
-    monkeypatch.setattr(runner, "_run_press", fail_at_20)
+    monkeypatch.setattr(pressing, "_run_press", fail_at_20)
     folder = tmp_path / "run"
     with pytest.raises(RuntimeError, match="caught fire"):
         run_campaign(load_protocol(features_protocol), folder, progress=False, report=False)
@@ -104,7 +104,7 @@ def test_an_error_in_the_loop_still_writes_the_batch(features_protocol, referenc
     manifest = json.loads((folder / "manifest.json").read_text())
     assert manifest["status"] == "interrupted" and manifest["counts"]["completed"] == 20
     assert manifest["stopped_by"] == "the printer caught fire"
-    monkeypatch.setattr(runner, "_run_press", run_press)
+    monkeypatch.setattr(pressing, "_run_press", run_press)
     _resume_equals_reference(folder, reference, 20)
 
 

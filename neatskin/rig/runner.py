@@ -6,20 +6,18 @@ finished press is durable on disk (fsync'd) before the next starts; a dry run wr
 batches (neatskin.datasets.writer.dry_run_batch_presses), each flushed before the loop ends, pauses or
 stops, since a kill's lost batch is recomputed identically from (seed, press_id). Ctrl-C stops after the
 press in flight, lifts the probe and leaves a campaign that `resume` finishes with no press lost or
-duplicated.
+duplicated. The press loop itself is neatskin.rig.pressing; this module builds the plan, the folder and
+the rig around it, and finishes the campaign.
 """
 
 from __future__ import annotations
 
-import collections
 import dataclasses
 import logging
 import math
 import shutil
-import signal
 import time
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -37,6 +35,7 @@ from neatskin.rig.folder import (
     rig_kind,
 )
 from neatskin.rig.physlimit import write_physical_limit
+from neatskin.rig.pressing import finish_program, press_loop
 from neatskin.rig.protocol import Protocol
 
 if TYPE_CHECKING:
@@ -47,7 +46,6 @@ if TYPE_CHECKING:
 
 WIRE_LOG = "wire.log"
 log = logging.getLogger(__name__)
-MAX_PRESS_ATTEMPTS = 3  # a press the FSR never saw is retried twice, then stored flagged
 
 
 @dataclass(frozen=True)
@@ -236,13 +234,13 @@ def _run_locked(
             todo = plan.program.presses.excluding(done)  # a view: each block's G-code is made when pressed
             if limit is not None:
                 todo = todo[:limit]
-            written, flagged, interrupted = _press_loop(
+            written, flagged, interrupted = press_loop(
                 protocol, plan, rig, writer, todo, pair_labels, len(done), progress
             )
             completed = len(writer.completed_press_ids())
             status = "complete" if completed == plan.n_presses else "interrupted"
             if status == "complete":
-                _finish_program(rig, plan)
+                finish_program(rig, plan)
                 _finish_data(folder, protocol, plan, rig, writer)
             else:
                 update_manifest(
@@ -349,216 +347,6 @@ def _open_rig(protocol, plan, *, dry_run, port, daq_kind, printer_faults, connec
             fix="pass --port /dev/ttyUSB0 (or --dry-run for the simulated rig)",
         )
     return build_real_rig(protocol, plan.sweep, port=port, daq_kind=daq_kind, wire_log=wire_log, **timeout)
-
-
-class _StopRequest:
-    """Ctrl-C sets a flag; the press in flight finishes, the probe lifts, the campaign stays resumable."""
-
-    def __init__(self) -> None:
-        self.requested = False
-        self._previous: Any = None
-
-    def __enter__(self):
-        def handler(signum, frame):
-            if self.requested:  # a second Ctrl-C: stop now
-                raise KeyboardInterrupt
-            self.requested = True
-
-        try:
-            self._previous = signal.signal(signal.SIGINT, handler)
-        except ValueError:  # not the main thread: no handler, Ctrl-C behaves as usual
-            self._previous = None
-        return self
-
-    def __exit__(self, *exc):
-        if self._previous is not None:
-            signal.signal(signal.SIGINT, self._previous)
-
-
-@dataclass
-class _Pressed:
-    """A press done on the rig and labelled by its FSR; its record's pair estimates may still be in the dry run's
-    skin worker (a sim.skinworker.DeferredRecord, resolved by `_press_row`)."""
-
-    block: Any
-    record: Any  # PressRecord, or DeferredRecord submitted to the skin worker
-    label: Any  # rig.pressrow.FsrLabel
-    extra_flags: list[str]
-    started: datetime
-    finished: datetime
-
-    @property
-    def label_flags(self) -> list[str]:
-        """The flags known before the estimates (the checkpoint needs only "fsr_missed")."""
-        return [*self.extra_flags, *self.label.flags]
-
-
-class _InFlight:
-    """The presses pressed but not yet handed to the writer, oldest first, at most `limit` of them: a press whose
-    estimates the skin worker computes waits here while the next presses run. `settle` writes them in press
-    order; every writer flush comes after a settle, so what a pause, a stop or the loop's end shows is every
-    press pressed."""
-
-    def __init__(self, protocol, writer, pair_labels, bar, limit: int) -> None:
-        self.protocol, self.writer, self.pair_labels, self.bar, self.limit = protocol, writer, pair_labels, bar, limit
-        self.presses: collections.deque[_Pressed] = collections.deque()
-        self.written = self.flagged = 0
-
-    def add(self, pressed: _Pressed) -> None:
-        self.presses.append(pressed)
-        self.settle(keep=self.limit)
-
-    def settle(self, keep: int = 0) -> None:
-        while len(self.presses) > keep:
-            row, waveforms = _press_row(self.protocol, self.presses[0], self.pair_labels)
-            self.presses.popleft()
-            self.writer.write_press(row, waveforms)
-            self.written += 1
-            self.flagged += bool(row["flags"])
-            self.bar.update(1)
-            self.bar.set_postfix(flagged=self.flagged)
-
-    def flush(self) -> None:
-        self.settle()
-        self.writer.flush()
-
-    def settle_after_error(self) -> None:
-        """On the way out of an error: hand the writer every press whose estimates still come (the error path
-        then flushes them); stop at the first that cannot, which resume presses again."""
-        try:
-            self.settle()
-        except Exception as again:
-            log.warning("%d pressed presses were not written (resume presses them again): %s", len(self.presses), again)
-
-
-IN_FLIGHT_PRESSES = 4  # presses whose estimates the skin worker may hold at once (memory stays flat)
-
-
-def _press_loop(protocol, plan, rig, writer, todo, pair_labels, already_done, progress):
-    from tqdm import tqdm
-
-    driver = rig.driver
-    driver.send_lines(plan.program.preamble, source="preamble")
-    bar = tqdm(
-        total=plan.n_presses,
-        initial=already_done,
-        unit="press",
-        disable=not progress,
-        desc=f"{protocol.name} ({rig.kind})",
-        dynamic_ncols=True,
-    )
-    deferring = getattr(rig, "skin_worker", None) is not None
-    pending = _InFlight(protocol, writer, pair_labels, bar, IN_FLIGHT_PRESSES if deferring else 0)
-    interrupted = False
-    with _StopRequest() as stop:
-        checkpoint = _checkpoint(protocol, plan, driver, writer, stop, flush=pending.flush)
-        try:
-            for block in todo:
-                pressed = _run_press(protocol, plan, rig, block, pair_labels)
-                pending.add(pressed)
-                if stop.requested:
-                    interrupted = True
-                    driver.send_lines(plan.program.postamble[:2] if plan.program.postamble else (), source="lift")
-                    break
-                if block is not todo[-1] and not checkpoint.after_press(block.press_id, pressed.label_flags):
-                    interrupted = True
-                    break
-            pending.flush()  # every press of this run is durable before the loop says it ended
-        except BaseException:
-            pending.settle_after_error()
-            raise
-        checkpoint.finished("stopped" if interrupted else "finished")
-    bar.close()
-    return pending.written, pending.flagged, interrupted
-
-
-def _checkpoint(protocol, plan, driver, writer, stop, flush=None):
-    """The safe point between presses (neatskin.rig.control): pause lifts and waits, stop lifts and parks;
-    both write the presses pressed first (`flush`: those in flight, then the writer's batch), so what a paused
-    campaign shows is every press pressed."""
-    from neatskin.rig.control import Checkpoint
-
-    post = plan.program.postamble  # lift to the safe height, park, lift, M400, done marker
-    return Checkpoint(
-        writer.folder,
-        flush=writer.flush if flush is None else flush,
-        lift=lambda: driver.send_lines((*post[:1], "M400"), source="pause lift"),
-        park=lambda: driver.send_lines((*post[:3], "M400"), source="stop park"),
-        fsr_miss_limit=protocol.fsr_pause_after_misses,
-        interrupted=lambda: stop.requested,
-        # a pause that outlasted the stepper timeout: home as the program began, then back up to the safe height
-        rehome=lambda: driver.send_lines((*plan.program.preamble, *post[:1], "M400"), source="re-home"),
-        stepper_timeout_s=protocol.printer.stepper_timeout_s,
-    )
-
-
-def _hold_lines(hold_s: float) -> tuple[str, ...]:
-    return (f"G4 P{int(round(hold_s * 1000))}", "M400")
-
-
-def _run_press(protocol, plan, rig, block, pair_labels) -> _Pressed:
-    """Press one block (retrying a press the FSR missed) and label it; with a skin worker, the kept attempt's
-    estimates are submitted to it and resolved later (`_press_row`), so the next press runs meanwhile."""
-    from neatskin.rig.pressrow import fsr_label
-
-    driver, recorder = rig.driver, rig.recorder
-    deferring = getattr(rig, "skin_worker", None) is not None
-    extra_flags: list[str] = []
-    for attempt in range(MAX_PRESS_ATTEMPTS):
-        started = datetime.now(UTC)
-        for phase in block.phases:
-            driver.send_lines(phase.lines, source=f"press {block.press_id} {phase.name}")
-            if phase.name == "travel":
-                recorder.begin(block.press_id, plan.n_sweeps)
-            elif phase.name == "descend":
-                recorder.mark("contact")
-            elif phase.name == "press":
-                recorder.mark("hold_start")
-                driver.send_lines(_hold_lines(plan.hold_s), source=f"press {block.press_id} hold")
-                recorder.mark("hold_end")
-            elif phase.name == "lift":
-                recorder.mark("lifted")
-        record = recorder.end_deferred() if deferring else recorder.end()
-        label = fsr_label(
-            record.fsr_v, record.fsr_rate_hz, rig.fsr_model, record.first_sample, record.marks, record.rate_hz
-        )
-        if not label.missed or attempt == MAX_PRESS_ATTEMPTS - 1:
-            break
-        extra_flags.append(f"fsr_retry:{attempt + 1}")
-    if deferring:
-        record.submit()  # only the kept attempt: a retried one costs the worker nothing
-    return _Pressed(block, record, label, extra_flags, started, datetime.now(UTC))
-
-
-def _press_row(protocol, pressed: _Pressed, pair_labels) -> tuple[dict, dict | None]:
-    """The press's dataset row (and waveforms), its estimates awaited from the skin worker when deferred."""
-    from neatskin.rig.pressrow import press_values
-
-    record = pressed.record.result() if hasattr(pressed.record, "submit") else pressed.record
-    values = press_values(record.estimates, record.marks, pair_labels)
-    block, label = pressed.block, pressed.label
-    row = {
-        "campaign": protocol.name,
-        "press_id": block.press_id,
-        "position_id": block.position_id,
-        "repeat": block.repeat,
-        "x_mm": block.x_mm,
-        "y_mm": block.y_mm,
-        "depth_mm": protocol.press.press.depth_mm,
-        "started_at": pressed.started,
-        "finished_at": pressed.finished,
-        "fsr_onset_s": label.onset_s,
-        "fsr_offset_s": label.offset_s,
-        "fsr_peak_n": label.peak_n,
-        "flags": [*pressed.extra_flags, *label.flags, *values.flags],
-        "R_ohm": values.resistance_ohm,
-        "dR_ohm": values.delta_r_ohm,
-    }
-    return row, record.waveforms
-
-
-def _finish_program(rig, plan) -> None:
-    rig.driver.send_lines(plan.program.postamble, source="postamble")
 
 
 def resume_campaign(folder: str | Path, **kwargs) -> CampaignResult:
