@@ -40,6 +40,7 @@ START_TIMEOUT_S = 120.0  # the worker's imports and skin model, on a loaded mach
 PRESS_TIMEOUT_S = 60.0  # one press's estimates take milliseconds; this is a hang, not a slow press
 CLOSE_TIMEOUT_S = 5.0
 CONTEXT = "spawn"
+RESUME_HINT = "the presses before it are written, `neatskin campaign resume` presses the rest"
 
 
 @dataclass(frozen=True)
@@ -137,7 +138,7 @@ class SkinWorker:
         self._process: Any = None
         self._conn: Connection | None = None
         self._ready = False
-        self._submitted = self._received = 0
+        self._received = 0  # answers taken: the next ticket due
         self._pending: collections.deque[int] = collections.deque()  # press ids submitted, not yet answered
         self._broken: HardwareError | None = None  # once failed, every later call raises this at once
         self.wait_s = 0.0  # how long the caller waited for answers (the worker behind), logged at close
@@ -147,9 +148,7 @@ class SkinWorker:
         return None if self._process is None else self._process.pid
 
     def start(self) -> SkinWorker:
-        ctx: Any = multiprocessing.get_context(
-            self.context
-        )  # SpawnContext or ForkServerContext (typeshed: BaseContext)
+        ctx: Any = multiprocessing.get_context(self.context)  # spawn or forkserver (typeshed: BaseContext)
         ours, theirs = ctx.Pipe(duplex=True)
         process = ctx.Process(target=serve, args=(theirs,), name="neatskin-skin-worker", daemon=True)
         with _sigint_ignored():  # the child starts with SIGINT ignored, before its first line could catch it
@@ -172,8 +171,7 @@ class SkinWorker:
         with contextlib.suppress(OSError):  # the worker is gone: result() still reads the answers it sent, then
             conn.send(job)  # names the first press it owes
         self._pending.append(job.press_id)
-        self._submitted += 1
-        return self._submitted - 1
+        return self._received + len(self._pending) - 1
 
     def result(self, ticket: int, press_id: int) -> PairEstimates:
         """The estimates of the press with this ticket, the next one due."""
@@ -192,12 +190,7 @@ class SkinWorker:
                 return message[2]
             if message[0] == "error":
                 what = "could not start" if message[1] is None else f"failed on press {message[1]}"
-                raise self._fail(
-                    HardwareError(
-                        f"the dry run's skin worker {what}: {message[2]}; the presses before it are written, "
-                        "`neatskin campaign resume` presses the rest"
-                    )
-                )
+                raise self._fail(HardwareError(f"the dry run's skin worker {what}: {message[2]}; {RESUME_HINT}"))
             raise RuntimeError(f"press {press_id}: unexpected answer from the skin worker: {message[:2]!r}")
 
     def close(self) -> None:
@@ -256,8 +249,7 @@ class SkinWorker:
                 raise self._fail(
                     HardwareError(
                         f"the dry run's skin worker (pid {self.pid}) gave no estimates for press {press_id} within "
-                        f"{timeout:.0f} s; the presses before it are written, `neatskin campaign resume` presses "
-                        "the rest"
+                        f"{timeout:.0f} s; {RESUME_HINT}"
                     )
                 )
             ready = wait([conn, self._process.sentinel], remaining)
@@ -283,7 +275,7 @@ class SkinWorker:
         )
         return HardwareError(
             f"the dry run's skin worker (pid {self.pid}) ended (exit code {code}) before press {press_id}'s "
-            f"estimates{hint}; the presses before it are written, `neatskin campaign resume` presses the rest"
+            f"estimates{hint}; {RESUME_HINT}"
         )
 
 
