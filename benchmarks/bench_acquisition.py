@@ -179,7 +179,7 @@ print(json.dumps({"first_ms": first_ms, **{k: 1e3 * v for k, v in best.items()},
 """
 
 PHYSLIMIT_CHILD = r"""
-import hashlib, json, sys, tempfile, time
+import hashlib, inspect, json, sys, tempfile, time
 from pathlib import Path
 from neatskin.rig.assembly import build_dry_rig
 from neatskin.rig.physlimit import write_physical_limit
@@ -188,7 +188,8 @@ from neatskin.rig.runner import build_plan
 
 protocol = load_protocol(Path(sys.argv[1]))
 plan = build_plan(protocol)
-rig = build_dry_rig(protocol, plan.sweep)
+# this checkout's build_dry_rig takes the Plan (rig/plan.py), an older one the sweep
+rig = build_dry_rig(protocol, plan if "plan" in inspect.signature(build_dry_rig).parameters else plan.sweep)
 best = float("inf")
 try:
     with tempfile.TemporaryDirectory() as folder:

@@ -87,7 +87,7 @@ def test_out_of_bounds_refused_before_motion(protocols, tmp_path):
 def test_short_hold_refused(protocols):
     edit(protocols / "smoke.toml", "hold_s = 1.2", "hold_s = 0.3")
     protocol = load_protocol(protocols / "smoke.toml")
-    from neatskin.rig.runner import build_plan
+    from neatskin.rig.plan import build_plan
 
     with pytest.raises(ConfigError) as info:
         build_plan(protocol)

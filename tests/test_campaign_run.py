@@ -81,7 +81,7 @@ def test_largest_dr_pair_is_the_pressed_channels(smoke_run):
     the one the network solver picks when only that channel's resistance rises."""
     protocol, _, folder = smoke_run
     layout = protocol.layout
-    from neatskin.rig.runner import build_plan
+    from neatskin.rig.plan import build_plan
 
     features = {b.position_id: b.feature for b in build_plan(protocol).program.presses}
     df = pd.read_parquet(folder / "presses.parquet")

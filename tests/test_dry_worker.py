@@ -23,8 +23,9 @@ import neatskin.rig.control as control
 from neatskin.datasets.paths import press_parts
 from neatskin.datasets.reader import read_presses
 from neatskin.errors import ConfigError, HardwareError
+from neatskin.rig.plan import build_plan
 from neatskin.rig.protocol import load_protocol
-from neatskin.rig.runner import build_plan, resume_campaign, run_campaign
+from neatskin.rig.runner import resume_campaign, run_campaign
 from neatskin.sim.skinworker import EstimateJob, SkinWorker
 
 PRESSES = 512  # the batching writer's threshold: the smallest campaign that gets a worker by default
@@ -114,9 +115,9 @@ def test_a_stop_writes_every_press_pressed_first(worker_protocol, inline_rows, t
     assert json.loads((folder / "manifest.json").read_text())["status"] == "interrupted"
 
 
-def failing_estimator(protocol, sweep):
+def failing_estimator(protocol, sweep, timing):
     """The real estimator, raising on press FAIL_AT (built in the worker: pickled by name)."""
-    estimate = assembly.skin_estimator(protocol, sweep)  # in the worker: the module as shipped
+    estimate = assembly.skin_estimator(protocol, sweep, timing)  # in the worker: the module as shipped
 
     def failing(job):
         if job.press_id == FAIL_AT:
@@ -126,9 +127,9 @@ def failing_estimator(protocol, sweep):
     return failing
 
 
-def dying_estimator(protocol, sweep):
+def dying_estimator(protocol, sweep, timing):
     """The real estimator; the worker process exits with code 3 on press FAIL_AT."""
-    estimate = assembly.skin_estimator(protocol, sweep)
+    estimate = assembly.skin_estimator(protocol, sweep, timing)
 
     def dying(job):
         if job.press_id == FAIL_AT:

@@ -19,8 +19,8 @@ from neatskin.gcode.positions import PositionSpec, generate_positions
 from neatskin.gcode.profile import load_printer_profile
 from neatskin.gcode.program import PressSpec, build_program
 from neatskin.gcode.spec import build_from_protocol
+from neatskin.rig.plan import build_plan
 from neatskin.rig.protocol import load_protocol
-from neatskin.rig.runner import build_plan
 
 # sha256 of "\n".join(command_lines()) of protocols/paper.toml's program, as 98085f2 (which stored every
 # press's lines) produced it: the lines made on demand must be the same bytes

@@ -109,7 +109,7 @@ def test_a_scene_without_noise_has_a_zero_electronics_bound_and_a_report(tmp_pat
 def test_typical_phases_are_the_plans_phase_times():
     from neatskin.gcode.motion import phase_durations_s
     from neatskin.rig.physlimit import _typical_phases_s
-    from neatskin.rig.runner import build_plan
+    from neatskin.rig.plan import build_plan
 
     protocol = load_protocol(PROTOCOLS / "smoke.toml")
     plan = build_plan(protocol)

@@ -14,6 +14,7 @@ import numpy as np
 
 from neatskin.acquisition.daq.base import Daq, DaqConfig
 from neatskin.errors import ConfigError, HardwareError
+from neatskin.rig.plan import Plan
 
 DAQ_KINDS = ("simulated", "ni")
 # lines a campaign's driver may have in flight, real rig and dry run alike: more than one only when the firmware
@@ -109,32 +110,32 @@ def use_skin_worker(protocol, planned: int | None, skin_worker: bool | None = No
 
 def build_dry_rig(
     protocol,
-    sweep,
+    plan: Plan,
     *,
     connect_timeout_s: float = 0.2,
     wire_log=None,
     printer_faults=None,
-    planned: int | None = None,
     skin_worker: bool | None = None,
 ) -> Rig:
     """The simulated printer on a real pty (reached through pyserial), the simulated skin and DAQ.
 
-    With a skin worker (`use_skin_worker(protocol, planned, skin_worker)`) the pair estimates are computed in
-    its own process, started first so its start-up overlaps the printer's connect; the main process keeps
+    With a skin worker (`use_skin_worker(protocol, plan.n_presses, skin_worker)`) the pair estimates are computed
+    in its own process, started first so its start-up overlaps the printer's connect; the main process keeps
     the FSR (the probe's depth alone) and the rest of the skin for the physical limit."""
     from neatskin.marlin.driver import DriverConfig, MarlinDriver
     from neatskin.sim.printer import SimulatedPrinter
     from neatskin.sim.recorder import SimulatedRecorder
 
-    scene = protocol.scene
+    scene, sweep = protocol.scene, plan.sweep
+    timing = press_timing(protocol, plan)
     closers: list[Callable[[], None]] = []
     worker = None
-    if use_skin_worker(protocol, planned, skin_worker):
+    if use_skin_worker(protocol, plan.n_presses, skin_worker):
         import functools
 
         from neatskin.sim.skinworker import SkinWorker
 
-        worker = SkinWorker(functools.partial(skin_estimator, protocol, sweep)).start()
+        worker = SkinWorker(functools.partial(skin_estimator, protocol, sweep, timing)).start()
         closers.append(worker.close)
     skin = dry_skin(protocol)
     kwargs = {} if printer_faults is None else {"faults": printer_faults}
@@ -157,7 +158,7 @@ def build_dry_rig(
             close()
         raise
 
-    probe = dry_probe(protocol, skin, printer.segments, force_only=worker is not None)
+    probe = dry_probe(protocol, skin, printer.segments, timing, force_only=worker is not None)
     daq = dry_daq(protocol, probe)
     recorder = SimulatedRecorder(
         daq,
@@ -216,7 +217,22 @@ def dry_skin(protocol):
     )
 
 
-def dry_probe(protocol, skin, segments_from: Callable[[float], list], *, force_only: bool = False):
+def press_timing(protocol, plan: Plan) -> PressTiming:
+    """What the scene's drift and dents need of the plan: the campaign time between presses (the scene's
+    press_interval_s, else the G-code's own time per press) and, with relaxation, every press's commanded point."""
+    scene = protocol.scene
+    interval_s = getattr(scene, "press_interval_s", 0.0) or plan.press_interval_s
+    relaxing = bool(getattr(scene, "hysteresis_fraction", 0.0))
+    return PressTiming(interval_s, plan.commanded_mm(protocol.press.press.depth_mm) if relaxing else None)
+
+
+@dataclass(frozen=True)
+class PressTiming:
+    interval_s: float  # campaign seconds between presses
+    commanded_mm: np.ndarray | None  # (presses, 3) x, y, depth of each press in id order; None without relaxation
+
+
+def dry_probe(protocol, skin, segments_from: Callable[[float], list], timing: PressTiming, *, force_only: bool = False):
     """The dry probe on `skin` along the moves `segments_from(t0)` gives. `force_only`: the main process's probe
     beside a skin worker, which needs the depth alone (the FSR): no placement error, drift or dents."""
     from neatskin.sim.recorder import STREAM_PLACEMENT, DryProbe
@@ -237,7 +253,7 @@ def dry_probe(protocol, skin, segments_from: Callable[[float], list], *, force_o
         segments_from,
         placement_error=placement,
         surface_error_mm=scene.surface_error_mm,
-        conditions=press_conditions(protocol, skin, force_only=force_only),
+        conditions=press_conditions(protocol, skin, timing, force_only=force_only),
     )
 
 
@@ -256,13 +272,13 @@ def dry_daq(protocol, probe):
     )
 
 
-def skin_estimator(protocol, sweep):
+def skin_estimator(protocol, sweep, timing: PressTiming):
     """The skin worker's estimator (built in the worker; neatskin.sim.skinworker pickles this function by name):
     the same skin, conditions and DAQ as the inline dry rig, with a probe that is given each press's moves."""
     from neatskin.sim.skinworker import PressEstimator
 
     skin = dry_skin(protocol)
-    probe = dry_probe(protocol, skin, _no_printer)
+    probe = dry_probe(protocol, skin, _no_printer, timing)
     return PressEstimator(
         dry_daq(protocol, probe),
         sweep,
@@ -292,7 +308,7 @@ def interface_noise(noise, scene):
     return dataclasses.replace(noise, **changes) if changes else noise
 
 
-def press_conditions(protocol, skin, *, force_only: bool = False):
+def press_conditions(protocol, skin, timing: PressTiming, *, force_only: bool = False):
     """The per-press variability of the scene as a pure function of press_id, or None when every source is off.
     `force_only`: the depth jitter alone (what the FSR needs), for the main process beside a skin worker.
 
@@ -314,23 +330,7 @@ def press_conditions(protocol, skin, *, force_only: bool = False):
         drifting = relaxing = False
     if not (jitter or drifting or relaxing):
         return None
-    commanded = None
-    interval_s = getattr(scene, "press_interval_s", 0.0)
-    if (drifting or relaxing) and not interval_s:  # the G-code's own time per press (costs a motion estimate)
-        from neatskin.rig.runner import build_plan
-
-        plan = build_plan(protocol)
-        interval_s = plan.printer_time_s / max(plan.n_presses, 1)
-    if relaxing:
-        from neatskin.gcode.spec import build_from_spec
-
-        program, _, _ = build_from_spec(
-            protocol.press, hold_in_gcode=False, layout=protocol.layout, profile=protocol.printer
-        )
-        depth = protocol.press.press.depth_mm
-        ids = program.presses.position_ids  # press k presses position ids[k]: no block's G-code is formatted
-        xs, ys = np.asarray(program.positions.x_mm, float), np.asarray(program.positions.y_mm, float)
-        commanded = np.column_stack([xs[ids], ys[ids], np.full(ids.size, depth)])
+    interval_s, commanded = timing.interval_s, timing.commanded_mm
     relaxation = Relaxation(scene.hysteresis_fraction, scene.relaxation_time_s, interval_s) if relaxing else None
 
     def drift(press_id: int) -> float | None:
@@ -420,7 +420,7 @@ class _DentBlocks:
 
 def build_real_rig(
     protocol,
-    sweep,
+    plan: Plan,
     *,
     port: str,
     daq_kind: str = "ni",
@@ -455,7 +455,7 @@ def build_real_rig(
         raise HardwareError(f"cannot open the rig (printer on {port}, DAQ {daq_kind}): {exc}") from exc
     recorder = ThreadedRecorder(
         daq,
-        sweep,
+        plan.sweep,
         method=protocol.acquisition.demodulation,
         window=protocol.acquisition.window,
         fsr_enabled=protocol.fsr_enabled,

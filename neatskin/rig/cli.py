@@ -166,8 +166,8 @@ def _resume(args: argparse.Namespace) -> int:
 
 
 def _check(args: argparse.Namespace) -> int:
+    from neatskin.rig.plan import build_plan
     from neatskin.rig.protocol import load_protocol
-    from neatskin.rig.runner import build_plan
 
     protocol = load_protocol(args.protocol)
     plan = build_plan(protocol)

@@ -18,7 +18,7 @@ from neatskin.rig.protocol import Protocol, file_sha256, load_protocol
 
 if TYPE_CHECKING:
     from neatskin.datasets.lock import CampaignLock
-    from neatskin.rig.runner import Plan
+    from neatskin.rig.plan import Plan
 
 INPUTS_DIR = "inputs"
 PHYSICAL_LIMIT = "physical_limit.parquet"

@@ -14,12 +14,11 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from neatskin.errors import ConfigError, DataError
 from neatskin.rig.folder import (
@@ -35,31 +34,12 @@ from neatskin.rig.folder import (
     rig_kind,
 )
 from neatskin.rig.physlimit import write_physical_limit
+from neatskin.rig.plan import Plan, build_plan
 from neatskin.rig.pressing import finish_program, press_loop
 from neatskin.rig.protocol import Protocol
 
-if TYPE_CHECKING:
-    import numpy as np
-
-    from neatskin.acquisition.sequence import Sweep
-    from neatskin.gcode.program import PressProgram
-
 WIRE_LOG = "wire.log"
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class Plan:
-    program: PressProgram
-    sweep: Sweep
-    n_sweeps: int  # sweeps recorded per press, from parking above the target to lifted
-    hold_s: float
-    printer_time_s: float  # the G-code's estimate for the whole campaign
-    phase_s: np.ndarray  # (presses, [travel, descend, press, lift]) printer seconds, gcode.motion.phase_durations_s
-
-    @property
-    def n_presses(self) -> int:
-        return len(self.program.presses)
 
 
 @dataclass(frozen=True)
@@ -73,37 +53,6 @@ class CampaignResult:
     wall_s: float
     printer_time_s: float
     report_summary: str | None = None  # the baseline report's table, for the CLI to show
-
-
-def build_plan(protocol: Protocol) -> Plan:
-    """Everything the runner will do, checked before any motion (bounds, hold long enough to sample)."""
-    from neatskin.acquisition.sequence import SweepTiming, build_sweep
-    from neatskin.gcode.motion import phase_durations_s
-    from neatskin.gcode.spec import build_from_spec
-
-    program, _, _ = build_from_spec(
-        protocol.press, hold_in_gcode=False, layout=protocol.layout, profile=protocol.printer
-    )
-    acq = protocol.acquisition
-    sweep = build_sweep(
-        protocol.wiring,
-        SweepTiming(rate_hz=acq.rate_hz, settle_samples=acq.settle_samples, live_samples=acq.live_samples),
-    )
-    hold_s = protocol.press.press.hold_s
-    min_hold = 2 * sweep.duration_s
-    if hold_s < min_hold:
-        raise ConfigError(
-            f"hold_s = {hold_s} s holds the probe for less than two sweeps of the {sweep.n_pairs} "
-            f"pairs ({min_hold:.3f} s), so no whole sweep would be recorded at depth",
-            file=str(protocol.path),
-            field="press.hold_s",
-            fix=f"set hold_s >= {math.ceil(min_hold * 10) / 10}",
-        )
-    durations = phase_durations_s(program, protocol.printer)  # (presses, [travel, descend, press, lift])
-    per_press = durations[:, 1:].sum(axis=1) + hold_s
-    n_sweeps = int(math.ceil((per_press.max() + 0.5) / sweep.duration_s))
-    total = float(durations.sum() + hold_s * len(program.presses))
-    return Plan(program, sweep, n_sweeps, hold_s, total, durations)
 
 
 def run_campaign(
@@ -337,16 +286,14 @@ def _open_rig(protocol, plan, *, dry_run, port, daq_kind, printer_faults, connec
 
     timeout = {} if connect_timeout_s is None else {"connect_timeout_s": connect_timeout_s}
     if dry_run:
-        return build_dry_rig(
-            protocol, plan.sweep, printer_faults=printer_faults, wire_log=wire_log, planned=plan.n_presses, **timeout
-        )
+        return build_dry_rig(protocol, plan, printer_faults=printer_faults, wire_log=wire_log, **timeout)
     if not port:
         raise ConfigError(
             "a real run needs the printer's serial port",
             field="--port",
             fix="pass --port /dev/ttyUSB0 (or --dry-run for the simulated rig)",
         )
-    return build_real_rig(protocol, plan.sweep, port=port, daq_kind=daq_kind, wire_log=wire_log, **timeout)
+    return build_real_rig(protocol, plan, port=port, daq_kind=daq_kind, wire_log=wire_log, **timeout)
 
 
 def resume_campaign(folder: str | Path, **kwargs) -> CampaignResult:
