@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from neatskin.errors import ConfigError, DataError, Problem
-from neatskin.rig.protocol import Protocol, file_sha256, load_protocol
+from neatskin.rig.protocol import CampaignProtocol, file_sha256, load_protocol
 
 if TYPE_CHECKING:
     from neatskin.datasets.lock import CampaignLock
@@ -25,7 +25,7 @@ PHYSICAL_LIMIT = "physical_limit.parquet"
 log = logging.getLogger(__name__)
 
 
-def copy_inputs(protocol: Protocol, folder: Path) -> dict[str, Any]:
+def copy_inputs(protocol: CampaignProtocol, folder: Path) -> dict[str, Any]:
     """Copy the protocol and the files it names into the campaign folder, so resume needs nothing else."""
     from neatskin.datasets.durable import write_bytes_durably
 
@@ -79,7 +79,7 @@ def _remove_stale_staging(folder: Path) -> None:
             shutil.rmtree(entry, ignore_errors=True)
 
 
-def create_campaign_folder(protocol: Protocol, plan: Plan, folder: Path, rig_kind: str) -> CampaignLock:
+def create_campaign_folder(protocol: CampaignProtocol, plan: Plan, folder: Path, rig_kind: str) -> CampaignLock:
     """Make the campaign folder in one atomic step: lock, inputs/ and manifest.json are built under a hidden
     staging name and renamed into place, so a kill leaves either no campaign folder or one that resumes."""
     from neatskin.datasets.durable import fsync_dir, write_error
@@ -214,7 +214,7 @@ def rig_kind(folder: Path, manifest: dict) -> str:
     return kind
 
 
-def load_inputs(folder: Path) -> Protocol:
+def load_inputs(folder: Path) -> CampaignProtocol:
     return load_protocol(
         folder / INPUTS_DIR / "protocol.toml",
         file_overrides={

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from neatskin.rig.folder import PHYSICAL_LIMIT
-from neatskin.rig.protocol import Protocol
+from neatskin.rig.protocol import CampaignProtocol
 
 METADATA_KEY = b"neatskin.physical_limit"
 RESISTIVITY_TEMPCO_PER_K = -0.02  # the skin model's default, used when the skin does not say
@@ -91,7 +91,7 @@ def _bound_mm(jacobian: np.ndarray, noise_std_ohm: np.ndarray, priors: dict[str,
     return np.full(jacobian.shape[0], np.sqrt(2.0) * float(priors.get("placement_std_mm", 0.0)))
 
 
-def write_physical_limit(folder: Path, protocol: Protocol, plan, rig) -> Path:
+def write_physical_limit(folder: Path, protocol: CampaignProtocol, plan, rig) -> Path:
     """Per position, the Cramér-Rao bounds on the position error that the simulated skin, its noise and
     the scene's nuisances allow."""
     import pyarrow as pa

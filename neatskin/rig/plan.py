@@ -17,7 +17,7 @@ from neatskin.errors import ConfigError
 from neatskin.gcode.motion import phase_durations_s
 from neatskin.gcode.program import PressProgram
 from neatskin.gcode.spec import build_from_spec
-from neatskin.rig.protocol import Protocol
+from neatskin.rig.protocol import CampaignProtocol
 
 
 @dataclass(frozen=True)
@@ -46,7 +46,7 @@ class Plan:
         return np.column_stack([xs[ids], ys[ids], np.full(ids.size, depth_mm)])
 
 
-def build_plan(protocol: Protocol) -> Plan:
+def build_plan(protocol: CampaignProtocol) -> Plan:
     """Everything the runner will do, checked before any motion (bounds, hold long enough to sample)."""
     program, _, _ = build_from_spec(
         protocol.press, hold_in_gcode=False, layout=protocol.layout, profile=protocol.printer

@@ -91,7 +91,7 @@ class ElectricalCheck:
 
 
 @dataclass(frozen=True)
-class Protocol:
+class CampaignProtocol:
     path: Path
     name: str
     seed: int
@@ -132,7 +132,7 @@ def file_sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = None) -> Protocol:
+def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = None) -> CampaignProtocol:
     """Load and validate a protocol and everything it references; raise one ConfigError listing every problem.
 
     file_overrides replaces the layout, wiring or printer file the protocol names (resume uses the
@@ -191,7 +191,7 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
         raise ConfigError(
             problems=problems or [Problem("incomplete protocol", source, None, "see protocols/paper.toml")]
         )
-    return Protocol(
+    return CampaignProtocol(
         path=path.resolve(),
         name=campaign.name,
         seed=campaign.seed,

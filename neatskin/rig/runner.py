@@ -36,7 +36,7 @@ from neatskin.rig.folder import (
 from neatskin.rig.physlimit import write_physical_limit
 from neatskin.rig.plan import Plan, build_plan
 from neatskin.rig.pressing import finish_program, press_loop
-from neatskin.rig.protocol import Protocol
+from neatskin.rig.protocol import CampaignProtocol
 
 WIRE_LOG = "wire.log"
 log = logging.getLogger(__name__)
@@ -56,7 +56,7 @@ class CampaignResult:
 
 
 def run_campaign(
-    protocol: Protocol,
+    protocol: CampaignProtocol,
     folder: str | Path,
     *,
     dry_run: bool = True,
@@ -251,7 +251,7 @@ def _mark_stopped_with_parts(folder: Path, exc: BaseException, writer) -> None:
         log.warning("cannot mark %s interrupted: %s", folder, again)
 
 
-def _finish_data(folder: Path, protocol: Protocol, plan: Plan, rig, writer) -> None:
+def _finish_data(folder: Path, protocol: CampaignProtocol, plan: Plan, rig, writer) -> None:
     """Consolidate, write the derived files, and only then say `complete` (with the files' sha256)."""
     from neatskin.datasets.manifest import update_manifest, utc_now_iso
     from neatskin.datasets.paths import CONSOLIDATED_NAME
