@@ -181,7 +181,10 @@ print(json.dumps({"first_ms": first_ms, **{k: 1e3 * v for k, v in best.items()},
 PHYSLIMIT_CHILD = r"""
 import hashlib, inspect, json, sys, tempfile, time
 from pathlib import Path
-from neatskin.rig.assembly import build_dry_rig
+try:
+    from neatskin.rig.dryrig import build_dry_rig
+except ImportError:  # an older checkout: the dry rig's builder in rig/assembly.py
+    from neatskin.rig.assembly import build_dry_rig
 from neatskin.rig.physlimit import write_physical_limit
 from neatskin.rig.protocol import load_protocol
 from neatskin.rig.runner import build_plan

@@ -76,7 +76,10 @@ def capture(protocol_path: str, presses: int, out: str) -> None:
 
 def replay(protocol_path: str, captured_path: str, repeats: int, out: str) -> None:
     """Child: this checkout's dry rig, the captured presses through its recorder; best CPU time and the records."""
-    from neatskin.rig.assembly import build_dry_rig
+    try:
+        from neatskin.rig.dryrig import build_dry_rig
+    except ImportError:  # an older checkout: the dry rig's builder in rig/assembly.py
+        from neatskin.rig.assembly import build_dry_rig
     from neatskin.rig.protocol import load_protocol
     from neatskin.rig.runner import build_plan
     from neatskin.sim.motion import Segment

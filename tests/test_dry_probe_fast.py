@@ -131,9 +131,10 @@ def test_residual_dents_per_block_are_pure_in_the_press_id_and_match_the_per_pre
     from test_scene_campaign import make_protocol
 
     from neatskin.gcode.spec import build_from_spec
-    from neatskin.rig.assembly import DENT_BLOCK_PRESSES, press_conditions, press_timing
+    from neatskin.rig.dryrig import dry_scene
     from neatskin.rig.plan import build_plan
     from neatskin.rig.protocol import load_protocol
+    from neatskin.sim.dryscene import DENT_BLOCK_PRESSES, press_conditions
     from neatskin.skin.variability import Relaxation
 
     lines = ("hysteresis_fraction = 0.2", "relaxation_time_s = 60.0", "temperature_drift_k_per_h = 20.0")
@@ -146,9 +147,9 @@ def test_residual_dents_per_block_are_pure_in_the_press_id_and_match_the_per_pre
     n_presses = len(commanded)
     assert n_presses > DENT_BLOCK_PRESSES  # more than one block
     ids = [0, 1, 2, 255, 256, 257, n_presses - 1]
-    timing = press_timing(protocol, build_plan(protocol))
-    in_order = {k: press_conditions(protocol, skin, timing)(k) for k in ids}
-    resumed = press_conditions(protocol, skin, timing)  # a resumed run asks for a later block first
+    dry = dry_scene(protocol, build_plan(protocol))
+    in_order = {k: press_conditions(dry, skin)(k) for k in ids}
+    resumed = press_conditions(dry, skin)  # a resumed run asks for a later block first
     for k in reversed(ids):
         got, want = resumed(k), in_order[k]
         assert (got.extra_factor is None) == (want.extra_factor is None) == (k == 0)

@@ -18,8 +18,9 @@ import pandas as pd
 import pytest
 from conftest import PROTOCOLS
 
-import neatskin.rig.assembly as assembly
 import neatskin.rig.control as control
+import neatskin.rig.dryrig as dryrig
+import neatskin.sim.dryscene as dryscene
 from neatskin.datasets.paths import press_parts
 from neatskin.datasets.reader import read_presses
 from neatskin.errors import ConfigError, HardwareError
@@ -54,14 +55,14 @@ def worker_protocol(tmp_path_factory):
 def inline_rows(worker_protocol, tmp_path_factory):
     folder = tmp_path_factory.mktemp("inline") / "run"
     with pytest.MonkeyPatch.context() as mp:
-        mp.setenv(assembly.SKIN_WORKER_ENV, "off")
+        mp.setenv(dryrig.SKIN_WORKER_ENV, "off")
         run_campaign(load_protocol(worker_protocol), folder, progress=False, report=False)
     return _rows(folder)
 
 
 @pytest.fixture
 def worker_on(monkeypatch):
-    monkeypatch.setenv(assembly.SKIN_WORKER_ENV, "on")
+    monkeypatch.setenv(dryrig.SKIN_WORKER_ENV, "on")
 
 
 def _rows(folder: Path) -> pd.DataFrame:
@@ -115,9 +116,9 @@ def test_a_stop_writes_every_press_pressed_first(worker_protocol, inline_rows, t
     assert json.loads((folder / "manifest.json").read_text())["status"] == "interrupted"
 
 
-def failing_estimator(protocol, sweep, timing):
+def failing_estimator(dry, sweep):
     """The real estimator, raising on press FAIL_AT (built in the worker: pickled by name)."""
-    estimate = assembly.skin_estimator(protocol, sweep, timing)  # in the worker: the module as shipped
+    estimate = dryscene.skin_estimator(dry, sweep)  # in the worker: the module as shipped
 
     def failing(job):
         if job.press_id == FAIL_AT:
@@ -127,9 +128,9 @@ def failing_estimator(protocol, sweep, timing):
     return failing
 
 
-def dying_estimator(protocol, sweep, timing):
+def dying_estimator(dry, sweep):
     """The real estimator; the worker process exits with code 3 on press FAIL_AT."""
-    estimate = assembly.skin_estimator(protocol, sweep, timing)
+    estimate = dryscene.skin_estimator(dry, sweep)
 
     def dying(job):
         if job.press_id == FAIL_AT:
@@ -149,7 +150,7 @@ def dying_estimator(protocol, sweep, timing):
 def test_a_worker_failure_is_one_error_naming_the_press(
     worker_protocol, inline_rows, tmp_path, worker_on, monkeypatch, factory, message
 ):
-    monkeypatch.setattr(assembly, "skin_estimator", factory)
+    monkeypatch.setattr(dryrig, "skin_estimator", factory)
     folder = tmp_path / "run"
     with pytest.raises(HardwareError, match=message):
         run_campaign(load_protocol(worker_protocol), folder, progress=False, report=False)
@@ -188,27 +189,27 @@ def test_fork_is_refused():
 
 
 def test_who_gets_a_worker(worker_protocol, monkeypatch):
-    monkeypatch.delenv(assembly.SKIN_WORKER_ENV, raising=False)
+    monkeypatch.delenv(dryrig.SKIN_WORKER_ENV, raising=False)
     features = load_protocol(worker_protocol)
     smoke = load_protocol(PROTOCOLS / "smoke.toml")  # the waveforms scene stays inline
     two_cores = len(os.sched_getaffinity(0)) >= 2
-    assert assembly.use_skin_worker(features, PRESSES) is two_cores
-    assert assembly.use_skin_worker(features, PRESSES - 1) is False
-    assert assembly.use_skin_worker(smoke, 10_000) is False
-    assert assembly.use_skin_worker(smoke, 10_000, skin_worker=True) is False
-    assert assembly.use_skin_worker(features, 12, skin_worker=True) is True
-    monkeypatch.setenv(assembly.SKIN_WORKER_ENV, "off")
-    assert assembly.use_skin_worker(features, PRESSES) is False
-    monkeypatch.setenv(assembly.SKIN_WORKER_ENV, "on")
-    assert assembly.use_skin_worker(features, 12) is True
-    assert assembly.use_skin_worker(features, 12, skin_worker=False) is False
-    monkeypatch.setenv(assembly.SKIN_WORKER_ENV, "maybe")
+    assert dryrig.use_skin_worker(features, PRESSES) is two_cores
+    assert dryrig.use_skin_worker(features, PRESSES - 1) is False
+    assert dryrig.use_skin_worker(smoke, 10_000) is False
+    assert dryrig.use_skin_worker(smoke, 10_000, skin_worker=True) is False
+    assert dryrig.use_skin_worker(features, 12, skin_worker=True) is True
+    monkeypatch.setenv(dryrig.SKIN_WORKER_ENV, "off")
+    assert dryrig.use_skin_worker(features, PRESSES) is False
+    monkeypatch.setenv(dryrig.SKIN_WORKER_ENV, "on")
+    assert dryrig.use_skin_worker(features, 12) is True
+    assert dryrig.use_skin_worker(features, 12, skin_worker=False) is False
+    monkeypatch.setenv(dryrig.SKIN_WORKER_ENV, "maybe")
     with pytest.raises(ConfigError, match="NEATSKIN_SKIN_WORKER"):
-        assembly.use_skin_worker(features, PRESSES)
+        dryrig.use_skin_worker(features, PRESSES)
 
 
 def _start_campaign(protocol: Path, folder: Path) -> subprocess.Popen:
-    env = dict(os.environ, **{assembly.SKIN_WORKER_ENV: "on"})
+    env = dict(os.environ, **{dryrig.SKIN_WORKER_ENV: "on"})
     argv = ["campaign", "run", str(protocol), "--dry-run", "--out", str(folder), "--no-report", "--quiet"]
     return subprocess.Popen(
         [sys.executable, "-m", "neatskin", *argv],

@@ -1,6 +1,6 @@
 """The dry run's press loop with lines pipelined (`ok N P B` and up to 4 in flight), beside one line in flight.
 
-What a dry run may switch on (rig/assembly: `SimulatedPrinter(..., advanced_ok=True)` and
+What a dry run may switch on (rig/dryrig: `SimulatedPrinter(..., advanced_ok=True)` and
 `DriverConfig(..., max_in_flight=4)`) must change nothing it records: every command runs exactly
 once and in order over a noisy line, each send_lines returns only after its last line ran, and
 the printer's clock at every return (what the recorder reads as its marks) is the same as with

@@ -135,12 +135,13 @@ def test_a_drift_rate_is_recovered_from_a_fixed_position_pressed_over_time(tmp_p
 def test_depth_jitter_and_placement_draws_have_their_set_spread(tmp_path):
     """Each press's depth offset is its own (seed, press_id) stream's N(0, jitter): the std over 4,000 press ids is
     the knob to 5 % (4.5 standard errors), the mean is 0, and the draws do not depend on which presses came before."""
-    from neatskin.rig.assembly import press_conditions, press_timing
+    from neatskin.rig.dryrig import dry_scene
     from neatskin.rig.plan import build_plan
+    from neatskin.sim.dryscene import press_conditions
     from neatskin.skin.model import SkinModel
 
     protocol = load_protocol(make_protocol(tmp_path, scene_lines=("depth_jitter_mm = 0.2",)))
-    conditions = press_conditions(protocol, SkinModel(protocol.layout), press_timing(protocol, build_plan(protocol)))
+    conditions = press_conditions(dry_scene(protocol, build_plan(protocol)), SkinModel(protocol.layout))
     offsets = np.array([conditions(k).depth_offset_mm for k in range(4000)])
     assert abs(offsets.std() - 0.2) < 0.01 and abs(offsets.mean()) < 0.01
     assert conditions(1234).depth_offset_mm == offsets[1234]

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from neatskin.errors import ConfigError, DataError
+from neatskin.rig.assembly import build_real_rig
 from neatskin.rig.folder import (
     INPUT_KEYS,
     PHYSICAL_LIMIT,
@@ -282,10 +283,10 @@ def _count_flagged(path: Path) -> int:
 
 
 def _open_rig(protocol, plan, *, dry_run, port, daq_kind, printer_faults, connect_timeout_s, wire_log):
-    from neatskin.rig.assembly import build_dry_rig, build_real_rig
-
     timeout = {} if connect_timeout_s is None else {"connect_timeout_s": connect_timeout_s}
     if dry_run:
+        from neatskin.rig.dryrig import build_dry_rig  # here: a real run never imports the simulator
+
         return build_dry_rig(protocol, plan, printer_faults=printer_faults, wire_log=wire_log, **timeout)
     if not port:
         raise ConfigError(

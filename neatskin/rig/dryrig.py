@@ -1,0 +1,146 @@
+"""The dry run's rig: the simulated printer on a real pseudo-terminal (reached through pyserial), the simulated
+skin and DAQ, and the skin worker that computes the estimates in a second process.
+
+The dry scene itself (skin, probe, DAQ, per-press conditions) is built by neatskin.sim.dryscene from the
+`DryScene` that `dry_scene` makes of the protocol and the plan: the simulator never imports the engine.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from collections.abc import Callable
+
+from neatskin.datasets.writer import BATCH_FROM_PRESSES
+from neatskin.errors import ConfigError
+from neatskin.marlin.driver import DriverConfig, MarlinDriver
+from neatskin.rig.assembly import CAMPAIGN_MAX_IN_FLIGHT, Rig, daq_config
+from neatskin.rig.plan import Plan
+from neatskin.rig.protocol import CampaignProtocol
+from neatskin.sim.dryscene import DryScene, dry_daq, dry_probe, dry_skin, skin_estimator
+from neatskin.sim.printer import SimulatedPrinter
+from neatskin.sim.recorder import SimulatedRecorder
+from neatskin.sim.skinworker import SkinWorker
+
+SKIN_WORKER_ENV = "NEATSKIN_SKIN_WORKER"  # on | off: force the dry run's skin worker either way (benchmarks)
+
+
+def use_skin_worker(protocol, planned: int | None, skin_worker: bool | None = None) -> bool:
+    """Whether a dry run computes its pair estimates in a worker process (neatskin.sim.skinworker).
+
+    `skin_worker` True or False forces it (tests, benchmarks), as does SKIN_WORKER_ENV=on|off; by default a
+    features scene of at least the batching writer's BATCH_FROM_PRESSES planned presses on a machine with a
+    second core does, and everything else (the smoke protocol, short tests, the waveforms scene) stays inline."""
+    if protocol.scene.signal != "features":
+        return False
+    if skin_worker is None:
+        forced = os.environ.get(SKIN_WORKER_ENV, "").strip().lower()
+        if forced in ("on", "off"):
+            return forced == "on"
+        if forced:
+            raise ConfigError(
+                f"{SKIN_WORKER_ENV}={forced!r} is not a skin worker setting",
+                field=SKIN_WORKER_ENV,
+                fix="set it to on or off, or unset it for the default",
+            )
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        return planned is not None and planned >= BATCH_FROM_PRESSES and cores >= 2
+    return bool(skin_worker)
+
+
+def build_dry_rig(
+    protocol,
+    plan: Plan,
+    *,
+    connect_timeout_s: float = 0.2,
+    wire_log=None,
+    printer_faults=None,
+    skin_worker: bool | None = None,
+) -> Rig:
+    """The simulated printer on a real pty (reached through pyserial), the simulated skin and DAQ.
+
+    With a skin worker (`use_skin_worker(protocol, plan.n_presses, skin_worker)`) the pair estimates are computed
+    in its own process, started first so its start-up overlaps the printer's connect; the main process keeps
+    the FSR (the probe's depth alone) and the rest of the skin for the physical limit."""
+    scene, sweep = protocol.scene, plan.sweep
+    dry = dry_scene(protocol, plan)
+    closers: list[Callable[[], None]] = []
+    worker = None
+    if use_skin_worker(protocol, plan.n_presses, skin_worker):
+        worker = SkinWorker(functools.partial(skin_estimator, dry, sweep)).start()
+        closers.append(worker.close)
+    skin = dry_skin(dry)
+    kwargs = {} if printer_faults is None else {"faults": printer_faults}
+    # a Marlin built with ADVANCED_OK (`ok N.. P.. B..`), so the driver pipelines as it would on such a printer
+    printer = SimulatedPrinter(protocol.printer, seed=protocol.seed, time_mode="virtual", advanced_ok=True, **kwargs)
+    try:
+        pty_path = printer.start_pty()
+        closers.append(printer.stop)
+        # the printer's clock is virtual: its moves take no wall time, so deadlines need no motion allowance
+        driver = MarlinDriver.open(
+            pty_path,
+            protocol.printer.baud_rate,
+            wire_log=wire_log,
+            config=DriverConfig(motion_time_scale=0.0, max_in_flight=CAMPAIGN_MAX_IN_FLIGHT),
+        )
+        closers.append(driver.close)
+        driver.connect(boot_timeout_s=connect_timeout_s)
+    except BaseException:
+        for close in reversed(closers):
+            close()
+        raise
+
+    probe = dry_probe(dry, skin, printer.segments, force_only=worker is not None)
+    daq = dry_daq(dry, probe)
+    recorder = SimulatedRecorder(
+        daq,
+        sweep,
+        probe,
+        printer.now_s,
+        seed=protocol.seed,
+        signal=scene.signal,
+        method=protocol.acquisition.demodulation,
+        window=protocol.acquisition.window,
+        fsr_enabled=protocol.fsr_enabled,
+        keep_waveforms=protocol.record_waveforms,
+        worker=worker,
+    )
+    profile = getattr(protocol, "skin_profile", None)
+    description = {
+        "kind": "dry-run",
+        "printer": "simulated Marlin on " + pty_path,
+        "daq": "simulated",
+        "skin": {
+            "fidelity": scene.fidelity,
+            "signal": scene.signal,
+            "noise": scene.noise,
+            "placement_error_mm": scene.placement_error_mm,
+            "surface_error_mm": scene.surface_error_mm,
+            "probe_radius_mm": protocol.press.press.probe_diameter_mm / 2,
+            "preset": getattr(scene, "preset", "ideal"),
+            "skin_profile": None if profile is None else str(protocol.skin_profile_path),
+            **(scene.variability() if hasattr(scene, "variability") else {}),
+        },
+    }
+    return Rig("dry-run", driver, recorder, daq.fsr, description, closers, skin=skin, daq=daq, skin_worker=worker)
+
+
+def dry_scene(protocol: CampaignProtocol, plan: Plan) -> DryScene:
+    """What the dry run simulates of a campaign (neatskin.sim.dryscene): the protocol's scene, layout,
+    calibration, DAQ settings and seed; from the plan, the campaign time between presses (the scene's
+    press_interval_s, else the G-code's own time per press) and, with relaxation, every press's commanded point."""
+    scene = protocol.scene
+    relaxing = bool(getattr(scene, "hysteresis_fraction", 0.0))
+    return DryScene(
+        scene=scene,
+        layout=protocol.layout,
+        calibration=protocol.printer.calibration,
+        daq=daq_config(protocol),
+        seed=protocol.seed,
+        probe_radius_mm=protocol.press.press.probe_diameter_mm / 2,
+        demodulation=protocol.acquisition.demodulation,
+        window=protocol.acquisition.window,
+        interval_s=getattr(scene, "press_interval_s", 0.0) or plan.press_interval_s,
+        commanded_mm=plan.commanded_mm(protocol.press.press.depth_mm) if relaxing else None,
+        skin_profile=getattr(protocol, "skin_profile", None),
+    )
