@@ -185,7 +185,6 @@ try:
     from neatskin.rig.dryrig import build_dry_rig
 except ImportError:  # an older checkout: the dry rig's builder in rig/assembly.py
     from neatskin.rig.assembly import build_dry_rig
-from neatskin.rig.physlimit import write_physical_limit
 from neatskin.rig.protocol import load_protocol
 from neatskin.rig.runner import build_plan
 
@@ -193,12 +192,20 @@ protocol = load_protocol(Path(sys.argv[1]))
 plan = build_plan(protocol)
 # this checkout's build_dry_rig takes the Plan (rig/plan.py), an older one the sweep
 rig = build_dry_rig(protocol, plan if "plan" in inspect.signature(build_dry_rig).parameters else plan.sweep)
+# this checkout's dry rig derives its physical limit itself (Rig.derived_files), an older one's runner did
+if hasattr(rig, "derived_files"):
+    write = rig.derived_files["physical_limit.parquet"]
+else:
+    from neatskin.rig.physlimit import write_physical_limit
+
+    def write(folder):
+        return write_physical_limit(folder, protocol, plan, rig)
 best = float("inf")
 try:
     with tempfile.TemporaryDirectory() as folder:
         for _ in range(int(sys.argv[2])):
             t0 = time.perf_counter()
-            path = write_physical_limit(Path(folder), protocol, plan, rig)
+            path = write(Path(folder))
             best = min(best, time.perf_counter() - t0)
         digest = hashlib.sha256(path.read_bytes()).hexdigest()
 finally:

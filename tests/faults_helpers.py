@@ -46,7 +46,8 @@ elif stage == "presses":  # five presses durable, the sixth not started
 elif stage == "finalize":  # presses.parquet written, its copy and the parts' deletion not yet
     writer.CampaignWriter._keep_copy = die
 elif stage == "physical-limit":  # consolidated, the physical limit not yet written
-    runner.write_physical_limit = die
+    import neatskin.rig.dryrig as dryrig  # the dry rig derives its physical limit (Rig.derived_files)
+    dryrig.write_physical_limit = die
 elif stage == "complete":  # every file written, the manifest not yet `complete`
     update = manifest.update_manifest
     def update_or_die(*args, **kwargs):

@@ -8,10 +8,14 @@ for a dry run, and the NI backend (the one module that imports nidaqmx) only whe
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
 
 from neatskin.acquisition.daq.base import Daq, DaqConfig
+from neatskin.acquisition.fsr import FsrModel
+from neatskin.acquisition.record import Recorder
 from neatskin.errors import ConfigError, HardwareError
 from neatskin.rig.plan import Plan
 
@@ -21,17 +25,34 @@ DAQ_KINDS = ("simulated", "ni")
 CAMPAIGN_MAX_IN_FLIGHT = 4
 
 
+class Driver(Protocol):
+    """The printer as the press loop drives it (neatskin.marlin.driver.MarlinDriver, on a real port or the
+    simulated printer's pty): a program's lines in order, exactly once each, returning when the last one ran."""
+
+    def send_lines(
+        self, lines: Iterable[str], progress: Callable[[int, int], None] | None = None, *, source: str = ...
+    ) -> int: ...
+
+
+# files a rig derives from the campaign it ran once every press is on disk: name -> write(folder) -> path
+DerivedFiles = Mapping[str, Callable[[Path], Path]]
+
+
 @dataclass
 class Rig:
-    kind: str  # "dry-run" | "real"
-    driver: object  # neatskin.marlin.driver.MarlinDriver
-    recorder: object  # SimulatedRecorder | ThreadedRecorder
-    fsr_model: object
-    description: dict
+    """What the runner uses of a rig, real or dry alike: it never asks which one it has."""
+
+    kind: str  # "dry-run" | "real": recorded in the manifest and the rows, never branched on
+    driver: Driver
+    recorder: Recorder  # neatskin.acquisition.record: end() gives a PendingPress (done, or the skin worker's ticket)
+    fsr_model: FsrModel  # the FSR's divider, a value type: what labels a press from its voltage
+    description: dict[str, Any]
     closers: list[Callable[[], None]] = field(default_factory=list)
-    skin: object | None = None  # the simulated skin (dry run only)
-    daq: object | None = None
-    skin_worker: object | None = None  # neatskin.sim.skinworker.SkinWorker when a dry run defers its estimates
+    derived_files: DerivedFiles = field(default_factory=dict)  # the dry run's physical limit
+    # how durable a press is before the next: the real rig fsyncs every press, one a part; a dry run's presses
+    # are recomputed identically from (seed, press_id), so a kill may lose its batch and resume presses it again
+    fsync: bool = True
+    batch_presses: int = 1
 
     def close(self) -> None:
         for close in reversed(self.closers):
@@ -89,7 +110,6 @@ def build_real_rig(
     wire_log=None,
 ) -> Rig:
     """The printer on a serial port and the DAQ; errors are HardwareErrors raised before any motion."""
-    from neatskin.acquisition.fsr import FsrModel
     from neatskin.marlin.driver import DriverConfig, MarlinDriver
     from neatskin.rig.recorder import ThreadedRecorder
 
@@ -122,4 +142,4 @@ def build_real_rig(
         keep_waveforms=protocol.record_waveforms,
     )
     description = {"kind": "real", "printer": port, "daq": daq_kind}
-    return Rig("real", driver, recorder, FsrModel(), description, closers, daq=daq)
+    return Rig("real", driver, recorder, FsrModel(), description, closers)

@@ -10,17 +10,22 @@ from __future__ import annotations
 import functools
 import os
 from collections.abc import Callable
+from pathlib import Path
 
-from neatskin.datasets.writer import BATCH_FROM_PRESSES
+from neatskin.datasets import writer as dataset_writer  # its batch rule looked up when used (tests set it)
 from neatskin.errors import ConfigError
 from neatskin.marlin.driver import DriverConfig, MarlinDriver
 from neatskin.rig.assembly import CAMPAIGN_MAX_IN_FLIGHT, Rig, daq_config
+from neatskin.rig.folder import PHYSICAL_LIMIT
+from neatskin.rig.physlimit import write_physical_limit
 from neatskin.rig.plan import Plan
 from neatskin.rig.protocol import CampaignProtocol
+from neatskin.sim.daq import SimulatedDAQ
 from neatskin.sim.dryscene import DryScene, dry_daq, dry_probe, dry_skin, skin_estimator
 from neatskin.sim.printer import SimulatedPrinter
 from neatskin.sim.recorder import SimulatedRecorder
 from neatskin.sim.skinworker import SkinWorker
+from neatskin.skin.model import SkinModel
 
 SKIN_WORKER_ENV = "NEATSKIN_SKIN_WORKER"  # on | off: force the dry run's skin worker either way (benchmarks)
 
@@ -44,7 +49,7 @@ def use_skin_worker(protocol, planned: int | None, skin_worker: bool | None = No
                 fix="set it to on or off, or unset it for the default",
             )
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        return planned is not None and planned >= BATCH_FROM_PRESSES and cores >= 2
+        return planned is not None and planned >= dataset_writer.BATCH_FROM_PRESSES and cores >= 2
     return bool(skin_worker)
 
 
@@ -122,7 +127,13 @@ def build_dry_rig(
             **(scene.variability() if hasattr(scene, "variability") else {}),
         },
     }
-    return Rig("dry-run", driver, recorder, daq.fsr, description, closers, skin=skin, daq=daq, skin_worker=worker)
+    derived = {PHYSICAL_LIMIT: functools.partial(_physical_limit, protocol, plan, skin, daq)}
+    batch = dataset_writer.dry_run_batch_presses(plan.n_presses)
+    return Rig("dry-run", driver, recorder, daq.fsr, description, closers, derived, fsync=False, batch_presses=batch)
+
+
+def _physical_limit(protocol: CampaignProtocol, plan: Plan, skin: SkinModel, daq: SimulatedDAQ, folder: Path) -> Path:
+    return write_physical_limit(folder, protocol, plan, skin, daq)
 
 
 def dry_scene(protocol: CampaignProtocol, plan: Plan) -> DryScene:

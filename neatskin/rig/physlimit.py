@@ -17,7 +17,11 @@ from pathlib import Path
 import numpy as np
 
 from neatskin.rig.folder import PHYSICAL_LIMIT
+from neatskin.rig.plan import Plan
 from neatskin.rig.protocol import CampaignProtocol
+from neatskin.sim.daq import SimulatedDAQ
+from neatskin.skin.bound import feature_jacobian, position_bound_mm
+from neatskin.skin.model import SkinModel
 
 METADATA_KEY = b"neatskin.physical_limit"
 RESISTIVITY_TEMPCO_PER_K = -0.02  # the skin model's default, used when the skin does not say
@@ -84,32 +88,31 @@ def physical_limit_frame(ids, x_mm, y_mm, jacobian: np.ndarray, noise_std_ohm: n
 def _bound_mm(jacobian: np.ndarray, noise_std_ohm: np.ndarray, priors: dict[str, float]) -> np.ndarray:
     """The bound per position; a scene without measurement noise (`noise = false`) measures an identifiable
     position, depth and drift exactly, so only the placement error (per axis, on top) is left."""
-    from neatskin.skin.bound import position_bound_mm
-
     if np.all(np.asarray(noise_std_ohm) > 0):
         return position_bound_mm(jacobian, noise_std_ohm, **priors)
     return np.full(jacobian.shape[0], np.sqrt(2.0) * float(priors.get("placement_std_mm", 0.0)))
 
 
-def write_physical_limit(folder: Path, protocol: CampaignProtocol, plan, rig) -> Path:
+def write_physical_limit(
+    folder: Path, protocol: CampaignProtocol, plan: Plan, skin: SkinModel, daq: SimulatedDAQ
+) -> Path:
     """Per position, the Cramér-Rao bounds on the position error that the simulated skin, its noise and
     the scene's nuisances allow."""
     import pyarrow as pa
 
-    from neatskin.datasets.writer import write_table_durably
-    from neatskin.skin.bound import feature_jacobian
+    from neatskin.datasets.writer import write_table_durably  # pyarrow: this module stays numpy-only to import
 
     positions = plan.program.positions
     ids = np.unique(plan.program.presses.position_ids)  # the positions pressed, in id order
     x = np.asarray(positions.x_mm, dtype=float)[ids]
     y = np.asarray(positions.y_mm, dtype=float)[ids]
     depth = np.full(ids.shape, protocol.press.press.depth_mm)
-    jac = _by_chunks(lambda *c: feature_jacobian(rig.skin, *c), x, y, depth)  # (positions, pairs, 4)
-    std = _dr_noise_std_ohm(protocol, plan, rig, x, y, depth)
+    jac = _by_chunks(lambda *c: feature_jacobian(skin, *c), x, y, depth)  # (positions, pairs, 4)
+    std = _dr_noise_std_ohm(protocol, plan, skin, daq, x, y, depth)
     priors = NuisancePriors.from_scene(
         protocol.scene,
         _campaign_s(protocol, plan),
-        float(getattr(rig.skin, "resistivity_tempco_per_k", RESISTIVITY_TEMPCO_PER_K)),
+        float(getattr(skin, "resistivity_tempco_per_k", RESISTIVITY_TEMPCO_PER_K)),
     )
     frame = physical_limit_frame(ids, x, y, jac, std, priors)
     table = pa.Table.from_pandas(frame, preserve_index=False)
@@ -144,14 +147,12 @@ def _campaign_s(protocol, plan) -> float:
     return float(plan.printer_time_s)
 
 
-def _dr_noise_std_ohm(protocol, plan, rig, x, y, depth) -> np.ndarray:
+def _dr_noise_std_ohm(protocol, plan, skin, daq, x, y, depth) -> np.ndarray:
     """Std of one press's dR per pair (positions, pairs): the estimator noise of the baseline and pressed sweeps
     that a press averages, drawn from the simulated DAQ's features path at the unpressed and pressed states."""
-    from neatskin.sim.daq import SimulatedDAQ
-
     sweep, draws = plan.sweep, 64
-    pressed = _by_chunks(rig.skin.pair_resistance_ohm, x, y, depth)
-    states = np.vstack([np.asarray(rig.skin.baseline_pair_resistance_ohm)[None], pressed])  # (1 + positions, pairs)
+    pressed = _by_chunks(skin.pair_resistance_ohm, x, y, depth)
+    states = np.vstack([np.asarray(skin.baseline_pair_resistance_ohm)[None], pressed])  # (1 + positions, pairs)
     var = np.empty_like(states)
     # one DAQ per state: each state keeps its own random stream (seed, 10**6, k), so the std does not
     # depend on how many positions the campaign has
@@ -160,7 +161,7 @@ def _dr_noise_std_ohm(protocol, plan, rig, x, y, depth) -> np.ndarray:
         def constant(t: np.ndarray, s: np.ndarray = state) -> np.ndarray:
             return np.broadcast_to(s, (len(t), s.size))
 
-        daq = SimulatedDAQ(rig.daq.config, constant, noise=rig.daq.noise)
+        daq = SimulatedDAQ(daq.config, constant, noise=daq.noise)
         est = daq.estimate_sweep(
             sweep,
             np.random.default_rng([protocol.seed, 10**6, k]),

@@ -1,10 +1,12 @@
 """The press loop: the plan's presses one at a time on a rig, each labelled by its FSR and handed to the writer in order.
 
 `press_loop` presses every block of `todo` (retrying a press the FSR missed), stops between presses at the
-checkpoint (pause, continue, stop, Ctrl-C; neatskin.rig.control) and hands each press's row to the writer; with
-the dry run's skin worker (neatskin.sim.skinworker) up to IN_FLIGHT_PRESSES presses wait for their pair
-estimates while the next ones run, and every press pressed reaches the writer before any flush. The runner
-(neatskin.rig.runner) builds the plan, the folder and the rig around it.
+checkpoint (pause, continue, stop, Ctrl-C; neatskin.rig.control) and hands each press's row to the writer. The
+recorder's `end` gives each press as a future-like (neatskin.acquisition.record.PendingPress): a press whose
+record is done is written at once; one whose pair estimates are still coming (the dry run's skin worker) waits,
+up to IN_FLIGHT_PRESSES of them, while the next ones run; every press pressed reaches the writer before any
+flush. The loop never asks which rig it has. The runner (neatskin.rig.runner) builds the plan, the folder and
+the rig around it.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ import signal
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
+
+from neatskin.acquisition.record import PendingPress
 
 log = logging.getLogger(__name__)
 MAX_PRESS_ATTEMPTS = 3  # a press the FSR never saw is retried twice, then stored flagged
@@ -46,11 +50,10 @@ class _StopRequest:
 
 @dataclass
 class _Pressed:
-    """A press done on the rig and labelled by its FSR; its record's pair estimates may still be in the dry run's
-    skin worker (a sim.skinworker.DeferredRecord, resolved by `_press_row`)."""
+    """A press done on the rig and labelled by its FSR; its record may still be pending (resolved by `_press_row`)."""
 
     block: Any
-    record: Any  # PressRecord, or DeferredRecord submitted to the skin worker
+    record: PendingPress  # kept: its result() is the whole PressRecord
     label: Any  # rig.pressrow.FsrLabel
     extra_flags: list[str]
     started: datetime
@@ -64,9 +67,9 @@ class _Pressed:
 
 class _InFlight:
     """The presses pressed but not yet handed to the writer, oldest first, at most `limit` of them: a press whose
-    estimates the skin worker computes waits here while the next presses run. `settle` writes them in press
-    order; every writer flush comes after a settle, so what a pause, a stop or the loop's end shows is every
-    press pressed."""
+    record is not done waits here while the next presses run; a done one is written at once. `settle` writes them
+    in press order; every writer flush comes after a settle, so what a pause, a stop or the loop's end shows is
+    every press pressed."""
 
     def __init__(self, protocol, writer, pair_labels, bar, limit: int) -> None:
         self.protocol, self.writer, self.pair_labels, self.bar, self.limit = protocol, writer, pair_labels, bar, limit
@@ -78,7 +81,8 @@ class _InFlight:
         self.settle(keep=self.limit)
 
     def settle(self, keep: int = 0) -> None:
-        while len(self.presses) > keep:
+        """Write the oldest presses while more than `keep` wait, or while the oldest is done."""
+        while self.presses and (len(self.presses) > keep or self.presses[0].record.done()):
             row, waveforms = _press_row(self.protocol, self.presses[0], self.pair_labels)
             self.presses.popleft()
             self.writer.write_press(row, waveforms)
@@ -100,7 +104,7 @@ class _InFlight:
             log.warning("%d pressed presses were not written (resume presses them again): %s", len(self.presses), again)
 
 
-IN_FLIGHT_PRESSES = 4  # presses whose estimates the skin worker may hold at once (memory stays flat)
+IN_FLIGHT_PRESSES = 4  # presses whose records may be pending at once (memory stays flat)
 
 
 def press_loop(protocol, plan, rig, writer, todo, pair_labels, already_done, progress):
@@ -116,8 +120,7 @@ def press_loop(protocol, plan, rig, writer, todo, pair_labels, already_done, pro
         desc=f"{protocol.name} ({rig.kind})",
         dynamic_ncols=True,
     )
-    deferring = getattr(rig, "skin_worker", None) is not None
-    pending = _InFlight(protocol, writer, pair_labels, bar, IN_FLIGHT_PRESSES if deferring else 0)
+    pending = _InFlight(protocol, writer, pair_labels, bar, IN_FLIGHT_PRESSES)
     interrupted = False
     with _StopRequest() as stop:
         checkpoint = _checkpoint(protocol, plan, driver, writer, stop, flush=pending.flush)
@@ -166,12 +169,11 @@ def _hold_lines(hold_s: float) -> tuple[str, ...]:
 
 
 def _run_press(protocol, plan, rig, block, pair_labels) -> _Pressed:
-    """Press one block (retrying a press the FSR missed) and label it; with a skin worker, the kept attempt's
-    estimates are submitted to it and resolved later (`_press_row`), so the next press runs meanwhile."""
+    """Press one block (retrying a press the FSR missed) and label it; the kept attempt's record is kept (what it
+    defers starts) and resolved later (`_press_row`), so the next press runs meanwhile."""
     from neatskin.rig.pressrow import fsr_label
 
     driver, recorder = rig.driver, rig.recorder
-    deferring = getattr(rig, "skin_worker", None) is not None
     extra_flags: list[str] = []
     for attempt in range(MAX_PRESS_ATTEMPTS):
         started = datetime.now(UTC)
@@ -187,23 +189,22 @@ def _run_press(protocol, plan, rig, block, pair_labels) -> _Pressed:
                 recorder.mark("hold_end")
             elif phase.name == "lift":
                 recorder.mark("lifted")
-        record = recorder.end_deferred() if deferring else recorder.end()
+        record = recorder.end()
         label = fsr_label(
             record.fsr_v, record.fsr_rate_hz, rig.fsr_model, record.first_sample, record.marks, record.rate_hz
         )
         if not label.missed or attempt == MAX_PRESS_ATTEMPTS - 1:
             break
         extra_flags.append(f"fsr_retry:{attempt + 1}")
-    if deferring:
-        record.submit()  # only the kept attempt: a retried one costs the worker nothing
+    record.keep()  # only the kept attempt: a retried one costs nothing more
     return _Pressed(block, record, label, extra_flags, started, datetime.now(UTC))
 
 
 def _press_row(protocol, pressed: _Pressed, pair_labels) -> tuple[dict, dict | None]:
-    """The press's dataset row (and waveforms), its estimates awaited from the skin worker when deferred."""
+    """The press's dataset row (and waveforms), its record awaited when it is still pending."""
     from neatskin.rig.pressrow import press_values
 
-    record = pressed.record.result() if hasattr(pressed.record, "submit") else pressed.record
+    record = pressed.record.result()
     values = press_values(record.estimates, record.marks, pair_labels)
     block, label = pressed.block, pressed.label
     row = {

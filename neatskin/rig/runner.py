@@ -21,10 +21,9 @@ from pathlib import Path
 from typing import Any
 
 from neatskin.errors import ConfigError, DataError
-from neatskin.rig.assembly import build_real_rig
+from neatskin.rig.assembly import DerivedFiles, build_real_rig
 from neatskin.rig.folder import (
     INPUT_KEYS,
-    PHYSICAL_LIMIT,
     check_folder,
     check_inputs_unchanged,
     copy_inputs,
@@ -34,7 +33,6 @@ from neatskin.rig.folder import (
     restore_consolidated,
     rig_kind,
 )
-from neatskin.rig.physlimit import write_physical_limit
 from neatskin.rig.plan import Plan, build_plan
 from neatskin.rig.pressing import finish_program, press_loop
 from neatskin.rig.protocol import CampaignProtocol
@@ -136,7 +134,7 @@ def _run_locked(
     connect_timeout_s,
 ):
     from neatskin.datasets.manifest import read_manifest, update_manifest, utc_now_iso
-    from neatskin.datasets.writer import CampaignWriter, dry_run_batch_presses
+    from neatskin.datasets.writer import CampaignWriter
 
     try:
         rig = _open_rig(
@@ -169,15 +167,14 @@ def _run_locked(
         manifest = update_manifest(folder, status="running", rig=rig.description, **resumed)
         known_raw = manifest.get("parts_sha256")
         known: dict = known_raw if isinstance(known_raw, dict) else {}
-        # a dry run's presses are recomputed identically from (seed, press_id): a kill may lose its batch and
-        # power loss what the OS held, resume presses them again; the real rig fsyncs every press, one a part
+        # how durable each press must be is the rig's to say (Rig.fsync, Rig.batch_presses)
         writer = CampaignWriter(
             folder,
             protocol.layout.pairs,
             metadata,
-            fsync=not dry_run,
+            fsync=rig.fsync,
             known_sha256=known,
-            batch_presses=dry_run_batch_presses(plan.n_presses) if dry_run else 1,
+            batch_presses=rig.batch_presses,
         )
         try:
             done = writer.completed_press_ids()
@@ -191,7 +188,7 @@ def _run_locked(
             status = "complete" if completed == plan.n_presses else "interrupted"
             if status == "complete":
                 finish_program(rig, plan)
-                _finish_data(folder, protocol, plan, rig, writer)
+                _finish_data(folder, plan, rig.derived_files, writer)
             else:
                 update_manifest(
                     folder,
@@ -252,7 +249,7 @@ def _mark_stopped_with_parts(folder: Path, exc: BaseException, writer) -> None:
         log.warning("cannot mark %s interrupted: %s", folder, again)
 
 
-def _finish_data(folder: Path, protocol: CampaignProtocol, plan: Plan, rig, writer) -> None:
+def _finish_data(folder: Path, plan: Plan, derived: DerivedFiles, writer) -> None:
     """Consolidate, write the derived files, and only then say `complete` (with the files' sha256)."""
     from neatskin.datasets.manifest import update_manifest, utc_now_iso
     from neatskin.datasets.paths import CONSOLIDATED_NAME
@@ -260,8 +257,8 @@ def _finish_data(folder: Path, protocol: CampaignProtocol, plan: Plan, rig, writ
 
     consolidated = writer.finalize()
     files = {CONSOLIDATED_NAME: file_sha256(consolidated)}
-    if rig is not None and rig.skin is not None:
-        files[PHYSICAL_LIMIT] = file_sha256(write_physical_limit(folder, protocol, plan, rig))
+    for name, write in derived.items():  # what the rig derives of its campaign (a dry run: the physical limit)
+        files[name] = file_sha256(write(folder))
     flagged = _count_flagged(consolidated)
     update_manifest(
         folder,
@@ -371,8 +368,8 @@ def finish_campaign(folder: str | Path, *, report: bool = True, progress: bool =
                     if kind == "dry-run"
                     else None
                 )
-                try:
-                    _finish_data(folder, protocol, plan, rig, writer)
+                try:  # a real rig is not opened to finish: it derives no file
+                    _finish_data(folder, plan, {} if rig is None else rig.derived_files, writer)
                 finally:
                     if rig is not None:
                         rig.close()

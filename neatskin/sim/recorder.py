@@ -11,16 +11,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from neatskin.acquisition.demod import demodulate
-from neatskin.acquisition.record import PressRecord
+from neatskin.acquisition.record import PendingPress, PressRecord
+from neatskin.sim.deferred import DeferredRecord, EstimateJob, EstimateQueue
 from neatskin.sim.motion import positions_mm, relative_segments, segment_fraction
-
-if TYPE_CHECKING:
-    from neatskin.sim.skinworker import DeferredRecord, SkinWorker
 
 PRESS_SLOT_S = 1000.0  # each press owns [press_id * slot, (press_id + 1) * slot) of the dry run's sample clock
 STREAM_DAQ = 1
@@ -251,8 +248,9 @@ def features_estimates(daq, sweep, press_id: int, n_sweeps: int, *, seed: int, m
 class SimulatedRecorder:
     """Dry-run recorder: computes the press's acquisition from the simulated printer's trajectory.
 
-    With a skin worker (neatskin.sim.skinworker, features scene only), `end_deferred` computes the FSR trace
-    at once and leaves the pair estimates to the worker's process; `end` stays the inline path."""
+    `end` returns the press's `PendingPress`: inline, the whole PressRecord (already done); with a skin worker
+    (neatskin.sim.skinworker, features scene only), a DeferredRecord whose FSR trace is computed at once and
+    whose pair estimates the worker's process computes once the press is kept."""
 
     def __init__(
         self,
@@ -267,7 +265,7 @@ class SimulatedRecorder:
         window: int,
         fsr_enabled: bool,
         keep_waveforms: bool,
-        worker: SkinWorker | None = None,
+        worker: EstimateQueue | None = None,
     ) -> None:
         if worker is not None and signal != "features":
             raise ValueError("a skin worker computes the features scene only; the waveforms scene stays inline")
@@ -297,9 +295,9 @@ class SimulatedRecorder:
     def _sample_marks(self, first: int) -> dict[str, int]:
         return {k: first + int(round((t - self._t0) * self.sweep.rate_hz)) for k, t in self._marks.items()}
 
-    def end(self) -> PressRecord:
+    def end(self) -> PendingPress:
         if self.worker is not None:  # the worker's probe holds the conditions (dents, drift) this one leaves out
-            return self.end_deferred().submit().result()
+            return self._end_deferred(self.worker)
         press_id, n_sweeps, first, n = self._load()
         sweep, rate = self.sweep, self.sweep.rate_hz
         daq_t0 = press_id * PRESS_SLOT_S
@@ -326,16 +324,12 @@ class SimulatedRecorder:
         fsr_rate = rate if self.signal == "waveforms" else rate / FSR_DECIMATION
         return PressRecord(estimates, first, n, rate, marks, fsr_v, waveforms, fsr_rate)
 
-    def end_deferred(self) -> DeferredRecord:
+    def _end_deferred(self, worker: EstimateQueue) -> DeferredRecord:
         """The press's FSR trace and marks now (the runner's retry decision needs the label before the next
-        press); its pair estimates once the caller `submit`s the record to the skin worker and asks its
-        `result`. Only a press that is kept is submitted: a retried attempt costs the worker nothing."""
-        if self.worker is None:
-            raise RuntimeError("end_deferred() needs a skin worker (neatskin.sim.skinworker.SkinWorker)")
+        press); its pair estimates once the caller `keep`s the record (sent to the skin worker) and asks its
+        `result`. Only a press that is kept is sent: a retried attempt costs the worker nothing."""
         press_id, n_sweeps, first, n = self._load()
         fsr_v = self._fsr_trace(first, n, press_id) if self.fsr_enabled else None
-        from neatskin.sim.skinworker import DeferredRecord, EstimateJob
-
         job = EstimateJob(press_id, n_sweeps, tuple(self.probe.segments))
         record = DeferredRecord(
             first,
@@ -345,7 +339,7 @@ class SimulatedRecorder:
             fsr_v,
             self.sweep.rate_hz / FSR_DECIMATION,
             job,
-            self.worker,
+            worker,
         )
         self._press = None
         return record

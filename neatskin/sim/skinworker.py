@@ -23,15 +23,12 @@ import signal
 import threading
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
 from multiprocessing.connection import Connection, wait
 from typing import Any, Protocol
 
-import numpy as np
-
 from neatskin.acquisition.estimates import PairEstimates
-from neatskin.acquisition.record import PressRecord
 from neatskin.errors import HardwareError
+from neatskin.sim.deferred import EstimateJob
 from neatskin.sim.recorder import PRESS_SLOT_S, DryProbe, features_estimates
 
 log = logging.getLogger(__name__)
@@ -41,15 +38,6 @@ PRESS_TIMEOUT_S = 60.0  # one press's estimates take milliseconds; this is a han
 CLOSE_TIMEOUT_S = 5.0
 CONTEXT = "spawn"
 RESUME_HINT = "the presses before it are written, `neatskin campaign resume` presses the rest"
-
-
-@dataclass(frozen=True)
-class EstimateJob:
-    """What the worker needs of one press: its id (the random stream, the conditions) and its moves."""
-
-    press_id: int
-    n_sweeps: int
-    segments: tuple  # sim.motion.Segment of the press, on its own clock (DryProbe.segments after load)
 
 
 class Estimator(Protocol):
@@ -79,41 +67,6 @@ class PressEstimator:
             seed=self.seed,
             method=self.method,
             window=self.window,
-        )
-
-
-@dataclass
-class DeferredRecord:
-    """A press recorded except its pair estimates: the FSR trace and marks (PressRecord's fields of those
-    names) now, the estimates from the worker once `submit`ted, by `result()`."""
-
-    first_sample: int
-    n_samples: int
-    rate_hz: float
-    marks: dict[str, int]
-    fsr_v: np.ndarray | None
-    fsr_rate_hz: float
-    job: EstimateJob
-    worker: SkinWorker = field(repr=False)
-    ticket: int | None = None
-
-    @property
-    def press_id(self) -> int:
-        return self.job.press_id
-
-    def submit(self) -> DeferredRecord:
-        """Send the press to the worker (once)."""
-        if self.ticket is None:
-            self.ticket = self.worker.submit(self.job)
-        return self
-
-    def result(self) -> PressRecord:
-        """The whole record, waiting for the worker's estimates (with a deadline)."""
-        if self.ticket is None:
-            raise RuntimeError(f"press {self.press_id}: result() before submit()")
-        estimates = self.worker.result(self.ticket, self.press_id)
-        return PressRecord(
-            estimates, self.first_sample, self.n_samples, self.rate_hz, self.marks, self.fsr_v, None, self.fsr_rate_hz
         )
 
 

@@ -28,7 +28,7 @@ class PressModel(Protocol):
     """What the bound needs of a skin: pair resistances under a press, with a resistivity factor."""
 
     def pair_resistance_ohm(
-        self, x_mm, y_mm, depth_mm, peak_depth_mm=None, temperature_c=None, **kwargs
+        self, x_mm, y_mm, depth_mm, peak_depth_mm=None, temperature_c=None, *, resistivity_factor=None
     ) -> np.ndarray: ...
 
     @property
