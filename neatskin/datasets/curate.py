@@ -15,10 +15,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pyarrow as pa
-import pyarrow.compute as pc
 
+from neatskin.datasets.curation import campaign_status, copy_inputs, empty_output, flagged_mask, manifest_or_empty
 from neatskin.datasets.durable import write_bytes_durably
-from neatskin.datasets.manifest import create_manifest, read_manifest, resolve_manifest_path, utc_now_iso
+from neatskin.datasets.manifest import create_manifest, utc_now_iso
 from neatskin.datasets.merging import POSITION_TOLERANCE_MM, merge  # noqa: F401 (curate.merge is the API)
 from neatskin.datasets.paths import CONSOLIDATED_NAME, press_parts, waveform_parts
 from neatskin.datasets.reader import read_press_table
@@ -48,31 +48,11 @@ def export_format(out: str | os.PathLike, format: str | None = None) -> str:
     return _SUFFIX_FORMATS[suffix]
 
 
-def _manifest_or_empty(folder: Path) -> dict[str, Any]:
-    try:
-        return read_manifest(folder) if folder.is_dir() else {}
-    except DataError:
-        return {}
-
-
-def _empty_output(out: Path) -> None:
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise DataError(
-            "the output folder exists and is not empty",
-            file=str(out),
-            fix="choose a new folder; curation never overwrites data",
-        )
-
-
-def _flagged_mask(table: pa.Table) -> np.ndarray:
-    return pc.greater(pc.list_value_length(table.column("flags")), 0).to_numpy(zero_copy_only=False)
-
-
 def _write_campaign(out: Path, table: pa.Table, metadata: dict[str, Any], manifest: dict[str, Any]) -> Path:
     table = table.replace_schema_metadata(encode_metadata(metadata))
     write_table_durably(out / CONSOLIDATED_NAME, table)
     n = table.num_rows
-    counts = {"planned": n, "completed": n, "flagged": int(_flagged_mask(table).sum())}
+    counts = {"planned": n, "completed": n, "flagged": int(flagged_mask(table).sum())}
     create_manifest(out, **{"status": "complete", "finished_at": utc_now_iso(), "counts": counts, **manifest})
     return out
 
@@ -83,7 +63,7 @@ def _write_campaign(out: Path, table: pa.Table, metadata: dict[str, Any], manife
 def describe(path: str | os.PathLike) -> dict[str, Any]:
     """A summary of a dataset: presses, positions, repeats, pairs, flags, ranges, timing, manifest, files."""
     path = Path(path)
-    manifest = _manifest_or_empty(path)
+    manifest = manifest_or_empty(path)
     try:
         table = read_press_table(path)
     except DataError:
@@ -132,21 +112,6 @@ def describe(path: str | os.PathLike) -> dict[str, Any]:
     }
 
 
-def campaign_status(folder: Path, manifest: dict[str, Any]) -> str:
-    """The manifest's status, told apart by the folder lock: `running (PID ..)` only while a live process
-    holds it; a `running` manifest whose process is gone is `crashed`."""
-    from neatskin.datasets.lock import lock_state
-
-    status = str(manifest.get("status"))
-    held, holder = lock_state(folder)
-    if held:
-        return f"running ({holder})"
-    if status == "running":
-        who = f" (last run by {holder})" if holder else ""
-        return f"crashed{who}: no process runs it; continue with neatskin campaign resume {folder}"
-    return status
-
-
 def format_description(info: dict[str, Any]) -> str:
     width = max(len(k) for k in info)
     lines = []
@@ -154,29 +119,6 @@ def format_description(info: dict[str, Any]) -> str:
         text = json.dumps(value, default=str) if isinstance(value, (dict, list)) else str(value)
         lines.append(f"{key:<{width}}  {text}")
     return "\n".join(lines)
-
-
-def _copy_inputs(out: Path, sources: list[Path], manifests: list[dict[str, Any]]) -> dict[str, Any]:
-    """Give the output its own copies of the input files (the first source's as inputs/<key>.toml, every
-    source's under inputs/sources/<k>/), so it does not break when a source folder is deleted."""
-    import shutil
-
-    refs: dict[str, Any] = {}
-    for k, (folder, manifest) in enumerate(zip(sources, manifests)):
-        for key in ("protocol", "layout", "wiring", "printer"):
-            path = resolve_manifest_path(folder, manifest, key) if folder.is_dir() else None
-            if path is None or not path.is_file():
-                continue
-            targets = [out / "inputs" / f"{key}.toml"] if k == 0 else []
-            if len(sources) > 1:
-                targets.append(out / "inputs" / "sources" / str(k) / f"{key}.toml")
-            for target in targets:
-                target.parent.mkdir(parents=True, exist_ok=True)
-                shutil.copyfile(path, target)
-            if k == 0:
-                ref = manifest[key] if isinstance(manifest.get(key), dict) else {}
-                refs[key] = {**ref, "path": f"inputs/{key}.toml", "source": str(path.resolve())}
-    return refs
 
 
 # ---- split ---------------------------------------------------------------------------------------
@@ -206,10 +148,10 @@ def split(
 ) -> dict[str, Path]:
     """Write out/train and out/test, split BY POSITION: every repeat of a position lands in the same set."""
     path, out = Path(path), Path(out)
-    _empty_output(out)
+    empty_output(out)
     table = read_press_table(path)
     meta = decode_metadata(table.schema.metadata)
-    source_manifest = _manifest_or_empty(path)
+    source_manifest = manifest_or_empty(path)
     positions = table.column("position_id").to_numpy()
     train_ids, test_ids = split_positions(positions, test_fraction, seed)
     result = {}
@@ -227,7 +169,7 @@ def split(
             "kind": "split",
             "split": info,
             "campaign": source_manifest.get("campaign"),
-            **_copy_inputs(out / name, [path], [source_manifest]),
+            **copy_inputs(out / name, [path], [source_manifest]),
         }
         if "seed" in source_manifest or "seed" in meta:
             manifest["seed"] = source_manifest.get("seed", meta.get("seed"))
@@ -250,7 +192,7 @@ def export(
         raise DataError("the output file exists", file=str(out), fix="choose a new name; export never overwrites")
     table = read_press_table(path)
     if drop_flagged:
-        table = table.filter(pa.array(~_flagged_mask(table)))
+        table = table.filter(pa.array(~flagged_mask(table)))
     if format == "parquet":
         return write_table_durably(out, table)
     df = table.to_pandas()

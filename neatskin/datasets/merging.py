@@ -17,6 +17,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from neatskin.datasets import curation
 from neatskin.datasets.durable import write_durably
 from neatskin.datasets.manifest import create_manifest, utc_now_iso
 from neatskin.datasets.paths import CONSOLIDATED_NAME
@@ -43,8 +44,6 @@ def _ref_key(ref: Any) -> str | None:
 def _check_sources(sources: list[Path], allow_incomplete: bool) -> list[str]:
     """Refuse a folder named twice, and (unless allow_incomplete) a campaign that runs or is incomplete;
     returns each source's status."""
-    from neatskin.datasets import curate  # curate re-exports merge: imported when called, not at load
-
     seen: dict[Path, Path] = {}
     for folder in sources:
         key = folder.resolve()
@@ -61,8 +60,8 @@ def _check_sources(sources: list[Path], allow_incomplete: bool) -> list[str]:
         if folder.is_file():
             statuses.append("file")
             continue
-        manifest = curate._manifest_or_empty(folder)
-        status = curate.campaign_status(folder, manifest) if manifest else "no manifest (a plain dataset folder)"
+        manifest = curation.manifest_or_empty(folder)
+        status = curation.campaign_status(folder, manifest) if manifest else "no manifest (a plain dataset folder)"
         statuses.append(status)
         if manifest and status != "complete" and not allow_incomplete:
             raise DataError(
@@ -124,8 +123,6 @@ class _SourcePlan:
 def _plan_source(folder: Path) -> _SourcePlan:
     """A source's summary from five small columns of its presses (consolidated file and parts, first copy
     of a press id kept)."""
-    from neatskin.datasets import curate  # curate re-exports merge: imported when called, not at load
-
     files = press_files(folder)
     tables = []
     for path in files:
@@ -139,10 +136,10 @@ def _plan_source(folder: Path) -> _SourcePlan:
     return _SourcePlan(
         schema=schema,
         metadata=decode_metadata(schema.metadata),
-        manifest=curate._manifest_or_empty(folder),
+        manifest=curation.manifest_or_empty(folder),
         positions=frame.groupby("position_id", sort=True)[["x_mm", "y_mm"]].first(),
         presses=keys.num_rows,
-        flagged=int(curate._flagged_mask(keys).sum()),
+        flagged=int(curation.flagged_mask(keys).sum()),
         max_press_id=int(pc.max(keys.column("press_id")).as_py()) if keys.num_rows else None,
     )
 
@@ -198,13 +195,11 @@ def merge(
     Memory stays bounded as the merged dataset grows: merge plans from four small columns of each source,
     then streams the sources one at a time into presses.parquet (at most the largest source plus one row
     group of MERGE_ROW_GROUP rows in memory)."""
-    from neatskin.datasets import curate  # curate re-exports merge: imported when called, not at load
-
     sources = [Path(f) for f in folders]
     out = Path(out)
     if len(sources) < 2:
         raise DataError("merge needs at least two campaign folders", field="folders", fix="name two or more")
-    curate._empty_output(out)
+    curation.empty_output(out)
     statuses = _check_sources(sources, allow_incomplete)
     plans = [_plan_source(folder) for folder in sources]
     first_folder, first = sources[0], plans[0]
@@ -252,7 +247,7 @@ def merge(
         if plan.max_press_id is not None:
             press_offset += plan.max_press_id + 1
     out.mkdir(parents=True, exist_ok=True)
-    refs = curate._copy_inputs(out, sources, [p.manifest for p in plans])
+    refs = curation.copy_inputs(out, sources, [p.manifest for p in plans])
     metadata = {
         "pairs": first.metadata.get("pairs"),
         "software_version": first.metadata.get("software_version"),

@@ -12,10 +12,11 @@ import numpy as np
 import pandas as pd
 
 from neatskin.design.evaluate import CandidateResult
-from neatskin.design.runner import MAPS, PARTS
 from neatskin.design.study import Study
 from neatskin.design.validate import existing_section
 
+PARTS = "parts"  # a study folder's one-row parquet per candidate done (what resume skips)
+MAPS = "maps"  # its per-candidate bound maps (parquet, png)
 ERROR_COLUMN = "bound_mean_capped_mm"
 PARETO_COLUMNS = (ERROR_COLUMN, "electrodes", "sweep_time_s")
 # candidates compete only with candidates on the same skin (same grid, channels, probe and depth)

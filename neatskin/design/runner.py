@@ -20,14 +20,13 @@ import pandas as pd
 
 from neatskin.design.candidates import Candidate, expand
 from neatskin.design.evaluate import CandidateResult, evaluate_candidate
+from neatskin.design.report import MAPS, PARTS, write_candidate, write_report
 from neatskin.design.study import Study
 from neatskin.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
 SCHEDULERS = ("local", "dask")
-PARTS = "parts"
-MAPS = "maps"
 FINGERPRINT = "study.json"
 
 Progress = Callable[[int, int], None]
@@ -88,8 +87,6 @@ def run_study(
     progress(done, total) is told after each candidate (done counts the ones a previous run finished);
     on_result(result) after each is durable. Returns the candidates table (one row per candidate, study order).
     """
-    from neatskin.design.report import write_candidate, write_report
-
     if scheduler not in SCHEDULERS:
         raise ConfigError(f"unknown scheduler {scheduler!r}", field="--scheduler", fix="use 'local' or 'dask'")
     if scheduler == "dask" and not address:

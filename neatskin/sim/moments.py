@@ -9,15 +9,12 @@ configuration and the noise model; `_sine` is the shared sine table of the DAQ's
 from __future__ import annotations
 
 from functools import lru_cache
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from neatskin.acquisition.daq.base import DaqConfig
 from neatskin.acquisition.sequence import Sweep
-
-if TYPE_CHECKING:
-    from neatskin.sim.daq import NoiseModel
+from neatskin.sim.noise import NoiseModel
 
 
 def effective_noise_var(config: DaqConfig, noise: NoiseModel) -> tuple[float, float]:
