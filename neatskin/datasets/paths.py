@@ -5,6 +5,7 @@ CAMPAIGN/
   campaign.lock                      who runs the campaign (PID, host, start); flock'ed while it runs
   presses.parquet                    all presses, one row each (after finalize)
   presses.copy.parquet               a byte copy of presses.parquet kept by finalize, to restore a damaged one
+  physical_limit.parquet             a dry run's bound on the position error per position
   presses/part-000042.parquet        durable presses while the campaign runs: press 42 and, in a dry run's
                                      batched part, the presses after it (ids strictly increasing)
   waveforms/position_id=7/part-000042.parquet   raw samples of press 42 (hive-partitioned)
@@ -18,6 +19,7 @@ from pathlib import Path
 MANIFEST_NAME = "manifest.json"
 CONSOLIDATED_NAME = "presses.parquet"
 COPY_NAME = "presses.copy.parquet"
+PHYSICAL_LIMIT = "physical_limit.parquet"  # a dry run's Cramér-Rao bounds per position (neatskin.rig.physlimit)
 PRESSES_DIR = "presses"
 WAVEFORMS_DIR = "waveforms"
 _PART = re.compile(r"^part-(\d+)\.parquet$")

@@ -21,7 +21,8 @@ from neatskin.datasets.manifest import MANIFEST_NAME, read_manifest, resolve_man
 from neatskin.datasets.paths import CONSOLIDATED_NAME, COPY_NAME, part_press_id, press_parts, waveform_parts
 from neatskin.datasets.reader import press_files
 from neatskin.datasets.scan import DatasetScan, read_schema, scan_files
-from neatskin.datasets.schema import BASE_FIELDS, decode_metadata, press_schema
+from neatskin.datasets.schema import BASE_FIELDS, decode_metadata, parse_pair_column, press_schema
+from neatskin.datasets.writer import file_sha256, read_parquet
 from neatskin.errors import ConfigError, DataError, Problem
 from neatskin.layout import ElectrodePair, Layout, load_layout
 
@@ -100,8 +101,6 @@ def _unreadable_fix(file: Path) -> str:
 def _same_rows(path: Path, copy: Path, recorded_sha256: str) -> bool:
     """Whether `path` holds the same rows as the campaign's intact copy: a file re-encoded without a change
     (e.g. a pandas round trip) is fine, a changed value or a flipped bit is not."""
-    from neatskin.datasets.writer import file_sha256, read_parquet
-
     if not copy.is_file() or file_sha256(copy) != recorded_sha256:
         return False
     try:
@@ -113,8 +112,6 @@ def _same_rows(path: Path, copy: Path, recorded_sha256: str) -> bool:
 
 def _integrity_problems(folder: Path, manifest: dict | None, scan: DatasetScan) -> list[Problem]:
     """Recorded sha256 (presses.parquet, committed parts) and parts whose content is not what their name says."""
-    from neatskin.datasets.writer import file_sha256
-
     problems = []
     manifest = manifest or {}
     files_raw = manifest.get("files_sha256")
@@ -204,8 +201,6 @@ def _expected_pairs(
                 return tuple(ElectrodePair(int(i), int(j)) for i, j in source["pairs"])
             except (TypeError, ValueError):
                 pass
-    from neatskin.datasets.schema import parse_pair_column
-
     found = [parse_pair_column(n) for n in schema.names]
     return tuple(p for kind, p in filter(None, found) if kind == "dR")
 

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from neatskin.acquisition.daq.base import DaqConfig
 from neatskin.design.bound import (
     PairNoise,
     bound_mm,
@@ -23,6 +24,8 @@ from neatskin.design.bound import (
 )
 from neatskin.design.candidates import Candidate, boundary_walk, every_k_nodes
 from neatskin.design.electrical import candidate_electrical, electrical_columns
+from neatskin.design.inversion import inversion_errors_mm
+from neatskin.design.learned import learned_error_mm
 from neatskin.design.optimise import RIDGE_PER_MM2, PairInformation, greedy_exchange
 from neatskin.design.sensitivity import grounded_inverse, press_jacobian
 from neatskin.design.study import Study
@@ -65,8 +68,6 @@ def press_grid_mm(layout: Layout, per_axis: int) -> tuple[np.ndarray, np.ndarray
 
 
 def pair_noise(study: Study) -> PairNoise:
-    from neatskin.acquisition.daq.base import DaqConfig
-
     lsb = DaqConfig(amplitude_a=study.amplitude_a).lsb_ai_v * DaqConfig(amplitude_a=study.amplitude_a).to_physical
     return PairNoise(
         model=study.noise_model,
@@ -172,8 +173,6 @@ def evaluate_candidate(study: Study, candidate: Candidate) -> CandidateResult:
         "learned_seeds": 0,
     }
     if study.learned.enabled:
-        from neatskin.design.learned import learned_error_mm
-
         errors = learned_error_mm(candidate_layout(study, candidate, canonical), study, candidate, noise)
         row.update(
             learned_error_mean_mm=float(np.mean(errors)),
@@ -194,8 +193,6 @@ def evaluate_candidate(study: Study, candidate: Candidate) -> CandidateResult:
         inversion_error_p90_mm=math.nan,
     )
     if study.inversion.enabled:
-        from neatskin.design.inversion import inversion_errors_mm
-
         electrode_junctions = pj.junctions[members]
         errors = inversion_errors_mm(
             layout, electrode_junctions, x, y, candidate.depth_mm, radius, study.fidelity, noise, z,

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from neatskin.datasets.durable import write_bytes_durably, write_durably
 from neatskin.design.evaluate import CandidateResult
 from neatskin.design.study import Study
 from neatskin.design.validate import existing_section
@@ -25,8 +26,6 @@ SKIN_COLUMNS = ("nx", "ny", "pitch_mm", "channel_width_mm", "channel_height_mm",
 
 def write_candidate(out_dir: Path, result: CandidateResult, png: bool = True) -> None:
     """Map parquet and PNG first, the row last: the row's presence marks the candidate done."""
-    from neatskin.datasets.durable import write_durably
-
     cid = result.candidate_id
     write_durably(out_dir / MAPS / f"{cid}.parquet", lambda h: result.map_frame.to_parquet(h, index=False))
     if png:
@@ -42,8 +41,6 @@ def plot_map(row: dict, frame: pd.DataFrame, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.colors import LogNorm
-
-    from neatskin.datasets.durable import write_durably
 
     n = int(round(math.sqrt(len(frame))))
     x = frame["x_mm"].to_numpy().reshape(n, n)
@@ -197,8 +194,6 @@ def _comparison(frame: pd.DataFrame, learned: bool, inverted: bool, kind: str) -
 
 
 def write_report(out_dir: Path, study: Study, frame: pd.DataFrame) -> None:
-    from neatskin.datasets.durable import write_bytes_durably
-
     plot_pareto(frame, out_dir / "pareto.png", f"study {study.name}: error against electrodes and sweep time")
     front = pareto_mask(frame)
     learned = study.learned.enabled

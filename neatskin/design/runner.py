@@ -18,6 +18,7 @@ from typing import Any
 
 import pandas as pd
 
+from neatskin.datasets.durable import remove_temp_files, write_bytes_durably, write_durably
 from neatskin.design.candidates import Candidate, expand
 from neatskin.design.evaluate import CandidateResult, evaluate_candidate
 from neatskin.design.report import MAPS, PARTS, write_candidate, write_report
@@ -47,8 +48,6 @@ def done_ids(out_dir: Path) -> set[str]:
 
 def prepare_out_dir(study: Study, out_dir: Path) -> None:
     """Create the folder; refuse one that holds another study's results (a resume must be the same study)."""
-    from neatskin.datasets.durable import remove_temp_files, write_bytes_durably
-
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / PARTS).mkdir(exist_ok=True)
     (out_dir / MAPS).mkdir(exist_ok=True)
@@ -129,8 +128,6 @@ def collect(out_dir: Path, candidates: list[Candidate]) -> pd.DataFrame:
     """The candidates table from the per-candidate parts, in study order."""
     rows = [pd.read_parquet(out_dir / PARTS / f"{c.candidate_id}.parquet") for c in candidates]
     frame = pd.concat(rows, ignore_index=True)
-    from neatskin.datasets.durable import write_durably
-
     write_durably(out_dir / "candidates.parquet", lambda handle: frame.to_parquet(handle, index=False))
     return frame
 

@@ -21,7 +21,14 @@ from typing import Any
 
 import numpy as np
 
-from neatskin.design.study import Study
+from neatskin.baselines.dataset import load_baseline_data
+from neatskin.design.candidates import Candidate
+from neatskin.design.evaluate import pair_noise
+from neatskin.design.learned import learned_error_mm
+from neatskin.design.study import LearnedSpec, Study
+from neatskin.rig.protocol import load_protocol
+from neatskin.rig.runner import run_campaign
+from neatskin.skin.model import SkinModel
 from neatskin.tomlfile import resolve_path
 
 logger = logging.getLogger(__name__)
@@ -117,10 +124,8 @@ def study_errors_mm(
 ) -> np.ndarray:
     """The study's features-only estimate at the campaign's positions and rows: one mean error (mm) per split repeat,
     each on a fresh Gaussian noise draw, with the baselines' grouped folds and kNN (k = 5, distance-weighted)."""
-    from neatskin.baselines.evaluate import repeat_splits
+    from neatskin.baselines.evaluate import repeat_splits  # scikit-learn, imported when a validation runs
     from neatskin.baselines.models import make_models
-    from neatskin.design.evaluate import pair_noise
-    from neatskin.skin.model import SkinModel
 
     model = SkinModel(layout, fidelity=study.fidelity, probe_radius_mm=probe_diameter_mm / 2.0)
     base = model.baseline_pair_resistance_ohm
@@ -152,12 +157,7 @@ def validate_study(
 ) -> Validation:
     """Run the dry-run campaign and the baselines' kNN grouped, the study's estimate on the same rows, and write
     the section into out/report.md."""
-    from neatskin.baselines.dataset import load_baseline_data
-    from neatskin.baselines.report import run_baselines
-    from neatskin.design.evaluate import pair_noise
-    from neatskin.rig.protocol import load_protocol
-    from neatskin.rig.runner import run_campaign
-    from neatskin.skin.model import SkinModel
+    from neatskin.baselines.report import run_baselines  # scikit-learn, imported when a validation runs
 
     out = Path(out)
     folder = out / "validation"
@@ -232,11 +232,6 @@ def validate_study(
 def _own_estimate(study: Study, proto: Any, positions: int, repeats: int, split_repeats: int, folds: int) -> np.ndarray:
     """The study's learned_error_mm as it runs in a study, at the same size and held-out share: uniform positions
     over the layout, one group-shuffle split per seed, k = 5 uniform weights."""
-    from neatskin.design.candidates import Candidate
-    from neatskin.design.evaluate import pair_noise
-    from neatskin.design.learned import learned_error_mm
-    from neatskin.design.study import LearnedSpec
-
     spec = LearnedSpec(True, positions, repeats, split_repeats, 1.0 / folds, "knn")
     press = proto.press.press
     candidate = Candidate(3, 3, 15.0, 2.0, 1.0, press.probe_diameter_mm, press.depth_mm, "explicit", 8, "paper", ())

@@ -17,7 +17,9 @@ from neatskin.acquisition.daq.base import Daq, DaqConfig
 from neatskin.acquisition.fsr import FsrModel
 from neatskin.acquisition.record import Recorder
 from neatskin.errors import ConfigError, HardwareError
+from neatskin.marlin.driver import DriverConfig, MarlinDriver
 from neatskin.rig.plan import Plan
+from neatskin.rig.recorder import ThreadedRecorder
 
 DAQ_KINDS = ("simulated", "ni")
 # lines a campaign's driver may have in flight, real rig and dry run alike: more than one only when the firmware
@@ -66,7 +68,7 @@ def open_daq(kind: str, config: DaqConfig = DaqConfig(), **kwargs) -> Daq:
     """A configured backend by name. kwargs go to SimulatedDAQ (pair_resistance_ohm, force_n, noise, fsr, ...);
     the NI backend (HardwareError if nidaqmx or the device is missing) takes none."""
     if kind == "simulated":
-        from neatskin.sim.daq import SimulatedDAQ
+        from neatskin.sim.daq import SimulatedDAQ  # here: a real run never imports the simulator
 
         if "pair_resistance_ohm" not in kwargs:
             raise ConfigError(
@@ -80,7 +82,7 @@ def open_daq(kind: str, config: DaqConfig = DaqConfig(), **kwargs) -> Daq:
             raise ConfigError(
                 f"the NI backend takes no {', '.join(sorted(kwargs))}", field="daq", fix="pass only a DaqConfig"
             )
-        from neatskin.acquisition.daq.nidaqmx_backend import NiDAQ
+        from neatskin.acquisition.daq.nidaqmx_backend import NiDAQ  # imports nidaqmx, an optional extra
 
         return NiDAQ(config)
     raise ConfigError(f"unknown DAQ kind {kind!r}", field="daq", fix=f"use one of {', '.join(DAQ_KINDS)}")
@@ -110,9 +112,6 @@ def build_real_rig(
     wire_log=None,
 ) -> Rig:
     """The printer on a serial port and the DAQ; errors are HardwareErrors raised before any motion."""
-    from neatskin.marlin.driver import DriverConfig, MarlinDriver
-    from neatskin.rig.recorder import ThreadedRecorder
-
     closers: list[Callable[[], None]] = []
     try:  # the printer first: a port that does not answer is the commonest set-up mistake
         driver = MarlinDriver.open(

@@ -13,10 +13,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 from neatskin.datasets import writer as dataset_writer  # its batch rule looked up when used (tests set it)
+from neatskin.datasets.paths import PHYSICAL_LIMIT
 from neatskin.errors import ConfigError
 from neatskin.marlin.driver import DriverConfig, MarlinDriver
 from neatskin.rig.assembly import CAMPAIGN_MAX_IN_FLIGHT, Rig, daq_config
-from neatskin.rig.folder import PHYSICAL_LIMIT
 from neatskin.rig.physlimit import write_physical_limit
 from neatskin.rig.plan import Plan
 from neatskin.rig.protocol import CampaignProtocol

@@ -11,24 +11,24 @@ import logging
 import os
 import shutil
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
+from neatskin.datasets.durable import fsync_dir, write_bytes_durably, write_error
+from neatskin.datasets.lock import CampaignLock, lock_state
+from neatskin.datasets.manifest import create_manifest
+from neatskin.datasets.paths import CONSOLIDATED_NAME, COPY_NAME, PHYSICAL_LIMIT
+from neatskin.datasets.reader import read_metadata
+from neatskin.datasets.writer import file_sha256
 from neatskin.errors import ConfigError, DataError, Problem
-from neatskin.rig.protocol import CampaignProtocol, file_sha256, load_protocol
-
-if TYPE_CHECKING:
-    from neatskin.datasets.lock import CampaignLock
-    from neatskin.rig.plan import Plan
+from neatskin.rig.plan import Plan
+from neatskin.rig.protocol import CampaignProtocol, load_protocol
 
 INPUTS_DIR = "inputs"
-PHYSICAL_LIMIT = "physical_limit.parquet"
 log = logging.getLogger(__name__)
 
 
 def copy_inputs(protocol: CampaignProtocol, folder: Path) -> dict[str, Any]:
     """Copy the protocol and the files it names into the campaign folder, so resume needs nothing else."""
-    from neatskin.datasets.durable import write_bytes_durably
-
     inputs = folder / INPUTS_DIR
     inputs.mkdir(parents=True, exist_ok=True)
     refs: dict[str, Any] = {}
@@ -51,8 +51,6 @@ def check_folder(folder: Path, resume: bool) -> None:
     if resume:
         return
     if folder.exists() and any(folder.iterdir()):
-        from neatskin.datasets.lock import lock_state
-
         held, holder = lock_state(folder)
         running = f" (a campaign is running in it: {holder})" if held else ""
         raise ConfigError(
@@ -70,8 +68,6 @@ def _staging_name(folder: Path) -> Path:
 
 def _remove_stale_staging(folder: Path) -> None:
     """Staging folders of runs killed before their rename (no live process holds their lock)."""
-    from neatskin.datasets.lock import lock_state
-
     if not folder.parent.is_dir():
         return
     for entry in folder.parent.glob(f".{folder.name}.staging-*"):
@@ -82,10 +78,6 @@ def _remove_stale_staging(folder: Path) -> None:
 def create_campaign_folder(protocol: CampaignProtocol, plan: Plan, folder: Path, rig_kind: str) -> CampaignLock:
     """Make the campaign folder in one atomic step: lock, inputs/ and manifest.json are built under a hidden
     staging name and renamed into place, so a kill leaves either no campaign folder or one that resumes."""
-    from neatskin.datasets.durable import fsync_dir, write_error
-    from neatskin.datasets.lock import CampaignLock
-    from neatskin.datasets.manifest import create_manifest
-
     _remove_stale_staging(folder)
     staging = _staging_name(folder)
     try:
@@ -148,8 +140,6 @@ OPTIONAL_INPUT_KEYS = ("skin_profile",)  # copied and checked when the protocol 
 def _recorded_input_sha(folder: Path, manifest: dict) -> dict[str, str | None]:
     """The sha256 each input file had when the campaign started: from the manifest, else from the parquet
     metadata (every press file carries the same references), so deleting a hash switches no check off."""
-    from neatskin.datasets.reader import read_metadata
-
     try:
         metadata = read_metadata(folder)
     except (DataError, OSError):
@@ -228,9 +218,6 @@ def load_inputs(folder: Path) -> CampaignProtocol:
 def missing_derived_files(folder: Path, manifest: dict, *, report: bool = True) -> list[str]:
     """What a complete campaign lacks: a consolidated file that is missing or differs from its recorded
     sha256, the physical limit of a dry run, the report (when asked for)."""
-    from neatskin.datasets.paths import CONSOLIDATED_NAME
-    from neatskin.datasets.writer import file_sha256
-
     files = manifest.get("files_sha256")
     recorded: dict[str, str] = files if isinstance(files, dict) else {}
     missing = []
@@ -248,10 +235,6 @@ def missing_derived_files(folder: Path, manifest: dict, *, report: bool = True) 
 def restore_consolidated(folder: Path, manifest: dict) -> None:
     """A presses.parquet that is missing or differs from its recorded sha256 is restored from the copy
     finalize kept, when that copy matches."""
-    from neatskin.datasets.durable import write_bytes_durably
-    from neatskin.datasets.paths import CONSOLIDATED_NAME, COPY_NAME
-    from neatskin.datasets.writer import file_sha256
-
     recorded = (
         (manifest.get("files_sha256") or {}).get(CONSOLIDATED_NAME)
         if isinstance(manifest.get("files_sha256"), dict)

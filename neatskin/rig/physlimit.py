@@ -16,12 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-from neatskin.rig.folder import PHYSICAL_LIMIT
+from neatskin.datasets.paths import PHYSICAL_LIMIT
 from neatskin.rig.plan import Plan
 from neatskin.rig.protocol import CampaignProtocol
 from neatskin.sim.daq import SimulatedDAQ
 from neatskin.skin.bound import feature_jacobian, position_bound_mm
 from neatskin.skin.model import SkinModel
+from neatskin.skin.variability import drift_resistivity_factor
 
 METADATA_KEY = b"neatskin.physical_limit"
 RESISTIVITY_TEMPCO_PER_K = -0.02  # the skin model's default, used when the skin does not say
@@ -42,8 +43,6 @@ class NuisancePriors:
         """The scene's depth jitter and placement error as they are; the drift as the std of log rho over a
         campaign of `campaign_s` seconds, the drift being a ramp sampled uniformly by the presses
         (ptp / sqrt(12))."""
-        from neatskin.skin.variability import drift_resistivity_factor
-
         temperature = float(getattr(scene, "temperature_drift_k_per_h", 0.0))
         evaporation = float(getattr(scene, "evaporation_fraction_per_h", 0.0))
         t = np.linspace(0.0, max(campaign_s, 0.0), 65)

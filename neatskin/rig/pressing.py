@@ -19,6 +19,8 @@ from datetime import UTC, datetime
 from typing import Any
 
 from neatskin.acquisition.record import PendingPress
+from neatskin.rig.control import Checkpoint
+from neatskin.rig.pressrow import fsr_label, press_values
 
 log = logging.getLogger(__name__)
 MAX_PRESS_ATTEMPTS = 3  # a press the FSR never saw is retried twice, then stored flagged
@@ -148,8 +150,6 @@ def _checkpoint(protocol, plan, driver, writer, stop, flush=None):
     """The safe point between presses (neatskin.rig.control): pause lifts and waits, stop lifts and parks;
     both write the presses pressed first (`flush`: those in flight, then the writer's batch), so what a paused
     campaign shows is every press pressed."""
-    from neatskin.rig.control import Checkpoint
-
     post = plan.program.postamble  # lift to the safe height, park, lift, M400, done marker
     return Checkpoint(
         writer.folder,
@@ -171,8 +171,6 @@ def _hold_lines(hold_s: float) -> tuple[str, ...]:
 def _run_press(protocol, plan, rig, block, pair_labels) -> _Pressed:
     """Press one block (retrying a press the FSR missed) and label it; the kept attempt's record is kept (what it
     defers starts) and resolved later (`_press_row`), so the next press runs meanwhile."""
-    from neatskin.rig.pressrow import fsr_label
-
     driver, recorder = rig.driver, rig.recorder
     extra_flags: list[str] = []
     for attempt in range(MAX_PRESS_ATTEMPTS):
@@ -202,8 +200,6 @@ def _run_press(protocol, plan, rig, block, pair_labels) -> _Pressed:
 
 def _press_row(protocol, pressed: _Pressed, pair_labels) -> tuple[dict, dict | None]:
     """The press's dataset row (and waveforms), its record awaited when it is still pending."""
-    from neatskin.rig.pressrow import press_values
-
     record = pressed.record.result()
     values = press_values(record.estimates, record.marks, pair_labels)
     block, label = pressed.block, pressed.label

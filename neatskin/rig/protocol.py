@@ -16,10 +16,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from neatskin.acquisition.wiring import load_wiring
 from neatskin.config import files as schema
 from neatskin.config import parse_tables
 from neatskin.errors import ConfigError, Problem
+from neatskin.gcode.profile import load_printer_profile
+from neatskin.gcode.spec import build_from_spec, press_spec_from_dict
+from neatskin.layout import load_layout
 from neatskin.sim.scene import Scene, parse_scene
+from neatskin.skin.network import equivalent_resistance
 from neatskin.tomlfile import read_toml, resolve_path
 
 KNOWN_SECTIONS = ("campaign", "files", "positions", "press", "excitation", "acquisition", "fsr", "record", "scene")
@@ -177,8 +182,6 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
         problems += resource_problems
     if layout is not None and printer is not None and press is not None and not resource_problems:
         # the press program's checks: bounds after calibration, depth, feeds
-        from neatskin.gcode.spec import build_from_spec
-
         built: list[Problem] = []
         _collect(built, lambda: build_from_spec(press, layout=layout, profile=printer))
         reported = {p.field for p in problems}  # a field the schema refused (a non-ASCII name) is reported once
@@ -229,7 +232,7 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
 
 def _load_skin_profile(profile_path: Path, layout: Any, press: Any, source: str, problems: list[Problem]) -> Any:
     """The SkinModel of `[files] skin_profile` on the protocol's layout, or None with its problems added."""
-    from neatskin.skin.fit import load_skin_profile
+    from neatskin.skin.fit import load_skin_profile  # the skin model: a protocol without a profile never loads it
 
     try:
         return load_skin_profile(profile_path, layout, probe_radius_mm=press.press.probe_diameter_mm / 2)
@@ -279,8 +282,6 @@ def _wiring_layout_problems(wiring: Any, layout: Any, wiring_path: Path) -> list
     ref = getattr(wiring, "layout_path", None)
     if not ref:
         return []
-    from neatskin.layout import load_layout
-
     target = (wiring_path.parent / ref).resolve()
     if not target.is_file():
         return [
@@ -457,8 +458,6 @@ def electrical_check(
     numbers (the design study calls it for each candidate skin, with the wiring it assumes)."""
     import numpy as np
 
-    from neatskin.skin.network import equivalent_resistance
-
     r_eq = np.asarray(equivalent_resistance(layout, 1.0 / layout.channel_resistance_ohm))
     # symmetric pairs tie up to rounding: name the first of them in pair order, whatever the solver's last bit
     k = int(np.argmax(np.round(r_eq / r_eq.max(), 9)))
@@ -506,11 +505,6 @@ def _collect(problems: list[Problem], load: Any, *args: Any) -> Any:
 
 
 def _load_components(data: dict, source: str, paths: dict, problems: list[Problem]) -> tuple[Any, Any, Any, Any]:
-    from neatskin.acquisition.wiring import load_wiring
-    from neatskin.gcode.profile import load_printer_profile
-    from neatskin.gcode.spec import press_spec_from_dict
-    from neatskin.layout import load_layout
-
     layout = _collect(problems, load_layout, paths["layout"]) if paths["layout"] else None
     printer = _collect(problems, load_printer_profile, paths["printer"]) if paths["printer"] else None
     wiring = _collect(problems, load_wiring, paths["wiring"], layout) if paths["wiring"] and layout else None

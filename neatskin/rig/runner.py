@@ -20,6 +20,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from neatskin.datasets.lock import CampaignLock
+from neatskin.datasets.manifest import read_manifest, update_manifest, utc_now_iso
+from neatskin.datasets.paths import CONSOLIDATED_NAME, press_parts
+from neatskin.datasets.writer import CampaignWriter, file_sha256, read_parquet
 from neatskin.errors import ConfigError, DataError
 from neatskin.rig.assembly import DerivedFiles, build_real_rig
 from neatskin.rig.folder import (
@@ -70,8 +74,6 @@ def run_campaign(
 ) -> CampaignResult:
     """Run (or resume) a campaign into `folder`; returns what was done. The folder is locked while it runs:
     a second run or resume into it gets a DataError naming this process."""
-    from neatskin.datasets.lock import CampaignLock
-
     folder = Path(folder)
     wall0 = time.perf_counter()
     check_folder(folder, resume)
@@ -104,8 +106,7 @@ def run_campaign(
 
 
 def _make_report(folder: Path, progress: bool) -> str:
-    from neatskin.baselines.report import report_summary, run_baselines
-    from neatskin.datasets.manifest import update_manifest, utc_now_iso
+    from neatskin.baselines.report import report_summary, run_baselines  # scikit-learn: only a report needs it
 
     try:
         made = run_baselines(folder, split="both", progress=progress)
@@ -133,9 +134,6 @@ def _run_locked(
     printer_faults,
     connect_timeout_s,
 ):
-    from neatskin.datasets.manifest import read_manifest, update_manifest, utc_now_iso
-    from neatskin.datasets.writer import CampaignWriter
-
     try:
         rig = _open_rig(
             protocol,
@@ -218,8 +216,6 @@ def _run_locked(
 
 
 def _parts_sha256(manifest: dict, writer) -> dict[str, str]:
-    from neatskin.datasets.paths import press_parts
-
     recorded_raw = manifest.get("parts_sha256")
 
     recorded: dict = recorded_raw if isinstance(recorded_raw, dict) else {}
@@ -230,8 +226,6 @@ def _parts_sha256(manifest: dict, writer) -> dict[str, str]:
 
 
 def _mark_stopped_with_parts(folder: Path, exc: BaseException, writer) -> None:
-    from neatskin.datasets.manifest import read_manifest, update_manifest, utc_now_iso
-
     try:  # the presses in the batch are complete: keep them if the disk lets us
         writer.flush()
     except Exception as again:  # e.g. the disk is full: the batch is lost, resume presses it again
@@ -251,10 +245,6 @@ def _mark_stopped_with_parts(folder: Path, exc: BaseException, writer) -> None:
 
 def _finish_data(folder: Path, plan: Plan, derived: DerivedFiles, writer) -> None:
     """Consolidate, write the derived files, and only then say `complete` (with the files' sha256)."""
-    from neatskin.datasets.manifest import update_manifest, utc_now_iso
-    from neatskin.datasets.paths import CONSOLIDATED_NAME
-    from neatskin.datasets.writer import file_sha256
-
     consolidated = writer.finalize()
     files = {CONSOLIDATED_NAME: file_sha256(consolidated)}
     for name, write in derived.items():  # what the rig derives of its campaign (a dry run: the physical limit)
@@ -272,8 +262,6 @@ def _finish_data(folder: Path, plan: Plan, derived: DerivedFiles, writer) -> Non
 
 def _count_flagged(path: Path) -> int:
     import pyarrow.compute as pc
-
-    from neatskin.datasets.writer import read_parquet
 
     flags = read_parquet(path, columns=["flags"]).column("flags")
     return int(pc.sum(pc.greater(pc.list_value_length(flags), 0)).as_py() or 0)
@@ -297,9 +285,6 @@ def _open_rig(protocol, plan, *, dry_run, port, daq_kind, printer_faults, connec
 def resume_campaign(folder: str | Path, **kwargs) -> CampaignResult:
     """Finish a campaign from its folder: the protocol and files it ran with are the copies in inputs/.
     A complete campaign whose derived files (physical limit, report) are missing gets them regenerated."""
-    from neatskin.datasets.lock import CampaignLock
-    from neatskin.datasets.manifest import read_manifest
-
     folder = Path(folder)
     check_folder(folder, resume=True)
     read_manifest(folder)  # a clear error for a folder that is no campaign, before a lock file is made
@@ -324,9 +309,6 @@ def resume_campaign(folder: str | Path, **kwargs) -> CampaignResult:
 def finish_campaign(folder: str | Path, *, report: bool = True, progress: bool = True) -> CampaignResult:
     """Make a campaign whose presses are all on disk complete: consolidate, restore a damaged presses.parquet
     from its copy, write the physical limit (dry run) and the report when they are missing."""
-    from neatskin.datasets.lock import CampaignLock
-    from neatskin.datasets.manifest import read_manifest
-    from neatskin.datasets.writer import CampaignWriter
 
     folder = Path(folder)
     wall0 = time.perf_counter()

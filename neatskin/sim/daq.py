@@ -29,6 +29,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from neatskin.acquisition import demod
 from neatskin.acquisition.daq.base import Acquisition, Daq, DaqConfig
 from neatskin.acquisition.estimates import PairEstimates, PairFlag
 from neatskin.acquisition.fsr import FsrModel
@@ -218,8 +219,6 @@ class SimulatedDAQ(Daq):
         n_sweeps: int = 1,
     ) -> PairEstimates:
         """Per-pair estimates with the waveform path's statistics, without generating waveforms."""
-        from neatskin.acquisition import demod
-
         demod.check_method(method, window, sweep)
         cfg, noise = self.config, self.noise
         start = self._start(start_time_s)
@@ -261,8 +260,6 @@ class SimulatedDAQ(Daq):
         """What the demodulator reads from the noise-free live samples (double layer, skew and mains
         included): the mains hum has no closed form under a moving RMS, so its bias is computed on
         the live windows alone, not on whole waveforms."""
-        from neatskin.acquisition import demod
-
         cfg = self.config
         index = windows[..., :1] + np.arange(windows[0, 0, 1] - windows[0, 0, 0])  # (sweeps, pairs, live)
         flat = index.reshape(-1)

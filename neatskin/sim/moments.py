@@ -12,7 +12,9 @@ from functools import lru_cache
 
 import numpy as np
 
+from neatskin.acquisition import demod
 from neatskin.acquisition.daq.base import DaqConfig
+from neatskin.acquisition.demod import window_counts
 from neatskin.acquisition.sequence import Sweep
 from neatskin.sim.noise import NoiseModel
 
@@ -38,8 +40,6 @@ def estimator_moments(
     resistance_ohm: (sweeps, pairs) true values (finite, unclipped). Pure: the analytic statistics the
     features-only path draws from (docs/acquisition.md gives the formulas).
     """
-    from neatskin.acquisition import demod
-
     r = np.asarray(resistance_ohm, dtype=float)
     amp = config.amplitude_a
     sigma_v2, sigma_i2 = effective_noise_var(config, noise)
@@ -75,8 +75,6 @@ def _weighted_sin2_sums(first: np.ndarray, samples_per_period: float, n_live: in
 
 
 def _sin2_sums(index: np.ndarray, samples_per_period: float, n_live: int, window: int) -> np.ndarray:
-    from neatskin.acquisition.demod import window_counts
-
     return (window_counts(n_live, window) ** 2 * _sine(index, samples_per_period) ** 2).sum(axis=-1)
 
 

@@ -12,7 +12,7 @@ import os
 import threading
 import time
 
-from neatskin.gcode.profile import PrinterProfile
+from neatskin.gcode.profile import PrinterProfile, load_printer_profile
 from neatskin.sim.faults import FaultConfig
 from neatskin.sim.firmware import MarlinCore, ScaledClock, VirtualClock
 from neatskin.sim.motion import Segment
@@ -249,8 +249,6 @@ class SimSerial:
 def sim_printer_for_tests(profile_path: str | os.PathLike | None = None, **kwargs) -> SimulatedPrinter:
     """A simulated printer on the repository's paper profile (or the given one)."""
     from pathlib import Path
-
-    from neatskin.gcode.profile import load_printer_profile
 
     path = Path(profile_path) if profile_path else resolve_path("protocols/printers/paper.toml")
     return SimulatedPrinter(load_printer_profile(path), **kwargs)
