@@ -54,7 +54,7 @@ elif stage == "complete":  # every file written, the manifest not yet `complete`
         if kwargs.get("status") == "complete":
             die()
         return update(*args, **kwargs)
-    manifest.update_manifest = update_or_die
+    manifest.update_manifest = runner.update_manifest = update_or_die  # the runner imported it by name
 elif stage == "report":  # the manifest says complete, the baseline report is being made
     import neatskin.baselines.report as report
     report.run_baselines = die

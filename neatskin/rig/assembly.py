@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from os import PathLike
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -19,6 +20,7 @@ from neatskin.acquisition.record import Recorder
 from neatskin.errors import ConfigError, HardwareError
 from neatskin.marlin.driver import DriverConfig, MarlinDriver
 from neatskin.rig.plan import Plan
+from neatskin.rig.protocol import CampaignProtocol
 from neatskin.rig.recorder import ThreadedRecorder
 
 DAQ_KINDS = ("simulated", "ni")
@@ -64,7 +66,7 @@ class Rig:
                 pass
 
 
-def open_daq(kind: str, config: DaqConfig = DaqConfig(), **kwargs) -> Daq:
+def open_daq(kind: str, config: DaqConfig = DaqConfig(), **kwargs: Any) -> Daq:
     """A configured backend by name. kwargs go to SimulatedDAQ (pair_resistance_ohm, force_n, noise, fsr, ...);
     the NI backend (HardwareError if nidaqmx or the device is missing) takes none."""
     if kind == "simulated":
@@ -88,7 +90,7 @@ def open_daq(kind: str, config: DaqConfig = DaqConfig(), **kwargs) -> Daq:
     raise ConfigError(f"unknown DAQ kind {kind!r}", field="daq", fix=f"use one of {', '.join(DAQ_KINDS)}")
 
 
-def daq_config(protocol):
+def daq_config(protocol: CampaignProtocol) -> DaqConfig:
     """The DAQ settings of a protocol, its electrical limits included (ADC range, voltage gain, compliance),
     so a dry run clips where the protocol's rig would."""
     return DaqConfig(
@@ -102,14 +104,14 @@ def daq_config(protocol):
 
 
 def build_real_rig(
-    protocol,
+    protocol: CampaignProtocol,
     plan: Plan,
     *,
     port: str,
     daq_kind: str = "ni",
     baud_rate: int | None = None,
     connect_timeout_s: float = 5.0,
-    wire_log=None,
+    wire_log: str | PathLike[str] | None = None,
 ) -> Rig:
     """The printer on a serial port and the DAQ; errors are HardwareErrors raised before any motion."""
     closers: list[Callable[[], None]] = []

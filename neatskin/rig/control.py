@@ -154,8 +154,8 @@ class Checkpoint:
         self,
         folder: str | Path,
         *,
-        lift: Callable[[], None],
-        park: Callable[[], None],
+        lift: Callable[[], object],
+        park: Callable[[], object],
         flush: Callable[[], object] = lambda: None,
         fsr_miss_limit: int = DEFAULT_FSR_MISS_LIMIT,
         interrupted: Callable[[], bool] = lambda: False,
@@ -163,7 +163,7 @@ class Checkpoint:
         max_pause_s: float = MAX_PAUSE_S,
         sleep: Callable[[float], None] = time.sleep,
         clock: Callable[[], float] = time.monotonic,
-        rehome: Callable[[], None] | None = None,
+        rehome: Callable[[], object] | None = None,
         stepper_timeout_s: float = 0.0,
     ) -> None:
         self.folder = Path(folder)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import functools
 import os
 from collections.abc import Callable
+from os import PathLike
 from pathlib import Path
 
 from neatskin.datasets import writer as dataset_writer  # its batch rule looked up when used (tests set it)
@@ -22,6 +23,7 @@ from neatskin.rig.plan import Plan
 from neatskin.rig.protocol import CampaignProtocol
 from neatskin.sim.daq import SimulatedDAQ
 from neatskin.sim.dryscene import DryScene, dry_daq, dry_probe, dry_skin, skin_estimator
+from neatskin.sim.faults import FaultConfig
 from neatskin.sim.printer import SimulatedPrinter
 from neatskin.sim.recorder import SimulatedRecorder
 from neatskin.sim.skinworker import SkinWorker
@@ -30,7 +32,7 @@ from neatskin.skin.model import SkinModel
 SKIN_WORKER_ENV = "NEATSKIN_SKIN_WORKER"  # on | off: force the dry run's skin worker either way (benchmarks)
 
 
-def use_skin_worker(protocol, planned: int | None, skin_worker: bool | None = None) -> bool:
+def use_skin_worker(protocol: CampaignProtocol, planned: int | None, skin_worker: bool | None = None) -> bool:
     """Whether a dry run computes its pair estimates in a worker process (neatskin.sim.skinworker).
 
     `skin_worker` True or False forces it (tests, benchmarks), as does SKIN_WORKER_ENV=on|off; by default a
@@ -54,12 +56,12 @@ def use_skin_worker(protocol, planned: int | None, skin_worker: bool | None = No
 
 
 def build_dry_rig(
-    protocol,
+    protocol: CampaignProtocol,
     plan: Plan,
     *,
     connect_timeout_s: float = 0.2,
-    wire_log=None,
-    printer_faults=None,
+    wire_log: str | PathLike[str] | None = None,
+    printer_faults: FaultConfig | None = None,
     skin_worker: bool | None = None,
 ) -> Rig:
     """The simulated printer on a real pty (reached through pyserial), the simulated skin and DAQ.
@@ -75,9 +77,11 @@ def build_dry_rig(
         worker = SkinWorker(functools.partial(skin_estimator, dry, sweep)).start()
         closers.append(worker.close)
     skin = dry_skin(dry)
-    kwargs = {} if printer_faults is None else {"faults": printer_faults}
+    faults = FaultConfig() if printer_faults is None else printer_faults
     # a Marlin built with ADVANCED_OK (`ok N.. P.. B..`), so the driver pipelines as it would on such a printer
-    printer = SimulatedPrinter(protocol.printer, seed=protocol.seed, time_mode="virtual", advanced_ok=True, **kwargs)
+    printer = SimulatedPrinter(
+        protocol.printer, seed=protocol.seed, faults=faults, time_mode="virtual", advanced_ok=True
+    )
     try:
         pty_path = printer.start_pty()
         closers.append(printer.stop)

@@ -11,8 +11,10 @@ under `neatskin.physical_limit`). With no nuisance in the scene the two are equa
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,9 +22,13 @@ from neatskin.datasets.paths import PHYSICAL_LIMIT
 from neatskin.rig.plan import Plan
 from neatskin.rig.protocol import CampaignProtocol
 from neatskin.sim.daq import SimulatedDAQ
+from neatskin.sim.scene import Scene
 from neatskin.skin.bound import feature_jacobian, position_bound_mm
 from neatskin.skin.model import SkinModel
 from neatskin.skin.variability import drift_resistivity_factor
+
+if TYPE_CHECKING:  # pandas is imported when a frame is made: this module stays numpy-only to import
+    import pandas as pd
 
 METADATA_KEY = b"neatskin.physical_limit"
 RESISTIVITY_TEMPCO_PER_K = -0.02  # the skin model's default, used when the skin does not say
@@ -39,7 +45,9 @@ class NuisancePriors:
     basis: str = ""
 
     @classmethod
-    def from_scene(cls, scene, campaign_s: float, tempco_per_k: float = RESISTIVITY_TEMPCO_PER_K) -> NuisancePriors:
+    def from_scene(
+        cls, scene: Scene, campaign_s: float, tempco_per_k: float = RESISTIVITY_TEMPCO_PER_K
+    ) -> NuisancePriors:
         """The scene's depth jitter and placement error as they are; the drift as the std of log rho over a
         campaign of `campaign_s` seconds, the drift being a ramp sampled uniformly by the presses
         (ptp / sqrt(12))."""
@@ -68,7 +76,14 @@ class NuisancePriors:
         return {k: v for k, v in asdict(self).items() if k != "basis"}
 
 
-def physical_limit_frame(ids, x_mm, y_mm, jacobian: np.ndarray, noise_std_ohm: np.ndarray, priors: NuisancePriors):
+def physical_limit_frame(
+    ids: np.ndarray,
+    x_mm: np.ndarray,
+    y_mm: np.ndarray,
+    jacobian: np.ndarray,
+    noise_std_ohm: np.ndarray,
+    priors: NuisancePriors,
+) -> pd.DataFrame:
     """position_id, x_mm, y_mm, crb_mm (electronics only) and crb_nuisance_mm, one row per position, from a
     (positions, pairs, 4) `feature_jacobian` and the (positions, pairs) noise std, in one batch."""
     import pandas as pd
@@ -126,7 +141,12 @@ def write_physical_limit(
     return write_table_durably(folder / PHYSICAL_LIMIT, table)
 
 
-def _by_chunks(evaluate, x: np.ndarray, y: np.ndarray, depth: np.ndarray) -> np.ndarray:
+def _by_chunks(
+    evaluate: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray],
+    x: np.ndarray,
+    y: np.ndarray,
+    depth: np.ndarray,
+) -> np.ndarray:
     """evaluate(x, y, depth) over POSITION_CHUNK positions at a time, stacked: each position's row is computed
     on its own, so the result is the one-call result while the memory stays that of one chunk."""
     if len(x) <= POSITION_CHUNK:
@@ -138,7 +158,7 @@ def _by_chunks(evaluate, x: np.ndarray, y: np.ndarray, depth: np.ndarray) -> np.
     return np.concatenate(parts)
 
 
-def _campaign_s(protocol, plan) -> float:
+def _campaign_s(protocol: CampaignProtocol, plan: Plan) -> float:
     """The campaign's duration for the drift: presses x the scene's press interval, else the G-code's time."""
     interval_s = float(getattr(protocol.scene, "press_interval_s", 0.0))
     if interval_s:
@@ -146,7 +166,15 @@ def _campaign_s(protocol, plan) -> float:
     return float(plan.printer_time_s)
 
 
-def _dr_noise_std_ohm(protocol, plan, skin, daq, x, y, depth) -> np.ndarray:
+def _dr_noise_std_ohm(
+    protocol: CampaignProtocol,
+    plan: Plan,
+    skin: SkinModel,
+    daq: SimulatedDAQ,
+    x: np.ndarray,
+    y: np.ndarray,
+    depth: np.ndarray,
+) -> np.ndarray:
     """Std of one press's dR per pair (positions, pairs): the estimator noise of the baseline and pressed sweeps
     that a press averages, drawn from the simulated DAQ's features path at the unpressed and pressed states."""
     sweep, draws = plan.sweep, 64
@@ -176,7 +204,7 @@ def _dr_noise_std_ohm(protocol, plan, skin, daq, x, y, depth) -> np.ndarray:
     return np.sqrt(var[0] / n_base + var[1:] / n_press)
 
 
-def _typical_phases_s(plan, protocol) -> np.ndarray:
+def _typical_phases_s(plan: Plan, protocol: CampaignProtocol) -> np.ndarray:
     """The median printer time of each phase over the campaign's presses (the plan's
     gcode.motion.phase_durations_s, computed once when the plan was built)."""
     return np.median(plan.phase_s, axis=0)

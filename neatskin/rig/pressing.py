@@ -14,13 +14,25 @@ from __future__ import annotations
 import collections
 import logging
 import signal
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import Any
+from types import FrameType
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from neatskin.acquisition.record import PendingPress
+from neatskin.datasets.writer import CampaignWriter
+from neatskin.gcode.blocks import PressBlock, PressBlocks
+from neatskin.rig.assembly import Driver, Rig
 from neatskin.rig.control import Checkpoint
+from neatskin.rig.plan import Plan
 from neatskin.rig.pressrow import fsr_label, press_values
+from neatskin.rig.protocol import CampaignProtocol
+
+if TYPE_CHECKING:  # tqdm is imported when the loop starts (a progress bar, nothing else needs it)
+    from tqdm import tqdm
 
 log = logging.getLogger(__name__)
 MAX_PRESS_ATTEMPTS = 3  # a press the FSR never saw is retried twice, then stored flagged
@@ -33,8 +45,8 @@ class _StopRequest:
         self.requested = False
         self._previous: Any = None
 
-    def __enter__(self):
-        def handler(signum, frame):
+    def __enter__(self) -> _StopRequest:
+        def handler(signum: int, frame: FrameType | None) -> None:
             if self.requested:  # a second Ctrl-C: stop now
                 raise KeyboardInterrupt
             self.requested = True
@@ -45,7 +57,7 @@ class _StopRequest:
             self._previous = None
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> None:
         if self._previous is not None:
             signal.signal(signal.SIGINT, self._previous)
 
@@ -73,7 +85,9 @@ class _InFlight:
     in press order; every writer flush comes after a settle, so what a pause, a stop or the loop's end shows is
     every press pressed."""
 
-    def __init__(self, protocol, writer, pair_labels, bar, limit: int) -> None:
+    def __init__(
+        self, protocol: CampaignProtocol, writer: CampaignWriter, pair_labels: list[str], bar: tqdm, limit: int
+    ) -> None:
         self.protocol, self.writer, self.pair_labels, self.bar, self.limit = protocol, writer, pair_labels, bar, limit
         self.presses: collections.deque[_Pressed] = collections.deque()
         self.written = self.flagged = 0
@@ -109,7 +123,16 @@ class _InFlight:
 IN_FLIGHT_PRESSES = 4  # presses whose records may be pending at once (memory stays flat)
 
 
-def press_loop(protocol, plan, rig, writer, todo, pair_labels, already_done, progress):
+def press_loop(
+    protocol: CampaignProtocol,
+    plan: Plan,
+    rig: Rig,
+    writer: CampaignWriter,
+    todo: PressBlocks,
+    pair_labels: list[str],
+    already_done: int,
+    progress: bool,
+) -> tuple[int, int, bool]:
     from tqdm import tqdm
 
     driver = rig.driver
@@ -146,7 +169,14 @@ def press_loop(protocol, plan, rig, writer, todo, pair_labels, already_done, pro
     return pending.written, pending.flagged, interrupted
 
 
-def _checkpoint(protocol, plan, driver, writer, stop, flush=None):
+def _checkpoint(
+    protocol: CampaignProtocol,
+    plan: Plan,
+    driver: Driver,
+    writer: CampaignWriter,
+    stop: _StopRequest,
+    flush: Callable[[], object] | None = None,
+) -> Checkpoint:
     """The safe point between presses (neatskin.rig.control): pause lifts and waits, stop lifts and parks;
     both write the presses pressed first (`flush`: those in flight, then the writer's batch), so what a paused
     campaign shows is every press pressed."""
@@ -168,7 +198,7 @@ def _hold_lines(hold_s: float) -> tuple[str, ...]:
     return (f"G4 P{int(round(hold_s * 1000))}", "M400")
 
 
-def _run_press(protocol, plan, rig, block, pair_labels) -> _Pressed:
+def _run_press(protocol: CampaignProtocol, plan: Plan, rig: Rig, block: PressBlock, pair_labels: list[str]) -> _Pressed:
     """Press one block (retrying a press the FSR missed) and label it; the kept attempt's record is kept (what it
     defers starts) and resolved later (`_press_row`), so the next press runs meanwhile."""
     driver, recorder = rig.driver, rig.recorder
@@ -198,7 +228,9 @@ def _run_press(protocol, plan, rig, block, pair_labels) -> _Pressed:
     return _Pressed(block, record, label, extra_flags, started, datetime.now(UTC))
 
 
-def _press_row(protocol, pressed: _Pressed, pair_labels) -> tuple[dict, dict | None]:
+def _press_row(
+    protocol: CampaignProtocol, pressed: _Pressed, pair_labels: list[str]
+) -> tuple[dict[str, Any], dict[str, np.ndarray] | None]:
     """The press's dataset row (and waveforms), its record awaited when it is still pending."""
     record = pressed.record.result()
     values = press_values(record.estimates, record.marks, pair_labels)
@@ -223,5 +255,5 @@ def _press_row(protocol, pressed: _Pressed, pair_labels) -> tuple[dict, dict | N
     return row, record.waveforms
 
 
-def finish_program(rig, plan) -> None:
+def finish_program(rig: Rig, plan: Plan) -> None:
     rig.driver.send_lines(plan.program.postamble, source="postamble")

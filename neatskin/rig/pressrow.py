@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from neatskin.acquisition.estimates import PairEstimates, flag_names
-from neatskin.acquisition.fsr import PressDetection, detect_presses
+from neatskin.acquisition.fsr import FsrModel, PressDetection, detect_presses
 
 
 @dataclass(frozen=True)
@@ -75,13 +75,21 @@ class FsrLabel:
 
 
 def fsr_label(
-    fsr_v: np.ndarray | None, rate_hz: float, fsr_model, first_sample: int, marks: dict[str, int], sample_rate_hz: float
+    fsr_v: np.ndarray | None,
+    rate_hz: float | None,
+    fsr_model: FsrModel | None,
+    first_sample: int,
+    marks: dict[str, int],
+    sample_rate_hz: float,
 ) -> FsrLabel:
     """Onset, offset (s after the recording began) and peak force of the press; flags when it is not one press.
 
-    rate_hz is the FSR trace's rate, sample_rate_hz the DAQ's (the marks are DAQ sample indices)."""
+    rate_hz is the FSR trace's rate (None: the DAQ's, as PressRecord.fsr_rate_hz says), sample_rate_hz the DAQ's
+    (the marks are DAQ sample indices)."""
     if fsr_v is None:
         return FsrLabel(None, None, None, ())
+    if rate_hz is None:
+        rate_hz = sample_rate_hz
     detection: PressDetection = detect_presses(fsr_v, rate_hz, expected=1, units="v", fsr=fsr_model)
     flags = []
     if detection.n_presses == 0:

@@ -9,8 +9,10 @@ from collections.abc import Callable
 
 import numpy as np
 
+from neatskin.acquisition.daq.base import Daq
 from neatskin.acquisition.demod import demodulate
 from neatskin.acquisition.record import PressRecord
+from neatskin.acquisition.sequence import Sweep
 from neatskin.errors import HardwareError
 
 
@@ -19,8 +21,8 @@ class ThreadedRecorder:
 
     def __init__(
         self,
-        daq,
-        sweep,
+        daq: Daq,
+        sweep: Sweep,
         *,
         method: str,
         window: int,

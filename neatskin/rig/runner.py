@@ -18,14 +18,14 @@ import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from neatskin.datasets.lock import CampaignLock
 from neatskin.datasets.manifest import read_manifest, update_manifest, utc_now_iso
 from neatskin.datasets.paths import CONSOLIDATED_NAME, press_parts
 from neatskin.datasets.writer import CampaignWriter, file_sha256, read_parquet
 from neatskin.errors import ConfigError, DataError
-from neatskin.rig.assembly import DerivedFiles, build_real_rig
+from neatskin.rig.assembly import DerivedFiles, Rig, build_real_rig
 from neatskin.rig.folder import (
     INPUT_KEYS,
     check_folder,
@@ -40,6 +40,9 @@ from neatskin.rig.folder import (
 from neatskin.rig.plan import Plan, build_plan
 from neatskin.rig.pressing import finish_program, press_loop
 from neatskin.rig.protocol import CampaignProtocol
+
+if TYPE_CHECKING:  # the dry run's printer faults: a real run never imports the simulator
+    from neatskin.sim.faults import FaultConfig
 
 WIRE_LOG = "wire.log"
 log = logging.getLogger(__name__)
@@ -69,7 +72,7 @@ def run_campaign(
     progress: bool = True,
     limit: int | None = None,
     report: bool = True,
-    printer_faults=None,
+    printer_faults: FaultConfig | None = None,
     connect_timeout_s: float | None = None,
 ) -> CampaignResult:
     """Run (or resume) a campaign into `folder`; returns what was done. The folder is locked while it runs:
@@ -120,20 +123,20 @@ def _make_report(folder: Path, progress: bool) -> str:
 
 
 def _run_locked(
-    protocol,
-    plan,
-    folder,
-    wall0,
+    protocol: CampaignProtocol,
+    plan: Plan,
+    folder: Path,
+    wall0: float,
     *,
-    created,
-    dry_run,
-    port,
-    daq_kind,
-    progress,
-    limit,
-    printer_faults,
-    connect_timeout_s,
-):
+    created: bool,
+    dry_run: bool,
+    port: str | None,
+    daq_kind: str,
+    progress: bool,
+    limit: int | None,
+    printer_faults: FaultConfig | None,
+    connect_timeout_s: float | None,
+) -> tuple[CampaignResult, str]:
     try:
         rig = _open_rig(
             protocol,
@@ -215,7 +218,7 @@ def _run_locked(
     return result, status
 
 
-def _parts_sha256(manifest: dict, writer) -> dict[str, str]:
+def _parts_sha256(manifest: dict[str, Any], writer: CampaignWriter) -> dict[str, str]:
     recorded_raw = manifest.get("parts_sha256")
 
     recorded: dict = recorded_raw if isinstance(recorded_raw, dict) else {}
@@ -225,7 +228,7 @@ def _parts_sha256(manifest: dict, writer) -> dict[str, str]:
     return {k: merged[k] for k in sorted(merged, key=int) if k in present}
 
 
-def _mark_stopped_with_parts(folder: Path, exc: BaseException, writer) -> None:
+def _mark_stopped_with_parts(folder: Path, exc: BaseException, writer: CampaignWriter) -> None:
     try:  # the presses in the batch are complete: keep them if the disk lets us
         writer.flush()
     except Exception as again:  # e.g. the disk is full: the batch is lost, resume presses it again
@@ -243,7 +246,7 @@ def _mark_stopped_with_parts(folder: Path, exc: BaseException, writer) -> None:
         log.warning("cannot mark %s interrupted: %s", folder, again)
 
 
-def _finish_data(folder: Path, plan: Plan, derived: DerivedFiles, writer) -> None:
+def _finish_data(folder: Path, plan: Plan, derived: DerivedFiles, writer: CampaignWriter) -> None:
     """Consolidate, write the derived files, and only then say `complete` (with the files' sha256)."""
     consolidated = writer.finalize()
     files = {CONSOLIDATED_NAME: file_sha256(consolidated)}
@@ -267,8 +270,19 @@ def _count_flagged(path: Path) -> int:
     return int(pc.sum(pc.greater(pc.list_value_length(flags), 0)).as_py() or 0)
 
 
-def _open_rig(protocol, plan, *, dry_run, port, daq_kind, printer_faults, connect_timeout_s, wire_log):
-    timeout = {} if connect_timeout_s is None else {"connect_timeout_s": connect_timeout_s}
+def _open_rig(
+    protocol: CampaignProtocol,
+    plan: Plan,
+    *,
+    dry_run: bool,
+    port: str | None,
+    daq_kind: str,
+    printer_faults: FaultConfig | None,
+    connect_timeout_s: float | None,
+    wire_log: Path | None,
+) -> Rig:
+    # each builder has its own default connect timeout (a pty answers at once, a real printer boots)
+    timeout: dict[str, Any] = {} if connect_timeout_s is None else {"connect_timeout_s": connect_timeout_s}
     if dry_run:
         from neatskin.rig.dryrig import build_dry_rig  # here: a real run never imports the simulator
 
@@ -282,7 +296,7 @@ def _open_rig(protocol, plan, *, dry_run, port, daq_kind, printer_faults, connec
     return build_real_rig(protocol, plan, port=port, daq_kind=daq_kind, wire_log=wire_log, **timeout)
 
 
-def resume_campaign(folder: str | Path, **kwargs) -> CampaignResult:
+def resume_campaign(folder: str | Path, **kwargs: Any) -> CampaignResult:
     """Finish a campaign from its folder: the protocol and files it ran with are the copies in inputs/.
     A complete campaign whose derived files (physical limit, report) are missing gets them regenerated."""
     folder = Path(folder)
