@@ -3,7 +3,8 @@
 firmware (the Marlin firmware model: line protocol, modal G-code, motion clock, faults), motion
 (the printer's trajectory), printer (that firmware served on a real pseudo-terminal), pty,
 faults, scripted (scripted serial peers for tests), daq (the simulated DAQ sampling a skin),
-recorder (the dry probe and recorder), dryscene (the dry run's skin, probe, DAQ and per-press conditions,
-built from what the rig hands over), skinworker (the estimates in a second process), cli (`neatskin sim printer`). Uses skin, gcode and
-acquisition; never rig.
+noise (its imperfections), moments (the features path's statistics), recorder (the dry probe and
+recorder), deferred (a press whose estimates come later), skinworker (those estimates in a second
+process), dryscene (the dry run's skin, probe, DAQ and per-press conditions, built from the DryScene the
+rig hands over), cli (`neatskin sim printer`). Uses skin, gcode and acquisition; never rig.
 """
