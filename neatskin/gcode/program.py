@@ -34,7 +34,7 @@ from neatskin.layout import Layout
 
 __all__ = ["PHASES", "Phase", "PressBlock", "PressBlocks", "PressProgram", "PressSpec", "build_program"]
 
-PHASES = ("travel", "descend", "press", "lift")
+PHASES = emit.PHASES
 
 
 @dataclass(frozen=True)
