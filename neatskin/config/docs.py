@@ -148,7 +148,8 @@ def render_schema(title: str, schema: type) -> str:
 
 MISTAKES = """## Mistakes and what they print
 
-One mistake is one line, `file: [field]: what (fix: how)`, exit code 2, nothing written: a
+One mistake is one line, `file: [field]: what (fix: how)`, nothing written (`campaign check`
+exits 1, a failed check; `campaign run` and `gcode generate` exit 3, a configuration error: docs/cli.md): a
 misspelt key or table is reported as unknown with its close name, and not once more as missing;
 an empty file is "the file is empty"; what follows from a problem already reported (the channels
 naming a junction whose entry is bad, the pair left unrouted by a pin wired twice, each press of
