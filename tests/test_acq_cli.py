@@ -82,7 +82,7 @@ def test_mux_table_layout_option_and_errors(tmp_path, capsys):
     assert main(["mux", "table", str(no_layout), "--layout", str(REPO / "protocols" / "skins" / "paper.toml")]) == 3
     err = capsys.readouterr().err
     assert "pair with both ends on electrode 7" in err and "not routed" not in err and len(err.splitlines()) == 1
-    assert main(["mux", "table", str(PAPER), "--break-samples", "1"]) == 2
+    assert main(["mux", "table", str(PAPER), "--break-samples", "1"]) == 3
     assert "break_samples must be an integer >= 2" in capsys.readouterr().err
 
 
