@@ -50,6 +50,9 @@ class Constraint:
     default_doc: str = ""  # how a derived default (None in the schema) is computed
 
 
+_NO_CONSTRAINT = Constraint()
+
+
 def setting(default: Any = MISSING, *, key: str | None = None, **constraint: Any) -> Any:
     """A schema field: its default (none = required), its TOML key if not the field's name, its `Constraint`."""
     meta: dict[str, Any] = {_META: Constraint(**constraint)}
@@ -75,7 +78,7 @@ def is_setting(f: dataclasses.Field) -> bool:
 
 
 def constraint_of(f: dataclasses.Field) -> Constraint:
-    return f.metadata.get(_META, Constraint())
+    return f.metadata.get(_META, _NO_CONSTRAINT)
 
 
 def is_schema(tp: Any) -> bool:
@@ -276,7 +279,7 @@ class _Walker:
         return out, ok
 
     def scalar(self, tp: Any, value: Any, where: str, c: Constraint, key: str) -> tuple[Any, bool]:
-        fix = _fix(key, c, tp)
+        fix = _LazyFix(key, c, tp)  # formatted only for a problem: every construction checks
         if tp is bool:
             if not isinstance(value, bool):
                 self.problem(where, f"'{key}' must be true or false, got {value!r}", f"set {key} = true or false")
@@ -284,39 +287,51 @@ class _Walker:
             return value, True
         if tp is str:
             if not isinstance(value, str) or not (value or c.allow_empty):
-                self.problem(where, f"'{key}' must be a non-empty string, got {value!r}", fix)
+                self.problem(where, f"'{key}' must be a non-empty string, got {value!r}", str(fix))
                 return None, False
             if c.max_len is not None and len(value) > c.max_len:
-                self.problem(where, f"'{key}' is {len(value)} characters long, more than {c.max_len}", fix)
+                self.problem(where, f"'{key}' is {len(value)} characters long, more than {c.max_len}", str(fix))
                 return None, False
             if c.choices and value not in c.choices:
                 close = difflib.get_close_matches(value, c.choices, n=1)
                 self.problem(
                     where,
                     f"'{key}' = {value!r} is not one of {', '.join(c.choices)}",
-                    (f"did you mean {close[0]!r}? " if close else "") + fix,
+                    (f"did you mean {close[0]!r}? " if close else "") + str(fix),
                 )
                 return None, False
             if c.pattern is not None and not re.fullmatch(c.pattern, value):
-                self.problem(where, f"'{key}' = {value!r} is not {c.pattern_text or 'allowed'}", fix)
+                self.problem(where, f"'{key}' = {value!r} is not {c.pattern_text or 'allowed'}", str(fix))
                 return None, False
             return value, True
         if tp is int:
             if isinstance(value, bool) or not isinstance(value, int):
-                self.problem(where, f"'{key}' must be an integer, got {value!r}", fix)
+                self.problem(where, f"'{key}' must be an integer, got {value!r}", str(fix))
                 return None, False
         elif tp is float:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                self.problem(where, f"'{key}' must be a finite number, got {value!r}", fix)
+                self.problem(where, f"'{key}' must be a finite number, got {value!r}", str(fix))
                 return None, False
             value = float(value)
         else:  # pragma: no cover - a schema declared with a type the engine does not know
             raise TypeError(f"unsupported schema type {tp!r} at {where}")
         bad = _range_violation(value, c)
         if bad:
-            self.problem(where, f"'{key}' = {value!r} {bad}", fix)
+            self.problem(where, f"'{key}' = {value!r} {bad}", str(fix))
             return None, False
         return value, True
+
+
+class _LazyFix:
+    """The fix text of a value, formatted when a problem asks for it."""
+
+    __slots__ = ("key", "c", "tp")
+
+    def __init__(self, key: str, c: Constraint, tp: Any) -> None:
+        self.key, self.c, self.tp = key, c, tp
+
+    def __str__(self) -> str:
+        return _fix(self.key, self.c, self.tp)
 
 
 def _short_repr(value: Any, limit: int = 60) -> str:

@@ -11,9 +11,9 @@ normalises them: an int for a float becomes a float, a list for a tuple a tuple.
 from __future__ import annotations
 
 import dataclasses
-from typing import ClassVar
+from typing import Any, ClassVar
 
-from neatskin.config.schema import check_value, constraint_of, hints, is_setting
+from neatskin.config.schema import Constraint, check_value, constraint_of, hints, is_setting
 from neatskin.errors import ConfigError, Problem
 
 
@@ -25,16 +25,12 @@ class Settings:
     def __post_init__(self) -> None:
         source = getattr(self, "source", None)
         problems: list[Problem] = []
-        types_ = hints(type(self))
-        for f in dataclasses.fields(self):  # type: ignore[arg-type]
-            if not is_setting(f):
-                continue
-            where = f"{self.TOML_TABLE}.{f.name}" if self.TOML_TABLE else f.name
-            value = getattr(self, f.name)
-            good, normalised, found = check_value(types_[f.name], value, constraint_of(f), f.name, where, source)
+        for name, tp, constraint, where in _declared(type(self)):
+            value = getattr(self, name)
+            good, normalised, found = check_value(tp, value, constraint, name, where, source)
             problems += found
             if good and normalised is not value:
-                object.__setattr__(self, f.name, normalised)
+                object.__setattr__(self, name, normalised)
         if not problems:
             for key, message, fix in self.cross_problems():
                 where = f"{self.TOML_TABLE}.{key}" if self.TOML_TABLE else key
@@ -45,3 +41,20 @@ class Settings:
     def cross_problems(self) -> list[tuple[str, str, str]]:
         """What spans several keys of this table: (key, message, fix) for each problem; none by default."""
         return []
+
+
+_DECLARED: dict[type, tuple[tuple[str, Any, Constraint, str], ...]] = {}
+
+
+def _declared(cls: type) -> tuple[tuple[str, Any, Constraint, str], ...]:
+    """(name, type, constraint, where) of each setting field of a class, worked out once per class."""
+    found = _DECLARED.get(cls)
+    if found is None:
+        table = getattr(cls, "TOML_TABLE", "")
+        types_ = hints(cls)
+        found = _DECLARED[cls] = tuple(
+            (f.name, types_[f.name], constraint_of(f), f"{table}.{f.name}" if table else f.name)
+            for f in dataclasses.fields(cls)
+            if is_setting(f)
+        )
+    return found
