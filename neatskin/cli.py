@@ -44,7 +44,8 @@ SHARED_GROUPS = (
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = Parser(prog="neatskin", description=__doc__.splitlines()[0])
+    codes = ", ".join(f"{int(code)} {code.name.lower().replace('_', ' ')}" for code in ExitCode)
+    parser = Parser(prog="neatskin", description=__doc__.splitlines()[0], epilog=f"exit codes: {codes} (docs/cli.md)")
     parser.add_argument("--version", action=_VersionAction, help="show program's version number and exit")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, help_text in SHARED_GROUPS:

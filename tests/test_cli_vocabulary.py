@@ -107,6 +107,7 @@ def test_a_failed_check_exits_1_in_every_check_command(tmp_path):
 
 
 @pytest.mark.parametrize("code", list(ExitCode))
-def test_the_docs_list_every_exit_code(code):
+def test_the_docs_and_the_help_list_every_exit_code(code):
     table = (ROOT / "docs" / "cli.md").read_text()
     assert f"| {int(code)} | `{code.name}` |" in table
+    assert f"{int(code)} {code.name.lower().replace('_', ' ')}" in " ".join(build_parser().format_help().split())
