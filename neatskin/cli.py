@@ -1,7 +1,15 @@
 """The `neatskin` command: a thin argparse layer over functions a user can also call from Python.
 
-Each component owns its subcommands in a `cli` module with a `register(subparsers)` function;
-handlers import their heavy dependencies lazily so `neatskin --help` stays fast.
+Composition, in this one place: each component owns its commands in a `cli` module with a
+`register(subparsers)` function; the groups that several components add commands to (`campaign`,
+`printer`) are declared here, before any component registers, so no group depends on the order of
+`COMMAND_MODULES`. Options come from one vocabulary (`neatskin.cligroups`); every error ends here,
+printed in one format with the exit code of its kind (`neatskin.errors.ExitCode`, docs/cli.md).
+Handlers import their heavy dependencies lazily so `neatskin --help` stays fast.
+
+argparse, not click: the 10 components already register through argparse, their tests call
+`main([...])` with argument lists, and the vocabulary, the hidden aliases and the exit-code table are
+small on top of it; click would rewrite every `cli.py` (and the tests' calls) for the same behaviour.
 """
 
 from __future__ import annotations
@@ -11,7 +19,8 @@ import importlib
 import os
 import sys
 
-from neatskin.errors import NeatskinError
+from neatskin.cligroups import Parser, command_group
+from neatskin.errors import ExitCode, NeatskinError, exit_code_of
 
 COMMAND_MODULES = (
     "neatskin.skin.cli",
@@ -27,10 +36,20 @@ COMMAND_MODULES = (
 )
 
 
+# The groups several components add commands to, each declared once: (name, help).
+SHARED_GROUPS = (
+    ("campaign", "run, resume, finish or check a press campaign; pause, continue or stop a running one"),
+    ("printer", "talk to a Marlin printer over its serial port"),
+)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="neatskin", description=__doc__.splitlines()[0])
+    codes = ", ".join(f"{int(code)} {code.name.lower().replace('_', ' ')}" for code in ExitCode)
+    parser = Parser(prog="neatskin", description=__doc__.splitlines()[0], epilog=f"exit codes: {codes} (docs/cli.md)")
     parser.add_argument("--version", action=_VersionAction, help="show program's version number and exit")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, help_text in SHARED_GROUPS:
+        command_group(subparsers, name, help_text)
     for name in COMMAND_MODULES:
         try:
             module = importlib.import_module(name)
@@ -61,11 +80,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         result = args.handler(args)
     except NeatskinError as exc:
-        print(f"neatskin: error: {exc}", file=sys.stderr)
-        return 2
+        report_error(exc)
+        return exit_code_of(exc)
     except KeyboardInterrupt as exc:
         print(f"neatskin: interrupted{': ' + str(exc) if str(exc) else ''}", file=sys.stderr)
-        return 130
+        return ExitCode.INTERRUPTED
     except BrokenPipeError:
         return _quiet_broken_pipe()
     try:
@@ -75,13 +94,21 @@ def main(argv: list[str] | None = None) -> int:
     return int(result or 0)
 
 
+def report_error(exc: NeatskinError) -> None:
+    """The one error format: `neatskin: error: file: [field]: what (fix: how)`, one line per problem."""
+    problems = getattr(exc, "problems", None)
+    lines = [str(p) for p in problems] if problems else str(exc).splitlines() or [type(exc).__name__]
+    for line in lines:
+        print(f"neatskin: error: {line}", file=sys.stderr)
+
+
 def _quiet_broken_pipe() -> int:
     """The reader of our output went away (e.g. `neatskin dataset info X | head`): stop quietly, as Unix tools
     do. stdout is pointed at /dev/null so the interpreter's own final flush does not fail again."""
     devnull = os.open(os.devnull, os.O_WRONLY)
     os.dup2(devnull, sys.stdout.fileno())
     os.close(devnull)
-    return 141  # 128 + SIGPIPE, what a shell reports for a tool killed by a closed pipe
+    return ExitCode.BROKEN_PIPE  # 128 + SIGPIPE, what a shell reports for a tool killed by a closed pipe
 
 
 if __name__ == "__main__":

@@ -1,12 +1,67 @@
-"""Sub-command groups shared by several components' CLIs (`neatskin sim ...`, `neatskin printer ...`)."""
+"""The CLI's shared vocabulary: one spelling per concept for every component's options, and the shared groups.
+
+Every component's `cli.py` adds its options through these, so `--out`, `--quiet` and
+`--connect-timeout-s` mean one thing everywhere. An older spelling stays accepted as a hidden alias
+(`HIDDEN_ALIASES`: it works, `--help` does not show it), so scripts and notes written for it keep
+working. `command_group` finds a group that `neatskin.cli` declared (`campaign`, `printer`) for a
+component to add its commands to.
+"""
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+from typing import Any
+
+HIDDEN_ALIASES = frozenset({"--output", "--no-progress", "--connect-timeout", "--boot-timeout-s"})
+"""Deprecated spellings: accepted, not shown in --help (docs/cli.md, "One spelling per concept")."""
 
 
-def command_group(subparsers, name: str, help_text: str):
-    """The sub-command action of group `name`, created or (if another component made it) reused."""
+class HelpFormatter(argparse.HelpFormatter):
+    """argparse's formatter without the hidden aliases in an option's list of spellings."""
+
+    def _format_action_invocation(self, action: argparse.Action) -> str:
+        shown = [s for s in action.option_strings if s not in HIDDEN_ALIASES]
+        if shown == action.option_strings or not shown:
+            return super()._format_action_invocation(action)
+        visible = argparse.Action(shown, action.dest, nargs=action.nargs, metavar=action.metavar)
+        return super()._format_action_invocation(visible)
+
+
+class Parser(argparse.ArgumentParser):
+    """The `neatskin` parser: its sub-parsers (of every level) share the formatter that hides the aliases."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("formatter_class", HelpFormatter)
+        super().__init__(*args, **kwargs)
+
+
+def add_out(parser: argparse.ArgumentParser, help: str, *, required: bool = False, default: Any = None) -> None:
+    """-o/--out: where a command writes (a file or a folder, as its help says)."""
+    parser.add_argument("-o", "--out", "--output", dest="out", type=Path, required=required, default=default, help=help)
+
+
+def add_quiet(parser: argparse.ArgumentParser) -> None:
+    """-q/--quiet: no progress bar."""
+    parser.add_argument("-q", "--quiet", "--no-progress", dest="quiet", action="store_true", help="no progress bar")
+
+
+def add_connect_timeout(parser: argparse.ArgumentParser, default: float | None, help: str) -> None:
+    """--connect-timeout-s: how long to wait for the printer's boot banner after opening its port."""
+    parser.add_argument(
+        "--connect-timeout-s",
+        "--connect-timeout",
+        "--boot-timeout-s",
+        dest="connect_timeout_s",
+        type=float,
+        default=default,
+        metavar="S",
+        help=help,
+    )
+
+
+def command_group(subparsers: Any, name: str, help_text: str) -> Any:
+    """The sub-command action of group `name`: the one `neatskin.cli` declared, or a new one (one owner)."""
     parser = subparsers.choices.get(name) if hasattr(subparsers, "choices") else None
     if parser is None:
         parser = subparsers.add_parser(name, help=help_text, description=help_text)
@@ -14,4 +69,4 @@ def command_group(subparsers, name: str, help_text: str):
     for action in parser._actions:  # noqa: SLF001 - argparse keeps no public handle on it
         if isinstance(action, argparse._SubParsersAction):  # noqa: SLF001
             return action
-    return parser.add_subparsers(dest=f"{name}_command", required=True)
+    return parser.add_subparsers(dest=f"{name}_command", metavar=f"{name.upper()}_COMMAND", required=True)

@@ -4,6 +4,11 @@
   from it) is wrong. Raised before any motion.
 - HardwareError: the printer, the serial line or the DAQ failed or is missing.
 - DataError: a dataset (parquet, manifest) is malformed or inconsistent.
+- CheckFailed: a check command (`campaign check`, `gcode check`, `dataset validate`) found problems
+  in what it was asked to check.
+
+`ExitCode` is the one table of the `neatskin` command's exit codes: each kind its own code, so a
+script (or an operator) tells a dead printer from a typo.
 
 ConfigError and DataError carry one or more Problems (file, field, message, fix) so that a
 validator can report every mistake in a file at once.
@@ -13,6 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
+from enum import IntEnum
 from os import PathLike
 
 
@@ -73,6 +79,38 @@ class DataError(_ProblemError):
 
 class HardwareError(NeatskinError):
     """The printer, the serial line or the DAQ failed, or is missing."""
+
+
+class CheckFailed(_ProblemError):
+    """A check command ran and found problems in what it was asked to check (its verdict, not a failure to run)."""
+
+
+class ExitCode(IntEnum):
+    """The exit codes of the `neatskin` command (docs/cli.md lists them)."""
+
+    OK = 0
+    CHECK_FAILED = 1  # campaign check, gcode check, dataset validate: the input fails the check
+    USAGE = 2  # argparse: an unknown option, a missing argument
+    CONFIG = 3  # ConfigError: a protocol, layout, wiring or profile file (or an option's value) is wrong
+    HARDWARE = 4  # HardwareError: the printer, the serial line or the DAQ failed or is missing
+    DATA = 5  # DataError: a dataset or campaign folder is malformed, or cannot be written
+    INTERRUPTED = 130  # Ctrl-C, SIGTERM or `campaign stop` (128 + SIGINT); a campaign stays resumable
+    BROKEN_PIPE = 141  # the reader of the output went away (`| head`; 128 + SIGPIPE)
+
+
+def exit_code_of(error: BaseException) -> ExitCode:
+    """The exit code of an error the command ends with."""
+    for kind, code in (
+        (CheckFailed, ExitCode.CHECK_FAILED),
+        (ConfigError, ExitCode.CONFIG),
+        (HardwareError, ExitCode.HARDWARE),
+        (DataError, ExitCode.DATA),
+        (KeyboardInterrupt, ExitCode.INTERRUPTED),
+        (BrokenPipeError, ExitCode.BROKEN_PIPE),
+    ):
+        if isinstance(error, kind):
+            return code
+    return ExitCode.CONFIG  # a NeatskinError of no kind: raised on purpose about the input
 
 
 def raise_problems(problems: list[Problem], kind: type[_ProblemError] = ConfigError) -> None:

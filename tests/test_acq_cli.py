@@ -74,15 +74,15 @@ def test_mux_table_layout_option_and_errors(tmp_path, capsys):
     text = PAPER.read_text().replace('layout = "../skins/paper.toml"', "")
     no_layout = tmp_path / "board.toml"
     no_layout.write_text(text)
-    assert main(["mux", "table", str(no_layout)]) == 2
+    assert main(["mux", "table", str(no_layout)]) == 3
     assert "names no layout" in capsys.readouterr().err
     assert main(["mux", "table", str(no_layout), "--layout", str(REPO / "protocols" / "skins" / "paper.toml")]) == 0
     capsys.readouterr()
     no_layout.write_text(text.replace("X3 = 7, Y3 = 8", "X3 = 7, Y3 = 7"))
-    assert main(["mux", "table", str(no_layout), "--layout", str(REPO / "protocols" / "skins" / "paper.toml")]) == 2
+    assert main(["mux", "table", str(no_layout), "--layout", str(REPO / "protocols" / "skins" / "paper.toml")]) == 3
     err = capsys.readouterr().err
     assert "pair with both ends on electrode 7" in err and "not routed" not in err and len(err.splitlines()) == 1
-    assert main(["mux", "table", str(PAPER), "--break-samples", "1"]) == 2
+    assert main(["mux", "table", str(PAPER), "--break-samples", "1"]) == 3
     assert "break_samples must be an integer >= 2" in capsys.readouterr().err
 
 
@@ -104,11 +104,11 @@ def test_mux_table_from_a_protocol(tmp_path, capsys):
         .endswith("at least 0 times inside it, whatever the sweep's phase  <- too short for a pressed value")
     )
     protocol.write_text('[acquisition]\nlive_samples = "many"\n')
-    assert main(["mux", "table", "--protocol", str(protocol)]) == 2
+    assert main(["mux", "table", "--protocol", str(protocol)]) == 3
     err = capsys.readouterr().err
     assert "[acquisition.live_samples]: 'live_samples' must be an integer, got 'many'" in err
     protocol.write_text("[acquisition]\nrate_hz = 1e12\nlive_sample = 50\n")
-    assert main(["mux", "table", "--protocol", str(protocol)]) == 2
+    assert main(["mux", "table", "--protocol", str(protocol)]) == 3
     err = capsys.readouterr().err
     assert "[acquisition.rate_hz]: 'rate_hz' = 1000000000000.0 is above 1.25e+06" in err
     assert "[acquisition.live_sample]: unknown key 'live_sample' (fix: did you mean 'live_samples'?)" in err
@@ -117,7 +117,7 @@ def test_mux_table_from_a_protocol(tmp_path, capsys):
 def test_mux_table_of_a_wiring_whose_layout_is_missing_names_the_wiring(tmp_path, capsys):
     board = tmp_path / "board.toml"
     board.write_text(PAPER.read_text().replace('"../skins/paper.toml"', '"../skins/nope.toml"'))
-    assert main(["mux", "table", str(board)]) == 2
+    assert main(["mux", "table", str(board)]) == 3
     err = capsys.readouterr().err
     assert err.startswith(f"neatskin: error: {board}: [layout]: the wiring names layout '../skins/nope.toml', ")
     assert len(err.splitlines()) == 1
@@ -125,6 +125,6 @@ def test_mux_table_of_a_wiring_whose_layout_is_missing_names_the_wiring(tmp_path
 
 def test_mux_table_of_a_layout_file_says_it_is_a_layout(capsys):
     layout = REPO / "protocols" / "skins" / "paper.toml"
-    assert main(["mux", "table", str(layout)]) == 2
+    assert main(["mux", "table", str(layout)]) == 3
     err = capsys.readouterr().err
     assert f"{layout}: this is a layout file (it has [skin], " in err and "), not a wiring (fix: " in err

@@ -137,7 +137,7 @@ def test_folds_1_is_a_data_error_and_one_line_on_the_cli(tmp_path, capsys):
     with pytest.raises(DataError, match="k >= 2"):
         repeat_splits("grouped", np.repeat(np.arange(10), 2), 3, n_splits=1)
     folder = write_dataset(tmp_path / "ds", table(8, 3))
-    assert main(["baselines", str(folder), "--models", "ridge", "--folds", "1", "--no-progress"]) == 2
+    assert main(["baselines", str(folder), "--models", "ridge", "--folds", "1", "--no-progress"]) == 3
     err = capsys.readouterr().err
     assert "folds]" in err and "--folds 2" in err and "Traceback" not in err
 

@@ -251,14 +251,14 @@ def test_cli_baselines_prints_the_table_and_writes_into_out(tmp_path, capsys):
     assert not (folder / "report.md").exists()
 
 
-def test_cli_errors_are_one_line_and_exit_2(tmp_path, capsys):
+def test_cli_errors_are_one_line_and_exit_with_the_data_code(tmp_path, capsys):
     df = small_table(8, 3)
     df.loc[0, "x_mm"] = np.nan
     folder = write_dataset(tmp_path / "ds", df)
-    assert main(["baselines", str(folder), "--models", "ridge", "--no-progress"]) == 2
+    assert main(["baselines", str(folder), "--models", "ridge", "--no-progress"]) == 5
     err = capsys.readouterr().err
     assert "[x_mm]" in err and str(folder) in err
-    assert main(["baselines", str(folder), "--models", "ridge,svm"]) == 2
+    assert main(["baselines", str(folder), "--models", "ridge,svm"]) == 5
 
 
 @pytest.fixture(scope="module")

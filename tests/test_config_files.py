@@ -66,7 +66,7 @@ def test_gcode_generate_names_the_protocol_field_of_an_unreadable_printer(tmp_pa
     protocol = tmp_path / "p.toml"
     protocol.write_text(text)
     out = tmp_path / "p.gcode"
-    assert main(["gcode", "generate", str(protocol), "-o", str(out)]) == 2
+    assert main(["gcode", "generate", str(protocol), "-o", str(out)]) == 3
     err = capsys.readouterr().err
     assert err.startswith(f"neatskin: error: {protocol}: [files.printer]: printer profile is not a regular file")
     assert not out.exists() and not (tmp_path / "p.gcode.tmp").exists()

@@ -13,7 +13,7 @@ from conftest import PROTOCOLS, REPO
 from neatskin.datasets import cli
 from neatskin.datasets.manifest import create_manifest, update_manifest
 from neatskin.datasets.writer import CampaignWriter
-from neatskin.errors import DataError
+from neatskin.errors import CheckFailed, DataError
 from neatskin.skin.synthetic import synthetic_rows
 
 LAYOUT_REF = {"path": str(PROTOCOLS / "skins" / "paper.toml"), "name": "neatskin-paper"}
@@ -52,9 +52,9 @@ def test_info_and_validate(paper_layout, tmp_path, capsys):
     assert run(["dataset", "validate", str(tmp_path / "c")]) == 0
     assert "valid" in capsys.readouterr().out
     update_manifest(tmp_path / "c", fsync=False, counts={"completed": 3})
-    assert run(["dataset", "validate", str(tmp_path / "c")]) == 1
-    err = capsys.readouterr().err
-    assert "[counts.completed]" in err and "1 problem(s)" in err
+    with pytest.raises(CheckFailed) as failed:  # neatskin.cli prints it and exits 1 (test_real_command_exit_status)
+        run(["dataset", "validate", str(tmp_path / "c")])
+    assert [p.field for p in failed.value.problems] == ["counts.completed"]
 
 
 def test_merge_split_export_plot(paper_layout, tmp_path, capsys):
@@ -116,7 +116,10 @@ def test_real_command_exit_status(paper_layout, tmp_path):
         timeout=120,
     )
     assert result.returncode == 1
-    assert result.stderr.count("NaN/null value(s) in 'dR_ohm_") == 28 and "28 problem(s)" in result.stderr
+    lines = result.stderr.splitlines()
+    assert len(lines) == 28 and all(
+        line.startswith("neatskin: error: ") and "NaN/null value(s) in 'dR_ohm_" in line for line in lines
+    )
     missing = subprocess.run(
         [sys.executable, "-m", "neatskin", "dataset", "info", str(tmp_path / "none")],
         cwd=REPO,
@@ -124,4 +127,4 @@ def test_real_command_exit_status(paper_layout, tmp_path):
         text=True,
         timeout=120,
     )
-    assert missing.returncode == 2 and "no such dataset" in missing.stderr
+    assert missing.returncode == 5 and "no such dataset" in missing.stderr

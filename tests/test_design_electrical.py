@@ -75,8 +75,8 @@ def test_at_1_mA_the_old_rule_of_the_study_passed_what_the_protocol_refuses():
 def test_the_study_assumes_the_protocols_defaults():
     protocol_defaults = {
         **{f.name: f.default for f in dataclasses.fields(protocol_schema.ElectricalTable)},
-        **{f.name: f.default for f in dataclasses.fields(protocol_schema.ExcitationTable)},
-        **{f.name: f.default for f in dataclasses.fields(protocol_schema.AcquisitionTable)},
+        **{f.name: f.default for f in dataclasses.fields(protocol_schema.Excitation)},
+        **{f.name: f.default for f in dataclasses.fields(protocol_schema.AcquisitionSettings)},
     }
     study_defaults = {
         **{f.name: f.default for f in dataclasses.fields(studyfile.StudyExcitationTable)},

@@ -128,7 +128,7 @@ def test_paper_like_scene_is_reported_as_not_yet_available(tmp_path):
 def test_every_problem_at_once_and_the_cli_prints_them(tmp_path, capsys):
     text = SMALL.replace("pitch_mm = [15.0]", "pitch_mm = [-1.0]").replace("seed = 5", "sed = 5")
     path = _write(tmp_path, text)
-    assert main(["design", "study", str(path), "--out", str(tmp_path / "out")]) == 2
+    assert main(["design", "study", str(path), "--out", str(tmp_path / "out")]) == 3
     err = capsys.readouterr().err
     assert "[study.sed]" in err and "[layouts.pitch_mm[0]]" in err and str(path) in err
     assert not (tmp_path / "out").exists()

@@ -65,7 +65,7 @@ def test_second_run_and_resume_are_refused_while_a_campaign_runs(long_protocol, 
         assert lock_state(folder)[1].pid == first.pid
 
         second = _start(long_protocol, folder)
-        assert second.wait(60) == 2
+        assert second.wait(60) == 3
         assert f"a campaign is running in it: PID {first.pid}" in second.stderr.read()
 
         with pytest.raises(DataError, match=f"in use by PID {first.pid}") as err:

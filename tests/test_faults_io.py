@@ -38,7 +38,7 @@ def _limit_file_size(limit_bytes):
 
 
 def _assert_stopped_cleanly(done, folder, file_part, fix_part):
-    assert done.returncode == 2, (done.returncode, done.stderr)
+    assert done.returncode == 5, (done.returncode, done.stderr)
     assert "Traceback" not in done.stderr
     error = done.stderr.strip().splitlines()[-1]
     assert error.startswith("neatskin: error: ") and file_part in error and fix_part in error, error
@@ -96,7 +96,7 @@ def test_read_only_file_system_is_one_clear_error_then_resume_completes(referenc
             resume_campaign(folder, progress=False, report=False)
         assert err.value.file == str(folder / "campaign.lock") and "read-only" in str(err.value)
         new = run_cli_child("none", *RUN, "--out", str(disk / "new"))
-        assert new.returncode == 2 and "Traceback" not in new.stderr and "read-only" in new.stderr.lower()
+        assert new.returncode == 5 and "Traceback" not in new.stderr and "read-only" in new.stderr.lower()
         remount(disk, "rw")
         result = resume_campaign(folder, progress=False, report=False)
         assert (result.completed, result.written_now) == (12, 8)
@@ -120,7 +120,7 @@ def test_a_folder_the_user_may_not_write_is_one_clear_error(reference, tmp_path)
         done = run_cli_child("none", "campaign", "resume", str(folder), "--no-report", "--quiet")
     finally:
         subprocess.run(undo, check=True)
-    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert done.returncode == 5 and "Traceback" not in done.stderr, done.stderr
     assert str(folder / "campaign.lock") in done.stderr and "chmod u+w" in done.stderr
     assert "Permission denied" in done.stderr or "Operation not permitted" in done.stderr
     result = resume_campaign(folder, progress=False, report=False)  # after the fix

@@ -57,7 +57,7 @@ def test_a_hostile_name_writes_inside_runs_only(tmp_path):
         text=True,
         env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"},
     )
-    if done.returncode == 2:  # the protocol loader may refuse such a name outright: as good
+    if done.returncode == 3:  # the protocol loader may refuse such a name outright: as good
         assert "Traceback" not in done.stderr and "name" in done.stderr
     else:
         assert done.returncode == 0, done.stderr
@@ -69,7 +69,7 @@ def test_a_hostile_name_writes_inside_runs_only(tmp_path):
 def test_out_at_an_existing_file_is_a_clear_error(tmp_path, capsys):
     target = tmp_path / "file"
     target.write_text("x")
-    assert main(["campaign", "run", str(SMOKE), "--dry-run", "--out", str(target), "--quiet"]) == 2
+    assert main(["campaign", "run", str(SMOKE), "--dry-run", "--out", str(target), "--quiet"]) == 3
     err = capsys.readouterr().err
     assert f"{target} is a file, not a campaign folder" in err and target.read_text() == "x"
 
@@ -88,7 +88,7 @@ def test_piping_into_head_ends_quietly(reference):
 
 
 def test_one_fold_is_a_clear_error(reference, capsys):
-    assert main(["baselines", str(reference), "--folds", "1", "--no-progress"]) == 2
+    assert main(["baselines", str(reference), "--folds", "1", "--no-progress"]) == 3
     assert "--folds 1: a k-fold split needs at least 2 folds" in capsys.readouterr().err
 
 
@@ -97,7 +97,7 @@ def test_baselines_refuses_to_write_beside_an_old_report(reference, tmp_path, ca
     shutil.copytree(reference, folder)
     (folder / "report.md").write_text("old report\n")
     (folder / "baselines_ellipses_random.png").write_bytes(b"stale")
-    assert main(["baselines", str(folder), "--split", "grouped", "--no-progress"]) == 2
+    assert main(["baselines", str(folder), "--split", "grouped", "--no-progress"]) == 3
     err = capsys.readouterr().err
     assert "already holds a baseline report" in err and "--overwrite" in err
     assert (folder / "baselines_ellipses_random.png").read_bytes() == b"stale"  # refused: nothing touched
@@ -146,7 +146,7 @@ def test_merged_and_split_datasets_keep_their_own_inputs(reference, tmp_path):
 @pytest.mark.parametrize("name", ["x.xlsx", "x", "x.json"])
 def test_export_writes_only_formats_it_names(reference, tmp_path, capsys, name):
     target = tmp_path / name
-    assert main(["dataset", "export", str(reference), "-o", str(target)]) == 2
+    assert main(["dataset", "export", str(reference), "-o", str(target)]) == 5
     assert "cannot tell the export format" in capsys.readouterr().err and not target.exists()
     assert main(["dataset", "export", str(reference), "-o", str(target), "--format", "csv"]) == 0
     assert target.read_text().startswith("campaign,press_id")

@@ -34,7 +34,9 @@ PAPER_COMMANDS_SHA256 = {
 def program(paper_layout):
     profile = load_printer_profile(PROTOCOLS / "printers" / "paper.toml")
     positions = generate_positions(paper_layout, PositionSpec("paper", 6, 3))
-    return build_program(paper_layout, positions, PressSpec(repeats=3, order="shuffled", hold_s=0.5), profile, seed=2)
+    return build_program(
+        paper_layout, positions, PressSpec(depth_mm=3.5, repeats=3, order="shuffled", hold_s=0.5), profile, seed=2
+    )
 
 
 @pytest.mark.parametrize("hold", [False, True])

@@ -85,7 +85,7 @@ def test_check_flags_out_of_bounds_and_syntax(protocols_dir, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "moves X to 250 mm, outside [0, 220] mm" in err and "moves Z to -1 mm" in err
     bad.write_text("G28\nfoo\n")
-    assert main(["gcode", "check", str(bad)]) == 2
+    assert main(["gcode", "check", str(bad)]) == 1
     assert "line 2" in capsys.readouterr().err
 
 
@@ -95,7 +95,7 @@ def test_generate_refuses_bad_protocol_before_writing(protocols_dir, tmp_path, c
     proto = tmp_path / "evil.toml"
     proto.write_text(text)
     out = tmp_path / "evil.gcode"
-    assert main(["gcode", "generate", str(proto), "-o", str(out)]) == 2
+    assert main(["gcode", "generate", str(proto), "-o", str(out)]) == 3
     assert "could inject" in capsys.readouterr().err
     assert not out.exists()
 

@@ -21,7 +21,7 @@ def test_check_refuses_eeprom_heaters_and_m112_one_line_each(tmp_path, capsys, p
     program = tmp_path / "p.gcode"
     program.write_text("G28\nM500\n; a comment\nM104 S300\nG1 X10 F3000\nM112\nM303\nM502\nM140 S60\nM999\nM190\n")
     assert main(["gcode", "check", str(program), "--profile", paper_profile]) == 1
-    refused = [line for line in capsys.readouterr().err.splitlines() if line.startswith("refused:")]
+    refused = [line for line in capsys.readouterr().err.splitlines() if line.startswith("neatskin: error:")]
     assert [line.split("[", 1)[1].split("]", 1)[0] for line in refused] == [
         "line 2",
         "line 4",
@@ -37,14 +37,14 @@ def test_check_refuses_eeprom_heaters_and_m112_one_line_each(tmp_path, capsys, p
     assert "M999 is not a command a press program uses" in refused[6]
     # the same refusals without a profile
     assert main(["gcode", "check", str(program)]) == 1
-    assert capsys.readouterr().err.count("refused:") == 8
+    assert capsys.readouterr().err.count("neatskin: error:") == 8
 
 
 def test_a_generated_program_passes_the_command_check(protocols_dir, tmp_path, capsys, paper_profile):
     out = tmp_path / "smoke.gcode"
     assert main(["gcode", "generate", str(protocols_dir / "smoke.toml"), "-o", str(out)]) == 0
     assert main(["gcode", "check", str(out), "--profile", paper_profile]) == 0
-    assert "refused" not in capsys.readouterr().err
+    assert "neatskin: error" not in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("word", ["X1e999", "X-1e400", "Xnan", "XNaN", "Xinf", "X-inf", "Xinfinity"])
@@ -63,7 +63,7 @@ def test_numbers_beyond_marlins_range_are_refused(word):
 def test_check_of_huge_coordinates_is_a_clear_error(tmp_path, capsys, paper_profile):
     program = tmp_path / "p.gcode"
     program.write_text("G28\nG1 X1e300 Y1e300\nG4 P1e300\n")
-    assert main(["gcode", "check", str(program), "--profile", paper_profile]) == 2
+    assert main(["gcode", "check", str(program), "--profile", paper_profile]) == 1
     err = capsys.readouterr().err
     assert "[line 2]: 'X1e300' is beyond" in err and "[line 3]: 'P1e300' is beyond" in err
 
@@ -73,7 +73,7 @@ def test_check_of_an_infinite_or_nan_coordinate_is_a_clear_error(tmp_path, capsy
     program = tmp_path / "p.gcode"
     program.write_text("G28\nG1 X1e999\nG1 Xnan\n")
     argv = ["gcode", "check", str(program)] + (["--profile", paper_profile] if profile else [])
-    assert main(argv) == 2
+    assert main(argv) == 1
     err = capsys.readouterr().err
     assert "[line 2]: 'X1e999' is not a finite number" in err and "[line 3]: 'Xnan' is not a finite number" in err
     assert "Traceback" not in err
@@ -89,7 +89,7 @@ def test_check_of_an_infinite_or_nan_coordinate_is_a_clear_error(tmp_path, capsy
 def test_check_of_a_binary_or_non_utf8_file_is_one_config_error(tmp_path, capsys, content, expected):
     path = tmp_path / "data.parquet"
     path.write_bytes(content)
-    assert main(["gcode", "check", str(path)]) == 2
+    assert main(["gcode", "check", str(path)]) == 1
     err = capsys.readouterr().err
     assert expected in err and str(path) in err and "UnicodeDecodeError" not in err
 
@@ -110,7 +110,7 @@ def test_read_is_capped(tmp_path):
 
 
 def test_check_of_a_folder_is_a_clear_error(tmp_path, capsys):
-    assert main(["gcode", "check", str(tmp_path)]) == 2
+    assert main(["gcode", "check", str(tmp_path)]) == 1
     assert "cannot read G-code file: Is a directory" in capsys.readouterr().err
 
 
@@ -125,7 +125,7 @@ def _smoke_copy(protocols_dir, tmp_path, name: str):
 def test_generate_with_a_non_ascii_name_is_clear_and_leaves_nothing(protocols_dir, tmp_path, capsys):
     proto = _smoke_copy(protocols_dir, tmp_path, "Kampagne Üben")
     out = tmp_path / "out" / "p.gcode"
-    assert main(["gcode", "generate", str(proto), "-o", str(out)]) == 2
+    assert main(["gcode", "generate", str(proto), "-o", str(out)]) == 3
     err = capsys.readouterr().err
     # refused by the protocol schema, before emission (which refuses it too: see test_emit_refuses_a_non_ascii_name)
     assert "campaign.name" in err and "non-ASCII" in err and "UnicodeEncodeError" not in err
@@ -172,9 +172,9 @@ def test_generate_to_a_folder_or_below_a_file_is_one_clear_error(protocols_dir, 
     blocker = tmp_path / "a_file"
     blocker.write_text("x")
     out = tmp_path if where == "folder" else blocker / "p.gcode"
-    assert main(["gcode", "generate", str(protocols_dir / "smoke.toml"), "-o", str(out)]) == 2
+    assert main(["gcode", "generate", str(protocols_dir / "smoke.toml"), "-o", str(out)]) == 3
     err = capsys.readouterr().err
-    assert "[--output]" in err and (
+    assert "[--out]" in err and (
         "is a folder, not a file" in err if where == "folder" else "is a file, not a folder" in err
     )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
@@ -194,7 +194,7 @@ def test_emit_refuses_a_non_ascii_name():
 def test_check_of_a_program_without_commands_is_one_error(tmp_path, capsys, paper_profile, text):
     program = tmp_path / "empty.gcode"
     program.write_text(text)
-    assert main(["gcode", "check", str(program), "--profile", paper_profile]) == 2
+    assert main(["gcode", "check", str(program), "--profile", paper_profile]) == 1
     captured = capsys.readouterr()
     assert captured.out == ""
     assert captured.err == (
@@ -214,6 +214,6 @@ def test_a_bad_profile_is_one_error_before_anything_is_printed(tmp_path, capsys,
     program = tmp_path / "p.gcode"
     program.write_text("G28\n")
     path = protocols_dir / "wiring" / "paper.toml" if profile == "wiring" else tmp_path / profile
-    assert main(["gcode", "check", str(program), "--profile", str(path)]) == 2
+    assert main(["gcode", "check", str(program), "--profile", str(path)]) == 3
     captured = capsys.readouterr()
     assert captured.out == "" and len(captured.err.splitlines()) == 1 and str(path) in captured.err

@@ -175,5 +175,5 @@ def test_impossible_spacing_is_a_config_error(paper_layout):
 )
 def test_bad_spec_fields(kwargs, field):
     with pytest.raises(ConfigError) as info:
-        PositionSpec(**kwargs)
+        PositionSpec(**({"strategy": "paper", "count": 10} | kwargs))  # the file's required keys, then the bad one
     assert info.value.field == field

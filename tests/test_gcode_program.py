@@ -108,14 +108,14 @@ def test_order_shuffled_is_seeded_and_complete(paper_layout, positions, profile)
     assert Counter(p for p, _ in pairs) == {p: 4 for p in range(10)}
     # drift must not line up with position: the first 10 presses are not all one position
     assert len({p for p, _ in pairs[:10]}) > 3
-    c = build_program(paper_layout, positions, PressSpec(repeats=4, order="shuffled"), profile, seed=5)
+    c = build_program(paper_layout, positions, PressSpec(depth_mm=3.5, repeats=4, order="shuffled"), profile, seed=5)
     assert [(blk.position_id, blk.repeat) for blk in c.presses] != pairs
 
 
 def test_travel_ordering_shortens_the_route(paper_layout, profile):
     positions = generate_positions(paper_layout, PositionSpec("paper", 100, 2019))
-    plain = build_program(paper_layout, positions, PressSpec(repeats=1), profile)
-    ordered = build_program(paper_layout, positions, PressSpec(repeats=1, travel_ordering=True), profile)
+    plain = build_program(paper_layout, positions, PressSpec(depth_mm=3.5, repeats=1), profile)
+    ordered = build_program(paper_layout, positions, PressSpec(depth_mm=3.5, repeats=1, travel_ordering=True), profile)
     assert plain.route_unordered_mm is None
     assert ordered.route_unordered_mm == pytest.approx(plain.route_mm)
     assert ordered.route_mm < 0.4 * plain.route_mm  # paper seed: 1783 mm in generated order, 251 mm ordered

@@ -82,10 +82,10 @@ def test_soft_limits_narrower_than_bed(paper_layout, positions, profile, no_text
 
 
 def test_press_depth_beyond_skin_thickness(paper_layout, positions, profile, no_text):
-    err = refuse(paper_layout, positions, profile, PressSpec(depth_mm=5.2))
+    err = refuse(paper_layout, positions, profile, PressSpec(depth_mm=5.2, repeats=1))
     assert err.field == "press.depth_mm"
     assert "beyond the skin thickness 5.5 mm minus the 0.5 mm margin (limit 5 mm)" in str(err)
-    assert refuse(paper_layout, positions, profile, PressSpec(depth_mm=0.0)).field == "press.depth_mm"
+    assert refuse(paper_layout, positions, profile, PressSpec(depth_mm=0.0, repeats=1)).field == "press.depth_mm"
 
 
 def test_press_below_z_soft_limit(paper_layout, positions, profile, no_text):
@@ -149,7 +149,9 @@ def test_injection_through_the_protocol_file_refused(paper_layout, positions, pr
 
 
 def test_safe_names_pass(paper_layout, positions, profile):
-    prog = build_program(paper_layout, positions, PressSpec(), profile, name="Run 3 (tap water, 21 C) - ok")
+    prog = build_program(
+        paper_layout, positions, PressSpec(depth_mm=3.5, repeats=1), profile, name="Run 3 (tap water, 21 C) - ok"
+    )
     assert "; protocol: Run 3 (tap water, 21 C) - ok\n" in prog.text()
     # every non-comment line of the text is a command the program built
     commands = [ln for ln in prog.text().splitlines() if not ln.startswith(";")]

@@ -74,13 +74,13 @@ def test_sim_printer_then_printer_send(tmp_path, capsys):
 def test_printer_send_refuses_bad_gcode_before_opening_the_port(tmp_path, capsys):
     bad = tmp_path / "bad.gcode"
     bad.write_text("G28\nfoo bar\n")
-    assert main(["printer", "send", "--port", "/dev/nonexistent-port", str(bad)]) == 2
+    assert main(["printer", "send", "--port", "/dev/nonexistent-port", str(bad)]) == 3
     err = capsys.readouterr().err
     assert "bad.gcode" in err and "line 2" in err and "'foo' is not a G, M or T command" in err
 
 
 def test_sim_printer_refuses_a_bad_fault_spec(capsys):
-    assert main(["sim", "printer", "--faults", "noise=1"]) == 2
+    assert main(["sim", "printer", "--faults", "noise=1"]) == 3
     assert "unknown fault 'noise'" in capsys.readouterr().err
 
 

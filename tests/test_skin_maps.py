@@ -115,9 +115,9 @@ def test_cli_maps_writes_pngs_and_parquet(tmp_path, paper_layout, protocols_dir,
 
 
 def test_cli_maps_bad_input_names_the_problem(tmp_path, capsys):
-    assert main(["skin", "maps", "--layout", str(tmp_path / "missing.toml"), "--out", str(tmp_path)]) == 2
+    assert main(["skin", "maps", "--layout", str(tmp_path / "missing.toml"), "--out", str(tmp_path)]) == 3
     assert "missing.toml" in capsys.readouterr().err
-    assert main(["skin", "maps", "--grid-step-mm", "0", "--out", str(tmp_path)]) == 2
+    assert main(["skin", "maps", "--grid-step-mm", "0", "--out", str(tmp_path)]) == 3
     assert "--grid-step-mm" in capsys.readouterr().err
 
 
@@ -129,5 +129,5 @@ def test_cli_press_prints_every_pair(capsys, paper_layout):
     assert list(rows) == [p.label for p in paper_layout.pairs]
     assert rows["1-2"][0] == pytest.approx(17 / 24 * 3750, abs=1e-3)
     assert max(rows, key=lambda k: rows[k][2]) == "1-8"  # the press sits on channel 8-1
-    assert main(["skin", "press", "--x-mm", "nan", "--y-mm", "0"]) == 2
+    assert main(["skin", "press", "--x-mm", "nan", "--y-mm", "0"]) == 3
     assert "--x-mm" in capsys.readouterr().err

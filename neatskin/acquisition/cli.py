@@ -72,7 +72,7 @@ def protocol_settings(path: Path) -> dict:
     """The few protocol keys the table needs ([files].wiring, [acquisition], [press].hold_s), each checked
     against the protocol schema; other sections are left to the campaign loader (acquisition does not import rig)."""
     from neatskin.config import parse_partial
-    from neatskin.config.files import AcquisitionTable, FilesTable, PressTable
+    from neatskin.config.files import AcquisitionSettings, FilesTable, PressSpec
     from neatskin.errors import ConfigError
     from neatskin.tomlfile import read_toml
 
@@ -82,8 +82,8 @@ def protocol_settings(path: Path) -> dict:
     problems = []
     wanted = (
         ("files", FilesTable, ("wiring",)),
-        ("acquisition", AcquisitionTable, ("rate_hz", "live_samples", "settle_samples")),
-        ("press", PressTable, ("hold_s",)),
+        ("acquisition", AcquisitionSettings, ("rate_hz", "live_samples", "settle_samples")),
+        ("press", PressSpec, ("hold_s",)),
     )
     for table, schema, keys in wanted:
         if table not in data:

@@ -38,7 +38,7 @@ from pathlib import Path
 from neatskin.config import parse_tables
 from neatskin.config.files import ChipEntry, LinesTable, WiringFile
 from neatskin.config.files import ElectricalTable as MuxElectrical
-from neatskin.config.schema import wrong_kind_problem
+from neatskin.config.kinds import wrong_kind_problem
 from neatskin.errors import ConfigError, Problem, raise_problems
 from neatskin.layout import ElectrodePair, Layout
 from neatskin.tomlfile import read_toml, resolve_path

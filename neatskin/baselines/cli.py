@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from neatskin.cligroups import add_out, add_quiet
+
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
@@ -27,11 +29,7 @@ def register(subparsers) -> None:
         help="comma-separated: ridge,knn,kernel_ridge,extra_trees,mlp,lm_network,inversion (default: all; "
         "inversion, the physics baseline, needs the layout the manifest names)",
     )
-    parser.add_argument(
-        "--out",
-        default=None,
-        help="output folder (default: the dataset folder); a folder that already holds a report is refused",
-    )
+    add_out(parser, "output folder (default: the dataset folder); a folder that already holds a report is refused")
     parser.add_argument(
         "--overwrite",
         action="store_true",
@@ -54,7 +52,7 @@ def register(subparsers) -> None:
     parser.add_argument(
         "--lm-restarts", type=int, default=1, help="LM restarts per fit, best on validation (default 1 per repeat)"
     )
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_quiet(parser)
     parser.set_defaults(handler=handler)
 
 
@@ -102,7 +100,7 @@ def handler(args: argparse.Namespace) -> int:
         flagged=args.flagged,
         random_state=args.seed,
         n_splits=args.folds,
-        progress=not args.no_progress,
+        progress=not args.quiet,
         n_repeats=args.repeats,
         n_jobs=args.jobs,
         lm_restarts=args.lm_restarts,

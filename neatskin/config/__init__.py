@@ -1,15 +1,8 @@
-"""The one config layer: declarative schemas of every TOML file kind (`files`), the engine that reads them
-(`schema`) and the generated reference (`docs`)."""
+"""The one config layer: declarative schemas of every TOML file kind (`files`, `scene`, `studyfile`), the engine that reads
+them (`schema`), validation at construction (`settings`), the file kinds (`kinds`) and the generated reference (`docs`)."""
 
-from neatskin.config.schema import (
-    Constraint,
-    parse,
-    parse_collect,
-    parse_partial,
-    parse_tables,
-    setting,
-    unknown_key_problems,
-)
+from neatskin.config.kinds import parse_tables
+from neatskin.config.schema import Constraint, parse, parse_collect, parse_partial, setting, unknown_key_problems
 
 __all__ = [
     "Constraint",

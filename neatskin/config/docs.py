@@ -13,7 +13,16 @@ import typing
 from typing import Any
 
 from neatskin.config import files
-from neatskin.config.schema import constraint_of, describe_range, hints, is_required, is_schema, toml_key
+from neatskin.config.kinds import FILE_KINDS
+from neatskin.config.schema import (
+    constraint_of,
+    describe_range,
+    hints,
+    is_required,
+    is_schema,
+    key_fields,
+    toml_key,
+)
 
 INTRO = """# Configuration files
 
@@ -32,9 +41,17 @@ text; a device (`/dev/zero`), a folder, a binary file or an over-long path is on
 the file. A path starting with `protocols/` that does not exist where you are falls back to the
 packaged copy (`neatskin/protocols/`), so the defaults work from any folder and from a wheel.
 
+The tables are the values the code uses: `PressSpec` (`[press]`), `PositionSpec` (`[positions]`),
+`Scene` (`[scene]`), `Excitation`, `AcquisitionSettings` and `PrinterTable` (which `PrinterProfile`
+extends) are declared once and check every value at construction (`neatskin.config.settings`), with
+the file's own text: `PressSpec(depth_mm=5000, repeats=1)` in Python raises the ConfigError a protocol
+with `depth_mm = 5000` gets, so a value the file refuses cannot exist in memory, and the defaults are
+the same in both.
+
 Choice: frozen dataclasses with constraint metadata rather than pydantic or msgspec: no new
-dependency, frozen dataclasses are already the toolkit's value types, and the problem text
-(file, field, fix) stays the toolkit's own.
+dependency, frozen dataclasses are already the toolkit's value types, the engine collects every
+problem of a file with a "did you mean" for a misspelt key (pydantic's errors would have to be
+translated back into the file, field and fix text), and the problem text stays the toolkit's own.
 
 `campaign check` also refuses what the run cannot execute: beyond each key's range below, one
 press may record at most {max_samples:,} samples, a campaign at most {max_gib} GiB of waveforms
@@ -89,7 +106,7 @@ def _toml(value: Any) -> str:
 
 def _rows(schema: type, prefix: str, out: list[str], nested: list[tuple[str, type, bool]]) -> None:
     types_ = hints(schema)
-    for f in dataclasses.fields(schema):
+    for f in key_fields(schema):
         tp = types_[f.name]
         key = f"{prefix}{toml_key(f)}"
         inner = typing.get_args(tp)
@@ -115,7 +132,7 @@ def render_schema(title: str, schema: type) -> str:
     while nested:  # tables in order, a table's own sub-tables ([[electrodes.explicit]]) right after it
         key, table, is_array = nested.pop(0)
         owner = schema if "." not in key else None
-        required = [f for f in dataclasses.fields(owner) if toml_key(f) == key and is_required(f)] if owner else []
+        required = [f for f in key_fields(owner) if toml_key(f) == key and is_required(f)] if owner else []
         kind = f"[[{key}]]" if is_array else f"[{key}]"
         lines.append(f"### `{kind}`" + (" (required)" if required else " (optional)"))
         lines.append("")
@@ -131,7 +148,8 @@ def render_schema(title: str, schema: type) -> str:
 
 MISTAKES = """## Mistakes and what they print
 
-One mistake is one line, `file: [field]: what (fix: how)`, exit code 2, nothing written: a
+One mistake is one line, `file: [field]: what (fix: how)`, nothing written (`campaign check`
+exits 1, a failed check; `campaign run` and `gcode generate` exit 3, a configuration error: docs/cli.md): a
 misspelt key or table is reported as unknown with its close name, and not once more as missing;
 an empty file is "the file is empty"; what follows from a problem already reported (the channels
 naming a junction whose entry is bad, the pair left unrouted by a pin wired twice, each press of
@@ -173,7 +191,7 @@ def render_markdown() -> str:
         max_presses=files.MAX_PRESSES,
     )
     parts = [intro]
-    for title, schema in files.FILE_KINDS.items():
+    for title, schema in FILE_KINDS.items():
         parts.append(render_schema(title.capitalize(), schema))
     parts.append(MISTAKES)
     parts.append(

@@ -10,13 +10,14 @@ live with the simulation (`neatskin.sim.scene.PRESETS`), which fills in every kn
 
 from __future__ import annotations
 
-import dataclasses
+import math
 import re
 from dataclasses import dataclass
 from typing import Any
 
-from neatskin.config.schema import setting
-from neatskin.config.studyfile import StudyFile
+from neatskin.config.scene import Scene
+from neatskin.config.schema import setting, source_field
+from neatskin.config.settings import Settings
 from neatskin.errors import Problem
 
 # ---- caps a run can execute (issue 10): anything beyond is refused by `campaign check` ------------
@@ -29,6 +30,7 @@ MAX_SAMPLES_PER_PRESS = 50_000_000  # 1.2 GB of float64 V, I, FSR in memory for 
 MAX_WAVEFORM_BYTES = 200 * 2**30  # 200 GiB of raw waveforms for a campaign
 MAX_RIG_TIME_S = 14 * 86_400.0  # two weeks of rig time
 MAX_NAME_LEN = 64
+POSITION_STRATEGIES = ("paper", "grid", "stratified")
 MAX_PATH_LEN = 1_024
 
 SAFE_NAME = r"[A-Za-z0-9][A-Za-z0-9._-]*"
@@ -61,14 +63,14 @@ def campaign_name_problems(name: str, source: str, where: str = "campaign.name")
 
 
 @dataclass(frozen=True)
-class CampaignTable:
+class CampaignTable(Settings):
     name: str = setting(max_len=MAX_NAME_LEN, doc="the campaign's name; " + SAFE_NAME_TEXT, example='"paper"')
     seed: int = setting(ge=0, doc="fixes positions, press order and the simulated noise", example="2019")
     description: str = setting("", allow_empty=True, doc="free text")
 
 
 @dataclass(frozen=True)
-class FilesTable:
+class FilesTable(Settings):
     layout: str = setting(max_len=MAX_PATH_LEN, doc="skin layout TOML, relative to the protocol's folder")
     wiring: str = setting(max_len=MAX_PATH_LEN, doc="mux wiring TOML, relative to the protocol's folder")
     printer: str = setting(max_len=MAX_PATH_LEN, doc="printer profile TOML, relative to the protocol's folder")
@@ -82,14 +84,19 @@ class FilesTable:
 
 
 @dataclass(frozen=True)
-class PositionsTable:
-    strategy: str = setting(choices=("paper", "grid", "stratified"), doc="how positions are drawn")
-    count: int = setting(ge=1, le=MAX_COUNT, doc="distinct press positions")
-    seed: int | None = setting(None, ge=0, default_doc="campaign.seed", doc="seed of the positions only")
+class PositionSpec(Settings):
+    """Where the presses go (the strategies: neatskin.gcode.positions)."""
+
+    TOML_TABLE = "positions"
+    strategy: str = setting(choices=POSITION_STRATEGIES, doc="how positions are drawn", example='"paper"')
+    count: int = setting(ge=1, le=MAX_COUNT, doc="distinct press positions", example="100")
+    seed: int | None = setting(
+        None, ge=0, default_doc="campaign.seed (0 built in Python)", doc="seed of the positions only"
+    )
     min_spacing_mm: float = setting(0.0, unit="mm", ge=0, le=1_000, doc="between any two positions (0: off)")
     electrode_keep_out_mm: float = setting(0.0, unit="mm", ge=0, le=1_000, doc="radius kept clear of electrodes")
     keep_out: tuple[tuple[float, float, float], ...] = setting(
-        (), unit="mm", doc="circles kept clear, each [x_mm, y_mm, radius_mm]"
+        (), unit="mm", ge=-1e5, le=1e5, doc="circles kept clear, each [x_mm, y_mm, radius_mm > 0]"
     )
     channel_fraction: float | None = setting(
         None, ge=0, le=1, default_doc="the channels' share of the pressable area", doc="share of positions on channels"
@@ -97,10 +104,43 @@ class PositionsTable:
     grid_shape: tuple[int, int] | None = setting(
         None, ge=1, le=MAX_COUNT, default_doc="square", doc="[rows, cols] of the grid strategy"
     )
+    source: str = source_field()
+
+    def cross_problems(self) -> list[tuple[str, str, str]]:
+        problems = []
+        for k, circle in enumerate(self.keep_out):
+            if circle[2] <= 0:
+                problems.append(
+                    (
+                        f"keep_out[{k}]",
+                        f"keep-out zone {list(circle)!r} has no radius",
+                        "write each zone as [x_mm, y_mm, radius_mm > 0]",
+                    )
+                )
+        if self.strategy == "grid":
+            rows, cols = self.grid_shape or square_grid(self.count)
+            if rows * cols != self.count:
+                problems.append(
+                    (
+                        "grid_shape",
+                        f"a grid of {self.count} positions needs grid_shape rows x cols = count",
+                        "give grid_shape = [rows, cols] with rows * cols = count, or a square count",
+                    )
+                )
+        return problems
+
+
+def square_grid(count: int) -> tuple[int, int]:
+    """The square (rows, cols) of a grid of `count` positions, or (0, 0) when count is not a square."""
+    side = math.isqrt(count)
+    return (side, side) if side * side == count else (0, 0)
 
 
 @dataclass(frozen=True)
-class PressTable:
+class PressSpec(Settings):
+    """How each position is pressed."""
+
+    TOML_TABLE = "press"
     depth_mm: float = setting(unit="mm", ge=0, le=1_000, doc="below the skin's top surface", example="3.5")
     repeats: int = setting(ge=1, le=MAX_REPEATS, doc="presses per position", example="28")
     order: str = setting("position", choices=("position", "shuffled"), doc="repeats together, or shuffled")
@@ -110,10 +150,26 @@ class PressTable:
     depth_margin_mm: float = setting(
         0.5, unit="mm", ge=0, le=100, doc="the probe stops at least this far above the skin's underside"
     )
+    source: str = source_field()
+
+    def cross_problems(self) -> list[tuple[str, str, str]]:
+        if self.travel_ordering and self.order != "position":
+            return [
+                (
+                    "travel_ordering",
+                    "travel ordering only applies to order = 'position' (shuffled presses jump between positions on "
+                    "purpose)",
+                    "set travel_ordering = false or order = 'position'",
+                )
+            ]
+        return []
 
 
 @dataclass(frozen=True)
-class ExcitationTable:
+class Excitation(Settings):
+    """The galvanostat's sine."""
+
+    TOML_TABLE = "excitation"
     amplitude_a: float = setting(unit="A", gt=0, le=0.1, doc="peak excitation current", example="0.0005")
     frequency_hz: float = setting(unit="Hz", gt=0, le=MAX_RATE_HZ / 2, doc="excitation sine", example="1000.0")
     compliance_v: float = setting(
@@ -125,7 +181,10 @@ class ExcitationTable:
 
 
 @dataclass(frozen=True)
-class AcquisitionTable:
+class AcquisitionSettings(Settings):
+    """The DAQ's clock and windows, and how a pair's resistance is demodulated."""
+
+    TOML_TABLE = "acquisition"
     rate_hz: float = setting(unit="Hz", gt=0, le=MAX_RATE_HZ, doc="one sample clock for AO, AI, mux lines")
     settle_samples: int = setting(ge=0, le=1_000_000, doc="discarded after every mux switch")
     live_samples: int = setting(ge=2, le=10_000_000, doc="measured samples per pair and sweep")
@@ -134,9 +193,20 @@ class AcquisitionTable:
     adc_range_v: float = setting(10.0, unit="V", gt=0, le=100, doc="AI input range (+-) of the voltage channel")
     voltage_gain: float = setting(0.5, gt=0, le=1_000, doc="AI volts per volt across the pair (monitor divider)")
 
+    def cross_problems(self) -> list[tuple[str, str, str]]:
+        if self.window > self.live_samples:
+            return [
+                (
+                    "window",
+                    f"window {self.window} is longer than the live window {self.live_samples}",
+                    "set window <= live_samples",
+                )
+            ]
+        return []
+
 
 @dataclass(frozen=True)
-class FsrTable:
+class FsrTable(Settings):
     enabled: bool = setting(True, doc="a force-sensing resistor labels each press")
     pause_after_misses: int = setting(
         3,
@@ -147,87 +217,30 @@ class FsrTable:
 
 
 @dataclass(frozen=True)
-class RecordTable:
+class RecordTable(Settings):
     waveforms: bool = setting(False, doc="also store raw V, I, FSR samples (else per-press features only)")
 
 
-# ---- the protocol's [scene]: what a dry run simulates (values of the presets: neatskin.sim.scene) ------
-
-SCENE_PRESETS = ("ideal", "paper-like")
-FROM_PRESET = "from `preset`"
-
-
-def _knob(unit: str, doc: str, *, signed: bool = False, upper: float | None = None) -> Any:
-    """A variability knob: None in the schema means "the preset's value" (neatskin.sim.scene.PRESETS)."""
-    return setting(None, unit=unit, ge=None if signed else 0, le=upper, default_doc=FROM_PRESET, doc=doc)
-
-
 @dataclass(frozen=True)
-class SceneTable:
-    """What a dry run simulates: the skin model's fidelity, the signal level and the rig effects. A preset sets
-    every knob after `surface_error_mm` at once (`ideal`: all off; `paper-like`: fitted to the paper's error, see
-    docs/skin.md); a knob written in the table overrides the preset's value. Every source is off at 0."""
-
-    fidelity: str = setting(
-        "deformation", choices=("deformation", "network"), doc="skin model: the deformation integral, or the network"
-    )
-    signal: str = setting(
-        "features", choices=("features", "waveforms"), doc="simulate per-press features only, or raw waveforms"
-    )
-    noise: bool = setting(True, doc="measurement noise")
-    preset: str = setting("ideal", choices=SCENE_PRESETS, doc="sets every knob left out of the table")
-    surface_error_mm: float = setting(
-        0.0, unit="mm", doc="the real skin surface lies this far below the calibrated one (within the skin)"
-    )
-    placement_error_mm: float | None = _knob("mm", "std of the press position, per press (at most 100 mm)")
-    depth_jitter_mm: float | None = _knob("mm", "std of the press depth, per press (printer z, skin height)")
-    fabrication_spread_fraction: float | None = _knob(
-        "", "std of log(channel height), per channel, once per skin", upper=1.0
-    )
-    displaced_fluid_fraction: float | None = _knob(
-        "", "share of the displaced fluid the sealed channels keep", upper=1.0
-    )
-    temperature_drift_k_per_h: float | None = _knob(
-        "K/h", "fluid temperature ramp (negative: a cooling room)", signed=True
-    )
-    evaporation_fraction_per_h: float | None = _knob("1/h", "water lost through the silicone, per hour", upper=0.5)
-    press_interval_s: float | None = _knob(
-        "s", "campaign time between presses for drift and relaxation (0: the G-code's)"
-    )
-    hysteresis_fraction: float | None = _knob(
-        "", "dent kept right after the lift, as a share of the press depth", upper=0.99
-    )
-    relaxation_time_s: float | None = _knob("s", "viscoelastic relaxation time of that dent")
-    double_layer_capacitance_uf: float | None = _knob("uF", "per electrode, in series (0: no double layer)")
-    adc_skew_us: float | None = _knob("us", "the current is sampled this long after the voltage (multiplexed ADC)")
-    mains_pickup_mv: float | None = _knob("mV", "amplitude of the mains hum on the voltage channel")
-    mains_frequency_hz: float | None = _knob("Hz", "mains frequency of that hum")
-
-
-SCENE_KNOBS = tuple(f.name for f in dataclasses.fields(SceneTable) if f.default is None)
-"""The variability knobs: what a preset sets."""
-
-
-@dataclass(frozen=True)
-class ProtocolFile:
+class ProtocolFile(Settings):
     """A campaign protocol (protocols/paper.toml)."""
 
     campaign: CampaignTable
     files: FilesTable
-    positions: PositionsTable
-    press: PressTable
-    excitation: ExcitationTable
-    acquisition: AcquisitionTable
+    positions: PositionSpec
+    press: PressSpec
+    excitation: Excitation
+    acquisition: AcquisitionSettings
     fsr: FsrTable = FsrTable()
     record: RecordTable = RecordTable()
-    scene: SceneTable = SceneTable()
+    scene: Scene = Scene()
 
 
 # ---- skin layout (protocols/skins/*.toml) ------------------------------------------------------------
 
 
 @dataclass(frozen=True)
-class SkinTable:
+class SkinTable(Settings):
     thickness_mm: float = setting(unit="mm", gt=0, le=1_000, doc="silicone skin thickness")
     channel_depth_mm: float = setting(unit="mm", gt=0, le=1_000, doc="channel centre line below the top surface")
     resistivity_ohm_m: float = setting(unit="ohm m", gt=0, le=1e9, doc="the fluid's resistivity")
@@ -236,20 +249,20 @@ class SkinTable:
 
 
 @dataclass(frozen=True)
-class ChannelDefaultsTable:
+class ChannelDefaultsTable(Settings):
     width_mm: float | None = setting(None, unit="mm", gt=0, le=1_000, default_doc="none", doc="every channel's")
     height_mm: float | None = setting(None, unit="mm", gt=0, le=1_000, default_doc="none", doc="every channel's")
 
 
 @dataclass(frozen=True)
-class JunctionEntry:
+class JunctionEntry(Settings):
     name: str = setting(max_len=200, doc="unique name")
     x_mm: float = setting(unit="mm", ge=-1e5, le=1e5, doc="sensor frame")
     y_mm: float = setting(unit="mm", ge=-1e5, le=1e5, doc="sensor frame")
 
 
 @dataclass(frozen=True)
-class ChannelEntry:
+class ChannelEntry(Settings):
     start: str = setting(key="from", doc="junction name")
     to: str = setting(doc="junction name")
     name: str | None = setting(None, max_len=200, default_doc="'<from>-<to>'", doc="channel name")
@@ -259,13 +272,13 @@ class ChannelEntry:
 
 
 @dataclass(frozen=True)
-class ElectrodeEntry:
+class ElectrodeEntry(Settings):
     number: int = setting(ge=1, le=10_000, doc="electrode number (1, 2, ...)")
     junction: str = setting(doc="junction name it sits on")
 
 
 @dataclass(frozen=True)
-class LayoutFile:
+class LayoutFile(Settings):
     """A skin layout (protocols/skins/paper.toml)."""
 
     skin: SkinTable
@@ -279,20 +292,20 @@ class LayoutFile:
 
 
 @dataclass(frozen=True)
-class LinesTable:
+class LinesTable(Settings):
     A: str = setting(doc="address line A (bit 0), e.g. port0/line0")
     B: str = setting(doc="address line B (bit 1), e.g. port0/line1")
 
 
 @dataclass(frozen=True)
-class ChipEntry:
+class ChipEntry(Settings):
     inhibit: str = setting(doc="the chip's inhibit line, e.g. port0/line2")
     pins: dict[str, Any] = setting(doc="X0..X3, Y0..Y3 = electrode number (inline table)")
     name: str | None = setting(None, max_len=64, default_doc="'U<k>'", doc="as printed on the board")
 
 
 @dataclass(frozen=True)
-class ElectricalTable:
+class ElectricalTable(Settings):
     """The mux chips' analog limits (MAX4052 class at +-8 V supplies; datasheet maxima, assumed)."""
 
     supply_positive_v: float = setting(8.0, unit="V", gt=0, le=100, doc="V+ rail: signals must stay below it")
@@ -302,7 +315,7 @@ class ElectricalTable:
 
 
 @dataclass(frozen=True)
-class WiringFile:
+class WiringFile(Settings):
     """A mux board (protocols/wiring/paper.toml)."""
 
     lines: LinesTable
@@ -316,7 +329,10 @@ class WiringFile:
 
 
 @dataclass(frozen=True)
-class PrinterTable:
+class PrinterTable(Settings):
+    """The printer's serial and firmware facts (`neatskin.gcode.profile.PrinterProfile` derives from it)."""
+
+    TOML_TABLE = "printer"
     name: str | None = setting(None, max_len=200, default_doc="the file's stem", doc="printer name")
     description: str = setting("", allow_empty=True, doc="free text")
     firmware: str = setting("Marlin", max_len=64, doc="firmware family")
@@ -334,13 +350,13 @@ class PrinterTable:
 
 
 @dataclass(frozen=True)
-class BedTable:
+class BedTable(Settings):
     size_x_mm: float = setting(unit="mm", gt=0, le=10_000, doc="bed size")
     size_y_mm: float = setting(unit="mm", gt=0, le=10_000, doc="bed size")
 
 
 @dataclass(frozen=True)
-class SoftLimitsTable:
+class SoftLimitsTable(Settings):
     min_x_mm: float = setting(unit="mm", ge=-10_000, le=10_000, doc="M211 soft limit")
     min_y_mm: float = setting(unit="mm", ge=-10_000, le=10_000, doc="M211 soft limit")
     min_z_mm: float = setting(unit="mm", ge=-10_000, le=10_000, doc="M211 soft limit")
@@ -350,21 +366,21 @@ class SoftLimitsTable:
 
 
 @dataclass(frozen=True)
-class MaxFeedTable:
+class MaxFeedTable(Settings):
     x_mm_s: float = setting(unit="mm/s", gt=0, le=10_000, doc="DEFAULT_MAX_FEEDRATE")
     y_mm_s: float = setting(unit="mm/s", gt=0, le=10_000, doc="DEFAULT_MAX_FEEDRATE")
     z_mm_s: float = setting(unit="mm/s", gt=0, le=10_000, doc="DEFAULT_MAX_FEEDRATE")
 
 
 @dataclass(frozen=True)
-class MaxAccelTable:
+class MaxAccelTable(Settings):
     x_mm_s2: float = setting(unit="mm/s^2", gt=0, le=1e6, doc="DEFAULT_MAX_ACCELERATION")
     y_mm_s2: float = setting(unit="mm/s^2", gt=0, le=1e6, doc="DEFAULT_MAX_ACCELERATION")
     z_mm_s2: float = setting(unit="mm/s^2", gt=0, le=1e6, doc="DEFAULT_MAX_ACCELERATION")
 
 
 @dataclass(frozen=True)
-class MotionTable:
+class MotionTable(Settings):
     accel_mm_s2: float = setting(unit="mm/s^2", gt=0, le=1e6, doc="M204 acceleration")
     travel_feed_mm_s: float = setting(unit="mm/s", gt=0, le=10_000, doc="xy travel at the safe height")
     z_feed_mm_s: float = setting(unit="mm/s", gt=0, le=10_000, doc="lifting and descending to contact")
@@ -373,7 +389,7 @@ class MotionTable:
 
 
 @dataclass(frozen=True)
-class ParkTable:
+class ParkTable(Settings):
     x_mm: float | None = setting(
         None,
         unit="mm",
@@ -401,7 +417,7 @@ class ParkTable:
 
 
 @dataclass(frozen=True)
-class CalibrationTable:
+class CalibrationTable(Settings):
     offset_x_mm: float = setting(unit="mm", ge=-10_000, le=10_000, doc="printer xy of the sensor's origin")
     offset_y_mm: float = setting(unit="mm", ge=-10_000, le=10_000, doc="printer xy of the sensor's origin")
     rotation_deg: float = setting(
@@ -411,7 +427,7 @@ class CalibrationTable:
 
 
 @dataclass(frozen=True)
-class PrinterFile:
+class PrinterFile(Settings):
     """A printer profile (protocols/printers/paper.toml)."""
 
     printer: PrinterTable
@@ -422,12 +438,3 @@ class PrinterFile:
     motion: MotionTable
     calibration: CalibrationTable
     park: ParkTable = ParkTable()
-
-
-FILE_KINDS: dict[str, type] = {
-    "protocol": ProtocolFile,
-    "layout": LayoutFile,
-    "wiring": WiringFile,
-    "printer profile": PrinterFile,
-    "design study": StudyFile,
-}

@@ -26,6 +26,7 @@ from neatskin.errors import ConfigError, Problem
 
 T = TypeVar("T")
 _META = "neatskin.setting"
+_NOT_A_KEY = "neatskin.not_a_key"
 
 
 @dataclass(frozen=True)
@@ -49,6 +50,9 @@ class Constraint:
     default_doc: str = ""  # how a derived default (None in the schema) is computed
 
 
+_NO_CONSTRAINT = Constraint()
+
+
 def setting(default: Any = MISSING, *, key: str | None = None, **constraint: Any) -> Any:
     """A schema field: its default (none = required), its TOML key if not the field's name, its `Constraint`."""
     meta: dict[str, Any] = {_META: Constraint(**constraint)}
@@ -59,16 +63,37 @@ def setting(default: Any = MISSING, *, key: str | None = None, **constraint: Any
     return dataclasses.field(default=default, metadata=meta)
 
 
+def source_field() -> Any:
+    """A field that is not a key of the file: the file a value was read from (set by the engine), for its errors."""
+    return dataclasses.field(default="<memory>", compare=False, metadata={_NOT_A_KEY: True})
+
+
+def key_fields(schema: type) -> tuple[dataclasses.Field, ...]:
+    """The fields that are keys of the file (a `source_field` is not)."""
+    return tuple(f for f in dataclasses.fields(schema) if not f.metadata.get(_NOT_A_KEY))
+
+
+def is_setting(f: dataclasses.Field) -> bool:
+    return _META in f.metadata
+
+
 def constraint_of(f: dataclasses.Field) -> Constraint:
-    return f.metadata.get(_META, Constraint())
+    return f.metadata.get(_META, _NO_CONSTRAINT)
 
 
 def is_schema(tp: Any) -> bool:
     return isinstance(tp, type) and dataclasses.is_dataclass(tp)
 
 
+_HINTS: dict[type, dict[str, Any]] = {}
+
+
 def hints(schema: type) -> dict[str, Any]:
-    return typing.get_type_hints(schema)
+    """The field types of a schema (resolved once per class: every construction checks its fields)."""
+    found = _HINTS.get(schema)
+    if found is None:
+        found = _HINTS[schema] = typing.get_type_hints(schema)
+    return found
 
 
 def toml_key(f: dataclasses.Field) -> str:
@@ -83,7 +108,7 @@ def is_required(f: dataclasses.Field) -> bool:
 class _Walker:
     """One parse: the source file and the problems found so far."""
 
-    def __init__(self, source: str) -> None:
+    def __init__(self, source: str | None) -> None:
         self.source = source
         self.problems: list[Problem] = []
 
@@ -100,7 +125,7 @@ class _Walker:
         if not isinstance(data, Mapping):
             self.not_a_table(data, where)
             return None
-        fields = dataclasses.fields(schema)
+        fields = key_fields(schema)
         by_key = {toml_key(f): f for f in fields}
         types_ = hints(schema)
         if not where and not data and any(is_required(f) for f in fields):
@@ -138,7 +163,22 @@ class _Walker:
             return values
         if partial:
             return values if ok else None
-        return schema(**values) if ok else None
+        return self.construct(schema, values, where) if ok else None
+
+    def construct(self, schema: type, values: dict[str, Any], where: str) -> Any:
+        """The instance; the checks its type makes at construction (across its keys) become problems here."""
+        if "source" in {f.name for f in dataclasses.fields(schema)} and "source" not in values:
+            values = {**values, "source": self.source}
+        try:
+            return schema(**values)
+        except ConfigError as exc:
+            own = getattr(schema, "TOML_TABLE", "")
+            for p in exc.problems:
+                field = p.field or ""
+                if own and (field == own or field.startswith(own + ".")):
+                    field = field[len(own) + 1 :]
+                self.problem(f"{where}.{field}" if where and field else (where or field), p.message, p.fix or "")
+            return None
 
     def not_a_table(self, data: Any, where: str) -> None:
         if isinstance(data, list) and data and all(isinstance(item, Mapping) for item in data):
@@ -183,6 +223,8 @@ class _Walker:
         if origin in (Union, types.UnionType):  # X | None: TOML has no null, so a present value is an X
             inner = [a for a in args if a is not type(None)]
             return self.value(inner[0], value, where, c, key)
+        if is_schema(tp) and isinstance(value, tp):  # built in Python, so checked at its construction
+            return value, True
         if is_schema(tp):
             result = self.table(tp, value, where)
             return result, result is not None
@@ -195,14 +237,14 @@ class _Walker:
         return self.scalar(tp, value, where, c, key)
 
     def sequence(self, args: tuple, value: Any, where: str, c: Constraint, key: str) -> tuple[Any, bool]:
-        if c.one_or_list and not isinstance(value, list) and len(args) == 2 and args[1] is Ellipsis:
+        if c.one_or_list and not isinstance(value, (list, tuple)) and len(args) == 2 and args[1] is Ellipsis:
             value = [value]
-        if not isinstance(value, list):
+        if not isinstance(value, (list, tuple)):  # a TOML array is a list; a value built in Python holds tuples
             self.problem(where, f"'{key}' must be a list, got {value!r}", _fix(key, c, tuple))
             return None, False
         if len(args) == 2 and args[1] is Ellipsis:
             item_types = [args[0]] * len(value)
-            if typing.get_origin(args[0]) is tuple and value and not any(isinstance(v, list) for v in value):
+            if typing.get_origin(args[0]) is tuple and value and not any(isinstance(v, (list, tuple)) for v in value):
                 # sizes = [3, 3] for [[3, 3]]: one problem for the list, not one per number
                 self.problem(where, f"'{key}' is a list of lists, got {_short_repr(value)}", _fix(key, c, tuple))
                 return None, False
@@ -237,7 +279,7 @@ class _Walker:
         return out, ok
 
     def scalar(self, tp: Any, value: Any, where: str, c: Constraint, key: str) -> tuple[Any, bool]:
-        fix = _fix(key, c, tp)
+        fix = _LazyFix(key, c, tp)  # formatted only for a problem: every construction checks
         if tp is bool:
             if not isinstance(value, bool):
                 self.problem(where, f"'{key}' must be true or false, got {value!r}", f"set {key} = true or false")
@@ -245,39 +287,51 @@ class _Walker:
             return value, True
         if tp is str:
             if not isinstance(value, str) or not (value or c.allow_empty):
-                self.problem(where, f"'{key}' must be a non-empty string, got {value!r}", fix)
+                self.problem(where, f"'{key}' must be a non-empty string, got {value!r}", str(fix))
                 return None, False
             if c.max_len is not None and len(value) > c.max_len:
-                self.problem(where, f"'{key}' is {len(value)} characters long, more than {c.max_len}", fix)
+                self.problem(where, f"'{key}' is {len(value)} characters long, more than {c.max_len}", str(fix))
                 return None, False
             if c.choices and value not in c.choices:
                 close = difflib.get_close_matches(value, c.choices, n=1)
                 self.problem(
                     where,
                     f"'{key}' = {value!r} is not one of {', '.join(c.choices)}",
-                    (f"did you mean {close[0]!r}? " if close else "") + fix,
+                    (f"did you mean {close[0]!r}? " if close else "") + str(fix),
                 )
                 return None, False
             if c.pattern is not None and not re.fullmatch(c.pattern, value):
-                self.problem(where, f"'{key}' = {value!r} is not {c.pattern_text or 'allowed'}", fix)
+                self.problem(where, f"'{key}' = {value!r} is not {c.pattern_text or 'allowed'}", str(fix))
                 return None, False
             return value, True
         if tp is int:
             if isinstance(value, bool) or not isinstance(value, int):
-                self.problem(where, f"'{key}' must be an integer, got {value!r}", fix)
+                self.problem(where, f"'{key}' must be an integer, got {value!r}", str(fix))
                 return None, False
         elif tp is float:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                self.problem(where, f"'{key}' must be a finite number, got {value!r}", fix)
+                self.problem(where, f"'{key}' must be a finite number, got {value!r}", str(fix))
                 return None, False
             value = float(value)
         else:  # pragma: no cover - a schema declared with a type the engine does not know
             raise TypeError(f"unsupported schema type {tp!r} at {where}")
         bad = _range_violation(value, c)
         if bad:
-            self.problem(where, f"'{key}' = {value!r} {bad}", fix)
+            self.problem(where, f"'{key}' = {value!r} {bad}", str(fix))
             return None, False
         return value, True
+
+
+class _LazyFix:
+    """The fix text of a value, formatted when a problem asks for it."""
+
+    __slots__ = ("key", "c", "tp")
+
+    def __init__(self, key: str, c: Constraint, tp: Any) -> None:
+        self.key, self.c, self.tp = key, c, tp
+
+    def __str__(self) -> str:
+        return _fix(self.key, self.c, self.tp)
 
 
 def _short_repr(value: Any, limit: int = 60) -> str:
@@ -328,8 +382,26 @@ def _fix(key: str, c: Constraint, tp: Any) -> str:
 
 
 def _key_list(schema: type, required: bool = False) -> str:
-    keys = [toml_key(f) for f in dataclasses.fields(schema) if is_required(f) or not required]
+    keys = [toml_key(f) for f in key_fields(schema) if is_required(f) or not required]
     return ", ".join(keys) if keys else "its keys"
+
+
+def check_value(
+    tp: Any, value: Any, c: Constraint, key: str, where: str, source: str | None
+) -> tuple[bool, Any, list[Problem]]:
+    """One value built in Python against its declaration, as the file reader checks it: good, normalised, problems."""
+    if value is None and type(None) in typing.get_args(tp):
+        return True, None, []
+    walker = _Walker(source)
+    got, good = walker.value(tp, value, where, c, key)
+    return good, got, walker.problems
+
+
+def build(schema: type[T], values: dict[str, Any], source: str, where: str = "") -> tuple[T | None, list[Problem]]:
+    """The instance built from values already read (None if its construction refuses them) and the problems."""
+    walker = _Walker(source)
+    result = walker.construct(schema, values, where)
+    return result, walker.problems
 
 
 def parse_collect(schema: type[T], data: Any, source: str, where: str = "") -> tuple[T | None, list[Problem]]:
@@ -361,41 +433,6 @@ def parse_valid(schema: type[T], data: Any, source: str, where: str = "") -> tup
     walker = _Walker(source)
     result = walker.table(schema, data, where, valid=True)
     return (result or {}), walker.problems
-
-
-def parse_tables(schema: type, data: Any, source: str) -> tuple[dict[str, Any], list[Problem]]:
-    """Every top-level field of `schema` that reads cleanly (defaults included), and every problem.
-
-    For loaders whose cross-field checks should still run on the good tables of a file with bad ones."""
-    walker = _Walker(source)
-    if not isinstance(data, Mapping):
-        walker.problem("", f"the file must hold TOML tables, got {type(data).__name__}", "check the file")
-        return {}, walker.problems
-    wrong = wrong_kind_problem(schema, data, source)
-    if wrong is not None:
-        return {}, [wrong]
-    return walker.table(schema, data, "", valid=True), walker.problems
-
-
-def wrong_kind_problem(schema: type, data: Mapping, source: str) -> Problem | None:
-    """A file of another kind (a layout named where a wiring belongs): one problem, not one per table."""
-    from neatskin.config.files import FILE_KINDS  # the schemas import this engine
-
-    own_keys = {toml_key(f) for f in dataclasses.fields(schema)}
-    if not data or own_keys & set(data):
-        return None
-    own = next((title for title, kind in FILE_KINDS.items() if kind is schema), "")
-    for title, kind in FILE_KINDS.items():
-        required = [toml_key(f) for f in dataclasses.fields(kind) if is_required(f)]
-        if kind is not schema and required and all(key in data for key in required):
-            shown = ", ".join(f"[{key}]" for key in required)
-            return Problem(
-                f"this is a {title} file (it has {shown}), not a {own or 'file of this kind'}",
-                source,
-                None,
-                f"name a {own} file here: check the protocol's [files] entry or the path given",
-            )
-    return None
 
 
 def unknown_key_problems(data: Mapping, known: tuple[str, ...], source: str, where: str = "") -> list[Problem]:

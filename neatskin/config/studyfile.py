@@ -11,13 +11,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from neatskin.config.schema import setting
+from neatskin.config.settings import Settings
 
 STUDY_STRATEGIES = ("boundary", "interior", "every_k", "explicit", "optimised")
 STUDY_SCENES = ("ideal", "paper-like")
 
 
 @dataclass(frozen=True)
-class StudyTable:
+class StudyTable(Settings):
     name: str | None = setting(None, max_len=200, default_doc="the file's stem", doc="the study's name")
     seed: int = setting(0, ge=0, doc="fixes the optimiser's restarts and the simulated datasets")
     description: str = setting("", allow_empty=True, doc="free text")
@@ -32,7 +33,7 @@ class StudyTable:
 
 
 @dataclass(frozen=True)
-class LayoutsTable:
+class LayoutsTable(Settings):
     """The grid layouts swept: every size x pitch x channel width x channel height."""
 
     sizes: tuple[tuple[int, int], ...] = setting(
@@ -47,7 +48,7 @@ class LayoutsTable:
 
 
 @dataclass(frozen=True)
-class ExplicitEntry:
+class ExplicitEntry(Settings):
     junctions_mm: tuple[tuple[float, float], ...] = setting(
         unit="mm",
         min_items=2,
@@ -58,7 +59,7 @@ class ExplicitEntry:
 
 
 @dataclass(frozen=True)
-class ElectrodesTable:
+class ElectrodesTable(Settings):
     """The electrode counts and placement strategies swept."""
 
     counts: tuple[int, ...] = setting((8,), ge=2, le=10_000, min_items=1, one_or_list=True, doc="swept")
@@ -71,7 +72,7 @@ class ElectrodesTable:
 
 
 @dataclass(frozen=True)
-class ProbesTable:
+class ProbesTable(Settings):
     diameter_mm: tuple[float, ...] = setting((5.5,), unit="mm", gt=0, min_items=1, one_or_list=True, doc="swept")
     depth_mm: tuple[float, ...] = setting(
         (3.5,), unit="mm", gt=0, min_items=1, one_or_list=True, doc="swept; below the top surface"
@@ -79,7 +80,7 @@ class ProbesTable:
 
 
 @dataclass(frozen=True)
-class StudyExcitationTable:
+class StudyExcitationTable(Settings):
     amplitude_a: float = setting(
         0.0005, unit="A", gt=0, doc="peak excitation current (the paper's 2 mA exceeds the mux rails: docs/design.md)"
     )
@@ -95,7 +96,7 @@ class StudyExcitationTable:
 
 
 @dataclass(frozen=True)
-class StudyAcquisitionTable:
+class StudyAcquisitionTable(Settings):
     rate_hz: float = setting(10_000.0, unit="Hz", gt=0, doc="sample clock")
     settle_samples: int = setting(20, ge=0, doc="discarded after every mux switch")
     live_samples: int = setting(100, ge=1, doc="measured samples per pair and sweep")
@@ -105,7 +106,7 @@ class StudyAcquisitionTable:
 
 
 @dataclass(frozen=True)
-class NoiseTable:
+class NoiseTable(Settings):
     model: str = setting("lockin", choices=("lockin", "fixed"), doc="the simulated DAQ's noise, or a fixed std")
     std_ohm: float = setting(1.0, unit="ohm", gt=0, doc="the fixed model's std of R")
     voltage_noise_v: float = setting(2e-3, unit="V", ge=0, doc="white noise on the voltage channel (assumed)")
@@ -115,7 +116,7 @@ class NoiseTable:
 
 
 @dataclass(frozen=True)
-class LearnedTable:
+class LearnedTable(Settings):
     """A learned error from a simulated features-only dataset: positions x repeats, grouped split by position."""
 
     enabled: bool = setting(False, doc="estimate the learned error")
@@ -127,7 +128,7 @@ class LearnedTable:
 
 
 @dataclass(frozen=True)
-class InversionTable:
+class InversionTable(Settings):
     """Locate each press of the map with the skin model itself."""
 
     enabled: bool = setting(False, doc="run the model inversion")
@@ -141,7 +142,7 @@ class InversionTable:
 
 
 @dataclass(frozen=True)
-class StudyFile:
+class StudyFile(Settings):
     """A design study (protocols/studies/grid5.toml); every table is optional, lists are the values swept."""
 
     study: StudyTable = StudyTable()

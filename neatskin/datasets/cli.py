@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
+
+from neatskin.cligroups import add_out
+from neatskin.errors import CheckFailed
 
 
 def register(subparsers) -> None:
@@ -25,7 +27,7 @@ def register(subparsers) -> None:
 
     val = sub.add_parser(
         "validate",
-        help="check schema, NaNs, duplicates, bounds, flags and the manifest; exit status 1 when anything is wrong",
+        help="check schema, NaNs, duplicates, bounds, flags and the manifest; exit status 1 when anything is wrong (docs/cli.md)",
     )
     val.add_argument("path", type=Path, help="campaign folder or .parquet file")
     val.add_argument("--layout", type=Path, help="skin layout TOML (default: the one the manifest names)")
@@ -34,7 +36,7 @@ def register(subparsers) -> None:
 
     mer = sub.add_parser("merge", help="merge campaigns into one dataset (press and position ids re-keyed)")
     mer.add_argument("folders", type=Path, nargs="+", help="campaign folders (two or more)")
-    mer.add_argument("-o", "--output", type=Path, required=True, help="new folder to write")
+    add_out(mer, "new folder to write", required=True)
     mer.add_argument("--allow-mixed", action="store_true", help="merge campaigns on different layouts or wirings")
     mer.add_argument(
         "--allow-incomplete",
@@ -45,22 +47,24 @@ def register(subparsers) -> None:
 
     spl = sub.add_parser("split", help="split into train/ and test/ by position (repeats never straddle)")
     spl.add_argument("path", type=Path, help="campaign folder")
-    spl.add_argument("-o", "--output", type=Path, required=True, help="new folder for train/ and test/")
+    add_out(spl, "new folder for train/ and test/", required=True)
     spl.add_argument("--test-fraction", type=float, default=0.2, help="share of positions in test (default 0.2)")
     spl.add_argument("--seed", type=int, default=0, help="seed of the position shuffle (default 0)")
     spl.set_defaults(handler=_split)
 
     exp = sub.add_parser("export", help="export the presses as one parquet or CSV file")
     exp.add_argument("path", type=Path, help="campaign folder or .parquet file")
-    exp.add_argument("-o", "--output", type=Path, required=True, help="file to write")
+    add_out(exp, "file to write", required=True)
     exp.add_argument("--format", choices=("parquet", "csv"), help="default: from the output's suffix")
     exp.add_argument("--drop-flagged", action="store_true", help="leave out presses that carry flags")
     exp.set_defaults(handler=_export)
 
     plot = sub.add_parser("plot", help="draw the sensitivity map (paper Fig. 8) and/or the press map as PNG")
     plot.add_argument("path", type=Path, help="campaign folder")
-    plot.add_argument("-o", "--output", type=Path, required=True, help="folder for the PNG files")
-    plot.add_argument("--kind", choices=("sensitivity", "presses", "all"), default="all")
+    add_out(plot, "folder for the PNG files", required=True)
+    plot.add_argument(
+        "--kind", choices=("sensitivity", "presses", "all"), default="all", help="which maps to draw (default all)"
+    )
     plot.add_argument("--layout", type=Path, help="skin layout TOML (default: the one the manifest names)")
     plot.add_argument("--press", type=int, metavar="ID", help="also one press: R per pair and FSR against time")
     plot.add_argument("--drift", action="store_true", help="also every pair's baseline R against press order")
@@ -90,11 +94,8 @@ def _validate(args: argparse.Namespace) -> int:
 
     layout = load_layout(args.layout) if args.layout else None
     problems = validate_dataset(args.path, layout=layout, allow_flagged=args.allow_flagged)
-    for problem in problems:
-        print(problem, file=sys.stderr)
-    if problems:
-        print(f"{args.path}: {len(problems)} problem(s)", file=sys.stderr)
-        return 1
+    if problems:  # the check's verdict: printed, one line per problem, by neatskin.cli with exit status 1
+        raise CheckFailed(problems=problems)
     print(f"{args.path}: valid")
     return 0
 
@@ -103,7 +104,7 @@ def _merge(args: argparse.Namespace) -> int:
     from neatskin.datasets.curate import merge
     from neatskin.datasets.reader import read_metadata
 
-    out = merge(args.folders, args.output, allow_mixed=args.allow_mixed, allow_incomplete=args.allow_incomplete)
+    out = merge(args.folders, args.out, allow_mixed=args.allow_mixed, allow_incomplete=args.allow_incomplete)
     sources = read_metadata(out)["merged_from"]
     for source in sources:
         ids = sorted(set(source["position_ids"].values()))
@@ -120,7 +121,7 @@ def _split(args: argparse.Namespace) -> int:
     from neatskin.datasets.curate import split
     from neatskin.datasets.reader import read_presses
 
-    for name, folder in split(args.path, args.output, args.test_fraction, args.seed).items():
+    for name, folder in split(args.path, args.out, args.test_fraction, args.seed).items():
         df = read_presses(folder)
         print(f"{name}: {folder} ({len(df)} presses, {df['position_id'].nunique()} positions)")
     return 0
@@ -129,8 +130,8 @@ def _split(args: argparse.Namespace) -> int:
 def _export(args: argparse.Namespace) -> int:
     from neatskin.datasets.curate import export, export_format
 
-    fmt = export_format(args.output, args.format)
-    print(f"wrote {export(args.path, args.output, fmt, drop_flagged=args.drop_flagged)}")
+    fmt = export_format(args.out, args.format)
+    print(f"wrote {export(args.path, args.out, fmt, drop_flagged=args.drop_flagged)}")
     return 0
 
 
@@ -138,14 +139,14 @@ def _plot(args: argparse.Namespace) -> int:
     from neatskin.datasets.plots import plot_press_map, plot_sensitivity_map
 
     if args.kind in ("sensitivity", "all"):
-        print(f"wrote {plot_sensitivity_map(args.path, args.output / 'sensitivity_map.png', args.layout)}")
+        print(f"wrote {plot_sensitivity_map(args.path, args.out / 'sensitivity_map.png', args.layout)}")
     if args.kind in ("presses", "all"):
-        print(f"wrote {plot_press_map(args.path, args.output / 'press_map.png', args.layout)}")
+        print(f"wrote {plot_press_map(args.path, args.out / 'press_map.png', args.layout)}")
     if args.press is not None or args.drift:
         from neatskin.datasets.pressplots import plot_drift, plot_press
 
         if args.press is not None:
-            print(f"wrote {plot_press(args.path, args.press, args.output / f'press-{args.press}.png')}")
+            print(f"wrote {plot_press(args.path, args.press, args.out / f'press-{args.press}.png')}")
         if args.drift:
-            print(f"wrote {plot_drift(args.path, args.output / 'drift.png')}")
+            print(f"wrote {plot_drift(args.path, args.out / 'drift.png')}")
     return 0

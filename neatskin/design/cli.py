@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 
+from neatskin.cligroups import add_out, add_quiet
+
 
 def register(subparsers) -> None:
     design = subparsers.add_parser(
@@ -20,13 +22,13 @@ def register(subparsers) -> None:
         "candidates.parquet, maps/ and report.md with the Pareto front. A killed run resumes where it stopped.",
     )
     study.add_argument("study", help="study TOML (protocols/studies/... resolves to the packaged copy)")
-    study.add_argument("--out", default=None, help="output folder (default out/design/<study name>)")
+    add_out(study, "output folder (default out/design/<study name>)")
     study.add_argument("--jobs", type=int, default=1, help="local worker processes (joblib; default 1)")
     study.add_argument("--scheduler", choices=("local", "dask"), default="local", help="where candidates run")
     study.add_argument(
         "--address", default=None, help="Dask scheduler address, tcp://HOST:PORT (with --scheduler dask)"
     )
-    study.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_quiet(study)
     study.add_argument("--no-png", action="store_true", help="skip the per-candidate map PNGs (parquet maps only)")
     study.set_defaults(handler=study_handler)
     validate = commands.add_parser(
@@ -38,7 +40,7 @@ def register(subparsers) -> None:
         "'Validation against the full pipeline'.",
     )
     validate.add_argument("study", help="study TOML (its noise model and seed are used)")
-    validate.add_argument("--out", default=None, help="output folder (default out/design/<study name>)")
+    add_out(validate, "output folder (default out/design/<study name>)")
     validate.add_argument(
         "--protocol", default="protocols/paper.toml", help="campaign protocol the dry run is based on"
     )
@@ -46,7 +48,7 @@ def register(subparsers) -> None:
     validate.add_argument("--repeats", type=int, default=4, help="presses per position (default 4)")
     validate.add_argument("--split-repeats", type=int, default=5, help="grouped split repeats (default 5)")
     validate.add_argument("--folds", type=int, default=5, help="grouped folds over positions (default 5)")
-    validate.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_quiet(validate)
     validate.set_defaults(handler=validate_handler)
 
 
@@ -62,7 +64,7 @@ def study_handler(args: argparse.Namespace) -> int:
 
     def progress(done: int, total: int) -> None:
         nonlocal bar
-        if args.no_progress:
+        if args.quiet:
             return
         if bar is None:
             from tqdm import tqdm
@@ -109,7 +111,7 @@ def validate_handler(args: argparse.Namespace) -> int:
         repeats=args.repeats,
         split_repeats=args.split_repeats,
         folds=args.folds,
-        progress=not args.no_progress,
+        progress=not args.quiet,
     )
     print(f"study (features-only):     {v.study_mean_mm:.4f} +- {v.study_std_mm:.3f} mm")
     print(

@@ -13,6 +13,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from neatskin.errors import ConfigError, Problem
+from neatskin.gcode.emit import PHASES
 from neatskin.gcode.machine import Machine, Move
 from neatskin.gcode.profile import PrinterProfile
 
@@ -187,8 +188,6 @@ def check_moves(
 def check_phases(lines, source: str = "<program>", line_numbers: Sequence[int] | None = None) -> list[Problem]:
     """Problems with the marked phases: every `NS press=<id> phase=<name>` marker must be followed by
     commands ending in M400 before the next marker, phases in order travel, descend, press, lift."""
-    from neatskin.gcode.program import PHASES
-
     problems: list[Problem] = []
     expected = 0
     previous: tuple[str, str] | None = None  # (where, marker text)

@@ -6,8 +6,10 @@ A thin layer over neatskin.gcode.spec, .parse, .bounds, .motion and .calibration
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
+
+from neatskin.cligroups import add_out
+from neatskin.errors import CheckFailed, ConfigError
 
 
 def register(subparsers) -> None:
@@ -18,7 +20,7 @@ def register(subparsers) -> None:
 
     gen = sub.add_parser("generate", help="write the press program of a protocol as G-code")
     gen.add_argument("protocol", type=Path, help="protocol TOML (e.g. protocols/paper.toml)")
-    gen.add_argument("-o", "--output", type=Path, required=True, help="G-code file to write")
+    add_out(gen, "G-code file to write", required=True)
     gen.add_argument(
         "--no-hold", action="store_true", help="leave out the G4 hold (the runner's acquisition is the hold)"
     )
@@ -48,16 +50,15 @@ def register(subparsers) -> None:
 
 
 def _generate(args: argparse.Namespace) -> int:
-    from neatskin.errors import ConfigError
     from neatskin.gcode.emit import check_output_path, program_lines, write_lines_atomic, write_text_atomic
     from neatskin.gcode.motion import estimate_program_time
     from neatskin.gcode.spec import build_from_protocol
 
-    for path, option in ((args.output, "--output"), (args.positions, "--positions"), (args.plot, "--plot")):
+    for path, option in ((args.out, "--out"), (args.positions, "--positions"), (args.plot, "--plot")):
         if path is not None:
             check_output_path(path, option)
     program, layout, profile = build_from_protocol(args.protocol, hold_in_gcode=not args.no_hold)
-    n_lines = write_lines_atomic(args.output, program_lines(program), "ascii", "--output")  # never held whole
+    n_lines = write_lines_atomic(args.out, program_lines(program), "ascii", "--out")  # never held whole
     if args.positions is not None:
         ps = program.positions
         rows = ["position_id,x_mm,y_mm,feature"] + [
@@ -85,7 +86,7 @@ def _generate(args: argparse.Namespace) -> int:
                 fix="give --plot a writable .png path",
             ) from exc
     estimate = estimate_program_time(program.command_lines(), profile)
-    print(f"wrote {args.output}: {len(program.positions)} positions, {len(program.presses)} presses, {n_lines} lines")
+    print(f"wrote {args.out}: {len(program.positions)} positions, {len(program.presses)} presses, {n_lines} lines")
     print(
         f"estimated printer time: {_hms(estimate.total_s)} (motion {_hms(estimate.motion_s)}, "
         f"dwell {_hms(estimate.dwell_s)}, homing {_hms(estimate.homing_s)})"
@@ -100,7 +101,6 @@ def _generate(args: argparse.Namespace) -> int:
 
 
 def _check(args: argparse.Namespace) -> int:
-    from neatskin.errors import ConfigError
     from neatskin.gcode.bounds import check_commands, check_moves, check_phases
     from neatskin.gcode.motion import estimate_program_time
     from neatskin.gcode.parse import parse_numbered, read_program_file
@@ -109,9 +109,12 @@ def _check(args: argparse.Namespace) -> int:
     source = str(args.file)
     # the profile first: a wrong --profile is one error before anything is printed
     profile = load_printer_profile(args.profile) if args.profile is not None else None
-    numbered = parse_numbered(read_program_file(args.file), source=source)
+    try:
+        numbered = parse_numbered(read_program_file(args.file), source=source)
+    except ConfigError as exc:  # the file checked is not G-code a printer would take: the check's verdict
+        raise CheckFailed(problems=exc.problems) from exc
     if not numbered:
-        raise ConfigError(
+        raise CheckFailed(
             "holds no G-code command (empty, or comments only): not a press program",
             file=source,
             fix="give the .gcode file written by `neatskin gcode generate`",
@@ -132,20 +135,18 @@ def _check(args: argparse.Namespace) -> int:
     )
     problems = check_commands(lines, source, numbers) + check_phases(lines, source, numbers)
     if profile is None:
-        for problem in problems:
-            print(f"refused: {problem}", file=sys.stderr)
         print("no --profile given: bounds and time not checked")
-        return 1 if problems else 0
+        if problems:
+            raise CheckFailed(problems=problems)
+        return 0
     problems = check_moves(profile, lines, source, numbers) + problems
     estimate = estimate_program_time(lines, profile)
     print(
         f"estimated printer time on {profile.name}: {_hms(estimate.total_s)} ({estimate.moves} moves, "
         f"{estimate.path_mm / 1000:.1f} m of path)"
     )
-    if problems:
-        for problem in problems:
-            print(f"refused: {problem}", file=sys.stderr)
-        return 1
+    if problems:  # printed by neatskin.cli, one line per problem, exit status 1
+        raise CheckFailed(problems=problems)
     print(
         "bounds: every move inside the bed and the soft limits, feeds within the maxima; "
         "every marked phase ends in M400; only press-program commands (no EEPROM, heater or M112)"
@@ -154,7 +155,6 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _calibrate(args: argparse.Namespace) -> int:
-    from neatskin.errors import ConfigError
     from neatskin.gcode.calibration import fit_calibration
 
     sensor, printer = [], []

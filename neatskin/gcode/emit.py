@@ -9,15 +9,88 @@ from __future__ import annotations
 
 import os
 import unicodedata
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sized
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import neatskin
 from neatskin.errors import ConfigError
 
-if TYPE_CHECKING:
-    from neatskin.gcode.program import PressProgram
+PHASES = ("travel", "descend", "press", "lift")
+"""The phases of a press, in order; each starts with a marker (`marker`) and ends in M400."""
+
+
+class _Calibration(Protocol):
+    @property
+    def offset_x_mm(self) -> float: ...
+    @property
+    def offset_y_mm(self) -> float: ...
+    @property
+    def rotation_deg(self) -> float: ...
+    @property
+    def surface_z_mm(self) -> float: ...
+
+
+class _Phase(Protocol):
+    @property
+    def lines(self) -> tuple[str, ...]: ...
+
+
+class _Block(Protocol):
+    @property
+    def press_id(self) -> int: ...
+    @property
+    def position_id(self) -> int: ...
+    @property
+    def repeat(self) -> int: ...
+    @property
+    def x_mm(self) -> float: ...
+    @property
+    def y_mm(self) -> float: ...
+
+    @property
+    def phases(self) -> tuple[_Phase, ...]: ...
+
+
+class PressProgram(Protocol):
+    """What the text of a program is made of (`neatskin.gcode.program.PressProgram` has it): a structural type,
+    so this module, the lowest of gcode/, imports no program."""
+
+    @property
+    def name(self) -> str: ...
+    @property
+    def seed(self) -> int: ...
+    @property
+    def layout_name(self) -> str: ...
+    @property
+    def printer_name(self) -> str: ...
+    @property
+    def depth_mm(self) -> float: ...
+    @property
+    def hold_s(self) -> float: ...
+    @property
+    def hold_in_gcode(self) -> bool: ...
+    @property
+    def route_mm(self) -> float: ...
+    @property
+    def route_unordered_mm(self) -> float | None: ...
+    @property
+    def preamble(self) -> tuple[str, ...]: ...
+    @property
+    def postamble(self) -> tuple[str, ...]: ...
+
+    @property
+    def calibration(self) -> _Calibration: ...
+    @property
+    def positions(self) -> Sized: ...
+    @property
+    def presses(self) -> _Presses: ...
+
+
+class _Presses(Protocol):
+    def __len__(self) -> int: ...
+    def __iter__(self) -> Iterator[_Block]: ...
+
 
 FORBIDDEN = {"\n": "a newline", "\r": "a carriage return", ";": "';'", "*": "'*'"}
 MARKER = "M118 E1 NS"

@@ -14,97 +14,28 @@ Strategies:
   channels evenly spread along their length, one channel width clear of the junctions where
   strips overlap); with fewer positions than features, channels and
   faces alternate in a seeded order so both kinds are covered.
-Options: `min_spacing_mm` between positions, keep-out circles (`keep_out`) and a keep-out
+`PositionSpec`, the `[positions]` table, is declared (and validated at construction) in
+`neatskin.config.files`. Options: `min_spacing_mm` between positions, keep-out circles (`keep_out`) and a keep-out
 radius around every electrode's fitting (`electrode_keep_out_mm`).
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from neatskin.config.files import POSITION_STRATEGIES, PositionSpec, square_grid
 from neatskin.errors import ConfigError
 from neatskin.layout import Layout
 
 if TYPE_CHECKING:  # matplotlib (0.3 s to import) only where a point-in-polygon test runs
     from matplotlib.path import Path as PolygonPath
 
-STRATEGIES = ("paper", "grid", "stratified")
+STRATEGIES = POSITION_STRATEGIES
 _DECIMALS = 3
 _MAX_ATTEMPTS = 200
-
-
-@dataclass(frozen=True)
-class PositionSpec:
-    strategy: str = "paper"
-    count: int = 100
-    seed: int = 0
-    min_spacing_mm: float = 0.0
-    electrode_keep_out_mm: float = 0.0
-    keep_out: tuple[tuple[float, float, float], ...] = ()  # (x_mm, y_mm, radius_mm) circles
-    channel_fraction: float | None = None
-    grid_shape: tuple[int, int] | None = None  # (rows, cols) for "grid"
-    source: str = field(default="<memory>", compare=False)
-
-    def __post_init__(self) -> None:
-        where = "positions"
-        if self.strategy not in STRATEGIES:
-            raise ConfigError(
-                f"unknown strategy {self.strategy!r}",
-                file=self.source,
-                field=f"{where}.strategy",
-                fix=f"use one of {', '.join(STRATEGIES)}",
-            )
-        if isinstance(self.count, bool) or not isinstance(self.count, int) or self.count < 1:
-            raise ConfigError(
-                f"count must be a positive integer, got {self.count!r}",
-                file=self.source,
-                field=f"{where}.count",
-                fix="set count to the number of distinct press positions",
-            )
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise ConfigError(
-                f"seed must be a non-negative integer, got {self.seed!r}",
-                file=self.source,
-                field=f"{where}.seed",
-                fix="set seed to a whole number >= 0",
-            )
-        for key in ("min_spacing_mm", "electrode_keep_out_mm"):
-            value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-                raise ConfigError(
-                    f"{key} must be a number >= 0, got {value!r}",
-                    file=self.source,
-                    field=f"{where}.{key}",
-                    fix=f"set {key} >= 0 (0 turns it off)",
-                )
-        if self.channel_fraction is not None and not 0 <= self.channel_fraction <= 1:
-            raise ConfigError(
-                f"channel_fraction must lie in [0, 1], got {self.channel_fraction!r}",
-                file=self.source,
-                field=f"{where}.channel_fraction",
-                fix="set a share between 0 and 1, or leave it out",
-            )
-        for k, circle in enumerate(self.keep_out):
-            if len(circle) != 3 or not all(math.isfinite(v) for v in circle) or circle[2] <= 0:
-                raise ConfigError(
-                    f"keep-out zone {circle!r} is not (x_mm, y_mm, radius_mm > 0)",
-                    file=self.source,
-                    field=f"{where}.keep_out[{k}]",
-                    fix="write each zone as [x_mm, y_mm, radius_mm]",
-                )
-        if self.strategy == "grid":
-            rows, cols = self.grid_shape or _square(self.count)
-            if rows * cols != self.count or rows < 1 or cols < 1:
-                raise ConfigError(
-                    f"a grid of {self.count} positions needs grid_shape rows x cols = count",
-                    file=self.source,
-                    field=f"{where}.grid_shape",
-                    fix="give grid_shape = [rows, cols] with rows * cols = count, or a square count",
-                )
 
 
 @dataclass(frozen=True)
@@ -129,7 +60,7 @@ class PositionSet:
 
 def generate_positions(layout: Layout, spec: PositionSpec) -> PositionSet:
     """Press positions for `layout` under `spec`; the same inputs always give the same positions."""
-    rng = np.random.default_rng(spec.seed)
+    rng = np.random.default_rng(0 if spec.seed is None else spec.seed)  # None: a protocol gives campaign.seed
     if spec.strategy == "grid":
         xy = _grid(layout, spec)
     elif spec.strategy == "paper":
@@ -275,7 +206,7 @@ def _accept(layout: Layout, spec: PositionSpec, draw, n: int, taken: np.ndarray 
 
 
 def _grid(layout: Layout, spec: PositionSpec) -> np.ndarray:
-    rows, cols = spec.grid_shape or _square(spec.count)
+    rows, cols = spec.grid_shape or square_grid(spec.count)
     x0, y0, x1, y1 = layout.bounds_mm
     gx, gy = np.meshgrid(np.linspace(x0, x1, cols), np.linspace(y0, y1, rows))
     pts = np.column_stack([gx.ravel(), gy.ravel()])
@@ -325,8 +256,3 @@ def _stratified(layout: Layout, spec: PositionSpec, rng: np.random.Generator) ->
 
         out = np.vstack([out, _accept(layout, spec, draw, int(m), taken=out)])
     return out
-
-
-def _square(count: int) -> tuple[int, int]:
-    side = math.isqrt(count)
-    return (side, side) if side * side == count else (0, 0)

@@ -15,6 +15,7 @@ from types import SimpleNamespace
 
 from neatskin.config import parse_tables
 from neatskin.config.files import MotionTable, ParkTable, PrinterFile, PrinterTable
+from neatskin.config.schema import source_field
 from neatskin.errors import ConfigError, Problem
 from neatskin.gcode.calibration import Calibration
 from neatskin.tomlfile import read_toml, resolve_path
@@ -32,9 +33,11 @@ class Axes:
         return iter((self.x, self.y, self.z))
 
 
-@dataclass(frozen=True)
-class PrinterProfile:
-    name: str
+@dataclass(frozen=True, kw_only=True)
+class PrinterProfile(PrinterTable):
+    """A whole printer profile: the `[printer]` table's settings (declared once, in `PrinterTable`, and checked
+    at construction) and the geometry, motion and calibration the loader gathers from the other tables."""
+
     bed_x_mm: float
     bed_y_mm: float
     soft_min_mm: Axes
@@ -48,19 +51,20 @@ class PrinterProfile:
     safe_height_mm: float
     park_mm: Axes
     calibration: Calibration
-    baud_rate: int = 115200
-    planner_buffer_size: int = 16
-    rx_buffer_size: int = 128
-    homing_time_s: float = 20.0
-    stepper_timeout_s: float = 120.0  # Marlin's DEFAULT_STEPPER_DEACTIVE_TIME (0: the steppers never go off)
-    firmware: str = "Marlin"
-    description: str = ""
-    source: str = "<memory>"
+    source: str = source_field()
 
     def __post_init__(self) -> None:
+        if self.name is None:  # the [printer] table's default: the file's stem
+            object.__setattr__(self, "name", Path(self.source).stem)
+        super().__post_init__()
         problems = _check(self)
         if problems:
             raise ConfigError(problems=problems)
+
+    @property
+    def printer_name(self) -> str:
+        """The printer's name: `[printer] name`, or the file's stem (filled in at construction)."""
+        return self.name or Path(self.source).stem
 
     def with_calibration(self, calibration: Calibration) -> PrinterProfile:
         """The same printer with a refitted calibration (checked again against the z limits)."""
@@ -100,13 +104,7 @@ def printer_profile_from_dict(data: dict, source: str = "<memory>") -> PrinterPr
             soft_max.y if park.y_mm is None else park.y_mm,
             soft_max.z if park.z_mm is None else park.z_mm,
         ),
-        baud_rate=printer.baud_rate,
-        planner_buffer_size=printer.planner_buffer_size,
-        rx_buffer_size=printer.rx_buffer_size,
-        homing_time_s=printer.homing_time_s,
-        stepper_timeout_s=printer.stepper_timeout_s,
-        firmware=printer.firmware,
-        description=printer.description,
+        **{f.name: getattr(printer, f.name) for f in dataclasses.fields(PrinterTable) if f.name != "name"},
         source=source,
     )
     nan_cal = SimpleNamespace(surface_z_mm=math.nan)

@@ -10,68 +10,31 @@ With `hold_in_gcode=True` (a file for standalone streaming) the press phase hold
 `G4 P<ms>` before its final M400; for the runner the acquisition itself is the hold.
 Everything is checked by bounds.check_press_plan before any line is formatted. The program holds
 its presses as numbers and formats each block's lines when it is asked for (gcode.blocks), so its
-memory does not grow with the G-code text of a large campaign.
+memory does not grow with the G-code text of a large campaign. `PressSpec`, the `[press]` table, is declared
+(and validated at construction) in `neatskin.config.files`.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
+from neatskin.config.files import PressSpec
 from neatskin.errors import ConfigError
 from neatskin.gcode import emit
 from neatskin.gcode.blocks import Phase, PressBlock, PressBlocks, PressTemplate
-from neatskin.gcode.bounds import DEPTH_MARGIN_MM, check_press_plan
+from neatskin.gcode.bounds import check_press_plan
 from neatskin.gcode.calibration import Calibration
-from neatskin.gcode.ordering import ORDERS, press_order, route_length_mm, shorten_route
+from neatskin.gcode.ordering import press_order, route_length_mm, shorten_route
 from neatskin.gcode.positions import PositionSet
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.layout import Layout
 
 __all__ = ["PHASES", "Phase", "PressBlock", "PressBlocks", "PressProgram", "PressSpec", "build_program"]
 
-PHASES = ("travel", "descend", "press", "lift")
-
-
-@dataclass(frozen=True)
-class PressSpec:
-    depth_mm: float = 3.5
-    repeats: int = 1
-    order: str = "position"
-    hold_s: float = 0.0
-    probe_diameter_mm: float = 5.5
-    travel_ordering: bool = False
-    depth_margin_mm: float = DEPTH_MARGIN_MM
-    source: str = field(default="<memory>", compare=False)
-
-    def __post_init__(self) -> None:
-        def bad(key: str, message: str, fix: str) -> None:
-            raise ConfigError(message, file=self.source, field=f"press.{key}", fix=fix)
-
-        for key in ("depth_mm", "hold_s", "probe_diameter_mm", "depth_margin_mm"):
-            value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-                bad(key, f"{key} must be a number >= 0, got {value!r}", f"set {key} to a non-negative number")
-        if isinstance(self.repeats, bool) or not isinstance(self.repeats, int) or self.repeats < 1:
-            bad("repeats", f"repeats must be a positive integer, got {self.repeats!r}", "set repeats >= 1")
-        if self.order not in ORDERS:
-            bad("order", f"unknown order {self.order!r}", f"use one of {', '.join(ORDERS)}")
-        if not isinstance(self.travel_ordering, bool):
-            bad(
-                "travel_ordering",
-                f"travel_ordering must be true or false, got {self.travel_ordering!r}",
-                "set travel_ordering = true or false",
-            )
-        if self.travel_ordering and self.order != "position":
-            bad(
-                "travel_ordering",
-                "travel ordering only applies to order = 'position' (shuffled presses jump "
-                "between positions on purpose)",
-                "set travel_ordering = false or order = 'position'",
-            )
+PHASES = emit.PHASES
 
 
 @dataclass(frozen=True)
@@ -131,7 +94,7 @@ def build_program(
     """The press program for these positions; every limit checked before any text is formatted."""
     emit.safe_text(name, "campaign.name", source)
     emit.safe_text(layout.name, "skin.name", layout.source)
-    emit.safe_text(profile.name, "printer.name", profile.source)
+    emit.safe_text(profile.printer_name, "printer.name", profile.source)
     _check_probe_fits(layout, press)
     cal = profile.calibration
     xy = positions.xy_mm
@@ -178,7 +141,7 @@ def build_program(
         name,
         seed,
         layout.name,
-        profile.name,
+        profile.printer_name,
         press.depth_mm,
         press.hold_s,
         hold_in_gcode,

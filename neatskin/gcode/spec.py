@@ -19,24 +19,24 @@ from neatskin.config.files import (
     MAX_PRESSES,
     CampaignTable,
     FilesTable,
-    PositionsTable,
-    PressTable,
+    PositionSpec,
+    PressSpec,
     ProtocolFile,
     campaign_name_problems,
 )
-from neatskin.config.schema import wrong_kind_problem
+from neatskin.config.kinds import wrong_kind_problem
 from neatskin.errors import ConfigError, Problem, raise_problems
-from neatskin.gcode.positions import PositionSpec, generate_positions
+from neatskin.gcode.positions import generate_positions
 from neatskin.gcode.profile import PrinterProfile, load_printer_profile
-from neatskin.gcode.program import PressProgram, PressSpec, build_program
+from neatskin.gcode.program import PressProgram, build_program
 from neatskin.layout import Layout, load_layout
 from neatskin.tomlfile import read_toml, resolve_path
 
 GCODE_TABLES: tuple[tuple[str, type], ...] = (
     ("campaign", CampaignTable),
     ("files", FilesTable),
-    ("positions", PositionsTable),
-    ("press", PressTable),
+    ("positions", PositionSpec),
+    ("press", PressSpec),
 )
 
 
@@ -105,15 +105,10 @@ def press_spec_from_dict(data: dict, source: str = "<memory>", base_dir: str | P
         problems += found
     campaign: CampaignTable | None = tables.get("campaign")
     files: dict[str, Any] | None = tables.get("files")
-    positions: PositionsTable | None = tables.get("positions")
-    press: PressTable | None = tables.get("press")
-    pos_spec = press_spec = None
-    if positions is not None and campaign is not None:
-        fields = dataclasses.asdict(positions)
-        fields["seed"] = campaign.seed if positions.seed is None else positions.seed
-        pos_spec = _collect(problems, PositionSpec, **fields, source=source)
-    if press is not None:
-        press_spec = _collect(problems, PressSpec, **dataclasses.asdict(press), source=source)
+    positions: PositionSpec | None = tables.get("positions")
+    press: PressSpec | None = tables.get("press")
+    if positions is not None and campaign is not None and positions.seed is None:
+        positions = dataclasses.replace(positions, seed=campaign.seed)
     if positions is not None and press is not None and positions.count * press.repeats > MAX_PRESSES:
         problems.append(
             Problem(
@@ -124,18 +119,10 @@ def press_spec_from_dict(data: dict, source: str = "<memory>", base_dir: str | P
                 "split the work into several campaigns",
             )
         )
-    if problems or campaign is None or files is None or pos_spec is None or press_spec is None:
+    if problems or campaign is None or files is None or positions is None or press is None:
         raise ConfigError(problems=problems or [Problem("incomplete protocol", source, None, "see the errors above")])
     paths = {key: base / files[key] if not Path(files[key]).is_absolute() else Path(files[key]) for key in files}
-    return GcodeSpec(campaign.name, campaign.seed, paths["layout"], paths["printer"], pos_spec, press_spec, source)
-
-
-def _collect(problems: list[Problem], build: Any, **kwargs: Any) -> Any:
-    try:
-        return build(**kwargs)
-    except ConfigError as exc:
-        problems.extend(exc.problems)
-        return None
+    return GcodeSpec(campaign.name, campaign.seed, paths["layout"], paths["printer"], positions, press, source)
 
 
 def load_gcode_spec(path: str | Path) -> GcodeSpec:

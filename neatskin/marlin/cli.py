@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from neatskin.cligroups import command_group
+from neatskin.cligroups import add_connect_timeout, add_quiet, command_group
 
 DEFAULT_SAFE_Z_MM = 5.0  # without a profile: the height above which the probe is taken to be clear
 
@@ -37,8 +37,8 @@ def register(subparsers: Any) -> None:
     send.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
     send.add_argument("--profile", default=None, help="printer profile TOML, to size deadlines from the motion")
     send.add_argument("--wire-log", default=None, help="append a timestamped log of every byte to this file")
-    send.add_argument("--boot-timeout-s", type=float, default=3.0, help="wait this long for `start` (default 3)")
-    send.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_connect_timeout(send, 3.0, "seconds to wait for the printer's boot banner, `start` (default 3)")
+    add_quiet(send)
     send.add_argument(
         "--from-line",
         type=int,
@@ -112,9 +112,9 @@ def printer_send_handler(args: argparse.Namespace) -> int:
         if number >= args.from_line and line.split(";", 1)[0].strip()
     ]
     profile = load_printer_profile(args.profile) if args.profile else None
-    config = DriverConfig(boot_timeout_s=args.boot_timeout_s, confirm_batches=True)
+    config = DriverConfig(boot_timeout_s=args.connect_timeout_s, confirm_batches=True)
     driver = MarlinDriver.open(args.port, args.baud, config=config, profile=profile, wire_log=args.wire_log)
-    bar = tqdm(total=0, unit="line", disable=args.no_progress, file=sys.stderr)
+    bar = tqdm(total=0, unit="line", disable=args.quiet, file=sys.stderr)
 
     def progress(done: int, total: int) -> None:
         bar.total = total

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from neatskin.cligroups import command_group
+from neatskin.cligroups import add_connect_timeout, command_group
 
 
 def register(subparsers) -> None:
@@ -15,7 +15,7 @@ def register(subparsers) -> None:
         help="a live local web page of a campaign folder (running, killed or finished)",
         description="Serve a live page of CAMPAIGN_DIR on 127.0.0.1; prints the control token for pause/stop.",
     )
-    monitor.add_argument("folder", type=Path, metavar="CAMPAIGN_DIR")
+    monitor.add_argument("folder", type=Path, metavar="CAMPAIGN_DIR", help="the campaign folder to show")
     monitor.add_argument("--port", type=int, default=8765, help="TCP port (default 8765; 0 picks a free one)")
     monitor.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1, this machine only)")
     monitor.add_argument(
@@ -36,7 +36,7 @@ def register(subparsers) -> None:
         ("stop", "stop at the next safe point: the probe lifts and parks; `campaign resume` finishes it"),
     ):
         sub = campaign.add_parser(action, help=text, description=text)
-        sub.add_argument("folder", type=Path, metavar="DIR")
+        sub.add_argument("folder", type=Path, metavar="DIR", help="the running campaign's folder")
         sub.set_defaults(handler=_control, control_action=action)
 
     printer = command_group(subparsers, "printer", "talk to the printer over its serial port")
@@ -46,8 +46,8 @@ def register(subparsers) -> None:
         description="An interactive Marlin console (prompt_toolkit); type `help` inside it.",
     )
     console.add_argument("--port", required=True, help="serial port or pty, e.g. /dev/ttyUSB0")
-    console.add_argument("--baud", type=int, default=115200)
-    console.add_argument("--connect-timeout", type=float, default=5.0, metavar="S")
+    console.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
+    add_connect_timeout(console, 5.0, "seconds to wait for the printer's boot banner (default 5)")
     console.add_argument(
         "--history", type=Path, default=None, help="history file (default ~/.neatskin_console_history)"
     )
@@ -91,7 +91,7 @@ def _console(args: argparse.Namespace) -> int:
     return run_console(
         args.port,
         baud_rate=args.baud,
-        connect_timeout_s=args.connect_timeout,
+        connect_timeout_s=args.connect_timeout_s,
         history_path=args.history,
         calibration_out=args.calibration_out,
     )

@@ -7,10 +7,12 @@ import re
 from datetime import datetime
 from pathlib import Path
 
+from neatskin.cligroups import add_connect_timeout, add_out, add_quiet, command_group
+from neatskin.errors import CheckFailed, ConfigError, ExitCode
+
 
 def register(subparsers) -> None:
-    campaign = subparsers.add_parser("campaign", help="run, resume or check a press campaign")
-    sub = campaign.add_subparsers(dest="campaign_command", metavar="ACTION", required=True)
+    sub = command_group(subparsers, "campaign", "run, resume, finish or check a press campaign")
 
     run = sub.add_parser("run", help="run a campaign from a protocol file")
     run.add_argument("protocol", type=Path, help="protocol TOML, e.g. protocols/paper.toml")
@@ -22,17 +24,11 @@ def register(subparsers) -> None:
     )
     rig.add_argument("--port", help="the printer's serial port, e.g. /dev/ttyUSB0 (real rig)")
     run.add_argument("--daq", default="ni", choices=("ni", "simulated"), help="DAQ backend of a real run")
-    run.add_argument("--out", type=Path, help="campaign folder (default: runs/<name>-<date>-<time>)")
-    run.add_argument(
-        "--connect-timeout",
-        type=float,
-        default=None,
-        metavar="S",
-        help="seconds to wait for the printer's boot banner (real rig default 5)",
-    )
+    add_out(run, "campaign folder (default: runs/<name>-<date>-<time>)")
+    add_connect_timeout(run, None, "seconds to wait for the printer's boot banner (real rig default 5)")
     run.add_argument("--limit", type=int, help="stop after this many presses (the campaign stays resumable)")
     run.add_argument("--no-report", action="store_true", help="skip the baseline report at the end")
-    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet(run)
     run.add_argument(
         "--monitor",
         action="store_true",
@@ -42,10 +38,10 @@ def register(subparsers) -> None:
     run.set_defaults(handler=_run)
 
     resume = sub.add_parser("resume", help="finish an interrupted campaign, no press lost or duplicated")
-    resume.add_argument("folder", type=Path)
+    resume.add_argument("folder", type=Path, help="the campaign folder")
     resume.add_argument("--port", help="serial port of a real run (default: as recorded)")
-    resume.add_argument("--no-report", action="store_true")
-    resume.add_argument("--quiet", action="store_true")
+    resume.add_argument("--no-report", action="store_true", help="skip the baseline report at the end")
+    add_quiet(resume)
     resume.set_defaults(handler=_resume)
 
     finish = sub.add_parser(
@@ -53,13 +49,13 @@ def register(subparsers) -> None:
         help="complete a campaign whose presses are all on disk: consolidate, restore a damaged presses.parquet "
         "from its copy, write the missing physical limit and report",
     )
-    finish.add_argument("folder", type=Path)
+    finish.add_argument("folder", type=Path, help="the campaign folder")
     finish.add_argument("--no-report", action="store_true", help="do not write a missing baseline report")
-    finish.add_argument("--quiet", action="store_true")
+    add_quiet(finish)
     finish.set_defaults(handler=_finish)
 
     check = sub.add_parser("check", help="validate a protocol and print its plan and time estimate, moving nothing")
-    check.add_argument("protocol", type=Path)
+    check.add_argument("protocol", type=Path, help="protocol TOML, e.g. protocols/paper.toml")
     check.set_defaults(handler=_check)
 
 
@@ -102,7 +98,7 @@ def _run(args: argparse.Namespace) -> int:
             progress=not args.quiet,
             limit=args.limit,
             report=not args.no_report,
-            connect_timeout_s=args.connect_timeout,
+            connect_timeout_s=args.connect_timeout_s,
         )
     finally:
         if monitor is not None:
@@ -113,7 +109,7 @@ def _run(args: argparse.Namespace) -> int:
     print(_summary(result))
     if monitor is not None:
         print(f"the live page stopped with the campaign; to look again: neatskin monitor {out}")
-    return 130 if result.interrupted else 0
+    return ExitCode.INTERRUPTED if result.interrupted else ExitCode.OK
 
 
 def _start_monitor(out: Path, port: int):
@@ -162,15 +158,18 @@ def _resume(args: argparse.Namespace) -> int:
     if result.report_summary:
         print(result.report_summary)
     print(_summary(result))
-    return 130 if result.interrupted else 0
+    return ExitCode.INTERRUPTED if result.interrupted else ExitCode.OK
 
 
 def _check(args: argparse.Namespace) -> int:
     from neatskin.rig.plan import build_plan
     from neatskin.rig.protocol import load_protocol
 
-    protocol = load_protocol(args.protocol)
-    plan = build_plan(protocol)
+    try:
+        protocol = load_protocol(args.protocol)
+        plan = build_plan(protocol)
+    except ConfigError as exc:  # the check's verdict: the protocol fails it
+        raise CheckFailed(problems=exc.problems) from exc
     positions = len(set(plan.program.presses.position_ids.tolist()))  # no block needs formatting to count
     print(f"{protocol.path}: ok")
     print(

@@ -19,6 +19,7 @@ from typing import Any
 from neatskin.acquisition.wiring import load_wiring
 from neatskin.config import files as schema
 from neatskin.config import parse_tables
+from neatskin.config.files import AcquisitionSettings, Excitation
 from neatskin.errors import ConfigError, Problem
 from neatskin.gcode.profile import load_printer_profile
 from neatskin.gcode.spec import build_from_spec, press_spec_from_dict
@@ -30,25 +31,6 @@ from neatskin.tomlfile import read_toml, resolve_path
 KNOWN_SECTIONS = ("campaign", "files", "positions", "press", "excitation", "acquisition", "fsr", "record", "scene")
 WAVEFORM_BYTES_PER_SAMPLE = 3 * 8  # V, I, FSR as float64
 MAX_PLACEMENT_ERROR_MM = 100.0
-
-
-@dataclass(frozen=True)
-class Excitation:
-    amplitude_a: float
-    frequency_hz: float
-    compliance_v: float = 50.0
-    press_margin: float = 1.5
-
-
-@dataclass(frozen=True)
-class AcquisitionSettings:
-    rate_hz: float
-    settle_samples: int
-    live_samples: int
-    demodulation: str
-    window: int
-    adc_range_v: float = 10.0
-    voltage_gain: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -150,17 +132,8 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
     if campaign is not None:
         problems += schema.campaign_name_problems(campaign.name, source)
     file_paths = _referenced_files(tables.get("files"), path, file_overrides or {}, problems)
-    excitation_t: schema.ExcitationTable | None = tables.get("excitation")
-    acq: schema.AcquisitionTable | None = tables.get("acquisition")
-    if acq is not None and acq.window > acq.live_samples:
-        problems.append(
-            Problem(
-                f"window {acq.window} is longer than the live window {acq.live_samples}",
-                source,
-                "acquisition.window",
-                "set window <= live_samples",
-            )
-        )
+    excitation_t: Excitation | None = tables.get("excitation")
+    acq: AcquisitionSettings | None = tables.get("acquisition")
     if acq is not None and excitation_t is not None:
         problems += _timing_problems(excitation_t, acq, source)
     record: schema.RecordTable = tables.get("record") or schema.RecordTable()
@@ -206,18 +179,8 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
         wiring=wiring,
         printer=printer,
         press=press,
-        excitation=Excitation(
-            excitation_t.amplitude_a, excitation_t.frequency_hz, excitation_t.compliance_v, excitation_t.press_margin
-        ),
-        acquisition=AcquisitionSettings(
-            acq.rate_hz,
-            acq.settle_samples,
-            acq.live_samples,
-            acq.demodulation,
-            acq.window,
-            acq.adc_range_v,
-            acq.voltage_gain,
-        ),
+        excitation=excitation_t,
+        acquisition=acq,
         fsr_enabled=fsr.enabled,
         fsr_pause_after_misses=fsr.pause_after_misses,
         record_waveforms=record.waveforms,
@@ -244,7 +207,7 @@ def _load_skin_profile(profile_path: Path, layout: Any, press: Any, source: str,
         return None
 
 
-def _timing_problems(excitation: schema.ExcitationTable, acq: schema.AcquisitionTable, source: str) -> list[Problem]:
+def _timing_problems(excitation: Excitation, acq: AcquisitionSettings, source: str) -> list[Problem]:
     """The excitation against the sampling: below Nyquist, and at least one whole period in the live window
     (and in the RMS window): a kHz/Hz slip (rate_hz = 10, frequency_hz = 1) fails here, with the units said."""
     f_hz, rate_hz = excitation.frequency_hz, acq.rate_hz
@@ -350,7 +313,7 @@ def _referenced_files(
     return out
 
 
-def estimate_resources(press: Any, printer: Any, acq: schema.AcquisitionTable, waveforms: bool) -> ResourceEstimate:
+def estimate_resources(press: Any, printer: Any, acq: AcquisitionSettings, waveforms: bool) -> ResourceEstimate:
     """Upper bounds of one press's samples and the campaign's bytes and rig time, from the protocol alone."""
     spec = press.press
     presses = press.positions.count * spec.repeats
@@ -369,7 +332,7 @@ def estimate_resources(press: Any, printer: Any, acq: schema.AcquisitionTable, w
     )
 
 
-def _resource_problems(r: ResourceEstimate, press: Any, acq: schema.AcquisitionTable, source: str) -> list[Problem]:
+def _resource_problems(r: ResourceEstimate, press: Any, acq: AcquisitionSettings, source: str) -> list[Problem]:
     problems = []
     if r.samples_per_press > schema.MAX_SAMPLES_PER_PRESS:
         problems.append(
@@ -428,9 +391,7 @@ def _scene_problems(scene: Scene, layout: Any, source: str) -> list[Problem]:
     return problems
 
 
-def check_electrical(
-    layout: Any, wiring: Any, excitation: schema.ExcitationTable, acq: schema.AcquisitionTable
-) -> ElectricalCheck:
+def check_electrical(layout: Any, wiring: Any, excitation: Excitation, acq: AcquisitionSettings) -> ElectricalCheck:
     """Worst-case peak voltage: amplitude x (largest pair R_eq of the undeformed skin x press margin
     + 2 R_on + R_on mismatch), against the lowest of the mux rails, the compliance and the ADC's reach."""
     return electrical_check(
@@ -475,7 +436,7 @@ def electrical_check(
 
 
 def _electrical_problems(
-    check: ElectricalCheck, layout: Any, wiring: Any, excitation: schema.ExcitationTable, source: str
+    check: ElectricalCheck, layout: Any, wiring: Any, excitation: Excitation, source: str
 ) -> list[Problem]:
     if check.within_limit:
         return []

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from neatskin.cligroups import add_out, add_quiet
+
 DEFAULT_LAYOUT = "protocols/skins/paper.toml"
 
 
@@ -22,14 +24,14 @@ def register(subparsers) -> None:
         "maps from the deformation model on a dense grid of presses, as PNG and parquet.",
     )
     maps.add_argument("--layout", default=DEFAULT_LAYOUT, help=f"skin layout TOML (default {DEFAULT_LAYOUT})")
-    maps.add_argument("--out", default="out/skin-maps", help="output folder (created; default out/skin-maps)")
+    add_out(maps, "output folder (created; default out/skin-maps)", default=Path("out/skin-maps"))
     maps.add_argument("--grid-step-mm", type=float, default=0.25, help="press grid step for the dense maps")
     maps.add_argument("--depth-mm", type=float, default=3.5, help="press depth (paper: 3.5 mm)")
     maps.add_argument("--probe-radius-mm", type=float, default=2.75, help="flat probe radius (paper: 2.75 mm)")
     maps.add_argument(
         "--fidelity", choices=("deformation", "network"), default="deformation", help="skin model for the dense maps"
     )
-    maps.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_quiet(maps)
     maps.set_defaults(handler=maps_handler)
     press = commands.add_parser(
         "press",
@@ -37,11 +39,13 @@ def register(subparsers) -> None:
         description="Print the baseline, pressed and changed R_eq of every electrode pair for one press.",
     )
     press.add_argument("--layout", default=DEFAULT_LAYOUT, help=f"skin layout TOML (default {DEFAULT_LAYOUT})")
-    press.add_argument("--x-mm", type=float, required=True)
-    press.add_argument("--y-mm", type=float, required=True)
+    press.add_argument("--x-mm", type=float, required=True, help="press centre, sensor frame")
+    press.add_argument("--y-mm", type=float, required=True, help="press centre, sensor frame")
     press.add_argument("--depth-mm", type=float, default=3.5, help="press depth (paper: 3.5 mm)")
     press.add_argument("--probe-radius-mm", type=float, default=2.75, help="flat probe radius (paper: 2.75 mm)")
-    press.add_argument("--fidelity", choices=("deformation", "network"), default="deformation")
+    press.add_argument(
+        "--fidelity", choices=("deformation", "network"), default="deformation", help="skin model (default deformation)"
+    )
     press.set_defaults(handler=press_handler)
     fit = commands.add_parser(
         "fit",
@@ -50,7 +54,7 @@ def register(subparsers) -> None:
         "through the forward model, with 95 %% intervals and the pinch's correlation, and write a skin profile.",
     )
     fit.add_argument("campaign", metavar="CAMPAIGN_DIR", help="a finished campaign folder (presses.parquet)")
-    fit.add_argument("--out", default=None, help="skin profile TOML to write (default CAMPAIGN_DIR/skin_profile.toml)")
+    add_out(fit, "skin profile TOML to write (default CAMPAIGN_DIR/skin_profile.toml)")
     fit.add_argument("--probe-radius-mm", type=float, default=2.75, help="flat probe radius (paper: 2.75 mm)")
     fit.set_defaults(handler=fit_handler)
 
@@ -125,7 +129,7 @@ def maps_handler(args: argparse.Namespace) -> int:
         depth_mm=args.depth_mm,
         probe_radius_mm=args.probe_radius_mm,
         fidelity=args.fidelity,
-        show_progress=not args.no_progress,
+        show_progress=not args.quiet,
     )
     for path in written:
         print(path)

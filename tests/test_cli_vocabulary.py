@@ -1,0 +1,113 @@
+"""One CLI vocabulary: every argument and sub-command has help, one spelling per concept, one exit-code table
+(checked through the real command in a subprocess), one error format."""
+
+import argparse
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from neatskin.cli import build_parser
+from neatskin.cligroups import HIDDEN_ALIASES
+from neatskin.errors import ExitCode
+
+ROOT = Path(__file__).resolve().parents[1]
+PROTOCOLS = ROOT / "protocols"
+
+
+def _walk(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()):
+    """(command path, action, parser) for every argument of every (sub-)command."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            helped = {choice.dest: choice.help for choice in action._choices_actions}
+            for name, sub in action.choices.items():
+                yield (*path, name), helped.get(name), None
+                yield from _walk(sub, (*path, name))
+        else:
+            yield path, action.help, action
+
+
+def test_every_argument_and_sub_command_has_help():
+    missing = []
+    for path, help_text, action in _walk(build_parser()):
+        name = (
+            " ".join(path) if action is None else f"{' '.join(path)} {'/'.join(action.option_strings) or action.dest}"
+        )
+        if action is not None and action.help == argparse.SUPPRESS:
+            continue
+        if not help_text:
+            missing.append(name)
+    assert missing == []
+
+
+def test_one_spelling_per_concept():
+    spellings: dict[str, set[str]] = {}
+    for _path, _, action in _walk(build_parser()):
+        if action is None:
+            continue
+        for option in action.option_strings:
+            spellings.setdefault(action.dest, set()).add(option)
+    assert {"--out", "-o"} <= spellings["out"] and "output" not in spellings
+    assert {"--quiet", "-q"} <= spellings["quiet"] and "no_progress" not in spellings
+    assert "--connect-timeout-s" in spellings["connect_timeout_s"]
+    assert "connect_timeout" not in spellings and "boot_timeout_s" not in spellings
+
+
+def test_help_hides_the_old_spellings_and_they_still_work():
+    parser = build_parser()
+    text = parser.parse_args  # the parser is built once for both checks
+    sub = parser._subparsers._group_actions[0].choices["printer"]._subparsers._group_actions[0].choices["send"]
+    shown = sub.format_help()
+    assert "--connect-timeout-s" in shown and "--quiet" in shown
+    assert not any(alias in shown.split() for alias in HIDDEN_ALIASES)
+    args = text(["printer", "send", "f.gcode", "--port", "/dev/null", "--boot-timeout-s", "0.5", "--no-progress"])
+    assert args.connect_timeout_s == 0.5 and args.quiet is True
+
+
+def _neatskin(*argv: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run(
+        [sys.executable, "-m", "neatskin", *argv], capture_output=True, text=True, timeout=120, env=env, cwd=cwd
+    )
+
+
+def test_exit_codes_through_the_real_command(tmp_path):
+    usage = _neatskin("campaign", "run")  # the protocol is missing
+    assert usage.returncode == ExitCode.USAGE == 2, usage.stderr
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text((PROTOCOLS / "smoke.toml").read_text().replace("[campaign]", "[campain]"))
+    config = _neatskin("gcode", "generate", str(bad), "-o", str(tmp_path / "x.gcode"))
+    assert config.returncode == ExitCode.CONFIG == 3, config.stderr
+    assert config.stderr.startswith(f"neatskin: error: {bad}: [campain]: unknown table [campain]")
+
+    program = tmp_path / "ok.gcode"
+    program.write_text("G28\n")
+    hardware = _neatskin("printer", "send", str(program), "--port", str(tmp_path / "no-such-port"), "-q")
+    assert hardware.returncode == ExitCode.HARDWARE == 4, hardware.stderr
+    assert hardware.stderr.startswith("neatskin: error: ") and "Traceback" not in hardware.stderr
+
+    data = _neatskin("dataset", "info", str(tmp_path / "no-such-dataset"))
+    assert data.returncode == ExitCode.DATA == 5, data.stderr
+    assert data.stderr.startswith("neatskin: error: ") and "Traceback" not in data.stderr
+
+
+def test_a_failed_check_exits_1_in_every_check_command(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text((PROTOCOLS / "smoke.toml").read_text().replace("[campaign]", "[campain]"))
+    campaign = _neatskin("campaign", "check", str(bad))
+    gcode_file = tmp_path / "bad.gcode"
+    gcode_file.write_text("G28\nM500\n")  # M500 writes the EEPROM: not a press-program command
+    gcode = _neatskin("gcode", "check", str(gcode_file))
+    assert campaign.returncode == gcode.returncode == ExitCode.CHECK_FAILED == 1, (campaign.stderr, gcode.stderr)
+    for done in (campaign, gcode):
+        assert done.stderr and all(line.startswith("neatskin: error: ") for line in done.stderr.splitlines())
+
+
+@pytest.mark.parametrize("code", list(ExitCode))
+def test_the_docs_and_the_help_list_every_exit_code(code):
+    table = (ROOT / "docs" / "cli.md").read_text()
+    assert f"| {int(code)} | `{code.name}` |" in table
+    assert f"{int(code)} {code.name.lower().replace('_', ' ')}" in " ".join(build_parser().format_help().split())
