@@ -53,6 +53,63 @@ def register(subparsers) -> None:
     fit.add_argument("--out", default=None, help="skin profile TOML to write (default CAMPAIGN_DIR/skin_profile.toml)")
     fit.add_argument("--probe-radius-mm", type=float, default=2.75, help="flat probe radius (paper: 2.75 mm)")
     fit.set_defaults(handler=fit_handler)
+    mech = commands.add_parser(
+        "mechanics",
+        help="finite-element press across a channel: the pinch kernel (A/A0 against offset and depth) and the force",
+        description="Solve the press with scikit-fem (plane strain across one channel, nearly incompressible "
+        "neo-Hookean, large deformation) at every probe offset, and write pinch_kernel.parquet and pinch_kernel.png.",
+    )
+    mech.add_argument("--layout", default=DEFAULT_LAYOUT, help=f"skin layout TOML (default {DEFAULT_LAYOUT})")
+    mech.add_argument("--out", default="out/skin-mechanics", help="output folder (created; default out/skin-mechanics)")
+    mech.add_argument("--probe-radius-mm", type=float, default=2.75, help="flat probe radius (paper: 2.75 mm)")
+    mech.add_argument("--element-mm", type=float, default=0.5, help="element size at the channel and the probe")
+    mech.add_argument("--max-offset-mm", type=float, default=10.0, help="largest probe offset (step 0.5 mm)")
+    mech.add_argument("--jobs", type=int, default=2, help="worker processes (one offset each)")
+    mech.set_defaults(handler=mechanics_handler)
+
+
+def mechanics_handler(args: argparse.Namespace) -> int:
+    import time
+
+    import numpy as np
+    from tqdm import tqdm
+
+    from neatskin.errors import ConfigError
+    from neatskin.layout import load_layout
+    from neatskin.skin.kernel import KernelSpec, compute_kernel, write_kernel
+    from neatskin.skin.mechanics import SolverSettings
+    from neatskin.skin.plots import plot_kernel
+
+    for name in ("probe_radius_mm", "element_mm", "max_offset_mm"):
+        value = getattr(args, name)
+        if not (np.isfinite(value) and value > 0):
+            flag = "--" + name.replace("_", "-")
+            raise ConfigError(f"{flag} must be a number > 0, got {value}", field=flag, fix=f"pass a positive {flag}")
+    layout = load_layout(args.layout)
+    offsets = tuple(np.round(np.arange(0.0, args.max_offset_mm + 1e-9, 0.5), 6))
+    try:
+        spec = KernelSpec.for_layout(
+            layout, args.probe_radius_mm, settings=SolverSettings(element_mm=args.element_mm), offsets_mm=offsets
+        )
+    except ValueError as exc:
+        raise ConfigError(str(exc), field="layout", fix="give the channels one cross-section") from exc
+    out = Path(args.out)
+    t0 = time.perf_counter()
+    with tqdm(total=len(offsets), desc="FE press", unit="offset") as bar:
+        kernel = compute_kernel(spec, n_jobs=max(1, args.jobs), progress=bar.update)
+    elapsed = time.perf_counter() - t0
+    data = write_kernel(kernel, out / "pinch_kernel.parquet")
+    g = spec.geometry
+    title = (
+        f"{layout.name}: {g.thickness_mm:g} mm skin, {g.channel_width_mm:g} x {g.channel_height_mm:g} mm channel "
+        f"{g.channel_depth_mm:g} mm deep, {2 * g.probe_radius_mm:g} mm flat bonded probe, mu "
+        f"{spec.material.shear_modulus_mpa * 1e3:g} kPa; plane strain, {args.element_mm:g} mm elements"
+    )
+    plot = plot_kernel(kernel, out / "pinch_kernel.png", title)
+    print(f"kernel {kernel.key}: {len(offsets)} offsets x {kernel.depths_mm.size} depths in {elapsed:.0f} s")
+    print(data)
+    print(plot)
+    return 0
 
 
 def fit_handler(args: argparse.Namespace) -> int:
