@@ -42,6 +42,13 @@ def register(subparsers) -> None:
     press.add_argument("--depth-mm", type=float, default=3.5, help="press depth (paper: 3.5 mm)")
     press.add_argument("--probe-radius-mm", type=float, default=2.75, help="flat probe radius (paper: 2.75 mm)")
     press.add_argument("--fidelity", choices=("deformation", "network"), default="deformation")
+    press.add_argument(
+        "--deformation",
+        choices=("parametric", "fe-kernel"),
+        default="parametric",
+        help="the pinch: the parametric profile (default) or the finite-element kernel of this layout (packaged for "
+        "the paper skin, else computed once and cached)",
+    )
     press.set_defaults(handler=press_handler)
     fit = commands.add_parser(
         "fit",
@@ -150,13 +157,18 @@ def press_handler(args: argparse.Namespace) -> int:
                 fix=f"pass a valid {flag}",
             )
     layout = load_layout(args.layout)
-    model = SkinModel(layout, fidelity=args.fidelity, probe_radius_mm=args.probe_radius_mm)
+    kernel = None
+    if args.deformation == "fe-kernel":
+        from neatskin.skin.kernel import KernelSpec, load_kernel
+
+        kernel = load_kernel(KernelSpec.for_layout(layout, args.probe_radius_mm))
+    model = SkinModel(layout, fidelity=args.fidelity, probe_radius_mm=args.probe_radius_mm, kernel=kernel)
     base = model.baseline_pair_resistance_ohm
     pressed = model.pair_resistance_ohm(args.x_mm, args.y_mm, args.depth_mm)[0]
     force = model.contact_force_n(args.depth_mm)[0]
     print(
         f"press at ({args.x_mm:g}, {args.y_mm:g}) mm, depth {args.depth_mm:g} mm, force {force:.2f} N, "
-        f"{args.fidelity} model, layout {layout.name}"
+        f"{args.fidelity} model, {model.deformation} pinch, layout {layout.name}"
     )
     print(f"{'pair':>6s} {'R0_ohm':>12s} {'R_ohm':>12s} {'dR_ohm':>12s} {'dR_pct':>8s}")
     with np.errstate(invalid="ignore"):
