@@ -170,13 +170,23 @@ class _Problem:
     """The assembled pieces of one press: bases, boundary dofs, contact pairs and the channel's outline."""
 
     def __init__(
-        self, geometry: PressGeometry, material: Material, settings: SolverSettings, offset_mm: float, channel: bool
+        self,
+        geometry: PressGeometry,
+        material: Material,
+        settings: SolverSettings,
+        offset_mm: float,
+        channel: bool,
+        axisymmetric: bool = False,
     ):
         from skfem import Basis, ElementTriP1, ElementTriP2, ElementVector
 
         g = geometry
         self.g, self.mat, self.settings, self.offset = g, material, settings, offset_mm
         self.mesh = press_mesh(g, offset_mm, settings.element_mm, channel)
+        if axisymmetric:  # r >= 0 only: the triangles right of the axis (x = 0 is a grid line)
+            keep = np.all(self.mesh.p[0, self.mesh.t] >= -1e-12, axis=0)
+            used, t = np.unique(self.mesh.t[:, keep], return_inverse=True)
+            self.mesh = type(self.mesh)(self.mesh.p[:, used], t.reshape(3, -1))
         self.ub = Basis(self.mesh, ElementVector(ElementTriP2()), intorder=_FORM_ORDER)
         self.pb = Basis(self.mesh, ElementTriP1(), intorder=_FORM_ORDER)
         self.nu, self.n = self.ub.N, self.ub.N + self.pb.N
@@ -199,6 +209,8 @@ class _Problem:
         self.probe_chord_mm = 2 * np.sqrt(np.maximum(g.probe_radius_mm**2 - (dx[self.probe_y] - offset_mm) ** 2, 0.0))
         fixed = np.isclose(dy, 0.0, atol=eps) | under
         rollers = (np.abs(np.abs(dx) - g.half_width_mm) < eps) & (comp == 0)
+        if axisymmetric:
+            rollers |= (np.abs(dx) < eps) & (comp == 0)  # u_r = 0 on the axis
         self.dirichlet = np.flatnonzero(fixed | rollers)
         self.free = np.setdiff1d(np.arange(self.n), self.dirichlet)
         # contact: the channel roof's y-dofs against the floor's at the same x
@@ -244,11 +256,11 @@ class _Assembler:
     """Residual and tangent of the mixed neo-Hookean solid, assembled with one einsum per block over every element
     and quadrature point (the local basis gradients are fixed; only F and p change between Newton iterations)."""
 
-    def __init__(self, ub, pb, mu: float, bulk: float):
+    def __init__(self, ub, pb, mu: float, bulk: float, dx=None):
         self.ub, self.pb, self.mu, self.bulk = ub, pb, mu, bulk
         self.G = np.stack([b[0].grad for b in ub.basis])  # (12, 2, 2, el, q)
         self.phi = np.stack([b[0].value for b in pb.basis])  # (3, el, q)
-        self.dx = ub.dx  # (el, q)
+        self.dx = ub.dx if dx is None else dx  # (el, q): the integration weights (times r when axisymmetric)
         self.udofs, self.pdofs = ub.element_dofs, pb.element_dofs + ub.N
         mass = np.einsum("aeq,beq,eq->abe", self.phi, self.phi, self.dx)
         self.Kpp = self._matrix(-mass / bulk, self.pdofs, self.pdofs)
@@ -297,17 +309,30 @@ class _Assembler:
 
 
 def solve_press(
-    geometry: PressGeometry, material: Material, settings: SolverSettings, offset_mm: float, channel: bool = True
+    geometry: PressGeometry,
+    material: Material,
+    settings: SolverSettings,
+    offset_mm: float,
+    channel: bool = True,
+    axisymmetric: bool = False,
 ) -> PressResult:
     """Load-step the probe at `offset_mm` from the channel axis down to settings.max_depth_mm.
 
     The channel counts as shut once its roof touches its floor across the whole width, or its area ratio falls
     below SHUT_AREA_RATIO, or Newton fails below CLOSING_AREA_RATIO (the walls folding into each other): its
     area ratio is then 0 at that depth and every deeper one (the load only grows), and the solve stops there.
-    channel=False solves the skin without a channel (the force once the channel has shut)."""
-    pr = _Problem(geometry, material, settings, offset_mm, channel)
+    channel=False solves the skin without a channel; axisymmetric=True (channel False, offset 0) the round probe
+    in (r, z), its force the total in N (`force_n_per_mm` and `chord_force_n` both hold it)."""
+    if axisymmetric and (channel or offset_mm != 0):
+        raise ValueError("the axisymmetric solve is of the skin without a channel, probe on the axis")
+    pr = _Problem(geometry, material, settings, offset_mm, channel, axisymmetric)
     mu = material.shear_modulus_mpa
-    asm = _Assembler(pr.ub, pr.pb, mu, material.bulk_ratio * mu)
+    if axisymmetric:
+        from neatskin.skin.axisym import AxisymmetricAssembler
+
+        asm: _Assembler = AxisymmetricAssembler(pr.ub, pr.pb, mu, material.bulk_ratio * mu)
+    else:
+        asm = _Assembler(pr.ub, pr.pb, mu, material.bulk_ratio * mu)
     nu = pr.nu
     area_solid = asm.solid_area(np.zeros(pr.n))
     tol = settings.newton_tol * mu * geometry.thickness_mm  # N/mm: the residual's natural size
@@ -383,8 +408,8 @@ def solve_press(
             break  # not shut: this depth and those below stay nan
         _, internal, _ = residual(x)
         reaction = -internal[pr.probe_y]  # the probe's downward push on each bonded node, N/mm
-        force[k] = float(reaction.sum())
-        chord[k] = float(reaction @ pr.probe_chord_mm)
+        force[k] = float(reaction.sum()) * (2 * np.pi if axisymmetric else 1.0)
+        chord[k] = force[k] if axisymmetric else float(reaction @ pr.probe_chord_mm)
         vol[k] = asm.solid_area(x) / area_solid - 1.0
         area[k] = ratio
         if channel and (bool(np.all(gap <= 0)) or ratio < SHUT_AREA_RATIO):
