@@ -201,3 +201,7 @@ def test_the_round_probe_force_lies_between_a_half_space_and_the_plane_strain_st
     strip = solve_press(PressGeometry(), Material(), settings, 0.0, channel=False)
     sneddon = 8 * MU * 2.75 * 0.5  # incompressible half-space, flat punch: F = 8 mu a d
     assert sneddon < round_probe.force_n_per_mm[-1] < strip.chord_force_n[-1]
+    # beside the probe the layer thickens across the channel's height (closing < 0), the strip's far more
+    far_round = np.interp(6.0, round_probe.line_x_mm, round_probe.closing_mm[-1])
+    far_strip = np.interp(6.0, strip.line_x_mm, strip.closing_mm[-1])
+    assert far_strip < far_round < 0

@@ -111,6 +111,8 @@ class PressResult:
     chord_force_n: np.ndarray  # (steps,), the reaction spread over the round probe's chords (quasi-3D)
     n_elements: int
     newton_iterations: int
+    line_x_mm: np.ndarray | None = None  # without a channel: where the solid's closing is sampled
+    closing_mm: np.ndarray | None = None  # (steps, points): u_y(roof line) - u_y(floor line), > 0 closing
 
 
 def _lines(forced: list[float], lo: float, hi: float, fine_lo: float, fine_hi: float, h: float) -> np.ndarray:
@@ -218,6 +220,15 @@ class _Problem:
         roof = np.flatnonzero(wall & np.isclose(dy, g.channel_roof_mm, atol=eps))
         floor = np.flatnonzero(wall & np.isclose(dy, g.channel_floor_mm, atol=eps))
         roof, floor = roof[np.argsort(dx[roof])], floor[np.argsort(dx[floor])]
+        # without a channel: the solid's closing across the channel's height, u_y(roof) - u_y(floor), along x
+        # (the quasi-3D mapping compares it between the strip and the round probe; skin/kernel.py)
+        line = comp == 1
+        top_line = np.flatnonzero(line & np.isclose(dy, g.channel_roof_mm, atol=eps))
+        bottom_line = np.flatnonzero(line & np.isclose(dy, g.channel_floor_mm, atol=eps))
+        top_line, bottom_line = top_line[np.argsort(dx[top_line])], bottom_line[np.argsort(dx[bottom_line])]
+        same = top_line.size == bottom_line.size and np.allclose(dx[top_line], dx[bottom_line])
+        self.line_roof, self.line_floor = (top_line, bottom_line) if (same and not channel) else (roof[:0], roof[:0])
+        self.line_x = dx[self.line_roof]
         if not channel:
             roof = floor = np.zeros(0, dtype=np.intp)
         if roof.size != floor.size or not np.allclose(dx[roof], dx[floor]):
@@ -385,6 +396,8 @@ def solve_press(
     n_steps = int(round(settings.max_depth_mm / settings.depth_step_mm))
     depths = np.arange(n_steps + 1) * settings.depth_step_mm
     area, force, vol, chord = (np.full(depths.size, np.nan) for _ in range(4))
+    closing = np.full((depths.size, pr.line_x.size), np.nan)
+    closing[0] = 0.0
     area[0], force[0], vol[0], chord[0] = 1.0, 0.0, 0.0, 0.0
     x, reached, iterations, shut_at = np.zeros(pr.n), 0.0, 0, None
     for k, depth in enumerate(depths[1:], start=1):
@@ -411,6 +424,7 @@ def solve_press(
         force[k] = float(reaction.sum()) * (2 * np.pi if axisymmetric else 1.0)
         chord[k] = force[k] if axisymmetric else float(reaction @ pr.probe_chord_mm)
         vol[k] = asm.solid_area(x) / area_solid - 1.0
+        closing[k] = x[pr.line_floor] - x[pr.line_roof]
         area[k] = ratio
         if channel and (bool(np.all(gap <= 0)) or ratio < SHUT_AREA_RATIO):
             shut_at = k + 1
@@ -418,7 +432,8 @@ def solve_press(
             break
     if shut_at is not None:
         area[shut_at:] = 0.0
-    return PressResult(offset_mm, depths, area, force, vol, chord, pr.mesh.t.shape[1], iterations)
+    lines = (pr.line_x, closing) if pr.line_x.size else (None, None)
+    return PressResult(offset_mm, depths, area, force, vol, chord, pr.mesh.t.shape[1], iterations, *lines)
 
 
 def _solve(K, rhs):
