@@ -46,6 +46,13 @@ def register(subparsers) -> None:
     press.add_argument(
         "--fidelity", choices=("deformation", "network"), default="deformation", help="skin model (default deformation)"
     )
+    press.add_argument(
+        "--deformation",
+        choices=("parametric", "fe-kernel"),
+        default="parametric",
+        help="the pinch: the parametric profile (default) or the finite-element kernel of this layout (packaged for "
+        "the paper skin, else computed once and cached)",
+    )
     press.set_defaults(handler=press_handler)
     fit = commands.add_parser(
         "fit",
@@ -57,6 +64,63 @@ def register(subparsers) -> None:
     add_out(fit, "skin profile TOML to write (default CAMPAIGN_DIR/skin_profile.toml)")
     fit.add_argument("--probe-radius-mm", type=float, default=2.75, help="flat probe radius (paper: 2.75 mm)")
     fit.set_defaults(handler=fit_handler)
+    mech = commands.add_parser(
+        "mechanics",
+        help="finite-element press across a channel: the pinch kernel (A/A0 against offset and depth) and the force",
+        description="Solve the press with scikit-fem (plane strain across one channel, nearly incompressible "
+        "neo-Hookean, large deformation) at every probe offset, and write pinch_kernel.parquet and pinch_kernel.png.",
+    )
+    mech.add_argument("--layout", default=DEFAULT_LAYOUT, help=f"skin layout TOML (default {DEFAULT_LAYOUT})")
+    add_out(mech, "output folder (created; default out/skin-mechanics)", default="out/skin-mechanics")
+    mech.add_argument("--probe-radius-mm", type=float, default=2.75, help="flat probe radius (paper: 2.75 mm)")
+    mech.add_argument("--element-mm", type=float, default=0.5, help="element size at the channel and the probe")
+    mech.add_argument("--max-offset-mm", type=float, default=10.0, help="largest probe offset (step 0.5 mm)")
+    mech.add_argument("--jobs", type=int, default=2, help="worker processes (one offset each)")
+    mech.set_defaults(handler=mechanics_handler)
+
+
+def mechanics_handler(args: argparse.Namespace) -> int:
+    import time
+
+    import numpy as np
+    from tqdm import tqdm
+
+    from neatskin.errors import ConfigError
+    from neatskin.layout import load_layout
+    from neatskin.skin.kernel import KernelSpec, compute_kernel, write_kernel
+    from neatskin.skin.mechanics import SolverSettings
+    from neatskin.skin.plots import plot_kernel
+
+    for name in ("probe_radius_mm", "element_mm", "max_offset_mm"):
+        value = getattr(args, name)
+        if not (np.isfinite(value) and value > 0):
+            flag = "--" + name.replace("_", "-")
+            raise ConfigError(f"{flag} must be a number > 0, got {value}", field=flag, fix=f"pass a positive {flag}")
+    layout = load_layout(args.layout)
+    offsets = tuple(np.round(np.arange(0.0, args.max_offset_mm + 1e-9, 0.5), 6))
+    try:
+        spec = KernelSpec.for_layout(
+            layout, args.probe_radius_mm, settings=SolverSettings(element_mm=args.element_mm), offsets_mm=offsets
+        )
+    except ValueError as exc:
+        raise ConfigError(str(exc), field="layout", fix="give the channels one cross-section") from exc
+    out = Path(args.out)
+    t0 = time.perf_counter()
+    with tqdm(total=len(offsets), desc="FE press", unit="offset") as bar:
+        kernel = compute_kernel(spec, n_jobs=max(1, args.jobs), progress=bar.update)
+    elapsed = time.perf_counter() - t0
+    data = write_kernel(kernel, out / "pinch_kernel.parquet")
+    g = spec.geometry
+    title = (
+        f"{layout.name}: {g.thickness_mm:g} mm skin, {g.channel_width_mm:g} x {g.channel_height_mm:g} mm channel "
+        f"{g.channel_depth_mm:g} mm deep, {2 * g.probe_radius_mm:g} mm flat bonded probe, mu "
+        f"{spec.material.shear_modulus_mpa * 1e3:g} kPa; plane strain, {args.element_mm:g} mm elements"
+    )
+    plot = plot_kernel(kernel, out / "pinch_kernel.png", title)
+    print(f"kernel {kernel.key}: {len(offsets)} offsets x {kernel.depths_mm.size} depths in {elapsed:.0f} s")
+    print(data)
+    print(plot)
+    return 0
 
 
 def fit_handler(args: argparse.Namespace) -> int:
@@ -97,13 +161,18 @@ def press_handler(args: argparse.Namespace) -> int:
                 fix=f"pass a valid {flag}",
             )
     layout = load_layout(args.layout)
-    model = SkinModel(layout, fidelity=args.fidelity, probe_radius_mm=args.probe_radius_mm)
+    kernel = None
+    if args.deformation == "fe-kernel":
+        from neatskin.skin.kernel import KernelSpec, load_kernel
+
+        kernel = load_kernel(KernelSpec.for_layout(layout, args.probe_radius_mm))
+    model = SkinModel(layout, fidelity=args.fidelity, probe_radius_mm=args.probe_radius_mm, kernel=kernel)
     base = model.baseline_pair_resistance_ohm
     pressed = model.pair_resistance_ohm(args.x_mm, args.y_mm, args.depth_mm)[0]
     force = model.contact_force_n(args.depth_mm)[0]
     print(
         f"press at ({args.x_mm:g}, {args.y_mm:g}) mm, depth {args.depth_mm:g} mm, force {force:.2f} N, "
-        f"{args.fidelity} model, layout {layout.name}"
+        f"{args.fidelity} model, {model.deformation} pinch, layout {layout.name}"
     )
     print(f"{'pair':>6s} {'R0_ohm':>12s} {'R_ohm':>12s} {'dR_ohm':>12s} {'dR_pct':>8s}")
     with np.errstate(invalid="ignore"):

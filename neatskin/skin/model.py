@@ -31,9 +31,12 @@ from neatskin.skin.deformation import (
     pinched_length_fraction,
     resistance_factor,
 )
+from neatskin.skin.kernel import PinchKernel
+from neatskin.skin.kernelpinch import kernel_factor_and_share
 from neatskin.skin.network import equivalent_resistance
 
 FIDELITIES = ("deformation", "network")
+DEFORMATIONS = ("parametric", "fe-kernel")
 
 
 @dataclass(frozen=True)
@@ -71,6 +74,7 @@ class SkinModel:
     placement_sigma_mm: float = 0.0
     channel_height_factor: tuple[float, ...] | None = None
     displaced_fluid_fraction: float = 0.0
+    kernel: PinchKernel | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         if self.fidelity not in FIDELITIES:
@@ -105,6 +109,15 @@ class SkinModel:
     def resistivity_factor(self, temperature_c) -> np.ndarray | float:
         """rho(T) / rho_layout (linear temperature coefficient)."""
         return 1.0 + self.resistivity_tempco_per_k * (np.asarray(temperature_c, float) - self.reference_temperature_c)
+
+    @property
+    def deformation(self) -> str:
+        """'fe-kernel' with a pinch kernel (finite-element A/A0, skin/kernel.py), else 'parametric' (PinchParams)."""
+        return "parametric" if self.kernel is None else "fe-kernel"
+
+    def _kernel_pass(self, x, y, depth) -> tuple[np.ndarray, np.ndarray]:
+        assert self.kernel is not None
+        return kernel_factor_and_share(self.layout, self.kernel, x, y, depth)
 
     @cached_property
     def _heights(self) -> np.ndarray | None:
@@ -146,7 +159,11 @@ class SkinModel:
         x, y, depth = _as_presses(x_mm, y_mm, depth_mm)
         depth = self.effective_depth_mm(depth, peak_depth_mm)
         widening = None
-        if self.displaced_fluid_fraction > 0 and self.fidelity == "deformation":  # one quadrature for both
+        if self.kernel is not None and self.fidelity == "deformation":
+            factor, share = self._kernel_pass(x, y, depth)
+            if self.displaced_fluid_fraction > 0:
+                widening = self._widening(share * self.channel_volume_mm3)
+        elif self.displaced_fluid_fraction > 0 and self.fidelity == "deformation":  # one quadrature for both
             factor, share = factor_and_length_fraction(
                 self.layout, x, y, depth, self.probe_radius_mm, self.pinch, self._pinch_scale
             )
@@ -170,6 +187,8 @@ class SkinModel:
     def pinch_factor(self, x_mm, y_mm, depth_mm) -> np.ndarray:
         """R / R0 of every channel from the pinch alone (no fluid widening, drift or dents), (n, channels)."""
         x, y, depth = _as_presses(x_mm, y_mm, depth_mm)
+        if self.kernel is not None and self.fidelity == "deformation":
+            return self._kernel_pass(x, y, depth)[0]
         args = (self.layout, x, y, depth, self.probe_radius_mm, self.pinch)
         scale = None if self._heights is None else 1.0 / self._heights
         if self.fidelity == "deformation":
@@ -179,6 +198,8 @@ class SkinModel:
     def pinched_volume_mm3(self, x_mm, y_mm, depth_mm) -> np.ndarray:
         """Fluid volume each press takes out of each channel under the probe, (n, channels)."""
         x, y, depth = _as_presses(x_mm, y_mm, depth_mm)
+        if self.kernel is not None and self.fidelity == "deformation":
+            return self._kernel_pass(x, y, depth)[1] * self.channel_volume_mm3
         scale = None if self._heights is None else 1.0 / self._heights
         share = pinched_length_fraction(self.layout, x, y, depth, self.probe_radius_mm, self.pinch, scale)
         return share * self.channel_volume_mm3

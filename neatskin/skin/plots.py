@@ -112,3 +112,52 @@ def plot_pairs(
     fig.savefig(path)
     plt.close(fig)
     return path
+
+
+def plot_kernel(kernel, path: Path, title: str) -> Path:
+    """The pinch kernel: A/A0 against offset (one line per depth), A/A0 against depth (one line per offset), and
+    the quasi-3D probe force against depth."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6))
+    cmap = plt.get_cmap("viridis")
+    depths = [d for d in kernel.depths_mm if d > 0 and abs(d * 2 - round(d * 2)) < 1e-9]
+    for k, d in enumerate(depths):
+        j = int(np.argmin(np.abs(kernel.depths_mm - d)))
+        axes[0].plot(
+            kernel.offsets_mm,
+            kernel.area_ratio[:, j],
+            "o-",
+            ms=3,
+            color=cmap(k / max(len(depths) - 1, 1)),
+            label=f"{d:g} mm",
+        )
+    axes[0].set(xlabel="probe offset from the channel axis (mm)", ylabel="A / A0", title="channel area against offset")
+    axes[0].legend(title="depth", fontsize=7)
+    offsets = [o for o in (0.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.5, 10.0) if o <= kernel.offsets_mm[-1]]
+    for k, o in enumerate(offsets):
+        i = int(np.argmin(np.abs(kernel.offsets_mm - o)))
+        axes[1].plot(
+            kernel.depths_mm,
+            kernel.area_ratio[i],
+            "o-",
+            ms=3,
+            color=cmap(k / max(len(offsets) - 1, 1)),
+            label=f"{kernel.offsets_mm[i]:g} mm",
+        )
+    axes[1].set(xlabel="press depth (mm)", ylabel="A / A0", title="channel area against depth")
+    axes[1].legend(title="offset", fontsize=7)
+    for ax in axes[:2]:
+        ax.axhline(0.02, color="grey", lw=0.8, ls=":")
+        ax.set_ylim(-0.03, 1.03)
+        ax.grid(alpha=0.3)
+    for o in offsets[:1] + offsets[-1:]:
+        i = int(np.argmin(np.abs(kernel.offsets_mm - o)))
+        axes[2].plot(kernel.depths_mm, kernel.force_n[i], "o-", ms=3, label=f"offset {kernel.offsets_mm[i]:g} mm")
+    axes[2].set(xlabel="press depth (mm)", ylabel="probe force (N), quasi-3D", title="probe force")
+    axes[2].legend(fontsize=7)
+    axes[2].grid(alpha=0.3)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,197 @@
+"""The pinch kernel: a channel's area ratio A/A0 against the probe's lateral offset from the channel axis and
+its depth, from the finite-element press (skin/mechanics.py); computing it, its parquet file with provenance,
+the packaged and cached copies keyed by content, and its vectorised bilinear interpolation."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from neatskin.skin.mechanics import SHUT_AREA_RATIO, Material, PressGeometry, SolverSettings, solve_press
+
+KERNEL_FORMAT = 1  # bump when the solver's output for the same settings changes
+PAPER_KERNEL = "paper_pinch_kernel.parquet"  # in neatskin/protocols/skins/
+DEFAULT_OFFSETS_MM = tuple(np.round(np.arange(0.0, 10.0001, 0.5), 6))
+
+
+@dataclass(frozen=True)
+class KernelSpec:
+    """Everything a kernel depends on: its cache key is the hash of this."""
+
+    geometry: PressGeometry = PressGeometry()
+    material: Material = Material()
+    settings: SolverSettings = SolverSettings(element_mm=0.5)
+    offsets_mm: tuple[float, ...] = DEFAULT_OFFSETS_MM
+
+    def key(self) -> str:
+        text = json.dumps({"format": KERNEL_FORMAT, **asdict(self)}, sort_keys=True, default=float)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+    @classmethod
+    def for_layout(cls, layout, probe_radius_mm: float = 2.75, **kwargs) -> KernelSpec:
+        """The spec of a layout's channels (all must share one cross-section) under a probe of this radius."""
+        widths = {c.width_mm for c in layout.channels}
+        heights = {c.height_mm for c in layout.channels}
+        if len(widths) != 1 or len(heights) != 1:
+            raise ValueError(
+                f"layout '{layout.name}' has channels of several cross-sections ({sorted(widths)} x "
+                f"{sorted(heights)} mm): one kernel covers one cross-section"
+            )
+        geometry = PressGeometry(
+            thickness_mm=layout.thickness_mm,
+            channel_width_mm=widths.pop(),
+            channel_height_mm=heights.pop(),
+            channel_depth_mm=layout.channel_depth_mm,
+            probe_radius_mm=probe_radius_mm,
+        )
+        return cls(geometry=geometry, **kwargs)
+
+
+@dataclass(frozen=True, eq=False)
+class PinchKernel:
+    """A/A0 on a regular (offset, depth) grid; nan where the solve did not reach, filled by the last solved depth."""
+
+    offsets_mm: np.ndarray  # (n_o,), from 0, evenly spaced
+    depths_mm: np.ndarray  # (n_d,), from 0, evenly spaced
+    area_ratio: np.ndarray  # (n_o, n_d), as solved (nan where not reached)
+    force_n: np.ndarray  # (n_o, n_d), quasi-3D probe force
+    key: str
+    provenance: str  # JSON
+
+    def __post_init__(self) -> None:
+        filled = self.area_ratio.copy()
+        for i in range(filled.shape[0]):  # deeper than the solve reached: the last solved value (the load only grows)
+            good = np.flatnonzero(np.isfinite(filled[i]))
+            filled[i, good[-1] + 1 :] = filled[i, good[-1]]
+        object.__setattr__(self, "_table", np.clip(filled, 0.0, 1.0))
+        object.__setattr__(self, "_step", (float(self.offsets_mm[1]), float(self.depths_mm[1])))
+
+    def ratio(self, offset_mm, depth_mm) -> np.ndarray:
+        """A/A0 at (offset, depth), broadcast; bilinear. 1 beyond the largest offset and at depth <= 0; the
+        deepest row beyond the deepest depth. Shut (0) where the interpolated ratio is below SHUT_AREA_RATIO."""
+        offset = np.abs(np.asarray(offset_mm, float))
+        depth = np.asarray(depth_mm, float)
+        table: np.ndarray = self._table  # type: ignore[attr-defined]
+        step_o, step_d = self._step  # type: ignore[attr-defined]
+        fo = np.clip(offset / step_o, 0.0, table.shape[0] - 1.0)
+        fd = np.clip(depth / step_d, 0.0, table.shape[1] - 1.0)
+        io = np.minimum(fo.astype(np.intp), table.shape[0] - 2)
+        jd = np.minimum(fd.astype(np.intp), table.shape[1] - 2)
+        to, td = fo - io, fd - jd
+        value = (table[io, jd] * (1 - to) + table[io + 1, jd] * to) * (1 - td) + (
+            table[io, jd + 1] * (1 - to) + table[io + 1, jd + 1] * to
+        ) * td
+        value = np.where(offset > self.offsets_mm[-1], 1.0, value)
+        value = np.where(depth <= 0, 1.0, value)
+        return np.where(value < SHUT_AREA_RATIO, 0.0, value)
+
+
+def compute_kernel(spec: KernelSpec, n_jobs: int = 2, progress=None) -> PinchKernel:
+    """Solve the press at every offset of the spec (in parallel over offsets) and gather the kernel."""
+    from joblib import Parallel, delayed
+
+    from neatskin import __version__
+
+    run = Parallel(n_jobs=n_jobs, return_as="generator")
+    results = []
+    for result in run(delayed(solve_press)(spec.geometry, spec.material, spec.settings, o) for o in spec.offsets_mm):
+        results.append(result)
+        if progress is not None:
+            progress(1)
+    depths = results[0].depth_mm
+    ratio = np.stack([r.area_ratio for r in results])
+    force = np.stack([r.chord_force_n for r in results])
+    provenance = {
+        "kernel_format": KERNEL_FORMAT,
+        "key": spec.key(),
+        **{k: v for k, v in asdict(spec).items() if k != "offsets_mm"},
+        "elements": [r.n_elements for r in results],
+        "newton_iterations": int(sum(r.newton_iterations for r in results)),
+        "max_volume_change": float(np.nanmax(np.abs(np.stack([r.volume_change for r in results])))),
+        "formulation": "plane strain across the channel, mixed u-p Taylor-Hood P2/P1, neo-Hookean, Newton with load "
+        "steps; bonded flat probe with a rounded rim; roof-floor penalty contact; open channel (no fluid pressure)",
+        "software": f"neatskin {__version__}, scikit-fem {_version('scikit-fem')}, scipy {_version('scipy')}",
+        "force": "force_n: the strip's reaction per mm spread over the round probe's chords (quasi-3D)",
+    }
+    return PinchKernel(np.asarray(spec.offsets_mm, float), depths, ratio, force, spec.key(), json.dumps(provenance))
+
+
+def _version(dist: str) -> str:
+    from importlib.metadata import version
+
+    return version(dist)
+
+
+def write_kernel(kernel: PinchKernel, path: Path) -> Path:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    o, d = np.meshgrid(kernel.offsets_mm, kernel.depths_mm, indexing="ij")
+    table = pa.table(
+        {
+            "offset_mm": o.ravel(),
+            "depth_mm": d.ravel(),
+            "area_ratio": kernel.area_ratio.ravel(),
+            "force_n": kernel.force_n.ravel(),
+            "solved": np.isfinite(kernel.area_ratio.ravel()),
+        }
+    )
+    meta = {b"neatskin.kernel_key": kernel.key.encode(), b"neatskin.provenance": kernel.provenance.encode()}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    pq.write_table(table.replace_schema_metadata(meta), path)
+    return path
+
+
+def read_kernel(path: Path) -> PinchKernel:
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(path)
+    meta = table.schema.metadata or {}
+    cols = {name: table.column(name).to_numpy() for name in ("offset_mm", "depth_mm", "area_ratio", "force_n")}
+    offsets, depths = np.unique(cols["offset_mm"]), np.unique(cols["depth_mm"])
+    shape = (offsets.size, depths.size)
+    return PinchKernel(
+        offsets,
+        depths,
+        cols["area_ratio"].reshape(shape),
+        cols["force_n"].reshape(shape),
+        meta.get(b"neatskin.kernel_key", b"").decode(),
+        meta.get(b"neatskin.provenance", b"{}").decode(),
+    )
+
+
+def cache_dir() -> Path:
+    """$NEATSKIN_CACHE, else $XDG_CACHE_HOME/neatskin, else ~/.cache/neatskin."""
+    if os.environ.get("NEATSKIN_CACHE"):
+        return Path(os.environ["NEATSKIN_CACHE"])
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "neatskin"
+
+
+def packaged_kernel_path() -> Path:
+    from importlib.resources import files
+
+    return Path(str(files("neatskin") / "protocols" / "skins" / PAPER_KERNEL))
+
+
+def load_kernel(spec: KernelSpec, compute: bool = True, n_jobs: int = 2) -> PinchKernel:
+    """The kernel of a spec: the packaged paper kernel if its key matches, else the user cache, else (compute)
+    solve it once and cache it. compute=False raises FileNotFoundError instead of solving."""
+    key = spec.key()
+    packaged = packaged_kernel_path()
+    if packaged.exists():
+        kernel = read_kernel(packaged)
+        if kernel.key == key:
+            return kernel
+    cached = cache_dir() / "kernels" / f"{key}.parquet"
+    if cached.exists():
+        return read_kernel(cached)
+    if not compute:
+        raise FileNotFoundError(f"no pinch kernel {key} packaged or in {cached.parent}: run `neatskin skin mechanics`")
+    kernel = compute_kernel(spec, n_jobs=n_jobs)
+    write_kernel(kernel, cached)
+    return kernel
