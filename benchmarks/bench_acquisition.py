@@ -191,7 +191,9 @@ from neatskin.rig.runner import build_plan
 protocol = load_protocol(Path(sys.argv[1]))
 plan = build_plan(protocol)
 # this checkout's build_dry_rig takes the Plan (rig/plan.py), an older one the sweep
-rig = build_dry_rig(protocol, plan if "plan" in inspect.signature(build_dry_rig).parameters else plan.sweep)
+rig = build_dry_rig(
+    protocol, plan if "plan" in inspect.signature(build_dry_rig).parameters else plan.sweep, skin_worker=False
+)
 # this checkout's dry rig derives its physical limit itself (Rig.derived_files), an older one's runner did
 if hasattr(rig, "derived_files"):
     write = rig.derived_files["physical_limit.parquet"]

@@ -74,6 +74,13 @@ def capture(protocol_path: str, presses: int, out: str) -> None:
         pickle.dump(captured, f)
 
 
+def _rig_plan(build_dry_rig, plan):
+    """What this checkout's build_dry_rig takes: the Plan (rig/plan.py), or the sweep alone (older checkouts)."""
+    import inspect
+
+    return plan if "plan" in inspect.signature(build_dry_rig).parameters else plan.sweep
+
+
 def replay(protocol_path: str, captured_path: str, repeats: int, out: str) -> None:
     """Child: this checkout's dry rig, the captured presses through its recorder; best CPU time and the records."""
     try:
@@ -89,7 +96,7 @@ def replay(protocol_path: str, captured_path: str, repeats: int, out: str) -> No
     with open(captured_path, "rb") as f:
         captured = pickle.load(f)
     presses = [(p, n, t0, marks, [Segment(*s) for s in segs]) for p, n, t0, marks, segs in captured]
-    rig = build_dry_rig(protocol, _rig_plan(build_dry_rig, plan))
+    rig = build_dry_rig(protocol, _rig_plan(build_dry_rig, plan), skin_worker=False)  # the inline recorder
     try:
         recorder = rig.recorder
         now = {"t": 0.0, "segments": []}
@@ -259,10 +266,3 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
-
-
-def _rig_plan(build_dry_rig, plan):
-    """What this checkout's build_dry_rig takes: the Plan (rig/plan.py), or the sweep alone (older checkouts)."""
-    import inspect
-
-    return plan if "plan" in inspect.signature(build_dry_rig).parameters else plan.sweep
