@@ -21,6 +21,7 @@ from neatskin.baselines.plots import (
     plot_error_ellipses,
 )
 from neatskin.baselines.report import run_baselines
+from neatskin.baselines.reporttext import _bound_text, flag_text, sig3
 from neatskin.layout import load_layout
 from neatskin.tomlfile import resolve_path
 
@@ -145,3 +146,47 @@ def test_ellipses_keep_the_whole_skin_outline_in_view(report, tmp_path):
         (left, right), (low, high) = ax.get_xlim(), ax.get_ylim()
         assert left < x0 and right > x1 and low < y0 and high > y1
     plt.close(fig)
+
+
+# ---------------------------------------------------------------- report.md's text
+
+
+@pytest.mark.parametrize(
+    "value, text",
+    [
+        (2.0, "2.00"),
+        (0.162, "0.162"),
+        (43412.0, "43,400"),
+        (0.0044321, "0.00443"),
+        (9.996, "10.0"),
+        (99.96, "100"),
+        (0.0, "0"),
+        (-1.234, "-1.23"),
+        (float("inf"), "inf"),
+        (float("nan"), "nan"),
+    ],
+)
+def test_sig3_gives_3_significant_figures_without_scientific_notation(value, text):
+    assert sig3(value) == text
+
+
+def test_report_md_has_a_compact_main_table_and_the_full_table_last_with_no_terminal_column(report):
+    text = report.text
+    assert "RMS/CRBn" not in text and "terminal" not in text
+    main = text.index("| model | split | mean error mm [95 % CI] | RMS mm | within probe % |")
+    full = text.index("## All figures")
+    assert main < full and text.index("| model | split | repeats | test rows |") > full
+    main_rows = [ln for ln in text[main:full].splitlines() if ln.startswith("| knn |")]
+    assert len(main_rows) == 1 and main_rows[0].count("|") == 9  # 8 columns
+    assert "e+" not in text and "e-0" not in text  # no scientific notation anywhere
+
+
+def test_the_flag_column_and_the_text_agree_on_what_is_memorisation():
+    row = SimpleNamespace(below_bound=False, rms_over_crb_nuisance=0.992)
+    assert flag_text(row) == "below the nuisance bound (0.992×)"  # noted, not called memorisation
+    assert flag_text(SimpleNamespace(below_bound=True, rms_over_crb_nuisance=0.5)) == "memorisation: below the bound"
+    assert flag_text(SimpleNamespace(below_bound=False, rms_over_crb_nuisance=1.2)) == ""
+    table = pd.DataFrame({"model": ["knn"], "split": ["random"], "rms_over_crb_nuisance": [0.992]})
+    text = "\n".join(_bound_text(0.01, 2.0, table))
+    assert "at 0.992 times the bound with nuisances (below it: below the nuisance bound, noted, not flagged" in text
+    assert "not flagged as memorisation: the flag is the electronics-only bound alone" in text
