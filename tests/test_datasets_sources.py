@@ -47,3 +47,26 @@ def test_run_names_are_folder_names_and_a_shared_name_is_numbered(tmp_path):
         "run#2",
         "z",
     ]
+
+
+def test_every_waveform_part_carries_the_campaigns_metadata_and_its_press(paper_layout, tmp_path):
+    import numpy as np
+
+    from neatskin.datasets.schema import decode_metadata
+    from neatskin.datasets.writer import CampaignWriter
+    from neatskin.skin.synthetic import synthetic_rows
+
+    rows = synthetic_rows(paper_layout, 2, 2, seed=5)
+    meta = {"seed": 7, "campaign": "wf", "layout": {"path": "inputs/layout.toml"}}
+    with CampaignWriter(tmp_path, paper_layout.pairs, meta, fsync=False) as writer:
+        for row in rows:
+            writer.write_press(row, {"voltage_v": np.arange(8.0), "current_a": np.ones(8)})
+        writer.finalize()
+    parts = sorted((tmp_path / "waveforms").rglob("part-*.parquet"))
+    assert len(parts) == len(rows)
+    press_meta = decode_metadata(pq.read_schema(tmp_path / "presses.parquet").metadata)
+    for part, row in zip(sorted(parts, key=lambda p: int(p.stem.split("-")[1])), rows):
+        got = decode_metadata(pq.read_schema(part).metadata)
+        assert got["press_id"] == row["press_id"] and got["position_id"] == row["position_id"]
+        for key in ("seed", "campaign", "layout", "pairs", "schema_version", "software_version"):
+            assert got[key] == press_meta[key], key
