@@ -14,6 +14,7 @@ import sys
 from neatskin.errors import NeatskinError
 
 COMMAND_MODULES = (
+    "neatskin.config.cli",
     "neatskin.skin.cli",
     "neatskin.gcode.cli",
     "neatskin.marlin.cli",
