@@ -10,6 +10,8 @@ import argparse
 import importlib
 import os
 import sys
+import warnings
+from pathlib import Path
 
 from neatskin.errors import NeatskinError
 
@@ -59,6 +61,7 @@ class _VersionAction(argparse.Action):
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    warnings.formatwarning = format_warning  # one line each, in the toolkit's voice (not file:line: Class: ...)
     try:
         result = args.handler(args)
     except NeatskinError as exc:
@@ -74,6 +77,17 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:
         return _quiet_broken_pipe()
     return int(result or 0)
+
+
+def format_warning(message, category, filename, lineno, line=None) -> str:
+    """A warning as one line: `neatskin: warning: <text>`, the text's own line breaks folded. A warning from
+    a library (numpy, scikit-learn) names its kind and module so it can be looked up; no source line is shown."""
+    text = " ".join(str(message).split())
+    module = getattr(category, "__module__", "")
+    if module.startswith("neatskin") or category is UserWarning:
+        return f"neatskin: warning: {text}\n"
+    origin = Path(filename).stem if filename else "?"
+    return f"neatskin: warning ({category.__name__} in {origin}): {text}\n"
 
 
 def _quiet_broken_pipe() -> int:
