@@ -10,12 +10,14 @@ so a web page elsewhere cannot read the campaign through DNS rebinding.
 
 from __future__ import annotations
 
+import errno
 import hmac
 import ipaddress
 import json
 import logging
 import mimetypes
 import secrets
+import socket
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -68,6 +70,10 @@ def resolve_inside(root: Path, rel: str) -> Path | None:
     return target
 
 
+CONNECTION_TIMEOUT_S = 10.0  # a connection idle (or trickling) this long in one read or write is closed
+MAX_CONNECTIONS = 32  # connections served at once (one thread each); the page needs one or two
+
+
 @dataclass(frozen=True)
 class MonitorConfig:
     folder: Path
@@ -75,16 +81,69 @@ class MonitorConfig:
     remote: bool  # bound to a non-loopback address (the page says so)
     host: str
     port: int
+    connection_timeout_s: float = CONNECTION_TIMEOUT_S
+    max_connections: int = MAX_CONNECTIONS
+
+
+def address_family(host: str) -> socket.AddressFamily:
+    """IPv6 for an IPv6 literal (`::1`, `[::1]`) or a name that resolves only to IPv6, else IPv4."""
+    bare = host.strip("[]")
+    try:
+        return socket.AF_INET6 if ipaddress.ip_address(bare).version == 6 else socket.AF_INET
+    except ValueError:
+        pass
+    try:
+        families = {info[0] for info in socket.getaddrinfo(bare, None, type=socket.SOCK_STREAM)}
+    except OSError:
+        return socket.AF_INET  # the bind then fails with the resolver's own words
+    return socket.AF_INET if socket.AF_INET in families or not families else socket.AF_INET6
 
 
 class MonitorServer(ThreadingHTTPServer):
+    """One thread per connection, at most `max_connections` at once (a connection beyond them gets a 503 and
+    is closed at once), each closed after `connection_timeout_s` without progress: idle or slow clients cannot
+    hold threads for ever."""
+
     daemon_threads = True
 
     def __init__(self, config: MonitorConfig) -> None:
         self.config = config
         self.view = CampaignView(config.folder)
         self.view_lock = threading.Lock()
-        super().__init__((config.host, config.port), _Handler)
+        self.slots = threading.BoundedSemaphore(config.max_connections)
+        self.address_family = address_family(config.host)
+        super().__init__((config.host.strip("[]"), config.port), _Handler)
+
+    def process_request(self, request, client_address) -> None:
+        if not self.slots.acquire(blocking=False):
+            self._refuse(request)
+            return
+        try:
+            super().process_request(request, client_address)
+        except BaseException:
+            self.slots.release()
+            raise
+
+    def process_request_thread(self, request, client_address) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self.slots.release()
+
+    def _refuse(self, request) -> None:
+        """Too many connections: a short 503, written without a thread, and the connection closed."""
+        body = b"busy: too many open connections to this monitor; try again in a moment"
+        head = (
+            f"HTTP/1.0 503 Service Unavailable\r\nContent-Type: text/plain\r\nContent-Length: {len(body)}\r\n"
+            "Retry-After: 1\r\nConnection: close\r\n\r\n"
+        )
+        try:
+            request.settimeout(0.5)
+            request.sendall(head.encode() + body)
+        except OSError:
+            pass
+        finally:
+            self.shutdown_request(request)
 
     @property
     def url(self) -> str:
@@ -96,6 +155,11 @@ class MonitorServer(ThreadingHTTPServer):
 class _Handler(BaseHTTPRequestHandler):
     server: MonitorServer
     server_version = "neatskin-monitor"
+
+    def setup(self) -> None:
+        super().setup()
+        # every read and write of this connection: an idle or trickling client is dropped, its thread freed
+        self.connection.settimeout(self.server.config.connection_timeout_s)
 
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 - the stdlib's signature
         log.debug("%s " + format, self.address_string(), *args)
@@ -197,8 +261,10 @@ def make_server(
     allow_remote: bool = False,
     token: str | None = None,
     read_only: bool = False,
+    **limits: Any,
 ) -> MonitorServer:
-    """A monitor server for `folder`, bound but not yet serving. token None and not read_only: a random one."""
+    """A monitor server for `folder`, bound but not yet serving. token None and not read_only: a random one.
+    `limits`: connection_timeout_s, max_connections (MonitorConfig's defaults otherwise)."""
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():  # a folder not made yet is fine: a campaign may be starting
         raise ConfigError(
@@ -218,13 +284,35 @@ def make_server(
     elif token is None:
         token = secrets.token_urlsafe(16)
     try:
-        return MonitorServer(MonitorConfig(folder, token, remote, host, port))
+        return MonitorServer(MonitorConfig(folder, token, remote, host, port, **limits))
     except OSError as exc:
-        raise ConfigError(
-            f"cannot listen on {host}:{port}: {exc.strerror or exc}",
+        raise _listen_error(host, port, exc) from exc
+
+
+def _listen_error(host: str, port: int, exc: OSError) -> ConfigError:
+    """Why the monitor cannot listen, with the fix for that reason: a port in use is not a missing address."""
+    reason = exc.strerror or str(exc)
+    if exc.errno == errno.EADDRINUSE:
+        return ConfigError(
+            f"cannot listen on {host}:{port}: {reason}",
             field="--port",
             fix="choose another port (--port 0 picks a free one), or stop the other monitor",
-        ) from exc
+        )
+    if exc.errno in (errno.EACCES, errno.EPERM):
+        return ConfigError(
+            f"cannot listen on {host}:{port}: {reason}", field="--port", fix="use a port above 1023 (default 8765)"
+        )
+    v6 = ":" in host
+    return ConfigError(
+        f"cannot listen on {host}: {reason}",
+        field="--host",
+        fix=(
+            "this machine has no IPv6 loopback (or IPv6 is off): use --host 127.0.0.1"
+            if v6
+            else "give an address of this machine: 127.0.0.1 (the default), ::1, or with --allow-remote one of "
+            "its network addresses"
+        ),
+    )
 
 
 def serve(
