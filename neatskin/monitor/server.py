@@ -72,6 +72,7 @@ def resolve_inside(root: Path, rel: str) -> Path | None:
 
 CONNECTION_TIMEOUT_S = 10.0  # a connection idle (or trickling) this long in one read or write is closed
 MAX_CONNECTIONS = 32  # connections served at once (one thread each); the page needs one or two
+MAX_BODY_BYTES = 4096  # a terminal line's JSON; nothing else is posted with a body
 
 
 @dataclass(frozen=True)
@@ -83,6 +84,7 @@ class MonitorConfig:
     port: int
     connection_timeout_s: float = CONNECTION_TIMEOUT_S
     max_connections: int = MAX_CONNECTIONS
+    printer_port: str | None = None  # the page's printer terminal talks to it (monitor.terminal's rule)
 
 
 def address_family(host: str) -> socket.AddressFamily:
@@ -111,8 +113,22 @@ class MonitorServer(ThreadingHTTPServer):
         self.view = CampaignView(config.folder)
         self.view_lock = threading.Lock()
         self.slots = threading.BoundedSemaphore(config.max_connections)
+        self.terminal = None
+        if config.printer_port is not None and config.token is not None:
+            from neatskin.monitor.terminal import PrinterTerminal
+
+            self.terminal = PrinterTerminal(config.folder, config.printer_port)
         self.address_family = address_family(config.host)
         super().__init__((config.host.strip("[]"), config.port), _Handler)
+
+    def service_actions(self) -> None:
+        if self.terminal is not None:  # between requests: a terminal left idle lets the printer port go
+            self.terminal.release_if_idle()
+
+    def server_close(self) -> None:
+        if self.terminal is not None:
+            self.terminal.close()
+        super().server_close()
 
     def process_request(self, request, client_address) -> None:
         if not self.slots.acquire(blocking=False):
@@ -215,7 +231,13 @@ class _Handler(BaseHTTPRequestHandler):
             with self.server.view_lock:
                 body = self.server.view.snapshot_json()
             cfg = self.server.config
-            server = {"controls": cfg.token is not None, "remote": cfg.remote, "bound_to": cfg.host}
+            server = {
+                "controls": cfg.token is not None,
+                "remote": cfg.remote,
+                "bound_to": cfg.host,
+                "terminal": self.server.terminal is not None,
+                "printer_port": cfg.printer_port if self.server.terminal is not None else None,
+            }
             body = body[:-1] + b', "server": ' + json.dumps(server).encode() + b"}"
             return self._send(HTTPStatus.OK, body, "application/json")
         if raw_path.startswith("/files/"):
@@ -230,20 +252,52 @@ class _Handler(BaseHTTPRequestHandler):
 
     # ---- POST ----
 
+    def _token_ok(self) -> bool:
+        token = self.server.config.token
+        given = self.headers.get(TOKEN_HEADER, "")
+        return token is not None and hmac.compare_digest(given.encode(), token.encode())
+
+    def _printer(self) -> None:
+        """POST /api/printer, body {"line": "M114"}: one terminal line and the printer's reply (terminal's rule)."""
+        from neatskin.monitor.terminal import TerminalRefused
+
+        terminal = self.server.terminal
+        if terminal is None:
+            return self._error(HTTPStatus.NOT_FOUND, "no printer terminal: start the monitor with --printer-port PORT")
+        if not self._token_ok():
+            return self._error(HTTPStatus.FORBIDDEN, "the terminal needs the token printed by `neatskin monitor`")
+        try:
+            length = int(self.headers.get("Content-Length", "0"))
+        except ValueError:
+            length = -1
+        if not 0 < length <= MAX_BODY_BYTES:
+            return self._error(HTTPStatus.BAD_REQUEST, 'send {"line": "..."} as JSON')
+        try:
+            line = json.loads(self.rfile.read(length).decode("utf-8"))["line"]
+            if not isinstance(line, str):
+                raise TypeError(line)
+        except (ValueError, KeyError, TypeError):
+            return self._error(HTTPStatus.BAD_REQUEST, 'send {"line": "..."} as JSON')
+        try:
+            reply = terminal.send(line)
+        except TerminalRefused as exc:
+            return self._error(HTTPStatus.CONFLICT, str(exc))
+        return self._json(HTTPStatus.OK, {"line": reply.line, "reply": reply.reply, "port": reply.port})
+
     def do_POST(self) -> None:  # noqa: N802
         if not self._host_ok():
             return self._error(HTTPStatus.FORBIDDEN, "unexpected Host header for a loopback monitor")
         path = urlsplit(self.path).path
+        if path == "/api/printer":
+            return self._printer()
         action = path[len("/api/control/") :] if path.startswith("/api/control/") else ""
         if action not in ACTIONS:
             return self._error(HTTPStatus.NOT_FOUND, "not found")
-        token = self.server.config.token
-        given = self.headers.get(TOKEN_HEADER, "")
-        if token is None or not hmac.compare_digest(given.encode(), token.encode()):
+        if not self._token_ok():
             return self._error(
                 HTTPStatus.FORBIDDEN,
                 "controls need the token printed by `neatskin monitor` in its terminal"
-                if token is not None
+                if self.server.config.token is not None
                 else "this monitor is read-only (--read-only)",
             )
         try:
@@ -261,6 +315,7 @@ def make_server(
     allow_remote: bool = False,
     token: str | None = None,
     read_only: bool = False,
+    printer_port: str | None = None,
     **limits: Any,
 ) -> MonitorServer:
     """A monitor server for `folder`, bound but not yet serving. token None and not read_only: a random one.
@@ -284,7 +339,7 @@ def make_server(
     elif token is None:
         token = secrets.token_urlsafe(16)
     try:
-        return MonitorServer(MonitorConfig(folder, token, remote, host, port, **limits))
+        return MonitorServer(MonitorConfig(folder, token, remote, host, port, printer_port=printer_port, **limits))
     except OSError as exc:
         raise _listen_error(host, port, exc) from exc
 
@@ -323,10 +378,19 @@ def serve(
     allow_remote: bool = False,
     token: str | None = None,
     read_only: bool = False,
+    printer_port: str | None = None,
     announce: Callable[[str], None] = log.info,
 ) -> None:
     """Serve the monitor until Ctrl-C; `announce` receives the URL and the control token."""
-    server = make_server(folder, host=host, port=port, allow_remote=allow_remote, token=token, read_only=read_only)
+    server = make_server(
+        folder,
+        host=host,
+        port=port,
+        allow_remote=allow_remote,
+        token=token,
+        read_only=read_only,
+        printer_port=printer_port,
+    )
     cfg = server.config
     announce(f"neatskin monitor: {cfg.folder} on {server.url}")
     if not cfg.folder.exists():
@@ -338,6 +402,10 @@ def serve(
     else:
         announce(f"  control token (paste it in the page to pause/continue/stop): {cfg.token}")
         announce(f"  or open {server.url}#token={cfg.token}")
+    if server.terminal is not None:
+        announce(f"  printer terminal on {cfg.printer_port}: works while no campaign holds this folder")
+    elif printer_port is not None:
+        announce("  no printer terminal: a read-only monitor has no token to guard it")
     try:
         server.serve_forever(poll_interval=0.25)
     except KeyboardInterrupt:
