@@ -120,6 +120,8 @@ function drawDrift(svg, drift) {
   // names at the right end, nudged apart so they do not overlap
   const labels = ends.filter((d) => named.has(d.p)).map((d) => ({ p: d.p, y: Y(d.end[1]) })).sort((a, b) => a.y - b.y);
   for (let i = 1; i < labels.length; i++) labels[i].y = Math.max(labels[i].y, labels[i - 1].y + 14);
+  if (labels.length) labels[labels.length - 1].y = Math.min(labels[labels.length - 1].y, B + 20); // inside the view
+  for (let i = labels.length - 2; i >= 0; i--) labels[i].y = Math.min(labels[i].y, labels[i + 1].y - 14);
   for (const lab of labels) {
     const hue = Math.round((lab.p * 360) / series.length);
     el("text", { x: R + 6, y: lab.y + 5, "font-size": 13, fill: `hsl(${hue},60%,35%)`, "data-label": drift.pairs[lab.p] }, svg, drift.pairs[lab.p]);
@@ -214,6 +216,7 @@ async function sendLine(ev) {
   ev.preventDefault();
   const input = $("terminalline"), out = $("terminalout"), line = input.value.trim();
   if (!line) return;
+  input.value = ""; // as a terminal: the line leaves the prompt when sent; the reply lands below
   const token = $("token").value.trim();
   const r = await fetch("/api/printer", { method: "POST", headers: { "X-Neatskin-Token": token, "Content-Type": "application/json" }, body: JSON.stringify({ line }) });
   const body = await r.json().catch(() => ({}));
@@ -221,7 +224,6 @@ async function sendLine(ev) {
   const text = r.ok ? [`${stamp} → ${body.line}`, ...body.reply.map((t) => `${stamp} ← ${t}`)] : [`${stamp} refused (${r.status}): ${body.error || ""}`];
   out.textContent = (out.textContent ? out.textContent + "\n" : "") + text.join("\n");
   out.scrollTop = out.scrollHeight; out.dataset.status = String(r.status);
-  if (r.ok) input.value = "";
 }
 
 async function poll() {
