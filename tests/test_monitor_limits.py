@@ -12,7 +12,8 @@ import threading
 import pytest
 
 from neatskin.errors import ConfigError
-from neatskin.monitor.server import _listen_error, address_family, make_server
+from neatskin.monitor.listen import address_family, listen_error
+from neatskin.monitor.server import make_server
 
 DEADLINE_S = 20.0  # a cap for the test's own reads, so a server that never closes fails instead of hanging
 
@@ -72,10 +73,10 @@ def test_ipv6_loopback_binds_or_says_why():
 
 
 def test_listen_errors_give_the_fix_for_their_reason():
-    in_use = _listen_error("127.0.0.1", 8765, OSError(errno.EADDRINUSE, "Address already in use"))
+    in_use = listen_error("127.0.0.1", 8765, OSError(errno.EADDRINUSE, "Address already in use"))
     assert in_use.problems[0].field == "--port" and "another port" in in_use.problems[0].fix
-    no_v6 = _listen_error("::1", 8765, OSError(errno.EAFNOSUPPORT, "Address family not supported by protocol"))
+    no_v6 = listen_error("::1", 8765, OSError(errno.EAFNOSUPPORT, "Address family not supported by protocol"))
     assert no_v6.problems[0].field == "--host" and "another port" not in no_v6.problems[0].fix
     assert "no IPv6 loopback" in no_v6.problems[0].fix
-    missing = _listen_error("10.9.9.9", 8765, OSError(errno.EADDRNOTAVAIL, "Cannot assign requested address"))
+    missing = listen_error("10.9.9.9", 8765, OSError(errno.EADDRNOTAVAIL, "Cannot assign requested address"))
     assert missing.problems[0].field == "--host" and "another port" not in missing.problems[0].fix

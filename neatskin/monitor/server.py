@@ -10,14 +10,12 @@ so a web page elsewhere cannot read the campaign through DNS rebinding.
 
 from __future__ import annotations
 
-import errno
 import hmac
 import ipaddress
 import json
 import logging
 import mimetypes
 import secrets
-import socket
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -29,6 +27,7 @@ from typing import Any
 from urllib.parse import unquote, urlsplit
 
 from neatskin.errors import ConfigError, NeatskinError
+from neatskin.monitor.listen import address_family, listen_error
 from neatskin.monitor.state import CampaignView
 from neatskin.rig.control import ACTIONS, request_control
 
@@ -85,20 +84,6 @@ class MonitorConfig:
     connection_timeout_s: float = CONNECTION_TIMEOUT_S
     max_connections: int = MAX_CONNECTIONS
     printer_port: str | None = None  # the page's printer terminal talks to it (monitor.terminal's rule)
-
-
-def address_family(host: str) -> socket.AddressFamily:
-    """IPv6 for an IPv6 literal (`::1`, `[::1]`) or a name that resolves only to IPv6, else IPv4."""
-    bare = host.strip("[]")
-    try:
-        return socket.AF_INET6 if ipaddress.ip_address(bare).version == 6 else socket.AF_INET
-    except ValueError:
-        pass
-    try:
-        families = {info[0] for info in socket.getaddrinfo(bare, None, type=socket.SOCK_STREAM)}
-    except OSError:
-        return socket.AF_INET  # the bind then fails with the resolver's own words
-    return socket.AF_INET if socket.AF_INET in families or not families else socket.AF_INET6
 
 
 class MonitorServer(ThreadingHTTPServer):
@@ -341,33 +326,7 @@ def make_server(
     try:
         return MonitorServer(MonitorConfig(folder, token, remote, host, port, printer_port=printer_port, **limits))
     except OSError as exc:
-        raise _listen_error(host, port, exc) from exc
-
-
-def _listen_error(host: str, port: int, exc: OSError) -> ConfigError:
-    """Why the monitor cannot listen, with the fix for that reason: a port in use is not a missing address."""
-    reason = exc.strerror or str(exc)
-    if exc.errno == errno.EADDRINUSE:
-        return ConfigError(
-            f"cannot listen on {host}:{port}: {reason}",
-            field="--port",
-            fix="choose another port (--port 0 picks a free one), or stop the other monitor",
-        )
-    if exc.errno in (errno.EACCES, errno.EPERM):
-        return ConfigError(
-            f"cannot listen on {host}:{port}: {reason}", field="--port", fix="use a port above 1023 (default 8765)"
-        )
-    v6 = ":" in host
-    return ConfigError(
-        f"cannot listen on {host}: {reason}",
-        field="--host",
-        fix=(
-            "this machine has no IPv6 loopback (or IPv6 is off): use --host 127.0.0.1"
-            if v6
-            else "give an address of this machine: 127.0.0.1 (the default), ::1, or with --allow-remote one of "
-            "its network addresses"
-        ),
-    )
+        raise listen_error(host, port, exc) from exc
 
 
 def serve(
