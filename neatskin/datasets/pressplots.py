@@ -188,8 +188,8 @@ def plot_press(folder: str | os.PathLike, press_id: int, out: str | os.PathLike)
         title = f"press {s.press_id}: R of {len(s.pairs)} pairs and FSR, recorded (one point per sweep: RMS over each pair's live window)"
     else:
         title = (
-            f"press {s.press_id}: SCHEMATIC rebuilt from features, not recorded\n(baseline and pressed R of "
-            f"{len(s.pairs)} pairs and the FSR peak, stepped at the FSR onset and offset; the campaign stored no waveforms)"
+            f"press {s.press_id}: SCHEMATIC rebuilt from features, not recorded (the campaign stored no waveforms)\n"
+            f"baseline and pressed R of {len(s.pairs)} pairs and the FSR peak, stepped at the FSR onset and offset"
         )
         for ax in (ax_f, ax_r):
             ax.text(
