@@ -26,6 +26,8 @@ def printer():
 
 
 def _serve(server):
+    if server.terminal is not None:  # the simulated printer does not reboot on open: no banner to wait 5 s for
+        server.terminal.connect_timeout_s = 1.0
     thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
     thread.start()
     return server
