@@ -58,6 +58,9 @@ def test_the_finished_page_reads_as_text_with_links_named_lines_and_one_clock(br
         assert sizes and min(px for _, px in sizes) >= 10.0, sizes  # the smallest label, in CSS pixels
         assert _text(browser, "updated").endswith("UTC") and "times UTC" in browser.page_source
         assert "ideal skin model" in _text(browser, "modellegend")
+        # the page's least-squares factor for the model's bars: exact on a model that is the measured / 2
+        assert browser.execute_script("return modelScale([2, 4, null, -6], [1, 2, 7, -3])") == 2
+        assert browser.execute_script("return modelScale([1, 2], [null, null])") is None
         assert "nothing of the rig" in _text(browser, "modelnote")
     finally:
         server.shutdown()
