@@ -142,3 +142,19 @@ def test_the_leak_scan_finds_what_a_campaign_folder_keeps(paper_layout, tmp_path
     folder = _recorded(tmp_path, paper_layout)
     leaks = _leaks((folder / "manifest.json").read_bytes()) + _leaks(_metadata_bytes(folder / "presses.parquet"))
     assert FAKE_HOST in leaks and any(root in leaks for root in _roots())
+
+
+def test_the_card_of_a_merged_dataset_gives_the_runs_protocol_and_scene(paper_layout, tmp_path):
+    folders = []
+    for name, seed in (("run-a", 1), ("run-b", 2)):
+        folder = _recorded(tmp_path, paper_layout, name, seed)
+        update_manifest(
+            folder,
+            fsync=False,
+            protocol_as_run={"campaign": {"name": "paper", "seed": seed}, "press": {"repeats": 3, "depth_mm": 3.5}},
+        )
+        folders.append(folder)
+    merged = merge(folders, tmp_path / "merged")
+    assert main(["dataset", "export", str(merged), "--format", "hf", "--out", str(tmp_path / "hf")]) == 0
+    card = (tmp_path / "hf" / "README.md").read_text()
+    assert "A merge of 2 runs" in card and "campaign `paper`, seed 1" in card and "Simulated (a dry run)" in card

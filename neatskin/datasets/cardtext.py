@@ -35,10 +35,22 @@ COLUMN_TEXT = {
 }
 
 
-def _protocol_lines(manifest: dict[str, Any]) -> list[str]:
+def run_manifests(manifest: dict[str, Any], table: pa.Table) -> list[dict[str, Any]]:
+    """The manifests of the runs behind the dataset: its own, or a merge's sources' (from the metadata)."""
+    if isinstance(manifest.get("protocol_as_run"), dict):
+        return [manifest]
+    from neatskin.datasets.schema import decode_metadata
+
+    sources = decode_metadata(table.schema.metadata).get("merged_from") or []
+    return [s["manifest"] for s in sources if isinstance(s, dict) and isinstance(s.get("manifest"), dict)]
+
+
+def _protocol_lines(manifest: dict[str, Any], runs: int = 1) -> list[str]:
     run = manifest.get("protocol_as_run")
     if not isinstance(run, dict):
-        return ["The manifest records no protocol (a merged or split dataset: see `neatskin_manifest.json`)."]
+        return [
+            "The manifest records no protocol (a split dataset, or one written by hand: see `neatskin_manifest.json`)."
+        ]
     campaign, positions, press = run.get("campaign", {}), run.get("positions", {}), run.get("press", {})
     excitation, acq, record = run.get("excitation", {}), run.get("acquisition", {}), run.get("record", {})
     lines = [
@@ -53,6 +65,8 @@ def _protocol_lines(manifest: dict[str, Any]) -> list[str]:
         f"{acq.get('rate_hz')} Hz, demodulation `{acq.get('demodulation')}`",
         f"- raw waveforms recorded: {'yes (not in this export: features only)' if record.get('waveforms') else 'no'}",
     ]
+    if runs > 1:
+        lines.insert(0, f"A merge of {runs} runs (the `source_run` column names each row's); the first run's protocol:")
     return lines + ["", "The protocol file as run is `inputs/protocol.toml` when present."]
 
 
@@ -102,6 +116,8 @@ def card_body(
     inputs: list[str],
     has_limit: bool,
 ) -> str:
+    runs = run_manifests(manifest, table)
+    first = runs[0] if runs else manifest
     flagged = int(pc.sum(pc.greater(pc.list_value_length(table.column("flags")), 0)).as_py() or 0)
     positions = len(np.unique(table.column("position_id").to_numpy()))
     lines = [
@@ -115,7 +131,7 @@ def card_body(
         "",
         "## Protocol",
         "",
-        *_protocol_lines(manifest),
+        *_protocol_lines(first, len(runs)),
         "",
         "## Skin",
         "",
@@ -123,7 +139,7 @@ def card_body(
         "",
         "## Scene",
         "",
-        *_scene_lines(manifest),
+        *_scene_lines(first),
         "",
         "## Splits",
         "",
