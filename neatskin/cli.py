@@ -18,11 +18,14 @@ import argparse
 import importlib
 import os
 import sys
+import warnings
+from pathlib import Path
 
 from neatskin.cligroups import Parser, command_group
 from neatskin.errors import ExitCode, NeatskinError, exit_code_of
 
 COMMAND_MODULES = (
+    "neatskin.config.cli",
     "neatskin.skin.cli",
     "neatskin.gcode.cli",
     "neatskin.marlin.cli",
@@ -77,6 +80,7 @@ class _VersionAction(argparse.Action):
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    warnings.formatwarning = format_warning  # one line each, in the toolkit's voice (not file:line: Class: ...)
     try:
         result = args.handler(args)
     except NeatskinError as exc:
@@ -100,6 +104,17 @@ def report_error(exc: NeatskinError) -> None:
     lines = [str(p) for p in problems] if problems else str(exc).splitlines() or [type(exc).__name__]
     for line in lines:
         print(f"neatskin: error: {line}", file=sys.stderr)
+
+
+def format_warning(message, category, filename, lineno, line=None) -> str:
+    """A warning as one line: `neatskin: warning: <text>`, the text's own line breaks folded. A warning from
+    a library (numpy, scikit-learn) names its kind and module so it can be looked up; no source line is shown."""
+    text = " ".join(str(message).split())
+    module = getattr(category, "__module__", "")
+    if module.startswith("neatskin") or category is UserWarning:
+        return f"neatskin: warning: {text}\n"
+    origin = Path(filename).stem if filename else "?"
+    return f"neatskin: warning ({category.__name__} in {origin}): {text}\n"
 
 
 def _quiet_broken_pipe() -> int:

@@ -13,6 +13,7 @@ from neatskin.baselines.dataset import load_baseline_data
 from neatskin.baselines.evaluate import evaluate_model
 from neatskin.baselines.models import MODEL_NAMES, make_model, make_models
 from neatskin.baselines.report import report_summary, run_baselines
+from neatskin.baselines.reporttext import sig3
 from neatskin.cli import main
 from neatskin.errors import DataError
 from neatskin.layout import load_layout
@@ -208,11 +209,13 @@ def test_the_report_shows_both_bounds_and_flags_memorisation_by_the_electronics_
     assert table["below_bound"].tolist() == expected.tolist()
     text = (folder / "report.md").read_text()
     assert "## Physical limit (`physical_limit.parquet`)" in text
-    assert "| electronics only (`crb_mm`): depth, fluid drift and landing point known | 0.5 |" in text
-    assert "as nuisances (`crb_nuisance_mm`; priors in the file's metadata) | 3 |" in text
+    assert (
+        "| electronics only (`crb_mm`): depth, fluid drift and landing point known | 0.500 |" in text
+    )  # 3 significant figures
+    assert "as nuisances (`crb_nuisance_mm`; priors in the file's metadata) | 3.00 |" in text
     assert "cannot beat it on average for presses at new positions" in text
     ratio = table["rms_over_crb_nuisance"].min()
-    assert f"at {ratio:.3g} times the bound with nuisances" in text
+    assert f"at {sig3(ratio)} times the bound with nuisances" in text  # 3 significant figures, as every cell
     summary = report_summary(report)
     assert "electronics only: 0.5 mm" in summary and "nuisances: 3 mm" in summary
     assert "RMS/CRB " in summary and "RMS/CRBn" in summary

@@ -105,8 +105,17 @@ def test_state_of_a_finished_campaign(served, finished):
     assert s["layout"]["name"] and len(s["layout"]["channels"]) == 12 and len(s["layout"]["electrodes"]) == 8
     assert s["printer"]["source"] == "commanded" and s["printer"]["Z"] == pytest.approx(60.0)  # parked
     # the dry run's printer has ADVANCED_OK, so its oks name the line: `ok N190 P16 B3`
-    assert re.search(r"< b'echo:NS program=done\\nok N\d+ P\d+ B\d+\\n'$", s["wire_tail"][-1]), s["wire_tail"][-1]
-    assert s["server"] == {"controls": True, "remote": False, "bound_to": "127.0.0.1"}
+    # the wire log as text (UTC clock, arrow, the line), one line per line on the wire, no b'...' reprs
+    assert re.fullmatch(r"\d\d:\d\d:\d\d\.\d{3} ← ok N\d+ P\d+ B\d+", s["wire_tail"][-1]), s["wire_tail"][-1]
+    assert re.fullmatch(r"\d\d:\d\d:\d\d\.\d{3} ← echo:NS program=done", s["wire_tail"][-2]), s["wire_tail"][-2]
+    assert not any("b'" in line for line in s["wire_tail"])
+    assert s["server"] == {
+        "controls": True,
+        "remote": False,
+        "bound_to": "127.0.0.1",
+        "terminal": False,
+        "printer_port": None,
+    }
 
 
 def test_state_of_a_killed_campaign(killed):

@@ -224,7 +224,7 @@ def run_baselines(
     from tqdm.auto import tqdm
 
     from neatskin.baselines.inversion import skin_inversion
-    from neatskin.baselines.plots import plot_bound_map, plot_error_ellipses, plot_error_vs_time
+    from neatskin.baselines.plots import floors_mm, plot_bound_map, plot_error_ellipses, plot_error_vs_time
 
     started = time.perf_counter()
     data = load_baseline_data(dataset_folder, flagged=flagged)
@@ -312,7 +312,7 @@ def run_baselines(
     )
     table.to_csv(files["table (CSV)"], index=False)
     table.to_parquet(files["table (parquet)"], index=False)
-    plot_error_vs_time(results, files["error vs time"], bound, table)
+    plot_error_vs_time(results, files["error vs time"], bound, table, floors=floors_mm(data.physical_limit))
     if bound_map_file is not None:
         files["bound map"] = bound_map_file
     for s in splits:

@@ -52,11 +52,22 @@ def register(subparsers) -> None:
     spl.add_argument("--seed", type=int, default=0, help="seed of the position shuffle (default 0)")
     spl.set_defaults(handler=_split)
 
-    exp = sub.add_parser("export", help="export the presses as one parquet or CSV file")
+    exp = sub.add_parser(
+        "export",
+        help="export the presses as one parquet or CSV file, or as a Hugging Face dataset folder (--format hf); "
+        "host names and local paths are removed",
+    )
     exp.add_argument("path", type=Path, help="campaign folder or .parquet file")
-    add_out(exp, "file to write", required=True)
-    exp.add_argument("--format", choices=("parquet", "csv"), help="default: from the output's suffix")
+    add_out(exp, "file (parquet, csv) or folder (hf) to write", required=True)
+    exp.add_argument(
+        "--format", choices=("parquet", "csv", "hf"), help="default: from the output's suffix; hf: a dataset folder"
+    )
     exp.add_argument("--drop-flagged", action="store_true", help="leave out presses that carry flags")
+    exp.add_argument("--license", default=None, help="hf: the dataset card's licence (default cc-by-4.0)")
+    exp.add_argument(
+        "--test-fraction", type=float, default=0.2, help="hf: share of positions in the test split (default 0.2)"
+    )
+    exp.add_argument("--seed", type=int, default=0, help="hf: seed of the position split (default 0)")
     exp.set_defaults(handler=_export)
 
     plot = sub.add_parser("plot", help="draw the sensitivity map (paper Fig. 8) and/or the press map as PNG")
@@ -130,6 +141,21 @@ def _split(args: argparse.Namespace) -> int:
 def _export(args: argparse.Namespace) -> int:
     from neatskin.datasets.curate import export, export_format
 
+    if args.format == "hf":
+        from neatskin.datasets.hfexport import DEFAULT_LICENSE, export_hf
+
+        licence = args.license or DEFAULT_LICENSE
+        out = export_hf(
+            args.path,
+            args.out,
+            license=licence,
+            test_fraction=args.test_fraction,
+            seed=args.seed,
+            drop_flagged=args.drop_flagged,
+        )
+        note = "" if args.license else " (the default: --license to change it)"
+        print(f"wrote {out}: README.md (licence {licence}{note}), data/train and data/test by position")
+        return 0
     fmt = export_format(args.out, args.format)
     print(f"wrote {export(args.path, args.out, fmt, drop_flagged=args.drop_flagged)}")
     return 0

@@ -180,10 +180,18 @@ def split(
 # ---- export --------------------------------------------------------------------------------------
 
 
+def _without_local_facts(table: pa.Table, path: Path) -> pa.Table:
+    """The table's metadata without host names and absolute paths (privacy.scrub): an export leaves the lab."""
+    from neatskin.datasets.privacy import recorded_hosts, scrub
+
+    hosts = recorded_hosts(manifest_or_empty(path if path.is_dir() else path.parent))
+    return table.replace_schema_metadata(encode_metadata(scrub(decode_metadata(table.schema.metadata), hosts)))
+
+
 def export(
     path: str | os.PathLike, out: str | os.PathLike, format: str = "parquet", *, drop_flagged: bool = False
 ) -> Path:
-    """One file: parquet (schema metadata kept) or CSV (flags joined by ';', ISO 8601 UTC timestamps, the
+    """One file: parquet (schema metadata kept, host names and local paths removed) or CSV (flags joined by ';', ISO 8601 UTC timestamps, the
     metadata in a `<out>.metadata.json` sidecar since CSV has nowhere to keep it)."""
     if format not in EXPORT_FORMATS:
         raise DataError(f"unknown export format {format!r}", field="format", fix=f"use one of {EXPORT_FORMATS}")
@@ -193,6 +201,7 @@ def export(
     table = read_press_table(path)
     if drop_flagged:
         table = table.filter(pa.array(~flagged_mask(table)))
+    table = _without_local_facts(table, Path(path))
     if format == "parquet":
         return write_table_durably(out, table)
     df = table.to_pandas()

@@ -1,5 +1,5 @@
-"""Merging campaigns into one dataset: press ids re-keyed, position ids made physical, provenance kept, the
-rows streamed source by source so that memory stays bounded however many presses the merge holds.
+"""Merging campaigns into one dataset: press ids re-keyed, position ids made physical, each row's source run
+named in a `source_run` column, provenance kept, the rows streamed source by source so that memory stays bounded however many presses the merge holds.
 """
 
 from __future__ import annotations
@@ -144,6 +144,30 @@ def _plan_source(folder: Path) -> _SourcePlan:
     )
 
 
+SOURCE_RUN = "source_run"  # the merged dataset's column naming the run each row came from
+
+
+def source_run_names(sources: Sequence[Path]) -> list[str]:
+    """Each source's run name: its folder's name (a file's stem), never a path; a name two sources share gets
+    `#2`, `#3`... in source order, so every row names exactly one source."""
+    names = [(folder.stem if folder.is_file() else folder.resolve().name) or "run" for folder in sources]
+    seen: dict[str, int] = {}
+    out = []
+    for name in names:
+        seen[name] = seen.get(name, 0) + 1
+        out.append(name if seen[name] == 1 and names.count(name) == 1 else f"{name}#{seen[name]}")
+    return out
+
+
+def _with_source_run(table: pa.Table, run: str) -> pa.Table:
+    """The rows with `source_run` after `campaign`: kept as is when the source is itself a merge (its rows
+    already name their runs), else the source's run name on every row."""
+    if SOURCE_RUN in table.column_names:
+        return table
+    column = pa.array([run] * table.num_rows, pa.string())
+    return table.add_column(table.schema.get_field_index("campaign") + 1, pa.field(SOURCE_RUN, pa.string()), column)
+
+
 def _rekeyed(table: pa.Table, press_offset: int, mapping: dict[int, int], schema: pa.Schema) -> pa.Table:
     """A source's rows with press ids shifted by press_offset and position ids mapped to physical ids."""
     pos = table.column("position_id").to_numpy()
@@ -204,7 +228,7 @@ def merge(
     plans = [_plan_source(folder) for folder in sources]
     first_folder, first = sources[0], plans[0]
     for folder, plan in zip(sources[1:], plans[1:]):
-        if plan.schema.names != first.schema.names:
+        if [n for n in plan.schema.names if n != SOURCE_RUN] != [n for n in first.schema.names if n != SOURCE_RUN]:
             raise DataError(
                 f"its electrode pairs differ from those of {first_folder}",
                 file=str(folder),
@@ -265,11 +289,13 @@ def merge(
     seeds = {json.dumps(p.manifest.get("seed", p.metadata.get("seed"))) for p in plans}
     if len(seeds) == 1:
         metadata["seed"] = manifest["seed"] = json.loads(seeds.pop())
-    plain = first.schema.remove_metadata()
+    plain = _with_source_run(first.schema.empty_table(), "").schema.remove_metadata()
+    runs = source_run_names(sources)
+    metadata["source_runs"] = runs
 
     def tables() -> Iterator[pa.Table]:
-        for folder, plan, mapping, offset in zip(sources, plans, position_maps, offsets):
-            yield _rekeyed(_as_planned(folder, plan), offset, mapping, plain)
+        for folder, plan, mapping, offset, run in zip(sources, plans, position_maps, offsets, runs):
+            yield _rekeyed(_with_source_run(_as_planned(folder, plan), run), offset, mapping, plain)
 
     _stream_table(out / CONSOLIDATED_NAME, plain.with_metadata(encode_metadata(metadata)), tables())
     n_rows = sum(p.presses for p in plans)

@@ -78,7 +78,7 @@ def _figure():
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=FIGSIZE_IN, dpi=DPI)
+    fig, ax = plt.subplots(figsize=FIGSIZE_IN, dpi=DPI, layout="constrained")  # title and bar kept apart
     return plt, fig, ax
 
 
@@ -118,11 +118,12 @@ def plot_sensitivity_map(
     points = sens[["x_mm", "y_mm"]].to_numpy(float)
     z = sens["z"].to_numpy(float)
     ok = np.isfinite(z)
+    vmin, vmax = colour_range(z)
     if ok.sum() >= 3 and np.linalg.matrix_rank(points[ok] - points[ok].mean(axis=0)) == 2:
         grid = griddata(points[ok], z[ok], (gx, gy), method="linear")
-        image = ax.pcolormesh(gx, gy, grid, cmap="viridis", vmin=-1, vmax=1, shading="auto")
+        image = ax.pcolormesh(gx, gy, grid, cmap="viridis", vmin=vmin, vmax=vmax, shading="auto")
     else:
-        image = ax.scatter(points[:, 0], points[:, 1], c=z, cmap="viridis", vmin=-1, vmax=1, s=60)
+        image = ax.scatter(points[:, 0], points[:, 1], c=z, cmap="viridis", vmin=vmin, vmax=vmax, s=60)
     fig.colorbar(image, ax=ax, label="normalised max dR (Fig. 8)")
     ax.scatter(points[:, 0], points[:, 1], s=6, color="black")
     _draw_channels(ax, layout)
@@ -132,8 +133,15 @@ def plot_sensitivity_map(
         ax,
         layout,
         Path(out),
-        f"Sensitivity: max over pairs of mean dR, {len(sens)} positions, {len(df)} presses",
+        f"Sensitivity (paper Fig. 8): max over pairs of mean dR\n{len(sens)} positions, {len(df)} presses",
     )
+
+
+def colour_range(z: np.ndarray) -> tuple[float, float]:
+    """The normalised map's colour range: 0..1 when no value is negative (a press raises dR: the usual case),
+    -1..1 when one is, so the bar spans the data and no more."""
+    finite = z[np.isfinite(z)]
+    return (0.0, 1.0) if finite.size == 0 or finite.min() >= 0 else (-1.0, 1.0)
 
 
 def plot_press_map(
@@ -145,14 +153,31 @@ def plot_press_map(
     per = df.groupby("position_id").agg(x_mm=("x_mm", "first"), y_mm=("y_mm", "first"), presses=("press_id", "size"))
     plt, fig, ax = _figure()
     _draw_channels(ax, layout)
-    image = ax.scatter(
-        per["x_mm"], per["y_mm"], c=per["presses"], cmap="plasma", s=40, edgecolors="black", linewidths=0.5, zorder=3
-    )
-    from matplotlib.ticker import MaxNLocator
+    counts = per["presses"].to_numpy(int)
+    if counts.size and counts.min() == counts.max():  # every position pressed alike: one colour, no bar to read
+        ax.scatter(per["x_mm"], per["y_mm"], color="tab:purple", s=40, edgecolors="black", linewidths=0.5, zorder=3)
+        repeats = f"{counts[0]} presses at every position"
+    else:
+        from matplotlib.colors import BoundaryNorm
 
-    bar = fig.colorbar(image, ax=ax, label="presses (repeats) at the position")
-    bar.locator = MaxNLocator(integer=True)
-    bar.update_ticks()
+        levels = np.arange(counts.min(), counts.max() + 2) - 0.5  # one colour per whole count
+        image = ax.scatter(
+            per["x_mm"],
+            per["y_mm"],
+            c=counts,
+            cmap="plasma",
+            norm=BoundaryNorm(levels, 256),
+            s=40,
+            edgecolors="black",
+            linewidths=0.5,
+            zorder=3,
+        )
+        from matplotlib.ticker import MaxNLocator
+
+        bar = fig.colorbar(image, ax=ax, label="presses (repeats) at the position")
+        bar.locator = MaxNLocator(integer=True)
+        bar.update_ticks()
+        repeats = f"{counts.min()} to {counts.max()} presses per position"
     for position_id, row in per.iterrows():
         ax.annotate(
             str(position_id),
@@ -162,4 +187,6 @@ def plot_press_map(
             fontsize=6,
             zorder=4,
         )
-    return _finish(plt, fig, ax, layout, Path(out), f"Pressed positions: {len(per)} positions, {len(df)} presses")
+    return _finish(
+        plt, fig, ax, layout, Path(out), f"Pressed positions: {len(per)} positions, {len(df)} presses\n({repeats})"
+    )

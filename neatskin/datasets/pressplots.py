@@ -163,6 +163,7 @@ def plot_press(folder: str | os.PathLike, press_id: int, out: str | os.PathLike)
             lw=1.5 if k in top else 0.7,
             label=label if k in top else None,
             marker="." if s.source == "waveforms" else None,
+            ls="-" if s.source == "waveforms" else "--",  # dashed: a schematic, not a measured trace
             ms=3,
             zorder=3 if k in top else 2,
         )
@@ -183,8 +184,28 @@ def plot_press(folder: str | os.PathLike, press_id: int, out: str | os.PathLike)
     ax_r.set_ylabel("R per pair (ohm)")
     ax_r.set_xlabel("time since the press record began (s)")
     ax_r.legend(title="5 largest changes (others grey)", fontsize=8, title_fontsize=8, loc="upper right")
-    note = "one point per sweep (RMS over each pair's live window)" if s.source == "waveforms" else "from features"
-    fig.suptitle(f"press {s.press_id}: R of {len(s.pairs)} pairs and FSR ({s.source}; {note})", fontsize=10)
+    if s.source == "waveforms":
+        title = f"press {s.press_id}: R of {len(s.pairs)} pairs and FSR, recorded (one point per sweep: RMS over each pair's live window)"
+    else:
+        title = (
+            f"press {s.press_id}: SCHEMATIC rebuilt from features, not recorded (the campaign stored no waveforms)\n"
+            f"baseline and pressed R of {len(s.pairs)} pairs and the FSR peak, stepped at the FSR onset and offset"
+        )
+        for ax in (ax_f, ax_r):
+            ax.text(
+                0.5,
+                0.5,
+                "rebuilt from features, not recorded",
+                transform=ax.transAxes,
+                ha="center",
+                va="center",
+                fontsize=16,
+                color="0.5",
+                alpha=0.35,
+                rotation=12,
+                zorder=1,
+            )
+    fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -43,6 +43,8 @@ BASE_FIELDS: tuple[pa.Field, ...] = (
     pa.field("flags", pa.list_(pa.string()), nullable=False),
 )
 BASE_COLUMNS: tuple[str, ...] = tuple(f.name for f in BASE_FIELDS)
+# columns a curated dataset may add beside the campaign's own: a merge names each row's source run
+OPTIONAL_COLUMNS = frozenset({"source_run"})
 NULLABLE_COLUMNS = frozenset(f.name for f in BASE_FIELDS if f.nullable)
 _PAIR_COLUMN = re.compile(r"^(d?R)_ohm_(\d+)_(\d+)$")
 

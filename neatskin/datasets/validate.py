@@ -21,7 +21,7 @@ from neatskin.datasets.manifest import MANIFEST_NAME, read_manifest, resolve_man
 from neatskin.datasets.paths import CONSOLIDATED_NAME, COPY_NAME, part_press_id, press_parts, waveform_parts
 from neatskin.datasets.reader import press_files
 from neatskin.datasets.scan import DatasetScan, read_schema, scan_files
-from neatskin.datasets.schema import BASE_FIELDS, decode_metadata, parse_pair_column, press_schema
+from neatskin.datasets.schema import BASE_FIELDS, OPTIONAL_COLUMNS, decode_metadata, parse_pair_column, press_schema
 from neatskin.datasets.writer import file_sha256, read_parquet
 from neatskin.errors import ConfigError, DataError, Problem
 from neatskin.layout import ElectrodePair, Layout, load_layout
@@ -215,7 +215,7 @@ def _schema_problems(schemas: list[tuple[Path, pa.Schema]], expected: pa.Schema)
     for file, schema in schemas:
         names = schema.names
         missing = [n for n in expected.names if n not in names]
-        extra = [n for n in names if n not in want]
+        extra = [n for n in names if n not in want and n not in OPTIONAL_COLUMNS]  # source_run of a merge
         if missing:
             grouped[
                 (

@@ -43,7 +43,7 @@ from neatskin.datasets.paths import (
     press_parts,
     waveform_parts,
 )
-from neatskin.datasets.schema import CheckedRow, RowEncoder, decode_metadata, press_schema
+from neatskin.datasets.schema import CheckedRow, RowEncoder, decode_metadata, encode_metadata, press_schema
 from neatskin.datasets.tables import (  # re-exported: callers import them from here
     deduplicate_sorted,
     file_sha256,
@@ -299,7 +299,10 @@ class CampaignWriter:
         return path
 
     def _write_waveforms(self, press_id: int, position_id: int, waveforms: Mapping[str, np.ndarray]) -> Path:
-        table = waveform_table(press_id, waveforms)
+        # every part carries the campaign's neatskin.* metadata (docs/datasets.md), with its press and position:
+        # a waveform file copied out of its folder still says what it is
+        meta = {**(self.schema.metadata or {}), **encode_metadata({"press_id": press_id, "position_id": position_id})}
+        table = waveform_table(press_id, waveforms).replace_schema_metadata(meta)
         folder = self._waveforms_dir / f"position_id={position_id}"
         if folder not in self._position_dirs:
             created = not folder.exists()

@@ -27,6 +27,12 @@ def register(subparsers) -> None:
         "--token", help="control token instead of a random one (other users can read it in the process list)"
     )
     monitor.add_argument("--read-only", action="store_true", help="no controls at all, not even with a token")
+    monitor.add_argument(
+        "--printer-port",
+        metavar="PORT",
+        help="the page's printer terminal sends lines to this port (with the token), only while no campaign "
+        "holds the folder",
+    )
     monitor.set_defaults(handler=_monitor)
 
     campaign = command_group(subparsers, "campaign", "run, resume or check a press campaign")
@@ -65,6 +71,7 @@ def _monitor(args: argparse.Namespace) -> int:
         allow_remote=args.allow_remote,
         token=args.token,
         read_only=args.read_only,
+        printer_port=args.printer_port,
         announce=print,
     )
     return 0

@@ -27,6 +27,7 @@ from typing import Any
 from urllib.parse import unquote, urlsplit
 
 from neatskin.errors import ConfigError, NeatskinError
+from neatskin.monitor.listen import address_family, listen_error
 from neatskin.monitor.state import CampaignView
 from neatskin.rig.control import ACTIONS, request_control
 
@@ -68,6 +69,11 @@ def resolve_inside(root: Path, rel: str) -> Path | None:
     return target
 
 
+CONNECTION_TIMEOUT_S = 10.0  # a connection idle (or trickling) this long in one read or write is closed
+MAX_CONNECTIONS = 32  # connections served at once (one thread each); the page needs one or two
+MAX_BODY_BYTES = 4096  # a terminal line's JSON; nothing else is posted with a body
+
+
 @dataclass(frozen=True)
 class MonitorConfig:
     folder: Path
@@ -75,16 +81,70 @@ class MonitorConfig:
     remote: bool  # bound to a non-loopback address (the page says so)
     host: str
     port: int
+    connection_timeout_s: float = CONNECTION_TIMEOUT_S
+    max_connections: int = MAX_CONNECTIONS
+    printer_port: str | None = None  # the page's printer terminal talks to it (monitor.terminal's rule)
 
 
 class MonitorServer(ThreadingHTTPServer):
+    """One thread per connection, at most `max_connections` at once (a connection beyond them gets a 503 and
+    is closed at once), each closed after `connection_timeout_s` without progress: idle or slow clients cannot
+    hold threads for ever."""
+
     daemon_threads = True
 
     def __init__(self, config: MonitorConfig) -> None:
         self.config = config
         self.view = CampaignView(config.folder)
         self.view_lock = threading.Lock()
-        super().__init__((config.host, config.port), _Handler)
+        self.slots = threading.BoundedSemaphore(config.max_connections)
+        self.terminal = None
+        if config.printer_port is not None and config.token is not None:
+            from neatskin.monitor.terminal import PrinterTerminal
+
+            self.terminal = PrinterTerminal(config.folder, config.printer_port)
+        self.address_family = address_family(config.host)
+        super().__init__((config.host.strip("[]"), config.port), _Handler)
+
+    def service_actions(self) -> None:
+        if self.terminal is not None:  # between requests: a terminal left idle lets the printer port go
+            self.terminal.release_if_idle()
+
+    def server_close(self) -> None:
+        if self.terminal is not None:
+            self.terminal.close()
+        super().server_close()
+
+    def process_request(self, request, client_address) -> None:
+        if not self.slots.acquire(blocking=False):
+            self._refuse(request)
+            return
+        try:
+            super().process_request(request, client_address)
+        except BaseException:
+            self.slots.release()
+            raise
+
+    def process_request_thread(self, request, client_address) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self.slots.release()
+
+    def _refuse(self, request) -> None:
+        """Too many connections: a short 503, written without a thread, and the connection closed."""
+        body = b"busy: too many open connections to this monitor; try again in a moment"
+        head = (
+            f"HTTP/1.0 503 Service Unavailable\r\nContent-Type: text/plain\r\nContent-Length: {len(body)}\r\n"
+            "Retry-After: 1\r\nConnection: close\r\n\r\n"
+        )
+        try:
+            request.settimeout(0.5)
+            request.sendall(head.encode() + body)
+        except OSError:
+            pass
+        finally:
+            self.shutdown_request(request)
 
     @property
     def url(self) -> str:
@@ -96,6 +156,11 @@ class MonitorServer(ThreadingHTTPServer):
 class _Handler(BaseHTTPRequestHandler):
     server: MonitorServer
     server_version = "neatskin-monitor"
+
+    def setup(self) -> None:
+        super().setup()
+        # every read and write of this connection: an idle or trickling client is dropped, its thread freed
+        self.connection.settimeout(self.server.config.connection_timeout_s)
 
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 - the stdlib's signature
         log.debug("%s " + format, self.address_string(), *args)
@@ -151,7 +216,13 @@ class _Handler(BaseHTTPRequestHandler):
             with self.server.view_lock:
                 body = self.server.view.snapshot_json()
             cfg = self.server.config
-            server = {"controls": cfg.token is not None, "remote": cfg.remote, "bound_to": cfg.host}
+            server = {
+                "controls": cfg.token is not None,
+                "remote": cfg.remote,
+                "bound_to": cfg.host,
+                "terminal": self.server.terminal is not None,
+                "printer_port": cfg.printer_port if self.server.terminal is not None else None,
+            }
             body = body[:-1] + b', "server": ' + json.dumps(server).encode() + b"}"
             return self._send(HTTPStatus.OK, body, "application/json")
         if raw_path.startswith("/files/"):
@@ -166,20 +237,52 @@ class _Handler(BaseHTTPRequestHandler):
 
     # ---- POST ----
 
+    def _token_ok(self) -> bool:
+        token = self.server.config.token
+        given = self.headers.get(TOKEN_HEADER, "")
+        return token is not None and hmac.compare_digest(given.encode(), token.encode())
+
+    def _printer(self) -> None:
+        """POST /api/printer, body {"line": "M114"}: one terminal line and the printer's reply (terminal's rule)."""
+        from neatskin.monitor.terminal import TerminalRefused
+
+        terminal = self.server.terminal
+        if terminal is None:
+            return self._error(HTTPStatus.NOT_FOUND, "no printer terminal: start the monitor with --printer-port PORT")
+        if not self._token_ok():
+            return self._error(HTTPStatus.FORBIDDEN, "the terminal needs the token printed by `neatskin monitor`")
+        try:
+            length = int(self.headers.get("Content-Length", "0"))
+        except ValueError:
+            length = -1
+        if not 0 < length <= MAX_BODY_BYTES:
+            return self._error(HTTPStatus.BAD_REQUEST, 'send {"line": "..."} as JSON')
+        try:
+            line = json.loads(self.rfile.read(length).decode("utf-8"))["line"]
+            if not isinstance(line, str):
+                raise TypeError(line)
+        except (ValueError, KeyError, TypeError):
+            return self._error(HTTPStatus.BAD_REQUEST, 'send {"line": "..."} as JSON')
+        try:
+            reply = terminal.send(line)
+        except TerminalRefused as exc:
+            return self._error(HTTPStatus.CONFLICT, str(exc))
+        return self._json(HTTPStatus.OK, {"line": reply.line, "reply": reply.reply, "port": reply.port})
+
     def do_POST(self) -> None:  # noqa: N802
         if not self._host_ok():
             return self._error(HTTPStatus.FORBIDDEN, "unexpected Host header for a loopback monitor")
         path = urlsplit(self.path).path
+        if path == "/api/printer":
+            return self._printer()
         action = path[len("/api/control/") :] if path.startswith("/api/control/") else ""
         if action not in ACTIONS:
             return self._error(HTTPStatus.NOT_FOUND, "not found")
-        token = self.server.config.token
-        given = self.headers.get(TOKEN_HEADER, "")
-        if token is None or not hmac.compare_digest(given.encode(), token.encode()):
+        if not self._token_ok():
             return self._error(
                 HTTPStatus.FORBIDDEN,
                 "controls need the token printed by `neatskin monitor` in its terminal"
-                if token is not None
+                if self.server.config.token is not None
                 else "this monitor is read-only (--read-only)",
             )
         try:
@@ -197,8 +300,11 @@ def make_server(
     allow_remote: bool = False,
     token: str | None = None,
     read_only: bool = False,
+    printer_port: str | None = None,
+    **limits: Any,
 ) -> MonitorServer:
-    """A monitor server for `folder`, bound but not yet serving. token None and not read_only: a random one."""
+    """A monitor server for `folder`, bound but not yet serving. token None and not read_only: a random one.
+    `limits`: connection_timeout_s, max_connections (MonitorConfig's defaults otherwise)."""
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():  # a folder not made yet is fine: a campaign may be starting
         raise ConfigError(
@@ -218,13 +324,9 @@ def make_server(
     elif token is None:
         token = secrets.token_urlsafe(16)
     try:
-        return MonitorServer(MonitorConfig(folder, token, remote, host, port))
+        return MonitorServer(MonitorConfig(folder, token, remote, host, port, printer_port=printer_port, **limits))
     except OSError as exc:
-        raise ConfigError(
-            f"cannot listen on {host}:{port}: {exc.strerror or exc}",
-            field="--port",
-            fix="choose another port (--port 0 picks a free one), or stop the other monitor",
-        ) from exc
+        raise listen_error(host, port, exc) from exc
 
 
 def serve(
@@ -235,10 +337,19 @@ def serve(
     allow_remote: bool = False,
     token: str | None = None,
     read_only: bool = False,
+    printer_port: str | None = None,
     announce: Callable[[str], None] = log.info,
 ) -> None:
     """Serve the monitor until Ctrl-C; `announce` receives the URL and the control token."""
-    server = make_server(folder, host=host, port=port, allow_remote=allow_remote, token=token, read_only=read_only)
+    server = make_server(
+        folder,
+        host=host,
+        port=port,
+        allow_remote=allow_remote,
+        token=token,
+        read_only=read_only,
+        printer_port=printer_port,
+    )
     cfg = server.config
     announce(f"neatskin monitor: {cfg.folder} on {server.url}")
     if not cfg.folder.exists():
@@ -250,6 +361,10 @@ def serve(
     else:
         announce(f"  control token (paste it in the page to pause/continue/stop): {cfg.token}")
         announce(f"  or open {server.url}#token={cfg.token}")
+    if server.terminal is not None:
+        announce(f"  printer terminal on {cfg.printer_port}: works while no campaign holds this folder")
+    elif printer_port is not None:
+        announce("  no printer terminal: a read-only monitor has no token to guard it")
     try:
         server.serve_forever(poll_interval=0.25)
     except KeyboardInterrupt:

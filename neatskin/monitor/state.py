@@ -9,6 +9,7 @@ campaign: every file may be missing or half-written, and each section then says 
 
 from __future__ import annotations
 
+import ast
 import json
 import logging
 import math
@@ -196,6 +197,44 @@ def _since_last_s(df: pd.DataFrame) -> float | None:
     return max(0.0, (pd.Timestamp.now(tz="UTC") - last).total_seconds())
 
 
+_WIRE_ENTRY = re.compile(r"^\d{4}-\d\d-\d\dT(\d\d:\d\d:\d\d)(\.\d{1,3})?\d*Z?\s+\S+\s+(\S) (b(['\"]).*\5)\s*$")
+WIRE_DIRECTIONS = {">": "→", "<": "←", "#": "#"}
+
+
+def wire_text(lines: Sequence[str]) -> list[str]:
+    """The wire log's entries as text: one line per line on the wire, `HH:MM:SS.mmm → N1 G21*27` (UTC, as the
+    log), bytes decoded instead of Python's b'...' reprs; an entry that is not one is kept as it is."""
+    out: list[str] = []
+    for entry in lines:
+        match = _WIRE_ENTRY.match(entry)
+        if match is None:
+            out.append(entry)
+            continue
+        try:
+            data = ast.literal_eval(match.group(4))
+        except (ValueError, SyntaxError):
+            out.append(entry)
+            continue
+        clock = match.group(1) + (match.group(2) or "")
+        arrow = WIRE_DIRECTIONS.get(match.group(3), match.group(3))
+        text = data.decode("utf-8", "replace") if isinstance(data, bytes) else str(data)
+        out.extend(f"{clock} {arrow} {part}" for part in (text.splitlines() or [""]))
+    return out[-WIRE_TAIL_LINES:]
+
+
+RESULT_FILES = ("report.md", "baselines.csv")  # with every PNG at the folder's top: the report's plots
+
+
+def result_links(folder: Path) -> list[dict[str, str]]:
+    """The report and its plots, as links the page shows (served read-only under /files/)."""
+    names = [n for n in RESULT_FILES if (folder / n).is_file()]
+    try:
+        names += sorted(p.name for p in folder.glob("*.png") if p.is_file())
+    except OSError:
+        pass
+    return [{"name": n, "href": f"/files/{n}"} for n in names]
+
+
 def wire_tail(folder: Path) -> tuple[list[str], dict[str, Any] | None]:
     """The wire log's last lines and the printer's last position: an M114 report if one is newer than the
     last commanded move, else the commanded target (printer coordinates)."""
@@ -293,7 +332,9 @@ class CampaignView:
             "quality": quality(df, pairs),
             "drift": self._drift(df, pairs),
             "printer": position,
-            "wire_tail": lines,
+            "wire_tail": wire_text(lines),
+            "results": result_links(folder),
+            "clock": "UTC",
         }
         return snap
 

@@ -1,5 +1,6 @@
-"""Sensitivity-map figures as PNG (paper Fig. 3 and Fig. 5 style): normalised dR_eq in [-1, 1],
-channel boundaries dashed, electrodes numbered. Matplotlib with the Agg backend; no screen needed."""
+"""Sensitivity-map figures as PNG (paper Fig. 3 and Fig. 5 style): normalised dR_eq, its colour bar 0..1 when no
+value is negative (a press only raises dR_eq) and -1..1 otherwise, channel boundaries dashed, electrodes numbered.
+Matplotlib with the Agg backend; no screen needed."""
 
 from __future__ import annotations
 
@@ -10,7 +11,17 @@ import numpy as np
 from neatskin.layout import ElectrodePair, Layout
 from neatskin.skin.maps import SensitivityMap
 
-_CMAP = "RdBu_r"
+_CMAP = "RdBu_r"  # diverging: for maps with negative values
+_CMAP_POSITIVE = "Reds"  # the same reds, from white at 0: for maps that are all >= 0
+
+
+def colour_scale(values: np.ndarray) -> tuple[str, float, float]:
+    """(colour map, vmin, vmax) fitted to the normalised values: 0..1 unless one of them is negative."""
+    finite = np.asarray(values, dtype=float)
+    finite = finite[np.isfinite(finite)]
+    if finite.size and finite.min() < 0:
+        return _CMAP, -1.0, 1.0
+    return _CMAP_POSITIVE, 0.0, 1.0
 
 
 def _pyplot():
@@ -63,9 +74,10 @@ def _field_on_grid(layout: Layout, smap: SensitivityMap, values: np.ndarray, ste
     return gx[0], gy[:, 0], field
 
 
-def _panel(ax, layout: Layout, smap: SensitivityMap, values: np.ndarray, title: str, step_mm: float):
+def _panel(ax, layout: Layout, smap: SensitivityMap, values: np.ndarray, title: str, step_mm: float, scale):
     xs, ys, field = _field_on_grid(layout, smap, values, step_mm)
-    mesh = ax.pcolormesh(xs, ys, field, cmap=_CMAP, vmin=-1, vmax=1, shading="nearest")
+    cmap, vmin, vmax = scale
+    mesh = ax.pcolormesh(xs, ys, field, cmap=cmap, vmin=vmin, vmax=vmax, shading="nearest")
     if smap.x_mm.size < 200:  # the paper's simulated presses: black dots
         ax.plot(smap.x_mm, smap.y_mm, "k.", ms=5)
     draw_layout(ax, layout)
@@ -80,7 +92,7 @@ def plot_z(layout: Layout, smap: SensitivityMap, path: str | Path, title: str, s
     """One map of z (paper eq. 2, Fig. 3) to a PNG file."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(5.4, 4.6), dpi=120, layout="constrained")
-    mesh = _panel(ax, layout, smap, smap.z, title, step_mm)
+    mesh = _panel(ax, layout, smap, smap.z, title, step_mm, colour_scale(smap.z))
     fig.colorbar(mesh, ax=ax, label="normalised max dR_eq over S")
     path = Path(path)
     fig.savefig(path)
@@ -102,8 +114,10 @@ def plot_pairs(
     rows = -(-len(pairs) // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 3.3 * rows), dpi=110, squeeze=False, layout="constrained")
     mesh = None
-    for ax, pair in zip(axes.flat, pairs):
-        mesh = _panel(ax, layout, smap, smap.pair_normalised(pair), f"pair {pair}", step_mm)
+    values = [smap.pair_normalised(pair) for pair in pairs]
+    scale = colour_scale(np.concatenate(values)) if values else colour_scale(np.zeros(1))  # one bar for all panels
+    for ax, pair, v in zip(axes.flat, pairs, values):
+        mesh = _panel(ax, layout, smap, v, f"pair {pair}", step_mm, scale)
     for ax in list(axes.flat)[len(pairs) :]:
         ax.axis("off")
     fig.suptitle(title, fontsize=10)
