@@ -133,7 +133,9 @@ def test_an_existing_output_is_refused(paper_layout, tmp_path):
     folder = _recorded(tmp_path, paper_layout)
     (tmp_path / "hf").mkdir()
     (tmp_path / "hf" / "x").write_text("keep")
-    assert main(["dataset", "export", str(folder), "--format", "hf", "--out", str(tmp_path / "hf")]) == 5  # a data error (neatskin.errors.ExitCode)
+    assert (
+        main(["dataset", "export", str(folder), "--format", "hf", "--out", str(tmp_path / "hf")]) == 5
+    )  # a data error (neatskin.errors.ExitCode)
     assert (tmp_path / "hf" / "x").read_text() == "keep"  # nothing overwritten
 
 

@@ -43,7 +43,9 @@ def test_the_copy_is_what_campaign_check_reads(tmp_path, capsys):
     skin = out / "skins" / "paper.toml"
     skin.write_text(skin.read_text().replace("[[junctions]]", "[[junctionz]]", 1))
     capsys.readouterr()
-    assert main(["campaign", "check", str(out / "smoke.toml")]) == 1  # the check failed (neatskin.errors.ExitCode.CHECK_FAILED)
+    assert (
+        main(["campaign", "check", str(out / "smoke.toml")]) == 1
+    )  # the check failed (neatskin.errors.ExitCode.CHECK_FAILED)
     assert str(skin) in capsys.readouterr().err
 
 
