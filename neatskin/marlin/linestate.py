@@ -94,6 +94,9 @@ class LineProtocol:
         self._probes_in_stall = 0
         self.motion = MotionTracker(self.profile, self.config.homing_time_s, self.config.default_feed_mm_s)
         self._motion_end = 0.0
+        # when each of the latest moves ends (host model): a move's ok waits at most for a planner slot
+        slots = (self.profile.planner_buffer_size if self.profile is not None else 16) - 1
+        self._move_ends: collections.deque[float] = collections.deque(maxlen=max(slots, 1))
         self.unsolicited: collections.deque[str] = collections.deque(maxlen=200)
         self.actions: list[str] = []
         self.stats = collections.Counter()
@@ -221,11 +224,17 @@ class LineProtocol:
     # ---- writing ----------------------------------------------------------------------------
 
     def _deadline(self, command: str | GcodeLine, now: float) -> float:
-        own_s, _ = self.motion.line_time_s(command)
+        own_s, waits = self.motion.line_time_s(command)
         own_s *= self.config.motion_time_scale
-        start = max(now, self._motion_end)  # a full planner delays any ok until queued motion runs out
-        self._motion_end = start + own_s
-        return self._motion_end + self.config.min_timeout_s
+        queued_end = max(now, self._motion_end)
+        self._motion_end = queued_end + own_s
+        if waits:  # it runs after the queued motion (M400, G4, G28, and conservatively anything not a move)
+            return self._motion_end + self.config.min_timeout_s
+        # a move is acknowledged once it has a planner slot: at the latest when the move `slots` back ends
+        ends = self._move_ends
+        slot_free = ends[0] if len(ends) == ends.maxlen else now
+        ends.append(self._motion_end)
+        return max(now, slot_free) + own_s + self.config.min_timeout_s
 
     def _send_line(self, job: Job | None, *, now: float, probe: bool = False, m110: bool = False) -> _Line:
         n = self._next_n
@@ -374,6 +383,7 @@ class LineProtocol:
             self.last_acked = (line.n, line.command)
         if line.command.split(" ", 1)[0] in _SYNCHRONISING:  # its ok means the planner ran empty
             self._motion_end = min(self._motion_end, now)
+            self._move_ends.clear()
         if line.m110:
             self._phase = "session"
             self.session = True
