@@ -46,7 +46,10 @@ class MarlinDriver:
         profile: PrinterProfile | None = None,
         wire_log: str | PathLike[str] | None = None,
         clock: Clock = time.monotonic,
+        rx_buffer_size: int | None = None,
     ) -> None:
+        """rx_buffer_size: the firmware's RX_BUFFER_SIZE (the printer profile's `rx_buffer_size`; default:
+        the profile's, else Marlin's stock 128): lines and probes in flight never hold more bytes."""
         self.port = port
         self.config = config
         self.profile = profile
@@ -57,7 +60,7 @@ class MarlinDriver:
         self._reader: threading.Thread | None = None
         self._channel: Channel | None = None
         self._stop = threading.Event()
-        self._protocol = LineProtocol(config, profile, self.port_name)
+        self._protocol = LineProtocol(config, profile, self.port_name, rx_buffer_size=rx_buffer_size)
         self._batch: list[Job] = []
         # what callers block on: the reader wakes them only when one of these finished (or the session
         # failed, or a drain ended), not for every `ok` of a batch: a waiter woken per line competes with

@@ -25,7 +25,8 @@ class DriverConfig:
     poll_s: float = 0.02  # the reader's read timeout: how often deadlines are checked
     write_timeout_s: float = 5.0  # a write that finds no room for this long: PortDead
     max_in_flight: int = 1  # >1 pipelines lines, only once the firmware's `ok N.. P.. B..` names them
-    rx_buffer_bytes: int = 127  # Marlin's RX_BUFFER_SIZE less one: bytes in flight never exceed it
+    # without a profile or an explicit rx_buffer_size: Marlin's stock RX_BUFFER_SIZE less one
+    rx_buffer_bytes: int = 127
     homing_time_s: float = 60.0
     default_feed_mm_s: float = 25.0
     motion_time_scale: float = 1.0  # real seconds per second of motion: 0 for a virtual-time simulated printer

@@ -39,6 +39,8 @@ class _Line:
     probe: bool = False
     m110: bool = False
     echoed: bool = False
+    bare_oks: int = 0  # oks that came while this probe had not echoed
+    superseded: bool = False  # an M118 probe the firmware never echoed: an M114 probe went out after it
     released: bool = False  # its caller was told it is acknowledged
 
 
@@ -51,11 +53,22 @@ class LineProtocol:
     """Marlin's host protocol, one session at a time; see the module docstring for the contract."""
 
     def __init__(
-        self, config: DriverConfig = DriverConfig(), profile: PrinterProfile | None = None, port_name: str = "<port>"
+        self,
+        config: DriverConfig = DriverConfig(),
+        profile: PrinterProfile | None = None,
+        port_name: str = "<port>",
+        *,
+        rx_buffer_size: int | None = None,
     ) -> None:
         self.config = config
         self.profile = profile
         self.port_name = port_name
+        # the firmware's RX_BUFFER_SIZE: given, else the profile's, else Marlin's stock 128; bytes in flight
+        # stay below it (one byte short, as Marlin's ring keeps one free)
+        size = rx_buffer_size or (profile.rx_buffer_size if profile is not None else config.rx_buffer_bytes + 1)
+        if size < 2:
+            raise ValueError(f"rx_buffer_size must be >= 2 bytes, got {size}")
+        self.rx_budget_bytes = size - 1
         self._outbox: list[bytes] = []
         self.stats: collections.Counter[str] = collections.Counter()
         self.reset(0.0)
@@ -88,6 +101,8 @@ class LineProtocol:
         self._resend_due = 0.0
         self._resend_ok_seen = False
         self._advanced_ok_seen = False
+        self._queue_free: int | None = None  # B of the latest `ok N.. P.. B..`: free slots of Marlin's command queue
+        self._probe_fallback = False  # the firmware answered an M118 probe with a bare ok: probe with M114 instead
         self._ok_after_resend: bool | None = self.config.ok_after_resend
         self._resends_without_ok = 0
         self._resend_counts: collections.Counter[int] = collections.Counter()
@@ -241,7 +256,10 @@ class LineProtocol:
         self._next_n += 1
         if job is not None:
             job.line = n
-        command = f"M118 E1 {PROBE_TAG} {n}" if probe else job.command if job is not None else ""
+        if probe:
+            command = "M114" if self._probe_fallback else f"M118 E1 {PROBE_TAG} {n}"
+        else:
+            command = job.command if job is not None else ""
         if probe or m110:
             deadline = max(now, self._motion_end) + self.config.min_timeout_s
         else:
@@ -251,6 +269,8 @@ class LineProtocol:
         self._inflight.append(line)
         self.stats["lines_sent"] += 1
         self.stats["max_in_flight"] = max(self.stats["max_in_flight"], len(self._inflight))
+        live = sum(len(other.data) for other in self._inflight if other.deadline > now or other is line)
+        self.stats["max_bytes_in_flight"] = max(self.stats["max_bytes_in_flight"], live)
         self._outbox.append(line.data)
         return line
 
@@ -262,16 +282,21 @@ class LineProtocol:
             self._send_line(job, now=now, probe=job.barrier)
 
     def _room_for(self, job: Job) -> bool:
-        """One line in flight; more (up to max_in_flight, within Marlin's RX buffer) only once the
-        firmware's `ok N..` names its lines, and never past a probe or an M110."""
+        """One line in flight; more only once the firmware's `ok N..` names its lines, and then within the
+        firmware's own accounting: never more lines than the free queue slots its latest `B` reported,
+        one slot short of max_in_flight (kept for a lost-ok probe), bytes within its RX buffer, and never
+        past a probe or an M110."""
         if not self._inflight:
             return True
         if self.config.max_in_flight <= 1 or not self._advanced_ok_seen or job.barrier:
             return False
-        if len(self._inflight) >= self.config.max_in_flight or any(line.probe or line.m110 for line in self._inflight):
+        lines = len(self._inflight) + 1
+        if lines > self.config.max_in_flight - 1 or any(line.probe or line.m110 for line in self._inflight):
+            return False
+        if self._queue_free is not None and lines > max(1, self._queue_free):
             return False
         in_flight = sum(len(line.data) for line in self._inflight)
-        return in_flight + len(job.command) + 16 <= self.config.rx_buffer_bytes
+        return in_flight + len(job.command) + 16 <= self.rx_budget_bytes
 
     # ---- reading ----------------------------------------------------------------------------
 
@@ -302,6 +327,8 @@ class LineProtocol:
             assert reply.number is not None
             self._on_probe_echo(reply.number, now)
         elif kind is Kind.WAIT:
+            pass
+        elif kind is Kind.DATA and self._probe_fallback and self._position_for_probe(text, now):
             pass
         else:
             if kind is Kind.ACTION:
@@ -350,6 +377,8 @@ class LineProtocol:
             self.stats["stray_oks"] += 1
             return
         head = self._inflight[0]
+        if reply.buffer_free is not None:
+            self._queue_free = reply.buffer_free
         if reply.number is not None:  # ADVANCED_OK names the line
             self._advanced_ok_seen = True
             if reply.number < head.n:
@@ -357,8 +386,12 @@ class LineProtocol:
                 return
             while self._inflight and self._inflight[0].n <= reply.number:
                 self._retire(self._inflight[0], now)
+        elif self._probe_fallback and reply.text[2:].lstrip(" :").startswith("X:") and self._ok_answers_probe(now):
+            return  # `ok X:.. Y:.. Z:..` (OctoPrint's M114 form) answered the fallback probe
         elif head.probe and not head.echoed:
-            # the firmware echoes a probe before its ok: this ok is a duplicate of an earlier one
+            # the firmware echoes a probe before its ok: this ok is a duplicate of an earlier one, or the
+            # firmware does not echo M118 (then the probe falls back to M114 when it is overdue)
+            head.bare_oks += 1
             self.stats["stray_oks"] += 1
             return
         else:
@@ -492,6 +525,30 @@ class LineProtocol:
         probe.echoed = True
         probe.deadline = now + self.config.min_timeout_s
 
+    def _ok_answers_probe(self, now: float) -> bool:
+        """A position carried on an `ok` answers the first M114 in flight: when that is the fallback probe,
+        it ran every line before it (its echo and its ok at once)."""
+        first = next((line for line in self._inflight if line.command == "M114" and not line.echoed), None)
+        if first is None or not first.probe:
+            return False
+        self._on_probe_echo(first.n, now)
+        self._retire(first, now)
+        return True
+
+    def _position_for_probe(self, text: str, now: float) -> bool:
+        """An M114 reply that answers the fallback probe (the first M114 in flight not yet answered is it)."""
+        if not text.startswith("X:") or " Count " not in text:
+            return False
+        first = next((line for line in self._inflight if line.command == "M114" and not line.echoed), None)
+        if first is None:
+            return False
+        first.echoed = True  # a caller's own M114 takes its own reply; a probe's is its echo
+        if not first.probe:
+            return False
+        first.echoed = False
+        self._on_probe_echo(first.n, now)
+        return True
+
     def _overdue(self, head: _Line, now: float) -> None:
         if head.probe and head.echoed:  # the probe ran; its own ok was lost
             self.stats["oks_recovered"] += 1
@@ -510,14 +567,27 @@ class LineProtocol:
             head.deadline = now + self.config.min_timeout_s
             self._outbox.append(head.data)
             return
+        if head.probe and not head.echoed and head.bare_oks and not self._probe_fallback:
+            # the firmware acknowledged the M118 probe with a bare ok and never echoed it (a firmware
+            # without M118's echo): from now on probe with M114, whose position reply it prints only
+            # once it ran every line before it
+            log.debug("the printer answers M118 with a bare ok: probing with M114")
+            self._probe_fallback = True
+            self.stats["probe_fallbacks"] += 1
+            head.superseded = True
         if self._probes_in_stall >= self.config.probe_attempts:
             self._fail_here(
                 E.NoAnswer, f"no ok for N{head.n} {head.command!r} and no answer to {self._probes_in_stall} probes"
             )
             return
+        pending = next((line for line in self._inflight if line.probe and not line.superseded), None)
+        if pending is None and not self._probe_fits(now):
+            # the probe counts against the cap: wait until the lines still due leave room for it
+            head.deadline = min(line.deadline for line in self._inflight if line.deadline > now)
+            self.stats["probes_deferred"] += 1
+            return
         self._probes_in_stall += 1
         self.stats["probes"] += 1
-        pending = next((line for line in self._inflight if line.probe), None)
         if pending is not None:  # the probe itself went missing: say it again under its number
             pending.deadline = max(now, self._motion_end) + self.config.min_timeout_s
             self._outbox.append(pending.data)
@@ -526,6 +596,18 @@ class LineProtocol:
             probe = self._send_line(None, now=now, probe=True)
         for line in self._inflight:
             line.deadline = max(line.deadline, probe.deadline)
+
+    def _probe_fits(self, now: float) -> bool:
+        """Whether a new probe stays within max_in_flight lines and the RX budget. Lines past their
+        deadline are out of the firmware's RX buffer (run, queued or lost), so they do not count."""
+        live = [line for line in self._inflight if line.deadline > now]
+        if not live:
+            return True
+        command = "M114" if self._probe_fallback else f"M118 E1 {PROBE_TAG} {self._next_n}"
+        probe_bytes = len(frame(command, self._next_n))
+        if len(live) + 1 > max(self.config.max_in_flight, 2):
+            return False
+        return sum(len(line.data) for line in live) + probe_bytes <= self.rx_budget_bytes
 
     # ---- failure ------------------------------------------------------------------------------
 
