@@ -11,8 +11,10 @@ Skips with the reason when the firmware folder is absent.
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -140,3 +142,41 @@ def test_printer_send_exits_0_with_noise(tmp_path):
             assert f"sent {len(program) + 1} lines" in done.stdout
             assert ran(relay) == program
             assert relay.corrupted and relay.dropped
+
+
+@pytest.mark.timeout(90)
+@pytest.mark.slow
+def test_ctrl_c_at_depth_lifts_to_the_travel_height(tmp_path):
+    """SIGINT while the probe dwells 2 mm below the surface (Z 5.5): with the paper profile it ends at the
+    profile's travel height, safe height 10 above the surface (Z 15.5), above the program's own Z 8."""
+    assert MARLIN is not None
+    gcode = tmp_path / "press.gcode"
+    gcode.write_text(
+        "\n".join(["G90", "G92 X100 Y100 Z8", "G1 Z5.5 F300", "G1 Z3.5 F120", "G4 S3", "G1 Z8 F300", "M400"]) + "\n"
+    )
+    with FirmwareRelay(MARLIN / PLAIN) as relay:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "neatskin", "printer", "send", "--port", relay.path, "--no-progress"]
+            + ["--boot-timeout-s", "0.1", "--profile", str(PROFILE), str(gcode)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=REPO,
+            env={**os.environ, "PYTHONPATH": str(REPO)},
+        )
+        assert relay.wait_for(lambda line: line.startswith(b"ok"), 20)  # the handshake
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not any(b"G4 S3" in line for _, d, line in relay.transcript if d == ">"):
+            time.sleep(0.05)
+        time.sleep(1.5)  # the probe is at Z 3.5, two mm into the skin, dwelling (Z 8 -> 3.5 takes about 1.2 s)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+        assert proc.returncode == 130, err
+        # where the firmware put the probe: M114 asked directly of the firmware, after the CLI left
+        relay.send_raw(b"M400\nM114\n")
+        assert relay.wait_for(lambda line: line.startswith(b"X:") and b"Count" in line, 10)
+    position = [line for line in relay.replies() if line.startswith(b"X:")][-1]
+    z_mm = float(position.split(b"Z:")[1].split()[0])
+    assert z_mm == 15.5, (z_mm, err)
+    assert "lifted the probe by 12.000 mm (Z was 3.5 mm, travel height 15.5 mm)" in err, err
+    assert "the printer reports Z 15.5 mm" in err, err
