@@ -68,6 +68,12 @@ class MarlinDriver:
         self._awaited: list[Job] = []
         self._commands = CommandParser()
         self._draining = 0
+        self._reader_running = False
+        self._asleep = False  # the reader is in a read that ends at _sleeping_until (None: only on data or wake())
+        self._sleeping_until: float | None = None
+        self.reader_wakeups = 0  # reads that ended (data, a deadline, a wake): the reader does not poll
+        self._progress_waiters = 0
+        self._progress_at = 0.0
 
     @classmethod
     def open(cls, url: str, baud_rate: int = 115200, **kwargs: Any) -> MarlinDriver:
@@ -140,7 +146,7 @@ class MarlinDriver:
         self._stop_reader()
         if self.wire_log_path is not None and self._wire is None:
             try:
-                self._wire = WireLog(self.wire_log_path)
+                self._wire = WireLog(self.wire_log_path, clock=self.clock)
             except OSError as exc:
                 raise E.WireLogFailed(f"{self.wire_log_path}: {exc}", port=self.port_name) from exc
         try:
@@ -152,11 +158,12 @@ class MarlinDriver:
             if "exclusively lock" in str(exc) or "Resource temporarily unavailable" in str(exc):
                 raise E.PortBusy(f"cannot open it exclusively: {exc}", port=self.port_name) from exc
             raise E.PortDead(f"cannot open: {exc}", port=self.port_name) from exc
-        self._channel = channel_for(self.port)
+        self._channel = channel_for(self.port, self.clock)
         with self._cond:
             hello = self._protocol.start_session(self.clock(), boot_timeout_s)
             self._flush()
         self._stop.clear()
+        self._reader_running = True
         self._reader = threading.Thread(target=self._run, name=f"marlin-reader {self.port_name}", daemon=True)
         self._reader.start()
         self._wait(hello)
@@ -187,9 +194,11 @@ class MarlinDriver:
             return
         self._stop.set()
         if self._channel is not None:
-            self._channel.cancel()
+            self._channel.wake()
         self._reader.join(timeout=2.0)
         self._reader = None
+        if self._channel is not None:
+            self._channel.close()
         with self._cond:
             n, cmd = self._protocol.last_acked
             self._protocol.fail(E.PortDead("the driver was closed", last_line=n, last_command=cmd, port=self.port_name))
@@ -198,36 +207,60 @@ class MarlinDriver:
     # ---- the transport: the reader thread and the writes --------------------------------------
 
     def _run(self) -> None:
+        """Read, feed the protocol, write what it asks for; sleep until its next deadline, not by polling."""
         channel = self._channel
         assert channel is not None
-        poll_s = self.config.poll_s
-        protocol = self._protocol
-        while not self._stop.is_set():
-            try:
-                data = channel.read(poll_s)
-            except Exception as exc:  # noqa: BLE001 - SerialException, OSError: the port is gone
-                if not self._stop.is_set():
-                    with self._cond:
-                        protocol.port_failed(f"read failed: {exc}")
-                        self._cond.notify_all()
-                return
-            with self._cond:
-                if data:
-                    self._log("<", data)
-                    protocol.receive(data, self.clock())
-                else:
-                    protocol.tick(self.clock())
-                self._flush()
-                if self._should_wake():
-                    self._cond.notify_all()
+        protocol, clock, cond = self._protocol, self.clock, self._cond
+        try:
+            while not self._stop.is_set():
+                with cond:
+                    deadline = protocol.next_deadline()
+                    self._sleeping_until, self._asleep = deadline, True
+                    now = clock()
+                try:
+                    data = channel.read(None if deadline is None else max(0.0, deadline - now))
+                except Exception as exc:  # noqa: BLE001 - SerialException, OSError: the port is gone
+                    if not self._stop.is_set():
+                        with cond:
+                            protocol.port_failed(f"read failed: {exc}")
+                    return
+                with cond:
+                    self._asleep = False  # awake: it reads the next deadline before it sleeps again
+                    self.reader_wakeups += 1
+                    if data:
+                        self._log("<", data)
+                        protocol.receive(data, clock())
+                    else:
+                        protocol.tick(clock())
+                    self._flush()
+                    if self._should_wake():
+                        cond.notify_all()
+        finally:
+            with cond:
+                self._reader_running = False
+                cond.notify_all()  # a caller waiting on a job sees that no one will finish it
 
     def _should_wake(self) -> bool:
         """Whether a blocked caller has something to see (called with the lock held)."""
         if self._protocol.failure is not None:
             return True
-        if self._draining and not self._protocol.in_flight:
+        if self._draining and self._protocol.drained:
             return True
-        return any(job.done for job in self._awaited)
+        if any(job.done for job in self._awaited):
+            return True
+        if self._progress_waiters and self.clock() - self._progress_at >= 0.1:
+            self._progress_at = self.clock()
+            return True
+        return False
+
+    def _wake_reader_for(self) -> None:
+        """After new work from a caller's thread (lock held): wake the reader if it sleeps past the new deadline."""
+        if not self._asleep or self._channel is None:
+            return
+        deadline, until = self._protocol.next_deadline(), self._sleeping_until
+        if deadline is not None and (until is None or deadline < until):
+            self._asleep = False  # one wake is enough
+            self._channel.wake()
 
     def _flush(self) -> None:
         """Write what the protocol asks for, in one write (called with the lock held).
@@ -269,25 +302,31 @@ class MarlinDriver:
                 raise E.PortDead("not connected: call connect() first", port=self.port_name)
             self._protocol.submit(jobs, self.clock())
             self._flush()
+            self._wake_reader_for()
 
     def _wait(self, job: Job, progress: Callable[[], None] | None = None) -> None:
         """Until the protocol finishes job (it has a deadline for every line it sends)."""
         with self._cond:
             self._awaited.append(job)
+            self._progress_waiters += progress is not None
             try:
                 while not job.done:
-                    self._cond.wait(0.1)
-                    if self._reader is None or not self._reader.is_alive():
+                    if not self._reader_running:
                         n, cmd = self._protocol.last_acked
                         error = E.PortDead(
                             "the reader thread stopped", last_line=n, last_command=cmd, port=self.port_name
                         )
                         self._protocol.fail(error)
                         job.finish(error)
+                        break
+                    # no timeout: the reader notifies when this job finishes, the session fails, progress
+                    # is due (0.1 s on the driver's clock) or the reader ends; every line has a deadline
+                    self._cond.wait()
                     if progress is not None:
                         progress()
             finally:
                 self._awaited.remove(job)
+                self._progress_waiters -= progress is not None
         if job.error is not None:
             raise job.error
 
@@ -379,11 +418,13 @@ class MarlinDriver:
                 E.Interrupted("taken back before sending", last_line=n, last_command=cmd, port=self.port_name)
             )
             self._cond.notify_all()  # a caller blocked on a job taken back sees it now
-            end = self.clock() + (timeout_s if timeout_s is not None else self.config.max_busy_s)
+            # the time limit is the protocol's, on the driver's clock: the reader wakes for it and tells us
+            self._protocol.drain(self.clock(), timeout_s if timeout_s is not None else self.config.max_busy_s)
+            self._wake_reader_for()
             self._draining += 1
             try:
-                while self._protocol.in_flight and self._protocol.failure is None and self.clock() < end:
-                    self._cond.wait(0.1)
+                while not self._protocol.drained and self._reader_running:
+                    self._cond.wait()
             finally:
                 self._draining -= 1
         return self.batch_acknowledged()

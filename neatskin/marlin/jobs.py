@@ -22,7 +22,9 @@ class DriverConfig:
     max_resends: int = 12  # the same line asked for this often -> ResendLoop
     resend_grace_s: float = 0.02  # while the dialect is unknown: wait this long for an `ok` after `Resend:`
     duplicate_resend_s: float = 1.0  # an identical `Resend: n` with no new error within this is a duplicate
-    poll_s: float = 0.02  # the reader's read timeout: how often deadlines are checked
+    # the read timeout of a port read through pyserial's API (the raw pty/tty channel sleeps until the
+    # protocol's next deadline instead): how late a deadline may be noticed there
+    poll_s: float = 0.02
     write_timeout_s: float = 5.0  # a write that finds no room for this long: PortDead
     max_in_flight: int = 1  # >1 pipelines lines, only once the firmware's `ok N.. P.. B..` names them
     # without a profile or an explicit rx_buffer_size: Marlin's stock RX_BUFFER_SIZE less one

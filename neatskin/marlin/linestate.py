@@ -107,6 +107,8 @@ class LineProtocol:
         self._resends_without_ok = 0
         self._resend_counts: collections.Counter[int] = collections.Counter()
         self._probes_in_stall = 0
+        self._drain_deadline: float | None = None
+        self.drain_expired = False
         self.motion = MotionTracker(self.profile, self.config.homing_time_s, self.config.default_feed_mm_s)
         self._motion_end = 0.0
         # when each of the latest moves ends (host model): a move's ok waits at most for a planner slot
@@ -151,8 +153,40 @@ class LineProtocol:
             self._rx = self._rx[-_MAX_LINE_BYTES:]
         self.tick(now)
 
+    def next_deadline(self) -> float | None:
+        """The earliest time at which tick() has something to do (None: nothing until the printer says
+        something or new work comes): a transport sleeps until it instead of polling."""
+        if self.failure is not None:
+            return None
+        if self._phase == "booting":
+            settle = None if self._boot_seen_s is None else self._boot_seen_s + _BOOT_SETTLE_S
+            return self._boot_deadline if settle is None else min(settle, self._boot_deadline)
+        times: list[float] = []
+        if self._phase == "handshake":
+            times.append(self._connect_deadline)
+        if self._pending_resend is not None:
+            times.append(self._resend_due)
+        elif self._inflight:
+            times.append(self._inflight[0].deadline)
+        if self._drain_deadline is not None and not self.drain_expired:
+            times.append(self._drain_deadline)
+        return min(times) if times else None
+
+    def drain(self, now: float, timeout_s: float) -> None:
+        """Wait for the lines in flight no longer than timeout_s: `drained` turns true when none is left, the
+        session failed, or the time is up (drain_expired). Queued jobs are taken back by cancel_queued."""
+        self._drain_deadline = now + timeout_s
+        self.drain_expired = False
+
+    @property
+    def drained(self) -> bool:
+        return not self._inflight or self.failure is not None or self.drain_expired
+
     def tick(self, now: float) -> None:
         """Let time pass: replay requested lines, probe overdue ones, send queued ones, fail what is too late."""
+        if self._drain_deadline is not None and now >= self._drain_deadline:
+            self.drain_expired = True
+            self._drain_deadline = None
         if self.failure is not None:
             return
         if self._phase == "booting":
