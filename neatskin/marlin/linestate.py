@@ -24,6 +24,7 @@ from neatskin.marlin import errors as E
 from neatskin.marlin.deadlines import MotionTracker
 from neatskin.marlin.jobs import DriverConfig, Job
 from neatskin.marlin.replies import PROBE_TAG, Kind, Reply, classify, frame
+from neatskin.marlin.resends import ResendState
 
 log = logging.getLogger(__name__)
 
@@ -92,20 +93,11 @@ class LineProtocol:
         self._hello: Job | None = None
         self.last_acked: tuple[int | None, str | None] = (None, None)
         self.acked_jobs = 0
-        self._comm_errors = 0
-        self._fw_last_line: int | None = None  # the firmware's `Last Line:` with the latest comm error
         self._history: dict[int, _Line] = {}  # recently acknowledged lines, for a firmware that never took them
-        self._stale_streak = 0
-        self._served: tuple[int | None, int, float] = (None, -1, 0.0)  # (n, comm_errors at serve, time)
-        self._pending_resend: int | None = None
-        self._resend_due = 0.0
-        self._resend_ok_seen = False
+        self._resend = ResendState(self.config.ok_after_resend)
         self._advanced_ok_seen = False
         self._queue_free: int | None = None  # B of the latest `ok N.. P.. B..`: free slots of Marlin's command queue
         self._probe_fallback = False  # the firmware answered an M118 probe with a bare ok: probe with M114 instead
-        self._ok_after_resend: bool | None = self.config.ok_after_resend
-        self._resends_without_ok = 0
-        self._resend_counts: collections.Counter[int] = collections.Counter()
         self._probes_in_stall = 0
         self._drain_deadline: float | None = None
         self.drain_expired = False
@@ -164,8 +156,8 @@ class LineProtocol:
         times: list[float] = []
         if self._phase == "handshake":
             times.append(self._connect_deadline)
-        if self._pending_resend is not None:
-            times.append(self._resend_due)
+        if self._resend.pending is not None:
+            times.append(self._resend.due)
         elif self._inflight:
             times.append(self._inflight[0].deadline)
         if self._drain_deadline is not None and not self.drain_expired:
@@ -201,13 +193,13 @@ class LineProtocol:
                 f"({self._connect_attempts} M110 sent, {self._starts} `start` seen)",
             )
             return
-        if self._pending_resend is not None and now >= self._resend_due:
+        if self._resend.pending is not None and now >= self._resend.due:
             self._replay(now)
         if not self._inflight:
             self._pump(now)
             return
         head = self._inflight[0]
-        if now < head.deadline or self._pending_resend is not None:
+        if now < head.deadline or self._resend.pending is not None:
             return
         self._overdue(head, now)
 
@@ -266,9 +258,9 @@ class LineProtocol:
                 f"and the printer never acknowledged it ({self._starts} `start` seen)",
             )
             return
-        self._pending_resend = self._inflight[0].n
-        self._resend_due = now + _BOOT_SETTLE_S
-        self._resend_ok_seen = False
+        self._resend.pending = self._inflight[0].n
+        self._resend.due = now + _BOOT_SETTLE_S
+        self._resend.ok_seen = False
 
     # ---- writing ----------------------------------------------------------------------------
 
@@ -311,7 +303,7 @@ class LineProtocol:
     def _pump(self, now: float) -> None:
         if self._phase != "session":
             return
-        while self._queue and self.failure is None and self._pending_resend is None and self._room_for(self._queue[0]):
+        while self._queue and self.failure is None and self._resend.pending is None and self._room_for(self._queue[0]):
             job = self._queue.popleft()
             self._send_line(job, now=now, probe=job.barrier)
 
@@ -346,8 +338,8 @@ class LineProtocol:
             assert reply.number is not None
             self._on_resend(reply.number, now)
         elif kind is Kind.COMM_ERROR:
-            self._comm_errors += 1
-            self._fw_last_line = reply.number
+            self._resend.comm_errors += 1
+            self._resend.fw_last_line = reply.number
             self.stats["comm_errors"] += 1
         elif kind in (Kind.HALTED, Kind.STOPPED):
             self._fail_here(E.PrinterHalted, f"the printer said {text!r}")
@@ -385,27 +377,27 @@ class LineProtocol:
             elif self._boot_seen_s is None:
                 self._boot_seen_s = now
         elif self._phase == "handshake" and self._inflight and self._inflight[0].m110:
-            if self._pending_resend is None:
+            if self._resend.pending is None:
                 self._hello_again(now, "the printer rebooted under the handshake (`start`)")
-                self._resend_ok_seen = True  # not a `Resend:`: an ok now teaches nothing about the dialect
+                self._resend.ok_seen = True  # not a `Resend:`: an ok now teaches nothing about the dialect
             else:
                 self._connect_attempts += 1  # a `start` flood: every one counts against the cap
                 if self._connect_attempts > self.config.connect_attempts:
                     self._fail_here(E.ConnectFailed, f"the printer sent 'start' {self._starts} times (a boot loop)")
 
     def _on_ok(self, reply: Reply, now: float) -> None:
-        pending = self._pending_resend
+        pending = self._resend.pending
         if pending is not None and (not self._inflight or self._inflight[0].n >= pending):
             # a line at or after the rejected one cannot be acknowledged before it is replayed:
             # this is the `ok` that Marlin 1.x, Repetier and OctoPrint send after `Resend:` (or a duplicate)
             self.stats["oks_swallowed"] += 1
-            if not self._resend_ok_seen:
-                self._resend_ok_seen = True
-                if self._ok_after_resend is None:
+            if not self._resend.ok_seen:
+                self._resend.ok_seen = True
+                if self._resend.ok_after is None:
                     log.debug("learned: this firmware sends `ok` after `Resend:`")
-                    self._ok_after_resend = True
-                if self._ok_after_resend:
-                    self._resend_due = now  # replay now: its `ok` can no longer be mistaken for the replay's
+                    self._resend.ok_after = True
+                if self._resend.ok_after:
+                    self._resend.due = now  # replay now: its `ok` can no longer be mistaken for the replay's
             return
         if not self._inflight:
             self.stats["stray_oks"] += 1
@@ -439,13 +431,13 @@ class LineProtocol:
     def _retire(self, line: _Line, now: float) -> None:
         self._inflight.remove(line)
         self._probes_in_stall = 0
-        self._stale_streak = 0
+        self._resend.stale_streak = 0
         self._history[line.n] = line
         self._history.pop(line.n - 128, None)
         if line.released:  # acknowledged again after a rewind: its caller already went on
             return
         line.released = True
-        self._resend_counts.pop(line.n, None)
+        self._resend.counts.pop(line.n, None)
         if not line.probe:
             self.last_acked = (line.n, line.command)
         if line.command.split(" ", 1)[0] in _SYNCHRONISING:  # its ok means the planner ran empty
@@ -479,9 +471,7 @@ class LineProtocol:
 
     def _resend_wait_s(self) -> float:
         """How long to wait for the dialect's `ok` after `Resend:` before replaying."""
-        if self._ok_after_resend is None:
-            return self.config.resend_grace_s
-        return self.config.min_timeout_s if self._ok_after_resend else 0.0
+        return self._resend.wait_s(self.config.resend_grace_s, self.config.min_timeout_s)
 
     def _on_resend(self, n: int, now: float) -> None:
         self.stats["resend_requests"] += 1
@@ -490,14 +480,10 @@ class LineProtocol:
             return
         head = self._inflight[0]
         if head.m110:
-            if self._pending_resend is None:
+            if self._resend.pending is None:
                 self._hello_again(now, f"the printer asked for line {n} under the handshake")
             return
-        fresh = (
-            0 < self._comm_errors
-            and self._comm_errors > self._served[1]
-            and (self._fw_last_line is None or self._fw_last_line == n - 1)
-        )
+        fresh = self._resend.fresh_error_for(n)
         if n > self._inflight[-1].n:  # it has every line in flight: nothing to replay
             self.stats["stale_resends"] += 1
             while fresh and self._inflight and self._inflight[0].probe:
@@ -511,39 +497,43 @@ class LineProtocol:
                 self._inflight[:0] = [self._history.pop(m) for m in range(n, head.n)]
             else:
                 self.stats["stale_resends"] += 1
-                self._stale_streak += 1
-                if self._stale_streak > self.config.max_resends:
+                self._resend.stale_streak += 1
+                if self._resend.stale_streak > self.config.max_resends:
                     self._fail_here(E.ResendLoop, f"the printer keeps asking for N{n}, acknowledged before")
                 return
-        served_n, served_errors, served_at = self._served
-        if n == served_n and self._comm_errors == served_errors and now - served_at < self.config.duplicate_resend_s:
+        served_n, served_errors, served_at = self._resend.served
+        if (
+            n == served_n
+            and self._resend.comm_errors == served_errors
+            and now - served_at < self.config.duplicate_resend_s
+        ):
             self.stats["duplicate_resends"] += 1
             return
-        if self._pending_resend is not None and self._pending_resend <= n:
+        if self._resend.pending is not None and self._resend.pending <= n:
             self.stats["duplicate_resends"] += 1
             return
-        self._resend_counts[n] += 1
-        if self._resend_counts[n] > self.config.max_resends:
-            self._fail_here(E.ResendLoop, f"line N{n} was asked for {self._resend_counts[n]} times")
+        self._resend.counts[n] += 1
+        if self._resend.counts[n] > self.config.max_resends:
+            self._fail_here(E.ResendLoop, f"line N{n} was asked for {self._resend.counts[n]} times")
             return
-        self._pending_resend, self._resend_due, self._resend_ok_seen = n, now + self._resend_wait_s(), False
-        self._served = (n, self._comm_errors, now)
+        self._resend.pending, self._resend.due, self._resend.ok_seen = n, now + self._resend_wait_s(), False
+        self._resend.served = (n, self._resend.comm_errors, now)
 
     def _replay(self, now: float) -> None:
-        n = self._pending_resend
+        n = self._resend.pending
         assert n is not None
-        self._pending_resend = None
-        if self._ok_after_resend is None and not self._resend_ok_seen:
-            self._resends_without_ok += 1
-            if self._resends_without_ok >= 3:
+        self._resend.pending = None
+        if self._resend.ok_after is None and not self._resend.ok_seen:
+            self._resend.without_ok += 1
+            if self._resend.without_ok >= 3:
                 log.debug("learned: this firmware sends no `ok` after `Resend:`")
-                self._ok_after_resend = False
+                self._resend.ok_after = False
         for line in self._inflight:
             if line.n >= n or line.m110:
                 self.stats["lines_resent"] += 1
                 line.deadline = max(line.deadline, now + self.config.min_timeout_s)
                 self._outbox.append(line.data)
-        self._served = (n, self._comm_errors, now)
+        self._resend.served = (n, self._resend.comm_errors, now)
 
     # ---- lost oks -----------------------------------------------------------------------------
 
@@ -590,8 +580,8 @@ class LineProtocol:
             self._pump(now)
             return
         if head.m110:  # M110 is idempotent: say it again
-            self._resend_counts[head.n] += 1
-            if self._resend_counts[head.n] > self.config.probe_attempts:
+            self._resend.counts[head.n] += 1
+            if self._resend.counts[head.n] > self.config.probe_attempts:
                 self._fail_here(
                     E.NoAnswer,
                     f"no answer to {head.command!r} within {self.config.min_timeout_s:g} s, "
@@ -659,6 +649,6 @@ class LineProtocol:
             jobs.append(self._hello)  # a handshake that failed before its M110 went out
         self._queue.clear()
         self._inflight.clear()
-        self._pending_resend = None
+        self._resend.pending = None
         for job in jobs:
             job.finish(self.failure)
