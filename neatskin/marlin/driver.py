@@ -211,14 +211,18 @@ class MarlinDriver:
         channel = self._channel
         assert channel is not None
         protocol, clock, cond = self._protocol, self.clock, self._cond
+        idle_s = self.config.min_timeout_s
         try:
             while not self._stop.is_set():
                 with cond:
-                    deadline = protocol.next_deadline()
-                    self._sleeping_until, self._asleep = deadline, True
                     now = clock()
+                    # until the next deadline, and no longer than min_timeout_s: a line a caller writes has
+                    # a deadline at least that far ahead, so the reader wakes in time without being woken
+                    deadline = protocol.next_deadline()
+                    until = now + idle_s if deadline is None else min(deadline, now + idle_s)
+                    self._sleeping_until, self._asleep = until, True
                 try:
-                    data = channel.read(None if deadline is None else max(0.0, deadline - now))
+                    data = channel.read(max(0.0, until - now))
                 except Exception as exc:  # noqa: BLE001 - SerialException, OSError: the port is gone
                     if not self._stop.is_set():
                         with cond:

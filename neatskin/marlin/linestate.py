@@ -294,9 +294,16 @@ class LineProtocol:
         line = _Line(n, command, frame(command, n), job, deadline, deadline + self.config.max_busy_s, probe, m110)
         self._inflight.append(line)
         self.stats["lines_sent"] += 1
-        self.stats["max_in_flight"] = max(self.stats["max_in_flight"], len(self._inflight))
-        live = sum(len(other.data) for other in self._inflight if other.deadline > now or other is line)
-        self.stats["max_bytes_in_flight"] = max(self.stats["max_bytes_in_flight"], live)
+        stats = self.stats
+        if len(self._inflight) == 1:  # the common case, kept cheap: it runs once per line
+            live = len(line.data)
+        else:
+            stats["max_in_flight"] = max(stats["max_in_flight"], len(self._inflight))
+            live = sum(len(other.data) for other in self._inflight if other.deadline > now or other is line)
+        if live > stats["max_bytes_in_flight"]:
+            stats["max_bytes_in_flight"] = live
+        if not stats["max_in_flight"]:
+            stats["max_in_flight"] = 1
         self._outbox.append(line.data)
         return line
 
