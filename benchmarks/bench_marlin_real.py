@@ -62,7 +62,7 @@ def run_printcore(binary: Path, lines: list[str]) -> float:
     with FirmwareRelay(binary) as relay:
         host = printcore(relay.path, 115200)
         try:
-            end = time.monotonic() + 10
+            end = time.monotonic() + 60  # its first M105 round trip; slow on a loaded machine
             while not host.online and time.monotonic() < end:
                 time.sleep(0.005)
             if not host.online:
