@@ -11,6 +11,7 @@ import dataclasses
 import functools
 
 import pytest
+from linestate_outcomes import done, ok, replies
 
 from neatskin.gcode.profile import load_printer_profile
 from neatskin.marlin.driver import MarlinDriver
@@ -89,23 +90,23 @@ def test_a_bare_ok_to_the_m118_probe_falls_back_to_m114():
     proto.submit([job, barrier], 1.0)
     assert proto.data_to_send() == [cs(1, "G92 X1")]
     proto.receive(b"ok\n", 1.1)
-    assert job.done and proto.data_to_send() == [cs(2, f"M118 E1 {PROBE_TAG} 2")]
+    assert done(proto, job) and proto.data_to_send() == [cs(2, f"M118 E1 {PROBE_TAG} 2")]
     proto.receive(b"ok\n", 1.2)  # no echo: a duplicate, or a firmware that does not echo M118
-    assert not barrier.done
+    assert not done(proto, barrier)
     proto.tick(1.2 + 0.4 + 1e-6)
     assert proto.data_to_send() == [cs(3, "M114")]  # the fallback probe
     proto.receive(b"X:1.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0\nok\n", 1.7)
-    assert barrier.done and barrier.error is None and proto.failure is None
+    assert ok(proto, barrier) and proto.failure is None
     assert proto.stats["probe_fallbacks"] == 1
     # from now on every confirming probe is an M114, and a caller's own M114 keeps its reply
     own, last = Job("M114"), Job("", barrier=True)
     proto.submit([own, last], 2.0)
     assert proto.data_to_send() == [cs(4, "M114")]
     proto.receive(b"X:1.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0\nok\n", 2.1)
-    assert own.replies == ["X:1.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0"]
+    assert replies(proto, own) == ["X:1.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0"]
     assert proto.data_to_send() == [cs(5, "M114")]
     proto.receive(b"X:1.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0\nok\n", 2.2)
-    assert last.done and last.error is None
+    assert ok(proto, last)
 
 
 @pytest.mark.timeout(120)

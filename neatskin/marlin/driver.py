@@ -24,7 +24,7 @@ from typing import Any
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.marlin import errors as E
 from neatskin.marlin.commands import CommandParser, clean_command
-from neatskin.marlin.jobs import DriverConfig, Job
+from neatskin.marlin.jobs import Acknowledged, DriverConfig, Event, Failed, Job
 from neatskin.marlin.linestate import LineProtocol
 from neatskin.marlin.replies import Position, parse_m114, parse_m119
 from neatskin.marlin.transport import Channel, Clock, SerialPort, channel_for
@@ -66,6 +66,7 @@ class MarlinDriver:
         # failed, or a drain ended), not for every `ok` of a batch: a waiter woken per line competes with
         # the reader for the lock and the GIL on the hot path
         self._awaited: list[Job] = []
+        self._results: dict[Job, Event] = {}  # how each job ended, from the protocol's events, until read
         self._commands = CommandParser()
         self._draining = 0
         self._reader_running = False
@@ -167,6 +168,7 @@ class MarlinDriver:
         self._reader = threading.Thread(target=self._run, name=f"marlin-reader {self.port_name}", daemon=True)
         self._reader.start()
         self._wait(hello)
+        self._results.pop(hello, None)
         return self
 
     def reconnect(self, boot_timeout_s: float | None = None) -> MarlinDriver:
@@ -250,7 +252,8 @@ class MarlinDriver:
             return True
         if self._draining and self._protocol.drained:
             return True
-        if any(job.done for job in self._awaited):
+        self._collect()
+        if any(job in self._results for job in self._awaited):
             return True
         if self._progress_waiters and self.clock() - self._progress_at >= 0.1:
             self._progress_at = self.clock()
@@ -300,6 +303,11 @@ class MarlinDriver:
             self._protocol.data_to_send()
             return False
 
+    def _collect(self) -> None:
+        """Take the protocol's events (lock held); the first event of a job is how it ended."""
+        for event in self._protocol.events():
+            self._results.setdefault(event.job, event)
+
     def _submit(self, jobs: list[Job]) -> None:
         with self._cond:
             if self._reader is None:
@@ -308,20 +316,25 @@ class MarlinDriver:
             self._flush()
             self._wake_reader_for()
 
-    def _wait(self, job: Job, progress: Callable[[], None] | None = None) -> None:
-        """Until the protocol finishes job (it has a deadline for every line it sends)."""
+    def _wait(self, job: Job, progress: Callable[[], None] | None = None) -> Acknowledged:
+        """Until the protocol ends job (it has a deadline for every line it sends); its Acknowledged event,
+        or its Failed event's error raised."""
         with self._cond:
             self._awaited.append(job)
             self._progress_waiters += progress is not None
             try:
-                while not job.done:
+                while True:
+                    self._collect()
+                    if job in self._results:
+                        break
                     if not self._reader_running:
                         n, cmd = self._protocol.last_acked
                         error = E.PortDead(
                             "the reader thread stopped", last_line=n, last_command=cmd, port=self.port_name
                         )
                         self._protocol.fail(error)
-                        job.finish(error)
+                        self._collect()
+                        self._results.setdefault(job, Failed(job, error))
                         break
                     # no timeout: the reader notifies when this job finishes, the session fails, progress
                     # is due (0.1 s on the driver's clock) or the reader ends; every line has a deadline
@@ -331,8 +344,10 @@ class MarlinDriver:
             finally:
                 self._awaited.remove(job)
                 self._progress_waiters -= progress is not None
-        if job.error is not None:
-            raise job.error
+            result = self._results[job]
+        if isinstance(result, Failed):
+            raise result.error
+        return result
 
     # ---- public API ---------------------------------------------------------------------------
 
@@ -349,15 +364,21 @@ class MarlinDriver:
         if self._protocol.confirming:
             jobs.append(Job("", barrier=True))
         self._submit(jobs)
-        self._wait(jobs[-1])
-        if strict and job.rejected:
+        try:
+            self._wait(jobs[-1])
+            result = self._wait(job)  # ended already: the barrier (if any) came after it
+        finally:
+            with self._cond:
+                for one in jobs:
+                    self._results.pop(one, None)
+        if strict and result.rejected:
             raise E.CommandRejected(
-                f"{job.rejected!r} in answer to N{job.line} {command!r}",
-                last_line=job.line,
+                f"{result.rejected!r} in answer to N{result.line} {command!r}",
+                last_line=result.line,
                 last_command=command,
                 port=self.port_name,
             )
-        return job.replies
+        return list(result.replies)
 
     def send_lines(
         self, lines: Iterable[str], progress: Callable[[int, int], None] | None = None, *, source: str = "<lines>"
@@ -376,6 +397,9 @@ class MarlinDriver:
             return 0
         batch = object()
         jobs = [Job(command, line, batch) for command, line in program]
+        with self._cond:  # the previous batch's results are no longer asked for
+            for old in self._batch:
+                self._results.pop(old, None)
         self._batch = jobs
         last = jobs[-1]
         if self._protocol.confirming:
@@ -390,12 +414,18 @@ class MarlinDriver:
                 shown[0] = now
                 progress(self.batch_acknowledged(), len(jobs))
 
-        self._wait(last, report)
+        try:
+            self._wait(last, report)
+        finally:
+            if last is not jobs[-1]:
+                with self._cond:
+                    self._results.pop(last, None)
         for job in jobs:
-            if job.rejected:
+            result = self._results.get(job)
+            if isinstance(result, Acknowledged) and result.rejected:
                 raise E.CommandRejected(
-                    f"{job.rejected!r} in answer to N{job.line} {job.command!r}",
-                    last_line=job.line,
+                    f"{result.rejected!r} in answer to N{result.line} {job.command!r}",
+                    last_line=result.line,
                     last_command=job.command,
                     port=self.port_name,
                 )
@@ -405,12 +435,14 @@ class MarlinDriver:
 
     def batch_acknowledged(self) -> int:
         """How many commands of the latest send_lines batch the printer acknowledged (a prefix, in order)."""
-        done = 0
-        for job in self._batch:
-            if not job.done or job.error is not None:
-                break
-            done += 1
-        return done
+        with self._cond:
+            self._collect()
+            done = 0
+            for job in self._batch:
+                if not isinstance(self._results.get(job), Acknowledged):
+                    break
+                done += 1
+            return done
 
     def stop_after_line_in_flight(self, timeout_s: float | None = None) -> int:
         """Take back every command not yet written, wait for the line in flight; the number acknowledged.

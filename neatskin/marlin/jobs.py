@@ -1,12 +1,11 @@
-"""The values a caller hands the Marlin line protocol: DriverConfig (every timing knob and cap) and Job.
-
-A Job is the one mutable handle a caller waits on: the protocol (linestate.LineProtocol) fills
-in its replies and sets `done`, with `error` when the session failed or the command was refused.
+"""The values between a caller and the Marlin line protocol: DriverConfig (every timing knob and cap), Job
+(a command submitted) and the events that say how a job ended (Acknowledged, Failed), as h11 returns
+events: the protocol (linestate.LineProtocol) never mutates what the caller handed it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from neatskin.gcode.parse import GcodeLine
 from neatskin.marlin import errors as E
@@ -48,21 +47,34 @@ class DriverConfig:
                 raise ValueError(f"DriverConfig.{name} must be >= 1")
 
 
-@dataclass(eq=False)
+@dataclass(frozen=True, eq=False)
 class Job:
-    """One command a caller waits for; `done` with `replies` (or `error`) once the printer answered."""
+    """One command a caller submits; the protocol reports how it ended as an event (Acknowledged or Failed).
+    Compared by identity: the same command twice is two jobs."""
 
     command: str
     parsed: GcodeLine | None = None  # the parsed line, when the caller parsed it already
     batch: object | None = None  # jobs of one send_lines call share it: a refusal cancels the rest
     barrier: bool = False  # a probe whose echo proves that every line before it ran
-    replies: list[str] = field(default_factory=list)
-    done: bool = False
-    error: E.MarlinError | None = None
-    rejected: str | None = None
-    line: int | None = None
 
-    def finish(self, error: E.MarlinError | None = None) -> None:
-        if error is not None and self.error is None:
-            self.error = error
-        self.done = True
+
+@dataclass(frozen=True)
+class Acknowledged:
+    """The printer acknowledged the job's line: what it printed before the `ok` (and data on the ok itself),
+    and its refusal text when it refused the command (`Unknown command`, `Home XYZ First`)."""
+
+    job: Job
+    line: int | None
+    replies: tuple[str, ...] = ()
+    rejected: str | None = None
+
+
+@dataclass(frozen=True)
+class Failed:
+    """The job will not be acknowledged: the session failed, or it was taken back before it was sent."""
+
+    job: Job
+    error: E.MarlinError
+
+
+Event = Acknowledged | Failed

@@ -3,8 +3,8 @@
 `LineProtocol` owns every piece of protocol state (line numbers, the lines in flight, resends,
 deadlines, lost-`ok` probes, the connect handshake) and touches no port, thread or clock: the
 caller feeds it what the printer said (`receive(data, now)`), the passing of time (`tick(now)`)
-and work (`start_session`, `submit`), and takes the bytes to write (`data_to_send()`). A `Job`
-is finished when `job.done` is set, with `job.error` when it failed. Every wait it keeps has a
+and work (`start_session`, `submit`), and takes the bytes to write (`data_to_send()`) and how
+jobs ended (`events()`: Acknowledged or Failed, as h11 returns events; a Job is never mutated). Every wait it keeps has a
 deadline and every retry a cap, so a hostile peer ends in one MarlinError, never a loop.
 The transport around it (driver.py) owns the port, the reader thread and the clock.
 One module over the usual size on purpose: every transition reads and writes the same session
@@ -16,13 +16,13 @@ from __future__ import annotations
 import collections
 import logging
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from neatskin.gcode.parse import GcodeLine
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.marlin import errors as E
 from neatskin.marlin.deadlines import MotionTracker
-from neatskin.marlin.jobs import DriverConfig, Job
+from neatskin.marlin.jobs import Acknowledged, DriverConfig, Event, Failed, Job
 from neatskin.marlin.replies import PROBE_TAG, Kind, Reply, classify, frame
 from neatskin.marlin.resends import ResendState
 
@@ -40,6 +40,8 @@ class _Line:
     probe: bool = False
     m110: bool = False
     echoed: bool = False
+    replies: list[str] = field(default_factory=list)  # what the printer said for it before its ok
+    rejected: str | None = None
     bare_oks: int = 0  # oks that came while this probe had not echoed
     superseded: bool = False  # an M118 probe the firmware never echoed: an M114 probe went out after it
     released: bool = False  # its caller was told it is acknowledged
@@ -71,6 +73,7 @@ class LineProtocol:
             raise ValueError(f"rx_buffer_size must be >= 2 bytes, got {size}")
         self.rx_budget_bytes = size - 1
         self._outbox: list[bytes] = []
+        self._events: list[Event] = []
         self.stats: collections.Counter[str] = collections.Counter()
         self.reset(0.0)
         self.failure: E.MarlinError | None = E.PortDead("not connected: call connect() first", port=port_name)
@@ -91,6 +94,7 @@ class LineProtocol:
         self._connect_attempts = 0
         self._starts = 0
         self._hello: Job | None = None
+        self._hello_ended = False
         self.last_acked: tuple[int | None, str | None] = (None, None)
         self.acked_jobs = 0
         self._history: dict[int, _Line] = {}  # recently acknowledged lines, for a firmware that never took them
@@ -207,8 +211,7 @@ class LineProtocol:
         """Take back every job not yet written (they finish with `error`); lines in flight go on."""
         jobs = list(self._queue)
         self._queue.clear()
-        for job in jobs:
-            job.finish(error)
+        self._events.extend(Failed(job, error) for job in jobs)
         return len(jobs)
 
     def emergency_stop(self) -> None:
@@ -220,6 +223,11 @@ class LineProtocol:
         self._fail_here(E.PortDead, detail)
 
     # ---- outputs ----------------------------------------------------------------------------
+
+    def events(self) -> list[Event]:
+        """How jobs ended since the last call, in order (each job ends once: Acknowledged or Failed)."""
+        out, self._events = self._events, []
+        return out
 
     def data_to_send(self) -> list[bytes]:
         """The writes due, in order (one entry per line); the caller writes them and calls again later."""
@@ -280,8 +288,6 @@ class LineProtocol:
     def _send_line(self, job: Job | None, *, now: float, probe: bool = False, m110: bool = False) -> _Line:
         n = self._next_n
         self._next_n += 1
-        if job is not None:
-            job.line = n
         if probe:
             command = "M114" if self._probe_fallback else f"M118 E1 {PROBE_TAG} {n}"
         else:
@@ -367,9 +373,9 @@ class LineProtocol:
             if kind is Kind.ACTION:
                 self.actions.append(text)
             if head is not None and head.job is not None and not head.probe:
-                head.job.replies.append(text)
+                head.replies.append(text)
                 if kind in (Kind.UNKNOWN_COMMAND, Kind.REJECTED):
-                    head.job.rejected = text
+                    head.rejected = text
             else:
                 self.unsolicited.append(text)
 
@@ -430,7 +436,7 @@ class LineProtocol:
         else:
             payload = reply.text[2:].lstrip(" :")
             if payload and reply.planner_free is None and head.job is not None and not head.probe:
-                head.job.replies.append(payload)  # data carried on the ok line (`ok T:25.00 /0.00`)
+                head.replies.append(payload)  # data carried on the ok line (`ok T:25.00 /0.00`)
             self._retire(head, now)
         # the next line goes out in tick(), after the whole chunk is read: a duplicated `ok` in the
         # same chunk then finds nothing in flight instead of acknowledging a line just sent
@@ -457,22 +463,25 @@ class LineProtocol:
         if job is None:
             return
         self.acked_jobs += 1
-        if job.rejected and job.batch is not None:
-            self._cancel_batch(job)
-        job.finish()
+        if job is self._hello:
+            self._hello_ended = True
+        self._events.append(Acknowledged(job, line.n, tuple(line.replies), line.rejected))
+        if line.rejected and job.batch is not None:
+            self._cancel_batch(line)
 
-    def _cancel_batch(self, job: Job) -> None:
+    def _cancel_batch(self, refused: _Line) -> None:
+        job = refused.job
+        assert job is not None
         rest = [j for j in self._queue if j.batch is job.batch]
         self._queue = collections.deque(j for j in self._queue if j.batch is not job.batch)
         for other in rest:
-            other.finish(
-                E.CommandRejected(
-                    f"not sent: N{job.line} {job.command!r} was refused ({job.rejected!r})",
-                    last_line=job.line,
-                    last_command=job.command,
-                    port=self.port_name,
-                )
+            error = E.CommandRejected(
+                f"not sent: N{refused.n} {job.command!r} was refused ({refused.rejected!r})",
+                last_line=refused.n,
+                last_command=job.command,
+                port=self.port_name,
             )
+            self._events.append(Failed(other, error))
 
     # ---- resends ----------------------------------------------------------------------------
 
@@ -651,11 +660,14 @@ class LineProtocol:
         if self.failure is None:
             self.failure = error
             log.debug("session failed: %s", error)
-        jobs = [line.job for line in self._inflight if line.job is not None] + list(self._queue)
-        if self._hello is not None and not self._hello.done:
+        jobs = [line.job for line in self._inflight if line.job is not None and not line.released]
+        jobs += list(self._queue)
+        if self._hello is not None and not self._hello_ended and self._hello not in jobs:
             jobs.append(self._hello)  # a handshake that failed before its M110 went out
+        if self._hello is not None:
+            self._hello_ended = True
         self._queue.clear()
         self._inflight.clear()
         self._resend.pending = None
-        for job in jobs:
-            job.finish(self.failure)
+        failure = self.failure
+        self._events.extend(Failed(job, failure) for job in jobs)
