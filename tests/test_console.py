@@ -60,8 +60,8 @@ def test_jog_sends_a_relative_move_and_waits():
     assert d.sent == ["G91", "G0 X10 F3000", "G90", "M400", "M114"]
     d.sent.clear()
     s.handle("step 0.1")
-    s.handle("z-")
-    assert d.sent == ["G91", "G0 Z-0.1 F300", "G90", "M400", "M114"]
+    s.handle("z-")  # down: the position is read first, to check the end against the surface and a clamp
+    assert d.sent == ["M114", "G91", "G0 Z-0.1 F300", "G90", "M400", "M114"]
     assert s.handle("y+ 500") == ["jog step must be in (0, 100] mm, got 500.0"]
 
 
@@ -78,7 +78,55 @@ def test_a_refused_jog_still_returns_to_absolute_mode():
     d = Refusing()
     with pytest.raises(CommandRejected):
         ConsoleSession(d).handle("z- 50")
-    assert d.sent == ["G91", "G0 Z-50 F300", "G90"]
+    assert d.sent == ["M114", "G91", "G0 Z-50 F300", "G90"]
+
+
+class Clamping(FakeDriver):
+    """Moves the fake probe as Marlin does with soft endstops on: never below Z 0."""
+
+    def send(self, command: str, *, strict: bool = True) -> list[str]:
+        super().send(command, strict=strict)
+        if command.startswith("G0 Z"):
+            dz = float(command.split()[1][1:])
+            self.pos = Pos(self.pos.x_mm, self.pos.y_mm, max(0.0, self.pos.z_mm + dz))
+        return []
+
+
+def test_z_down_below_the_calibrated_surface_is_refused_unless_confirmed():
+    """Issue 25: `z- 20` from Z 5.5 used to clamp silently at Z 0, 5.5 mm into the skin just calibrated."""
+    d = Clamping()
+    d.pos = Pos(95.0, 95.0, 5.5)
+    s = ConsoleSession(d)
+    s.handle("point 0 0")  # the probe touches the surface here: Z 5.5 is the surface from now on
+    d.sent.clear()
+    assert s.handle("z- 20") == [
+        "refused: z- 20 would take the probe to Z -14.500, 20.000 mm below the skin surface at Z 5.500; "
+        "type z- 20! to go there anyway"
+    ]
+    assert d.sent == ["M114"] and d.pos.z_mm == 5.5  # nothing moved
+    assert s.handle("z+ 2") == ["X95.000 Y95.000 Z7.500"]
+    assert s.handle("z- 2") == ["X95.000 Y95.000 Z5.500"]  # down to the surface itself is allowed
+    out = s.handle("z- 20!")  # confirmed: the printer clamps at its soft limit, and the console says so
+    assert out == [
+        "X95.000 Y95.000 Z0.000",
+        "the printer stopped at Z 0.000, not Z -14.500: it clamped the move (a soft limit)",
+    ]
+    # a profile's surface counts before any point is taken
+    d2 = Clamping()
+    d2.pos = Pos(0.0, 0.0, 6.0)
+    assert (
+        ConsoleSession(d2, surface_z_mm=5.5)
+        .handle("z- 1")[0]
+        .startswith("refused: z- 1 would take the probe to Z 5.000")
+    )
+
+
+def test_ctrl_c_lifts_above_the_known_surface():
+    d = FakeDriver()
+    d.pos = Pos(10.0, 20.0, 3.5)  # 2 mm into the skin
+    s = ConsoleSession(d, lift_mm=5.0, surface_z_mm=5.5)
+    s.halt()
+    assert d.sent[:4] == ["M400", "M114", "G90", "G0 Z10.500 F300"]  # 5 mm above the surface, not Z 8.5
 
 
 def test_helpers_and_raw_lines():

@@ -41,7 +41,8 @@ def test_sim_printer_then_printer_send(tmp_path, capsys):
         path = proc.stdout.readline().strip()
         assert path.startswith("/dev/pts/")
         program = tmp_path / "square.gcode"
-        moves = [f"G1 X{x} Y{y} F6000" for x, y in [(10, 10), (60, 10), (60, 60), (10, 60)] * 25]
+        # 1 mm sides: the printer runs in virtual time, the CLI bounds a lost ok by the motion in real time
+        moves = [f"G1 X{x} Y{y} F6000" for x, y in [(10, 10), (11, 10), (11, 11), (10, 11)] * 25]
         program.write_text("; a square, 25 times\nG28\n" + "\n".join(moves) + "\nM400\n")
         log = tmp_path / "wire.log"
         assert (
@@ -131,13 +132,12 @@ def test_ctrl_c_stops_after_the_line_in_flight_lifts_and_from_line_continues_onc
         # stopped after the acknowledged line: the program ran up to it, then the lift (the probe may be down)
         done = before[: before.index("G91")] if "G91" in before else before
         assert done == commands[: len(done)] and done[-1] == acked.group(2)
-        if "Z12" in done[-1]:  # the probe was up at the safe travel height: no lift
-            assert before == done and "no lift: Z 12 mm is at or above the safe height 10 mm" in err
-        else:  # down at the skin: lifted to the safe height, relative, then back to absolute
-            z = float(done[-1].split("Z")[1].split()[0])
-            assert before[len(done) :] == ["G91", f"G0 Z{10 - z:.3f} F300", "G90"], err
-            assert z < 10
-            assert "lifted the probe" in err
+        # the profile's travel height is its safe height above the surface, 10 + 5.5 mm, above the program's
+        # own Z 12: lifted there, relative, back to absolute, then checked with the firmware's M114
+        z = float(done[-1].split("Z")[1].split()[0])
+        assert before[len(done) :] == ["G91", f"G0 Z{15.5 - z:.3f} F300", "G90", "M400", "M114"], err
+        assert "lifted the probe" in err and "travel height 15.5 mm" in err and "reports Z 15.5 mm" in err
+        assert sim.probe_position()[2] == pytest.approx(15.5)
 
         proc = subprocess.run(
             [*base, "--profile", profile, "--boot-timeout-s", "0.2", "--from-line", str(next_line), str(program)],
@@ -147,10 +147,66 @@ def test_ctrl_c_stops_after_the_line_in_flight_lifts_and_from_line_continues_onc
             timeout=90,
         )
         assert proc.returncode == 0, proc.stderr
-        ran = [t for t in _executed_program(sim) if t not in ("G91", "G90") and not t.startswith("G0 Z")]
-        assert ran == commands  # every line of the file exactly once, in order
+        assert done + _executed_program(sim)[len(before) :] == commands  # every line of the file once, in order
     finally:
         sim.stop()
+
+
+@pytest.mark.timeout(60)
+def test_ctrl_c_at_depth_ends_at_the_programs_travel_height(tmp_path):
+    """No profile: the probe held 2 mm into the skin gets SIGINT; it ends at the program's own travel height
+    (the highest Z it commanded, 15.5), not at a default 5 mm, and the printer's M114 says so."""
+    import os
+    import time
+
+    from neatskin.sim.printer import sim_printer_for_tests
+
+    sim = sim_printer_for_tests(time_mode="scaled", speed=5.0)  # homing 25 s -> 5 s; the dwell 10 s -> 2 s
+    path = sim.start_pty()
+    program = tmp_path / "press.gcode"
+    program.write_text(
+        "\n".join(["G28", "G90", "G0 Z15.5 F300", "G0 X100 Y100 F6000", "G1 Z5.5 F300", "G1 Z3.5 F120", "G4 S10"])
+        + "\nG0 Z15.5 F300\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    try:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "neatskin", "printer", "send", "--port", path, "--no-progress"]
+            + ["--boot-timeout-s", "0.2", str(program)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+        )
+        end = time.monotonic() + 45
+        while time.monotonic() < end and not (
+            [t for _, t in sim.executed[-1:]] == ["G1 Z3.5 F120"] and sim.probe_position()[2] == pytest.approx(3.5)
+        ):
+            time.sleep(0.02)
+        # the dwell (G4 S10, the line in flight) holds the probe at Z 3.5, 2 mm below the surface at 5.5
+        assert sim.probe_position()[2] == pytest.approx(3.5)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=40)
+        assert proc.returncode == 130, err
+        assert sim.probe_position()[2] == pytest.approx(15.5), err
+        assert "lifted the probe by 12.000 mm (Z was 3.5 mm, travel height 15.5 mm)" in err
+        assert "the printer reports Z 15.5 mm" in err
+    finally:
+        sim.stop()
+
+
+def test_travel_height_is_the_programs_own_or_the_profiles():
+    from neatskin.gcode.profile import load_printer_profile
+    from neatskin.marlin.cli import travel_height_mm
+
+    lines = ["G28", "G90", "G0 Z15.5 F300", "G1 Z3.5 F120", "G91", "G1 Z2", "G90"]
+    assert travel_height_mm(lines, None) == 15.5
+    assert travel_height_mm(lines[:2], None) == 0.0  # G28 homes to Z 0: nothing higher yet
+    assert travel_height_mm(["G90", "G1 X1"], None) is None  # no Z known at all
+    paper = load_printer_profile(REPO / "protocols" / "printers" / "paper.toml")  # surface 5.5, safe 10
+    assert travel_height_mm(lines, paper) == 15.5
+    assert travel_height_mm(["G28", "G0 Z8"], paper) == 15.5  # the profile's travel height is higher
+    assert travel_height_mm(["G28", "G0 Z40"], paper) == 40.0
 
 
 def test_lift_rule():

@@ -12,6 +12,7 @@ from collections import deque
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from linestate_outcomes import done, error, ok, replies
 
 from neatskin.marlin import errors as E
 from neatskin.marlin.jobs import DriverConfig, Job
@@ -34,7 +35,7 @@ def connected(config: DriverConfig = CONFIG) -> LineProtocol:
     proto.tick(0.07)
     assert proto.data_to_send() == [b"N0 M110 N0*125\n"]
     proto.receive(b"ok\n", 0.08)
-    assert hello.done and hello.error is None and proto.session
+    assert ok(proto, hello) and proto.session
     return proto
 
 
@@ -44,14 +45,14 @@ def test_exact_lines_for_exact_replies():
     proto.submit([g28, move], 1.0)
     assert proto.data_to_send() == [b"N1 G28*18\n"]  # one line in flight
     proto.receive(b"echo:busy: processing\n", 1.5)
-    assert proto.data_to_send() == [] and not g28.done
+    assert proto.data_to_send() == [] and not done(proto, g28)
     proto.receive(b"ok\n", 2.0)
-    assert g28.done and g28.replies == []
+    assert done(proto, g28) and replies(proto, g28) == []
     assert proto.data_to_send() == [b"N2 G1 X10 Y20 F3000*77\n"]
     proto.receive(b"o", 2.1)  # a reply split across reads waits for its end of line
-    assert not move.done
+    assert not done(proto, move)
     proto.receive(b"k\n", 2.2)
-    assert move.done and proto.last_acked == (2, "G1 X10 Y20 F3000")
+    assert done(proto, move) and proto.last_acked == (2, "G1 X10 Y20 F3000")
 
 
 def test_data_on_the_ok_line_is_kept():
@@ -60,7 +61,7 @@ def test_data_on_the_ok_line_is_kept():
     proto.submit([job], 1.0)
     proto.data_to_send()
     proto.receive(b"ok T:25.00 /0.00 B:24.00 /0.00\n", 1.1)
-    assert job.replies == ["T:25.00 /0.00 B:24.00 /0.00"]
+    assert replies(proto, job) == ["T:25.00 /0.00 B:24.00 /0.00"]
 
 
 def test_marlin2_replays_after_the_grace_and_learns_no_ok_follows():
@@ -81,7 +82,7 @@ def test_marlin2_replays_after_the_grace_and_learns_no_ok_follows():
     proto.receive(b"Error:checksum mismatch, Last Line: 3\nResend: 4\n", t)
     assert proto.data_to_send() == [cs(4, "G1 X4")]  # learned: replayed at once
     proto.receive(b"ok\n", t + 0.01)
-    assert all(job.done and job.error is None for job in jobs)
+    assert all(ok(proto, job) for job in jobs)
     assert proto.stats["lines_resent"] == 4
 
 
@@ -92,10 +93,10 @@ def test_ok_after_resend_in_a_separate_read_acknowledges_nothing():
     proto.data_to_send()
     proto.receive(b"Error:checksum mismatch, Last Line: 0\nResend: 1\n", 1.0)
     proto.receive(b"ok\n", 1.01)  # Marlin 1.x's ok after Resend, in a read of its own
-    assert not job.done
+    assert not done(proto, job)
     assert proto.data_to_send() == [cs(1, "G1 X5")]  # replayed as soon as that ok came
     proto.receive(b"ok\n", 1.05)
-    assert job.done and proto.data_to_send() == [cs(2, "M400")]
+    assert done(proto, job) and proto.data_to_send() == [cs(2, "M400")]
     assert proto.stats["oks_swallowed"] == 1
 
 
@@ -110,11 +111,11 @@ def test_start_flood_at_connect_is_capped():
         out = proto.data_to_send()
         sent += out
         proto.receive(b"start\n" * len(out) or b"start\n", t)  # a boot loop answers everything with `start`
-        if hello.done:
+        if done(proto, hello):
             break
         t += 0.01
-    assert isinstance(hello.error, E.ConnectFailed)
-    assert "start" in str(hello.error)
+    assert isinstance(error(proto, hello), E.ConnectFailed)
+    assert "start" in str(error(proto, hello))
     assert len(sent) <= 4 and t < 1.0
 
 
@@ -123,14 +124,14 @@ def test_resend_0_for_ever_at_connect_is_capped():
     hello = proto.start_session(0.0)
     sent: list[bytes] = []
     t = 0.0
-    while not hello.done and t < 100:
+    while not done(proto, hello) and t < 100:
         proto.tick(t)
         out = proto.data_to_send()
         sent += out
         for _ in out:
             proto.receive(b"Resend: 0\n", t)
         t += 0.02
-    assert isinstance(hello.error, E.ConnectFailed) and "M110 N0 was sent 5 times" in str(hello.error)
+    assert isinstance(error(proto, hello), E.ConnectFailed) and "M110 N0 was sent 5 times" in str(error(proto, hello))
     assert sent == [b"N0 M110 N0*125\n"] * 5
 
 
@@ -139,12 +140,12 @@ def test_connect_deadline_holds_even_when_each_answer_looks_like_progress():
     proto = LineProtocol(config)
     hello = proto.start_session(0.0)
     t = 0.0
-    while not hello.done and t < 100:
+    while not done(proto, hello) and t < 100:
         proto.tick(t)
         if proto.data_to_send():
             proto.receive(b"echo:busy: processing\n", t)
         t += 0.05
-    assert isinstance(hello.error, (E.ConnectFailed, E.NoAnswer))
+    assert isinstance(error(proto, hello), (E.ConnectFailed, E.NoAnswer))
     assert t <= 1.2
 
 
@@ -164,9 +165,9 @@ def converse(proto: LineProtocol, firmware: DialectFirmware, jobs: list[Job], ma
             proto.tick(t)
         ran = firmware.executed.count
         for job in jobs:
-            if job.done and job.error is None and not job.barrier:
+            if ok(proto, job) and not job.barrier:
                 assert ran(job.command) >= 1, f"{job.command} reported done before it ran"
-        if jobs[-1].done:
+        if done(proto, jobs[-1]):
             return t
         t += 0.001
     raise AssertionError("no end")
@@ -183,7 +184,7 @@ def test_each_dialect_rejecting_one_line_twice_runs_every_command_once_in_order(
     commands = [f"G1 X{i} Y{2 * i}" for i in range(1, 13)]
     jobs = [Job(c) for c in commands]
     converse(proto, firmware, jobs)
-    assert all(job.error is None for job in jobs)
+    assert all(error(proto, job) is None for job in jobs)
     assert firmware.executed == ["M110 N0", *commands]
     assert proto.stats["lines_resent"] == 3
 
@@ -196,9 +197,9 @@ def test_repetier_error_text_counts_as_a_communication_error():
     # the same line refused twice within a second: both are real, neither a duplicate
     for t in (1.0, 1.1):
         proto.receive(b"Error: Checksum mismatch\nResend:1\nok\n", t)
-        assert proto.data_to_send() == [cs(1, "G1 X1")] and not job.done
+        assert proto.data_to_send() == [cs(1, "G1 X1")] and not done(proto, job)
     proto.receive(b"ok\n", 1.2)
-    assert job.done and proto.stats["duplicate_resends"] == 0
+    assert done(proto, job) and proto.stats["duplicate_resends"] == 0
 
 
 def test_a_duplicated_ok_in_a_separate_read_cannot_finish_a_confirmed_batch_early():
@@ -221,7 +222,7 @@ def test_position_from_an_ok_line():
     proto.submit([job], 1.0)
     proto.data_to_send()
     proto.receive(b"ok X:1.00 Y:2.00 Z:3.00 E:0.00 Count: A:0 B:0 C:0\n", 1.1)
-    position = parse_m114(job.replies)
+    position = parse_m114(replies(proto, job))
     assert (position.x_mm, position.y_mm, position.z_mm) == (1.0, 2.0, 3.0)
 
 
@@ -231,11 +232,11 @@ def test_garbage_without_newlines_is_bounded_and_the_line_times_out():
     job = Job("M105")
     proto.submit([job], 1.0)
     t, sent = 1.0, 0
-    while not job.done and t < 60:
+    while not done(proto, job) and t < 60:
         sent += len(proto.data_to_send())
         proto.receive(b"\xff\x00garbage" * 100, t)
         t += 0.05
-    assert isinstance(job.error, E.NoAnswer)
+    assert isinstance(error(proto, job), E.NoAnswer)
     assert sent <= 4 and len(proto._rx) <= 4096
 
 
@@ -265,10 +266,10 @@ def test_any_refusal_pattern_in_any_dialect_runs_each_command_once(dialect, know
         else:
             proto.tick(t)
         for job in jobs:
-            assert not (job.done and job.error is None) or job.command in firmware.executed
-        if jobs[-1].done:
+            assert not (ok(proto, job)) or job.command in firmware.executed
+        if done(proto, jobs[-1]):
             break
         t += 0.001
-    assert all(job.done and job.error is None for job in jobs)
+    assert all(ok(proto, job) for job in jobs)
     assert firmware.executed == commands
     assert proto.stats["lines_resent"] == sum(rejects.values())

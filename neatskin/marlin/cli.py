@@ -1,9 +1,10 @@
 """The `neatskin printer send` command: stream a G-code file to a printer through the driver, and stop safely.
 
 Ctrl-C (SIGINT) stops after the line in flight: nothing queued is sent, the probe is lifted when
-it may be down (the lift rule is in `lift_lines`), and the last acknowledged line of the file is
-printed with the exact command that continues from the next one (`--from-line N`), so no line
-runs twice.
+it may be down (the lift rule is in `lift_lines`, its height in `travel_height_mm`), and the last
+acknowledged line of the file is printed with the exact command that continues from the next one
+(`--from-line N`), so no line runs twice. The lift is checked with M114: "lifted" is said only
+when the firmware reports the probe at or above the height, and never below the skin surface.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from typing import Any
 
 from neatskin.cligroups import add_connect_timeout, add_quiet, command_group
 
-DEFAULT_SAFE_Z_MM = 5.0  # without a profile: the height above which the probe is taken to be clear
+DEFAULT_SAFE_Z_MM = 5.0  # without a profile or a Z of the program's own: the height taken to be clear
 
 
 def register(subparsers: Any) -> None:
@@ -50,8 +51,9 @@ def register(subparsers: Any) -> None:
         "--safe-z-mm",
         type=float,
         default=None,
-        help="on Ctrl-C, lift when Z is below this (default: the profile's safe_height_mm, else "
-        f"{DEFAULT_SAFE_Z_MM:g})",
+        help="on Ctrl-C, lift to this printer Z (default: the highest Z the program commanded so far, and "
+        "with --profile at least the profile's safe_height_mm above its calibrated surface; "
+        f"else {DEFAULT_SAFE_Z_MM:g})",
     )
     send.set_defaults(handler=printer_send_handler)
 
@@ -64,15 +66,43 @@ class Lift:
     reason: str
 
 
+def travel_height_mm(lines: list[str], profile: Any | None) -> float | None:
+    """The height a lift goes to: the highest Z these lines commanded (the program's own travel height),
+    and with a profile at least its safe height above the calibrated surface; None when neither is known."""
+    from neatskin.errors import ConfigError
+    from neatskin.gcode.machine import Machine
+    from neatskin.gcode.parse import parse_line
+
+    machine = Machine(profile)
+    top: float | None = None
+    for text in lines:
+        try:
+            line = parse_line(text)
+        except ConfigError:
+            continue
+        if line is None:
+            continue
+        machine.step(line)
+        z = machine.logical_mm[2]
+        if z is not None and (top is None or z > top):
+            top = z
+    if profile is not None:
+        above = profile.calibration.surface_z_mm + profile.safe_height_mm
+        top = above if top is None else max(top, above)
+    if top is not None and profile is not None:
+        top = min(top, profile.soft_max_mm.z)
+    return top
+
+
 def lift_lines(
     z_mm: float | None, safe_z_mm: float, *, max_z_mm: float | None, feed_mm_s: float, absolute: bool
 ) -> Lift:
     """The rule: lift only when the probe may be down, i.e. the commanded Z after the last acknowledged
-    line is unknown or below the safe height; lift by the distance to the safe height (the whole
-    safe height when Z is unknown), never past the soft maximum; relative (`G91`, `G0 Z+d`), then
-    back to the file's own distance mode."""
+    line is unknown or below the travel height safe_z_mm; lift by the distance to it (the whole of it
+    when Z is unknown), never past the soft maximum; relative (`G91`, `G0 Z+d`), then back to the
+    file's own distance mode."""
     if z_mm is not None and z_mm >= safe_z_mm:
-        return Lift((), f"no lift: Z {z_mm:g} mm is at or above the safe height {safe_z_mm:g} mm")
+        return Lift((), f"no lift: Z {z_mm:g} mm is at or above the travel height {safe_z_mm:g} mm")
     rise = safe_z_mm if z_mm is None else safe_z_mm - z_mm
     if max_z_mm is not None and z_mm is not None:
         rise = min(rise, max_z_mm - z_mm)
@@ -81,7 +111,7 @@ def lift_lines(
     where = "unknown" if z_mm is None else f"{z_mm:g} mm"
     restore = "G90" if absolute else "G91"
     lines = ("G91", f"G0 Z{rise:.3f} F{feed_mm_s * 60:.0f}", restore)
-    return Lift(lines, f"lifted the probe by {rise:.3f} mm (Z was {where}, safe height {safe_z_mm:g} mm)")
+    return Lift(lines, f"lifted the probe by {rise:.3f} mm (Z was {where}, travel height {safe_z_mm:g} mm)")
 
 
 def printer_send_handler(args: argparse.Namespace) -> int:
@@ -155,7 +185,11 @@ def _interrupted(args: argparse.Namespace, driver: Any, numbered: list[tuple[int
     in_doubt = driver.failure is not None or driver.lines_in_flight > 0
     safe_z = args.safe_z_mm
     if safe_z is None:
-        safe_z = profile.safe_height_mm if profile is not None else DEFAULT_SAFE_Z_MM
+        sent = acked + driver.lines_in_flight  # a line in flight may have moved too
+        safe_z = travel_height_mm([line for _, line in numbered[:sent]], profile)
+    if safe_z is None:
+        safe_z = DEFAULT_SAFE_Z_MM
+    surface = profile.calibration.surface_z_mm if profile is not None else None
     _, _, z_mm = driver.commanded_position_mm
     lift = lift_lines(
         z_mm,
@@ -168,8 +202,19 @@ def _interrupted(args: argparse.Namespace, driver: Any, numbered: list[tuple[int
         if lift.lines and driver.lines_in_flight:
             lift = Lift((), "no lift: a line is still in flight; lift the probe by hand before continuing")
         if lift.lines:
-            driver.send_lines(list(lift.lines), source="lift")
-        print(lift.reason + (f" ({' / '.join(lift.lines)})" if lift.lines else ""), file=err)
+            driver.send_lines([*lift.lines, "M400"], source="lift")
+            reported = driver.position().z_mm  # the firmware's word, not the host's model
+            done = f" ({' / '.join(lift.lines)}); the printer reports Z {reported:g} mm"
+            if surface is not None and reported < surface:
+                print(f"the probe is still below the skin surface (Z {surface:g} mm){done}: lift it by hand", file=err)
+            elif reported < safe_z - 1e-3:
+                print(
+                    f"the probe rose only to Z {reported:g} mm, below the travel height {safe_z:g} mm{done}", file=err
+                )
+            else:
+                print(lift.reason + done, file=err)
+        else:
+            print(lift.reason, file=err)
     except MarlinError as exc:
         print(f"could not lift the probe: {exc}", file=err)
     next_line = numbered[acked][0] if acked < len(numbered) else None

@@ -24,7 +24,7 @@ from typing import Any
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.marlin import errors as E
 from neatskin.marlin.commands import CommandParser, clean_command
-from neatskin.marlin.jobs import DriverConfig, Job
+from neatskin.marlin.jobs import Acknowledged, DriverConfig, Event, Failed, Job
 from neatskin.marlin.linestate import LineProtocol
 from neatskin.marlin.replies import Position, parse_m114, parse_m119
 from neatskin.marlin.transport import Channel, Clock, SerialPort, channel_for
@@ -46,7 +46,10 @@ class MarlinDriver:
         profile: PrinterProfile | None = None,
         wire_log: str | PathLike[str] | None = None,
         clock: Clock = time.monotonic,
+        rx_buffer_size: int | None = None,
     ) -> None:
+        """rx_buffer_size: the firmware's RX_BUFFER_SIZE (the printer profile's `rx_buffer_size`; default:
+        the profile's, else Marlin's stock 128): lines and probes in flight never hold more bytes."""
         self.port = port
         self.config = config
         self.profile = profile
@@ -57,14 +60,21 @@ class MarlinDriver:
         self._reader: threading.Thread | None = None
         self._channel: Channel | None = None
         self._stop = threading.Event()
-        self._protocol = LineProtocol(config, profile, self.port_name)
+        self._protocol = LineProtocol(config, profile, self.port_name, rx_buffer_size=rx_buffer_size)
         self._batch: list[Job] = []
         # what callers block on: the reader wakes them only when one of these finished (or the session
         # failed, or a drain ended), not for every `ok` of a batch: a waiter woken per line competes with
         # the reader for the lock and the GIL on the hot path
         self._awaited: list[Job] = []
+        self._results: dict[Job, Event] = {}  # how each job ended, from the protocol's events, until read
         self._commands = CommandParser()
         self._draining = 0
+        self._reader_running = False
+        self._asleep = False  # the reader is in a read that ends at _sleeping_until (None: only on data or wake())
+        self._sleeping_until: float | None = None
+        self.reader_wakeups = 0  # reads that ended (data, a deadline, a wake): the reader does not poll
+        self._progress_waiters = 0
+        self._progress_at = 0.0
 
     @classmethod
     def open(cls, url: str, baud_rate: int = 115200, **kwargs: Any) -> MarlinDriver:
@@ -137,7 +147,7 @@ class MarlinDriver:
         self._stop_reader()
         if self.wire_log_path is not None and self._wire is None:
             try:
-                self._wire = WireLog(self.wire_log_path)
+                self._wire = WireLog(self.wire_log_path, clock=self.clock)
             except OSError as exc:
                 raise E.WireLogFailed(f"{self.wire_log_path}: {exc}", port=self.port_name) from exc
         try:
@@ -149,14 +159,16 @@ class MarlinDriver:
             if "exclusively lock" in str(exc) or "Resource temporarily unavailable" in str(exc):
                 raise E.PortBusy(f"cannot open it exclusively: {exc}", port=self.port_name) from exc
             raise E.PortDead(f"cannot open: {exc}", port=self.port_name) from exc
-        self._channel = channel_for(self.port)
+        self._channel = channel_for(self.port, self.clock)
         with self._cond:
             hello = self._protocol.start_session(self.clock(), boot_timeout_s)
             self._flush()
         self._stop.clear()
+        self._reader_running = True
         self._reader = threading.Thread(target=self._run, name=f"marlin-reader {self.port_name}", daemon=True)
         self._reader.start()
         self._wait(hello)
+        self._results.pop(hello, None)
         return self
 
     def reconnect(self, boot_timeout_s: float | None = None) -> MarlinDriver:
@@ -184,9 +196,11 @@ class MarlinDriver:
             return
         self._stop.set()
         if self._channel is not None:
-            self._channel.cancel()
+            self._channel.wake()
         self._reader.join(timeout=2.0)
         self._reader = None
+        if self._channel is not None:
+            self._channel.close()
         with self._cond:
             n, cmd = self._protocol.last_acked
             self._protocol.fail(E.PortDead("the driver was closed", last_line=n, last_command=cmd, port=self.port_name))
@@ -195,36 +209,65 @@ class MarlinDriver:
     # ---- the transport: the reader thread and the writes --------------------------------------
 
     def _run(self) -> None:
+        """Read, feed the protocol, write what it asks for; sleep until its next deadline, not by polling."""
         channel = self._channel
         assert channel is not None
-        poll_s = self.config.poll_s
-        protocol = self._protocol
-        while not self._stop.is_set():
-            try:
-                data = channel.read(poll_s)
-            except Exception as exc:  # noqa: BLE001 - SerialException, OSError: the port is gone
-                if not self._stop.is_set():
-                    with self._cond:
-                        protocol.port_failed(f"read failed: {exc}")
-                        self._cond.notify_all()
-                return
-            with self._cond:
-                if data:
-                    self._log("<", data)
-                    protocol.receive(data, self.clock())
-                else:
-                    protocol.tick(self.clock())
-                self._flush()
-                if self._should_wake():
-                    self._cond.notify_all()
+        protocol, clock, cond = self._protocol, self.clock, self._cond
+        idle_s = self.config.min_timeout_s
+        try:
+            while not self._stop.is_set():
+                with cond:
+                    now = clock()
+                    # until the next deadline, and no longer than min_timeout_s: a line a caller writes has
+                    # a deadline at least that far ahead, so the reader wakes in time without being woken
+                    deadline = protocol.next_deadline()
+                    until = now + idle_s if deadline is None else min(deadline, now + idle_s)
+                    self._sleeping_until, self._asleep = until, True
+                try:
+                    data = channel.read(max(0.0, until - now))
+                except Exception as exc:  # noqa: BLE001 - SerialException, OSError: the port is gone
+                    if not self._stop.is_set():
+                        with cond:
+                            protocol.port_failed(f"read failed: {exc}")
+                    return
+                with cond:
+                    self._asleep = False  # awake: it reads the next deadline before it sleeps again
+                    self.reader_wakeups += 1
+                    if data:
+                        self._log("<", data)
+                        protocol.receive(data, clock())
+                    else:
+                        protocol.tick(clock())
+                    self._flush()
+                    if self._should_wake():
+                        cond.notify_all()
+        finally:
+            with cond:
+                self._reader_running = False
+                cond.notify_all()  # a caller waiting on a job sees that no one will finish it
 
     def _should_wake(self) -> bool:
         """Whether a blocked caller has something to see (called with the lock held)."""
         if self._protocol.failure is not None:
             return True
-        if self._draining and not self._protocol.in_flight:
+        if self._draining and self._protocol.drained:
             return True
-        return any(job.done for job in self._awaited)
+        self._collect()
+        if any(job in self._results for job in self._awaited):
+            return True
+        if self._progress_waiters and self.clock() - self._progress_at >= 0.1:
+            self._progress_at = self.clock()
+            return True
+        return False
+
+    def _wake_reader_for(self) -> None:
+        """After new work from a caller's thread (lock held): wake the reader if it sleeps past the new deadline."""
+        if not self._asleep or self._channel is None:
+            return
+        deadline, until = self._protocol.next_deadline(), self._sleeping_until
+        if deadline is not None and (until is None or deadline < until):
+            self._asleep = False  # one wake is enough
+            self._channel.wake()
 
     def _flush(self) -> None:
         """Write what the protocol asks for, in one write (called with the lock held).
@@ -260,33 +303,51 @@ class MarlinDriver:
             self._protocol.data_to_send()
             return False
 
+    def _collect(self) -> None:
+        """Take the protocol's events (lock held); the first event of a job is how it ended."""
+        for event in self._protocol.events():
+            self._results.setdefault(event.job, event)
+
     def _submit(self, jobs: list[Job]) -> None:
         with self._cond:
             if self._reader is None:
                 raise E.PortDead("not connected: call connect() first", port=self.port_name)
             self._protocol.submit(jobs, self.clock())
             self._flush()
+            self._wake_reader_for()
 
-    def _wait(self, job: Job, progress: Callable[[], None] | None = None) -> None:
-        """Until the protocol finishes job (it has a deadline for every line it sends)."""
+    def _wait(self, job: Job, progress: Callable[[], None] | None = None) -> Acknowledged:
+        """Until the protocol ends job (it has a deadline for every line it sends); its Acknowledged event,
+        or its Failed event's error raised."""
         with self._cond:
             self._awaited.append(job)
+            self._progress_waiters += progress is not None
             try:
-                while not job.done:
-                    self._cond.wait(0.1)
-                    if self._reader is None or not self._reader.is_alive():
+                while True:
+                    self._collect()
+                    if job in self._results:
+                        break
+                    if not self._reader_running:
                         n, cmd = self._protocol.last_acked
                         error = E.PortDead(
                             "the reader thread stopped", last_line=n, last_command=cmd, port=self.port_name
                         )
                         self._protocol.fail(error)
-                        job.finish(error)
+                        self._collect()
+                        self._results.setdefault(job, Failed(job, error))
+                        break
+                    # no timeout: the reader notifies when this job finishes, the session fails, progress
+                    # is due (0.1 s on the driver's clock) or the reader ends; every line has a deadline
+                    self._cond.wait()
                     if progress is not None:
                         progress()
             finally:
                 self._awaited.remove(job)
-        if job.error is not None:
-            raise job.error
+                self._progress_waiters -= progress is not None
+            result = self._results[job]
+        if isinstance(result, Failed):
+            raise result.error
+        return result
 
     # ---- public API ---------------------------------------------------------------------------
 
@@ -303,15 +364,21 @@ class MarlinDriver:
         if self._protocol.confirming:
             jobs.append(Job("", barrier=True))
         self._submit(jobs)
-        self._wait(jobs[-1])
-        if strict and job.rejected:
+        try:
+            self._wait(jobs[-1])
+            result = self._wait(job)  # ended already: the barrier (if any) came after it
+        finally:
+            with self._cond:
+                for one in jobs:
+                    self._results.pop(one, None)
+        if strict and result.rejected:
             raise E.CommandRejected(
-                f"{job.rejected!r} in answer to N{job.line} {command!r}",
-                last_line=job.line,
+                f"{result.rejected!r} in answer to N{result.line} {command!r}",
+                last_line=result.line,
                 last_command=command,
                 port=self.port_name,
             )
-        return job.replies
+        return list(result.replies)
 
     def send_lines(
         self, lines: Iterable[str], progress: Callable[[int, int], None] | None = None, *, source: str = "<lines>"
@@ -330,6 +397,9 @@ class MarlinDriver:
             return 0
         batch = object()
         jobs = [Job(command, line, batch) for command, line in program]
+        with self._cond:  # the previous batch's results are no longer asked for
+            for old in self._batch:
+                self._results.pop(old, None)
         self._batch = jobs
         last = jobs[-1]
         if self._protocol.confirming:
@@ -344,12 +414,18 @@ class MarlinDriver:
                 shown[0] = now
                 progress(self.batch_acknowledged(), len(jobs))
 
-        self._wait(last, report)
+        try:
+            self._wait(last, report)
+        finally:
+            if last is not jobs[-1]:
+                with self._cond:
+                    self._results.pop(last, None)
         for job in jobs:
-            if job.rejected:
+            result = self._results.get(job)
+            if isinstance(result, Acknowledged) and result.rejected:
                 raise E.CommandRejected(
-                    f"{job.rejected!r} in answer to N{job.line} {job.command!r}",
-                    last_line=job.line,
+                    f"{result.rejected!r} in answer to N{result.line} {job.command!r}",
+                    last_line=result.line,
                     last_command=job.command,
                     port=self.port_name,
                 )
@@ -359,12 +435,14 @@ class MarlinDriver:
 
     def batch_acknowledged(self) -> int:
         """How many commands of the latest send_lines batch the printer acknowledged (a prefix, in order)."""
-        done = 0
-        for job in self._batch:
-            if not job.done or job.error is not None:
-                break
-            done += 1
-        return done
+        with self._cond:
+            self._collect()
+            done = 0
+            for job in self._batch:
+                if not isinstance(self._results.get(job), Acknowledged):
+                    break
+                done += 1
+            return done
 
     def stop_after_line_in_flight(self, timeout_s: float | None = None) -> int:
         """Take back every command not yet written, wait for the line in flight; the number acknowledged.
@@ -376,11 +454,13 @@ class MarlinDriver:
                 E.Interrupted("taken back before sending", last_line=n, last_command=cmd, port=self.port_name)
             )
             self._cond.notify_all()  # a caller blocked on a job taken back sees it now
-            end = self.clock() + (timeout_s if timeout_s is not None else self.config.max_busy_s)
+            # the time limit is the protocol's, on the driver's clock: the reader wakes for it and tells us
+            self._protocol.drain(self.clock(), timeout_s if timeout_s is not None else self.config.max_busy_s)
+            self._wake_reader_for()
             self._draining += 1
             try:
-                while self._protocol.in_flight and self._protocol.failure is None and self.clock() < end:
-                    self._cond.wait(0.1)
+                while not self._protocol.drained and self._reader_running:
+                    self._cond.wait()
             finally:
                 self._draining -= 1
         return self.batch_acknowledged()

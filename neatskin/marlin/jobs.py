@@ -1,12 +1,11 @@
-"""The values a caller hands the Marlin line protocol: DriverConfig (every timing knob and cap) and Job.
-
-A Job is the one mutable handle a caller waits on: the protocol (linestate.LineProtocol) fills
-in its replies and sets `done`, with `error` when the session failed or the command was refused.
+"""The values between a caller and the Marlin line protocol: DriverConfig (every timing knob and cap), Job
+(a command submitted) and the events that say how a job ended (Acknowledged, Failed), as h11 returns
+events: the protocol (linestate.LineProtocol) never mutates what the caller handed it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from neatskin.gcode.parse import GcodeLine
 from neatskin.marlin import errors as E
@@ -22,10 +21,13 @@ class DriverConfig:
     max_resends: int = 12  # the same line asked for this often -> ResendLoop
     resend_grace_s: float = 0.02  # while the dialect is unknown: wait this long for an `ok` after `Resend:`
     duplicate_resend_s: float = 1.0  # an identical `Resend: n` with no new error within this is a duplicate
-    poll_s: float = 0.02  # the reader's read timeout: how often deadlines are checked
+    # the read timeout of a port read through pyserial's API (the raw pty/tty channel sleeps until the
+    # protocol's next deadline instead): how late a deadline may be noticed there
+    poll_s: float = 0.02
     write_timeout_s: float = 5.0  # a write that finds no room for this long: PortDead
     max_in_flight: int = 1  # >1 pipelines lines, only once the firmware's `ok N.. P.. B..` names them
-    rx_buffer_bytes: int = 127  # Marlin's RX_BUFFER_SIZE less one: bytes in flight never exceed it
+    # without a profile or an explicit rx_buffer_size: Marlin's stock RX_BUFFER_SIZE less one
+    rx_buffer_bytes: int = 127
     homing_time_s: float = 60.0
     default_feed_mm_s: float = 25.0
     motion_time_scale: float = 1.0  # real seconds per second of motion: 0 for a virtual-time simulated printer
@@ -45,21 +47,34 @@ class DriverConfig:
                 raise ValueError(f"DriverConfig.{name} must be >= 1")
 
 
-@dataclass(eq=False)
+@dataclass(frozen=True, eq=False)
 class Job:
-    """One command a caller waits for; `done` with `replies` (or `error`) once the printer answered."""
+    """One command a caller submits; the protocol reports how it ended as an event (Acknowledged or Failed).
+    Compared by identity: the same command twice is two jobs."""
 
     command: str
     parsed: GcodeLine | None = None  # the parsed line, when the caller parsed it already
     batch: object | None = None  # jobs of one send_lines call share it: a refusal cancels the rest
     barrier: bool = False  # a probe whose echo proves that every line before it ran
-    replies: list[str] = field(default_factory=list)
-    done: bool = False
-    error: E.MarlinError | None = None
-    rejected: str | None = None
-    line: int | None = None
 
-    def finish(self, error: E.MarlinError | None = None) -> None:
-        if error is not None and self.error is None:
-            self.error = error
-        self.done = True
+
+@dataclass(frozen=True)
+class Acknowledged:
+    """The printer acknowledged the job's line: what it printed before the `ok` (and data on the ok itself),
+    and its refusal text when it refused the command (`Unknown command`, `Home XYZ First`)."""
+
+    job: Job
+    line: int | None
+    replies: tuple[str, ...] = ()
+    rejected: str | None = None
+
+
+@dataclass(frozen=True)
+class Failed:
+    """The job will not be acknowledged: the session failed, or it was taken back before it was sent."""
+
+    job: Job
+    error: E.MarlinError
+
+
+Event = Acknowledged | Failed

@@ -15,16 +15,27 @@ from __future__ import annotations
 import os
 import threading
 import time
+from collections.abc import Callable
 from os import PathLike
 from pathlib import Path
 
 
 class WireLog:
-    def __init__(self, path: str | PathLike[str]) -> None:
+    """clock: the driver's monotonic seconds (the elapsed column); wall_ns: UTC nanoseconds (the stamp)."""
+
+    def __init__(
+        self,
+        path: str | PathLike[str],
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        wall_ns: Callable[[], int] = time.time_ns,
+    ) -> None:
         self.path = Path(path)
+        self.clock = clock
+        self.wall_ns = wall_ns
         self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
         self._lock = threading.Lock()
-        self._t0 = time.monotonic()
+        self._t0 = clock()
         self._second = -1
         self._prefix = ""
         try:
@@ -34,9 +45,9 @@ class WireLog:
             raise
 
     def write(self, direction: str, data: bytes) -> None:
-        micros = time.time_ns() // 1000
+        micros = self.wall_ns() // 1000
         second, fraction = divmod(micros, 1_000_000)
-        elapsed = time.monotonic() - self._t0
+        elapsed = self.clock() - self._t0
         with self._lock:
             if self._fd is None:
                 return

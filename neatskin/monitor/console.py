@@ -5,7 +5,10 @@ The commands live in `ConsoleSession.handle` (a line in, text lines out), so the
 terminal; `run_console` is the prompt_toolkit shell around it. Commands:
 
   x+ [MM] / x- / y+ / y- / z+ / z-   jog by MM (default: the current step), relative, and wait for the move;
-                                     keys: Alt+Left/Right (X), Alt+Up/Down (Y), Alt+PageUp/PageDown (Z)
+                                     keys: Alt+Left/Right (X), Alt+Up/Down (Y), Alt+PageUp/PageDown (Z);
+                                     a z- that would end below the skin surface (the profile's, or the
+                                     lowest calibration point taken) is refused: `z- MM!` confirms it;
+                                     a jog the printer cut short (a soft limit) says so
   step MM                            the jog step (0.1, 1, 10 ...)
   pos | m114                         where the probe is (M114, printer frame)
   endstops | m119                    endstop states (M119)
@@ -19,7 +22,8 @@ terminal; `run_console` is the prompt_toolkit shell around it. Commands:
   help, quit
 
 Ctrl-C while a command runs halts motion by waiting and lifting, not by M410: the moves in flight finish
-(a console sends only short jogs), then Z rises by `lift_mm` and the position is printed. M410 would stop the
+(a console sends only short jogs), then Z rises by `lift_mm`, and at least to `lift_mm` above the skin
+surface when it is known, and the position is printed. M410 would stop the
 steppers without deceleration and lose their position (Marlin then needs G28, which with a flat probe resting
 over the skin may drive it into the silicone); a second Ctrl-C during the wait sends M112 (emergency stop).
 """
@@ -42,7 +46,7 @@ PROMPT = "marlin> "
 DEFAULT_STEP_MM = 1.0
 LIFT_MM = 5.0
 JOG_FEED_MM_MIN = {"X": 3000.0, "Y": 3000.0, "Z": 300.0}
-_JOG = re.compile(r"^([xyz])([+-])\s*(\d+(?:\.\d*)?)?$", re.IGNORECASE)
+_JOG = re.compile(r"^([xyz])([+-])\s*(\d+(?:\.\d*)?)?(!?)$", re.IGNORECASE)
 
 
 class PositionLike(Protocol):
@@ -111,8 +115,18 @@ def calibration_block(points: list[ReferencePoint]) -> list[str]:
 class ConsoleSession:
     """The console's commands over a driver; `handle(line)` returns the lines to print."""
 
-    def __init__(self, driver: ConsoleDriver, *, calibration_out: Path | None = None, lift_mm: float = LIFT_MM) -> None:
+    def __init__(
+        self,
+        driver: ConsoleDriver,
+        *,
+        calibration_out: Path | None = None,
+        lift_mm: float = LIFT_MM,
+        surface_z_mm: float | None = None,
+    ) -> None:
+        """surface_z_mm: the skin's surface in printer Z (a profile's calibration.surface_z_mm); without it,
+        the lowest calibration point taken in this session is the surface."""
         self.driver = driver
+        self.profile_surface_z_mm = surface_z_mm
         self.step_mm = DEFAULT_STEP_MM
         self.points: list[ReferencePoint] = []
         self.calibration_out = calibration_out
@@ -127,7 +141,7 @@ class ConsoleSession:
         command = word.lower()
         jog = _JOG.match(text.replace(" ", ""))
         if jog:
-            return self.jog(jog.group(1).upper(), jog.group(2), jog.group(3))
+            return self.jog(jog.group(1).upper(), jog.group(2), jog.group(3), confirmed=bool(jog.group(4)))
         handler: Callable[[str], list[str]] | None = {
             "help": self._help,
             "step": self._step,
@@ -161,18 +175,42 @@ class ConsoleSession:
         replies = self.driver.send(text, strict=False)
         return [r for r in replies if r.strip()] + ["ok"]
 
-    def jog(self, axis: str, sign: str, amount: str | None) -> list[str]:
+    @property
+    def surface_z_mm(self) -> float | None:
+        """The skin surface this session knows of: the profile's, else the lowest calibration point's Z."""
+        if self.profile_surface_z_mm is not None:
+            return self.profile_surface_z_mm
+        return min((p.printer_z_mm for p in self.points), default=None)
+
+    def jog(self, axis: str, sign: str, amount: str | None, *, confirmed: bool = False) -> list[str]:
         step = float(amount) if amount else self.step_mm
         if not (math.isfinite(step) and 0 < step <= 100):
             return [f"jog step must be in (0, 100] mm, got {step}"]
         dist = step if sign == "+" else -step
+        before: PositionLike | None = None
+        if axis == "Z" and dist < 0:  # down: where it ends is checked against the surface and the printer's limit
+            before = self.driver.position()
+            surface = self.surface_z_mm
+            target = before.z_mm + dist
+            if surface is not None and target < surface - 1e-9 and not confirmed:
+                return [
+                    f"refused: z- {step:g} would take the probe to Z {target:.3f}, {surface - target:.3f} mm below "
+                    f"the skin surface at Z {surface:.3f}; type z- {step:g}! to go there anyway"
+                ]
         self.driver.send("G91")
         try:
             self.driver.send(f"G0 {axis}{dist:g} F{JOG_FEED_MM_MIN[axis]:g}")
         finally:  # a refused jog (beyond a soft limit) must not leave the printer in relative mode
             self.driver.send("G90")
         self.driver.send("M400")
-        return [_fmt_position(self.driver.position())]
+        after = self.driver.position()
+        out = [_fmt_position(after)]
+        if before is not None and after.z_mm > before.z_mm + dist + 1e-3:
+            out.append(
+                f"the printer stopped at Z {after.z_mm:.3f}, not Z {before.z_mm + dist:.3f}: "
+                "it clamped the move (a soft limit)"
+            )
+        return out
 
     def _step(self, arg: str) -> list[str]:
         try:
@@ -234,9 +272,16 @@ class ConsoleSession:
             self.driver.send("M400")
             p = self.driver.position()
             target = p.z_mm + self.lift_mm
+            surface = self.surface_z_mm
+            if surface is not None:
+                target = max(target, surface + self.lift_mm)  # never left in the skin: above its surface
             for command in ("G90", f"G0 Z{target:.3f} F{JOG_FEED_MM_MIN['Z']:g}", "M400"):
                 self.driver.send(command)
-            out.append(f"halted and lifted {self.lift_mm:g} mm: {_fmt_position(self.driver.position())}")
+            now = self.driver.position()
+            if surface is not None and now.z_mm < surface:
+                out.append(f"could not lift above the surface at Z {surface:.3f}: {_fmt_position(now)}")
+            else:
+                out.append(f"halted and lifted {target - p.z_mm:g} mm: {_fmt_position(now)}")
         except KeyboardInterrupt:
             self.driver.emergency_stop()
             out.append("second Ctrl-C: M112 sent (emergency stop); reset the printer and home it before moving")
@@ -275,6 +320,7 @@ def run_console(
     connect_timeout_s: float = 5.0,
     history_path: Path | None = None,
     calibration_out: Path | None = None,
+    surface_z_mm: float | None = None,
 ) -> int:
     """The interactive shell: prompt_toolkit prompt with file history, the session's commands, Ctrl-C halts."""
     from prompt_toolkit import PromptSession
@@ -285,7 +331,7 @@ def run_console(
     history = history_path or Path.home() / ".neatskin_console_history"
     driver = MarlinDriver.open(port, baud_rate)
     driver.connect(connect_timeout_s)
-    session = ConsoleSession(driver, calibration_out=calibration_out)
+    session = ConsoleSession(driver, calibration_out=calibration_out, surface_z_mm=surface_z_mm)
     prompt: PromptSession[str] = PromptSession(history=FileHistory(str(history)), key_bindings=jog_key_bindings())
     print(f"connected to {driver.port_name}; `help` lists the commands, Ctrl-D or quit leaves")
     try:

@@ -3,8 +3,12 @@
 `MarlinCore.receive(bytes)` takes what the host wrote; `step()` runs what can run now and says
 how long (in real seconds) until something is due; `take_output()` gives the reply bytes.
 Line numbers, checksums and resends follow Marlin 2.1's queue.cpp (a repeated line just below
-the counter is dropped silently; `marlin_version="2.0"` answers it with an error instead;
-`ok_after_resend=True` adds Marlin 1.x's `ok` after `Resend:`). Commands run in order from a
+the counter is dropped silently; `marlin_version="2.0"` answers it with an error instead; a bare
+`ok` follows every `Resend:`, as Marlin sends it; `ok_after_resend=False` leaves it out, as a
+Repetier-like peer). What it prints matches the real firmware byte for byte where
+tests/test_marlin_real_vs_sim.py compares them (`\r\n` after M118 and the M111 echo, the
+banner, M115's capabilities, M114 zeros before homing, `Count` at the end of the queued motion,
+M112 only as a command, nothing after a kill until a reset). Commands run in order from a
 BUFSIZE-slot queue; moves go to a planner of `planner_buffer_size` slots (a full planner delays
 the `ok`). Time is a clock object: virtual (jumps to when the motion is done; no sleeping) or
 scaled real time. Faults (faults.FaultConfig) are drawn from a seeded numpy Generator.
@@ -26,16 +30,16 @@ from neatskin.gcode.parse import GcodeLine, checksum, parse_line
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.marlin import replies as R
 from neatskin.sim.faults import FaultConfig
+from neatskin.sim.firmware_texts import STEPS_PER_MM, banner_lines, m115_lines
 from neatskin.sim.motion import Timeline
 
-STEPS_PER_MM = (80.0, 80.0, 400.0)
 _N = re.compile(r"N\s*(-?\d+)")
 _DIGITS = re.compile(r"\d+")
 _EOL = re.compile(rb"[\r\n]")
 _FRAMED = re.compile(r"N(\d+)([^*]*)\*(\d+)")  # the common framed line: N<n> <command>*<checksum>
 _MOVES = frozenset({"G0", "G1"})
 _MODES = frozenset({"G90", "G91", "M82", "M83"})
-_SILENT = frozenset({"G0", "G1", "G4", "G28", "M400", "M999"})
+_SILENT = frozenset({"G0", "G1", "G4", "G28", "M400", "M999", "M111"})
 _OK = b"ok\n"
 _PARSE_CACHE_LINES = 1024  # distinct command texts kept parsed (the repeated ones come first)
 _QUIET = frozenset({"G21", "G90", "G91", "M17", "M82", "M83", "M104", "M106", "M107", "M117", "M140", "M220", "M221"})
@@ -81,8 +85,9 @@ class MarlinCore:
         clock=None,
         advanced_ok: bool = False,
         marlin_version: str = "2.1",
-        ok_after_resend: bool = False,
+        ok_after_resend: bool = True,
         bufsize: int = 4,
+        rx_buffer_size: int | None = None,
         keepalive_s: float = 2.0,
         history_lines: int = 10_000,
         keep_segments: int = 4096,
@@ -96,6 +101,11 @@ class MarlinCore:
         self.marlin_version = marlin_version
         self.ok_after_resend = ok_after_resend
         self.bufsize = bufsize
+        # the serial receive ring: bytes past it are lost, as on an AVR board (None: unbounded, as the
+        # native build's HAL, which reads stdin only into free space)
+        self.rx_buffer_size = rx_buffer_size
+        self.rx_overflow_bytes = 0
+        self.echo_commands = False  # M111 S1
         self.keepalive_s = keepalive_s
         self.timeline = Timeline(profile, tuple(profile.park_mm), keep_segments)
         # bounded, so memory stays flat as a campaign grows: the latest lines, and a count of them all
@@ -116,13 +126,15 @@ class MarlinCore:
 
     def _boot(self) -> None:
         self.rx = bytearray()
-        self.queue: collections.deque[tuple[int | None, str, str, GcodeLine | None]] = collections.deque()
+        # (line number, command, code, parsed, the line as received: M111 S1 echoes it)
+        self.queue: collections.deque[tuple[int | None, str, str, GcodeLine | None, str]] = collections.deque()
         self.last_n = 0
         self.homed = [False, False, False]
         # the one G-code machine model (gcode.machine): native position = the timeline's, G92 offsets, modes
+        # what the firmware believes (zeros until homed, as Marlin at boot); the timeline is where the probe is
         self.machine = Machine(
             self.profile,
-            start_mm=self.timeline.end_mm,
+            start_mm=(0.0, 0.0, 0.0),
             feed_mm_s=self.profile.travel_feed_mm_s,
             homing_time_s=self.profile.homing_time_s,
         )
@@ -130,9 +142,9 @@ class MarlinCore:
         self.halted = False
         self._head_ready: float | None = None
         self._last_busy = self.clock.now()
-        self._emit(R.START)
-        self._emit("echo:Marlin 2.1.2.4 (neatskin simulated printer)")
-        self._emit(f"echo: Free Memory: 4096  PlannerBufferBytes: {self.profile.planner_buffer_size * 64}")
+        self.echo_commands = False
+        for line in banner_lines(self.profile):
+            self._emit(line)
 
     def reset(self) -> None:
         """Power cycle / reset button: the queue and counters are lost, the probe is unhomed."""
@@ -156,12 +168,12 @@ class MarlinCore:
         self.soft_endstops = on
         self.machine.limits_mm = (lo, hi)
 
-    def _emit(self, text: str, *, is_ok: bool = False) -> None:
+    def _emit(self, text: str, *, is_ok: bool = False, eol: bytes = b"\n") -> None:
         if self.dead:
             return
         if is_ok and self.faults.drop_ok and self.rng.random() < self.faults.drop_ok:
             return
-        line = text.encode("ascii") + b"\n"
+        line = text.encode("ascii") + eol
         self.out += line
         if self.faults.duplicate and self.rng.random() < self.faults.duplicate:
             self.out += line
@@ -169,8 +181,12 @@ class MarlinCore:
     # ---- serial input ---------------------------------------------------------------------
 
     def receive(self, data: bytes) -> None:
-        if self.dead:
-            return
+        if self.dead or self.halted:
+            return  # a killed Marlin reads nothing until it is reset
+        room = None if self.rx_buffer_size is None else self.rx_buffer_size - 1 - len(self.rx)
+        if room is not None and len(data) > room:
+            self.rx_overflow_bytes += len(data) - max(room, 0)
+            data = data[: max(room, 0)]
         self.rx += data
         self._read_lines()
 
@@ -192,15 +208,7 @@ class MarlinCore:
         if faults.corrupt and raw.strip() and self.rng.random() < faults.corrupt:
             raw = self._corrupt(raw)
         text = raw.decode("ascii", "replace").strip()
-        if not text:
-            return
-        if "M112" in text:  # the emergency parser acts on raw input, ahead of the queue
-            self._kill()
-            return
-        if self.halted:
-            if "M999" in text:
-                self.halted = False
-                self._emit(R.OK, is_ok=True)
+        if not text or self.halted:
             return
         number = None
         framed = _FRAMED.fullmatch(text)
@@ -212,7 +220,7 @@ class MarlinCore:
                 self._line_error(R.ERR_CHECKSUM)
                 return
             self.last_n = number
-            self._enqueue(number, framed.group(2).strip())
+            self._enqueue(number, framed.group(2).strip(), text)
             return
         if text.startswith("N"):
             is_m110 = "M110" in text
@@ -233,8 +241,12 @@ class MarlinCore:
                 return
             self.last_n = number
             head = _N.match(text)
-            text = text[head.end() : star].strip() if head else text[:star].strip()
-        self._enqueue(number, text)
+            self._enqueue(number, text[head.end() : star].strip() if head else text[:star].strip(), text)
+            return
+        if text.startswith("M112"):  # no emergency parser: queue.cpp kills on an unnumbered M112 as it reads it
+            self._kill()
+            return
+        self._enqueue(number, text, text)
 
     def _in_sequence(self, number: int) -> bool:
         """True for the next line number; otherwise the line is refused (or dropped) here."""
@@ -245,7 +257,7 @@ class MarlinCore:
         # else: a repeat from a crossed resend, dropped without a word (Marlin 2.1)
         return False
 
-    def _enqueue(self, number: int | None, text: str) -> None:
+    def _enqueue(self, number: int | None, text: str, raw: str) -> None:
         """Queue a command, parsed once (Marlin parses at execution; the result is the same).
 
         A campaign repeats most of its lines (`M400`, the descend and lift moves): each distinct
@@ -259,7 +271,7 @@ class MarlinCore:
             parsed = (line.code if line is not None else text.split(" ", 1)[0], line)
             if len(self._parsed) < _PARSE_CACHE_LINES:
                 self._parsed[text] = parsed
-        self.queue.append((number, text, parsed[0], parsed[1]))
+        self.queue.append((number, text, parsed[0], parsed[1], raw))
 
     def _corrupt(self, raw: bytes) -> bytes:
         # never the leading 'N': a line that loses it is taken unnumbered, a hole in Marlin's protocol
@@ -275,7 +287,7 @@ class MarlinCore:
         self.rx.clear()  # Marlin empties its RX buffer before asking again
         self._emit(f"{R.RESEND}{self.last_n + 1}")
         if self.ok_after_resend:
-            self._emit(R.OK, is_ok=True)
+            self._emit(R.OK, is_ok=True)  # bare even with ADVANCED_OK (queue.cpp flush_and_request_resend)
 
     def _kill(self) -> None:
         self.queue.clear()
@@ -283,6 +295,7 @@ class MarlinCore:
         self.halted = True
         now = self.clock.now()
         self.timeline.teleport(now, self.timeline.position_mm(now))  # steppers stop where they are
+        self._emit("echo:M112 Shutdown")
         self._emit(f"Error:{R.ERR_KILLED}")
 
     # ---- execution ------------------------------------------------------------------------
@@ -291,6 +304,8 @@ class MarlinCore:
         """Run queued commands; real seconds until the head command can go on, or None when idle."""
         while self.queue and not self.dead and not self.halted:
             wait = self._run_head()
+            if self.halted:  # it ran M112: the queue is gone
+                return None
             if wait > 0:
                 return min(wait, self.keepalive_s / getattr(self.clock, "speed", 1.0))
             self.queue.popleft()
@@ -324,8 +339,15 @@ class MarlinCore:
         return left
 
     def _run_head(self) -> float:
-        number, text, code, line = self.queue[0]
+        number, text, code, line, raw = self.queue[0]
         if self._head_ready is None:  # first visit: start the command, decide when it may finish
+            if self.echo_commands:
+                self._emit(f"echo:{raw}", eol=b"\r\n")
+            if code == "M112":  # numbered, it reached the queue: it kills as it runs
+                self.executed.append((number, text))
+                self.executed_count += 1
+                self._kill()
+                return 0.0
             self._last_busy = self.clock.now()
             ready = self._start(code, line)
             self._head_ready = self.clock.now() if ready is None else ready
@@ -384,6 +406,8 @@ class MarlinCore:
         elif code in _MODES or code == "G92":
             if line is not None:
                 self.machine.step(line)
+            if code == "G92":
+                self._emit(self._m114())  # G92 reports the position it set
         elif code == "M110" and line is not None:
             self.last_n = int(line.get("N", 0.0) or 0)
         elif code == "M114":
@@ -400,18 +424,18 @@ class MarlinCore:
             self._emit(self._m211())
         elif code == "M118" and line is not None:
             prefix = "echo:" if line.get("E") else ("//" if line.get("A") else "")
-            self._emit(prefix + line.text)
+            self._emit(prefix + line.text, eol=b"\r\n")
+        elif code == "M111":
+            self.echo_commands = bool(line is not None and int(line.get("S", 0) or 0) & 1)
+            self._emit("echo:DEBUG:ECHO" if self.echo_commands else "echo:DEBUG:off")
         elif code in ("M84", "M18"):
             self.homed = [False, False, False]
         elif code == "M105":
             self._emit("ok T:25.00 /0.00 B:25.00 /0.00 @:0 B@:0", is_ok=True)
             return True
         elif code == "M115":
-            self._emit(
-                "FIRMWARE_NAME:Marlin 2.1.2.4 (neatskin simulated printer) SOURCE_CODE_URL:github.com/"
-                "MarlinFirmware/Marlin PROTOCOL_VERSION:1.0 MACHINE_TYPE:NeatSkin rig EXTRUDER_COUNT:0"
-            )
-            self._emit(f"Cap:ADVANCED_OK:{int(self.advanced_ok)}")
+            for text_line in m115_lines():
+                self._emit(text_line)
         elif code not in _QUIET and code not in _SILENT:
             self._emit(f'echo:{R.UNKNOWN_COMMAND}{text}"')
         return False
@@ -423,14 +447,16 @@ class MarlinCore:
             else:
                 self._emit(R.OK, is_ok=True)
             return
-        free = self.profile.planner_buffer_size - self.timeline.pending(self.clock.now())
+        # Marlin's planner keeps one slot empty: an idle planner of 16 reports P15
+        free = self.profile.planner_buffer_size - 1 - self.timeline.pending(self.clock.now())
         tag = f" N{number}" if number is not None else ""
         self._emit(f"ok{tag} P{free} B{self.bufsize - len(self.queue)}", is_ok=True)
 
     def _m114(self) -> str:
-        logical = [p + o for p, o in zip(self.timeline.end_mm, self.machine.offset_mm)]
-        actual = self.timeline.position_mm(self.clock.now())
-        counts = [round(a * s) for a, s in zip(actual, STEPS_PER_MM)]
+        # the planner's position (the end of the queued motion) as Marlin reports it, zeros before homing
+        native = [p if p is not None else 0.0 for p in self.machine.position_mm]
+        logical = [p + o for p, o in zip(native, self.machine.offset_mm)]
+        counts = [round(a * s) for a, s in zip(native, STEPS_PER_MM)]
         return (
             f"X:{logical[0]:.2f} Y:{logical[1]:.2f} Z:{logical[2]:.2f} E:0.00 "
             f"Count X:{counts[0]} Y:{counts[1]} Z:{counts[2]}"

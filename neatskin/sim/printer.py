@@ -36,7 +36,8 @@ class SimulatedPrinter:
         speed: float = 1.0,
         advanced_ok: bool = False,
         marlin_version: str = "2.1",
-        ok_after_resend: bool = False,
+        ok_after_resend: bool = True,
+        rx_buffer_size: int | None = None,
         history_lines: int = 10_000,
         keep_segments: int = 4096,
     ) -> None:
@@ -53,6 +54,7 @@ class SimulatedPrinter:
             advanced_ok=advanced_ok,
             marlin_version=marlin_version,
             ok_after_resend=ok_after_resend,
+            rx_buffer_size=rx_buffer_size,
             history_lines=history_lines,
             keep_segments=keep_segments,
         )

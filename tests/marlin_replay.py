@@ -1,0 +1,66 @@
+"""One command script replayed line by line against any Marlin on a pty: the real firmware or the simulator.
+
+Each entry is written as is (framed lines carry their own N and checksum, so a bad checksum or a
+skipped number is part of the script); the replies are read until the `ok` that answers it, or
+until the line's quiet time passes (a kill, a refused line with no `ok`).
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import time
+
+from neatskin.marlin.replies import frame
+
+
+def bad(line: bytes) -> bytes:
+    """The line with its checksum changed."""
+    head, cs = line.rstrip(b"\n").rsplit(b"*", 1)
+    return head + b"*" + str((int(cs) + 1) % 256).encode() + b"\n"
+
+
+# (bytes written, the quiet time in s after which the answer is taken to be complete)
+SCRIPT: list[tuple[bytes, float]] = [
+    (b"M110 N0\n", 0.3),
+    (frame("M115", 1), 0.3),
+    (frame("M114", 2), 0.3),
+    (frame("M118 E1 hi", 3), 0.3),
+    (frame("M118 A1 hi", 4), 0.3),
+    (frame("M118 hi", 5), 0.3),
+    (frame("M118 E1 M112 in text", 6), 0.3),
+    (frame("G4 P10", 7), 0.3),
+    (frame("M400", 8), 0.3),
+    (frame("M111 S1", 9), 0.3),
+    (frame("M118 E1 x", 10), 0.3),
+    (bad(frame("G92 X10 Y10 Z10", 11)), 0.3),
+    (frame("M118 E1 skipped", 12), 0.3),
+    (frame("G92 X10 Y10 Z10", 11), 0.3),
+    (frame("M114", 12), 0.3),
+    (frame("M400", 13), 0.3),
+    (frame("G999", 14), 0.3),
+    (frame("M111 S0", 15), 0.3),
+    (frame("M118 E1 y", 16), 0.3),
+    (frame("M112", 17), 1.0),
+    (frame("M999", 18), 0.5),
+    (b"M999\n", 0.5),
+    (b"M110 N0\n", 0.5),
+]
+
+
+def replay(fd: int, script: list[tuple[bytes, float]] = SCRIPT, max_wait_s: float = 10.0) -> list[tuple[bytes, bytes]]:
+    """(line written, every byte read until its `ok` or a quiet time) for each entry of the script."""
+    out = []
+    for line, quiet_s in script:
+        os.write(fd, line)
+        got = b""
+        end = time.monotonic() + max_wait_s
+        while time.monotonic() < end:
+            ready, _, _ = select.select([fd], [], [], quiet_s)
+            if not ready:
+                break
+            got += os.read(fd, 4096)
+            if got.endswith(b"\n") and got.splitlines()[-1].startswith(b"ok"):
+                break
+        out.append((line, got))
+    return out

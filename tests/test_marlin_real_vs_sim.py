@@ -1,0 +1,95 @@
+"""The simulated printer answers as the real Marlin does: one command script, replayed against both, byte for byte.
+
+The real firmware is ../shared/marlin's native build (plain and ADVANCED_OK) behind our relay; the
+simulator runs a profile with the native build's configuration (protocols/printers/marlin-native.toml),
+so the settings report's numbers agree too. Documented exceptions, each normalised below and nowhere else:
+- the version, build date and board: `Marlin bugfix-2.1.x` / `echo: Compiled: ...` / `x86_64 Initialized`
+  (the HAL's line before `start`), and M115's FIRMWARE_NAME and MACHINE_TYPE line;
+- timing: `echo:busy: processing` keep-alives come every 2 s of a long command on either side, at
+  times neither controls, so they are left out of both;
+- motion before homing: the simulator refuses it (`echo:Home XYZ First`, a printer built with
+  NO_MOTION_BEFORE_HOMING, as the rig's is); stock Marlin moves from where it thinks it is, so the
+  script has no move (Count at the end of the queued motion is pinned by test_marlin_sim).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import serial
+from marlin_replay import SCRIPT, replay
+
+from neatskin.gcode.profile import load_printer_profile
+from neatskin.sim.printer import SimulatedPrinter
+from neatskin.sim.realmarlin import ADVANCED_OK, PLAIN, FirmwareRelay, find_marlin_dir
+
+REPO = Path(__file__).resolve().parent.parent
+MARLIN = find_marlin_dir(REPO)
+NATIVE_PROFILE = REPO / "protocols" / "printers" / "marlin-native.toml"
+
+
+def normalise(data: bytes) -> bytes:
+    out = []
+    for line in data.splitlines(keepends=True):
+        text = line.rstrip(b"\r\n")
+        if text in (b"x86_64 Initialized", b"echo:busy: processing"):
+            continue
+        if text.startswith(b"Marlin "):
+            line = b"Marlin <version>\n"
+        elif text.startswith(b"echo: Compiled: "):
+            line = b"echo: Compiled: <date>\n"
+        elif text.startswith(b"FIRMWARE_NAME:"):
+            line = b"FIRMWARE_NAME:<name>\n"
+        out.append(line)
+    return b"".join(out)
+
+
+def sim_transcript(advanced_ok: bool) -> tuple[bytes, list[tuple[bytes, bytes]]]:
+    printer = SimulatedPrinter(load_printer_profile(NATIVE_PROFILE), advanced_ok=advanced_ok, time_mode="scaled")
+    banner = printer.core.take_output()  # what it printed at boot (pyserial's open flushes a pty's input)
+    path = printer.start_pty()
+    try:
+        with serial.Serial(path, timeout=0) as port:
+            return banner, replay(port.fd)
+    finally:
+        printer.stop()
+
+
+def real_transcript(build: str) -> tuple[bytes, list[tuple[bytes, bytes]]]:
+    assert MARLIN is not None
+    with FirmwareRelay(MARLIN / build) as relay:
+        banner = b"".join(relay.replies())
+        with serial.Serial(relay.path, timeout=0) as port:
+            return banner, replay(port.fd)
+
+
+@pytest.mark.skipif(MARLIN is None, reason="the real firmware is absent: no shared/marlin beside the repository")
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("build", [PLAIN, ADVANCED_OK])
+def test_the_simulator_answers_the_script_as_the_real_firmware(build):
+    real_banner, real = real_transcript(build)
+    sim_banner, sim = sim_transcript(advanced_ok=build == ADVANCED_OK)
+    assert normalise(sim_banner) == normalise(real_banner)
+    assert len(sim) == len(real) == len(SCRIPT)
+    for (line, want), (_, got) in zip(real, sim):
+        assert normalise(got) == normalise(want), line
+
+
+def test_the_script_covers_every_difference_the_issue_lists():
+    """The script itself (no firmware needed): each difference has a line that shows it."""
+    sent = b"".join(line for line, _ in SCRIPT)
+    for needle in (b"M115", b"M114", b"M118 E1", b"M111 S1", b"M118 E1 M112 in text", b"N17 M112*", b"M999"):
+        assert needle in sent
+    _, sim = sim_transcript(advanced_ok=True)
+    answers = dict(sim)
+    replies = b"".join(got for _, got in sim)
+    assert b"Cap:EMERGENCY_PARSER:0\n" in replies and b"Cap:ADVANCED_OK" not in replies
+    assert b"Resend: 11\nok\n" in replies  # a bare ok after every Resend:, ADVANCED_OK or not
+    assert answers[SCRIPT[1][0]].endswith(b"ok N1 P15 B3\n")  # an empty planner of 16 reports P15
+    assert answers[SCRIPT[2][0]] == b"X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0\nok N2 P15 B3\n"  # before homing
+    assert answers[SCRIPT[3][0]] == b"echo:hi\r\nok N3 P15 B3\n"
+    assert answers[SCRIPT[6][0]] == b"echo:M112 in text\r\nok N6 P15 B3\n"  # M112 in a text kills nothing
+    kill = next(got for line, got in sim if line.startswith(b"N17 M112"))
+    assert kill == b"echo:M112 Shutdown\nError:Printer halted. kill() called!\n"
+    assert [got for line, got in sim][-3:] == [b"", b"", b""]  # after a kill: nothing, M999 included
