@@ -142,3 +142,15 @@ def test_the_packaged_paper_kernel_loads_and_matches_its_spec():
     assert kmod.load_kernel(spec, compute=False).key == kernel.key
     assert kernel.ratio(0.0, 3.5) == 0.0  # under the probe at the paper's depth the channel is shut
     assert 0.5 < kernel.ratio(10.0, 3.5) <= 1.0
+
+
+def test_the_packaged_kernel_is_what_the_solver_gives():
+    from neatskin.skin.mechanics import solve_press
+
+    path = kmod.packaged_kernel_path()
+    if not path.exists():
+        pytest.skip("no packaged kernel")
+    kernel, spec = read_kernel(path), KernelSpec.for_layout(LAYOUT)
+    row = int(np.flatnonzero(kernel.offsets_mm == 2.0)[0])
+    result = solve_press(spec.geometry, spec.material, spec.settings, 2.0)
+    assert np.allclose(result.area_ratio, kernel.area_ratio[row], rtol=0, atol=1e-9, equal_nan=True)

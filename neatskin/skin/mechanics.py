@@ -270,7 +270,7 @@ class _Assembler:
     def __init__(self, ub, pb, mu: float, bulk: float, dx=None):
         self.ub, self.pb, self.mu, self.bulk = ub, pb, mu, bulk
         self.G = np.stack([b[0].grad for b in ub.basis])  # (12, 2, 2, el, q)
-        self.phi = np.stack([b[0].value for b in pb.basis])  # (3, el, q)
+        self.phi = np.stack([np.asarray(b[0]) for b in pb.basis])  # (3, el, q)
         self.dx = ub.dx if dx is None else dx  # (el, q): the integration weights (times r when axisymmetric)
         self.udofs, self.pdofs = ub.element_dofs, pb.element_dofs + ub.N
         mass = np.einsum("aeq,beq,eq->abe", self.phi, self.phi, self.dx)
