@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from neatskin.skin.mechanics import _Assembler
+from neatskin.skin.feassembly import Assembler as _Assembler
 
 
 class AxisymmetricAssembler(_Assembler):
