@@ -142,3 +142,49 @@ def test_the_packaged_paper_kernel_loads_and_matches_its_spec():
     assert kmod.load_kernel(spec, compute=False).key == kernel.key
     assert kernel.ratio(0.0, 3.5) == 0.0  # under the probe at the paper's depth the channel is shut
     assert 0.5 < kernel.ratio(10.0, 3.5) <= 1.0
+
+
+def test_the_packaged_kernel_is_what_the_solver_gives():
+    from neatskin.skin.mechanics import solve_press
+
+    path = kmod.packaged_kernel_path()
+    if not path.exists():
+        pytest.skip("no packaged kernel")
+    kernel, spec = read_kernel(path), KernelSpec.for_layout(LAYOUT)
+    row = int(np.flatnonzero(kernel.offsets_mm == 2.0)[0])
+    result = solve_press(spec.geometry, spec.material, spec.settings, 2.0)
+    assert np.allclose(result.area_ratio, kernel.area_ratio[row], rtol=0, atol=1e-9, equal_nan=True)
+
+
+def test_skin_mechanics_cli_writes_the_kernel_with_provenance_and_a_plot(tmp_path):
+    import pyarrow.parquet as pq
+
+    from neatskin.cli import main
+
+    assert (
+        main(
+            [
+                "skin",
+                "mechanics",
+                "--out",
+                str(tmp_path),
+                "--max-offset-mm",
+                "0.5",
+                "--element-mm",
+                "1.0",
+                "--jobs",
+                "1",
+            ]
+        )
+        == 0
+    )
+    table = pq.read_table(tmp_path / "pinch_kernel.parquet")
+    assert {"offset_mm", "depth_mm", "area_ratio", "force_n", "solved"} <= set(table.column_names)
+    frame = table.to_pandas()
+    assert sorted(frame.offset_mm.unique()) == [0.0, 0.5] and frame.depth_mm.max() == 4.5
+    assert frame.loc[frame.depth_mm == 0, "area_ratio"].eq(1.0).all()
+    assert frame.loc[frame.depth_mm >= 1.5, "area_ratio"].eq(0.0).all()  # shut under the probe
+    provenance = json.loads(table.schema.metadata[b"neatskin.provenance"])
+    assert provenance["material"]["shear_modulus_mpa"] == 0.023 and "scikit-fem" in provenance["software"]
+    assert provenance["settings"]["element_mm"] == 1.0
+    assert (tmp_path / "pinch_kernel.png").stat().st_size > 10_000

@@ -154,7 +154,7 @@ def test_a_channel_far_from_the_probe_stays_open_and_one_under_it_shuts():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("offset", "converged_to_mm"), [(0.0, 0.5), (5.0, 1.75)])
+@pytest.mark.parametrize(("offset", "converged_to_mm"), [(0.0, 0.5), (5.0, 1.5)])
 def test_mesh_convergence_of_the_area_ratio(offset, converged_to_mm):
     """0.5 mm against 0.25 mm elements: within +-0.02 only down to these depths (docs/skin.md has the table: 0.032
     at 0.75 mm under the probe, 0.14 at 2.25 mm at a 5 mm offset: the shipped kernel is not converged deeper)."""

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from neatskin.skin.mechanics import _Assembler
+from neatskin.skin.feassembly import Assembler as _Assembler
 
 
 class AxisymmetricAssembler(_Assembler):
@@ -14,8 +14,8 @@ class AxisymmetricAssembler(_Assembler):
     J = det(F) F3; P = mu F - mu F^-T + p J F^-T (in-plane), P3 = mu F3 - mu / F3 + p J / F3 (hoop)."""
 
     def __init__(self, ub, pb, mu: float, bulk: float):
-        self.radius = ub.global_coordinates().value[0]  # (el, q), > 0 at every quadrature point
-        self.hoop = np.stack([b[0].value[0] for b in ub.basis]) / self.radius  # (12, el, q): d F3 / d u_a
+        self.radius = np.asarray(ub.global_coordinates())[0]  # (el, q), > 0 at every quadrature point
+        self.hoop = np.stack([np.asarray(b[0])[0] for b in ub.basis]) / self.radius  # (12, el, q): d F3 / d u_a
         ub_dx = ub.dx * self.radius
         super().__init__(ub, pb, mu, bulk, dx=ub_dx)
 
