@@ -26,8 +26,9 @@ def register(subparsers) -> None:
     parser.add_argument(
         "--models",
         default=None,
-        help="comma-separated: ridge,knn,kernel_ridge,extra_trees,mlp,lm_network,inversion (default: all; "
-        "inversion, the physics baseline, needs the layout the manifest names)",
+        help="comma-separated: ridge,knn,kernel_ridge,extra_trees,mlp,lm_network,inversion, or all (default: "
+        "ridge,knn,extra_trees,lm_network,inversion; inversion, the physics baseline, needs the layout the "
+        "manifest names)",
     )
     add_out(parser, "output folder (default: the dataset folder); a folder that already holds a report is refused")
     parser.add_argument(

@@ -15,7 +15,7 @@ import numpy as np
 
 from neatskin.layout import ElectrodePair, Layout
 from neatskin.skin.model import SkinModel
-from neatskin.skin.network import equivalent_resistance
+from neatskin.skin.network import channel_change_delta_ohm
 
 
 @dataclass(frozen=True)
@@ -64,14 +64,12 @@ def channel_midpoints_mm(layout: Layout) -> np.ndarray:
 
 def paper_sensitivity(layout: Layout, increase: float = 0.5) -> SensitivityMap:
     """The paper's simulation: each channel's resistance raised by `increase` (+50 %) in turn; one
-    'press' per channel, placed at the channel's midpoint (paper Fig. 3, black dots)."""
-    r0 = layout.channel_resistance_ohm
-    resistance = np.tile(r0, (layout.n_channels + 1, 1))
-    resistance[np.arange(1, layout.n_channels + 1), np.arange(layout.n_channels)] *= 1.0 + increase
-    r_eq = equivalent_resistance(layout, 1.0 / resistance)
+    'press' per channel, placed at the channel's midpoint (paper Fig. 3, black dots). The changes come from
+    rank-one updates of one grounded inverse (`network.channel_change_delta_ohm`), not 13 full solves."""
+    delta = channel_change_delta_ohm(layout, 1.0 / layout.channel_resistance_ohm, 1.0 + increase)
     mid = channel_midpoints_mm(layout)
     return SensitivityMap(
-        f"paper_plus{round(increase * 100)}pct", mid[:, 0].copy(), mid[:, 1].copy(), r_eq[1:] - r_eq[0], layout.pairs
+        f"paper_plus{round(increase * 100)}pct", mid[:, 0].copy(), mid[:, 1].copy(), delta, layout.pairs
     )
 
 

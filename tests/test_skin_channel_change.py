@@ -1,0 +1,111 @@
+"""Each channel changed in turn by rank-one updates (network.channel_change_delta_ohm) against exact rationals."""
+
+from __future__ import annotations
+
+from fractions import Fraction
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from test_skin_network import exact_pair_resistance
+
+from neatskin.skin.layouts import grid_layout
+from neatskin.skin.maps import paper_sensitivity
+from neatskin.skin.network import GROUNDED_MAX_SPREAD, channel_change_delta_ohm, equivalent_resistance
+
+
+def exact_changes(layout, g: np.ndarray, factor: float) -> list[list[Fraction | None]]:
+    """Per channel, per pair: exact R_eq(channel c's resistance times factor) - R_eq(unchanged); None where cut."""
+    before = exact_pair_resistance(layout, g)
+    out = []
+    for c in range(layout.n_channels):
+        changed = [Fraction(float(x)) for x in g]
+        changed[c] /= Fraction(factor)
+        after = exact_pair_resistance(layout, changed)
+        out.append([None if a is None or b is None else b - a for a, b in zip(before, after)])
+    return out
+
+
+def _assert_exact(layout, g, factor, delta, *, scale_rtol: float) -> None:
+    """Every change within scale_rtol of the exact pair resistance it changes (a few ulps of R_eq)."""
+    before = exact_pair_resistance(layout, g)
+    for c, row in enumerate(exact_changes(layout, g, factor)):
+        for p, exact in enumerate(row):
+            if exact is None:
+                assert delta[c, p] == 0.0, (c, p, delta[c, p])  # cut before and after: no change, never NaN
+                continue
+            assert abs(delta[c, p] - float(exact)) <= scale_rtol * float(before[p]), (c, p, delta[c, p], float(exact))
+
+
+def test_paper_skin_changes_are_exact_and_match_the_full_solve(paper_layout):
+    g = 1.0 / paper_layout.channel_resistance_ohm
+    delta = channel_change_delta_ohm(paper_layout, g, 1.5)
+    assert delta.shape == (12, 28)
+    # the rank-one form gives the change itself (no difference of two resistances): exact to ~1e-15 of the change
+    for c, row in enumerate(exact_changes(paper_layout, g, 1.5)):
+        exact = np.array([float(x) for x in row])  # type: ignore[arg-type]
+        np.testing.assert_allclose(delta[c], exact, rtol=1e-12, atol=1e-12 * np.abs(exact).max())
+    # the full solve of the 13 states, as paper_sensitivity did before
+    states = np.tile(g, (13, 1))
+    states[np.arange(1, 13), np.arange(12)] /= 1.5
+    r_eq = equivalent_resistance(paper_layout, states)
+    np.testing.assert_allclose(delta, r_eq[1:] - r_eq[0], rtol=1e-11, atol=1e-12 * r_eq.max())
+    np.testing.assert_array_equal(paper_sensitivity(paper_layout).delta_ohm, delta)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    spread=st.floats(1.0, GROUNDED_MAX_SPREAD),
+    factor=st.floats(0.05, 20.0),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_rank_one_path_matches_the_full_solve_and_is_rayleigh_monotone_on_a_grid(spread, factor, seed):
+    layout = grid_layout(3, 4)
+    g = np.exp(np.random.default_rng(seed).uniform(0.0, np.log(spread), layout.n_channels)) * 1e-4
+    delta = channel_change_delta_ohm(layout, g, factor)
+    # against the GTH full solve of every state (exact to a few ulps of each R_eq; the exact rationals are
+    # checked on the paper skin above and on the stiff inputs below, where they are affordable)
+    states = np.tile(g, (layout.n_channels + 1, 1))
+    states[np.arange(1, layout.n_channels + 1), np.arange(layout.n_channels)] /= factor
+    r_eq = equivalent_resistance(layout, states, "dense")
+    assert np.all(np.abs(delta - (r_eq[1:] - r_eq[0])) <= 1e-11 * r_eq[0])
+    # Rayleigh: raising a resistance never lowers an effective resistance, lowering it never raises one
+    assert np.all(delta >= -1e-12 * np.abs(delta).max()) if factor > 1 else np.all(delta <= 1e-12 * np.abs(delta).max())
+
+
+def test_stiff_inputs_twelve_decades_apart_are_exact(paper_layout):
+    rng = np.random.default_rng(7)
+    g = 10.0 ** rng.choice([-8.0, -2.0, 4.0], paper_layout.n_channels)  # 1e12 between the extremes
+    delta = channel_change_delta_ohm(paper_layout, g, 1.5)
+    _assert_exact(paper_layout, g, 1.5, delta, scale_rtol=1e-13)
+
+
+def test_a_channel_shut_gives_exact_changes_and_zero_on_cut_pairs(paper_layout):
+    g = 1.0 / paper_layout.channel_resistance_ohm
+    g[0] = 0.0  # pinched shut: one more channel shut would cut an electrode off
+    delta = channel_change_delta_ohm(paper_layout, g, 1.5)
+    assert np.isfinite(delta).all()
+    assert np.all(delta[0] == 0.0)  # scaling a shut channel's resistance changes nothing
+    _assert_exact(paper_layout, g, 1.5, delta, scale_rtol=1e-13)
+    # an electrode cut off: its pairs are infinite before and after, a change of 0, never NaN
+    corner = paper_layout.electrode_junctions[7]
+    cut = g.copy()
+    cut[(paper_layout.channel_ends == corner).any(axis=1)] = 0.0
+    delta_cut = channel_change_delta_ohm(paper_layout, cut, 1.5)
+    assert np.isfinite(delta_cut).all()
+    _assert_exact(paper_layout, cut, 1.5, delta_cut, scale_rtol=1e-13)
+
+
+@pytest.mark.parametrize(
+    ("g_fix", "factor", "match"),
+    [
+        (lambda g: g[:5], 1.5, "shape"),
+        (lambda g: -g, 1.5, ">= 0"),
+        (lambda g: g, 0.0, "factor"),
+        (lambda g: g, np.inf, "factor"),
+    ],
+)
+def test_bad_input_is_refused(paper_layout, g_fix, factor, match):
+    with pytest.raises(ValueError, match=match):
+        channel_change_delta_ohm(paper_layout, g_fix(1.0 / paper_layout.channel_resistance_ohm), factor)
