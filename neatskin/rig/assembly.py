@@ -31,11 +31,10 @@ CAMPAIGN_MAX_IN_FLIGHT = 4
 
 class Driver(Protocol):
     """The printer as the press loop drives it (neatskin.marlin.driver.MarlinDriver, on a real port or the
-    simulated printer's pty): a program's lines in order, exactly once each, returning when the last one ran."""
+    simulated printer's pty): a program's lines in order, exactly once each, returning when the last one ran.
+    Only what the press loop uses: what send_lines returns is not read."""
 
-    def send_lines(
-        self, lines: Iterable[str], progress: Callable[[int, int], None] | None = None, *, source: str = ...
-    ) -> int: ...
+    def send_lines(self, lines: Iterable[str], *, source: str = ...) -> object: ...
 
 
 # files a rig derives from the campaign it ran once every press is on disk: name -> write(folder) -> path
