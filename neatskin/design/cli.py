@@ -51,13 +51,12 @@ def register(subparsers) -> None:
 
 
 def study_handler(args: argparse.Namespace) -> int:
-    from pathlib import Path
 
     from neatskin.design.runner import run_study
-    from neatskin.design.study import load_study
+    from neatskin.design.study import load_study, study_out_dir
 
     study = load_study(args.study)
-    out = Path(args.out) if args.out else Path("out") / "design" / study.name
+    out = study_out_dir(study, args.out)
     bar = None
 
     def progress(done: int, total: int) -> None:
@@ -94,13 +93,12 @@ def study_handler(args: argparse.Namespace) -> int:
 
 
 def validate_handler(args: argparse.Namespace) -> int:
-    from pathlib import Path
 
-    from neatskin.design.study import load_study
+    from neatskin.design.study import load_study, study_out_dir
     from neatskin.design.validate import AGREEMENT_SIGMAS, validate_study
 
     study = load_study(args.study)
-    out = Path(args.out) if args.out else Path("out") / "design" / study.name
+    out = study_out_dir(study, args.out)
     v = validate_study(
         study,
         out,

@@ -1,0 +1,106 @@
+"""Hostile design-study files: names that are paths, empty files, absurd sizes; the cost estimate and its limit;
+progress within a candidate."""
+
+import os
+from pathlib import Path
+
+import pytest
+
+from neatskin.cli import main
+from neatskin.design.study import Study, load_study, study_out_dir
+from neatskin.errors import ConfigError
+
+TINY = """
+[study]
+name = "NAME"
+press_grid = 4
+
+[layouts]
+sizes = [[3, 3]]
+pitch_mm = [15.0]
+
+[electrodes]
+counts = [4]
+strategies = ["boundary"]
+
+[probes]
+diameter_mm = [5.5]
+depth_mm = [3.5]
+"""
+
+
+def _study_file(folder: Path, name: str) -> Path:
+    path = folder / "study.toml"
+    text = TINY.replace('"NAME"', '"' + name.replace("\\", "\\\\").replace("\n", "\\n") + '"')
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def _tree(root: Path) -> set[str]:
+    return {str(p.relative_to(root)) for p in root.rglob("*")}
+
+
+@pytest.mark.parametrize(
+    "name", ["../../../../escaped", "/tmp/escaped-abs", "..", ".", "a/b", "two\nlines", "..\\x", ".hidden"]
+)
+def test_a_study_name_that_is_a_path_is_refused_naming_file_field_and_fix(tmp_path, name):
+    path = _study_file(tmp_path, name)
+    with pytest.raises(ConfigError) as info:
+        load_study(path)
+    (problem,) = info.value.problems
+    assert problem.file == str(path) and problem.field == "study.name"
+    assert "never a path" in str(problem) and problem.fix
+
+
+def test_a_study_named_escaped_writes_nothing_outside_the_output_folder(tmp_path, monkeypatch, capsys):
+    work = tmp_path / "a" / "b" / "c" / "d"
+    work.mkdir(parents=True)
+    path = _study_file(tmp_path, "../../../../escaped")
+    before = _tree(tmp_path)
+    monkeypatch.chdir(work)
+    assert main(["design", "study", str(path), "--no-progress", "--no-png"]) == 2
+    assert "study.name" in capsys.readouterr().err
+    assert _tree(tmp_path) == before  # nothing written anywhere, inside or out
+
+
+def test_the_default_folder_is_checked_resolved_even_for_a_study_built_in_python(tmp_path):
+    root = tmp_path / "out" / "design"
+    root.mkdir(parents=True)
+    outside = tmp_path / "elsewhere"
+    outside.mkdir()
+    os.symlink(outside, root / "linked")  # a planted link: the name is clean, its folder is not inside
+    for name in ("../../escaped", "linked"):
+        with pytest.raises(ConfigError) as info:
+            study_out_dir(Study(name=name, source="s.toml"), None, root)
+        assert info.value.field == "study.name"
+    assert study_out_dir(Study(name="fine", source="s.toml"), None, root) == root / "fine"
+    assert study_out_dir(Study(name="linked", source="s.toml"), tmp_path / "mine", root) == tmp_path / "mine"
+
+
+def test_a_default_name_from_a_strange_file_stem_is_a_name(tmp_path):
+    path = tmp_path / ".my study\tv2.toml"
+    path.write_text(TINY.replace('name = "NAME"\n', ""), encoding="utf-8")
+    assert load_study(path).name == "my_study_v2"
+
+
+def test_an_empty_study_file_is_refused_not_run_as_the_default_study(tmp_path, capsys):
+    path = tmp_path / "empty.toml"
+    path.write_text("# nothing yet\n", encoding="utf-8")
+    with pytest.raises(ConfigError) as info:
+        load_study(path)
+    assert info.value.file == str(path) and "empty" in str(info.value) and "grid5.toml" in str(info.value)
+    assert main(["design", "study", str(path), "--out", str(tmp_path / "out")]) == 2
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("value", "words"), [("1e-300", "is below 0.5"), ("1e300", "is above 1000"), ("0.0", "is below 0.5")]
+)
+def test_an_absurd_pitch_is_refused_with_its_plausible_range(tmp_path, value, words):
+    path = tmp_path / "study.toml"
+    path.write_text(TINY.replace('"NAME"', '"p"').replace("[15.0]", f"[{value}]"), encoding="utf-8")
+    with pytest.raises(ConfigError) as info:
+        load_study(path)
+    (problem,) = info.value.problems
+    assert problem.field == "layouts.pitch_mm[0]" and words in problem.message
+    assert "0.5" in (problem.fix or "") and "1000" in (problem.fix or "")
