@@ -89,7 +89,10 @@ def _validate(args: argparse.Namespace) -> int:
     from neatskin.layout import load_layout
 
     layout = load_layout(args.layout) if args.layout else None
-    problems = validate_dataset(args.path, layout=layout, allow_flagged=args.allow_flagged)
+    notes: list[str] = []
+    problems = validate_dataset(args.path, layout=layout, allow_flagged=args.allow_flagged, notes=notes)
+    for note in notes:
+        print(f"{args.path}: note: {note}", file=sys.stderr)
     for problem in problems:
         print(problem, file=sys.stderr)
     if problems:
