@@ -123,3 +123,63 @@ def test_an_exact_duplicated_row_is_a_problem(paper_layout, tmp_path):
     pq.write_table(pa.concat_tables([table, table.slice(6, 1)]), lone)
     (problem,) = validate_dataset(lone)
     assert problem.field == "press_id" and "1 exact duplicate row(s) (press ids 6)" in problem.message
+
+
+def _no_traceback(err: str) -> None:
+    assert "Traceback" not in err and err.count("neatskin: error:") == 1, err
+
+
+def test_merge_refuses_a_folder_validate_refuses_unless_told_and_recorded(paper_layout, tmp_path, capsys):
+    import json
+
+    a = make_campaign(tmp_path / "a", paper_layout, "a", seed=1)
+    b = make_campaign(tmp_path / "b", paper_layout, "b", seed=2)
+    set_value(b / "presses.parquet", "R_ohm_1_2", 0, 1e308)
+    set_value(b / "presses.parquet", "dR_ohm_1_3", 1, np.inf)
+    assert main(["dataset", "merge", str(a), str(b), "-o", str(tmp_path / "m")]) == 2
+    err = capsys.readouterr().err
+    _no_traceback(err)
+    assert str(b) in err and "R_ohm_1_2" in err and "1e+308" in err and "--allow-invalid" in err
+    assert not (tmp_path / "m").exists()
+    assert main(["dataset", "merge", str(a), str(b), "-o", str(tmp_path / "m"), "--allow-invalid"]) == 0
+    manifest = json.loads((tmp_path / "m" / "manifest.json").read_text())
+    assert manifest["allow_invalid"] is True
+    (recorded,) = manifest["invalid_sources"].values()
+    assert any("R_ohm_1_2" in p for p in recorded) and any("dR_ohm_1_3" in p for p in recorded)
+    clean = json.loads(json.dumps(manifest["sources"]))
+    assert len(clean) == 2
+
+
+def test_merge_with_flags_typed_list_of_null_first_gives_string_flags(paper_layout, tmp_path, capsys):
+    a = make_campaign(tmp_path / "a", paper_layout, "a", seed=1)
+    b = make_campaign(tmp_path / "b", paper_layout, "b", seed=2)
+    table = pq.read_table(a / "presses.parquet")
+    k = table.column_names.index("flags")
+    nulls = pa.array([[]] * table.num_rows, pa.list_(pa.null()))  # what pandas writes for all-empty flags
+    pq.write_table(table.set_column(k, pa.field("flags", nulls.type), nulls), a / "presses.parquet")
+    assert main(["dataset", "merge", str(a), str(b), "-o", str(tmp_path / "m")]) == 0, capsys.readouterr().err
+    merged = pq.read_table(tmp_path / "m" / "presses.parquet")
+    assert merged.schema.field("flags").type == pa.list_(pa.string()) and merged.num_rows == 30
+
+
+@pytest.mark.parametrize("command", ["split", "export"])
+def test_split_and_export_refuse_non_finite_data_with_one_clear_error(paper_layout, tmp_path, capsys, command):
+    folder = make_campaign(tmp_path / "c", paper_layout)
+    set_value(folder / "presses.parquet", "dR_ohm_2_6", 5, -np.inf)
+    out = tmp_path / ("out" if command == "split" else "out.parquet")
+    assert main(["dataset", command, str(folder), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    _no_traceback(err)
+    assert f"{command} refused" in err and "[dR_ohm_2_6]" in err and "press ids 5" in err
+    assert not out.exists()
+
+
+def test_skin_fit_with_nan_in_x_mm_ends_in_one_clear_error(paper_layout, tmp_path, capsys):
+    folder = make_campaign(tmp_path / "c", paper_layout)
+    (folder / "inputs").mkdir(exist_ok=True)
+    shutil.copy(LAYOUT_PATH, folder / "inputs" / "layout.toml")
+    set_value(folder / "presses.parquet", "x_mm", 2, np.nan)
+    assert main(["skin", "fit", str(folder)]) == 2
+    err = capsys.readouterr().err
+    _no_traceback(err)
+    assert "[x_mm]" in err and "NaN or infinite in x_mm (press ids [2])" in err

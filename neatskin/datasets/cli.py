@@ -41,6 +41,11 @@ def register(subparsers) -> None:
         action="store_true",
         help="merge campaigns that are interrupted, crashed or still running (recorded in the merged manifest)",
     )
+    mer.add_argument(
+        "--allow-invalid",
+        action="store_true",
+        help="merge campaigns `dataset validate` refuses (their problems recorded in the merged manifest)",
+    )
     mer.set_defaults(handler=_merge)
 
     spl = sub.add_parser("split", help="split into train/ and test/ by position (repeats never straddle)")
@@ -106,7 +111,13 @@ def _merge(args: argparse.Namespace) -> int:
     from neatskin.datasets.curate import merge
     from neatskin.datasets.reader import read_metadata
 
-    out = merge(args.folders, args.output, allow_mixed=args.allow_mixed, allow_incomplete=args.allow_incomplete)
+    out = merge(
+        args.folders,
+        args.output,
+        allow_mixed=args.allow_mixed,
+        allow_incomplete=args.allow_incomplete,
+        allow_invalid=args.allow_invalid,
+    )
     sources = read_metadata(out)["merged_from"]
     for source in sources:
         ids = sorted(set(source["position_ids"].values()))

@@ -107,9 +107,7 @@ def _note(where: dict[str, NullRows], name: str, bad: np.ndarray, values: np.nda
     rows.examples.extend(values[bad][: max(0, 3 - len(rows.examples))].tolist())
 
 
-def _value_problems(
-    scan: DatasetScan, table: pa.Table, want: pa.Field, ids: np.ndarray | None, file_index: int
-) -> None:
+def scan_values(scan: DatasetScan, table: pa.Table, want: pa.Field, ids: np.ndarray | None, file_index: int) -> None:
     """Record the column's +-inf (a pair's +inf or dR +-inf with the row's open_circuit flag excepted) and its
     finite values outside the plausible range."""
     values = table.column(want.name).to_numpy(zero_copy_only=False).astype(float)
@@ -140,7 +138,7 @@ def _scan_batch(
     ids = table.column("press_id").to_numpy(zero_copy_only=False).astype(float) if "press_id" in names else None
     for want in expected:
         if want.name in names and pa.types.is_floating(table.column(want.name).type):
-            _value_problems(scan, table, want, ids, file_index)
+            scan_values(scan, table, want, ids, file_index)
         if want.name not in names or nullable.get(want.name, False):
             continue
         column = table.column(want.name)

@@ -9,10 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
 
 from neatskin.datasets.scan import DatasetScan
 from neatskin.datasets.schema import plausible_range
-from neatskin.errors import ConfigError, Problem
+from neatskin.errors import ConfigError, DataError, Problem, raise_problems
 from neatskin.layout import Layout, load_layout
 
 
@@ -47,7 +48,7 @@ def metadata_layout(folder: Path, metadata: dict, notes: list[str] | None) -> La
 
 
 def value_problems(scan: DatasetScan, has_ids: bool, ids_text: Callable, files_text: Callable) -> list[Problem]:
-    """Non-finite values (+-inf; NaN is counted with the nulls) and values outside their plausible range."""
+    """Non-finite values (+-inf; NaN is counted with the nulls by a scan) and values outside their plausible range."""
     problems: list[Problem] = []
     for found, what, fix in (
         (
@@ -77,3 +78,46 @@ def value_problems(scan: DatasetScan, has_ids: bool, ids_text: Callable, files_t
                 )
             )
     return problems
+
+
+def table_value_problems(table: pa.Table, source: str) -> list[Problem]:
+    """What `validate` says of one in-memory press table's values: NaN in a column that may not be null, +-inf
+    (a cut-off pair's +inf with its flag excepted) and values outside their plausible range."""
+    from neatskin.datasets.scan import NullRows, scan_values
+    from neatskin.datasets.schema import NULLABLE_COLUMNS
+
+    scan = DatasetScan(files=[Path(source)])
+    names = table.column_names
+    ids = table.column("press_id").to_numpy(zero_copy_only=False).astype(float) if "press_id" in names else None
+    for want in table.schema:
+        if not pa.types.is_floating(want.type):
+            continue
+        scan_values(scan, table, want, ids, 0)
+        if want.name in NULLABLE_COLUMNS:
+            continue
+        values = table.column(want.name).to_numpy(zero_copy_only=False).astype(float)
+        nan = np.isnan(values)
+        if nan.any():
+            scan.nonfinite.setdefault(want.name, NullRows())  # NaN reported with the infinite values
+            rows = scan.nonfinite[want.name]
+            rows.count += int(nan.sum())
+            rows.files.add(0)
+            if ids is not None:
+                rows.press_ids.append(ids[nan])
+            rows.examples.extend(values[nan][: max(0, 3 - len(rows.examples))].tolist())
+    return value_problems(scan, ids is not None, _ids_text, lambda s, files: source)
+
+
+def refuse_bad_values(table: pa.Table, source: str, action: str) -> None:
+    """Raise one DataError (every bad column, file, fix) before `action` uses values validation refuses."""
+    problems = table_value_problems(table, source)
+    fix = "; `neatskin dataset validate` lists every problem"
+    raise_problems(
+        [Problem(f"{action} refused: {p.message}", p.file, p.field, f"{p.fix}{fix}") for p in problems], DataError
+    )
+
+
+def _ids_text(series: pd.Series, limit: int = 8) -> str:
+    values = sorted({int(v) for v in series if pd.notna(v)})
+    text = ", ".join(str(v) for v in values[:limit])
+    return text + (f", ... ({len(values)} in all)" if len(values) > limit else "")
