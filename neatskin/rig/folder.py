@@ -148,11 +148,13 @@ OPTIONAL_INPUT_KEYS = ("skin_profile",)  # copied and checked when the protocol 
 def _recorded_input_sha(folder: Path, manifest: dict) -> dict[str, str | None]:
     """The sha256 each input file had when the campaign started: from the manifest, else from the parquet
     metadata (every press file carries the same references), so deleting a hash switches no check off."""
+    import pyarrow as pa
+
     from neatskin.datasets.reader import read_metadata
 
     try:
         metadata = read_metadata(folder)
-    except (DataError, OSError):
+    except (DataError, OSError, pa.ArrowException):  # a truncated presses.parquet: the manifest's hashes hold
         metadata = {}
     out: dict[str, str | None] = {}
     optional = [key for key in OPTIONAL_INPUT_KEYS if key in manifest or (folder / INPUTS_DIR / f"{key}.toml").exists()]
