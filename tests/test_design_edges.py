@@ -104,3 +104,68 @@ def test_an_absurd_pitch_is_refused_with_its_plausible_range(tmp_path, value, wo
     (problem,) = info.value.problems
     assert problem.field == "layouts.pitch_mm[0]" and words in problem.message
     assert "0.5" in (problem.fix or "") and "1000" in (problem.fix or "")
+
+
+TWO = TINY.replace("counts = [4]", "counts = [4, 6]").replace("press_grid = 4", "press_grid = 12")
+
+
+def _study(tmp_path: Path, text: str, name: str = "two"):
+    path = tmp_path / f"{name}.toml"
+    path.write_text(text.replace('"NAME"', f'"{name}"'), encoding="utf-8")
+    return path, load_study(path)
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_progress_ticks_within_each_candidate_and_adds_up_to_the_candidates(tmp_path, jobs):
+    from neatskin.design.runner import run_study
+
+    _, study = _study(tmp_path, TWO.replace("[probes]", "[inversion]\nenabled = true\nlibrary = 8\n\n[probes]"))
+    shares: list[float] = []
+    run_study(study, tmp_path / "out", jobs=jobs, tick=shares.append, pngs=False)
+    assert len(shares) >= 2 * 5  # per tile of presses and per inversion step, not per candidate
+    assert sum(shares) == pytest.approx(2.0, abs=1e-9)
+    assert all(0 < s < 1 for s in shares)
+
+
+def test_the_default_job_count_is_the_cores_this_process_may_use(tmp_path, monkeypatch):
+    from neatskin.design import runner
+    from neatskin.design.runner import default_jobs, run_study
+
+    assert default_jobs() == len(os.sched_getaffinity(0))
+    seen: list[int] = []
+    real = runner._joblib_results
+
+    def spy(study, todo, jobs, tick):
+        seen.append(jobs)
+        return real(study, todo, jobs, tick)
+
+    monkeypatch.setattr(runner, "_joblib_results", spy)
+    _, study = _study(tmp_path, TWO)
+    run_study(study, tmp_path / "out", pngs=False)
+    if default_jobs() > 1:
+        assert seen == [min(default_jobs(), 2)]
+    else:
+        assert seen == []
+
+
+def test_the_estimate_is_printed_first_and_a_study_beyond_the_limit_needs_yes(tmp_path, capsys):
+    path, _ = _study(tmp_path, TWO.replace("press_grid = 12", "press_grid = 10000"), "huge")
+    out = tmp_path / "out"
+    assert main(["design", "study", str(path), "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    first, refusal = err.strip().splitlines()[:2]
+    assert first.startswith("design study huge: 2 candidate(s)") and "estimated" in first and " h " in first + " "
+    assert "[--yes]" in refusal and "more than the 60 min" in refusal
+    assert not out.exists()
+    path, _ = _study(tmp_path, TWO, "small")
+    assert main(["design", "study", str(path), "--out", str(out), "--no-progress", "--no-png", "--jobs", "1"]) == 0
+    assert "design study small: 2 candidate(s) on 1 worker(s): estimated" in capsys.readouterr().err
+
+
+def test_a_grid_beyond_the_dense_solve_is_refused_at_load(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text(TINY.replace('"NAME"', '"s"').replace("[[3, 3]]", "[[3, 3], [10000, 10000]]"), encoding="utf-8")
+    with pytest.raises(ConfigError) as info:
+        load_study(path)
+    (problem,) = info.value.problems
+    assert problem.field == "layouts.sizes[1]" and "100000000 junctions" in problem.message

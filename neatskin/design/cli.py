@@ -21,7 +21,16 @@ def register(subparsers) -> None:
     )
     study.add_argument("study", help="study TOML (protocols/studies/... resolves to the packaged copy)")
     study.add_argument("--out", default=None, help="output folder (default out/design/<study name>)")
-    study.add_argument("--jobs", type=int, default=1, help="local worker processes (joblib; default 1)")
+    study.add_argument(
+        "--jobs",
+        type=int,
+        default=None,
+        help="local worker processes (joblib; default: the cores this process may use)",
+    )
+    study.add_argument("--yes", action="store_true", help="run even when the estimate is above --max-hours")
+    study.add_argument(
+        "--max-hours", type=float, default=1.0, help="refuse a study estimated longer than this without --yes (1)"
+    )
     study.add_argument("--scheduler", choices=("local", "dask"), default="local", help="where candidates run")
     study.add_argument(
         "--address", default=None, help="Dask scheduler address, tcp://HOST:PORT (with --scheduler dask)"
@@ -57,6 +66,7 @@ def study_handler(args: argparse.Namespace) -> int:
 
     study = load_study(args.study)
     out = study_out_dir(study, args.out)
+    _confirm_cost(study, out, args)
     bar = None
 
     def progress(done: int, total: int) -> None:
@@ -66,9 +76,14 @@ def study_handler(args: argparse.Namespace) -> int:
         if bar is None:
             from tqdm import tqdm
 
-            bar = tqdm(total=total, initial=done, unit="candidate", desc=f"study {study.name}")
+            bar = tqdm(total=total, initial=done, unit="candidate", desc=f"study {study.name}", bar_format=_BAR)
             return
-        bar.update(done - bar.n)
+        if args.scheduler == "dask":  # whole candidates; a local run's ticks move the bar within each
+            bar.update(done - bar.n)
+
+    def tick(share: float) -> None:
+        if bar is not None:
+            bar.update(share)  # within a candidate: per tile of presses, learned seed, inversion step
 
     try:
         frame = run_study(
@@ -78,6 +93,7 @@ def study_handler(args: argparse.Namespace) -> int:
             scheduler=args.scheduler,
             address=args.address,
             progress=progress,
+            tick=None if args.scheduler == "dask" else tick,
             pngs=not args.no_png,
         )
     finally:
@@ -90,6 +106,31 @@ def study_handler(args: argparse.Namespace) -> int:
         f"{best['nx']} x {best['ny']}: {best['bound_mean_capped_mm']:.3g} mm"
     )
     return 0
+
+
+_BAR = "{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total_fmt} candidates [{elapsed}<{remaining}]"
+
+
+def _confirm_cost(study, out, args: argparse.Namespace) -> None:
+    """Print the study's estimated time before any work; refuse beyond --max-hours unless --yes."""
+    from neatskin.design.candidates import expand
+    from neatskin.design.cost import BASIS, study_seconds
+    from neatskin.design.runner import default_jobs, done_ids
+    from neatskin.errors import confirm_cost
+
+    jobs = args.jobs or default_jobs()
+    finished = done_ids(out)
+    todo = [c for c in expand(study) if c.candidate_id not in finished]
+    workers = 1 if args.scheduler == "dask" else jobs  # a cluster's size is not known here
+    estimate_s = study_seconds(study, todo, workers)
+    confirm_cost(
+        estimate_s,
+        args.max_hours * 3600.0,
+        args.yes,
+        what=f"design study {study.name}: {len(todo)} candidate(s) on {min(workers, max(1, len(todo)))} worker(s)",
+        basis=BASIS,
+        flag="--yes",
+    )
 
 
 def validate_handler(args: argparse.Namespace) -> int:

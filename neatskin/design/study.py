@@ -144,6 +144,20 @@ def study_from_dict(data: dict[str, Any], source: str = "<memory>") -> Study:
                 'use scene = "ideal" for now',
             )
         )
+    if lay is not None:
+        from neatskin.design.sensitivity import DENSE_MAX_JUNCTIONS
+
+        for k, (nx, ny) in enumerate(lay.sizes):
+            if nx * ny > DENSE_MAX_JUNCTIONS:
+                problems.append(
+                    Problem(
+                        f"a {nx} x {ny} grid has {nx * ny} junctions; the study's dense network solve stops at "
+                        f"{DENSE_MAX_JUNCTIONS}",
+                        source,
+                        f"layouts.sizes[{k}]",
+                        f"use grids of at most {DENSE_MAX_JUNCTIONS} junctions (e.g. [50, 50])",
+                    )
+                )
     if lay is not None and lay.channel_depth_mm >= lay.thickness_mm:
         problems.append(
             Problem(
