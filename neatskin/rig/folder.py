@@ -7,6 +7,7 @@ A folder is created in one step: lock, inputs/ and manifest.json are built under
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import shutil
@@ -54,7 +55,7 @@ def check_folder(folder: Path, resume: bool) -> None:
         from neatskin.datasets.lock import lock_state
 
         held, holder = lock_state(folder)
-        running = f" (a campaign is running in it: {holder})" if held else ""
+        running = f": another run holds this folder ({holder})" if held else ""
         raise ConfigError(
             f"the output folder {folder} already holds files{running}",
             field="--out",
@@ -132,6 +133,8 @@ def create_campaign_folder(protocol: Protocol, plan: Plan, folder: Path, rig_kin
             os.rename(staging, folder)
             fsync_dir(folder.parent)
         except OSError as exc:
+            if exc.errno in (errno.ENOTEMPTY, errno.EEXIST):  # another run renamed its folder in first
+                check_folder(folder, resume=False)  # names the run that holds it
             raise write_error(exc, folder) from exc
         lock.moved_to(folder)
     except BaseException:
