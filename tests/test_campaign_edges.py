@@ -3,6 +3,7 @@
 
 import json
 import shutil
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -47,3 +48,26 @@ def test_baselines_print_their_estimate_and_refuse_beyond_the_stated_maximum(ref
     assert not (out / "report.md").exists() and not list(out.glob("*.png")) if out.exists() else True
     assert main([*argv, "--max-hours", "1e-9", "--yes", "--repeats", "2"]) == 0
     assert (out / "report.md").is_file()
+
+
+def test_the_rig_time_figures_say_what_they_are_and_agree(capsys):
+    import re
+
+    from conftest import PROTOCOLS
+
+    from neatskin.rig.cli import _summary
+    from neatskin.rig.protocol import load_protocol
+    from neatskin.rig.runner import CampaignResult, build_plan
+
+    smoke = PROTOCOLS / "smoke.toml"
+    assert main(["campaign", "check", str(smoke)]) == 0
+    out = capsys.readouterr().out
+    plan = build_plan(load_protocol(smoke))
+    hours = f"{plan.printer_time_s / 3600:.2f}"
+    assert f"printer time {hours} h for the 12 presses (motion and holds from the G-code machine model" in out
+    bound = re.search(r"rig time <= ([0-9.]+) h \(a bound from the protocol alone", out)
+    assert bound is not None and float(bound.group(1)) >= float(hours)  # the bound bounds the estimate
+    done = CampaignResult(Path("c"), 12, 12, 12, 0, False, 2.0, plan.printer_time_s, None)
+    assert f"printer time {hours} h for the 12 presses written now (motion and holds" in _summary(done)
+    half = CampaignResult(Path("c"), 12, 12, 6, 0, False, 2.0, plan.printer_time_s, None)
+    assert f"printer time {plan.printer_time_s / 2 / 3600:.2f} h for the 6 presses written now" in _summary(half)
