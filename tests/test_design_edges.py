@@ -169,3 +169,16 @@ def test_a_grid_beyond_the_dense_solve_is_refused_at_load(tmp_path):
         load_study(path)
     (problem,) = info.value.problems
     assert problem.field == "layouts.sizes[1]" and "100000000 junctions" in problem.message
+
+
+def test_an_explicit_placement_name_is_a_name_too_as_it_names_files(tmp_path):
+    text = TINY.replace('"NAME"', '"s"').replace('strategies = ["boundary"]', 'strategies = ["explicit"]')
+    text += (
+        '\n[[electrodes.explicit]]\nname = "../../../../escaped"\njunctions_mm = [[0, 0], [15, 0], [30, 0], [30, 15]]\n'
+    )
+    path = tmp_path / "s.toml"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(ConfigError) as info:
+        load_study(path)
+    (problem,) = info.value.problems
+    assert problem.field == "electrodes.explicit[0].name" and "never a path" in problem.message

@@ -69,7 +69,14 @@ class ExplicitEntry:
         doc="[x_mm, y_mm] of each electrode, from the bottom-left junction",
         example="[[0, 0], [15, 0]]",
     )
-    name: str | None = setting(None, max_len=200, default_doc="'explicit<k>'", doc="the placement's name")
+    name: str | None = setting(
+        None,
+        max_len=100,
+        pattern=STUDY_NAME_PATTERN,
+        pattern_text="a name (letters, digits, '.', '_' and '-', starting with a letter or digit; never a path)",
+        default_doc="'explicit<k>'",
+        doc="the placement's name (part of each candidate's file names)",
+    )
 
 
 @dataclass(frozen=True)
