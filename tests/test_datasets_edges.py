@@ -53,7 +53,7 @@ def test_validate_a_lone_file_with_inf_or_1e308_exits_non_zero(paper_layout, tmp
     set_value(lone, "R_ohm_1_2", 3, value)
     (problem,) = validate_dataset(lone)
     assert problem.field == "R_ohm_1_2" and problem.file == str(lone)
-    assert ("infinite" if np.isinf(value) else "outside the plausible range 0..1e+09 ohm") in problem.message
+    assert ("non-finite" if np.isinf(value) else "outside the plausible range 0..1e+09 ohm") in problem.message
     assert f"{value:g}" in problem.message and "press ids 3" in problem.message
     assert main(["dataset", "validate", str(lone)]) == 1
     assert "R_ohm_1_2" in capsys.readouterr().err

@@ -53,7 +53,7 @@ def value_problems(scan: DatasetScan, has_ids: bool, ids_text: Callable, files_t
     for found, what, fix in (
         (
             scan.nonfinite,
-            "infinite value(s)",
+            "non-finite value(s) (inf or NaN)",
             "re-press those presses (drop them and resume the campaign) or drop the rows; a pair cut off by a pinched "
             "channel is +inf only with its open_circuit flag",
         ),
