@@ -7,6 +7,9 @@
 
 ConfigError and DataError carry one or more Problems (file, field, message, fix) so that a
 validator can report every mistake in a file at once.
+
+confirm_cost(estimate_s, limit_s, yes, what=..., basis=..., flag="--yes") is the one refusal of heavy work: a
+command that can run for hours prints its estimate with it first, and is refused beyond its limit unless told.
 """
 
 from __future__ import annotations
@@ -95,18 +98,27 @@ def format_duration(seconds: float) -> str:
 
 
 def confirm_cost(
-    estimate_s: float, limit_s: float, yes: bool, *, what: str, basis: str = "", flag: str = "--yes", out=None
+    estimate_s: float,
+    limit_s: float,
+    yes: bool,
+    *,
+    what: str,
+    basis: str = "",
+    flag: str = "--yes",
+    load_scaled: bool = False,
+    out=None,
 ) -> None:
     """Print the estimated time of heavy work before it starts; refuse (ConfigError naming `flag`) beyond
     `limit_s` unless `yes`. Every command that can run for hours calls it before its first heavy step.
 
     estimate_s: the estimated wall time; limit_s: the most a command runs without being told to go on;
-    what: the work ('design study grid5: 7 candidates'); basis: how the estimate was made (shown with it)."""
+    what: the work ('design study grid5: 7 candidates'); basis: how the estimate was made (shown with it);
+    load_scaled: the estimate already allows for the machine's load (else a busy machine is noted beside it)."""
     import sys
 
     stream = sys.stderr if out is None else out
     note = f" ({basis})" if basis else ""
-    busy = _busy_note()
+    busy = "" if load_scaled else _busy_note()
     note += f"; {busy}" if busy else ""
     print(f"{what}: estimated {format_duration(estimate_s)}{note}", file=stream)
     if estimate_s > limit_s and not yes:

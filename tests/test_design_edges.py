@@ -182,3 +182,18 @@ def test_an_explicit_placement_name_is_a_name_too_as_it_names_files(tmp_path):
         load_study(path)
     (problem,) = info.value.problems
     assert problem.field == "electrodes.explicit[0].name" and "never a path" in problem.message
+
+
+def test_the_estimate_shares_candidates_over_workers_and_scales_with_the_load(tmp_path):
+    from neatskin.design.candidates import expand
+    from neatskin.design.cost import candidate_seconds, slowdown, study_seconds
+
+    _, study = _study(tmp_path, TWO)
+    candidates = expand(study)
+    each = [candidate_seconds(study, c) for c in candidates]
+    assert study_seconds(study, candidates, 1) == pytest.approx(sum(each))
+    assert study_seconds(study, candidates, 2, load=0.0, cores=2) == pytest.approx(max(sum(each) / 2, max(each)))
+    assert study_seconds(study, candidates, 8, load=0.0, cores=8) == pytest.approx(max(sum(each) / 2, max(each)))
+    assert slowdown(0.0, 2, 2) == 1.0 and slowdown(9.0, 2, 1) == 5.0  # one process gets 2 / 10 of a core
+    loaded = study_seconds(study, candidates, 1, load=9.0, cores=2)
+    assert loaded == pytest.approx(5.0 * sum(each))

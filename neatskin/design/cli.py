@@ -114,7 +114,7 @@ _BAR = "{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total_fmt} candidates [{elaps
 def _confirm_cost(study, out, args: argparse.Namespace) -> None:
     """Print the study's estimated time before any work; refuse beyond --max-hours unless --yes."""
     from neatskin.design.candidates import expand
-    from neatskin.design.cost import BASIS, study_seconds
+    from neatskin.design.cost import BASIS, machine_load, study_seconds
     from neatskin.design.runner import default_jobs, done_ids
     from neatskin.errors import confirm_cost
 
@@ -122,14 +122,16 @@ def _confirm_cost(study, out, args: argparse.Namespace) -> None:
     finished = done_ids(out)
     todo = [c for c in expand(study) if c.candidate_id not in finished]
     workers = 1 if args.scheduler == "dask" else jobs  # a cluster's size is not known here
-    estimate_s = study_seconds(study, todo, workers)
+    load, cores = machine_load()
+    estimate_s = study_seconds(study, todo, workers, load, cores)
     confirm_cost(
         estimate_s,
         args.max_hours * 3600.0,
         args.yes,
         what=f"design study {study.name}: {len(todo)} candidate(s) on {min(workers, max(1, len(todo)))} worker(s)",
-        basis=BASIS,
+        basis=f"{BASIS} ({load:.1f} on {cores} cores)",
         flag="--yes",
+        load_scaled=True,
     )
 
 
