@@ -121,15 +121,17 @@ def _confirm_cost(study, out, args: argparse.Namespace) -> None:
     jobs = args.jobs or default_jobs()
     finished = done_ids(out)
     todo = [c for c in expand(study) if c.candidate_id not in finished]
-    workers = 1 if args.scheduler == "dask" else jobs  # a cluster's size is not known here
-    load, cores = machine_load()
+    dask = args.scheduler == "dask"
+    workers = 1 if dask else min(jobs, max(1, len(todo)))
+    load, cores = (0.0, 1) if dask else machine_load()  # a cluster's size and load are not known here
     estimate_s = study_seconds(study, todo, workers, load, cores)
+    where = "one free worker of the Dask cluster (divide by its workers)" if dask else f"{workers} worker(s)"
     confirm_cost(
         estimate_s,
         args.max_hours * 3600.0,
         args.yes,
-        what=f"design study {study.name}: {len(todo)} candidate(s) on {min(workers, max(1, len(todo)))} worker(s)",
-        basis=f"{BASIS} ({load:.1f} on {cores} cores)",
+        what=f"design study {study.name}: {len(todo)} candidate(s) on {where}",
+        basis=BASIS if dask else f"{BASIS} ({load:.1f} on {cores} cores)",
         flag="--yes",
         load_scaled=True,
     )
