@@ -12,6 +12,9 @@ script (or an operator) tells a dead printer from a typo.
 
 ConfigError and DataError carry one or more Problems (file, field, message, fix) so that a
 validator can report every mistake in a file at once.
+
+confirm_cost(estimate_s, limit_s, yes, what=..., basis=..., flag="--yes") is the one refusal of heavy work: a
+command that can run for hours prints its estimate with it first, and is refused beyond its limit unless told.
 """
 
 from __future__ import annotations
@@ -117,3 +120,60 @@ def raise_problems(problems: list[Problem], kind: type[_ProblemError] = ConfigEr
     """Raise one error listing every problem, if there are any."""
     if problems:
         raise kind(problems=problems)
+
+
+def format_duration(seconds: float) -> str:
+    """A duration as a technician reads it: '40 s', '12 min', '3.2 h', '4.1 days'."""
+    if not seconds < float("inf"):
+        return "for ever"
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    if seconds < 172_800:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 86_400:.1f} days"
+
+
+def confirm_cost(
+    estimate_s: float,
+    limit_s: float,
+    yes: bool,
+    *,
+    what: str,
+    basis: str = "",
+    flag: str = "--yes",
+    load_scaled: bool = False,
+    out=None,
+) -> None:
+    """Print the estimated time of heavy work before it starts; refuse (ConfigError naming `flag`) beyond
+    `limit_s` unless `yes`. Every command that can run for hours calls it before its first heavy step.
+
+    estimate_s: the estimated wall time; limit_s: the most a command runs without being told to go on;
+    what: the work ('design study grid5: 7 candidates'); basis: how the estimate was made (shown with it);
+    load_scaled: the estimate already allows for the machine's load (else a busy machine is noted beside it)."""
+    import sys
+
+    stream = sys.stderr if out is None else out
+    note = f" ({basis})" if basis else ""
+    busy = "" if load_scaled else _busy_note()
+    note += f"; {busy}" if busy else ""
+    print(f"{what}: estimated {format_duration(estimate_s)}{note}", file=stream)
+    if estimate_s > limit_s and not yes:
+        raise ConfigError(
+            f"{what} would take about {format_duration(estimate_s)}, more than the {format_duration(limit_s)} "
+            "a command runs without being asked",
+            field=flag,
+            fix=f"pass {flag} to run it anyway, or make it smaller",
+        )
+
+
+def _busy_note() -> str:
+    """Said beside an estimate when other work already holds the cores (the estimate assumes them free)."""
+    import os
+
+    try:
+        load, cores = os.getloadavg()[0], len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return ""
+    return f"the machine is busy (load {load:.1f} on {cores} cores): expect longer" if load > cores else ""

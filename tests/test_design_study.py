@@ -65,7 +65,9 @@ def test_unknown_key_gets_a_did_you_mean(tmp_path):
 def test_negative_pitch_names_the_entry(tmp_path):
     err = _error(tmp_path, SMALL.replace("pitch_mm = [15.0]", "pitch_mm = [15.0, -2.0]"))
     assert err.field == "layouts.pitch_mm[1]"
-    assert "'pitch_mm' = -2.0 must be positive" in str(err) and "set pitch_mm to a number in mm (> 0)" in str(err)
+    assert "'pitch_mm' = -2.0 is below 0.5" in str(err) and "set pitch_mm to a number in mm (>= 0.5, <= 1000)" in str(
+        err
+    )
 
 
 @pytest.mark.parametrize(

@@ -66,7 +66,7 @@ def test_second_run_and_resume_are_refused_while_a_campaign_runs(long_protocol, 
 
         second = _start(long_protocol, folder)
         assert second.wait(60) == 3
-        assert f"a campaign is running in it: PID {first.pid}" in second.stderr.read()
+        assert f"another run holds this folder (PID {first.pid}" in second.stderr.read()
 
         with pytest.raises(DataError, match=f"in use by PID {first.pid}") as err:
             resume_campaign(folder, progress=False, report=False)

@@ -159,6 +159,14 @@ def test_controls_need_the_token(served, finished):
     assert served.request("POST", "/api/control/pause", {"X-Neatskin-Token": "wrong"})[0] == 403
     assert read_request(finished) is None
     status, body = served.request("POST", "/api/control/pause", {"X-Neatskin-Token": "sesame"})
+    assert status == 409 and b"already complete" in body  # a finished campaign has nothing to pause
+    manifest = finished / "manifest.json"
+    original = manifest.read_bytes()
+    manifest.write_text(json.dumps({**json.loads(original), "status": "running"}))  # as while it runs
+    try:
+        status, body = served.request("POST", "/api/control/pause", {"X-Neatskin-Token": "sesame"})
+    finally:
+        manifest.write_bytes(original)
     assert status == 200
     assert read_request(finished).action == "pause" and read_request(finished).by == "monitor page"
     assert served.request("POST", "/api/control/explode", {"X-Neatskin-Token": "sesame"})[0] == 404

@@ -54,6 +54,10 @@ def register(subparsers) -> None:
         "--lm-restarts", type=int, default=1, help="LM restarts per fit, best on validation (default 1 per repeat)"
     )
     add_quiet(parser)
+    parser.add_argument("--yes", action="store_true", help="run even when the estimate is above --max-hours")
+    parser.add_argument(
+        "--max-hours", type=float, default=1.0, help="refuse a run estimated longer than this without --yes (1)"
+    )
     parser.set_defaults(handler=handler)
 
 
@@ -90,6 +94,7 @@ def _check_output(args: argparse.Namespace) -> None:
 
 def handler(args: argparse.Namespace) -> int:
     from neatskin.baselines.report import report_summary, run_baselines
+    from neatskin.errors import confirm_cost
 
     _check_output(args)
     models = [m.strip() for m in args.models.split(",") if m.strip()] if args.models else None
@@ -105,6 +110,13 @@ def handler(args: argparse.Namespace) -> int:
         n_repeats=args.repeats,
         n_jobs=args.jobs,
         lm_restarts=args.lm_restarts,
+        confirm=lambda estimate_s: confirm_cost(
+            estimate_s,
+            args.max_hours * 3600.0,
+            args.yes,
+            what=f"baselines on {args.dataset}",
+            basis="models.fit_cost_s per fit, rough; the workers' cores assumed free",
+        ),
     )
     print(report_summary(report))
     return 0

@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 import time
 import warnings
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -207,6 +207,15 @@ def _resolve(split: str | Iterable[str], models: str | Iterable[str] | None, dat
     return splits, learned, physics, notes, implied
 
 
+def estimated_wall_s(tasks: list[Task], n_jobs: int) -> float:
+    """The tasks' estimated seconds (models.fit_cost_s, rough) shared over the workers, never below the longest."""
+    import os
+
+    workers = (os.cpu_count() or 1) if n_jobs < 0 else max(1, n_jobs)
+    costs = [t.cost_s for t in tasks] or [0.0]
+    return max(sum(costs) / workers, max(costs))
+
+
 def run_baselines(
     dataset_folder: str | Path,
     split: str | Iterable[str] = "grouped",
@@ -221,6 +230,7 @@ def run_baselines(
     n_jobs: int | None = None,
     backend: str | None = None,
     lm_restarts: int | None = 1,
+    confirm: Callable[[float], None] | None = None,
 ) -> Report:
     """Evaluate the baselines over repeated splits, print the table, and write report.md, CSV, parquet and PNGs.
 
@@ -231,6 +241,7 @@ def run_baselines(
     n_jobs: processes for the fits (default: every core, or 1 below SMALL_ROWS presses); backend: joblib's.
     lm_restarts: restarts per LM fit (default 1: each repeat trains one network, as each of the paper's ten).
     out: folder for the outputs (the dataset folder by default).
+    confirm(estimate_s): told the estimated wall time before any fit (the CLI prints it and may refuse).
     """
     from tqdm.auto import tqdm
 
@@ -281,6 +292,8 @@ def run_baselines(
                 (data.layout, data.X, data.skin_fidelity or "deformation", data.probe_radius_mm or PROBE_RADIUS_MM),
             )
         )
+    if confirm is not None:
+        confirm(estimated_wall_s(tasks, n_jobs))
     bar = tqdm(total=len(tasks), desc="baselines", unit="task", disable=not progress)
 
     def advance(done: int, total: int) -> None:

@@ -15,11 +15,20 @@ from neatskin.config.settings import Settings
 
 STUDY_STRATEGIES = ("boundary", "interior", "every_k", "explicit", "optimised")
 STUDY_SCENES = ("ideal", "paper-like")
+# a study's name becomes a folder name (out/design/<name>): no separator, no "..", no control character
+STUDY_NAME_PATTERN = r"[A-Za-z0-9][A-Za-z0-9._-]*"
 
 
 @dataclass(frozen=True)
 class StudyTable(Settings):
-    name: str | None = setting(None, max_len=200, default_doc="the file's stem", doc="the study's name")
+    name: str | None = setting(
+        None,
+        max_len=100,
+        pattern=STUDY_NAME_PATTERN,
+        pattern_text="a name (letters, digits, '.', '_' and '-', starting with a letter or digit; never a path)",
+        default_doc="the file's stem",
+        doc="the study's name; the default output folder is out/design/<name>",
+    )
     seed: int = setting(0, ge=0, doc="fixes the optimiser's restarts and the simulated datasets")
     description: str = setting("", allow_empty=True, doc="free text")
     scene: str = setting("ideal", choices=STUDY_SCENES, doc="the skin simulated ('paper-like' is not available yet)")
@@ -39,12 +48,18 @@ class LayoutsTable(Settings):
     sizes: tuple[tuple[int, int], ...] = setting(
         ((3, 3),), ge=2, le=10_000, min_items=1, doc="[N, M] junctions of each grid", example="[[5, 5], [10, 10]]"
     )
-    pitch_mm: tuple[float, ...] = setting((15.0,), unit="mm", gt=0, min_items=1, one_or_list=True, doc="swept")
-    channel_width_mm: tuple[float, ...] = setting((2.0,), unit="mm", gt=0, min_items=1, one_or_list=True, doc="swept")
-    channel_height_mm: tuple[float, ...] = setting((1.0,), unit="mm", gt=0, min_items=1, one_or_list=True, doc="swept")
-    channel_depth_mm: float = setting(2.0, unit="mm", gt=0, doc="channel centre line below the top surface")
-    thickness_mm: float = setting(5.5, unit="mm", gt=0, doc="silicone skin thickness")
-    resistivity_ohm_m: float = setting(0.5, unit="ohm m", gt=0, doc="the fluid's resistivity")
+    pitch_mm: tuple[float, ...] = setting(
+        (15.0,), unit="mm", ge=0.5, le=1_000, min_items=1, one_or_list=True, doc="swept"
+    )
+    channel_width_mm: tuple[float, ...] = setting(
+        (2.0,), unit="mm", ge=0.01, le=100, min_items=1, one_or_list=True, doc="swept"
+    )
+    channel_height_mm: tuple[float, ...] = setting(
+        (1.0,), unit="mm", ge=0.01, le=100, min_items=1, one_or_list=True, doc="swept"
+    )
+    channel_depth_mm: float = setting(2.0, unit="mm", gt=0, le=1_000, doc="channel centre line below the top surface")
+    thickness_mm: float = setting(5.5, unit="mm", ge=0.1, le=1_000, doc="silicone skin thickness")
+    resistivity_ohm_m: float = setting(0.5, unit="ohm m", ge=1e-9, le=1e9, doc="the fluid's resistivity")
 
 
 @dataclass(frozen=True)
@@ -55,7 +70,14 @@ class ExplicitEntry(Settings):
         doc="[x_mm, y_mm] of each electrode, from the bottom-left junction",
         example="[[0, 0], [15, 0]]",
     )
-    name: str | None = setting(None, max_len=200, default_doc="'explicit<k>'", doc="the placement's name")
+    name: str | None = setting(
+        None,
+        max_len=100,
+        pattern=STUDY_NAME_PATTERN,
+        pattern_text="a name (letters, digits, '.', '_' and '-', starting with a letter or digit; never a path)",
+        default_doc="'explicit<k>'",
+        doc="the placement's name (part of each candidate's file names)",
+    )
 
 
 @dataclass(frozen=True)
@@ -73,9 +95,11 @@ class ElectrodesTable(Settings):
 
 @dataclass(frozen=True)
 class ProbesTable(Settings):
-    diameter_mm: tuple[float, ...] = setting((5.5,), unit="mm", gt=0, min_items=1, one_or_list=True, doc="swept")
+    diameter_mm: tuple[float, ...] = setting(
+        (5.5,), unit="mm", ge=0.1, le=1_000, min_items=1, one_or_list=True, doc="swept"
+    )
     depth_mm: tuple[float, ...] = setting(
-        (3.5,), unit="mm", gt=0, min_items=1, one_or_list=True, doc="swept; below the top surface"
+        (3.5,), unit="mm", gt=0, le=1_000, min_items=1, one_or_list=True, doc="swept; below the top surface"
     )
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from neatskin.cligroups import add_out
@@ -42,6 +43,11 @@ def register(subparsers) -> None:
         "--allow-incomplete",
         action="store_true",
         help="merge campaigns that are interrupted, crashed or still running (recorded in the merged manifest)",
+    )
+    mer.add_argument(
+        "--allow-invalid",
+        action="store_true",
+        help="merge campaigns `dataset validate` refuses (their problems recorded in the merged manifest)",
     )
     mer.set_defaults(handler=_merge)
 
@@ -104,7 +110,10 @@ def _validate(args: argparse.Namespace) -> int:
     from neatskin.layout import load_layout
 
     layout = load_layout(args.layout) if args.layout else None
-    problems = validate_dataset(args.path, layout=layout, allow_flagged=args.allow_flagged)
+    notes: list[str] = []
+    problems = validate_dataset(args.path, layout=layout, allow_flagged=args.allow_flagged, notes=notes)
+    for note in notes:
+        print(f"{args.path}: note: {note}", file=sys.stderr)
     if problems:  # the check's verdict: printed, one line per problem, by neatskin.cli with exit status 1
         raise CheckFailed(problems=problems)
     print(f"{args.path}: valid")
@@ -115,7 +124,13 @@ def _merge(args: argparse.Namespace) -> int:
     from neatskin.datasets.curate import merge
     from neatskin.datasets.reader import read_metadata
 
-    out = merge(args.folders, args.out, allow_mixed=args.allow_mixed, allow_incomplete=args.allow_incomplete)
+    out = merge(
+        args.folders,
+        args.out,
+        allow_mixed=args.allow_mixed,
+        allow_incomplete=args.allow_incomplete,
+        allow_invalid=args.allow_invalid,
+    )
     sources = read_metadata(out)["merged_from"]
     for source in sources:
         ids = sorted(set(source["position_ids"].values()))

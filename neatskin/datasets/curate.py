@@ -23,6 +23,7 @@ from neatskin.datasets.merging import POSITION_TOLERANCE_MM, merge  # noqa: F401
 from neatskin.datasets.paths import CONSOLIDATED_NAME, press_parts, waveform_parts
 from neatskin.datasets.reader import read_press_table
 from neatskin.datasets.schema import decode_metadata, encode_metadata
+from neatskin.datasets.values import refuse_bad_values
 from neatskin.datasets.writer import write_table_durably
 from neatskin.errors import DataError
 
@@ -150,6 +151,7 @@ def split(
     path, out = Path(path), Path(out)
     empty_output(out)
     table = read_press_table(path)
+    refuse_bad_values(table, str(path), "split")
     meta = decode_metadata(table.schema.metadata)
     source_manifest = manifest_or_empty(path)
     positions = table.column("position_id").to_numpy()
@@ -201,6 +203,7 @@ def export(
     table = read_press_table(path)
     if drop_flagged:
         table = table.filter(pa.array(~flagged_mask(table)))
+    refuse_bad_values(table, str(path), "export")
     table = _without_local_facts(table, Path(path))
     if format == "parquet":
         return write_table_durably(out, table)

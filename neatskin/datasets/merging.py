@@ -74,6 +74,42 @@ def _check_sources(sources: list[Path], allow_incomplete: bool) -> list[str]:
     return statuses
 
 
+def _schema_types(schema: pa.Schema) -> pa.Schema:
+    """The merged schema: the first source's columns with the press schema's own types for the fixed columns (a
+    source written back by pandas may type an all-empty `flags` as list<null>, which no other source casts to)."""
+    from neatskin.datasets.schema import BASE_FIELDS
+
+    canonical = {f.name: f for f in BASE_FIELDS}
+    return pa.schema([canonical.get(f.name, f) for f in schema])
+
+
+def _refuse_invalid(sources: list[Path], allow_invalid: bool) -> dict[str, list[str]]:
+    """Refuse a source `dataset validate` refuses (flagged presses aside: a merge keeps and counts them), unless
+    allow_invalid; returns each accepted invalid source's problems, recorded in the merged manifest."""
+    from neatskin.datasets.validate import validate_dataset
+
+    invalid: dict[str, list[str]] = {}
+    for folder in sources:
+        problems = [p for p in validate_dataset(folder, allow_flagged=True) if p.field not in _INCOMPLETE_FIELDS]
+        if problems and not allow_invalid:
+            shown = "; ".join(f"[{p.field}] {p.message}" if p.field else p.message for p in problems[:3])
+            more = f" (and {len(problems) - 3} more)" if len(problems) > 3 else ""
+            raise DataError(
+                f"`dataset validate` refuses it: {shown}{more}",
+                file=str(folder),
+                field=problems[0].field,
+                fix=f"repair it (neatskin dataset validate {folder} lists every problem), or merge it anyway with "
+                "--allow-invalid (recorded in the merged manifest)",
+            )
+        if problems:
+            invalid[str(folder.resolve())] = [str(p) for p in problems]
+    return invalid
+
+
+# what an incomplete campaign's manifest says of itself; --allow-incomplete (checked before) rules on these
+_INCOMPLETE_FIELDS = ("status", "counts.completed", "counts.planned")
+
+
 def _physical_position_ids(
     positions: list[pd.DataFrame], calibration_keys: list[tuple[str | None, str | None]], tolerance_mm: float
 ) -> list[dict[int, int]]:
@@ -208,6 +244,7 @@ def merge(
     *,
     allow_mixed: bool = False,
     allow_incomplete: bool = False,
+    allow_invalid: bool = False,
     tolerance_mm: float = POSITION_TOLERANCE_MM,
 ) -> Path:
     """Merge campaigns into one dataset folder. Press ids are re-keyed (source k's ids shifted by the sum of
@@ -245,6 +282,7 @@ def merge(
                     field=key,
                     fix="merge only campaigns on one skin and wiring, or pass --allow-mixed",
                 )
+    invalid = _refuse_invalid(sources, allow_invalid)  # after the checks that name a merge's own fields
     calibration = [
         (
             _ref_key(p.manifest.get("layout", p.metadata.get("layout"))),
@@ -282,6 +320,8 @@ def merge(
         "kind": "merge",
         "allow_mixed": allow_mixed,
         "allow_incomplete": allow_incomplete,
+        "allow_invalid": allow_invalid,
+        "invalid_sources": invalid,
         "position_tolerance_mm": tolerance_mm,
         "sources": [p["folder"] for p in provenance],
         **refs,
@@ -289,13 +329,20 @@ def merge(
     seeds = {json.dumps(p.manifest.get("seed", p.metadata.get("seed"))) for p in plans}
     if len(seeds) == 1:
         metadata["seed"] = manifest["seed"] = json.loads(seeds.pop())
-    plain = _with_source_run(first.schema.empty_table(), "").schema.remove_metadata()
+    plain = _with_source_run(_schema_types(first.schema.remove_metadata()).empty_table(), "").schema.remove_metadata()
     runs = source_run_names(sources)
     metadata["source_runs"] = runs
 
     def tables() -> Iterator[pa.Table]:
         for folder, plan, mapping, offset, run in zip(sources, plans, position_maps, offsets, runs):
-            yield _rekeyed(_with_source_run(_as_planned(folder, plan), run), offset, mapping, plain)
+            try:
+                yield _rekeyed(_with_source_run(_as_planned(folder, plan), run), offset, mapping, plain)
+            except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as exc:
+                raise DataError(
+                    f"its columns do not convert to the press schema: {exc}",
+                    file=str(folder),
+                    fix=f"check it with neatskin dataset validate {folder}; rewrite the columns it names",
+                ) from exc
 
     _stream_table(out / CONSOLIDATED_NAME, plain.with_metadata(encode_metadata(metadata)), tables())
     n_rows = sum(p.presses for p in plans)

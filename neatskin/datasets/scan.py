@@ -17,6 +17,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from neatskin.datasets.schema import OPEN_CIRCUIT_FLAG, parse_pair_column, plausible_range
+
 KEY_COLUMNS = ("press_id", "position_id", "x_mm", "y_mm")
 
 
@@ -27,6 +29,7 @@ class NullRows:
     count: int = 0
     files: set[int] = field(default_factory=set)
     press_ids: list[np.ndarray] = field(default_factory=list)
+    examples: list[float] = field(default_factory=list)  # a few of the bad values (for non-finite and absurd)
 
 
 @dataclass
@@ -42,6 +45,8 @@ class DatasetScan:
     unreadable: list[tuple[Path, str]] = field(default_factory=list)
     keys: pd.DataFrame = field(default_factory=pd.DataFrame)
     nulls: dict[str, NullRows] = field(default_factory=dict)
+    nonfinite: dict[str, NullRows] = field(default_factory=dict)  # +-inf (a pair's +inf with its flag is fine)
+    implausible: dict[str, NullRows] = field(default_factory=dict)  # finite, outside schema.PLAUSIBLE_RANGES
     flag_counts: Counter = field(default_factory=Counter)
     campaigns: set[str] = field(default_factory=set)
     columns: set[str] = field(default_factory=set)  # every column some readable file has
@@ -77,13 +82,51 @@ def scan_files(files: Sequence[Path], expected: pa.Schema, nullable: dict[str, b
         scan.columns.update(schema.names)
         scan.flag_counts.update(part.flag_counts)
         scan.campaigns.update(part.campaigns)
-        for name, rows in part.nulls.items():
-            total = scan.nulls.setdefault(name, NullRows())
-            total.count += rows.count
-            total.files.update(rows.files)
-            total.press_ids.extend(rows.press_ids)
+        for found, into in ((part.nulls, scan.nulls), (part.nonfinite, scan.nonfinite)):
+            _add(found, into)
+        _add(part.implausible, scan.implausible)
     scan.keys = pd.concat(keys, ignore_index=True) if keys else pd.DataFrame(columns=[*KEY_COLUMNS, "file"])
     return scan
+
+
+def _add(found: dict[str, NullRows], into: dict[str, NullRows]) -> None:
+    for name, rows in found.items():
+        total = into.setdefault(name, NullRows())
+        total.count += rows.count
+        total.files.update(rows.files)
+        total.press_ids.extend(rows.press_ids)
+        total.examples.extend(rows.examples[: max(0, 3 - len(total.examples))])
+
+
+def _note(where: dict[str, NullRows], name: str, bad: np.ndarray, values: np.ndarray, ids, file_index: int) -> None:
+    rows = where.setdefault(name, NullRows())
+    rows.count += int(bad.sum())
+    rows.files.add(file_index)
+    if ids is not None:
+        rows.press_ids.append(ids[bad])
+    rows.examples.extend(values[bad][: max(0, 3 - len(rows.examples))].tolist())
+
+
+def scan_values(scan: DatasetScan, table: pa.Table, want: pa.Field, ids: np.ndarray | None, file_index: int) -> None:
+    """Record the column's +-inf (a pair's +inf or dR +-inf with the row's open_circuit flag excepted) and its
+    finite values outside the plausible range."""
+    values = table.column(want.name).to_numpy(zero_copy_only=False).astype(float)
+    inf = np.isinf(values)
+    pair = parse_pair_column(want.name)
+    if inf.any() and pair is not None and "flags" in table.column_names:
+        flag = f"{OPEN_CIRCUIT_FLAG}:{pair[1].label}"
+        rows = np.flatnonzero(inf)
+        flags = table.column("flags").take(pa.array(rows)).to_pylist()
+        allowed = pair[0] == "dR" or values[rows] > 0  # an open circuit is +inf ohm, never -inf
+        inf[rows] = ~(allowed & np.array([flag in (f or []) for f in flags], dtype=bool))
+    if inf.any():
+        _note(scan.nonfinite, want.name, inf, values, ids, file_index)
+    span = plausible_range(want.name)
+    if span is not None:
+        with np.errstate(invalid="ignore"):
+            out = np.isfinite(values) & ((values < span[0]) | (values > span[1]))
+        if out.any():
+            _note(scan.implausible, want.name, out, values, ids, file_index)
 
 
 def _scan_batch(
@@ -94,6 +137,8 @@ def _scan_batch(
     names = set(table.column_names)
     ids = table.column("press_id").to_numpy(zero_copy_only=False).astype(float) if "press_id" in names else None
     for want in expected:
+        if want.name in names and pa.types.is_floating(table.column(want.name).type):
+            scan_values(scan, table, want, ids, file_index)
         if want.name not in names or nullable.get(want.name, False):
             continue
         column = table.column(want.name)

@@ -48,6 +48,27 @@ OPTIONAL_COLUMNS = frozenset({"source_run"})
 NULLABLE_COLUMNS = frozenset(f.name for f in BASE_FIELDS if f.nullable)
 _PAIR_COLUMN = re.compile(r"^(d?R)_ohm_(\d+)_(\d+)$")
 
+# The plausible range of each float column, declared once (validation refuses a value outside it as absurd; merge,
+# split, export and skin fit refuse what validation refuses). Wide on purpose: it catches 1e308 and a unit slip
+# by 1e6, never a real skin. A pair's R may be +inf (cut off by a pinched channel) only with its open_circuit flag.
+PLAUSIBLE_RANGES: dict[str, tuple[float, float, str]] = {
+    "x_mm": (-10_000.0, 10_000.0, "mm"),
+    "y_mm": (-10_000.0, 10_000.0, "mm"),
+    "depth_mm": (0.0, 1_000.0, "mm"),
+    "fsr_onset_s": (0.0, 1e7, "s"),
+    "fsr_offset_s": (0.0, 1e7, "s"),
+    "fsr_peak_n": (-1e4, 1e4, "N"),
+    "R": (0.0, 1e9, "ohm"),  # every R_ohm_{i}_{j}
+    "dR": (-1e9, 1e9, "ohm"),  # every dR_ohm_{i}_{j}
+}
+OPEN_CIRCUIT_FLAG = "open_circuit"  # the flag `open_circuit:{i}-{j}` a row with a cut-off pair carries
+
+
+def plausible_range(column: str) -> tuple[float, float, str] | None:
+    """(low, high, unit) of a float column of the press schema, None for a column without one."""
+    pair = parse_pair_column(column)
+    return PLAUSIBLE_RANGES.get(pair[0] if pair else column)
+
 
 def r_column(pair: ElectrodePair) -> str:
     return f"R_ohm_{pair.i}_{pair.j}"

@@ -22,6 +22,7 @@ from neatskin.datasets.paths import CONSOLIDATED_NAME, COPY_NAME, part_press_id,
 from neatskin.datasets.reader import press_files
 from neatskin.datasets.scan import DatasetScan, read_schema, scan_files
 from neatskin.datasets.schema import BASE_FIELDS, OPTIONAL_COLUMNS, decode_metadata, parse_pair_column, press_schema
+from neatskin.datasets.values import metadata_layout, value_problems
 from neatskin.datasets.writer import file_sha256, read_parquet
 from neatskin.errors import ConfigError, DataError, Problem
 from neatskin.layout import ElectrodePair, Layout, load_layout
@@ -37,9 +38,17 @@ def check_dataset(path: str | os.PathLike, **kwargs: Any) -> None:
 
 
 def validate_dataset(
-    path: str | os.PathLike, *, layout: Layout | None = None, allow_flagged: bool = False
+    path: str | os.PathLike,
+    *,
+    layout: Layout | None = None,
+    allow_flagged: bool = False,
+    notes: list[str] | None = None,
 ) -> list[Problem]:
-    """Every problem in a campaign folder (or a single press parquet file), one Problem each."""
+    """Every problem in a campaign folder (or a single press parquet file), one Problem each.
+
+    The layout for the bounds check: `layout`, else the one the manifest names, else the one the files'
+    metadata names (found beside the file and checked against its recorded sha256). What could not be checked
+    is said in `notes` (when given), never silently skipped."""
     path = Path(path)
     problems: list[Problem] = []
     manifest, manifest_file = None, str(path / MANIFEST_NAME)
@@ -60,6 +69,8 @@ def validate_dataset(
     except StopIteration:
         first_schema = None
     metadata = decode_metadata(first_schema.metadata) if first_schema is not None else {}
+    if layout is None and manifest is None:
+        layout = metadata_layout(path if path.is_dir() else path.parent, metadata, notes)
     pairs = _expected_pairs(layout, manifest, metadata, first_schema if first_schema is not None else pa.schema([]))
     expected = press_schema(pairs)
     nullable = {f.name: f.nullable for f in BASE_FIELDS}
@@ -290,8 +301,20 @@ def _content_problems(
                 "re-press those presses (drop them and resume the campaign) or drop the rows",
             )
         )
+    problems += value_problems(scan, has_ids, _ids, _files)
     if not has_ids:
         return problems
+    # an exact copy of a row in the same file is a curation slip (a file concatenated to itself)
+    copied = rows.duplicated(subset=["file", "press_id", "row_hash"], keep="first")
+    if copied.any():
+        problems.append(
+            Problem(
+                f"{int(copied.sum())} exact duplicate row(s) (press ids {_ids(rows.loc[copied, 'press_id'])})",
+                _files(scan, rows.loc[copied, "file"]),
+                "press_id",
+                "keep one row per press: df.drop_duplicates() and write the file again",
+            )
+        )
     # a press both in a part and in presses.parquet is fine: duplicates count only with different rows
     distinct = rows.drop_duplicates(subset=["press_id", "row_hash"])
     dup = distinct["press_id"].duplicated(keep=False) & distinct["press_id"].notna()

@@ -23,7 +23,16 @@ def register(subparsers) -> None:
     )
     study.add_argument("study", help="study TOML (protocols/studies/... resolves to the packaged copy)")
     add_out(study, "output folder (default out/design/<study name>)")
-    study.add_argument("--jobs", type=int, default=1, help="local worker processes (joblib; default 1)")
+    study.add_argument(
+        "--jobs",
+        type=int,
+        default=None,
+        help="local worker processes (joblib; default: the cores this process may use)",
+    )
+    study.add_argument("--yes", action="store_true", help="run even when the estimate is above --max-hours")
+    study.add_argument(
+        "--max-hours", type=float, default=1.0, help="refuse a study estimated longer than this without --yes (1)"
+    )
     study.add_argument("--scheduler", choices=("local", "dask"), default="local", help="where candidates run")
     study.add_argument(
         "--address", default=None, help="Dask scheduler address, tcp://HOST:PORT (with --scheduler dask)"
@@ -53,13 +62,13 @@ def register(subparsers) -> None:
 
 
 def study_handler(args: argparse.Namespace) -> int:
-    from pathlib import Path
 
     from neatskin.design.runner import run_study
-    from neatskin.design.study import load_study
+    from neatskin.design.study import load_study, study_out_dir
 
     study = load_study(args.study)
-    out = Path(args.out) if args.out else Path("out") / "design" / study.name
+    out = study_out_dir(study, args.out)
+    _confirm_cost(study, out, args)
     bar = None
 
     def progress(done: int, total: int) -> None:
@@ -69,9 +78,14 @@ def study_handler(args: argparse.Namespace) -> int:
         if bar is None:
             from tqdm import tqdm
 
-            bar = tqdm(total=total, initial=done, unit="candidate", desc=f"study {study.name}")
+            bar = tqdm(total=total, initial=done, unit="candidate", desc=f"study {study.name}", bar_format=_BAR)
             return
-        bar.update(done - bar.n)
+        if args.scheduler == "dask":  # whole candidates; a local run's ticks move the bar within each
+            bar.update(done - bar.n)
+
+    def tick(share: float) -> None:
+        if bar is not None:
+            bar.update(share)  # within a candidate: per tile of presses, learned seed, inversion step
 
     try:
         frame = run_study(
@@ -81,6 +95,7 @@ def study_handler(args: argparse.Namespace) -> int:
             scheduler=args.scheduler,
             address=args.address,
             progress=progress,
+            tick=None if args.scheduler == "dask" else tick,
             pngs=not args.no_png,
         )
     finally:
@@ -95,14 +110,42 @@ def study_handler(args: argparse.Namespace) -> int:
     return 0
 
 
-def validate_handler(args: argparse.Namespace) -> int:
-    from pathlib import Path
+_BAR = "{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total_fmt} candidates [{elapsed}<{remaining}]"
 
-    from neatskin.design.study import load_study
+
+def _confirm_cost(study, out, args: argparse.Namespace) -> None:
+    """Print the study's estimated time before any work; refuse beyond --max-hours unless --yes."""
+    from neatskin.design.candidates import expand
+    from neatskin.design.cost import BASIS, machine_load, study_seconds
+    from neatskin.design.runner import default_jobs, done_ids
+    from neatskin.errors import confirm_cost
+
+    jobs = args.jobs or default_jobs()
+    finished = done_ids(out)
+    todo = [c for c in expand(study) if c.candidate_id not in finished]
+    dask = args.scheduler == "dask"
+    workers = 1 if dask else min(jobs, max(1, len(todo)))
+    load, cores = (0.0, 1) if dask else machine_load()  # a cluster's size and load are not known here
+    estimate_s = study_seconds(study, todo, workers, load, cores)
+    where = "one free worker of the Dask cluster (divide by its workers)" if dask else f"{workers} worker(s)"
+    confirm_cost(
+        estimate_s,
+        args.max_hours * 3600.0,
+        args.yes,
+        what=f"design study {study.name}: {len(todo)} candidate(s) on {where}",
+        basis=BASIS if dask else f"{BASIS} ({load:.1f} on {cores} cores)",
+        flag="--yes",
+        load_scaled=True,
+    )
+
+
+def validate_handler(args: argparse.Namespace) -> int:
+
+    from neatskin.design.study import load_study, study_out_dir
     from neatskin.design.validate import AGREEMENT_SIGMAS, validate_study
 
     study = load_study(args.study)
-    out = Path(args.out) if args.out else Path("out") / "design" / study.name
+    out = study_out_dir(study, args.out)
     v = validate_study(
         study,
         out,

@@ -7,6 +7,7 @@ learned error.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -92,8 +93,12 @@ def optimiser_junctions(nx: int, ny: int) -> list[tuple[int, int]]:
     return sorted(nodes, key=lambda n: (n[1], n[0]))
 
 
-def evaluate_candidate(study: Study, candidate: Candidate) -> CandidateResult:
-    """Evaluate one candidate (pure: same inputs, same numbers)."""
+def evaluate_candidate(
+    study: Study, candidate: Candidate, tick: Callable[[float], None] | None = None
+) -> CandidateResult:
+    """Evaluate one candidate (pure: same inputs, same numbers). tick(share) is told the share of the candidate's
+    work just done, per tile of presses, learned seed and inversion step (design/cost.py counts the work)."""
+    units = _ticker(study, candidate, tick)
     radius = candidate.probe_diameter_mm / 2.0
     noise = pair_noise(study)
     if candidate.strategy == "optimised":
@@ -114,6 +119,7 @@ def evaluate_candidate(study: Study, candidate: Candidate) -> CandidateResult:
         radius,
         study.fidelity,
         z=z,
+        on_presses=lambda n: units(n * len(pool)),
     )
     table = PairInformation(pj, noise)
     evaluations = 0
@@ -173,7 +179,7 @@ def evaluate_candidate(study: Study, candidate: Candidate) -> CandidateResult:
         "learned_seeds": 0,
     }
     if study.learned.enabled:
-        errors = learned_error_mm(candidate_layout(study, candidate, canonical), study, candidate, noise)
+        errors = learned_error_mm(candidate_layout(study, candidate, canonical), study, candidate, noise, units)
         row.update(
             learned_error_mean_mm=float(np.mean(errors)),
             learned_error_std_mm=float(np.std(errors, ddof=1)) if errors.size > 1 else math.nan,
@@ -196,7 +202,7 @@ def evaluate_candidate(study: Study, candidate: Candidate) -> CandidateResult:
         electrode_junctions = pj.junctions[members]
         errors = inversion_errors_mm(
             layout, electrode_junctions, x, y, candidate.depth_mm, radius, study.fidelity, noise, z,
-            study.inversion, study.seed,
+            study.inversion, study.seed, units,
         )  # fmt: skip
         per_draw = errors.mean(axis=1)
         row.update(
@@ -207,4 +213,25 @@ def evaluate_candidate(study: Study, candidate: Candidate) -> CandidateResult:
         )
         map_columns["inversion_error_mm"] = errors.mean(axis=0)
     map_frame = pd.DataFrame(map_columns)
+    units(0, done=True)
     return CandidateResult(candidate.candidate_id, row, map_frame)
+
+
+def _ticker(study: Study, candidate: Candidate, tick: Callable[[float], None] | None) -> Callable[..., None]:
+    """units(n) turns n press evaluations into the share of the candidate's work for tick; units(0, done=True)
+    gives what is left (the estimate's rounding), so a candidate always adds up to exactly 1."""
+    if tick is None:
+        return lambda n, done=False: None
+    from neatskin.design.cost import candidate_work
+
+    total = max(1, candidate_work(study, candidate).total)
+    given = 0.0
+
+    def units(n: int, done: bool = False) -> None:
+        nonlocal given
+        share = 1.0 - given if done else min(n / total, 1.0 - given)
+        given += share
+        if share > 0:
+            tick(share)
+
+    return units

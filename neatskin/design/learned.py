@@ -8,6 +8,8 @@ depth (no placement or depth error: the same ideal scene as the bound). Each see
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from neatskin.design.bound import PairNoise
@@ -37,8 +39,11 @@ def simulated_features(
     return features, targets, groups
 
 
-def learned_error_mm(layout: Layout, study: Study, candidate: Candidate, noise: PairNoise) -> np.ndarray:
-    """Mean Euclidean test error (mm) of the study's regressor, one value per seed, (seeds,)."""
+def learned_error_mm(
+    layout: Layout, study: Study, candidate: Candidate, noise: PairNoise, tick: Callable[[int], None] | None = None
+) -> np.ndarray:
+    """Mean Euclidean test error (mm) of the study's regressor, one value per seed, (seeds,); tick(press
+    evaluations) after each seed (the progress bar)."""
     from sklearn.ensemble import ExtraTreesRegressor
     from sklearn.model_selection import GroupShuffleSplit
     from sklearn.neighbors import KNeighborsRegressor
@@ -58,4 +63,6 @@ def learned_error_mm(layout: Layout, study: Study, candidate: Candidate, noise: 
         regressor.fit(features[train], targets[train])
         predicted = regressor.predict(features[test])
         errors.append(float(np.mean(np.linalg.norm(predicted - targets[test], axis=1))))
+        if tick is not None:
+            tick(spec.positions * layout.n_electrodes)
     return np.array(errors)

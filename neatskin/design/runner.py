@@ -31,6 +31,17 @@ SCHEDULERS = ("local", "dask")
 FINGERPRINT = "study.json"
 
 Progress = Callable[[int, int], None]
+Tick = Callable[[float], None]
+
+
+def default_jobs() -> int:
+    """The cores this process may run on (its CPU affinity, else os.cpu_count())."""
+    import os
+
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
 
 
 def study_fingerprint(study: Study) -> dict[str, Any]:
@@ -73,18 +84,21 @@ def run_study(
     study: Study,
     out_dir: str | Path,
     *,
-    jobs: int = 1,
+    jobs: int | None = None,
     scheduler: str = "local",
     address: str | None = None,
     progress: Progress | None = None,
+    tick: Tick | None = None,
     on_result: Callable[[CandidateResult], None] | None = None,
     pngs: bool = True,
     connect_timeout_s: float = 20.0,
 ) -> pd.DataFrame:
     """Evaluate every candidate not yet done in out_dir, durably, then write candidates.parquet and report.md.
 
-    progress(done, total) is told after each candidate (done counts the ones a previous run finished);
-    on_result(result) after each is durable. Returns the candidates table (one row per candidate, study order).
+    progress(done, total) is told after each candidate (done counts the ones a previous run finished); tick(share)
+    within a candidate, per tile of presses, learned seed or inversion step (local and joblib runs; a Dask run
+    ticks per candidate only); on_result(result) after each is durable. jobs: local worker processes, default
+    the cores this process may use. Returns the candidates table (one row per candidate, study order).
     """
     if scheduler not in SCHEDULERS:
         raise ConfigError(f"unknown scheduler {scheduler!r}", field="--scheduler", fix="use 'local' or 'dask'")
@@ -94,6 +108,7 @@ def run_study(
             field="--address",
             fix="pass --address tcp://HOST:PORT (the scheduler of a running Dask cluster)",
         )
+    jobs = default_jobs() if jobs is None else jobs
     if jobs < 1:
         raise ConfigError(f"--jobs must be >= 1, got {jobs}", field="--jobs", fix="give 1 or more")
     out = Path(out_dir)
@@ -112,7 +127,7 @@ def run_study(
     log.info("study %s: %d candidates, %d already done", study.name, len(candidates), done)
     if progress is not None:
         progress(done, len(candidates))
-    for result in _results(study, todo, jobs, scheduler, address, connect_timeout_s):
+    for result in _results(study, todo, jobs, scheduler, address, connect_timeout_s, tick):
         write_candidate(out, result, png=pngs)
         done += 1
         if on_result is not None:
@@ -133,20 +148,52 @@ def collect(out_dir: Path, candidates: list[Candidate]) -> pd.DataFrame:
 
 
 def _results(
-    study: Study, todo: list[Candidate], jobs: int, scheduler: str, address: str | None, timeout_s: float
+    study: Study,
+    todo: list[Candidate],
+    jobs: int,
+    scheduler: str,
+    address: str | None,
+    timeout_s: float,
+    tick: Tick | None = None,
 ) -> Iterator[CandidateResult]:
     if not todo:
         return
     if scheduler == "dask":
         yield from _dask_results(study, todo, address or "", timeout_s)
-    elif jobs == 1:
+    elif jobs == 1 or len(todo) == 1:
         for candidate in todo:
-            yield evaluate_candidate(study, candidate)
+            yield evaluate_candidate(study, candidate, tick)
     else:
-        from joblib import Parallel, delayed
+        yield from _joblib_results(study, todo, min(jobs, len(todo)), tick)
 
-        parallel = Parallel(n_jobs=jobs, return_as="generator_unordered")
+
+def _joblib_results(study: Study, todo: list[Candidate], jobs: int, tick: Tick | None) -> Iterator[CandidateResult]:
+    """Candidates in joblib worker processes; their ticks travel back through a manager queue, drained here by
+    a thread (the workers' shares only move a progress bar: the results are the same without it)."""
+    import threading
+
+    from joblib import Parallel, delayed
+
+    parallel = Parallel(n_jobs=jobs, return_as="generator_unordered")
+    if tick is None:
         yield from parallel(delayed(evaluate_candidate)(study, c) for c in todo)
+        return
+    import multiprocessing
+
+    with multiprocessing.Manager() as manager:
+        queue = manager.Queue()
+
+        def drain() -> None:
+            while (share := queue.get()) is not None:
+                tick(share)
+
+        thread = threading.Thread(target=drain, name="design-ticks", daemon=True)
+        thread.start()
+        try:
+            yield from parallel(delayed(evaluate_candidate)(study, c, queue.put) for c in todo)
+        finally:
+            queue.put(None)
+            thread.join(timeout=10.0)
 
 
 def _dask_results(study: Study, todo: list[Candidate], address: str, timeout_s: float) -> Iterator[CandidateResult]:

@@ -17,6 +17,7 @@ closed-form "network" stand-in), by central differences of that per-channel fact
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -150,6 +151,7 @@ def press_jacobian(
     probe_radius_mm: float,
     fidelity: str = "network",
     z: np.ndarray | None = None,
+    on_presses: Callable[[int], None] | None = None,
 ) -> PressJacobian:
     """The adjoint sensitivities of every press (x_mm, y_mm at depth_mm) for the candidate `junctions` (indices).
 
@@ -170,6 +172,8 @@ def press_jacobian(
     order = _tile_order(x, y)
     for tile in order:
         parts.append(_press_chunk(layout, z, t_cand, x[tile], y[tile], depth[tile], probe_radius_mm, fidelity, reach))
+        if on_presses is not None:
+            on_presses(int(tile.size))
     k_max = max(p[0].shape[1] for p in parts)
     padded = [tuple(_pad(arr, k_max) for arr in p) for p in parts]
     stacked = [np.concatenate(list(col)) for col in zip(*padded)]

@@ -10,12 +10,14 @@ optionally a learned-error estimate. protocols/studies/grid5.toml is the worked 
 from __future__ import annotations
 
 import dataclasses
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from neatskin.config import parse_tables
 from neatskin.config.studyfile import (
+    STUDY_NAME_PATTERN,
     ElectrodesTable,
     LayoutsTable,
     ProbesTable,
@@ -89,10 +91,41 @@ class Study:
     inversion: InversionSpec = field(default_factory=InversionSpec)
 
 
+DEFAULT_OUT_ROOT = Path("out") / "design"
+
+
 def load_study(path: str | Path) -> Study:
     """Read and validate a study TOML; one ConfigError listing every problem (file, field, fix)."""
     path = resolve_path(path)
-    return study_from_dict(read_toml(path, "study file"), source=str(path))
+    data = read_toml(path, "study file")
+    if not data:
+        # the docs promise no default study: an empty file is a mistake (a wrong path, an unsaved editor)
+        raise ConfigError(
+            "the study file is empty: it names no layouts, electrodes or probes to sweep",
+            file=str(path),
+            field="layouts",
+            fix="start from a copy of protocols/studies/grid5.toml (every key commented) and edit it",
+        )
+    return study_from_dict(data, source=str(path))
+
+
+def study_out_dir(study: Study, out: str | Path | None, root: Path = DEFAULT_OUT_ROOT) -> Path:
+    """The folder a study writes into: `out` as given, else root/<name>, which must stay inside root.
+
+    The name is validated as a name at load (no separator, no '..'); the resolved check also holds a name
+    built in Python (study_from_dict with a hand-made Study) and a symlink planted at root/<name>."""
+    if out is not None:
+        return Path(out)
+    folder = root / study.name
+    inside = folder.resolve().parent == root.resolve()
+    if not inside or Path(study.name).name != study.name or study.name in (".", ".."):
+        raise ConfigError(
+            f"the study's name {study.name!r} would write outside {root}/ (it resolves to {folder.resolve()})",
+            file=study.source,
+            field="study.name",
+            fix="give a plain name (letters, digits, '.', '_', '-'), or choose the folder with --out",
+        )
+    return folder
 
 
 def study_from_dict(data: dict[str, Any], source: str = "<memory>") -> Study:
@@ -111,6 +144,20 @@ def study_from_dict(data: dict[str, Any], source: str = "<memory>") -> Study:
                 'use scene = "ideal" for now',
             )
         )
+    if lay is not None:
+        from neatskin.design.sensitivity import DENSE_MAX_JUNCTIONS
+
+        for k, (nx, ny) in enumerate(lay.sizes):
+            if nx * ny > DENSE_MAX_JUNCTIONS:
+                problems.append(
+                    Problem(
+                        f"a {nx} x {ny} grid has {nx * ny} junctions; the study's dense network solve stops at "
+                        f"{DENSE_MAX_JUNCTIONS}",
+                        source,
+                        f"layouts.sizes[{k}]",
+                        f"use grids of at most {DENSE_MAX_JUNCTIONS} junctions (e.g. [50, 50])",
+                    )
+                )
     if lay is not None and lay.channel_depth_mm >= lay.thickness_mm:
         problems.append(
             Problem(
@@ -174,10 +221,17 @@ def _explicit(el: ElectrodesTable, problems: list[Problem], source: str) -> list
     return out
 
 
+def _name_from_stem(source: str) -> str:
+    """The default name, the file's stem made a name (a stem may hold spaces or a leading dot)."""
+    stem = Path(source).stem if source != "<memory>" else "study"
+    name = re.sub(r"[^A-Za-z0-9._-]", "_", stem).lstrip(".")
+    return name if re.fullmatch(STUDY_NAME_PATTERN, name) else "study"
+
+
 def _study(f: StudyFile, explicit: list[ExplicitPlacement], source: str) -> Study:
     st, lay, el, no = f.study, f.layouts, f.electrodes, f.noise
     return Study(
-        name=st.name or (Path(source).stem if source != "<memory>" else "study"),
+        name=st.name or _name_from_stem(source),
         source=source,
         seed=st.seed,
         description=st.description,

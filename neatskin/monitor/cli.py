@@ -77,12 +77,15 @@ def _monitor(args: argparse.Namespace) -> int:
     return 0
 
 
+CONTROL_WAIT_S = 10.0  # how long `campaign pause DIR` waits for a starting run's manifest.json
+
+
 def _control(args: argparse.Namespace) -> int:
     from neatskin.datasets.manifest import read_manifest
     from neatskin.rig.control import read_state, request_control
 
+    request_control(args.folder, args.control_action, by="cli", wait_s=CONTROL_WAIT_S)  # a run starting: kept
     status = read_manifest(args.folder).get("status")
-    request_control(args.folder, args.control_action, by="cli")
     state = read_state(args.folder).get("state", "unknown")
     print(f"{args.control_action} requested for {args.folder} (campaign {status}, runner {state})")
     if status != "running":

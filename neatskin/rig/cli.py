@@ -69,8 +69,17 @@ def _summary(result) -> str:
     )
     return (
         f"campaign {state}: {result.completed}/{result.planned} presses in {result.folder} "
-        f"({result.written_now} written now, {result.flagged} flagged); wall {result.wall_s:.1f} s, "
-        f"the rig would take {rig_s / 3600:.2f} h for these presses ({ratio:.0f}x)"
+        f"({result.written_now} written now, {result.flagged} flagged); wall {result.wall_s:.1f} s; "
+        f"{printer_time_text(rig_s, result.written_now, 'written now')}, {ratio:.0f}x this wall time"
+    )
+
+
+def printer_time_text(seconds: float, presses: int, which: str = "") -> str:
+    """The one wording of the printer-time figure, in `campaign check` and at the end of a run (they agree)."""
+    what = f"the {presses} presses{f' {which}' if which else ''}"
+    return (
+        f"printer time {seconds / 3600:.2f} h for {what} (motion and holds from the G-code machine model; "
+        "homing and DAQ recording not included)"
     )
 
 
@@ -180,7 +189,7 @@ def _check(args: argparse.Namespace) -> int:
         f"  sweep {plan.sweep.n_samples} samples = {plan.sweep.duration_s * 1000:.1f} ms, "
         f"{plan.n_sweeps} sweeps recorded per press, hold {plan.hold_s} s"
     )
-    print(f"  estimated rig time {plan.printer_time_s / 3600:.2f} h")
+    print(f"  {printer_time_text(plan.printer_time_s, plan.n_presses)}")
     print(f"  resources (upper bounds): {protocol.resources.summary()}")
     print(f"  electrical: {protocol.electrical.summary()}")
     return 0

@@ -53,16 +53,45 @@ def _now_iso() -> str:
     return datetime.now(UTC).isoformat(timespec="microseconds")
 
 
-def request_control(folder: str | Path, action: str, *, by: str = "cli") -> ControlRequest:
-    """Write `action` (pause, continue or stop) as the campaign's control request, atomically."""
+def request_control(
+    folder: str | Path,
+    action: str,
+    *,
+    by: str = "cli",
+    wait_s: float = 0.0,
+    sleep: Callable[[float], None] = time.sleep,
+) -> ControlRequest:
+    """Write `action` (pause, continue or stop) as the campaign's control request, atomically.
+
+    A run that is starting has no manifest.json yet (its folder appears in one rename): the request waits up to
+    wait_s for it, so a pause sent as the run starts is kept and acted on before the first press. A campaign
+    already complete has nothing to pause: refused."""
     folder = Path(folder)
     if action not in ACTIONS:
         raise DataError(f"unknown control action {action!r}", field="action", fix=f"use one of {', '.join(ACTIONS)}")
-    if not (folder / "manifest.json").is_file():
+    manifest_path = folder / "manifest.json"
+    deadline = time.monotonic() + wait_s
+    while not manifest_path.is_file() and time.monotonic() < deadline:
+        sleep(min(POLL_S, max(0.0, deadline - time.monotonic())))
+    if not manifest_path.is_file():
+        waited = f" after waiting {wait_s:g} s" if wait_s > 0 else ""
         raise DataError(
-            "not a campaign folder (no manifest.json)",
+            f"no campaign runs in this folder yet (no manifest.json{waited}): the {action} was not recorded",
             file=str(folder),
-            fix="give the folder `neatskin campaign run --out` wrote",
+            field="manifest.json",
+            fix="start the campaign first (neatskin campaign run --out DIR); a request sent once it runs is acted "
+            "on before its first press. Or check the folder name",
+        )
+    try:
+        status = json.loads(manifest_path.read_text(encoding="utf-8")).get("status")
+    except (OSError, ValueError, AttributeError):
+        status = None
+    if status == "complete":
+        raise DataError(
+            f"the campaign is already complete: there is nothing to {action}",
+            file=str(manifest_path),
+            field="status",
+            fix=f"nothing to do; `neatskin dataset info {folder}` shows what it holds",
         )
     request = ControlRequest(action, secrets.token_hex(8), _now_iso(), by)
     earlier = [_as_dict(r) for r in read_requests(folder)][-(KEEP_REQUESTS - 1) :]

@@ -7,11 +7,14 @@ A folder is created in one step: lock, inputs/ and manifest.json are built under
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import shutil
 from pathlib import Path
 from typing import Any
+
+import pyarrow as pa
 
 from neatskin.datasets.durable import fsync_dir, write_bytes_durably, write_error
 from neatskin.datasets.lock import CampaignLock, lock_state
@@ -52,7 +55,7 @@ def check_folder(folder: Path, resume: bool) -> None:
         return
     if folder.exists() and any(folder.iterdir()):
         held, holder = lock_state(folder)
-        running = f" (a campaign is running in it: {holder})" if held else ""
+        running = f": another run holds this folder ({holder})" if held else ""
         raise ConfigError(
             f"the output folder {folder} already holds files{running}",
             field="--out",
@@ -124,6 +127,8 @@ def create_campaign_folder(protocol: CampaignProtocol, plan: Plan, folder: Path,
             os.rename(staging, folder)
             fsync_dir(folder.parent)
         except OSError as exc:
+            if exc.errno in (errno.ENOTEMPTY, errno.EEXIST):  # another run renamed its folder in first
+                check_folder(folder, resume=False)  # names the run that holds it
             raise write_error(exc, folder) from exc
         lock.moved_to(folder)
     except BaseException:
@@ -142,7 +147,7 @@ def _recorded_input_sha(folder: Path, manifest: dict) -> dict[str, str | None]:
     metadata (every press file carries the same references), so deleting a hash switches no check off."""
     try:
         metadata = read_metadata(folder)
-    except (DataError, OSError):
+    except (DataError, OSError, pa.ArrowException):  # a truncated presses.parquet: the manifest's hashes hold
         metadata = {}
     out: dict[str, str | None] = {}
     optional = [key for key in OPTIONAL_INPUT_KEYS if key in manifest or (folder / INPUTS_DIR / f"{key}.toml").exists()]

@@ -46,7 +46,9 @@ class ResourceEstimate:
     def summary(self) -> str:
         return (
             f"{self.presses} presses, <= {self.samples_per_press} samples ({self.bytes_per_press / 2**20:.1f} MiB) "
-            f"per press, {self.waveform_bytes / 2**30:.2f} GiB of waveforms, <= {self.rig_time_s / 3600:.2f} h"
+            f"per press, {self.waveform_bytes / 2**30:.2f} GiB of waveforms, rig time <= {self.rig_time_s / 3600:.2f} h "
+            "(a bound from the protocol alone: slowest feed, a bed-diagonal travel and 0.5 s of recording per "
+            "press, homing; the campaign cap checks it)"
         )
 
 

@@ -317,6 +317,7 @@ def resume_campaign(folder: str | Path, **kwargs: Any) -> CampaignResult:
                 fix="nothing to resume; check its files with: neatskin dataset validate " + str(folder),
             )
         kwargs.setdefault("dry_run", kind == "dry-run")
+        restore_consolidated(folder, manifest)  # a damaged presses.parquet of a finalize cut short: from its copy
         return run_campaign(load_inputs(folder), folder, resume=True, **kwargs)
 
 

@@ -220,16 +220,27 @@ class SkinWorker:
         if process is not None:
             process.join(0.5)
         code = None if process is None else process.exitcode
-        hint = (
-            ""
-            if self._ready
-            else " (it never started: a Python script that runs a campaign must guard its top level with "
-            '`if __name__ == "__main__":`, which multiprocessing\'s spawn re-imports, or set NEATSKIN_SKIN_WORKER=off)'
-        )
+        if self._ready:
+            hint = ""
+        elif code is not None and code < 0:  # a signal ended it while it started (a kill, the OOM killer)
+            hint = f" (it was stopped by signal {_signal_name(-code)} while it started; the campaign's code is fine)"
+        else:  # it exited by itself before it was ready: what a spawn re-importing an unguarded script does
+            hint = (
+                " (it never became ready: a Python script that runs a campaign must guard its top level with "
+                '`if __name__ == "__main__":`, which multiprocessing\'s spawn re-imports, or set '
+                "NEATSKIN_SKIN_WORKER=off)"
+            )
         return HardwareError(
             f"the dry run's skin worker (pid {self.pid}) ended (exit code {code}) before press {press_id}'s "
             f"estimates{hint}; {RESUME_HINT}"
         )
+
+
+def _signal_name(number: int) -> str:
+    try:
+        return signal.Signals(number).name
+    except ValueError:
+        return str(number)
 
 
 @contextlib.contextmanager

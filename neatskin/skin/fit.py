@@ -160,6 +160,7 @@ def load_campaign(folder: str | Path) -> tuple[Layout, dict, dict[str, np.ndarra
     layout = load_layout(folder / "inputs" / "layout.toml")
     dr = df[[c for c in df.columns if c.startswith("dR_ohm_")]].to_numpy(float)
     r = df[[c for c in df.columns if c.startswith("R_ohm_")]].to_numpy(float)
+    _refuse_nonfinite(df, table)
     interval_h = manifest.get("printer_time_estimate_s", 0.0) / max(len(df), 1) / 3600.0
     columns = {
         "x": df.x_mm.to_numpy(float),
@@ -171,6 +172,24 @@ def load_campaign(folder: str | Path) -> tuple[Layout, dict, dict[str, np.ndarra
         "dR": dr,
     }
     return layout, manifest, columns
+
+
+def _refuse_nonfinite(df, table: Path) -> None:
+    """One DataError naming every column with a NaN or an infinity: the fit has no use for them (a pair cut off
+    by a pinched channel is +inf: such a press carries no pinch to fit)."""
+    columns = ["x_mm", "y_mm", "depth_mm", *(c for c in df.columns if c.startswith(("R_ohm_", "dR_ohm_")))]
+    values = df[columns].to_numpy(float)
+    bad = ~np.isfinite(values)
+    if bad.any():
+        names = [c for c, b in zip(columns, bad.any(axis=0)) if b]
+        ids = df["press_id"].to_numpy()[bad.any(axis=1)][:8].tolist()
+        raise DataError(
+            f"the fit needs finite values: NaN or infinite in {', '.join(names[:5])}"
+            f"{f' (and {len(names) - 5} more columns)' if len(names) > 5 else ''} (press ids {ids})",
+            file=str(table),
+            field=names[0],
+            fix="`neatskin dataset validate` names every problem; re-press those presses or drop their rows",
+        )
 
 
 def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
