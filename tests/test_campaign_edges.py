@@ -42,7 +42,7 @@ def test_resume_restores_a_damaged_presses_parquet_from_its_copy(reference, tmp_
 def test_baselines_print_their_estimate_and_refuse_beyond_the_stated_maximum(reference, tmp_path, capsys):
     out = tmp_path / "report"
     argv = ["baselines", str(reference), "--out", str(out), "--no-progress", "--models", "ridge,knn"]
-    assert main([*argv, "--max-hours", "1e-9"]) == 2
+    assert main([*argv, "--max-hours", "1e-9"]) == 3  # a configuration error (the estimate is refused)
     err = capsys.readouterr().err
     assert f"baselines on {reference}: estimated" in err and "[--yes]" in err and "Traceback" not in err
     assert not (out / "report.md").exists() and not list(out.glob("*.png")) if out.exists() else True

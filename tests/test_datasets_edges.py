@@ -136,7 +136,7 @@ def test_merge_refuses_a_folder_validate_refuses_unless_told_and_recorded(paper_
     b = make_campaign(tmp_path / "b", paper_layout, "b", seed=2)
     set_value(b / "presses.parquet", "R_ohm_1_2", 0, 1e308)
     set_value(b / "presses.parquet", "dR_ohm_1_3", 1, np.inf)
-    assert main(["dataset", "merge", str(a), str(b), "-o", str(tmp_path / "m")]) == 2
+    assert main(["dataset", "merge", str(a), str(b), "-o", str(tmp_path / "m")]) == 5  # a data error
     err = capsys.readouterr().err
     _no_traceback(err)
     assert str(b) in err and "R_ohm_1_2" in err and "1e+308" in err and "--allow-invalid" in err
@@ -167,7 +167,7 @@ def test_split_and_export_refuse_non_finite_data_with_one_clear_error(paper_layo
     folder = make_campaign(tmp_path / "c", paper_layout)
     set_value(folder / "presses.parquet", "dR_ohm_2_6", 5, -np.inf)
     out = tmp_path / ("out" if command == "split" else "out.parquet")
-    assert main(["dataset", command, str(folder), "-o", str(out)]) == 2
+    assert main(["dataset", command, str(folder), "-o", str(out)]) == 5  # a data error
     err = capsys.readouterr().err
     _no_traceback(err)
     assert f"{command} refused" in err and "[dR_ohm_2_6]" in err and "press ids 5" in err
@@ -179,7 +179,7 @@ def test_skin_fit_with_nan_in_x_mm_ends_in_one_clear_error(paper_layout, tmp_pat
     (folder / "inputs").mkdir(exist_ok=True)
     shutil.copy(LAYOUT_PATH, folder / "inputs" / "layout.toml")
     set_value(folder / "presses.parquet", "x_mm", 2, np.nan)
-    assert main(["skin", "fit", str(folder)]) == 2
+    assert main(["skin", "fit", str(folder)]) == 5  # a data error
     err = capsys.readouterr().err
     _no_traceback(err)
     assert "[x_mm]" in err and "NaN or infinite in x_mm (press ids [2])" in err

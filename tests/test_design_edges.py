@@ -58,7 +58,7 @@ def test_a_study_named_escaped_writes_nothing_outside_the_output_folder(tmp_path
     path = _study_file(tmp_path, "../../../../escaped")
     before = _tree(tmp_path)
     monkeypatch.chdir(work)
-    assert main(["design", "study", str(path), "--no-progress", "--no-png"]) == 2
+    assert main(["design", "study", str(path), "--no-progress", "--no-png"]) == 3  # a configuration error
     assert "study.name" in capsys.readouterr().err
     assert _tree(tmp_path) == before  # nothing written anywhere, inside or out
 
@@ -89,7 +89,7 @@ def test_an_empty_study_file_is_refused_not_run_as_the_default_study(tmp_path, c
     with pytest.raises(ConfigError) as info:
         load_study(path)
     assert info.value.file == str(path) and "empty" in str(info.value) and "grid5.toml" in str(info.value)
-    assert main(["design", "study", str(path), "--out", str(tmp_path / "out")]) == 2
+    assert main(["design", "study", str(path), "--out", str(tmp_path / "out")]) == 3  # a configuration error
     assert not (tmp_path / "out").exists()
 
 
@@ -151,7 +151,7 @@ def test_the_default_job_count_is_the_cores_this_process_may_use(tmp_path, monke
 def test_the_estimate_is_printed_first_and_a_study_beyond_the_limit_needs_yes(tmp_path, capsys):
     path, _ = _study(tmp_path, TWO.replace("press_grid = 12", "press_grid = 10000"), "huge")
     out = tmp_path / "out"
-    assert main(["design", "study", str(path), "--out", str(out), "--no-progress"]) == 2
+    assert main(["design", "study", str(path), "--out", str(out), "--no-progress"]) == 3  # a configuration error
     err = capsys.readouterr().err
     first, refusal = err.strip().splitlines()[:2]
     assert first.startswith("design study huge: 2 candidate(s)") and "estimated" in first and " h " in first + " "
