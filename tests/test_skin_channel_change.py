@@ -109,3 +109,21 @@ def test_a_channel_shut_gives_exact_changes_and_zero_on_cut_pairs(paper_layout):
 def test_bad_input_is_refused(paper_layout, g_fix, factor, match):
     with pytest.raises(ValueError, match=match):
         channel_change_delta_ohm(paper_layout, g_fix(1.0 / paper_layout.channel_resistance_ohm), factor)
+
+
+def test_each_layout_gets_its_own_cached_incidence(paper_layout):
+    import gc
+
+    from neatskin.skin import network
+
+    g_paper = 1.0 / paper_layout.channel_resistance_ohm
+    first = channel_change_delta_ohm(paper_layout, g_paper, 1.5)
+    for size in (3, 4, 3):  # fresh layouts, some collected between calls (an id may be reused)
+        layout = grid_layout(size, size)
+        g = np.full(layout.n_channels, 1e-3)
+        r_eq = equivalent_resistance(layout, np.vstack([g, g * np.where(np.arange(layout.n_channels) == 0, 1 / 2, 1)]))
+        np.testing.assert_allclose(channel_change_delta_ohm(layout, g, 2.0)[0], r_eq[1] - r_eq[0], rtol=1e-11)
+        del layout
+        gc.collect()
+    np.testing.assert_array_equal(channel_change_delta_ohm(paper_layout, g_paper, 1.5), first)
+    assert network._INCIDENCE[id(paper_layout)][0]() is paper_layout

@@ -30,6 +30,7 @@ Two paths, picked by size (`equivalent_resistance(..., method="auto")`):
 from __future__ import annotations
 
 import math
+import weakref
 
 import numpy as np
 
@@ -202,12 +203,12 @@ def channel_change_delta_ohm(layout: Layout, conductance_s: np.ndarray, resistan
     a few ulps of each R_eq. A pair cut apart before and after gets 0 (the change does not connect it), never NaN.
     """
     g = np.asarray(conductance_s, dtype=float)
-    if g.shape != (layout.n_channels,) or not np.all(np.isfinite(g)) or np.any(g < 0):
+    g_min, g_max = (float(g.min()), float(g.max())) if g.shape == (layout.n_channels,) else (math.nan, math.nan)
+    if not (g_min >= 0 and g_max < math.inf):  # also false on NaN, and on a wrong shape
         raise ValueError(f"conductance_s must be ({layout.n_channels},) finite values >= 0, got shape {g.shape}")
     if not (math.isfinite(resistance_factor) and resistance_factor > 0):
         raise ValueError(f"resistance_factor must be finite and > 0, got {resistance_factor!r}")
     dg = g * (1.0 / resistance_factor - 1.0)
-    g_min, g_max = float(g.min()), float(g.max())
     if layout.n_junctions > DENSE_MAX_JUNCTIONS or not (g_min > 0 and g_max <= GROUNDED_MAX_SPREAD * g_min):
         states = np.tile(g, (layout.n_channels + 1, 1))
         states[np.arange(1, layout.n_channels + 1), np.arange(layout.n_channels)] += dg
@@ -223,10 +224,27 @@ def channel_change_delta_ohm(layout: Layout, conductance_s: np.ndarray, resistan
     return -(dg / (1.0 + dg * own))[:, None] * drop * drop
 
 
+# per layout object (by identity: hashing a Layout costs more than building these), dropped with the layout
+_INCIDENCE: dict[int, tuple[weakref.ref, tuple[np.ndarray, np.ndarray]]] = {}
+
+
 def _grounded_incidence(layout: Layout) -> tuple[np.ndarray, np.ndarray]:
     """The channel incidence vectors b_c and the pair vectors e_a - e_b over the junctions with the first
-    electrode's grounded (its row dropped). Built per call: a few microseconds, less than hashing the layout
-    for a cache."""
+    electrode's grounded (its row dropped), read only; cached per layout object."""
+    key = id(layout)
+    entry = _INCIDENCE.get(key)
+    if entry is not None and entry[0]() is layout:
+        return entry[1]
+    arrays = _build_grounded_incidence(layout)
+
+    def forget(_ref: weakref.ref, key: int = key) -> None:
+        _INCIDENCE.pop(key, None)
+
+    _INCIDENCE[key] = (weakref.ref(layout, forget), arrays)
+    return arrays
+
+
+def _build_grounded_incidence(layout: Layout) -> tuple[np.ndarray, np.ndarray]:
     n = layout.n_junctions
     ends = layout.channel_ends
     incidence = np.zeros((n, layout.n_channels))
@@ -237,7 +255,10 @@ def _grounded_incidence(layout: Layout) -> tuple[np.ndarray, np.ndarray]:
     pairs[elec[layout.pair_electrode_index[:, 0]], np.arange(len(layout.pairs))] = 1.0
     pairs[elec[layout.pair_electrode_index[:, 1]], np.arange(len(layout.pairs))] = -1.0
     free = np.arange(n) != int(elec[0])
-    return incidence[free], pairs[free]
+    out = (incidence[free], pairs[free])
+    for array in out:
+        array.flags.writeable = False
+    return out
 
 
 # ---- grounded: Kron reduction, then one batched inverse ----------------------------------
