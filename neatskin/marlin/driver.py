@@ -252,9 +252,10 @@ class MarlinDriver:
             return True
         if self._draining and self._protocol.drained:
             return True
-        self._collect()
-        if any(job in self._results for job in self._awaited):
-            return True
+        if self._protocol.has_events:
+            self._collect()
+            if any(job in self._results for job in self._awaited):
+                return True
         if self._progress_waiters and self.clock() - self._progress_at >= 0.1:
             self._progress_at = self.clock()
             return True

@@ -6,6 +6,7 @@ events: the protocol (linestate.LineProtocol) never mutates what the caller hand
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from neatskin.gcode.parse import GcodeLine
 from neatskin.marlin import errors as E
@@ -58,10 +59,10 @@ class Job:
     barrier: bool = False  # a probe whose echo proves that every line before it ran
 
 
-@dataclass(frozen=True)
-class Acknowledged:
+class Acknowledged(NamedTuple):
     """The printer acknowledged the job's line: what it printed before the `ok` (and data on the ok itself),
-    and its refusal text when it refused the command (`Unknown command`, `Home XYZ First`)."""
+    and its refusal text when it refused the command (`Unknown command`, `Home XYZ First`). A NamedTuple:
+    one is made per line, on the hot path."""
 
     job: Job
     line: int | None
@@ -69,8 +70,7 @@ class Acknowledged:
     rejected: str | None = None
 
 
-@dataclass(frozen=True)
-class Failed:
+class Failed(NamedTuple):
     """The job will not be acknowledged: the session failed, or it was taken back before it was sent."""
 
     job: Job

@@ -154,6 +154,8 @@ class LineProtocol:
         something or new work comes): a transport sleeps until it instead of polling."""
         if self.failure is not None:
             return None
+        if self._phase == "session" and self._resend.pending is None and self._drain_deadline is None:
+            return self._inflight[0].deadline if self._inflight else None  # the common case, per read
         if self._phase == "booting":
             settle = None if self._boot_seen_s is None else self._boot_seen_s + _BOOT_SETTLE_S
             return self._boot_deadline if settle is None else min(settle, self._boot_deadline)
@@ -223,6 +225,10 @@ class LineProtocol:
         self._fail_here(E.PortDead, detail)
 
     # ---- outputs ----------------------------------------------------------------------------
+
+    @property
+    def has_events(self) -> bool:
+        return bool(self._events)
 
     def events(self) -> list[Event]:
         """How jobs ended since the last call, in order (each job ends once: Acknowledged or Failed)."""
