@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from neatskin.skin.mechanics import SHUT_AREA_RATIO, Material, PressGeometry, SolverSettings, solve_press
+from neatskin.skin.fesetup import SHUT_AREA_RATIO, Material, PressGeometry, SolverSettings
 
 KERNEL_FORMAT = 1  # bump when the solver's output for the same settings changes
 PAPER_KERNEL = "paper_pinch_kernel.parquet"  # in neatskin/protocols/skins/
@@ -96,6 +96,7 @@ def compute_kernel(spec: KernelSpec, n_jobs: int = 2, progress=None) -> PinchKer
     from joblib import Parallel, delayed
 
     from neatskin import __version__
+    from neatskin.skin.mechanics import solve_press  # the solver (scipy.sparse, scikit-fem) only when computing
 
     run = Parallel(n_jobs=n_jobs, return_as="generator")
     results = []
