@@ -157,7 +157,7 @@ def fabrication_jacobian(skin, x_mm, y_mm, depth_mm, step: float = 0.01) -> np.n
     return np.stack(columns, axis=-1)
 
 
-def reference_positions_mm(protocol, count: int = 10000) -> np.ndarray:
+def reference_positions_mm(protocol, count: int = 5000) -> np.ndarray:
     """A large sample of the protocol's position strategy, with another seed: the prior over new positions."""
     import dataclasses
 
@@ -225,7 +225,7 @@ def write_physical_limit(folder: Path, protocol: Protocol, plan, rig) -> Path:
         "depth jitter, fluid drift and fabrication spread (log channel heights, prior std fabrication_std) as "
         "nuisances",
         "label_floor_new_positions_mean_mm": "label-noise floor for new positions (grouped split): Bayes mean "
-        "Euclidean error against the commanded position, prior = the position strategy (a 10,000-draw sample)",
+        "Euclidean error against the commanded position, prior = the position strategy (a 5,000-draw sample)",
         "label_floor_by_row_mean_mm": "label-noise floor for the split by row: the same with the prior = the "
         "campaign's own positions; *_rms_mm: the Bayes RMS error (posterior mean)",
         "landing_bound_known_skin_mm": "the same with the skin's fabrication known (a model trained on this skin "
