@@ -108,7 +108,9 @@ def skin_of(protocol, pinch_scale: float = 1.0):
     if pinch_scale == 1.0:
         return skin
     pinch = skin.pinch
-    field = next(f for f in ("pinch_gain", "max_fraction", "amplitude") if hasattr(pinch, f))
+    field = next((f for f in ("pinch_gain", "max_fraction", "amplitude") if hasattr(pinch, f)), None)
+    if field is None:  # a pinch kernel without a gain: say so rather than scale something else
+        raise TypeError(f"{type(pinch).__name__} has no pinch gain to scale (pinch_gain, max_fraction, amplitude)")
     return dataclasses.replace(skin, pinch=dataclasses.replace(pinch, **{field: getattr(pinch, field) * pinch_scale}))
 
 
