@@ -27,13 +27,24 @@ def smoke_limit(tmp_path_factory):
 
 def test_the_smoke_run_writes_both_bounds_with_what_was_assumed(smoke_limit):
     protocol, table = smoke_limit
-    assert table.column_names == ["position_id", "x_mm", "y_mm", "crb_mm", "crb_nuisance_mm"]
+    assert table.column_names[:5] == ["position_id", "x_mm", "y_mm", "crb_mm", "crb_nuisance_mm"]
+    assert table.column_names[5:] == [
+        "landing_bound_mm",
+        "landing_bound_known_skin_mm",
+        "label_floor_new_positions_mean_mm",
+        "label_floor_new_positions_rms_mm",
+        "label_floor_by_row_mean_mm",
+        "label_floor_by_row_rms_mm",
+    ]
     limit = table.to_pandas()
     assert sorted(limit.position_id) == list(range(6))
     assert np.isfinite(limit.crb_mm).all() and (limit.crb_mm > 0).all()
     meta = json.loads(table.schema.metadata[METADATA_KEY])
     assert meta["priors"] == {"depth_std_mm": 0.0, "drift_std": 0.0, "placement_std_mm": 0.0}
     assert "assumed" in meta["basis"] and meta["depth_mm"] == protocol.press.press.depth_mm
+    # the smoke scene is ideal: no placement error, so no label-noise floor; no fabrication spread
+    assert (limit.filter(like="label_floor_").to_numpy() == 0).all()
+    np.testing.assert_array_equal(limit.landing_bound_mm.to_numpy(), limit.landing_bound_known_skin_mm.to_numpy())
 
 
 def test_the_ideal_scene_has_no_nuisance_so_the_bounds_are_equal(smoke_limit):

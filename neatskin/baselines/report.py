@@ -32,6 +32,7 @@ from neatskin.baselines.evaluate import (
     repeat_splits,
     result_from_predictions,
 )
+from neatskin.baselines.floortext import Floors, add_floor_columns, below_label_floor, read_floors
 from neatskin.baselines.metrics import PROBE_RADIUS_MM
 from neatskin.baselines.models import (
     DESCRIPTIONS,
@@ -88,13 +89,18 @@ def bound_rms_mm(limit: pd.DataFrame | None, column: str = "crb_mm") -> float | 
 
 
 def results_table(
-    results: Iterable[ModelResult], bound: float | None, nuisance_bound: float | None = None
+    results: Iterable[ModelResult],
+    bound: float | None,
+    nuisance_bound: float | None = None,
+    floors: Floors | None = None,
 ) -> pd.DataFrame:
     """One row per model and split; `below_bound` marks memorisation: an RMS error under the electronics-only
     Cramér-Rao bound, or a median error under half of it (an unbiased estimator at the bound, Gaussian errors
     in 2-D, has a median error of 0.67 to 0.83 times its RMS: a median below half the bound cannot be one).
-    The bound with nuisances is a column beside it (`rms_over_crb_nuisance`), not a flag."""
-    table = pd.DataFrame([r.row() for r in results])
+    The bound with nuisances is a column beside it (`rms_over_crb_nuisance`), not a flag. With the floors of
+    physical_limit.parquet, an RMS error below the label-noise floor of the row's own split flags it too, and each
+    row gets its split's floor and its excess over it (`floortext.add_floor_columns`)."""
+    table = add_floor_columns(pd.DataFrame([r.row() for r in results]), floors)
     if nuisance_bound is not None:
         table["crb_nuisance_rms_mm"] = nuisance_bound
         table["rms_over_crb_nuisance"] = table["rms_error_mm"] / nuisance_bound if nuisance_bound > 0 else np.inf
@@ -104,6 +110,7 @@ def results_table(
         table["below_bound"] = (table["rms_error_mm"] < bound) | (table["median_error_mm"] < MEDIAN_BOUND_SHARE * bound)
     else:
         table["below_bound"] = False
+    table["below_bound"] = table["below_bound"] | below_label_floor(table)
     return table
 
 
@@ -156,10 +163,12 @@ def result_warnings(table: pd.DataFrame, data: BaselineData, bound: float | None
                 f"({size:.0f} mm): it extrapolates; read its figures as a failure, not as an error size"
             )
         if row.below_bound:
+            floor = getattr(row, "label_floor_rms_mm", 0.0)
             notes.append(
                 f"{row.model} ({row.split}): RMS error {row.rms_error_mm:.3g} mm, median {row.median_error_mm:.3g} mm "
-                f"against the electronics-only Cramér-Rao bound {bound:.3g} mm (RMS): no unbiased estimator of a new press can do "
-                "that; it memorises the training positions (repeats of a test position are in training)"
+                f"against the electronics-only Cramér-Rao bound {bound if bound is not None else float('nan'):.3g} mm "
+                f"(RMS) and its split's label-noise floor {floor:.3g} mm (RMS): no estimator of one press can do "
+                "that; it memorises the training positions or uses the campaign's order"
             )
     return notes
 
@@ -322,7 +331,7 @@ def run_baselines(
         results += [r for r in learned_results if r.split == s] + [r for r in physics_results if r.split == s]
     bound = bound_rms_mm(data.physical_limit)
     nuisance_bound = bound_rms_mm(data.physical_limit, "crb_nuisance_mm")
-    table = results_table(results, bound, nuisance_bound)
+    table = results_table(results, bound, nuisance_bound, read_floors(data.physical_limit))
     notes += result_warnings(table, data, bound)
     _warn(notes)
 

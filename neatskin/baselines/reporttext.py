@@ -16,6 +16,7 @@ import pandas as pd
 
 from neatskin.baselines.dataset import PHYSICAL_LIMIT_NAME, BaselineData
 from neatskin.baselines.evaluate import DESIGN_POSITIONS, DESIGN_PRESSES, PAPER_FRACTIONS
+from neatskin.baselines.floortext import floors_section, read_floors
 
 SPLIT_TEXT = {
     "grouped": "k-fold over positions: no test position is in training. The honest error for a press at a "
@@ -257,6 +258,7 @@ def markdown_report(
     ]
     if bound is not None:
         lines += _bound_text(bound, nuisance_bound, table)
+    lines += floors_section(table, read_floors(data.physical_limit))
     lm_note = (
         f"The LM network trains {lm_restarts} network(s) per repeat (best on validation)."
         if lm_restarts is not None

@@ -58,6 +58,17 @@ def register(subparsers) -> None:
     check.add_argument("protocol", type=Path, help="protocol TOML, e.g. protocols/paper.toml")
     check.set_defaults(handler=_check)
 
+    plan = sub.add_parser(
+        "plan", help="predicted error for new positions against rig hours, from simulated campaigns, before pressing"
+    )
+    plan.add_argument("protocol", type=Path)
+    plan.add_argument("--seeds", type=int, default=5, help="campaign seeds per size (default 5)")
+    plan.add_argument("--model", default="lm_network", help="the baseline fitted (default the paper's lm_network)")
+    plan.add_argument("--jobs", type=int, default=2, help="joblib processes (default 2)")
+    plan.add_argument("--no-adaptive", action="store_true", help="skip the adaptive design")
+    plan.add_argument("--out", type=Path, default=Path("campaign-plan"), help="folder for the CSV and PNG")
+    plan.set_defaults(handler=_plan)
+
 
 def _summary(result) -> str:
     rig_s = result.printer_time_s * result.written_now / result.planned if result.planned else 0.0
@@ -193,3 +204,11 @@ def _check(args: argparse.Namespace) -> int:
     print(f"  resources (upper bounds): {protocol.resources.summary()}")
     print(f"  electrical: {protocol.electrical.summary()}")
     return 0
+
+
+def _plan(args: argparse.Namespace) -> int:
+    from neatskin.rig.forecastcli import run_plan
+
+    return run_plan(
+        args.protocol, args.out, seeds=args.seeds, model=args.model, jobs=args.jobs, adaptive=not args.no_adaptive
+    )

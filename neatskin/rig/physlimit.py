@@ -1,5 +1,16 @@
-"""The physical limit of a dry run: per position, the Cramér-Rao bound on the position error that the
-simulated skin and its noise allow (physical_limit.parquet, beside the presses).
+"""The physical limit of a dry run: per position, the floors on the position error that the simulated skin, its
+noise and the labels allow (physical_limit.parquet, beside the presses).
+
+What each column measures (neatskin.baselines.floors has the mathematics):
+- `landing_bound_mm`, the landing-point bound: the Cramér-Rao bound on where the press landed, from its 28 dR, with
+  the electronics noise and the scene's depth jitter, fluid drift and fabrication spread (log channel heights) as
+  nuisances. It is what the skin and the electronics allow; it knows nothing of the labels.
+- `label_floor_new_positions_{mean,rms}_mm` and `label_floor_by_row_{mean,rms}_mm`, the label-noise floor: the Bayes
+  error against the commanded positions the labels hold, under the scene's placement error, with the prior over
+  commanded positions of each split (the position strategy for new positions, the campaign's positions for a split
+  by row). With no placement error they are 0.
+- `landing_bound_known_skin_mm`: the landing-point bound with the fabrication known (a model trained on this skin
+  has seen its channels); fabrication as a per-press nuisance is the bound for a model of another skin.
 
 Two bounds per position, both from `neatskin.skin.bound` with the same per-pair noise std:
 `crb_mm` with the electronics noise only (depth, drift and landing point known), and
@@ -99,6 +110,84 @@ def physical_limit_frame(
     )
 
 
+def floors_frame(
+    x_mm,
+    y_mm,
+    jacobian: np.ndarray,
+    noise_std_ohm: np.ndarray,
+    priors: NuisancePriors,
+    reference_xy_mm: np.ndarray,
+    *,
+    fabrication_jacobian: np.ndarray | None = None,
+    fabrication_std: float = 0.0,
+    seed: int = 0,
+):
+    """The landing-point bound and the label-noise floor per split, one row per position (columns as the module
+    says). jacobian: (positions, pairs, 4) `feature_jacobian`; fabrication_jacobian: (positions, pairs, channels)
+    d dR / d log h; reference_xy_mm: a large sample of the position strategy (the prior over new positions)."""
+    import pandas as pd
+
+    from neatskin.baselines.floors import label_noise_floor, landing_point_bound_mm
+
+    xy = np.column_stack([np.asarray(x_mm, float), np.asarray(y_mm, float)])
+    jac, nuisance = np.asarray(jacobian, float), [priors.depth_std_mm, priors.drift_std]
+    if fabrication_jacobian is not None and fabrication_std > 0:
+        jac = np.concatenate([jac, np.asarray(fabrication_jacobian, float)], axis=2)
+        nuisance += [fabrication_std] * fabrication_jacobian.shape[2]
+    if np.all(np.asarray(noise_std_ohm) > 0):
+        landing = landing_point_bound_mm(jac, noise_std_ohm, np.array(nuisance))
+        known_skin = landing_point_bound_mm(jacobian, noise_std_ohm, np.array(nuisance[:2]))
+    else:  # no measurement noise: an identifiable landing point is measured exactly
+        landing = known_skin = np.zeros(len(xy))
+    new = label_noise_floor(xy, reference_xy_mm, priors.placement_std_mm, seed=seed)
+    by_row = label_noise_floor(xy, xy, priors.placement_std_mm, seed=seed)
+    return pd.DataFrame(
+        {
+            "landing_bound_mm": landing,
+            "landing_bound_known_skin_mm": known_skin,
+            "label_floor_new_positions_mean_mm": new.mean_mm,
+            "label_floor_new_positions_rms_mm": new.rms_mm,
+            "label_floor_by_row_mean_mm": by_row.mean_mm,
+            "label_floor_by_row_rms_mm": by_row.rms_mm,
+        }
+    )
+
+
+def fabrication_jacobian(skin, x_mm, y_mm, depth_mm, step: float = 0.01) -> np.ndarray:
+    """d dR / d log(channel height) per channel, (positions, pairs, channels), by central differences on copies
+    of the skin with one channel's height factor scaled by exp(+-step)."""
+    import dataclasses
+
+    base = (
+        np.ones(skin.layout.n_channels)
+        if skin.channel_height_factor is None
+        else np.asarray(skin.channel_height_factor, float)
+    )
+    columns = []
+    for c in range(skin.layout.n_channels):
+        dr = []
+        for sign in (1.0, -1.0):
+            heights = base.copy()
+            heights[c] *= np.exp(sign * step)
+            s = dataclasses.replace(skin, channel_height_factor=tuple(heights))
+            dr.append(np.asarray(s.pair_resistance_ohm(x_mm, y_mm, depth_mm), float) - s.baseline_pair_resistance_ohm)
+        columns.append((dr[0] - dr[1]) / (2 * step))
+    return np.stack(columns, axis=-1)
+
+
+def reference_positions_mm(protocol, count: int = 5000) -> np.ndarray:
+    """A large sample of the protocol's position strategy, with another seed: the prior over new positions."""
+    import dataclasses
+
+    from neatskin.gcode.positions import generate_positions
+
+    spec = protocol.press.positions
+    if spec.strategy == "grid":  # a grid's new positions are its own: no other draw exists
+        return generate_positions(protocol.layout, spec).xy_mm
+    bigger = dataclasses.replace(spec, count=count, seed=spec.seed + 10**6, min_spacing_mm=0.0)
+    return generate_positions(protocol.layout, bigger).xy_mm
+
+
 def _bound_mm(jacobian: np.ndarray, noise_std_ohm: np.ndarray, priors: dict[str, float]) -> np.ndarray:
     """The bound per position; a scene without measurement noise (`noise = false`) measures an identifiable
     position, depth and drift exactly, so only the placement error (per axis, on top) is left."""
@@ -112,6 +201,7 @@ def write_physical_limit(
 ) -> Path:
     """Per position, the Cramér-Rao bounds on the position error that the simulated skin, its noise and
     the scene's nuisances allow."""
+    import pandas as pd
     import pyarrow as pa
 
     from neatskin.datasets.writer import write_table_durably  # pyarrow: this module stays numpy-only to import
@@ -129,10 +219,35 @@ def write_physical_limit(
         float(getattr(skin, "resistivity_tempco_per_k", RESISTIVITY_TEMPCO_PER_K)),
     )
     frame = physical_limit_frame(ids, x, y, jac, std, priors)
+    fabrication = float(getattr(protocol.scene, "fabrication_spread_fraction", 0.0))
+    fab_jac = fabrication_jacobian(skin, x, y, depth) if fabrication > 0 and hasattr(skin, "layout") else None
+    floors = floors_frame(
+        x,
+        y,
+        jac,
+        std,
+        priors,
+        reference_positions_mm(protocol),
+        fabrication_jacobian=fab_jac,
+        fabrication_std=fabrication,
+        seed=protocol.seed,
+    )
+    frame = pd.concat([frame, floors], axis=1)
     table = pa.Table.from_pandas(frame, preserve_index=False)
     meta = {
         "crb_mm": "electronics noise only: depth, drift and landing point known",
-        "crb_nuisance_mm": "depth, drift and placement as nuisance parameters with the priors below",
+        "crb_nuisance_mm": "depth, drift and placement as nuisance parameters with the priors below (kept for older "
+        "readers: its placement term is the label noise, see landing_bound_mm and label_floor_*)",
+        "landing_bound_mm": "landing-point bound: Cramér-Rao bound on where the press landed, with electronics noise, "
+        "depth jitter, fluid drift and fabrication spread (log channel heights, prior std fabrication_std) as "
+        "nuisances",
+        "label_floor_new_positions_mean_mm": "label-noise floor for new positions (grouped split): Bayes mean "
+        "Euclidean error against the commanded position, prior = the position strategy (a 5,000-draw sample)",
+        "label_floor_by_row_mean_mm": "label-noise floor for the split by row: the same with the prior = the "
+        "campaign's own positions; *_rms_mm: the Bayes RMS error (posterior mean)",
+        "landing_bound_known_skin_mm": "the same with the skin's fabrication known (a model trained on this skin "
+        "learns its channels): electronics noise, depth jitter and drift as nuisances",
+        "fabrication_std": fabrication,
         "priors": priors.as_kwargs(),
         "basis": priors.basis,
         "depth_mm": float(protocol.press.press.depth_mm),

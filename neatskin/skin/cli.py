@@ -135,7 +135,7 @@ def fit_handler(args: argparse.Namespace) -> int:
     print(f"skin fitted to {args.campaign} in {time.perf_counter() - t0:.1f} s (95 % intervals)")
     for name in ("pinch_gain", "decay_ratio", "placement_error_mm", "noise_ohm", "drift_per_h"):
         v = getattr(result, name)
-        print(f"  {name:<20s} {v.value:12.5g}   [{v.ci95[0]:.5g}, {v.ci95[1]:.5g}]")
+        print(f"  {name:<20s} {v.value:12.5g}   [{v.ci95[0]:.5g}, {v.ci95[1]:.5g}]{v.coverage_text()}")
     print(f"  correlation(pinch_gain, decay_ratio) = {result.pinch_correlation:+.2f}")
     print(f"  rms residual of the mean dR per position: {result.rms_residual_ohm:.3g} ohm")
     for note in result.notes:

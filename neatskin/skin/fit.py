@@ -28,6 +28,7 @@ returned as a number.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass, field
@@ -38,6 +39,7 @@ import numpy as np
 from neatskin.errors import DataError
 from neatskin.layout import Layout, load_layout
 from neatskin.skin.deformation import PinchParams
+from neatskin.skin.fitblur import PROFILE_ROUNDS, averaged_dr, coverage_of
 from neatskin.skin.model import SkinModel
 from neatskin.skin.network import equivalent_resistance
 
@@ -51,6 +53,10 @@ BOOTSTRAP_SEED = 2024  # fixed: one campaign always gets the same intervals
 class FittedValue:
     value: float
     ci95: tuple[float, float]
+    coverage: float | None = None  # measured coverage of the nominal 95 % interval where it falls short (fitblur)
+
+    def coverage_text(self) -> str:
+        return "" if self.coverage is None else f" (measured coverage {100 * self.coverage:.0f} %, not 95 %)"
 
 
 @dataclass(frozen=True)
@@ -73,7 +79,7 @@ class SkinFit:
         lines = [f"# skin profile fitted by `neatskin skin fit` to {self.source}", "[skin_profile]"]
         for name in ("pinch_gain", "decay_ratio", "placement_error_mm", "noise_ohm", "drift_per_h"):
             v = getattr(self, name)
-            lines.append(f"{name} = {v.value!r}  # 95 % CI {v.ci95[0]:.4g} .. {v.ci95[1]:.4g}")
+            lines.append(f"{name} = {v.value!r}  # 95 % CI {v.ci95[0]:.4g} .. {v.ci95[1]:.4g}{v.coverage_text()}")
         lines.append(
             "channel_resistance_ohm = [" + ", ".join(f"{c.value:.6g}" for c in self.channel_resistance_ohm) + "]"
         )
@@ -259,15 +265,25 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
             channel_height_factor=channel_heights,
         )
 
+    blur = [0.0]  # the placement error the mean dR is averaged over (errors in variables, `fitblur`)
+
     def pinch_model(theta, channel_heights=heights):
-        skin = skin_for(theta, channel_heights)
-        return skin.pair_resistance_ohm(px, py, pd_) - skin.baseline_pair_resistance_ohm
+        return averaged_dr(skin_for(theta, channel_heights), px, py, pd_, blur[0])
 
     def pinch_residual(theta, channel_heights=heights):
         model = pinch_model(theta, channel_heights)
         return np.where(np.isfinite(model), model - mean_dr, 0.0).ravel()
 
-    sol_p = least_squares(pinch_residual, [1.0, 0.5], bounds=([0.05, 0.05], [5.0, 5.0]), x_scale=[0.1, 0.1])
+    def fit_pinch(start):
+        return least_squares(pinch_residual, start, bounds=([0.05, 0.05], [5.0, 5.0]), x_scale=[0.1, 0.1])
+
+    sol_p = fit_pinch([1.0, 0.5])
+    for _ in range(PROFILE_ROUNDS):  # profile the placement error: s from the repeats' variance, the pinch at s
+        placement_sd = _placement_point(dr, inverse, counts, skin_for(sol_p.x).jacobian_mm(px, py, pd_))
+        if placement_sd == blur[0]:
+            break
+        blur[0] = placement_sd
+        sol_p = fit_pinch(sol_p.x)
     jac_p = np.asarray(sol_p.jac)
     to_theta = _identified_inverse(jac_p, ["pinch_gain", "decay_ratio"], source) @ jac_p.T  # d theta / d (-residual)
     # d residual / d log r, by forward differences (a channel's resistance up by `step` in log)
@@ -313,14 +329,18 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
     noise, placement = _placement_and_noise(dr, inverse, counts, slope)
     if placement.value == 0:
         notes.append("placement_error_mm is at its bound 0: the repeats' spread does not grow with the slope")
+
+    def stated(name: str, v: FittedValue) -> FittedValue:  # an interval that falls short says by how much
+        return dataclasses.replace(v, coverage=coverage_of(name, placement.value))
+
     return SkinFit(
         source=source,
-        channel_resistance_ohm=channels,
-        pinch_gain=_interval(sol_p.x[0], se_p[0], quantile),
-        decay_ratio=_interval(sol_p.x[1], se_p[1], quantile),
-        placement_error_mm=placement,
-        noise_ohm=noise,
-        drift_per_h=_interval(k, se_k, quantile),
+        channel_resistance_ohm=tuple(stated("channels", c) for c in channels),
+        pinch_gain=stated("pinch_gain", _interval(sol_p.x[0], se_p[0], quantile)),
+        decay_ratio=stated("decay_ratio", _interval(sol_p.x[1], se_p[1], quantile)),
+        placement_error_mm=stated("placement_error_mm", placement),
+        noise_ohm=stated("noise_ohm", noise),
+        drift_per_h=stated("drift_per_h", _interval(k, se_k, quantile)),
         pinch_correlation=correlation,
         rms_residual_ohm=float(np.sqrt(np.mean(sol_p.fun**2))),
         notes=tuple(notes),
@@ -349,6 +369,14 @@ def _variance_fit(design: np.ndarray, target: np.ndarray, position: np.ndarray) 
 
     coef, _ = nnls(design, target)
     return coef, np.sqrt(np.diag(_jackknife_covariance(design, target, position)))
+
+
+def _placement_point(dr: np.ndarray, inverse: np.ndarray, counts: np.ndarray, slope: np.ndarray) -> float:
+    """The placement error's point estimate alone (the variance regression, no bootstrap), mm."""
+    from scipy.optimize import nnls
+
+    design, target, _ = _variance_rows(_repeat_variance(dr, inverse, counts), np.nansum(slope**2, axis=-1), counts >= 2)
+    return float(np.sqrt(nnls(design, target)[0][1]))
 
 
 def _placement_and_noise(

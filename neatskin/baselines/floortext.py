@@ -1,0 +1,128 @@
+"""The floors of a report, read from physical_limit.parquet: the label-noise floor per split, the landing-point bound,
+each model's excess over its split's floor, and report.md's section that names them.
+
+`neatskin.baselines.floors` says what each floor measures; this module pools them over the positions and puts
+them beside the results.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from neatskin.baselines.floors import SPLIT_PRIOR, split_floor_column
+
+SECTION = "## Floors: label-noise floor and landing-point bound"
+SPLIT_NAMES = {"new_positions": "new positions (grouped split)", "by_row": "split by row (random, design)"}
+
+
+@dataclass(frozen=True)
+class Floors:
+    """Pooled over positions: the label-noise floor per prior ("new_positions", "by_row") as (mean, RMS) in mm,
+    and the landing-point bound as sqrt(mean bound^2)."""
+
+    label_mm: dict[str, tuple[float, float]]
+    landing_rms_mm: float
+    landing_known_skin_rms_mm: float | None = None
+
+    def of_split(self, split: str) -> tuple[float, float]:
+        return self.label_mm[SPLIT_PRIOR.get(split, "by_row")]
+
+
+def read_floors(limit: pd.DataFrame | None) -> Floors | None:
+    """The pooled floors of a physical limit frame; None when it predates them (no `landing_bound_mm`)."""
+    if limit is None or len(limit) == 0 or "landing_bound_mm" not in limit.columns:
+        return None
+    label = {}
+    for prior in ("new_positions", "by_row"):
+        mean = limit[f"label_floor_{prior}_mean_mm"].to_numpy(float)
+        rms = limit[f"label_floor_{prior}_rms_mm"].to_numpy(float)
+        label[prior] = (float(np.mean(mean)), float(np.sqrt(np.mean(rms**2))))
+    landing = limit["landing_bound_mm"].to_numpy(float)
+    known = None
+    if "landing_bound_known_skin_mm" in limit.columns:
+        known = float(np.sqrt(np.mean(limit["landing_bound_known_skin_mm"].to_numpy(float) ** 2)))
+    return Floors(label, float(np.sqrt(np.mean(landing**2))), known)
+
+
+def add_floor_columns(table: pd.DataFrame, floors: Floors | None) -> pd.DataFrame:
+    """label_floor_mean_mm / label_floor_rms_mm of each row's split, excess_mean_mm (mean error - floor mean),
+    excess_rms_mm, landing_bound_rms_mm."""
+    if floors is None or table.empty:
+        return table
+    table = table.copy()
+    per = [floors.of_split(str(s)) for s in table["split"]]
+    table["label_floor_mean_mm"] = [m for m, _ in per]
+    table["label_floor_rms_mm"] = [r for _, r in per]
+    table["excess_mean_mm"] = table["mean_error_mm"] - table["label_floor_mean_mm"]
+    table["excess_rms_mm"] = table["rms_error_mm"] - table["label_floor_rms_mm"]
+    table["landing_bound_rms_mm"] = floors.landing_rms_mm
+    return table
+
+
+def below_label_floor(table: pd.DataFrame) -> pd.Series:
+    """Rows whose RMS error is below the label-noise floor (RMS) of their own split."""
+    if "label_floor_rms_mm" not in table.columns:
+        return pd.Series(False, index=table.index)
+    floor = table["label_floor_rms_mm"].to_numpy(float)
+    return pd.Series((table["rms_error_mm"].to_numpy(float) < floor) & (floor > 0), index=table.index)
+
+
+def floors_section(table: pd.DataFrame, floors: Floors | None, campaign_seeds: int = 1) -> list[str]:
+    """report.md's section: both floors by name, per split, and each model's excess over its split's floor."""
+    if floors is None:
+        return []
+    lines = [
+        SECTION,
+        "",
+        "| floor | what it measures | mean mm | RMS mm |",
+        "|---|---|---:|---:|",
+    ]
+    for prior, name in SPLIT_NAMES.items():
+        mean, rms = floors.label_mm[prior]
+        lines.append(
+            f"| label-noise floor, {name} | Bayes error against the commanded positions the labels hold, under the "
+            f"scene's placement error, landing point known | {mean:.3g} | {rms:.3g} |"
+        )
+    lines += [
+        f"| landing-point bound | Cramér-Rao bound on where a press landed from its 28 dR: electronics noise, depth "
+        f"jitter, fluid drift and fabrication spread (per press) as nuisances | | {floors.landing_rms_mm:.3g} |",
+    ]
+    if floors.landing_known_skin_rms_mm is not None:
+        lines.append(
+            "| landing-point bound, this skin's fabrication known | the same for a model trained on this skin, "
+            f"which has seen its channels | | {floors.landing_known_skin_rms_mm:.3g} |"
+        )
+    lines += [
+        "",
+        "The label-noise floor is computed (Monte Carlo over landing points, `neatskin.baselines.floors`), not "
+        "assumed: for new positions the prior over where a press was commanded is the protocol's position strategy, "
+        "for a split by row it is the campaign's own positions, which a model can snap to. No model that sees one "
+        "press can beat the floor of its split; one that does (RMS below it) is flagged as memorisation: it uses "
+        "something beyond the press, e.g. the campaign's time order. The landing-point bound says what the skin "
+        "and electronics measure; the labels, not the skin, set the floor when it is far below the label floor.",
+        "",
+    ]
+    if {"label_floor_mean_mm", "excess_mean_mm"} <= set(table.columns):
+        lines += ["| model | split | mean error mm | its split's floor (mean) mm | excess mm | RMS excess mm |"]
+        lines += ["|---|---|---:|---:|---:|---:|"]
+        for row in table.itertuples(index=False):
+            lines.append(
+                f"| {row.model} | {row.split} | {row.mean_error_mm:.3g} | {row.label_floor_mean_mm:.3g} "
+                f"| {row.excess_mean_mm:+.3g} | {row.excess_rms_mm:+.3g} |"
+            )
+        lines.append("")
+    lines += [
+        f"Every interval in this report covers networks and splits of this one campaign ({campaign_seeds} campaign "
+        "seed); it does not cover the campaign draw (positions, placement and noise). "
+        "`benchmarks/bench_paper_seeds.py` gives the spread over campaign seeds.",
+        "",
+    ]
+    return lines
+
+
+def floor_column(split: str, stat: str = "rms") -> str:
+    """The physical_limit.parquet column behind a split's floor (for readers who want it per position)."""
+    return split_floor_column(split, stat)

@@ -1,0 +1,97 @@
+"""`neatskin campaign plan`: the simulated-campaign engine against the skin model it draws from, rig hours against
+the runner's plan, the hours-for-an-error interpolation, and the command end to end on a small protocol."""
+
+import dataclasses
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import PROTOCOLS
+
+from neatskin.cli import main
+from neatskin.rig.forecast import hours_for_error
+from neatskin.rig.protocol import load_protocol
+from neatskin.rig.runner import build_plan
+from neatskin.rig.simcampaign import CampaignSize, rig_hours, simulate_presses, skin_of, strategy_positions
+
+
+@pytest.fixture(scope="module")
+def paper():
+    return load_protocol(PROTOCOLS / "paper.toml")
+
+
+def test_the_protocols_own_size_takes_the_runners_rig_time(paper):
+    size = CampaignSize(paper.press.positions.count, paper.press.press.repeats, paper.press.press.depth_mm)
+    assert rig_hours(paper, size) == pytest.approx(build_plan(paper).printer_time_s / 3600, rel=1e-12)
+    assert rig_hours(paper, CampaignSize(100, 14, 3.5)) < rig_hours(paper, size)
+
+
+def test_an_ideal_press_is_the_skin_models_change(paper):
+    """No placement, jitter, drift or noise: the features are the skin model's dR at the commanded positions."""
+    scene = dataclasses.replace(
+        paper.scene,
+        placement_error_mm=0.0,
+        depth_jitter_mm=0.0,
+        temperature_drift_k_per_h=0.0,
+        evaporation_fraction_per_h=0.0,
+    )
+    protocol = dataclasses.replace(paper, scene=scene)
+    xy = strategy_positions(protocol, 7, 3)
+    got = simulate_presses(protocol, xy, 2, 3.5, 0, np.zeros(28), interval_s=7.78)
+    skin = skin_of(protocol)
+    expected = skin.pair_resistance_ohm(xy[:, 0], xy[:, 1], np.full(7, 3.5)) - skin.baseline_pair_resistance_ohm
+    np.testing.assert_allclose(got.features, np.repeat(expected, 2, axis=0), rtol=1e-12, atol=1e-12)
+    assert got.groups.tolist() == [0, 0, 1, 1, 2, 2, 3, 3, 4, 4, 5, 5, 6, 6]
+    np.testing.assert_array_equal(got.landed_mm, got.commanded_mm)
+
+
+def test_the_placement_error_has_the_scenes_spread(paper):
+    xy = strategy_positions(paper, 50, 1)
+    got = simulate_presses(paper, xy, 40, 3.5, 0, np.full(28, 0.5))
+    offsets = got.landed_mm - got.commanded_mm
+    assert offsets.std(axis=0) == pytest.approx([1.35, 1.35], rel=0.05)  # 2,000 draws: about 1.6 % std error
+
+
+def test_hours_for_an_error_interpolates_in_log_hours_along_the_envelope():
+    frame = pd.DataFrame(
+        {
+            "design": ["random"] * 4,
+            "depth_mm": [3.5] * 4,
+            "rig_hours": [1.0, 4.0, 2.0, 8.0],
+            "mean_error_mm": [4.0, 2.0, 5.0, 1.5],
+        }
+    )
+    # the envelope: 2 h can do what 1 h does (4 mm); 3 mm is halfway from 4 mm at 2 h to 2 mm at 4 h, in log h
+    assert hours_for_error(frame, 3.0) == pytest.approx(np.sqrt(2.0 * 4.0))
+    assert hours_for_error(frame, 4.5) == pytest.approx(1.0)
+    assert hours_for_error(frame, 1.0) is None
+
+
+def test_campaign_plan_prints_sizes_with_rig_hours_and_errors(tmp_path, capsys):
+    code = main(
+        [
+            "campaign",
+            "plan",
+            str(PROTOCOLS / "smoke.toml"),
+            "--seeds",
+            "2",
+            "--model",
+            "knn",
+            "--jobs",
+            "1",
+            "--out",
+            str(tmp_path),
+        ]
+    )
+    out = capsys.readouterr().out
+    assert code == 0
+    rows = [line for line in out.splitlines() if line.startswith("random ")]
+    assert len(rows) >= 4 and all(len(r.split()) >= 8 for r in rows)
+    frame = pd.read_csv(tmp_path / "campaign_plan.csv")
+    assert (frame["seeds"] == 2).all() and (frame["rig_hours"] > 0).all() and (frame["mean_error_mm"] > 0).all()
+    assert (tmp_path / "campaign_plan.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_campaign_plan_refuses_one_seed(tmp_path, capsys):
+    assert main(["campaign", "plan", str(PROTOCOLS / "smoke.toml"), "--seeds", "1", "--out", str(tmp_path)]) == 2
+    assert "--seeds" in capsys.readouterr().err
