@@ -20,27 +20,30 @@ def bad(line: bytes) -> bytes:
     return head + b"*" + str((int(cs) + 1) % 256).encode() + b"\n"
 
 
-# (bytes written, the quiet time in s after which the answer is taken to be complete)
+# (bytes written, the quiet time in s after which the answer is taken to be complete). A line that is answered
+# with an `ok` ends its read at the `ok`, so its quiet time only guards against an answer that never comes: it is
+# long, so that a loaded machine pausing the firmware between two lines of an answer (M115's) cannot cut it.
+OK_WAIT_S = 3.0
 SCRIPT: list[tuple[bytes, float]] = [
-    (b"M110 N0\n", 0.3),
-    (frame("M115", 1), 0.3),
-    (frame("M114", 2), 0.3),
-    (frame("M118 E1 hi", 3), 0.3),
-    (frame("M118 A1 hi", 4), 0.3),
-    (frame("M118 hi", 5), 0.3),
-    (frame("M118 E1 M112 in text", 6), 0.3),
-    (frame("G4 P10", 7), 0.3),
-    (frame("M400", 8), 0.3),
-    (frame("M111 S1", 9), 0.3),
-    (frame("M118 E1 x", 10), 0.3),
-    (bad(frame("G92 X10 Y10 Z10", 11)), 0.3),
-    (frame("M118 E1 skipped", 12), 0.3),
-    (frame("G92 X10 Y10 Z10", 11), 0.3),
-    (frame("M114", 12), 0.3),
-    (frame("M400", 13), 0.3),
-    (frame("G999", 14), 0.3),
-    (frame("M111 S0", 15), 0.3),
-    (frame("M118 E1 y", 16), 0.3),
+    (b"M110 N0\n", OK_WAIT_S),
+    (frame("M115", 1), OK_WAIT_S),
+    (frame("M114", 2), OK_WAIT_S),
+    (frame("M118 E1 hi", 3), OK_WAIT_S),
+    (frame("M118 A1 hi", 4), OK_WAIT_S),
+    (frame("M118 hi", 5), OK_WAIT_S),
+    (frame("M118 E1 M112 in text", 6), OK_WAIT_S),
+    (frame("G4 P10", 7), OK_WAIT_S),
+    (frame("M400", 8), OK_WAIT_S),
+    (frame("M111 S1", 9), OK_WAIT_S),
+    (frame("M118 E1 x", 10), OK_WAIT_S),
+    (bad(frame("G92 X10 Y10 Z10", 11)), OK_WAIT_S),
+    (frame("M118 E1 skipped", 12), OK_WAIT_S),
+    (frame("G92 X10 Y10 Z10", 11), OK_WAIT_S),
+    (frame("M114", 12), OK_WAIT_S),
+    (frame("M400", 13), OK_WAIT_S),
+    (frame("G999", 14), OK_WAIT_S),
+    (frame("M111 S0", 15), OK_WAIT_S),
+    (frame("M118 E1 y", 16), OK_WAIT_S),
     (frame("M112", 17), 1.0),
     (frame("M999", 18), 0.5),
     (b"M999\n", 0.5),
