@@ -193,3 +193,26 @@ def test_real_firmware_with_the_simulated_daq(tmp_path):
     dry_run(protocol, dry)
     assert program_of(campaign) == program_of(sent_commands(dry / "wire.log"))
     pd.testing.assert_frame_equal(signals(out), signals(dry))
+
+
+def test_resume_keeps_the_simulated_daq(tmp_path):
+    """An interrupted hardware-in-the-loop campaign resumes with the DAQ it recorded (not the NI default) and
+    ends with what an uninterrupted dry run records."""
+    protocol = small_protocol(tmp_path, count=3, repeats=1)
+    printer = SimulatedPrinter(load_printer_profile(PROTOCOLS / "printers" / "paper.toml"), advanced_ok=True)
+    port = printer.start_pty()
+    out = tmp_path / "hil"
+    try:
+        first = run_campaign(
+            load_protocol(protocol), out, dry_run=False, port=port, daq_kind="simulated", progress=False, limit=1
+        )
+        assert first.completed == 1
+        argv = ["campaign", "resume", str(out), "--port", port, "--no-report", "-q"]
+        assert main(argv) == 0
+    finally:
+        printer.stop()
+    assert_simulated_daq(out)
+    assert main(["dataset", "validate", str(out)]) == 0
+    dry = tmp_path / "dry"
+    dry_run(protocol, dry)
+    pd.testing.assert_frame_equal(signals(out), signals(dry))

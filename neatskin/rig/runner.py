@@ -323,6 +323,9 @@ def resume_campaign(folder: str | Path, **kwargs: Any) -> CampaignResult:
                 fix="nothing to resume; check its files with: neatskin dataset validate " + str(folder),
             )
         kwargs.setdefault("dry_run", kind == "dry-run")
+        rig = manifest.get("rig")
+        if kind == "real" and isinstance(rig, dict) and rig.get("daq") == "simulated":  # a real printer, no DAQ yet
+            kwargs.setdefault("daq_kind", "simulated")
         return run_campaign(load_inputs(folder), folder, resume=True, **kwargs)
 
 
