@@ -102,6 +102,11 @@ def _scene_lines(manifest: dict[str, Any]) -> list[str]:
             f"depth jitter {skin.get('depth_jitter_mm')} mm, fluid drift {skin.get('temperature_drift_k_per_h')} K/h. "
             "Every scene parameter is in `neatskin_manifest.json` (`rig.skin`).",
         ]
+    if rig.get("daq") == "simulated":  # hardware in the loop: the printer's motion is real, the signals are not
+        return [
+            f"**A real printer with a simulated skin and DAQ** (printer on `{rig.get('printer')}`): the motion is "
+            "the printer's, every resistance and force is simulated; not a physical sensor."
+        ]
     return [f"**Recorded on the real rig** (DAQ `{rig.get('daq')}`)."]
 
 

@@ -102,6 +102,28 @@ def daq_config(protocol: CampaignProtocol) -> DaqConfig:
     )
 
 
+def open_printer(
+    protocol: CampaignProtocol,
+    port: str,
+    closers: list[Callable[[], None]],
+    baud_rate: int | None = None,
+    connect_timeout_s: float = 5.0,
+    wire_log: str | PathLike[str] | None = None,
+) -> MarlinDriver:
+    """The campaign's driver on a real port, connected; its close goes on `closers` as soon as it is open.
+    The profile's RX_BUFFER_SIZE bounds the bytes in flight (a stock board loses what overflows its ring)."""
+    driver = MarlinDriver.open(
+        port,
+        baud_rate or protocol.printer.baud_rate,
+        wire_log=wire_log,
+        config=DriverConfig(max_in_flight=CAMPAIGN_MAX_IN_FLIGHT),
+        rx_buffer_size=protocol.printer.rx_buffer_size,
+    )
+    closers.append(driver.close)
+    driver.connect(boot_timeout_s=connect_timeout_s)
+    return driver
+
+
 def build_real_rig(
     protocol: CampaignProtocol,
     plan: Plan,
@@ -112,17 +134,11 @@ def build_real_rig(
     connect_timeout_s: float = 5.0,
     wire_log: str | PathLike[str] | None = None,
 ) -> Rig:
-    """The printer on a serial port and the DAQ; errors are HardwareErrors raised before any motion."""
+    """The printer on a serial port and the DAQ; errors are HardwareErrors raised before any motion.
+    The simulated DAQ on a real port is neatskin.rig.hilrig's (the runner builds it there)."""
     closers: list[Callable[[], None]] = []
     try:  # the printer first: a port that does not answer is the commonest set-up mistake
-        driver = MarlinDriver.open(
-            port,
-            baud_rate or protocol.printer.baud_rate,
-            wire_log=wire_log,
-            config=DriverConfig(max_in_flight=CAMPAIGN_MAX_IN_FLIGHT),
-        )
-        closers.append(driver.close)
-        driver.connect(boot_timeout_s=connect_timeout_s)
+        driver = open_printer(protocol, port, closers, baud_rate, connect_timeout_s, wire_log)
         daq = open_daq(daq_kind, daq_config(protocol))
         closers.append(daq.close)
     except HardwareError:

@@ -23,7 +23,12 @@ def register(subparsers) -> None:
         help="simulated printer (on a pseudo-terminal) and simulated skin and DAQ; no hardware",
     )
     rig.add_argument("--port", help="the printer's serial port, e.g. /dev/ttyUSB0 (real rig)")
-    run.add_argument("--daq", default="ni", choices=("ni", "simulated"), help="DAQ backend of a real run")
+    run.add_argument(
+        "--daq",
+        default="ni",
+        choices=("ni", "simulated"),
+        help="DAQ of a real run: ni, or simulated (the simulated skin follows the printer's motion; no DAQ wired)",
+    )
     add_out(run, "campaign folder (default: runs/<name>-<date>-<time>)")
     add_connect_timeout(run, None, "seconds to wait for the printer's boot banner (real rig default 5)")
     run.add_argument("--limit", type=int, help="stop after this many presses (the campaign stays resumable)")

@@ -164,6 +164,8 @@ def _run_locked(
             "seed": protocol.seed,
             "rig": rig.kind,
         }
+        if rig.kind == "real" and rig.description.get("daq") == "simulated":  # a real printer, a simulated skin
+            metadata["daq"] = "simulated"
         resumed: dict[str, Any] = {} if created else {"resumed_at": utc_now_iso()}
         manifest = update_manifest(folder, status="running", rig=rig.description, **resumed)
         known_raw = manifest.get("parts_sha256")
@@ -293,6 +295,10 @@ def _open_rig(
             field="--port",
             fix="pass --port /dev/ttyUSB0 (or --dry-run for the simulated rig)",
         )
+    if daq_kind == "simulated":  # a real printer before the DAQ is wired: the simulated skin follows its motion
+        from neatskin.rig.hilrig import build_hil_rig
+
+        return build_hil_rig(protocol, plan, port=port, wire_log=wire_log, **timeout)
     return build_real_rig(protocol, plan, port=port, daq_kind=daq_kind, wire_log=wire_log, **timeout)
 
 
@@ -318,6 +324,9 @@ def resume_campaign(folder: str | Path, **kwargs: Any) -> CampaignResult:
             )
         kwargs.setdefault("dry_run", kind == "dry-run")
         restore_consolidated(folder, manifest)  # a damaged presses.parquet of a finalize cut short: from its copy
+        rig = manifest.get("rig")
+        if kind == "real" and isinstance(rig, dict) and rig.get("daq") == "simulated":  # a real printer, no DAQ yet
+            kwargs.setdefault("daq_kind", "simulated")
         return run_campaign(load_inputs(folder), folder, resume=True, **kwargs)
 
 
