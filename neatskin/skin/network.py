@@ -260,13 +260,17 @@ def _grounded(layout: Layout, g: np.ndarray) -> np.ndarray:
     diag = np.arange(k)
     lap[:, diag, diag] = -lap.sum(axis=2)
     a, b = layout.pair_electrode_index[:, 0], layout.pair_electrode_index[:, 1]
-    # press by press (never by batch), so that a press gets the same bits whatever batch it comes in
-    one = np.all(lap[:, 0, 1:] != 0, axis=1)  # the usual press: electrode 0 linked to every other one
+    # Routed press by press (never by batch), so that a press gets the same bits whatever batch it comes in.
+    # Every channel conducting: one group (Layout refuses a disconnected network), the plain grounding at electrode 0.
+    one = np.all(g > 0, axis=1)
     if np.all(one):
         return _one_group(lap, a, b)
+    root = np.zeros(lap.shape[:2], dtype=np.intp)
+    root[~one] = _group_roots(lap[~one])
+    one = np.all(root == 0, axis=1)  # channels shut, but every electrode still joined to electrode 0
     r = np.empty((lap.shape[0], a.size))
     r[one] = _one_group(lap[one], a, b)
-    r[~one] = _groups(lap[~one], a, b)
+    r[~one] = _groups(lap[~one], root[~one], a, b)
     return r
 
 
@@ -277,19 +281,24 @@ def _one_group(lap: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return z[:, a, a] + z[:, b, b] - 2.0 * z[:, a, b]
 
 
-def _groups(lap: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """R_ab, inf across groups, from the electrodes' Laplacians (presses, k, k) of networks that may be cut apart.
+def _group_roots(lap: np.ndarray) -> np.ndarray:
+    """The lowest electrode of each electrode's group, (presses, k), from the electrodes' Laplacians (presses, k, k).
 
     The GTH reduction leaves a reduced conductance exactly 0 where no path joins two electrodes through the other
-    junctions, so the reduced graph's components are the electrodes' groups: the transitive closure by log2 k
-    boolean squarings. Each group is grounded at its lowest electrode (its row and column become the identity's),
-    which leaves a non-singular matrix whatever was cut off."""
+    junctions, so the reduced graph's components are the electrodes' groups: its transitive closure by log2 k
+    boolean squarings."""
     k = lap.shape[1]
-    diag = np.arange(k)
     linked = (lap != 0) | np.eye(k, dtype=bool)  # every electrode reaches itself
     for _ in range(max(1, math.ceil(math.log2(max(k - 1, 1))))):
         linked = np.matmul(linked, linked)
-    root = np.argmax(linked, axis=2)  # (presses, k): the lowest electrode of each one's group
+    return np.argmax(linked, axis=2)
+
+
+def _groups(lap: np.ndarray, root: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """R_ab, inf across groups, for networks cut into groups (root: each electrode's group's lowest electrode).
+    Each group is grounded at its lowest electrode (its row and column become the identity's), which leaves a
+    non-singular matrix whatever was cut off."""
+    diag = np.arange(lap.shape[1])
     keep = root != diag  # False on the grounded electrodes
     keep2 = keep[:, :, None] & keep[:, None, :]
     lap = lap * keep2
