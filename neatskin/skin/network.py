@@ -268,8 +268,11 @@ def _grounded(layout: Layout, g: np.ndarray) -> np.ndarray:
     root = np.zeros(lap.shape[:2], dtype=np.intp)
     root[~one] = _group_roots(lap[~one])
     one = np.all(root == 0, axis=1)  # channels shut, but every electrode still joined to electrode 0
+    if np.all(one):
+        return _one_group(lap, a, b)
     r = np.empty((lap.shape[0], a.size))
-    r[one] = _one_group(lap[one], a, b)
+    if np.any(one):
+        r[one] = _one_group(lap[one], a, b)
     r[~one] = _groups(lap[~one], root[~one], a, b)
     return r
 
