@@ -91,7 +91,7 @@ PAPER_RATIONALS = {
 }
 
 
-@pytest.mark.parametrize("method", ["dense", "sparse"])
+@pytest.mark.parametrize("method", ["dense", "sparse", "grounded"])
 @pytest.mark.parametrize("r_ohm", [1.0, 3750.0, 1e-3])
 def test_paper_rationals_every_pair(paper_layout, method, r_ohm):
     r = equivalent_resistance(paper_layout, np.full((1, 12), 1.0 / r_ohm), method=method)[0]
@@ -194,13 +194,14 @@ def test_foster_theorem_on_the_sparse_path():
 # ---- cut networks -------------------------------------------------------------------------
 
 
-def test_pinched_shut_channels_isolate_an_electrode(paper_layout):
+@pytest.mark.parametrize("method", ["auto", "grounded", "dense"])
+def test_pinched_shut_channels_isolate_an_electrode(paper_layout, method):
     """Electrode 2 (J20) hangs on channels J10-J20 and J20-J21: shut both, and exactly its 7 pairs open."""
     names = [c.name for c in paper_layout.channels]
     shut = [names.index("J10-J20"), names.index("J20-J21")]
     g = np.ones(12)
     g[shut] = 0.0
-    r = equivalent_resistance(paper_layout, g)
+    r = equivalent_resistance(paper_layout, g, method=method)
     with_2 = np.array([2 in (p.i, p.j) for p in paper_layout.pairs])
     assert np.all(np.isinf(r[with_2])) and not np.any(np.isnan(r))
     assert np.all(np.isfinite(r[~with_2]))
@@ -378,7 +379,7 @@ def test_auto_keeps_stiff_grids_on_the_exact_path():
 
 def test_grounded_path_matches_gth_on_ordinary_presses(paper_layout):
     """The small-batch path (Kron reduction + one batched inverse) agrees with the GTH path to ~1e-14 and is what
-    "auto" picks for a press's few states; a channel pinched shut or a stiff batch stays on GTH."""
+    "auto" picks for a press's few states, a channel pinched shut included; a stiff batch stays on GTH."""
     import neatskin.skin.network as network
 
     rng = np.random.default_rng(4)
@@ -389,16 +390,114 @@ def test_grounded_path_matches_gth_on_ordinary_presses(paper_layout):
     np.testing.assert_array_equal(equivalent_resistance(paper_layout, g), grounded)
     shut = g.copy()
     shut[:, 0] = 0.0
+    shut[::2, 7] = 0.0
     np.testing.assert_array_equal(
-        equivalent_resistance(paper_layout, shut), equivalent_resistance(paper_layout, shut, method="dense")
+        equivalent_resistance(paper_layout, shut), equivalent_resistance(paper_layout, shut, method="grounded")
+    )
+    np.testing.assert_allclose(
+        equivalent_resistance(paper_layout, shut), equivalent_resistance(paper_layout, shut, method="dense"), rtol=1e-13
+    )
+    stiff = shut.copy()
+    stiff[:, 3] *= 1e12  # a shut channel and a near-short: GTH, bit for bit
+    np.testing.assert_array_equal(
+        equivalent_resistance(paper_layout, stiff), equivalent_resistance(paper_layout, stiff, method="dense")
     )
 
 
+@pytest.mark.parametrize("shut", [False, True])  # some presses with channels shut, some cut off
 @pytest.mark.parametrize("spread", [3.0, 1e5])  # the grounded path, then GTH
-def test_a_press_gets_the_same_bits_whatever_batch_it_is_in(paper_layout, spread):
+def test_a_press_gets_the_same_bits_whatever_batch_it_is_in(paper_layout, spread, shut):
     rng = np.random.default_rng(1)
     g = 1.0 / (paper_layout.channel_resistance_ohm * rng.uniform(1.0, spread, (20, 12)))
+    if shut:
+        g[rng.random((20, 12)) < 0.3] = 0.0
+        assert 0 < np.isinf(equivalent_resistance(paper_layout, g)).any(axis=1).sum() < 20
     batch = equivalent_resistance(paper_layout, g)
     for k in range(20):
         assert equivalent_resistance(paper_layout, g[k]).tobytes() == batch[k].tobytes()
         assert equivalent_resistance(paper_layout, g[k : k + 3])[0].tobytes() == batch[k].tobytes()
+
+
+# ---- channels pinched shut on the fast (grounded) path, against exact references ------------
+
+
+def _shut(layout, *names):
+    g = np.ones(layout.n_channels)
+    g[[[c.name for c in layout.channels].index(name) for name in names]] = 0.0
+    return g
+
+
+def _assert_exact(r, exact, rel):
+    for value, ref in zip(r, exact):
+        if ref is None:
+            assert value == np.inf
+        else:
+            assert value == pytest.approx(float(ref), rel=rel, abs=0)
+
+
+@pytest.mark.parametrize(
+    "names",
+    [
+        ("J11-J21",),  # one channel shut, every electrode still connected
+        ("J01-J11", "J11-J12"),  # two shut
+        ("J00-J10", "J00-J01"),  # electrode 8 (J00) cut off
+        ("J10-J20", "J20-J21", "J02-J12", "J01-J02"),  # two electrodes cut off, each alone
+    ],
+)
+@pytest.mark.parametrize("r_ohm", [1.0, 3750.0])
+def test_shut_channels_on_the_grounded_path_match_exact_rationals(paper_layout, names, r_ohm):
+    g = _shut(paper_layout, *names) / r_ohm
+    exact = exact_pair_resistance(paper_layout, g)  # exact rationals of the network with those channels removed
+    r = equivalent_resistance(paper_layout, g)
+    np.testing.assert_array_equal(r, equivalent_resistance(paper_layout, g, method="grounded"))  # auto took it
+    _assert_exact(r, exact, rel=1e-14)
+    assert not np.any(np.isnan(r))
+
+
+def test_network_split_in_two_groups_by_hand(paper_layout):
+    """Shut the three channels between the left column and the rest: the left column (electrodes 6, 7, 8 on
+    J02, J01, J00) is a chain of two channels, R(6,7) = R(7,8) = R and R(6,8) = 2R exactly; every pair across is
+    open; the pairs within the right-hand 2 x 3 grid match the Fraction reference."""
+    r_ohm = 3750.0
+    g = _shut(paper_layout, "J00-J10", "J01-J11", "J02-J12") / r_ohm
+    r = equivalent_resistance(paper_layout, g)
+    pair = {(p.i, p.j): k for k, p in enumerate(paper_layout.pairs)}
+    assert r[pair[(6, 7)]] == pytest.approx(r_ohm, rel=1e-14, abs=0)
+    assert r[pair[(7, 8)]] == pytest.approx(r_ohm, rel=1e-14, abs=0)
+    assert r[pair[(6, 8)]] == pytest.approx(2 * r_ohm, rel=1e-14, abs=0)
+    left = {6, 7, 8}
+    for (i, j), k in pair.items():
+        assert np.isinf(r[k]) == ((i in left) != (j in left))
+    _assert_exact(r, exact_pair_resistance(paper_layout, g), rel=1e-14)
+
+
+@st.composite
+def sparse_networks(draw):
+    """Random connected graphs with channels within the grounded path's spread, some of them shut (exactly 0)."""
+    layout, _ = draw(networks())
+    g = 10.0 ** np.array(draw(st.lists(st.floats(0, 3), min_size=layout.n_channels, max_size=layout.n_channels)))
+    shut = draw(st.lists(st.booleans(), min_size=layout.n_channels, max_size=layout.n_channels))
+    g[np.array(shut)] = 0.0
+    return layout, g
+
+
+@settings(max_examples=60, deadline=None)
+@given(sparse_networks())
+def test_grounded_path_with_shut_channels_matches_the_fraction_reference(net):
+    layout, g = net
+    r = equivalent_resistance(layout, g, method="grounded")
+    np.testing.assert_array_equal(r, equivalent_resistance(layout, g))  # what auto picks
+    _assert_exact(r, exact_pair_resistance(layout, g), rel=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(sparse_networks(), st.data())
+def test_rayleigh_monotonicity_with_shut_channels(net, data):
+    """Raising any channel's resistance, by a factor or to infinity (shut), never lowers any R_eq."""
+    layout, g = net
+    k = data.draw(st.integers(0, layout.n_channels - 1))
+    raised = g.copy()
+    raised[k] = 0.0 if data.draw(st.booleans()) else g[k] / data.draw(st.floats(1.0, 10.0))
+    before, after = equivalent_resistance(layout, np.stack([g, raised]))
+    assert np.all(after >= before * (1 - 1e-12))
+    assert np.all(np.isinf(after[np.isinf(before)]))

@@ -15,11 +15,14 @@ Two paths, picked by size (`equivalent_resistance(..., method="auto")`):
   halves), vectorised over the batch of presses. A pair cut apart is left with exactly 0
   conductance and gets `inf`, never NaN.
 - grounded (small batches of ordinary presses, the dry run's per-press call): the same Kron
-  reduction onto the electrodes, then one batched inverse of the electrodes' grounded Laplacian,
-  R_ab = Z_aa + Z_bb - 2 Z_ab. A handful of numpy calls instead of the divide-and-conquer's
-  dozens, so a press's few states cost a fraction of the GTH's per-call overhead. Used by "auto"
-  only when every conductance is positive and within GROUNDED_MAX_SPREAD of the others
-  (relative error then ~1e-14, tested against the GTH path); anything stiffer stays on GTH.
+  reduction onto the electrodes, then one batched inverse of the electrodes' Laplacian grounded
+  at one electrode per connected group, R_ab = Z_aa + Z_bb - 2 Z_ab, `inf` across groups.
+  A handful of numpy calls instead of the divide-and-conquer's dozens, so a press's few states
+  cost a fraction of the GTH's per-call overhead. Used by "auto" when the non-zero conductances
+  are within GROUNDED_MAX_SPREAD of each other; channels pinched to exactly 0 are welcome (the
+  GTH reduction keeps their zeros exact, so they are simply absent; an electrode they cut off
+  forms its own group). Relative error then ~1e-14, tested against the GTH path and exact
+  rationals; anything stiffer stays on GTH.
 - sparse (thousands of junctions): a grounded Laplacian solve per press with
   `scipy.sparse.linalg.splu`, one ground per connected component (`csgraph`), unit
   currents injected at the electrodes; R_ab = Z_aa + Z_bb - 2 Z_ab. Accurate to the usual
@@ -71,12 +74,7 @@ def equivalent_resistance(layout: Layout, conductance_s: np.ndarray, method: str
         raise ValueError("conductance_s must be finite and >= 0 (0 = channel pinched shut)")
     if method == "auto":
         method = "dense" if layout.n_junctions <= DENSE_MAX_JUNCTIONS else "sparse"
-        if (
-            method == "dense"
-            and g.shape[0] <= GROUNDED_MAX_PRESSES
-            and np.all(g > 0)
-            and _spread(g) <= GROUNDED_MAX_SPREAD
-        ):
+        if method == "dense" and g.shape[0] <= GROUNDED_MAX_PRESSES and _spread(g) <= GROUNDED_MAX_SPREAD:
             method = "grounded"
         if method == "sparse" and layout.n_junctions <= STIFF_DENSE_MAX_JUNCTIONS and _spread(g) > STIFF_SPREAD:
             method = "dense"
@@ -265,7 +263,7 @@ def _build_grounded_incidence(layout: Layout) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _grounded(layout: Layout, g: np.ndarray) -> np.ndarray:
-    """All pairs from the electrodes' grounded Laplacian (every conductance > 0: one connected network)."""
+    """All pairs from the electrodes' Laplacian, grounded at the lowest electrode of each connected group."""
     n = layout.n_junctions
     electrodes = [int(j) for j in layout.electrode_junctions]
     # the junctions numbered electrodes first (in Layout.electrodes order), so the elimination needs no reordering
@@ -282,10 +280,57 @@ def _grounded(layout: Layout, g: np.ndarray) -> np.ndarray:
     lap = -np.ascontiguousarray(np.moveaxis(w, -1, 0))  # (presses, k, k)
     diag = np.arange(k)
     lap[:, diag, diag] = -lap.sum(axis=2)
-    z = np.zeros_like(lap)
-    z[:, 1:, 1:] = np.linalg.inv(np.ascontiguousarray(lap[:, 1:, 1:]))  # electrode 0 grounded
     a, b = layout.pair_electrode_index[:, 0], layout.pair_electrode_index[:, 1]
+    # Routed press by press (never by batch), so that a press gets the same bits whatever batch it comes in.
+    # Every channel conducting: one group (Layout refuses a disconnected network), the plain grounding at electrode 0.
+    one = np.all(g > 0, axis=1)
+    if np.all(one):
+        return _one_group(lap, a, b)
+    root = np.zeros(lap.shape[:2], dtype=np.intp)
+    root[~one] = _group_roots(lap[~one])
+    one = np.all(root == 0, axis=1)  # channels shut, but every electrode still joined to electrode 0
+    if np.all(one):
+        return _one_group(lap, a, b)
+    r = np.empty((lap.shape[0], a.size))
+    if np.any(one):
+        r[one] = _one_group(lap[one], a, b)
+    r[~one] = _groups(lap[~one], root[~one], a, b)
+    return r
+
+
+def _one_group(lap: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """R_ab from the electrodes' Laplacians (presses, k, k) of one connected group, grounded at electrode 0."""
+    z = np.zeros_like(lap)
+    z[:, 1:, 1:] = np.linalg.inv(np.ascontiguousarray(lap[:, 1:, 1:]))
     return z[:, a, a] + z[:, b, b] - 2.0 * z[:, a, b]
+
+
+def _group_roots(lap: np.ndarray) -> np.ndarray:
+    """The lowest electrode of each electrode's group, (presses, k), from the electrodes' Laplacians (presses, k, k).
+
+    The GTH reduction leaves a reduced conductance exactly 0 where no path joins two electrodes through the other
+    junctions, so the reduced graph's components are the electrodes' groups: its transitive closure by log2 k
+    boolean squarings."""
+    k = lap.shape[1]
+    linked = (lap != 0) | np.eye(k, dtype=bool)  # every electrode reaches itself
+    for _ in range(max(1, math.ceil(math.log2(max(k - 1, 1))))):
+        linked = np.matmul(linked, linked)
+    return np.argmax(linked, axis=2)
+
+
+def _groups(lap: np.ndarray, root: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """R_ab, inf across groups, for networks cut into groups (root: each electrode's group's lowest electrode).
+    Each group is grounded at its lowest electrode (its row and column become the identity's), which leaves a
+    non-singular matrix whatever was cut off."""
+    diag = np.arange(lap.shape[1])
+    keep = root != diag  # False on the grounded electrodes
+    keep2 = keep[:, :, None] & keep[:, None, :]
+    lap = lap * keep2
+    lap[:, diag, diag] += ~keep
+    z = np.linalg.inv(lap) * keep2  # a grounded electrode's potential is 0
+    r = z[:, a, a] + z[:, b, b] - 2.0 * z[:, a, b]
+    r[root[:, a] != root[:, b]] = np.inf
+    return r
 
 
 # ---- sparse: grounded solve per press ----------------------------------------------------
