@@ -41,8 +41,29 @@ class Scene(Settings):
     )
     noise: bool = setting(True, doc="measurement noise")
     preset: str = setting("ideal", choices=SCENE_PRESETS, doc="sets every knob left out of the table")
+    deformation: str = setting(
+        "auto",
+        choices=("auto", "parametric", "fe-kernel"),
+        doc="the pinch: the finite-element kernel (skin/kernel.py) or the parametric one; auto: the preset's "
+        "(paper-like: fe-kernel, ideal: parametric)",
+    )
     surface_error_mm: float = setting(
         0.0, unit="mm", doc="the real skin surface lies this far below the calibrated one (within the skin)"
+    )
+    frame_offset_x_mm: float = setting(
+        0.0,
+        unit="mm",
+        ge=-50.0,
+        le=50.0,
+        doc="calibration error: a press commanded at sensor x lands at x + this in the skin's own frame",
+    )
+    frame_offset_y_mm: float = setting(0.0, unit="mm", ge=-50.0, le=50.0, doc="the same along y")
+    frame_rotation_deg: float = setting(
+        0.0,
+        unit="deg",
+        ge=-45.0,
+        le=45.0,
+        doc="calibration error: the skin's frame is turned this much (counter-clockwise, about the sensor origin)",
     )
     placement_error_mm: float = _knob("mm", "std of the press position, per press (at most 100 mm)")
     depth_jitter_mm: float = _knob("mm", "std of the press depth, per press (printer z, skin height)")
@@ -63,6 +84,8 @@ class Scene(Settings):
         for name in SCENE_KNOBS:
             if getattr(self, name) is None:
                 object.__setattr__(self, name, preset[name])
+        if self.deformation == "auto":
+            object.__setattr__(self, "deformation", PRESET_DEFORMATION.get(self.preset, "parametric"))
         super().__post_init__()
 
     def cross_problems(self) -> list[tuple[str, str, str]]:
@@ -104,5 +127,8 @@ PAPER_LIKE = _IDEAL | {
     "mains_pickup_mv": 0.0,
 }
 PRESETS: dict[str, dict[str, float]] = {"ideal": _IDEAL, "paper-like": PAPER_LIKE}
+# the pinch each preset uses when `deformation` is left at auto: the FE kernel where the scene should look like
+# the paper's rig; the parametric pinch for ideal (plumbing: it never shuts a channel, so no GTH path per press)
+PRESET_DEFORMATION = {"ideal": "parametric", "paper-like": "fe-kernel"}
 if tuple(PRESETS) != SCENE_PRESETS or any(set(p) != set(SCENE_KNOBS) for p in PRESETS.values()):
     raise RuntimeError("every scene preset must set every knob of Scene")  # pragma: no cover
