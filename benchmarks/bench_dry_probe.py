@@ -257,12 +257,12 @@ def main() -> None:
     quadrature_section(args.states, max(args.repeats, 20))
 
 
-if __name__ == "__main__":
-    main()
-
-
 def _rig_plan(build_dry_rig, plan):
     """What this checkout's build_dry_rig takes: the Plan (rig/plan.py), or the sweep alone (older checkouts)."""
     import inspect
 
     return plan if "plan" in inspect.signature(build_dry_rig).parameters else plan.sweep
+
+
+if __name__ == "__main__":
+    main()

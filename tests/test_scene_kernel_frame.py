@@ -125,3 +125,30 @@ def test_a_press_commanded_at_x_lands_at_x_plus_the_offset_in_the_skins_frame(la
 def test_the_scenes_frame_error_reaches_the_probe(layout):
     assert frame_error(Scene()) is None
     assert frame_error(Scene(frame_offset_x_mm=1.0, frame_rotation_deg=-2.0)) == (1.0, 0.0, -2.0)
+
+
+def test_the_features_path_reads_a_cut_pair_as_the_waveform_path_does(layout):
+    """A cut pair no longer sends the whole sweep to the waveform path: the features path gives it the reading
+    the waveform path gives (R and uncertainty inf, OPEN_CIRCUIT | CLIPPED) with the paper's DAQ and noise, and
+    the other pairs their analytic estimates (no DC flag, finite). Without clipping (noise.clip off) it defers."""
+    from neatskin.rig.assembly import daq_config
+    from neatskin.rig.protocol import load_protocol
+
+    cfg = daq_config(load_protocol(PROTOCOLS / "paper.toml"))
+    r = SkinModel(layout).baseline_pair_resistance_ohm.copy()
+    cut = np.array([1 in (p.i, p.j) for p in layout.pairs])
+    r[cut] = np.inf
+    sweep = build_sweep(load_wiring(PROTOCOLS / "wiring" / "paper.toml", layout))
+    daq = SimulatedDAQ(cfg, lambda t: np.tile(r, (len(np.atleast_1d(t)), 1)), noise=NoiseModel())
+    assert daq._surely_open_and_clipped()
+    features = daq.estimate_sweep(sweep, np.random.default_rng(1), method="rms", n_sweeps=2)
+    from neatskin.acquisition.demod import demodulate
+
+    waveforms = demodulate(daq.acquire(sweep, 2, rng=np.random.default_rng(1)), sweep, method="rms", window=10)
+    np.testing.assert_array_equal(features.flags[:, cut], waveforms.flags[:, cut])
+    assert np.all(features.flags[:, cut] == PairFlag.OPEN_CIRCUIT | PairFlag.CLIPPED)
+    assert np.all(np.isinf(features.resistance_ohm[:, cut])) and np.all(np.isinf(waveforms.resistance_ohm[:, cut]))
+    np.testing.assert_allclose(features.resistance_ohm[:, ~cut], waveforms.resistance_ohm[:, ~cut], rtol=2e-3)
+    assert not np.any(features.flags[:, ~cut])
+    unclipped = SimulatedDAQ(cfg, daq.pair_resistance_ohm, noise=NoiseModel(clip=False))
+    assert not unclipped._surely_open_and_clipped()
