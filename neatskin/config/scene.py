@@ -108,11 +108,13 @@ SCENE_KNOBS = tuple(f.name for f in dataclasses.fields(Scene) if f.default is No
 """The variability knobs: what a preset sets."""
 
 _IDEAL = {k: 0.0 for k in SCENE_KNOBS} | {"relaxation_time_s": 30.0, "mains_frequency_hz": 50.0}
-# paper-like: fitted to the paper's 2.03 mm mean error and 82 % within 2.75 mm (28-5-2 LM network,
-# random 95/3/2 split) by benchmarks/fit_paper_like.py; the other knobs are assumed (docs/skin.md).
+# paper-like: placement_error_mm fitted on the FE-kernel skin (deformation = "fe-kernel") to the paper's pairing:
+# the ten-network average (2.03 mm) against the average of 10 LM networks, the best network (1.82 mm) against the
+# best of 10, over 5 campaign seeds (benchmarks/fit_paper_like.py; table and residuals in docs/skin.md). The
+# other knobs are assumed (docs/skin.md).
 PAPER_LIKE = _IDEAL | {
-    "placement_error_mm": 1.35,  # fitted (with depth_jitter_mm), residual in docs/skin.md
-    "depth_jitter_mm": 0.2,  # fitted
+    "placement_error_mm": 0.75,  # fitted to 2.03 / 1.82 mm over 5 seeds (between the 0.7 and 1.0 grid points)
+    "depth_jitter_mm": 0.2,  # assumed: kept from the parametric fit (not identified by these two numbers)
     "press_interval_s": 7.78,  # the paper protocol's G-code time per press (2,800 presses in 6.05 h)
     "fabrication_spread_fraction": 0.08,
     "displaced_fluid_fraction": 0.5,
