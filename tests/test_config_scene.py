@@ -28,7 +28,8 @@ def test_an_empty_scene_is_the_ideal_one():
 
 def test_a_scene_built_in_python_takes_the_presets_knobs_and_refuses_what_the_file_refuses():
     assert dataclasses.asdict(Scene(preset="paper-like")) == dataclasses.asdict(Scene()) | PAPER_LIKE | {
-        "preset": "paper-like"
+        "preset": "paper-like",
+        "deformation": "fe-kernel",  # `auto` resolves to the preset's pinch
     }
     assert Scene(preset="paper-like", adc_skew_us=1.5).adc_skew_us == 1.5
     with pytest.raises(ConfigError) as err:

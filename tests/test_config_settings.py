@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from neatskin.config import parse_collect
 from neatskin.config.files import AcquisitionSettings, Excitation, PositionSpec, PressSpec, PrinterTable
-from neatskin.config.scene import PRESETS, SCENE_KNOBS, Scene
+from neatskin.config.scene import PRESET_DEFORMATION, PRESETS, SCENE_KNOBS, Scene
 from neatskin.config.schema import constraint_of, is_required, key_fields
 from neatskin.errors import ConfigError
 from neatskin.gcode.profile import load_printer_profile
@@ -132,6 +132,8 @@ def test_defaults_agree_between_the_file_and_python_for_every_field(kind):
             assert f.name in REQUIRED[kind]
             continue
         expected = PRESETS["ideal"][f.name] if kind is Scene and f.name in SCENE_KNOBS else f.default
+        if kind is Scene and f.name == "deformation":  # "auto" resolves to the preset's pinch at construction
+            expected = PRESET_DEFORMATION["ideal"]
         assert getattr(from_file, f.name) == getattr(from_python, f.name) == expected, f.name
 
 

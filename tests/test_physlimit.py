@@ -73,11 +73,14 @@ def test_paper_like_nuisances_never_lower_the_bound(paper_layout):
     std = np.full(jac.shape[:2], 0.1 * np.sqrt(2.0))
     scene = Scene(fidelity="deformation", signal="features", noise=True, **PAPER_LIKE)
     priors = NuisancePriors.from_scene(scene, 6.05 * 3600.0)
-    assert priors.depth_std_mm == 0.2 and priors.placement_std_mm == 1.35
+    assert priors.depth_std_mm == PAPER_LIKE["depth_jitter_mm"]
+    assert priors.placement_std_mm == PAPER_LIKE["placement_error_mm"]
     frame = physical_limit_frame(np.arange(x.size), x, y, jac, std, priors)
     electronics, nuisance = frame.crb_mm.to_numpy(), frame.crb_nuisance_mm.to_numpy()
     assert np.all(nuisance >= electronics)
-    assert np.all(nuisance >= np.sqrt(2.0) * 1.35)  # the landing point's own spread, whatever the pairs see
+    assert np.all(
+        nuisance >= np.sqrt(2.0) * PAPER_LIKE["placement_error_mm"]
+    )  # the landing point's own spread, whatever the pairs see
     depth_drift = physical_limit_frame(
         np.arange(x.size), x, y, jac, std, NuisancePriors(priors.depth_std_mm, priors.drift_std, 0.0)
     ).crb_nuisance_mm.to_numpy()

@@ -38,9 +38,10 @@ def register(subparsers) -> None:
     )
     parser.add_argument(
         "--flagged",
-        choices=("drop", "keep", "refuse"),
-        default="drop",
-        help="what to do with presses that carry flags (default: drop them)",
+        choices=("saturate", "drop", "keep", "refuse"),
+        default="saturate",
+        help="what to do with presses that carry flags (default: keep a cut pair's press with its dR saturated, "
+        "drop every other flagged press; docs/baselines.md)",
     )
     parser.add_argument("--folds", type=int, default=5, help="folds over positions for the grouped split")
     parser.add_argument("--seed", type=int, default=0, help="seed for splits and model initialisation")

@@ -2,6 +2,13 @@
 
 Every refusal is one DataError naming the file, the column and the fix: a missing position
 or pair column, a NaN or infinite value, no presses left after dropping flagged ones.
+
+A press that cut a pair off (its electrodes' every path through a shut channel: the galvanostat at its
+compliance, the current collapsed, the row's R and dR +inf with `open_circuit:<pair>` and `clipped:<pair>`
+flags) is information, not a fault: under the default policy "saturate" it is kept, each infinite dR
+replaced by the pair's saturation value (SATURATION_FACTOR x the largest finite |dR| of that pair column
+in the dataset: beyond every change the pair measured, so the learners read "cut" as "more than any
+pinch"), and the row's flags stay in the dataset. Every other flagged press is dropped, as under "drop".
 """
 
 from __future__ import annotations
@@ -20,7 +27,9 @@ from neatskin.errors import ConfigError, DataError
 
 PHYSICAL_LIMIT_NAME = "physical_limit.parquet"
 _KEY_COLUMNS = ("campaign", "press_id", "position_id", "x_mm", "y_mm", "flags")
-FLAG_POLICIES = ("drop", "keep", "refuse")
+FLAG_POLICIES = ("saturate", "drop", "keep", "refuse")
+SATURATION_FACTOR = 2.0  # a cut pair's dR, as a multiple of the largest finite |dR| its column measured
+CUT_FLAGS = ("open_circuit:", "clipped:")  # the flags a cut pair leaves on its row (acquisition/demod.py)
 
 
 @dataclass(frozen=True)
@@ -37,6 +46,8 @@ class BaselineData:
     physical_limit: pd.DataFrame | None  # position_id, x_mm, y_mm, crb_mm[, crb_nuisance_mm]
     skin_fidelity: str | None = None  # the simulated skin's fidelity (dry runs), from the manifest
     probe_radius_mm: float | None = None  # from the manifest's rig description, when it gives one
+    n_saturated: int = 0  # presses kept with a cut pair, its infinite dR set to the saturation value
+    saturation_ohm: tuple[float, ...] = ()  # per pair column, the value a cut pair's dR was given ("saturate")
 
 
 def _pair_sort_key(name: str) -> tuple[int, int]:
@@ -176,7 +187,28 @@ def _flagged(table: pa.Table) -> np.ndarray:
     return pc.greater(lengths, 0).to_numpy(zero_copy_only=False)
 
 
-def load_baseline_data(dataset: str | Path, flagged: str = "drop") -> BaselineData:
+def _cut_only(table: pa.Table, is_flagged: np.ndarray) -> np.ndarray:
+    """The flagged presses whose every flag is a cut pair's (open circuit or clipping on a pair)."""
+    flags = table.column("flags").to_pylist() if "flags" in table.column_names else [None] * table.num_rows
+    return np.array(
+        [bool(f) and all(str(x).startswith(CUT_FLAGS) for x in f) if g else False for f, g in zip(flags, is_flagged)],
+        dtype=bool,
+    )
+
+
+def saturate(X: np.ndarray, factor: float = SATURATION_FACTOR) -> tuple[np.ndarray, np.ndarray, int]:
+    """X with every +-inf or NaN dR set to its column's saturation value (factor x the column's largest finite
+    |dR|; a column with no finite value takes the largest over all columns), that value per column, and the
+    number of rows changed. Pure."""
+    finite = np.isfinite(X)
+    peak = np.where(finite, np.abs(X), 0.0).max(axis=0) if X.size else np.zeros(X.shape[1])
+    overall = float(peak.max()) if peak.size and peak.max() > 0 else 1.0
+    value = factor * np.where(finite.any(axis=0) & (peak > 0), peak, overall)
+    out = np.where(finite, X, value[None, :])
+    return out, value, int((~finite).any(axis=1).sum())
+
+
+def load_baseline_data(dataset: str | Path, flagged: str = "saturate") -> BaselineData:
     """Read a campaign folder (or .parquet file, or merged dataset) into checked arrays: only the columns
     the baselines use, in float64 (exactly the stored values)."""
     if flagged not in FLAG_POLICIES:
@@ -198,7 +230,9 @@ def load_baseline_data(dataset: str | Path, flagged: str = "drop") -> BaselineDa
             field="flags",
             fix="drop them (the default, flagged='drop') or keep them explicitly",
         )
-    if flagged == "drop" and is_flagged.any():
+    if flagged == "saturate" and is_flagged.any():
+        is_flagged = is_flagged & ~_cut_only(table, is_flagged)  # a cut pair stays, as information
+    if flagged in ("drop", "saturate") and is_flagged.any():
         table = table.filter(pa.array(~is_flagged))
         dropped = int(is_flagged.sum())
     if table.num_rows == 0:
@@ -213,6 +247,19 @@ def load_baseline_data(dataset: str | Path, flagged: str = "drop") -> BaselineDa
         return table.column(column).to_numpy(zero_copy_only=False)
 
     ids = values_of("press_id") if "press_id" in table.column_names else np.arange(table.num_rows)
+    n_saturated, saturation = 0, {}
+    if flagged == "saturate":  # a cut pair's +inf dR becomes its column's saturation value before the checks
+        found = sorted((c for c in table.column_names if c.startswith("dR_ohm_")), key=_pair_sort_key)
+        raw = np.column_stack([_as_float(values_of(c)) for c in found]) if found else np.empty((table.num_rows, 0))
+        inf = np.isinf(raw)  # a NaN (nothing measured) is not saturated: it is still refused below
+        sat, value, n_saturated = saturate(np.where(inf, np.inf, np.where(np.isnan(raw), 0.0, raw)))
+        fixed = np.where(inf, sat, raw)
+        columns = {c: fixed[:, k] for k, c in enumerate(found)}
+        saturation = {c: float(value[k]) for k, c in enumerate(found)}
+
+        def values_of(column: str) -> np.ndarray:  # noqa: F811
+            return columns[column] if column in columns else table.column(column).to_numpy(zero_copy_only=False)
+
     pairs = _checked_pairs(table.column_names, values_of, ids, source, expected)
     X = np.empty((table.num_rows, len(pairs)), dtype=np.float64)  # column by column: no second full table
     for k, column in enumerate(pairs):
@@ -248,4 +295,6 @@ def load_baseline_data(dataset: str | Path, flagged: str = "drop") -> BaselineDa
         physical_limit=limit,
         skin_fidelity=skin.get("fidelity") if isinstance(skin.get("fidelity"), str) else None,
         probe_radius_mm=float(radius) if isinstance(radius, (int, float)) else None,
+        n_saturated=n_saturated,
+        saturation_ohm=tuple(saturation[c] for c in pairs if c in saturation),
     )

@@ -231,7 +231,7 @@ def run_baselines(
     models: str | Iterable[str] | None = None,
     out: str | Path | None = None,
     *,
-    flagged: str = "drop",
+    flagged: str = "saturate",
     random_state: int | None = 0,
     n_splits: int = 5,
     progress: bool = True,

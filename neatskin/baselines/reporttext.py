@@ -239,7 +239,8 @@ def markdown_report(
         lines += ["## Warnings", "", *[f"- {n}" for n in notes], ""]
     lines += [
         f"Dataset: `{data.source}`: {len(data.y)} presses at {len(np.unique(data.groups))} positions, "
-        f"{data.X.shape[1]} pair features; {data.n_flagged_dropped} flagged presses dropped. Seeds from "
+        f"{data.X.shape[1]} pair features; {data.n_flagged_dropped} flagged presses dropped, "
+        f"{data.n_saturated} kept with a cut pair's dR saturated. Seeds from "
         f"{random_state}; fits in {n_jobs if n_jobs > 0 else 'all'} process(es); report made in {elapsed_s:.1f} s.",
         "",
         *_like_for_like(table, paper, data),

@@ -234,9 +234,12 @@ class SimulatedDAQ(Daq):
             & ((peak_v < cfg.voltage_limit_v) | (not noise.clip))
             & ((peak_i < cfg.current_limit_a) | (not noise.clip))
         )
-        if not exact.all():
+        cut = ~np.isfinite(r) & self._surely_open_and_clipped()
+        if not (exact | cut).all():
             acq = self.acquire(sweep, n_sweeps, rng=rng, start_time_s=start_time_s)
             return demod.demodulate(acq, sweep, method=method, window=window)
+        if cut.any():  # a pair cut off: the waveform path's reading without its waveforms (see _open_estimate)
+            r = np.where(cut, 1.0, r)
         if noise.mains_v:
             r = self._noise_free_estimate(r, windows, method, window)
         elif noise.series_capacitance_f or noise.adc_skew_s:
@@ -254,7 +257,34 @@ class SimulatedDAQ(Daq):
             abs(noise.current_offset_a) > max(dc_share * amp / np.sqrt(2), lsb[1])
         )
         flags[dc] |= np.uint8(PairFlag.DC_OFFSET)
+        if cut.any():
+            resistance = np.where(cut, np.inf, resistance)
+            uncertainty = np.where(cut, np.inf, uncertainty)
+            flags[cut] = np.uint8(PairFlag.OPEN_CIRCUIT | PairFlag.CLIPPED)
         return PairEstimates(resistance, uncertainty, flags, windows, method)
+
+    def _surely_open_and_clipped(self) -> bool:
+        """Whether a cut pair (R = inf) surely reads as the waveform path reads it: the galvanostat at its
+        compliance drives no current, so the current's RMS (offset and noise, 6 sigma) stays below the
+        demodulator's open-circuit threshold, and the voltage at the compliance rail, less every addition that
+        could pull it back (offset, double layer, mains, transient, 6 sigma of noise), still reaches the AI range:
+        flags OPEN_CIRCUIT | CLIPPED, R and its uncertainty inf (demod.demodulate). Else the waveform path decides."""
+        cfg, noise = self.config, self.noise
+        amp = cfg.amplitude_a
+        current = abs(noise.current_offset_a) + 6.0 * noise.current_noise_a
+        margin = (
+            abs(noise.voltage_offset_v)
+            + noise.reactance_ohm(cfg.frequency_hz) * amp
+            + noise.mains_v
+            + abs(noise.transient_v)
+            + 6.0 * noise.voltage_noise_v
+        )
+        lsb = float(cfg.lsb_ai_v[0] * cfg.to_physical[0])
+        return bool(
+            noise.clip
+            and current < 0.5 * demod.OPEN_FRACTION * amp / np.sqrt(2)
+            and cfg.compliance_v - margin >= cfg.voltage_limit_v + lsb
+        )
 
     def _noise_free_estimate(self, r: np.ndarray, windows: np.ndarray, method: str, window: int) -> np.ndarray:
         """What the demodulator reads from the noise-free live samples (double layer, skew and mains

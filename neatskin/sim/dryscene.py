@@ -55,6 +55,11 @@ def dry_skin(dry: DryScene) -> SkinModel:
         fitted = np.asarray(profile.channel_height_factor, float)
         heights = tuple(float(h) for h in (fitted if heights is None else fitted * np.asarray(heights, float)))
     fitted_pinch: dict[str, Any] = {} if profile is None else {"pinch": profile.pinch}
+    if getattr(scene, "deformation", "parametric") == "fe-kernel" and scene.fidelity == "deformation":
+        from neatskin.skin.kernel import KernelSpec, load_kernel
+
+        # the paper skin's kernel is package data (34 ms to read); another geometry's is solved once and cached
+        fitted_pinch["kernel"] = load_kernel(KernelSpec.for_layout(dry.layout, dry.probe_radius_mm))
     return SkinModel(
         dry.layout,
         fidelity=scene.fidelity,
@@ -87,7 +92,17 @@ def dry_probe(
         placement_error=placement,
         surface_error_mm=scene.surface_error_mm,
         conditions=press_conditions(dry, skin, force_only=force_only),
+        frame_error=frame_error(scene),
     )
+
+
+def frame_error(scene: Scene) -> tuple[float, float, float] | None:
+    """The scene's calibration error (x, y offset in mm, rotation in degrees of the skin's frame against the one
+    the G-code was computed with), or None when there is none."""
+    error = tuple(
+        float(getattr(scene, name, 0.0)) for name in ("frame_offset_x_mm", "frame_offset_y_mm", "frame_rotation_deg")
+    )
+    return error if any(error) else None  # type: ignore[return-value]
 
 
 def dry_daq(dry: DryScene, probe: DryProbe) -> SimulatedDAQ:

@@ -52,6 +52,7 @@ class DryProbe:
         placement_error: Callable[[int], tuple[float, float]] | None = None,
         surface_error_mm: float = 0.0,
         conditions: Callable[[int], PressConditions] | None = None,
+        frame_error: tuple[float, float, float] | None = None,
     ):
         self.skin = skin
         self.surface_z_mm = calibration.surface_z_mm - surface_error_mm
@@ -59,6 +60,10 @@ class DryProbe:
         self.segments_from = segments_from  # the printer's moves from the one the probe rests after at t
         self.placement_error = placement_error
         self.conditions = conditions
+        # the skin's frame against the one the G-code was computed with: the printer's position is converted back
+        # with the calibration the G-code used (which alone would cancel any error), then moved into the skin's
+        # real frame, so the simulated skin feels where the probe really is
+        self.frame_error = frame_error
         self._skin_baseline = self._baseline = np.asarray(skin.baseline_pair_resistance_ohm, dtype=float)
         self._segments: list = []
         self._offset = (0.0, 0.0)
@@ -102,6 +107,8 @@ class DryProbe:
         press_t = np.asarray(times_s, dtype=float) - self._daq_t0  # the press's own clock, as its segments'
         xyz = _positions_mm(self._segments, press_t)
         sx, sy = self.calibration.to_sensor(xyz[:, 0], xyz[:, 1])
+        if self.frame_error is not None:
+            sx, sy = skin_frame(sx, sy, self.frame_error)
         state = np.stack(
             [
                 np.asarray(sx, float) + self._offset[0],
@@ -222,6 +229,16 @@ def _positions_mm(segments: list, times_s: np.ndarray, axes: slice = slice(None)
         frac = segment_fraction(seg, np.clip(times_s[lo:hi] - seg.t0_s, 0.0, None))
         out[lo:hi] = p0[axes] + frac[:, None] * (p1 - p0)[axes]
     return out
+
+
+def skin_frame(x_mm, y_mm, frame_error: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Where a point of the calibrated sensor frame lies in the skin's own frame under a calibration error
+    (dx, dy in mm, rotation in degrees about the sensor origin): R(rotation) (x, y) + (dx, dy)."""
+    dx, dy, rotation_deg = frame_error
+    theta = np.radians(rotation_deg)
+    c, s = np.cos(theta), np.sin(theta)
+    x, y = np.asarray(x_mm, float), np.asarray(y_mm, float)
+    return c * x - s * y + dx, s * x + c * y + dy
 
 
 def _unique_states(states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

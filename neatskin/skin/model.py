@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,9 +32,10 @@ from neatskin.skin.deformation import (
     pinched_length_fraction,
     resistance_factor,
 )
-from neatskin.skin.kernel import PinchKernel
-from neatskin.skin.kernelpinch import kernel_factor_and_share
 from neatskin.skin.network import equivalent_resistance
+
+if TYPE_CHECKING:  # the kernel module imports the FE solver (scipy): only a model that has a kernel loads it
+    from neatskin.skin.kernel import PinchKernel
 
 FIDELITIES = ("deformation", "network")
 DEFORMATIONS = ("parametric", "fe-kernel")
@@ -117,6 +119,8 @@ class SkinModel:
 
     def _kernel_pass(self, x, y, depth) -> tuple[np.ndarray, np.ndarray]:
         assert self.kernel is not None
+        from neatskin.skin.kernelpinch import kernel_factor_and_share
+
         return kernel_factor_and_share(self.layout, self.kernel, x, y, depth)
 
     @cached_property
