@@ -10,7 +10,7 @@ from conftest import PROTOCOLS
 
 from neatskin.cli import main
 from neatskin.datasets.manifest import create_manifest
-from neatskin.errors import ConfigError, DataError
+from neatskin.errors import ConfigError, DataError, ExitCode
 from neatskin.rig.control import Checkpoint, read_requests, request_control
 from neatskin.rig.folder import create_campaign_folder
 from neatskin.rig.protocol import load_protocol
@@ -44,7 +44,7 @@ def test_a_request_to_a_folder_no_run_ever_makes_is_refused_and_writes_nothing(t
 @pytest.mark.parametrize("action", ["pause", "stop", "continue"])
 def test_a_request_to_a_finished_campaign_is_refused_as_already_complete(tmp_path, capsys, action):
     create_manifest(tmp_path, fsync=False, campaign="c", status="complete")
-    assert main(["campaign", action, str(tmp_path)]) == 2
+    assert main(["campaign", action, str(tmp_path)]) == ExitCode.DATA  # a DataError: the exit-code table's 5
     err = capsys.readouterr().err
     assert "already complete: there is nothing to " + action in err and "[status]" in err
     assert not (tmp_path / "control.json").exists()

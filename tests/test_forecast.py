@@ -9,6 +9,7 @@ import pytest
 from conftest import PROTOCOLS
 
 from neatskin.cli import main
+from neatskin.errors import ExitCode
 from neatskin.rig.forecast import hours_for_error
 from neatskin.rig.protocol import load_protocol
 from neatskin.rig.runner import build_plan
@@ -93,5 +94,48 @@ def test_campaign_plan_prints_sizes_with_rig_hours_and_errors(tmp_path, capsys):
 
 
 def test_campaign_plan_refuses_one_seed(tmp_path, capsys):
-    assert main(["campaign", "plan", str(PROTOCOLS / "smoke.toml"), "--seeds", "1", "--out", str(tmp_path)]) == 2
+    # a wrong option value is a ConfigError: the exit-code table's CONFIG (3), not argparse's USAGE (2)
+    code = main(["campaign", "plan", str(PROTOCOLS / "smoke.toml"), "--seeds", "1", "--out", str(tmp_path)])
+    assert code == ExitCode.CONFIG
     assert "--seeds" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def kernel_skin(paper):
+    """The paper's skin pressing through the packaged finite-element pinch kernel (fidelity 'deformation')."""
+    from neatskin.skin.kernel import packaged_kernel_path, read_kernel
+    from neatskin.skin.model import SkinModel
+
+    return SkinModel(paper.layout, probe_radius_mm=2.75, kernel=read_kernel(packaged_kernel_path()))
+
+
+def test_a_kernel_skins_pinch_scales_from_the_same_skin_to_the_unpressed_one(paper, kernel_skin):
+    """The negative control's wrong skin on the FE kernel: scale 1 is the skin itself, 0 the unpressed skin (every
+    pair at its baseline), and in between each pair's R lies between them (less pinch, no channel narrower)."""
+    from neatskin.rig.simcampaign import scale_pinch
+
+    xy = strategy_positions(paper, 12, 5)
+    x, y, depth = xy[:, 0], xy[:, 1], np.full(len(xy), 3.5)
+    pressed = kernel_skin.pair_resistance_ohm(x, y, depth)
+    base = np.broadcast_to(kernel_skin.baseline_pair_resistance_ohm, pressed.shape)
+    assert np.all(pressed > base + 1.0)  # every press changes every pair: the scales below are told apart
+    np.testing.assert_array_equal(scale_pinch(kernel_skin, 1.0).pair_resistance_ohm(x, y, depth), pressed)
+    np.testing.assert_allclose(scale_pinch(kernel_skin, 0.0).pair_resistance_ohm(x, y, depth), base, rtol=1e-12)
+    half = scale_pinch(kernel_skin, 0.5).pair_resistance_ohm(x, y, depth)
+    assert np.all((half > base) & (half < pressed))
+    more = scale_pinch(kernel_skin, 1.3).pair_resistance_ohm(x, y, depth)
+    assert np.all(more >= pressed)
+    with pytest.raises(ValueError, match="pinch scale"):
+        scale_pinch(kernel_skin, -0.1)
+
+
+def test_a_scaled_kernel_scales_its_pinch_and_clips_it(kernel_skin):
+    kernel = kernel_skin.kernel
+    assert kernel is not None
+    solved = np.isfinite(kernel.area_ratio)
+    pinch = 1.0 - np.clip(kernel.area_ratio[solved], 0.0, 1.0)
+    np.testing.assert_allclose(1.0 - kernel.scaled(0.5).area_ratio[solved], 0.5 * pinch, atol=1e-15)
+    np.testing.assert_array_equal(np.isfinite(kernel.scaled(0.5).area_ratio), solved)
+    shut_sooner = kernel.scaled(4.0).area_ratio[solved]
+    assert shut_sooner.min() == 0.0 and shut_sooner.max() <= 1.0
+    assert kernel.scaled(0.5).key != kernel.key

@@ -66,12 +66,12 @@ def register(subparsers) -> None:
     plan = sub.add_parser(
         "plan", help="predicted error for new positions against rig hours, from simulated campaigns, before pressing"
     )
-    plan.add_argument("protocol", type=Path)
+    plan.add_argument("protocol", type=Path, help="protocol TOML, e.g. protocols/paper.toml")
     plan.add_argument("--seeds", type=int, default=5, help="campaign seeds per size (default 5)")
     plan.add_argument("--model", default="lm_network", help="the baseline fitted (default the paper's lm_network)")
     plan.add_argument("--jobs", type=int, default=2, help="joblib processes (default 2)")
     plan.add_argument("--no-adaptive", action="store_true", help="skip the adaptive design")
-    plan.add_argument("--out", type=Path, default=Path("campaign-plan"), help="folder for the CSV and PNG")
+    add_out(plan, "folder for the CSV and PNG (default campaign-plan)", default=Path("campaign-plan"))
     plan.set_defaults(handler=_plan)
 
 

@@ -13,14 +13,17 @@ random design's error in less rig time over seeds.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 from scipy import stats
 
+from neatskin.rig.protocol import CampaignProtocol
 from neatskin.rig.simcampaign import (
     CampaignSize,
+    Presses,
     fit_and_score,
     pair_noise_std_ohm,
     press_interval_s,
@@ -29,6 +32,7 @@ from neatskin.rig.simcampaign import (
     skin_of,
     strategy_positions,
 )
+from neatskin.skin.model import SkinModel
 
 DEFAULT_SEEDS = 5
 TEST_POSITIONS, TEST_REPEATS = 60, 4  # the new-position test campaign of every seed
@@ -40,13 +44,13 @@ SEED_OFFSET_TEST = 7919  # the test campaign's positions: another seed than any 
 class Setting:
     """What every simulated campaign of a plan shares (picklable for joblib's processes)."""
 
-    protocol: Any
+    protocol: CampaignProtocol
     noise_std_ohm: np.ndarray
     interval_s: float
     model: str
 
 
-def default_sizes(protocol) -> list[CampaignSize]:
+def default_sizes(protocol: CampaignProtocol) -> list[CampaignSize]:
     """Sizes around the protocol's: positions from a quarter to twice (at least 8), repeats from a quarter (at least 2),
     and the depth +- 1 mm at its size."""
     p, r, d = protocol.press.positions.count, protocol.press.press.repeats, protocol.press.press.depth_mm
@@ -70,10 +74,10 @@ def default_sizes(protocol) -> list[CampaignSize]:
     return sizes
 
 
-def _test_campaign(setting: Setting, seed: int, skin):
+def _test_campaign(setting: Setting, seed: int, skin: SkinModel) -> Presses:
     protocol = setting.protocol
     xy = strategy_positions(protocol, TEST_POSITIONS, seed + SEED_OFFSET_TEST)
-    depth = protocol.press.press.depth_mm  # type: ignore[attr-defined]
+    depth = protocol.press.press.depth_mm
     return simulate_presses(
         protocol,
         xy,
@@ -164,7 +168,7 @@ def _spread_choice(pool: np.ndarray, score: np.ndarray, count: int, spacing_mm: 
 
 
 def plan_campaign(
-    protocol,
+    protocol: CampaignProtocol,
     *,
     seeds: int = DEFAULT_SEEDS,
     sizes: list[CampaignSize] | None = None,
@@ -277,7 +281,7 @@ def format_plan(frame: pd.DataFrame, protocol_name: str, paper_hours: float | No
     return "\n".join(lines)
 
 
-def plot_plan(frame: pd.DataFrame, path, protocol_hours: float | None = None):
+def plot_plan(frame: pd.DataFrame, path: Path, protocol_hours: float | None = None) -> Path:
     """Error against rig hours per design (the protocol's depth), std over seeds as error bars; depth variants as
     separate markers; the protocol's own size marked."""
     import matplotlib

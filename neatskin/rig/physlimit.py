@@ -111,8 +111,8 @@ def physical_limit_frame(
 
 
 def floors_frame(
-    x_mm,
-    y_mm,
+    x_mm: np.ndarray,
+    y_mm: np.ndarray,
     jacobian: np.ndarray,
     noise_std_ohm: np.ndarray,
     priors: NuisancePriors,
@@ -121,7 +121,7 @@ def floors_frame(
     fabrication_jacobian: np.ndarray | None = None,
     fabrication_std: float = 0.0,
     seed: int = 0,
-):
+) -> pd.DataFrame:
     """The landing-point bound and the label-noise floor per split, one row per position (columns as the module
     says). jacobian: (positions, pairs, 4) `feature_jacobian`; fabrication_jacobian: (positions, pairs, channels)
     d dR / d log h; reference_xy_mm: a large sample of the position strategy (the prior over new positions)."""
@@ -153,7 +153,9 @@ def floors_frame(
     )
 
 
-def fabrication_jacobian(skin, x_mm, y_mm, depth_mm, step: float = 0.01) -> np.ndarray:
+def fabrication_jacobian(
+    skin: SkinModel, x_mm: np.ndarray, y_mm: np.ndarray, depth_mm: np.ndarray, step: float = 0.01
+) -> np.ndarray:
     """d dR / d log(channel height) per channel, (positions, pairs, channels), by central differences on copies
     of the skin with one channel's height factor scaled by exp(+-step)."""
     import dataclasses
@@ -175,7 +177,7 @@ def fabrication_jacobian(skin, x_mm, y_mm, depth_mm, step: float = 0.01) -> np.n
     return np.stack(columns, axis=-1)
 
 
-def reference_positions_mm(protocol, count: int = 5000) -> np.ndarray:
+def reference_positions_mm(protocol: CampaignProtocol, count: int = 5000) -> np.ndarray:
     """A large sample of the protocol's position strategy, with another seed: the prior over new positions."""
     import dataclasses
 

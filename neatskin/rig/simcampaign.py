@@ -13,10 +13,20 @@ mux transients. Rig time comes from the G-code of the same positions (`build_pla
 from __future__ import annotations
 
 import dataclasses
-import importlib
 from dataclasses import dataclass
 
 import numpy as np
+
+from neatskin.baselines.models import make_models
+from neatskin.gcode.positions import generate_positions
+from neatskin.rig.dryrig import dry_scene
+from neatskin.rig.physlimit import _dr_noise_std_ohm
+from neatskin.rig.plan import build_plan
+from neatskin.rig.protocol import CampaignProtocol
+from neatskin.sim.daq import NoiseModel, SimulatedDAQ
+from neatskin.sim.dryscene import dry_skin, interface_noise
+from neatskin.skin.model import SkinModel
+from neatskin.skin.variability import drift_resistivity_factor
 
 STREAMS = {"placement": 1, "depth": 2, "noise": 3}
 
@@ -44,17 +54,7 @@ class Presses:
     groups: np.ndarray
 
 
-def _build_plan(protocol):
-    """The runner's plan builder, wherever it lives (rig/plan.py or rig/runner.py)."""
-    for name in ("neatskin.rig.plan", "neatskin.rig.runner"):
-        try:
-            return importlib.import_module(name).build_plan(protocol)
-        except (ImportError, AttributeError):
-            continue
-    raise ImportError("no build_plan in neatskin.rig.plan or neatskin.rig.runner")  # pragma: no cover
-
-
-def with_size(protocol, size: CampaignSize, seed: int | None = None):
+def with_size(protocol: CampaignProtocol, size: CampaignSize, seed: int | None = None) -> CampaignProtocol:
     """The protocol with the size's positions, repeats and depth (and the positions' seed)."""
     press = protocol.press
     positions = dataclasses.replace(
@@ -68,67 +68,69 @@ def with_size(protocol, size: CampaignSize, seed: int | None = None):
     return dataclasses.replace(protocol, press=spec)
 
 
-def rig_hours(protocol, size: CampaignSize) -> float:
+def rig_hours(protocol: CampaignProtocol, size: CampaignSize) -> float:
     """The G-code's rig time for the size (travel, descent, press, lift, hold), in hours."""
-    return float(_build_plan(with_size(protocol, size)).printer_time_s) / 3600.0
+    return float(build_plan(with_size(protocol, size)).printer_time_s) / 3600.0
 
 
-def press_interval_s(protocol) -> float:
+def press_interval_s(protocol: CampaignProtocol) -> float:
     """Campaign time between presses for the drift: the scene's, else the protocol's G-code time per press."""
     interval = float(getattr(protocol.scene, "press_interval_s", 0.0))
     if interval:
         return interval
-    plan = _build_plan(protocol)
+    plan = build_plan(protocol)
     return float(plan.printer_time_s) / max(plan.n_presses, 1)
 
 
-def pair_noise_std_ohm(protocol) -> np.ndarray:
+def pair_noise_std_ohm(protocol: CampaignProtocol) -> np.ndarray:
     """Std of one press's dR per pair (pairs,): the dry run's DAQ estimator noise at the unpressed skin, averaged
-    over the sweeps a press records (as `rig.physlimit` computes it per position)."""
-    from types import SimpleNamespace
+    over the sweeps a press records (as `rig.physlimit` computes it per position), with the dry run's skin, DAQ
+    settings and interface noise (neatskin.sim.dryscene)."""
+    plan = build_plan(protocol)
+    dry = dry_scene(protocol, plan)
+    skin = dry_skin(dry)
+    noise = interface_noise(NoiseModel() if dry.scene.noise else NoiseModel.none(), dry.scene)
+    unpressed = np.asarray(skin.baseline_pair_resistance_ohm, float)
 
-    from neatskin.rig.physlimit import _dr_noise_std_ohm
+    def at_rest(t: np.ndarray) -> np.ndarray:  # physlimit reads the DAQ's config and noise, and sets each state
+        return np.broadcast_to(unpressed, (len(t), unpressed.size))
 
-    assembly = importlib.import_module("neatskin.rig.assembly")
-    from neatskin.sim.daq import NoiseModel
-
-    scene = protocol.scene
-    noise = assembly.interface_noise(NoiseModel() if scene.noise else NoiseModel.none(), scene)
-    skin = assembly.dry_skin(protocol)
-    rig = SimpleNamespace(skin=skin, daq=SimpleNamespace(config=assembly.daq_config(protocol), noise=noise))
+    daq = SimulatedDAQ(dry.daq, at_rest, noise=noise)
     x0, y0, x1, y1 = protocol.layout.bounds_mm
     x, y = np.array([(x0 + x1) / 2]), np.array([(y0 + y1) / 2])
-    std = _dr_noise_std_ohm(protocol, _build_plan(protocol), rig, x, y, np.array([protocol.press.press.depth_mm]))
+    std = _dr_noise_std_ohm(protocol, plan, skin, daq, x, y, np.array([protocol.press.press.depth_mm]))
     return np.asarray(std, float).reshape(-1)
 
 
-def skin_of(protocol, pinch_scale: float = 1.0):
+def skin_of(protocol: CampaignProtocol, pinch_scale: float = 1.0) -> SkinModel:
     """The dry run's skin of the protocol; pinch_scale multiplies its pinch (a deliberately wrong physics)."""
-    skin = importlib.import_module("neatskin.rig.assembly").dry_skin(protocol)
-    if pinch_scale == 1.0:
-        return skin
-    pinch = skin.pinch
-    field = next((f for f in ("pinch_gain", "max_fraction", "amplitude") if hasattr(pinch, f)), None)
-    if field is None:  # a pinch kernel without a gain: say so rather than scale something else
-        raise TypeError(f"{type(pinch).__name__} has no pinch gain to scale (pinch_gain, max_fraction, amplitude)")
-    return dataclasses.replace(skin, pinch=dataclasses.replace(pinch, **{field: getattr(pinch, field) * pinch_scale}))
+    skin = dry_skin(dry_scene(protocol, build_plan(protocol)))
+    return skin if pinch_scale == 1.0 else scale_pinch(skin, pinch_scale)
+
+
+def scale_pinch(skin: SkinModel, factor: float) -> SkinModel:
+    """The skin with its pinch scaled by `factor` >= 0: a finite-element kernel's pinch 1 - A/A0 (clipped to
+    [0, 1], `PinchKernel.scaled`) when the skin presses through one, else the parametric pinch gain."""
+    if not (np.isfinite(factor) and factor >= 0):
+        raise ValueError(f"a pinch scale must be a number >= 0, got {factor!r}")
+    if skin.kernel is not None and skin.fidelity == "deformation":  # the kernel decides the pinch (SkinModel)
+        return dataclasses.replace(skin, kernel=skin.kernel.scaled(factor))
+    return dataclasses.replace(skin, pinch=dataclasses.replace(skin.pinch, pinch_gain=skin.pinch.pinch_gain * factor))
 
 
 def simulate_presses(
-    protocol,
+    protocol: CampaignProtocol,
     commanded_xy_mm: np.ndarray,
     repeats: int,
     depth_mm: float,
     seed: int,
     noise_std_ohm: np.ndarray,
     *,
-    skin=None,
+    skin: SkinModel | None = None,
     interval_s: float | None = None,
     first_press: int = 0,
 ) -> Presses:
     """Every position pressed `repeats` times in a row (position order), from press index `first_press` on."""
-    from neatskin.skin.variability import drift_resistivity_factor
-
     scene = protocol.scene
     skin = skin_of(protocol) if skin is None else skin
     commanded = np.repeat(np.asarray(commanded_xy_mm, float).reshape(-1, 2), repeats, axis=0)
@@ -157,18 +159,14 @@ def simulate_presses(
     return Presses(features, commanded, landed, groups)
 
 
-def strategy_positions(protocol, count: int, seed: int) -> np.ndarray:
+def strategy_positions(protocol: CampaignProtocol, count: int, seed: int) -> np.ndarray:
     """`count` positions of the protocol's strategy for the seed, (count, 2) mm."""
-    from neatskin.gcode.positions import generate_positions
-
     spec = dataclasses.replace(protocol.press.positions, count=int(count), seed=int(seed))
     return generate_positions(protocol.layout, spec).xy_mm
 
 
 def fit_and_score(model_name: str, train: Presses, test: Presses, random_state: int) -> float:
     """Mean Euclidean error (mm) against the test's commanded positions of the named baseline fitted on train."""
-    from neatskin.baselines.models import make_models
-
     model = make_models(
         [model_name],
         random_state=random_state,

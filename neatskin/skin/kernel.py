@@ -71,6 +71,19 @@ class PinchKernel:
         object.__setattr__(self, "_table", np.clip(filled, 0.0, 1.0))
         object.__setattr__(self, "_step", (float(self.offsets_mm[1]), float(self.depths_mm[1])))
 
+    def scaled(self, factor: float) -> PinchKernel:
+        """This kernel with its pinch 1 - A/A0 times `factor` >= 0, clipped to [0, 1] (1: the same kernel; 0: no
+        pinch anywhere; above 1 a channel shuts sooner). A deliberately wrong skin for a negative control; the
+        key and provenance say so, and the force is left as solved."""
+        if not (np.isfinite(factor) and factor >= 0):
+            raise ValueError(f"a pinch scale must be a number >= 0, got {factor!r}")
+        if factor == 1.0:  # exactly this kernel: 1 - (1 - a) would move a's last bit
+            return self
+        pinch = 1.0 - np.clip(self.area_ratio, 0.0, 1.0)  # nan (not reached) stays nan, filled as for this kernel
+        ratio = 1.0 - np.clip(factor * pinch, 0.0, 1.0)
+        provenance = json.dumps({**json.loads(self.provenance or "{}"), "pinch_scale": float(factor)})
+        return PinchKernel(self.offsets_mm, self.depths_mm, ratio, self.force_n, f"{self.key}*{factor:g}", provenance)
+
     def ratio(self, offset_mm, depth_mm) -> np.ndarray:
         """A/A0 at (offset, depth), broadcast; bilinear. 1 beyond the largest offset and at depth <= 0; the
         deepest row beyond the deepest depth. Shut (0) where the interpolated ratio is below SHUT_AREA_RATIO."""
