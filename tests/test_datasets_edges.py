@@ -183,3 +183,28 @@ def test_skin_fit_with_nan_in_x_mm_ends_in_one_clear_error(paper_layout, tmp_pat
     err = capsys.readouterr().err
     _no_traceback(err)
     assert "[x_mm]" in err and "NaN or infinite in x_mm (press ids [2])" in err
+
+
+def _set_flags(path, flags_by_row):
+    table = pq.read_table(path)
+    flags = table.column("flags").to_pylist()
+    for row, flags_of_row in flags_by_row.items():
+        flags[row] = flags_of_row
+    k = table.column_names.index("flags")
+    table = table.set_column(k, table.schema.field(k), pa.array(flags, pa.list_(pa.string())))
+    pq.write_table(table, path)
+
+
+def test_a_press_that_cut_pairs_is_valid_without_allow_flagged_and_any_other_flag_is_not(paper_layout, tmp_path):
+    """A channel pinched shut (the FE skin at the paper's depth cuts a pair on a third of the presses) leaves
+    open_circuit/clipped flags: a measurement of the skin, which validate accepts; a rig fault still needs
+    --allow-flagged."""
+    folder = make_campaign(tmp_path / "c", paper_layout)
+    path = folder / "presses.parquet"
+    for column in ("R_ohm_1_2", "dR_ohm_1_2"):
+        set_value(path, column, 2, np.inf)
+    _set_flags(path, {2: ["open_circuit:1-2", "clipped:1-2"]})
+    assert [p for p in validate_dataset(folder) if p.field != "files_sha256"] == []
+    _set_flags(path, {2: ["open_circuit:1-2", "clipped:1-2"], 4: ["fsr_missed"]})
+    (flagged,) = [p for p in validate_dataset(folder) if p.field != "files_sha256"]
+    assert flagged.field == "flags" and "1 flagged press(es)" in flagged.message and "press ids 4" in flagged.message

@@ -17,7 +17,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from neatskin.datasets.schema import OPEN_CIRCUIT_FLAG, parse_pair_column, plausible_range
+from neatskin.datasets.schema import CUT_PAIR_FLAG_KINDS, OPEN_CIRCUIT_FLAG, parse_pair_column, plausible_range
 
 KEY_COLUMNS = ("press_id", "position_id", "x_mm", "y_mm")
 
@@ -162,13 +162,16 @@ def _scan_batch(
     keys["file"] = np.full(n, file_index, dtype=np.int32)
     keys["row_hash"] = _row_hashes(table, expected)
     keys["flagged"] = np.zeros(n, dtype=bool)
+    keys["cut_pairs_only"] = np.zeros(n, dtype=bool)
     flags = table.column("flags") if "flags" in names else None
     if flags is not None and (pa.types.is_list(flags.type) or pa.types.is_large_list(flags.type)):
         flagged = pc.fill_null(pc.greater(pc.list_value_length(flags), 0), False)
         keys["flagged"] = flagged.to_numpy(zero_copy_only=False)
+        keys["cut_pairs_only"] = np.zeros(n, dtype=bool)
         if keys["flagged"].any():
             values = pc.list_flatten(flags.filter(flagged))
             scan.flag_counts.update(v for v in values.to_pylist() if v is not None)
+            keys["cut_pairs_only"] = _cut_pairs_only(flags, keys["flagged"].to_numpy(bool))
     if "campaign" in names:
         scan.campaigns.update(v for v in pc.unique(table.column("campaign")).to_pylist() if v is not None)
     return keys
@@ -207,3 +210,17 @@ def _row_hashes(table: pa.Table, expected: pa.Schema) -> np.ndarray:
     if not columns:
         return np.zeros(n, dtype=np.uint64)
     return pd.util.hash_pandas_object(pd.DataFrame(columns), index=False).to_numpy()
+
+
+def _cut_pairs_only(flags: pa.ChunkedArray, flagged: np.ndarray) -> np.ndarray:
+    """Per row: flagged, and every flag it carries says a pair was cut off (`open_circuit:i-j`, with or without
+    `clipped:i-j` for the same pair). A pair clipped but still conducting, or a row-level flag, is not."""
+    out = np.zeros(flagged.shape, dtype=bool)
+    for row in np.flatnonzero(flagged):
+        kinds: dict[str, set[str]] = {}
+        for flag in flags[int(row)].as_py() or ():
+            kind, sep, pair = str(flag).partition(":")
+            kinds.setdefault(kind if sep and pair else "", set()).add(pair)
+        cut = kinds.get(CUT_PAIR_FLAG_KINDS[0], set())
+        out[row] = bool(cut) and set(kinds) <= set(CUT_PAIR_FLAG_KINDS) and kinds.get("clipped", set()) <= cut
+    return out

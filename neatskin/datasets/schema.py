@@ -62,6 +62,9 @@ PLAUSIBLE_RANGES: dict[str, tuple[float, float, str]] = {
     "dR": (-1e9, 1e9, "ohm"),  # every dR_ohm_{i}_{j}
 }
 OPEN_CIRCUIT_FLAG = "open_circuit"  # the flag `open_circuit:{i}-{j}` a row with a cut-off pair carries
+# The flags a pair cut off by a channel pinched shut leaves on its row (acquisition/demod.py): a measurement of the
+# skin (the galvanostat at its compliance), not a fault of the rig; validate reports them as a note.
+CUT_PAIR_FLAG_KINDS = (OPEN_CIRCUIT_FLAG, "clipped")
 
 
 def plausible_range(column: str) -> tuple[float, float, str] | None:

@@ -356,6 +356,8 @@ def _content_problems(
                 )
             )
     flagged = rows["flagged"].to_numpy(bool)
+    if "cut_pairs_only" in rows:  # a channel pinched shut is a measurement of the skin: noted, not refused
+        flagged = flagged & ~rows["cut_pairs_only"].to_numpy(bool)
     if "flags" in scan.columns and not allow_flagged and flagged.any():
         counts = scan.flag_counts
         problems.append(
