@@ -50,7 +50,8 @@ def test_the_placement_error_has_the_scenes_spread(paper):
     xy = strategy_positions(paper, 50, 1)
     got = simulate_presses(paper, xy, 40, 3.5, 0, np.full(28, 0.5))
     offsets = got.landed_mm - got.commanded_mm
-    assert offsets.std(axis=0) == pytest.approx([1.35, 1.35], rel=0.05)  # 2,000 draws: about 1.6 % std error
+    sigma = paper.scene.placement_error_mm  # the preset's fitted value
+    assert offsets.std(axis=0) == pytest.approx([sigma, sigma], rel=0.05)  # 2,000 draws: about 1.6 % std error
 
 
 def test_hours_for_an_error_interpolates_in_log_hours_along_the_envelope():
@@ -124,7 +125,7 @@ def test_a_kernel_skins_pinch_scales_from_the_same_skin_to_the_unpressed_one(pap
     half = scale_pinch(kernel_skin, 0.5).pair_resistance_ohm(x, y, depth)
     assert np.all((half > base) & (half < pressed))
     more = scale_pinch(kernel_skin, 1.3).pair_resistance_ohm(x, y, depth)
-    assert np.all(more >= pressed)
+    assert np.all(more >= pressed * (1 - 1e-12))  # a pair more pinch leaves alone may differ in its last bit
     with pytest.raises(ValueError, match="pinch scale"):
         scale_pinch(kernel_skin, -0.1)
 

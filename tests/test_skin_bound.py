@@ -83,3 +83,19 @@ def test_bad_priors_are_refused(skin_jacobian, kwargs):
         position_bound_mm(skin_jacobian[3], 0.1, **kwargs)
     with pytest.raises(ValueError, match="noise_std_ohm"):
         position_bound_mm(skin_jacobian[3], 0.0)
+
+
+def test_a_pair_beyond_what_the_daq_reads_carries_no_information(paper_layout):
+    """A reading that clips (R above the compliance or the AI's reach) is masked exactly where a stencil point
+    of the pair passes the limit, and nowhere else; with no limit nothing finite is masked."""
+    skin = SkinModel(paper_layout)
+    x, y, depth = np.array([15.0, 7.5]), np.array([0.5, 7.5]), np.array([3.5, 3.5])
+    free = feature_jacobian(skin, x, y, depth)
+    assert np.isfinite(free).all()
+    pressed = np.asarray(skin.pair_resistance_ohm(x, y, depth), float)
+    limit = float(np.median(pressed))  # a limit some pairs of some presses pass
+    clipped = feature_jacobian(skin, x, y, depth, max_resistance_ohm=limit)
+    masked = np.isnan(clipped).all(axis=-1)
+    assert masked[pressed > limit * 1.01].all()  # above the limit at the stencil's centre: masked
+    assert not masked[pressed < limit * 0.99].any()  # well below it at every stencil point: kept as it was
+    np.testing.assert_array_equal(clipped[~masked], free[~masked])

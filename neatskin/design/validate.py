@@ -6,14 +6,14 @@ Candidates: the study's candidates with fixed placements (the optimised ones nee
 Per candidate, three checks:
 - level: the study's learned error (its uniform positions, group-shuffle split, k = 5 uniform kNN, its seeds)
   against campaigns in the scene the study assumes (no placement error, jitter, drift or fabrication; the study's
-  Gaussian noise) but with the dry run's skin, the protocol's position strategy, 5-fold grouped splits, the
+  Gaussian noise; the study's parametric pinch) but with the dry run's skin, the protocol's position strategy, 5-fold grouped splits, the
   baselines' distance-weighted kNN and other seeds; agree within 2 combined standard errors + LEVEL_TOLERANCE;
 - transfer: a kNN trained on the study's own simulated dataset, scored on those campaigns, against the campaigns'
   own kNN: the study's physics predicts the campaign's presses when the two are within 2 standard errors +
   TRANSFER_TOLERANCE of the campaign's error. This is the check with power against wrong physics (the learned
   error alone barely moves with the pinch: interpolation between training positions sets it);
-- ranking (over candidates): campaigns in the protocol's own scene (paper-like: placement, jitter, drift,
-  fabrication, displaced fluid) order the candidates' errors as the study does, for every pair the study separates.
+- ranking (over candidates): campaigns in the protocol's own scene (paper-like: the finite-element pinch kernel,
+  placement, jitter, drift, fabrication, displaced fluid) order the candidates' errors as the study does, for every pair the study separates.
 The verdict agrees when every check agrees. The pinch of the campaigns' skin can be scaled (`pinch_scale`): the
 negative control uses 0.6 (a 40 % change) and must disagree; the power sweep reports the smallest change detected.
 """
@@ -114,6 +114,7 @@ def _campaign_protocol(base, study: Study, candidate, layout, ideal: bool):
             evaporation_fraction_per_h=0.0,
             fabrication_spread_fraction=0.0,
             displaced_fluid_fraction=0.0,
+            deformation="parametric",  # the study's own pinch; the protocol's scene presses the FE kernel
         )
     press = dataclasses.replace(
         base.press,

@@ -213,7 +213,11 @@ def write_physical_limit(
     x = np.asarray(positions.x_mm, dtype=float)[ids]
     y = np.asarray(positions.y_mm, dtype=float)[ids]
     depth = np.full(ids.shape, protocol.press.press.depth_mm)
-    jac = _by_chunks(lambda *c: feature_jacobian(skin, *c), x, y, depth)  # (positions, pairs, 4)
+    cfg = daq.config  # beyond the compliance or the AI's reach a pair's reading clips: no graded information
+    readable_ohm = min(cfg.compliance_v, cfg.voltage_limit_v) / cfg.amplitude_a if cfg.amplitude_a > 0 else np.inf
+    jac = _by_chunks(
+        lambda cx, cy, cd: feature_jacobian(skin, cx, cy, cd, max_resistance_ohm=readable_ohm), x, y, depth
+    )  # (positions, pairs, 4)
     std = _dr_noise_std_ohm(protocol, plan, skin, daq, x, y, depth)
     priors = NuisancePriors.from_scene(
         protocol.scene,

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from neatskin.baselines.dataset import saturate
 from neatskin.baselines.models import make_models
 from neatskin.gcode.positions import generate_positions
 from neatskin.rig.dryrig import dry_scene
@@ -155,7 +156,9 @@ def simulate_presses(
     base = np.asarray(skin.baseline_pair_resistance_ohm, float)[None, :] * drift[:, None]
     noise = np.random.default_rng([seed, STREAMS["noise"]]).standard_normal(pressed.shape) * noise_std_ohm[None, :]
     features = pressed - base + noise
-    features = np.where(np.isfinite(features), features, 0.0)  # a pair cut off reads as no change (flagged in a run)
+    # a pair cut off (a channel pinched shut) reads as the baselines read a recorded one: its column's saturation
+    # value (baselines.dataset.saturate, here over this call's presses), never as no change
+    features = saturate(features)[0]
     return Presses(features, commanded, landed, groups)
 
 

@@ -36,12 +36,20 @@ class PressModel(Protocol):
 
 
 def feature_jacobian(
-    skin: PressModel, x_mm, y_mm, depth_mm, step_mm: float = 0.01, depth_step_mm: float = 0.01
+    skin: PressModel,
+    x_mm,
+    y_mm,
+    depth_mm,
+    step_mm: float = 0.01,
+    depth_step_mm: float = 0.01,
+    max_resistance_ohm: float = np.inf,
 ) -> np.ndarray:
     """d dR / d(x, y, depth, log rho) per position, (n, pairs, 4): ohm/mm, ohm/mm, ohm/mm, ohm.
 
     Central differences in x, y and depth; a drift scales the pressed and the baseline resistance
-    alike, so d dR / d log rho = dR. NaN where a pair is cut off (R_eq = inf)."""
+    alike, so d dR / d log rho = dR. NaN where a pair is cut off (R_eq = inf), and where any point of the
+    stencil is above `max_resistance_ohm` (what the DAQ can read: beyond it the reading clips, so a channel
+    nearly pinched shut, whose R_eq climbs without bound, carries no graded information)."""
     x, y, depth = (np.atleast_1d(np.asarray(v, float)) for v in (x_mm, y_mm, depth_mm))
     x, y, depth = np.broadcast_arrays(x, y, depth)
     n = x.shape[0]
@@ -60,6 +68,7 @@ def feature_jacobian(
             axis=-1,
         )
     jac[~np.isfinite(jac)] = np.nan
+    jac[np.any(r > max_resistance_ohm, axis=0)] = np.nan
     return jac
 
 
