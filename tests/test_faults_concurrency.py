@@ -57,14 +57,18 @@ def _wait_for_presses(folder, n=1, timeout_s=60):
 
 @pytest.mark.timeout(240)
 def test_second_run_and_resume_are_refused_while_a_campaign_runs(long_protocol, tmp_path):
+    # 1,200 presses: the first run must still hold the folder when the second starts (at 120 an idle machine
+    # finished it in between, and the second was told the folder holds files, with no run named)
+    longer = long_protocol.with_name("longer.toml")
+    longer.write_text(long_protocol.read_text().replace("repeats = 20", "repeats = 200"))
     folder = tmp_path / "c"
-    first = _start(long_protocol, folder)
+    first = _start(longer, folder)
     try:
         _wait_for_presses(folder)
         assert describe(folder)["status"] == f"running ({lock_state(folder)[1]})"
         assert lock_state(folder)[1].pid == first.pid
 
-        second = _start(long_protocol, folder)
+        second = _start(longer, folder)
         assert second.wait(60) == 3
         assert f"another run holds this folder (PID {first.pid}" in second.stderr.read()
 
