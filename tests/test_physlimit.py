@@ -130,3 +130,36 @@ def test_typical_phases_are_the_plans_phase_times():
     durations = phase_durations_s(plan.program, protocol.printer)
     np.testing.assert_array_equal(plan.phase_s, durations)
     np.testing.assert_array_equal(_typical_phases_s(plan, protocol), np.median(durations, axis=0))
+
+
+def test_a_pair_cut_off_at_a_position_leaves_the_others_their_information(tmp_path):
+    """The FE skin at the paper's depth cuts pairs off under some presses: such a pair's noise is not finite there.
+    It drops out of that position's bound, and every other position keeps a finite, positive bound (a NaN once sent
+    every position to the noise-free branch: a bound of 0 everywhere)."""
+    import numpy as np
+    import pyarrow.parquet as pq
+
+    from neatskin.rig.dryrig import dry_scene
+    from neatskin.rig.physlimit import write_physical_limit
+    from neatskin.rig.plan import build_plan
+    from neatskin.rig.protocol import load_protocol
+    from neatskin.sim.daq import NoiseModel, SimulatedDAQ
+    from neatskin.sim.dryscene import dry_skin, interface_noise
+
+    protocol = load_protocol(str(PROTOCOLS / "paper.toml"))
+    plan = build_plan(protocol)
+    dry = dry_scene(protocol, plan)
+    skin = dry_skin(dry)
+    unpressed = np.asarray(skin.baseline_pair_resistance_ohm, float)
+    daq = SimulatedDAQ(  # the dry run's DAQ settings and noise; physlimit sets each state itself
+        dry.daq,
+        lambda t: np.broadcast_to(unpressed, (len(t), unpressed.size)),
+        noise=interface_noise(NoiseModel(), dry.scene),
+    )
+    frame = pq.read_table(write_physical_limit(tmp_path, protocol, plan, skin, daq)).to_pandas()
+    crb = frame["crb_mm"].to_numpy()
+    assert np.all(crb > 0)  # never the noise-free branch's 0
+    # on a channel at 3.5 mm the channel is shut: sliding along it changes no graded reading, so the position
+    # is unobservable from graded values (inf; the cut pattern alone tells it): 39 of the paper's 100 positions
+    assert 0.4 < np.isfinite(crb).mean() < 1.0
+    assert np.all(frame["crb_nuisance_mm"] >= crb)

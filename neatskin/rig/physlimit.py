@@ -173,7 +173,8 @@ def fabrication_jacobian(
             heights[c] *= np.exp(sign * step)
             s = dataclasses.replace(skin, channel_height_factor=tuple(heights))
             dr.append(np.asarray(s.pair_resistance_ohm(x_mm, y_mm, depth_mm), float) - s.baseline_pair_resistance_ohm)
-        columns.append((dr[0] - dr[1]) / (2 * step))
+        with np.errstate(invalid="ignore"):  # a pair cut off on both sides: inf - inf, NaN = no information
+            columns.append((dr[0] - dr[1]) / (2 * step))
     return np.stack(columns, axis=-1)
 
 
@@ -219,6 +220,12 @@ def write_physical_limit(
         lambda cx, cy, cd: feature_jacobian(skin, cx, cy, cd, max_resistance_ohm=readable_ohm), x, y, depth
     )  # (positions, pairs, 4)
     std = _dr_noise_std_ohm(protocol, plan, skin, daq, x, y, depth)
+    # a pair cut off at a position (a channel pinched shut: R = inf, its estimate's spread NaN or inf) reads no
+    # graded value there: it drops out of that position's information, and the other pairs keep theirs (a NaN
+    # here used to send every position to the noise-free branch: a bound of 0)
+    unread = ~np.isfinite(std)
+    jac = np.where(unread[..., None], np.nan, jac)
+    std = np.where(unread, 1.0, std)
     priors = NuisancePriors.from_scene(
         protocol.scene,
         _campaign_s(protocol, plan),
