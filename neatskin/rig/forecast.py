@@ -172,7 +172,7 @@ def plan_campaign(
     *,
     seeds: int = DEFAULT_SEEDS,
     sizes: list[CampaignSize] | None = None,
-    model: str = "lm_network",
+    model: str = "extra_trees",
     adaptive: bool = True,
     n_jobs: int = 2,
 ) -> pd.DataFrame:

@@ -20,6 +20,7 @@ import numpy as np
 from neatskin.baselines.dataset import saturate
 from neatskin.baselines.models import make_models
 from neatskin.gcode.positions import generate_positions
+from neatskin.rig.assembly import daq_config
 from neatskin.rig.dryrig import dry_scene
 from neatskin.rig.physlimit import _dr_noise_std_ohm
 from neatskin.rig.plan import build_plan
@@ -153,6 +154,11 @@ def simulate_presses(
         float,
     ) * np.ones(n)
     pressed = np.asarray(skin.pair_resistance_ohm(landed[:, 0], landed[:, 1], depth, resistivity_factor=drift), float)
+    # beyond the compliance or the AI's reach the DAQ reads no value, it flags the pair (open circuit, clipped) as
+    # it does a cut one: a channel nearly pinched shut gives a huge but finite R_eq that no rig would record
+    cfg = daq_config(protocol)
+    readable_ohm = min(cfg.compliance_v, cfg.voltage_limit_v) / cfg.amplitude_a if cfg.amplitude_a > 0 else np.inf
+    pressed = np.where(pressed > readable_ohm, np.inf, pressed)
     base = np.asarray(skin.baseline_pair_resistance_ohm, float)[None, :] * drift[:, None]
     noise = np.random.default_rng([seed, STREAMS["noise"]]).standard_normal(pressed.shape) * noise_std_ohm[None, :]
     features = pressed - base + noise
