@@ -142,3 +142,16 @@ def _placements(study: Study, base: dict[str, Any]) -> list[Candidate]:
                 continue
             out.append(Candidate(**base, strategy=strategy, count=count, placement=strategy, nodes=found))
     return out
+
+
+OPTIMISER_MAX_CANDIDATES = 100  # the optimiser's junction pool is every junction up to this many
+
+
+def optimiser_junctions(nx: int, ny: int) -> list[tuple[int, int]]:
+    """Candidate junctions of the optimiser: all of them up to OPTIMISER_MAX_CANDIDATES, else the boundary plus
+    the every-other-junction sub-lattice (stated in the report)."""
+    if nx * ny <= OPTIMISER_MAX_CANDIDATES:
+        return [(i, j) for j in range(ny) for i in range(nx)]
+    nodes = dict.fromkeys(boundary_walk(nx, ny))
+    nodes.update(dict.fromkeys(every_k_nodes(nx, ny, 2)))
+    return sorted(nodes, key=lambda n: (n[1], n[0]))

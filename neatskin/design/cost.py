@@ -18,8 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from neatskin.design.candidates import Candidate
-from neatskin.design.evaluate import optimiser_junctions
+from neatskin.design.candidates import Candidate, optimiser_junctions
 from neatskin.design.study import Study
 
 SECONDS_PER_PRESS_EVALUATION = 9.2e-6  # on a free core: measured under load, scaled (module docstring)

@@ -23,7 +23,8 @@ from neatskin.design.bound import (
     position_information,
     summarise_mm,
 )
-from neatskin.design.candidates import Candidate, boundary_walk, every_k_nodes
+from neatskin.design.candidates import Candidate, optimiser_junctions
+from neatskin.design.cost import candidate_work
 from neatskin.design.electrical import candidate_electrical, electrical_columns
 from neatskin.design.inversion import inversion_errors_mm
 from neatskin.design.learned import learned_error_mm
@@ -32,8 +33,6 @@ from neatskin.design.sensitivity import grounded_inverse, press_jacobian
 from neatskin.design.study import Study
 from neatskin.layout import Layout
 from neatskin.skin.layouts import grid_layout
-
-OPTIMISER_MAX_CANDIDATES = 100
 
 
 @dataclass(frozen=True)
@@ -81,16 +80,6 @@ def pair_noise(study: Study) -> PairNoise:
         live_samples=study.live_samples,
         sweeps_per_press=study.sweeps_per_press,
     )
-
-
-def optimiser_junctions(nx: int, ny: int) -> list[tuple[int, int]]:
-    """Candidate junctions of the optimiser: all of them up to OPTIMISER_MAX_CANDIDATES, else the boundary plus
-    the every-other-junction sub-lattice (stated in the report)."""
-    if nx * ny <= OPTIMISER_MAX_CANDIDATES:
-        return [(i, j) for j in range(ny) for i in range(nx)]
-    nodes = dict.fromkeys(boundary_walk(nx, ny))
-    nodes.update(dict.fromkeys(every_k_nodes(nx, ny, 2)))
-    return sorted(nodes, key=lambda n: (n[1], n[0]))
 
 
 def evaluate_candidate(
@@ -222,8 +211,6 @@ def _ticker(study: Study, candidate: Candidate, tick: Callable[[float], None] | 
     gives what is left (the estimate's rounding), so a candidate always adds up to exactly 1."""
     if tick is None:
         return lambda n, done=False: None
-    from neatskin.design.cost import candidate_work
-
     total = max(1, candidate_work(study, candidate).total)
     given = 0.0
 
