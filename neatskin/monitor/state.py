@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from neatskin.datasets.lock import lock_state
 from neatskin.datasets.manifest import read_manifest
 from neatskin.datasets.paths import part_press_id
 from neatskin.datasets.reader import press_files, read_presses
@@ -315,7 +316,7 @@ class CampaignView:
         snap: dict[str, Any] = {
             "folder": str(folder),
             "campaign": manifest.get("campaign", folder.name),
-            "status": manifest.get("status", "unknown"),
+            "status": _live_status(folder, manifest),
             "manifest_problem": problem,
             "rig": (manifest.get("rig") or {}).get("kind") if isinstance(manifest.get("rig"), dict) else None,
             "started_at": manifest.get("started_at"),
@@ -393,3 +394,12 @@ class CampaignView:
             "baseline_pct": [_finite(col) for col in pct.T],
             "baseline_first_ohm": _finite(first),
         }
+
+
+def _live_status(folder: Path, manifest: dict[str, Any]) -> str:
+    """The manifest's status, told apart by the folder lock: a `running` manifest whose process no longer holds
+    the lock (killed, SIGKILL included: the kernel drops the flock) is `crashed`; resume finishes it."""
+    status = str(manifest.get("status", "unknown"))
+    if status == "running" and not lock_state(folder)[0]:
+        return "crashed"
+    return status
