@@ -8,7 +8,8 @@ for a dry run, and the NI backend (the one module that imports nidaqmx) only whe
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
@@ -124,6 +125,22 @@ def open_printer(
     return driver
 
 
+@contextmanager
+def closed_on_failure(closers: list[Callable[[], None]], what: str) -> Iterator[None]:
+    """Opening a rig's devices: on any failure close what was opened (`closers`, in reverse) before the error
+    leaves; a HardwareError passes as it is, anything else becomes one HardwareError "cannot open {what}"."""
+    try:
+        yield
+    except HardwareError:
+        for close in reversed(closers):
+            close()
+        raise
+    except Exception as exc:
+        for close in reversed(closers):
+            close()
+        raise HardwareError(f"cannot open {what}: {exc}") from exc
+
+
 def build_real_rig(
     protocol: CampaignProtocol,
     plan: Plan,
@@ -137,18 +154,11 @@ def build_real_rig(
     """The printer on a serial port and the DAQ; errors are HardwareErrors raised before any motion.
     The simulated DAQ on a real port is neatskin.rig.hilrig's (the runner builds it there)."""
     closers: list[Callable[[], None]] = []
-    try:  # the printer first: a port that does not answer is the commonest set-up mistake
+    # the printer first: a port that does not answer is the commonest set-up mistake
+    with closed_on_failure(closers, f"the rig (printer on {port}, DAQ {daq_kind})"):
         driver = open_printer(protocol, port, closers, baud_rate, connect_timeout_s, wire_log)
         daq = open_daq(daq_kind, daq_config(protocol))
         closers.append(daq.close)
-    except HardwareError:
-        for close in reversed(closers):
-            close()
-        raise
-    except Exception as exc:
-        for close in reversed(closers):
-            close()
-        raise HardwareError(f"cannot open the rig (printer on {port}, DAQ {daq_kind}): {exc}") from exc
     recorder = ThreadedRecorder(
         daq,
         plan.sweep,

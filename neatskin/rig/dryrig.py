@@ -22,7 +22,7 @@ from neatskin.rig.physlimit import write_physical_limit
 from neatskin.rig.plan import Plan
 from neatskin.rig.protocol import CampaignProtocol
 from neatskin.sim.daq import SimulatedDAQ
-from neatskin.sim.dryscene import DryScene, dry_daq, dry_probe, dry_skin, skin_estimator
+from neatskin.sim.dryscene import DryProbe, DryScene, dry_daq, dry_probe, dry_skin, skin_estimator
 from neatskin.sim.faults import FaultConfig
 from neatskin.sim.printer import SimulatedPrinter
 from neatskin.sim.recorder import SimulatedRecorder
@@ -101,19 +101,7 @@ def build_dry_rig(
 
     probe = dry_probe(dry, skin, printer.segments, force_only=worker is not None)
     daq = dry_daq(dry, probe)
-    recorder = SimulatedRecorder(
-        daq,
-        sweep,
-        probe,
-        printer.now_s,
-        seed=protocol.seed,
-        signal=scene.signal,
-        method=protocol.acquisition.demodulation,
-        window=protocol.acquisition.window,
-        fsr_enabled=protocol.fsr_enabled,
-        keep_waveforms=protocol.record_waveforms,
-        worker=worker,
-    )
+    recorder = simulated_recorder(protocol, plan, dry, daq, probe, printer.now_s, worker=worker)
     profile = getattr(protocol, "skin_profile", None)
     description = {
         "kind": "dry-run",
@@ -158,4 +146,30 @@ def dry_scene(protocol: CampaignProtocol, plan: Plan) -> DryScene:
         interval_s=getattr(scene, "press_interval_s", 0.0) or plan.press_interval_s,
         commanded_mm=plan.commanded_mm(protocol.press.press.depth_mm) if relaxing else None,
         skin_profile=getattr(protocol, "skin_profile", None),
+    )
+
+
+def simulated_recorder(
+    protocol: CampaignProtocol,
+    plan: Plan,
+    dry: DryScene,
+    daq: SimulatedDAQ,
+    probe: DryProbe,
+    now_s: Callable[[], float],
+    worker: SkinWorker | None = None,
+) -> SimulatedRecorder:
+    """The simulated DAQ's recorder on the protocol's acquisition settings, timed by `now_s` (the simulated
+    printer's clock in a dry run, the line tracker's on a real printer)."""
+    return SimulatedRecorder(
+        daq,
+        plan.sweep,
+        probe,
+        now_s,
+        seed=protocol.seed,
+        signal=dry.scene.signal,
+        method=protocol.acquisition.demodulation,
+        window=protocol.acquisition.window,
+        fsr_enabled=protocol.fsr_enabled,
+        keep_waveforms=protocol.record_waveforms,
+        worker=worker,
     )

@@ -13,14 +13,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from os import PathLike
 
-from neatskin.errors import HardwareError
-from neatskin.rig.assembly import Rig, open_printer
-from neatskin.rig.dryrig import dry_scene
+from neatskin.rig.assembly import Rig, closed_on_failure, open_printer
+from neatskin.rig.dryrig import dry_scene, simulated_recorder
 from neatskin.rig.plan import Plan
 from neatskin.rig.protocol import CampaignProtocol
 from neatskin.sim.dryscene import dry_daq, dry_probe, dry_skin
 from neatskin.sim.linetrack import LineTracker
-from neatskin.sim.recorder import SimulatedRecorder
 
 
 def build_hil_rig(
@@ -35,34 +33,15 @@ def build_hil_rig(
     """The printer on `port` (HardwareError before any motion when it does not answer), the simulated skin and
     DAQ following the printer's commanded, acknowledged and M114-checked motion."""
     closers: list[Callable[[], None]] = []
-    try:
+    with closed_on_failure(closers, f"the printer on {port} (DAQ simulated)"):
         driver = open_printer(protocol, port, closers, baud_rate, connect_timeout_s, wire_log)
-    except HardwareError:
-        for close in reversed(closers):
-            close()
-        raise
-    except Exception as exc:
-        for close in reversed(closers):
-            close()
-        raise HardwareError(f"cannot open the printer on {port} (DAQ simulated): {exc}") from exc
     tracker = LineTracker(driver, protocol.printer)
     dry = dry_scene(protocol, plan)
     scene = dry.scene
     skin = dry_skin(dry)
     probe = dry_probe(dry, skin, tracker.segments)
     daq = dry_daq(dry, probe)
-    recorder = SimulatedRecorder(
-        daq,
-        plan.sweep,
-        probe,
-        tracker.now_s,
-        seed=protocol.seed,
-        signal=scene.signal,
-        method=protocol.acquisition.demodulation,
-        window=protocol.acquisition.window,
-        fsr_enabled=protocol.fsr_enabled,
-        keep_waveforms=protocol.record_waveforms,
-    )
+    recorder = simulated_recorder(protocol, plan, dry, daq, probe, tracker.now_s)
     description = {
         "kind": "real",
         "printer": port,
