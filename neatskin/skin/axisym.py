@@ -39,13 +39,7 @@ class AxisymmetricAssembler(_Assembler):
     def tangent(self, x):
         F, J, FiT, p, F3 = self.kinematics(x)
         pJ = p * J
-        eye = np.eye(2)
-        A = self.mu * np.einsum("ik,jl->ijkl", eye, eye)[..., None, None] + (self.mu - pJ) * np.einsum(
-            "ileq,kjeq->ijkleq", FiT, FiT
-        )
-        A += pJ * np.einsum("ijeq,kleq->ijkleq", FiT, FiT)
-        AG = np.einsum("ijkleq,bkleq->ijbeq", A * self.dx, self.G, optimize=True)
-        k_uu = np.einsum("aijeq,ijbeq->abe", self.G, AG)
+        k_uu = self._in_plane_k_uu(FiT, pJ)
         # in-plane <-> hoop: dP_ij/dF3 = pJ / F3 FiT_ij, dP3/dF_kl = pJ / F3 FiT_kl
         cross = np.einsum("ijeq,aijeq->aeq", FiT * (pJ / F3 * self.dx), self.G)  # (12, el, q)
         k_uu += np.einsum("aeq,beq->abe", cross, self.hoop) + np.einsum("aeq,beq->abe", self.hoop, cross)

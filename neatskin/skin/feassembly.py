@@ -46,17 +46,21 @@ class Assembler:
         n = self.ub.N + self.pb.N
         return np.bincount(self.udofs.ravel(), r_u.ravel(), n) + np.bincount(self.pdofs.ravel(), r_p.ravel(), n)
 
-    def tangent(self, x):
-        F, J, FiT, p = self.kinematics(x)
-        pJ = p * J
-        # dP_ij = A_ijkl dF_kl = mu dF_ij + (mu - pJ) FiT_il FiT_kj + pJ FiT_ij FiT_kl
+    def _in_plane_k_uu(self, FiT, pJ):
+        """The in-plane displacement block per element, from dP_ij = A_ijkl dF_kl with
+        A_ijkl = mu d_ik d_jl + (mu - pJ) FiT_il FiT_kj + pJ FiT_ij FiT_kl (plane strain and axisymmetric alike)."""
         eye = np.eye(2)
         A = self.mu * np.einsum("ik,jl->ijkl", eye, eye)[..., None, None] + (self.mu - pJ) * np.einsum(
             "ileq,kjeq->ijkleq", FiT, FiT
         )
         A += pJ * np.einsum("ijeq,kleq->ijkleq", FiT, FiT)
         AG = np.einsum("ijkleq,bkleq->ijbeq", A * self.dx, self.G, optimize=True)
-        k_uu = np.einsum("aijeq,ijbeq->abe", self.G, AG)
+        return np.einsum("aijeq,ijbeq->abe", self.G, AG)
+
+    def tangent(self, x):
+        F, J, FiT, p = self.kinematics(x)
+        pJ = p * J
+        k_uu = self._in_plane_k_uu(FiT, pJ)
         k_up = np.einsum("ijeq,aijeq,beq->abe", FiT * (J * self.dx), self.G, self.phi, optimize=True)
         K = self._matrix(k_uu, self.udofs, self.udofs) + self._matrix(k_up, self.udofs, self.pdofs)
         return (K + self._matrix(np.swapaxes(k_up, 0, 1), self.pdofs, self.udofs) + self.Kpp).tocsr()
