@@ -215,12 +215,16 @@ def _row_hashes(table: pa.Table, expected: pa.Schema) -> np.ndarray:
 def _cut_pairs_only(flags: pa.ChunkedArray, flagged: np.ndarray) -> np.ndarray:
     """Per row: flagged, and every flag it carries says a pair was cut off (`open_circuit:i-j`, with or without
     `clipped:i-j` for the same pair). A pair clipped but still conducting, or a row-level flag, is not."""
+    rows = np.flatnonzero(flagged)
+    chosen = pc.take(flags, pa.array(rows))
+    values = pc.list_flatten(chosen).to_pylist()  # one pass over the flagged rows' flags, not one row at a time
+    parents = np.asarray(pc.list_parent_indices(chosen))
+    kinds: list[dict[str, set[str]]] = [{} for _ in rows]
+    for k, flag in zip(parents.tolist(), values):
+        kind, sep, pair = str(flag).partition(":")
+        kinds[k].setdefault(kind if sep and pair else "", set()).add(pair)
     out = np.zeros(flagged.shape, dtype=bool)
-    for row in np.flatnonzero(flagged):
-        kinds: dict[str, set[str]] = {}
-        for flag in flags[int(row)].as_py() or ():
-            kind, sep, pair = str(flag).partition(":")
-            kinds.setdefault(kind if sep and pair else "", set()).add(pair)
-        cut = kinds.get(CUT_PAIR_FLAG_KINDS[0], set())
-        out[row] = bool(cut) and set(kinds) <= set(CUT_PAIR_FLAG_KINDS) and kinds.get("clipped", set()) <= cut
+    for k, row in enumerate(rows):
+        cut = kinds[k].get(CUT_PAIR_FLAG_KINDS[0], set())
+        out[row] = bool(cut) and set(kinds[k]) <= set(CUT_PAIR_FLAG_KINDS) and kinds[k].get("clipped", set()) <= cut
     return out
