@@ -263,3 +263,15 @@ def test_bold_only_when_the_interval_beats_every_honest_competitor():
     # grouped: a's [1, 2] lies below b's and c's; random: a's [1, 1.5] overlaps b's [1.4, 2], and the
     # memorising m is neither bold nor a competitor
     assert bold_winners(t) == {("a", "grouped")}
+
+
+def test_an_unobservable_position_makes_the_bound_infinite_and_flags_nothing(tmp_path):
+    """On the FE skin a press on a shut channel is unobservable from graded readings (crb = inf there): the
+    pooled bound is inf, and no result is "below" it, not even the noiseless kNN the test above flags."""
+    df = table(20, 6, noise_ohm=0.0)
+    folder = write_dataset(tmp_path / "ds", df, crb_mm=np.inf)
+    report = run_baselines(folder, split="random", models=["knn", "ridge"], n_repeats=4, progress=False)
+    assert report.bound_rms_mm == np.inf
+    t = report.table.set_index(["model", "split"])
+    assert t.loc[("knn", "random"), "mean_error_mm"] < 1e-9
+    assert not t["below_bound"].any()

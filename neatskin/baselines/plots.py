@@ -30,6 +30,15 @@ FLOOR_COLUMNS = (  # physical_limit.parquet columns drawn as floors, in this ord
 OFF_VIEW_FACTOR = 3.0  # a model whose mean error is this many times the (lower) median model's sits on the top edge
 
 
+def _split_label_floor_mm(table, split: str) -> float | None:
+    """The label-noise floor (mean) of the split, as the report's table gives it per row (`label_floor_mean_mm`)."""
+    if table is None or "label_floor_mean_mm" not in table.columns:
+        return None
+    values = table.loc[table["split"] == split, "label_floor_mean_mm"].to_numpy(dtype=float)
+    values = values[np.isfinite(values)]
+    return float(values[0]) if values.size else None
+
+
 def floors_mm(limit) -> dict[str, tuple[float, str, str]]:
     """The pooled floors (sqrt of the mean square over positions) the physical limit gives: name -> (mm, colour,
     line style). A column absent from the file (an older dataset, a floor not computed) is left out."""
@@ -85,7 +94,7 @@ def error_vs_time_figure(
     splits = list(dict.fromkeys(r.split for r in results))
     models = list(dict.fromkeys(r.model for r in results))
     colours = {m: f"C{i % 10}" for i, m in enumerate(models)}
-    fig, axes = plt.subplots(1, len(splits), figsize=(5.0 * len(splits), 5.2), squeeze=False, sharey=True)
+    fig, axes = plt.subplots(1, len(splits), figsize=(max(5.0 * len(splits), 9.0), 5.2), squeeze=False, sharey=True)
 
     flagged = set()
     if table is not None and "below_bound" in table.columns:  # the report's one rule (report.results_table)
@@ -139,6 +148,15 @@ def error_vs_time_figure(
             ax.axhline(2.03, color="tab:red", ls="--", lw=1, label="paper, real skin, same split: 2.03 mm")
         for name, (value, colour, style) in floors.items():
             ax.axhline(min(value, top), color=colour, ls=style, lw=1.2, label=f"{name}: {value:.3g} mm")
+        label_floor = _split_label_floor_mm(table, split)
+        if label_floor is not None:
+            ax.axhline(
+                label_floor,
+                color="tab:brown",
+                ls=":",
+                lw=1.5,
+                label=f"label-noise floor, {split}: {label_floor:.3g} mm",
+            )
         ax.set_xscale("log")
         # ticks at 1, 2, 5 per decade labelled plainly (0.02, 0.05, 0.1): readable within one decade, no collisions
         ax.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))

@@ -107,8 +107,9 @@ def results_table(
     if bound is not None:
         table["crb_rms_mm"] = bound
         table["rms_over_crb"] = table["rms_error_mm"] / bound if bound > 0 else np.inf
+    if bound is not None and np.isfinite(bound):
         table["below_bound"] = (table["rms_error_mm"] < bound) | (table["median_error_mm"] < MEDIAN_BOUND_SHARE * bound)
-    else:
+    else:  # no bound, or an infinite one (a position no graded reading sees, on the FE skin): nothing is below it
         table["below_bound"] = False
     table["below_bound"] = table["below_bound"] | below_label_floor(table)
     return table
