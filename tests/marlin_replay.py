@@ -50,6 +50,30 @@ SCRIPT: list[tuple[bytes, float]] = [
     (b"M110 N0\n", 0.5),
 ]
 
+# Motion before homing: stock Marlin (no NO_MOTION_BEFORE_HOMING) moves from where it believes it is (zeros at
+# boot), with no word, and clamps only the axes it has homed (none yet: below the soft minimum is taken). Short
+# moves: the firmware runs them in real time. M114 reports the end of the queued motion, so it is exact at once.
+BEFORE_HOMING: list[tuple[bytes, float]] = [
+    (b"M110 N0\n", OK_WAIT_S),
+    (frame("M114", 1), OK_WAIT_S),
+    (frame("G1 X10 F3000", 2), OK_WAIT_S),
+    (frame("M114", 3), OK_WAIT_S),
+    (frame("G0 Z5", 4), OK_WAIT_S),
+    (frame("G1 X-5 Y-2.5", 5), OK_WAIT_S),
+    (frame("M400", 6), OK_WAIT_S),
+    (frame("M114", 7), OK_WAIT_S),
+    (frame("G91", 8), OK_WAIT_S),
+    (frame("G1 X1 Y1 Z-1", 9), OK_WAIT_S),
+    (frame("G90", 10), OK_WAIT_S),
+    (frame("M400", 11), OK_WAIT_S),
+    (frame("M114", 12), OK_WAIT_S),
+    (frame("M119", 13), OK_WAIT_S),
+    (frame("G92 X0 Y0", 14), OK_WAIT_S),
+    (frame("G1 X3", 15), OK_WAIT_S),
+    (frame("M400", 16), OK_WAIT_S),
+    (frame("M114", 17), OK_WAIT_S),
+]
+
 
 def replay(fd: int, script: list[tuple[bytes, float]] = SCRIPT, max_wait_s: float = 10.0) -> list[tuple[bytes, bytes]]:
     """(line written, every byte read until its `ok` or a quiet time) for each entry of the script."""

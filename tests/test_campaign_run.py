@@ -1,6 +1,7 @@
 """Campaigns end to end: the smoke protocol as a dry run through a real pseudo-terminal, read back without the toolkit."""
 
 import json
+import re
 
 import numpy as np
 import pandas as pd
@@ -8,6 +9,7 @@ import pyarrow.parquet as pq
 import pytest
 from conftest import PROTOCOLS
 
+from neatskin.marlin.wirelog import read_wire_log
 from neatskin.rig.protocol import load_protocol
 from neatskin.rig.runner import run_campaign
 from neatskin.skin.network import equivalent_resistance
@@ -32,6 +34,28 @@ def test_smoke_campaign_completes(smoke_run):
     )
     for key in ("layout", "wiring", "printer", "protocol"):
         assert (folder / manifest[key]["path"]).is_file()
+
+
+def test_the_campaign_homes_before_its_first_move(smoke_run):
+    """The simulated printer moves before homing, as stock Marlin does (test_marlin_real_vs_sim): the campaign never
+    asks it to. Its preamble homes (G28, M400) and its first move goes out only once the printer acknowledged the
+    M400, after the homing ended (resume and the re-home after a long pause send the same preamble)."""
+    _, _, folder = smoke_run
+    events = []  # (">", command) for each framed line written, ("<", "ok") for each ok read, in wire order
+    for direction, data in read_wire_log(folder / "wire.log"):
+        for raw in data.decode("ascii").splitlines():
+            framed = re.fullmatch(r"N\d+ (.*)\*\d+", raw.strip())
+            if direction == ">" and framed:
+                events.append((">", framed.group(1)))
+            elif direction == "<" and raw.startswith("ok"):
+                events.append(("<", "ok"))
+    codes = [(d, c.split()[0]) for d, c in events]
+    first_move = min(codes.index((">", "G0")), codes.index((">", "G1")))
+    homing = codes.index((">", "G28"))
+    sync = codes.index((">", "M400"), homing)  # the preamble's M400: its ok comes when the homing is done
+    assert homing < sync < first_move
+    homed = sum(d == ">" for d, _ in codes[: sync + 1])  # lines written up to the M400
+    assert codes[:first_move].count(("<", "ok")) >= homed  # all acknowledged before the first move was written
 
 
 def test_dataset_reads_back_without_the_toolkit(smoke_run):

@@ -7,9 +7,10 @@ so the settings report's numbers agree too. Documented exceptions, each normalis
   (the HAL's line before `start`), and M115's FIRMWARE_NAME and MACHINE_TYPE line;
 - timing: `echo:busy: processing` keep-alives come every 2 s of a long command on either side, at
   times neither controls, so they are left out of both;
-- motion before homing: the simulator refuses it (`echo:Home XYZ First`, a printer built with
-  NO_MOTION_BEFORE_HOMING, as the rig's is); stock Marlin moves from where it thinks it is, so the
-  script has no move (Count at the end of the queued motion is pinned by test_marlin_sim).
+- homing: G28 takes 30 s on the native build's simulated board, so no script homes (test_marlin_sim pins
+  the simulator's homing; the real G28 also raises Z and reports the position, which the simulator does not).
+Motion before homing is compared (BEFORE_HOMING): both move from where they believe they are, zeros at boot,
+with no `echo:` or `Error:` word, unclamped on axes not homed.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from pathlib import Path
 
 import pytest
 import serial
-from marlin_replay import SCRIPT, replay
+from marlin_replay import BEFORE_HOMING, SCRIPT, replay
 
 from neatskin.gcode.profile import load_printer_profile
 from neatskin.sim.printer import SimulatedPrinter
@@ -45,23 +46,26 @@ def normalise(data: bytes) -> bytes:
     return b"".join(out)
 
 
-def sim_transcript(advanced_ok: bool) -> tuple[bytes, list[tuple[bytes, bytes]]]:
+Script = list[tuple[bytes, float]]
+
+
+def sim_transcript(advanced_ok: bool, script: Script = SCRIPT) -> tuple[bytes, list[tuple[bytes, bytes]]]:
     printer = SimulatedPrinter(load_printer_profile(NATIVE_PROFILE), advanced_ok=advanced_ok, time_mode="scaled")
     banner = printer.core.take_output()  # what it printed at boot (pyserial's open flushes a pty's input)
     path = printer.start_pty()
     try:
         with serial.Serial(path, timeout=0) as port:
-            return banner, replay(port.fd)
+            return banner, replay(port.fd, script)
     finally:
         printer.stop()
 
 
-def real_transcript(build: str) -> tuple[bytes, list[tuple[bytes, bytes]]]:
+def real_transcript(build: str, script: Script = SCRIPT) -> tuple[bytes, list[tuple[bytes, bytes]]]:
     assert MARLIN is not None
     with FirmwareRelay(MARLIN / build) as relay:
         banner = b"".join(relay.replies())
         with serial.Serial(relay.path, timeout=0) as port:
-            return banner, replay(port.fd)
+            return banner, replay(port.fd, script)
 
 
 @pytest.mark.skipif(MARLIN is None, reason="the real firmware is absent: no shared/marlin beside the repository")
@@ -74,6 +78,29 @@ def test_the_simulator_answers_the_script_as_the_real_firmware(build):
     assert len(sim) == len(real) == len(SCRIPT)
     for (line, want), (_, got) in zip(real, sim):
         assert normalise(got) == normalise(want), line
+
+
+@pytest.mark.skipif(MARLIN is None, reason="the real firmware is absent: no shared/marlin beside the repository")
+@pytest.mark.timeout(120)
+def test_moves_before_homing_answer_as_the_real_firmware():
+    """Plain `ok`s only: with ADVANCED_OK the planner's free slots (`P`) depend on when the real moves end."""
+    _, real = real_transcript(PLAIN, BEFORE_HOMING)
+    _, sim = sim_transcript(advanced_ok=False, script=BEFORE_HOMING)
+    assert len(sim) == len(real) == len(BEFORE_HOMING)
+    for (line, want), (_, got) in zip(real, sim):
+        assert normalise(got) == normalise(want), line
+
+
+def test_the_before_homing_script_shows_the_moves():
+    """The script itself (no firmware needed): what the simulator answers, as the native build did on 2026-11-25."""
+    _, sim = sim_transcript(advanced_ok=False, script=BEFORE_HOMING)
+    answers = [got for _, got in sim]
+    assert b"echo:" not in b"".join(answers) and b"Error:" not in b"".join(answers)
+    assert answers[3] == b"X:10.00 Y:0.00 Z:0.00 E:0.00 Count X:800 Y:0 Z:0\nok\n"  # the queued move, at once
+    assert answers[7] == b"X:-5.00 Y:-2.50 Z:5.00 E:0.00 Count X:-400 Y:-200 Z:2000\nok\n"  # below the soft minimum
+    assert answers[12] == b"X:-4.00 Y:-1.50 Z:4.00 E:0.00 Count X:-320 Y:-120 Z:1600\nok\n"
+    assert answers[13] == b"Reporting endstop status\nx_min: open\ny_min: open\nz_min: open\nok\n"
+    assert answers[17] == b"X:3.00 Y:0.00 Z:4.00 E:0.00 Count X:-80 Y:-120 Z:1600\nok\n"  # G92 X0 at -4: native -1
 
 
 def test_the_script_covers_every_difference_the_issue_lists():

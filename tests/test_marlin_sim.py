@@ -82,9 +82,12 @@ def test_marlin_2_0_answers_a_repeat_and_1_x_adds_ok_after_resend(profile):
 
 def test_homing_limits_m114_m119_m211_m118(profile):
     core = fresh(profile)
-    assert talk(core, b"G1 X10\n") == b"echo:Home XYZ First\nok\n"
+    # as stock Marlin (the native build does it: test_marlin_real_vs_sim): a move before homing runs, unclamped
+    assert talk(core, b"G1 X-5 Y10\n") == b"ok\n"
+    assert talk(core, b"M114\n") == b"X:-5.00 Y:10.00 Z:0.00 E:0.00 Count X:-400 Y:800 Z:0\nok\n"
     assert talk(core, b"G28 X\n") == b"echo:busy: processing\n" * 3 + b"ok\n"  # a third of 25 s
-    assert talk(core, b"G1 X10\n") == b"echo:Home YZ First\nok\n"
+    assert talk(core, b"G1 X-5 Y-5\n") == b"ok\n"  # the soft limits hold on the homed axis only
+    assert talk(core, b"M114\n") == b"X:0.00 Y:-5.00 Z:0.00 E:0.00 Count X:0 Y:-400 Z:0\nok\n"
     assert talk(core, b"G28\n") == b"echo:busy: processing\n" * 3 + b"ok\n"  # 25 s of homing, virtual
     assert (
         talk(core, b"M119\n") == b"Reporting endstop status\nx_min: TRIGGERED\ny_min: TRIGGERED\nz_min: TRIGGERED\nok\n"
@@ -110,6 +113,38 @@ def test_m114_before_homing_is_zeros_and_count_follows_the_queue(profile):
     core.step()
     assert core.take_output() == b"ok\nX:100.00 Y:0.00 Z:0.00 E:0.00 Count X:8000 Y:0 Z:0\nok\n"
     assert core.timeline.position_mm(core.clock.now())[0] < 100.0  # the probe is still on its way
+
+
+def test_a_move_before_homing_steps_the_probe_from_where_it_is(profile):
+    """The firmware believes zeros at boot; the probe is at the park position. A move before homing steps each
+    axis by the same distance from where the probe is; past the end of the bed's travel the steps are lost
+    (the probe stops there), so the difference between the two changes; G28 of an axis ends it for that axis."""
+    core = fresh(profile)
+    park = tuple(profile.park_mm)  # (0, 200, 60) mm
+    talk(core, b"G1 X30 Y-50 Z-10 F6000\nM400\n")
+    assert core.timeline.position_mm(core.clock.now()) == (park[0] + 30, park[1] - 50, park[2] - 10)
+    assert talk(core, b"M114\n") == b"X:30.00 Y:-50.00 Z:-10.00 E:0.00 Count X:2400 Y:-4000 Z:-4000\nok\n"
+    talk(core, b"G1 Y30\nM400\n")  # 80 mm up in Y from 150 mm: 10 mm past the bed's 220 mm, lost on the frame
+    assert core.timeline.position_mm(core.clock.now())[1] == profile.bed_y_mm
+    talk(core, b"G1 Y10\nM400\n")
+    assert core.timeline.position_mm(core.clock.now())[1] == profile.bed_y_mm - 20
+    talk(core, b"G28 Z\nM400\n")  # Z goes home; X and Y stay where the probe is
+    assert core.timeline.position_mm(core.clock.now()) == (park[0] + 30, profile.bed_y_mm - 20, 0.0)
+    talk(core, b"G28\nG1 X10 Y20 Z5\nM400\n")  # homed: the probe is where the firmware believes
+    assert core.timeline.position_mm(core.clock.now()) == (10.0, 20.0, 5.0)
+    assert [t for _, t in core.executed][-3:] == ["G28", "G1 X10 Y20 Z5", "M400"]
+
+
+def test_m84_keeps_the_axes_homed(profile):
+    """Stock Marlin (HOME_AFTER_DEACTIVATE off) keeps its homing when the steppers go off: the soft limits still
+    clamp, and M119 still reports the endstops (the native build: G28, M84, G1 X-5 -> M114 X:0.00, M119 TRIGGERED)."""
+    core = fresh(profile)
+    talk(core, b"G28\n")
+    assert talk(core, b"M84\n") == b"ok\n"
+    assert talk(core, b"G1 X-5\nM400\nM114\n").endswith(b"X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0\nok\n")
+    assert talk(core, b"M119\n") == (
+        b"Reporting endstop status\nx_min: TRIGGERED\ny_min: TRIGGERED\nz_min: TRIGGERED\nok\n"
+    )
 
 
 def test_m112_halts_until_a_reset(profile):
@@ -207,8 +242,8 @@ def test_driver_against_the_sim(profile, transport):
     driver = MarlinDriver(port, config=CONFIG)
     try:
         driver.connect()
-        with pytest.raises(E.CommandRejected, match="Home XYZ First"):
-            driver.send("G1 X10")
+        driver.send("G1 X10")  # stock Marlin moves before homing, from where it believes it is (zeros at boot)
+        assert driver.position().x_mm == 10.0
         driver.send("G28")
         driver.send_lines(["G1 X100 Y50 Z10 F6000", "G1 Z2 F300", "M400"])
         assert sim.probe_position() == (100.0, 50.0, 2.0)
@@ -220,8 +255,12 @@ def test_driver_against_the_sim(profile, transport):
         with pytest.raises(E.PrinterReset):
             driver.send("M105")
         driver.reconnect(boot_timeout_s=0.05)
-        with pytest.raises(E.CommandRejected, match="Home XYZ First"):
-            driver.send("G1 X1")  # homing was lost with the reset
+        # homing was lost with the reset: the firmware believes zeros again, where the probe is not; the driver
+        # says so, and the campaign homes before it moves (its preamble: test_campaign_run)
+        assert "G28" in E.PrinterReset.fix
+        pos = driver.position()
+        assert (pos.x_mm, pos.y_mm, pos.z_mm, pos.count) == (0.0, 0.0, 0.0, (0, 0, 0))
+        assert sim.probe_position() == (100.0, 50.0, 2.0)
     finally:
         driver.close()
         sim.stop()

@@ -8,10 +8,14 @@ the counter is dropped silently; `marlin_version="2.0"` answers it with an error
 Repetier-like peer). What it prints matches the real firmware byte for byte where
 tests/test_marlin_real_vs_sim.py compares them (`\r\n` after M118 and the M111 echo, the
 banner, M115's capabilities, M114 zeros before homing, `Count` at the end of the queued motion,
-M112 only as a command, nothing after a kill until a reset). Commands run in order from a
-BUFSIZE-slot queue; moves go to a planner of `planner_buffer_size` slots (a full planner delays
-the `ok`). Time is a clock object: virtual (jumps to when the motion is done; no sleeping) or
-scaled real time. Faults (faults.FaultConfig) are drawn from a seeded numpy Generator.
+M112 only as a command, nothing after a kill until a reset, moves before homing). Commands run
+in order from a BUFSIZE-slot queue; moves go to a planner of `planner_buffer_size` slots (a full
+planner delays the `ok`). As stock Marlin (built without NO_MOTION_BEFORE_HOMING), a move before
+homing runs from where the firmware believes the head is (zeros at boot), unclamped on the axes not
+homed, and the probe moves by the same steps from where it really is (`_frame_mm`: real minus
+believed, per axis; zero once the axis is homed). Time is a clock object: virtual (jumps to when
+the motion is done; no sleeping) or scaled real time. Faults (faults.FaultConfig) are drawn from a
+seeded numpy Generator.
 Its memory is bounded however long it runs: the latest `history_lines` executed commands (and
 `executed_count` of them all) and the latest `keep_segments` moves (sim.motion.Timeline).
 """
@@ -19,13 +23,14 @@ Its memory is bounded however long it runs: the latest `history_lines` executed 
 from __future__ import annotations
 
 import collections
+import math
 import re
 import time
 
 import numpy as np
 
 from neatskin.errors import ConfigError
-from neatskin.gcode.machine import Machine, MaybeXyz, Move
+from neatskin.gcode.machine import Machine, MaybeXyz, Move, Xyz
 from neatskin.gcode.parse import GcodeLine, checksum, parse_line
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.marlin import replies as R
@@ -42,7 +47,10 @@ _MODES = frozenset({"G90", "G91", "M82", "M83"})
 _SILENT = frozenset({"G0", "G1", "G4", "G28", "M400", "M999", "M111"})
 _OK = b"ok\n"
 _PARSE_CACHE_LINES = 1024  # distinct command texts kept parsed (the repeated ones come first)
-_QUIET = frozenset({"G21", "G90", "G91", "M17", "M82", "M83", "M104", "M106", "M107", "M117", "M140", "M220", "M221"})
+# (M84/M18 among them: stock Marlin keeps the axes homed when it turns the steppers off, HOME_AFTER_DEACTIVATE off)
+_QUIET = frozenset(
+    {"G21", "G90", "G91", "M17", "M18", "M82", "M83", "M84", "M104", "M106", "M107", "M117", "M140", "M220", "M221"}
+)
 
 
 class VirtualClock:
@@ -130,14 +138,15 @@ class MarlinCore:
         self.queue: collections.deque[tuple[int | None, str, str, GcodeLine | None, str]] = collections.deque()
         self.last_n = 0
         self.homed = [False, False, False]
-        # the one G-code machine model (gcode.machine): native position = the timeline's, G92 offsets, modes
-        # what the firmware believes (zeros until homed, as Marlin at boot); the timeline is where the probe is
+        # the one G-code machine model (gcode.machine): native position, G92 offsets, modes: what the firmware
+        # believes (zeros at boot, as Marlin); the timeline is where the probe is, _frame_mm the difference
         self.machine = Machine(
             self.profile,
             start_mm=(0.0, 0.0, 0.0),
             feed_mm_s=self.profile.travel_feed_mm_s,
             homing_time_s=self.profile.homing_time_s,
         )
+        self._frame_mm = list(self.timeline.end_mm)
         self._set_soft_endstops(True)
         self.halted = False
         self._head_ready: float | None = None
@@ -159,14 +168,27 @@ class MarlinCore:
 
     def _set_soft_endstops(self, on: bool) -> None:
         """M211: the machine clamps native targets to the bed, and to the soft limits while they are on."""
+        self.soft_endstops = on
+        self._apply_limits()
+
+    def _travel_mm(self, soft: bool) -> tuple[Xyz, Xyz]:
+        """The bed's travel (lo, hi), within the soft limits when `soft`."""
         p = self.profile
         lo = (0.0, 0.0, p.soft_min_mm.z)
         hi = (p.bed_x_mm, p.bed_y_mm, p.soft_max_mm.z)
-        if on:
+        if soft:
             lo = (max(lo[0], p.soft_min_mm.x), max(lo[1], p.soft_min_mm.y), max(lo[2], p.soft_min_mm.z))
             hi = (min(hi[0], p.soft_max_mm.x), min(hi[1], p.soft_max_mm.y), min(hi[2], p.soft_max_mm.z))
-        self.soft_endstops = on
-        self.machine.limits_mm = (lo, hi)
+        return lo, hi
+
+    def _apply_limits(self) -> None:
+        # Marlin's apply_motion_limits clamps only the axes it has homed (motion.cpp: `if (axis_was_homed(..))`)
+        lo, hi = self._travel_mm(self.soft_endstops)
+        h = self.homed
+        self.machine.limits_mm = (
+            (lo[0] if h[0] else -math.inf, lo[1] if h[1] else -math.inf, lo[2] if h[2] else -math.inf),
+            (hi[0] if h[0] else math.inf, hi[1] if h[1] else math.inf, hi[2] if h[2] else math.inf),
+        )
 
     def _emit(self, text: str, *, is_ok: bool = False, eol: bytes = b"\n") -> None:
         if self.dead:
@@ -354,7 +376,7 @@ class MarlinCore:
         wait = self._wait(self._head_ready)
         if wait > 0:
             return wait
-        moved = code in _MOVES and line is not None and self.homed_all
+        moved = code in _MOVES and line is not None
         if moved:
             self._move(line)  # type: ignore[arg-type]
         self.executed.append((number, text))
@@ -376,7 +398,7 @@ class MarlinCore:
         now = self.clock.now()
         tl = self.timeline
         if code in _MOVES:
-            return tl.slot_free_s(now, self.profile.planner_buffer_size) if self.homed_all else None
+            return tl.slot_free_s(now, self.profile.planner_buffer_size)
         if code == "M400":
             return tl.end_s
         if code == "G4" and line is not None:
@@ -387,23 +409,33 @@ class MarlinCore:
             )
             for i in event.axes:
                 self.homed[i] = True
-            return tl.add_homing(now, event.end_mm, event.duration_s).t1_s  # type: ignore[arg-type]
+                self._frame_mm[i] = 0.0
+            self._apply_limits()
+            # the axes homed go home; the others stay where the probe is
+            end = tuple(h if i in event.axes else p for i, (h, p) in enumerate(zip(event.end_mm, tl.end_mm)))
+            return tl.add_homing(now, end, event.duration_s).t1_s  # type: ignore[arg-type]
         return None
 
     def _move(self, line: GcodeLine) -> None:
         event = self.machine.step(line)
-        assert isinstance(event, Move) and event.duration_s is not None  # homed: every axis is known
+        assert isinstance(event, Move) and event.duration_s is not None  # the machine starts at zeros: all known
         now = self.clock.now()
         if event.clamped:
             self.clip_events.append((now, line.raw, event.requested_mm, event.end_mm))
-        self.timeline.add(now, event)
+        if self.homed_all:
+            self.timeline.add(now, event)
+            return
+        # not homed: the steppers step from where the probe is; a stop at the end of the bed's travel loses steps
+        lo, hi = self._travel_mm(False)
+        frame = self._frame_mm
+        end = [min(max(e + f, a), b) for e, f, a, b in zip(event.end_mm, frame, lo, hi)]  # type: ignore[operator]
+        for i in range(3):
+            frame[i] = end[i] - event.end_mm[i]  # type: ignore[operator]
+        self.timeline.add(now, event._replace(start_mm=self.timeline.end_mm, end_mm=(end[0], end[1], end[2])))
 
     def _reply(self, code: str, line: GcodeLine | None, text: str) -> bool:
         """Replies of a command other than a homed move; True when its `ok` is already sent."""
-        if code in _MOVES:
-            if not self.homed_all:
-                self._emit("echo:Home " + "".join(a for a, h in zip("XYZ", self.homed) if not h) + " First")
-        elif code in _MODES or code == "G92":
+        if code in _MODES or code == "G92":
             if line is not None:
                 self.machine.step(line)
             if code == "G92":
@@ -428,8 +460,6 @@ class MarlinCore:
         elif code == "M111":
             self.echo_commands = bool(line is not None and int(line.get("S", 0) or 0) & 1)
             self._emit("echo:DEBUG:ECHO" if self.echo_commands else "echo:DEBUG:off")
-        elif code in ("M84", "M18"):
-            self.homed = [False, False, False]
         elif code == "M105":
             self._emit("ok T:25.00 /0.00 B:25.00 /0.00 @:0 B@:0", is_ok=True)
             return True
