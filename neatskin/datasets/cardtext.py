@@ -121,6 +121,8 @@ def card_body(
     inputs: list[str],
     has_limit: bool,
 ) -> str:
+    """The card's text below its YAML front matter (hfexport writes both): what a reader needs to use the data and
+    to cite it."""
     runs = run_manifests(manifest, table)
     first = runs[0] if runs else manifest
     flagged = int(pc.sum(pc.greater(pc.list_value_length(table.column("flags")), 0)).as_py() or 0)

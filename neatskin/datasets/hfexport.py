@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from neatskin.datasets.cardtext import card_body
 from neatskin.datasets.curate import split_positions
 from neatskin.datasets.curation import empty_output, flagged_mask, manifest_or_empty
 from neatskin.datasets.durable import write_bytes_durably
@@ -182,7 +183,9 @@ def export_hf(
         "configs": configs,
         "dataset_info": info,
     }
-    card = dataset_card(front, table, manifest, folder, splits, test_fraction, seed, inputs, limit_rows is not None)
+    # README.md: the YAML front matter, then what a reader needs to use the data and to cite it
+    body = card_body(front, table, manifest, folder, splits, test_fraction, seed, inputs, limit_rows is not None)
+    card = f"---\n{to_yaml(front)}\n---\n\n" + body
     _write(out, "README.md", scrub_text(card, hosts).encode())
     return out
 
@@ -218,25 +221,6 @@ def _export_inputs(folder: Path, manifest: dict[str, Any], out: Path, hosts: set
             text = scrub_text(source.read_text(encoding="utf-8"), hosts)
             written.append(_write(out, f"inputs/{key}.toml", text.encode()))
     return written
-
-
-def dataset_card(
-    front: dict[str, Any],
-    table: pa.Table,
-    manifest: dict[str, Any],
-    folder: Path,
-    splits: dict[str, int],
-    test_fraction: float,
-    seed: int,
-    inputs: list[str],
-    has_limit: bool,
-) -> str:
-    """README.md: YAML front matter, then what a reader needs to use the data and to cite it."""
-    from neatskin.datasets.cardtext import card_body
-
-    return f"---\n{to_yaml(front)}\n---\n\n" + card_body(
-        front, table, manifest, folder, splits, test_fraction, seed, inputs, has_limit
-    )
 
 
 def read_card_front_matter(card: str) -> str:
