@@ -25,6 +25,7 @@ from neatskin.rig.simcampaign import (
     CampaignSize,
     Presses,
     fit_and_score,
+    fitted_model,
     pair_noise_std_ohm,
     press_interval_s,
     rig_hours,
@@ -74,86 +75,59 @@ def default_sizes(protocol: CampaignProtocol) -> list[CampaignSize]:
     return sizes
 
 
-def _test_campaign(setting: Setting, seed: int, skin: SkinModel) -> Presses:
-    protocol = setting.protocol
-    xy = strategy_positions(protocol, TEST_POSITIONS, seed + SEED_OFFSET_TEST)
-    depth = protocol.press.press.depth_mm
+def _pressed(
+    setting: Setting, skin: SkinModel, xy: np.ndarray, repeats: int, depth_mm: float, seed: int, first_press: int = 0
+) -> Presses:
+    """A simulated campaign with the setting's noise and press interval: each of xy pressed `repeats` times."""
     return simulate_presses(
-        protocol,
+        setting.protocol,
         xy,
-        TEST_REPEATS,
-        depth,
-        seed + SEED_OFFSET_TEST,
+        repeats,
+        depth_mm,
+        seed,
         setting.noise_std_ohm,
         skin=skin,
         interval_s=setting.interval_s,
+        first_press=first_press,
     )
+
+
+def _error_on_new_positions(setting: Setting, skin: SkinModel, train: Presses, seed: int) -> float:
+    """Either design's score: the setting's model fitted on train, its mean error (mm) on the seed's test campaign
+    of new positions (their own seed, placement and noise) at the protocol's depth."""
+    test_seed = seed + SEED_OFFSET_TEST
+    xy = strategy_positions(setting.protocol, TEST_POSITIONS, test_seed)
+    test = _pressed(setting, skin, xy, TEST_REPEATS, setting.protocol.press.press.depth_mm, test_seed)
+    return fit_and_score(setting.model, train, test, seed)
 
 
 def random_error_mm(setting: Setting, size: CampaignSize, seed: int) -> float:
     """One seed of the random design: the strategy's positions for the seed, pressed in order."""
     skin = skin_of(setting.protocol)
     xy = strategy_positions(setting.protocol, size.positions, seed)
-    train = simulate_presses(
-        setting.protocol,
-        xy,
-        size.repeats,
-        size.depth_mm,
-        seed,
-        setting.noise_std_ohm,
-        skin=skin,
-        interval_s=setting.interval_s,
-    )
-    return fit_and_score(setting.model, train, _test_campaign(setting, seed, skin), seed)
+    train = _pressed(setting, skin, xy, size.repeats, size.depth_mm, seed)
+    return _error_on_new_positions(setting, skin, train, seed)
 
 
 def adaptive_error_mm(setting: Setting, size: CampaignSize, seed: int) -> float:
     """One seed of the adaptive design: half the positions at random, the rest where the first fit is worst."""
-    from neatskin.baselines.models import make_models
-
     protocol, skin = setting.protocol, skin_of(setting.protocol)
     first = strategy_positions(protocol, max(2, size.positions // 2), seed)
-    part1 = simulate_presses(
-        protocol,
-        first,
-        size.repeats,
-        size.depth_mm,
-        seed,
-        setting.noise_std_ohm,
-        skin=skin,
-        interval_s=setting.interval_s,
-    )
-    model = make_models(
-        [setting.model],
-        random_state=seed,
-        n_features=part1.features.shape[1],
-        n_rows=len(part1.features),
-        lm_restarts=1,
-    )[setting.model]
-    model.fit(part1.features, part1.commanded_mm)
+    part1 = _pressed(setting, skin, first, size.repeats, size.depth_mm, seed)
+    model = fitted_model(setting.model, part1, seed)
     pool = strategy_positions(protocol, CANDIDATES, seed + 104729)
     clean = np.asarray(skin.pair_resistance_ohm(pool[:, 0], pool[:, 1], np.full(len(pool), size.depth_mm)), float)
     clean = np.where(np.isfinite(clean), clean - skin.baseline_pair_resistance_ohm, 0.0)
     worst = np.linalg.norm(np.asarray(model.predict(clean), float) - pool, axis=1)
     chosen = _spread_choice(pool, worst, size.positions - len(first), float(protocol.press.press.probe_diameter_mm) / 2)
-    part2 = simulate_presses(
-        protocol,
-        pool[chosen],
-        size.repeats,
-        size.depth_mm,
-        seed + 1,
-        setting.noise_std_ohm,
-        skin=skin,
-        interval_s=setting.interval_s,
-        first_press=len(part1.features),
-    )
+    part2 = _pressed(setting, skin, pool[chosen], size.repeats, size.depth_mm, seed + 1, len(part1.features))
     train = type(part1)(
         np.vstack([part1.features, part2.features]),
         np.vstack([part1.commanded_mm, part2.commanded_mm]),
         np.vstack([part1.landed_mm, part2.landed_mm]),
         np.concatenate([part1.groups, part2.groups + len(first)]),
     )
-    return fit_and_score(setting.model, train, _test_campaign(setting, seed, skin), seed)
+    return _error_on_new_positions(setting, skin, train, seed)
 
 
 def _spread_choice(pool: np.ndarray, score: np.ndarray, count: int, spacing_mm: float) -> np.ndarray:

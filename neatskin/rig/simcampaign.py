@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -174,8 +175,8 @@ def strategy_positions(protocol: CampaignProtocol, count: int, seed: int) -> np.
     return generate_positions(protocol.layout, spec).xy_mm
 
 
-def fit_and_score(model_name: str, train: Presses, test: Presses, random_state: int) -> float:
-    """Mean Euclidean error (mm) against the test's commanded positions of the named baseline fitted on train."""
+def fitted_model(model_name: str, train: Presses, random_state: int) -> Any:
+    """The named baseline fitted on train's features against its commanded positions."""
     model = make_models(
         [model_name],
         random_state=random_state,
@@ -184,5 +185,10 @@ def fit_and_score(model_name: str, train: Presses, test: Presses, random_state: 
         lm_restarts=1,
     )[model_name]
     model.fit(train.features, train.commanded_mm)
-    predicted = np.asarray(model.predict(test.features), float)
+    return model
+
+
+def fit_and_score(model_name: str, train: Presses, test: Presses, random_state: int) -> float:
+    """Mean Euclidean error (mm) against the test's commanded positions of the named baseline fitted on train."""
+    predicted = np.asarray(fitted_model(model_name, train, random_state).predict(test.features), float)
     return float(np.mean(np.linalg.norm(predicted - test.commanded_mm, axis=1)))
