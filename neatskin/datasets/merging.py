@@ -20,11 +20,11 @@ import pyarrow.parquet as pq
 from neatskin.datasets import curation
 from neatskin.datasets.durable import write_durably
 from neatskin.datasets.manifest import create_manifest, utc_now_iso
+from neatskin.datasets.manifestchecks import same_file_ref
 from neatskin.datasets.paths import CONSOLIDATED_NAME
 from neatskin.datasets.reader import press_files, read_press_table
 from neatskin.datasets.schema import decode_metadata, encode_metadata
 from neatskin.datasets.tables import unreadable_presses
-from neatskin.datasets.validate import same_file_ref
 from neatskin.datasets.writer import FINALIZE_BATCH, deduplicate_sorted, read_parquet
 from neatskin.errors import DataError
 

@@ -1,8 +1,11 @@
 """Dataset validation: every problem in a campaign folder (schema, NaNs, duplicate press ids, positions
 outside the layout, flagged presses, manifest consistency), one Problem each, naming file, column and fix.
 
-The rows are read once, row group by row group (datasets/scan.py): memory holds one row group of full rows
-plus a few key columns per press, so a merged dataset of 280,000 presses validates in bounded memory.
+This module owns the entry point and the checks of the rows (schema and content); the checks of the folder's
+files against their records live in `folderchecks`, of the manifest against the data in `manifestchecks`, of
+values in `values`. The rows are read once, row group by row group (datasets/scan.py): memory holds one row
+group of full rows plus a few key columns per press, so a merged dataset of 280,000 presses validates in
+bounded memory.
 """
 
 from __future__ import annotations
@@ -17,15 +20,18 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
-from neatskin.datasets.manifest import MANIFEST_NAME, read_manifest, resolve_manifest_path
-from neatskin.datasets.paths import CONSOLIDATED_NAME, COPY_NAME, part_press_id, press_parts, waveform_parts
+from neatskin.datasets.folderchecks import integrity_problems, part_ids_valid, unreadable_fix, waveform_problems, where
+from neatskin.datasets.manifest import MANIFEST_NAME, read_manifest
+from neatskin.datasets.manifestchecks import manifest_layout, manifest_problems, same_file_ref
 from neatskin.datasets.reader import press_files
 from neatskin.datasets.scan import DatasetScan, read_schema, scan_files
 from neatskin.datasets.schema import BASE_FIELDS, OPTIONAL_COLUMNS, decode_metadata, parse_pair_column, press_schema
 from neatskin.datasets.values import metadata_layout, value_problems
-from neatskin.datasets.writer import file_sha256, read_parquet
-from neatskin.errors import ConfigError, DataError, Problem
-from neatskin.layout import ElectrodePair, Layout, load_layout
+from neatskin.errors import DataError, Problem
+from neatskin.layout import ElectrodePair, Layout
+
+# part_ids_valid and same_file_ref were defined here before the split: importable from here as they were
+__all__ = ["check_dataset", "part_ids_valid", "same_file_ref", "validate_dataset"]
 
 _FLOAT_CHECKED = ("x_mm", "y_mm", "depth_mm")
 
@@ -58,7 +64,7 @@ def validate_dataset(
         except DataError as exc:
             problems.extend(exc.problems)
     if layout is None and manifest is not None:
-        layout = _manifest_layout(path, manifest, manifest_file, problems)
+        layout = manifest_layout(path, manifest, manifest_file, problems)
     try:
         files = press_files(path)
     except DataError as exc:
@@ -76,18 +82,18 @@ def validate_dataset(
     nullable = {f.name: f.nullable for f in BASE_FIELDS}
     scan = scan_files(files, expected, nullable)
     for file, error in scan.unreadable:
-        problems.append(Problem(f"unreadable parquet file: {error}", str(file), None, _unreadable_fix(file)))
+        problems.append(Problem(f"unreadable parquet file: {error}", str(file), None, unreadable_fix(file)))
     if not scan.files:
         return problems
     problems += _schema_problems(list(zip(scan.files, scan.schemas)), expected)
     problems += _content_problems(scan, expected, layout, allow_flagged)
     has_keys = {"press_id", "position_id"} <= scan.columns
     if path.is_dir() and has_keys:
-        problems += _waveform_problems(path, scan.keys)
+        problems += waveform_problems(path, scan.keys)
     if manifest is not None:
-        problems += _manifest_problems(manifest, manifest_file, metadata, scan, pairs, layout)
+        problems += manifest_problems(manifest, manifest_file, metadata, scan, pairs, layout)
     if path.is_dir():
-        problems += _integrity_problems(path, manifest, scan)
+        problems += integrity_problems(path, manifest, scan)
     return problems
 
 
@@ -100,105 +106,7 @@ def _readable_schemas(files: list[Path]) -> Iterator[pa.Schema]:
             continue
 
 
-def _unreadable_fix(file: Path) -> str:
-    if file.name == CONSOLIDATED_NAME:
-        return (
-            f"restore it from its copy: neatskin campaign finish {file.parent} (or cp {file.parent / COPY_NAME} "
-            f"{file} when that copy's sha256 matches files_sha256 in manifest.json)"
-        )
-    return "move the file out of the folder; resume the campaign to press again"
-
-
-def _same_rows(path: Path, copy: Path, recorded_sha256: str) -> bool:
-    """Whether `path` holds the same rows as the campaign's intact copy: a file re-encoded without a change
-    (e.g. a pandas round trip) is fine, a changed value or a flipped bit is not."""
-    if not copy.is_file() or file_sha256(copy) != recorded_sha256:
-        return False
-    try:
-        original = read_parquet(copy)
-        return original.equals(read_parquet(path).cast(original.schema))
-    except (OSError, pa.ArrowException, ValueError):
-        return False
-
-
-def _integrity_problems(folder: Path, manifest: dict | None, scan: DatasetScan) -> list[Problem]:
-    """Recorded sha256 (presses.parquet, committed parts) and parts whose content is not what their name says."""
-    problems = []
-    manifest = manifest or {}
-    files_raw = manifest.get("files_sha256")
-    files: dict = files_raw if isinstance(files_raw, dict) else {}
-    parts_sha_raw = manifest.get("parts_sha256")
-    parts_sha: dict = parts_sha_raw if isinstance(parts_sha_raw, dict) else {}
-    consolidated = folder / CONSOLIDATED_NAME
-    if (
-        CONSOLIDATED_NAME in files
-        and consolidated.is_file()
-        and file_sha256(consolidated) != files[CONSOLIDATED_NAME]
-        and not _same_rows(consolidated, folder / COPY_NAME, files[CONSOLIDATED_NAME])
-    ):
-        problems.append(
-            Problem(
-                "presses.parquet differs from the file the campaign finished with (sha256 and rows): damaged or edited",
-                str(consolidated),
-                "files_sha256",
-                _unreadable_fix(consolidated),
-            )
-        )
-    for press_id, part in press_parts(folder).items():
-        if str(press_id) in parts_sha and file_sha256(part) != parts_sha[str(press_id)]:
-            problems.append(
-                Problem(
-                    "the part changed after it was committed (sha256 differs from the manifest's)",
-                    str(part),
-                    "parts_sha256",
-                    "move the part out of presses/ and resume: the press is pressed again",
-                )
-            )
-    ids_by_file = scan.keys.groupby("file", sort=False)["press_id"]
-    for index, (file, schema) in enumerate(zip(scan.files, scan.schemas)):
-        expected = part_press_id(file)
-        if file.parent.name != "presses" or expected is None or "press_id" not in schema.names:
-            continue
-        ids = [int(i) for i in ids_by_file.get_group(index)] if index in ids_by_file.groups else []
-        if not part_ids_valid(expected, ids):
-            problems.append(
-                Problem(
-                    f"the part's name says press {expected} but it holds press id(s) {ids[:5]}",
-                    str(file),
-                    "press_id",
-                    "move the part out of presses/ and resume: the press is pressed again",
-                )
-            )
-    return problems
-
-
-def part_ids_valid(first_press_id: int, ids: list) -> bool:
-    """A part `part-{N:06d}.parquet` holds one or more rows: its press ids start with N and strictly increase
-    (a part of one row holding press N is the common case)."""
-    if not ids or ids[0] != first_press_id or any(i is None for i in ids):
-        return False
-    return all(a < b for a, b in zip(ids, ids[1:]))
-
-
 # ---- pieces ----------------------------------------------------------------------------------------
-
-
-def _manifest_layout(folder: Path, manifest: dict, manifest_file: str, problems: list[Problem]) -> Layout | None:
-    layout_path = resolve_manifest_path(folder, manifest, "layout")
-    if layout_path is None:
-        return None
-    try:
-        return load_layout(layout_path)
-    except ConfigError as exc:
-        problems.append(
-            Problem(
-                f"the layout it names cannot be loaded: {exc.problems[0]}",
-                manifest_file,
-                "layout.path",
-                "point layout.path at the campaign's skin layout TOML (relative to the campaign folder or absolute)",
-            )
-        )
-        return None
 
 
 def _expected_pairs(
@@ -214,10 +122,6 @@ def _expected_pairs(
                 pass
     found = [parse_pair_column(n) for n in schema.names]
     return tuple(p for kind, p in filter(None, found) if kind == "dR")
-
-
-def _where(files: list[Path]) -> str:
-    return str(files[0]) if len(files) == 1 else f"{files[0]} (and {len(files) - 1} more files)"
 
 
 def _schema_problems(schemas: list[tuple[Path, pa.Schema]], expected: pa.Schema) -> list[Problem]:
@@ -253,7 +157,7 @@ def _schema_problems(schemas: list[tuple[Path, pa.Schema]], expected: pa.Schema)
                         f"cast the column to {want[field.name]}",
                     )
                 ].append(file)
-    return [Problem(message, _where(files), column, fix) for (column, message, fix), files in grouped.items()]
+    return [Problem(message, where(files), column, fix) for (column, message, fix), files in grouped.items()]
 
 
 def _equivalent_type(have: pa.DataType, want: pa.DataType) -> bool:
@@ -278,7 +182,7 @@ def _ids(series: pd.Series, limit: int = 8) -> str:
 
 
 def _files(scan: DatasetScan, indices: Any) -> str:
-    return _where([scan.files[int(i)] for i in sorted(set(indices))])
+    return where([scan.files[int(i)] for i in sorted(set(indices))])
 
 
 def _content_problems(
@@ -371,124 +275,3 @@ def _content_problems(
             )
         )
     return problems
-
-
-def _waveform_problems(folder: Path, rows: pd.DataFrame) -> list[Problem]:
-    """Waveform parts must belong to a press of the dataset and sit in that press's position partition."""
-    known = rows[["press_id", "position_id"]].dropna()
-    position_of = dict(zip(known["press_id"].astype(int), known["position_id"].astype(int)))
-    orphans, misplaced = [], []
-    for press_id, part in waveform_parts(folder).items():
-        if press_id not in position_of:
-            orphans.append(part)
-        elif part.parent.name != f"position_id={position_of[press_id]}":
-            misplaced.append(part)
-    problems = []
-    if orphans:
-        problems.append(
-            Problem(
-                f"{len(orphans)} waveform part(s) of presses that are not in the dataset",
-                _where(orphans),
-                "press_id",
-                "resume the campaign (it deletes orphans and presses them again) or delete the parts",
-            )
-        )
-    if misplaced:
-        problems.append(
-            Problem(
-                f"{len(misplaced)} waveform part(s) in another press's position_id partition",
-                _where(misplaced),
-                "position_id",
-                "move each part to waveforms/position_id=<its press's position_id>/",
-            )
-        )
-    return problems
-
-
-def _manifest_problems(
-    manifest: dict,
-    manifest_file: str,
-    metadata: dict,
-    scan: DatasetScan,
-    pairs: tuple[ElectrodePair, ...],
-    layout: Layout | None,
-) -> list[Problem]:
-    problems: list[Problem] = []
-    rows = scan.keys
-    n = int(rows["press_id"].nunique()) if "press_id" in scan.columns else len(rows)
-    counts_raw = manifest.get("counts")
-    counts: dict = counts_raw if isinstance(counts_raw, dict) else {}
-    if counts.get("completed") is not None and counts["completed"] != n:
-        problems.append(
-            Problem(
-                f"counts.completed is {counts['completed']} but the data holds {n} presses",
-                manifest_file,
-                "counts.completed",
-                "resume the campaign (it rewrites the counts) or correct counts.completed",
-            )
-        )
-    if manifest.get("status") == "complete" and counts.get("planned") is not None and counts["planned"] != n:
-        problems.append(
-            Problem(
-                f"status is complete but {n} of {counts['planned']} planned presses are present",
-                manifest_file,
-                "counts.planned",
-                "resume the campaign to press the missing ones, or set status to interrupted",
-            )
-        )
-    if "seed" in manifest and "seed" in metadata and manifest["seed"] != metadata["seed"]:
-        problems.append(
-            Problem(
-                f"seed {manifest['seed']!r} differs from the parquet metadata's {metadata['seed']!r}",
-                manifest_file,
-                "seed",
-                "these files come from different runs; restore the campaign's own manifest",
-            )
-        )
-    listed = manifest.get("pairs")
-    if listed and layout is not None:
-        try:
-            as_pairs = tuple(ElectrodePair(int(i), int(j)) for i, j in listed)
-        except (TypeError, ValueError):
-            as_pairs = None
-        if as_pairs != layout.pairs:
-            problems.append(
-                Problem(
-                    "pairs do not match the layout's electrode pairs",
-                    manifest_file,
-                    "pairs",
-                    "rewrite pairs from the layout, or name the layout the campaign used",
-                )
-            )
-    if "layout" in manifest and "layout" in metadata and not same_file_ref(manifest["layout"], metadata["layout"]):
-        problems.append(
-            Problem(
-                f"layout {manifest['layout']!r} differs from the parquet metadata's {metadata['layout']!r}",
-                manifest_file,
-                "layout",
-                "name the layout the presses were recorded on",
-            )
-        )
-    if manifest.get("campaign") and "campaign" in scan.columns:
-        other = sorted(scan.campaigns - {manifest["campaign"]})
-        if other:
-            problems.append(
-                Problem(
-                    f"rows belong to campaign(s) {other}, the manifest says {manifest['campaign']!r}",
-                    manifest_file,
-                    "campaign",
-                    "merge campaigns with `neatskin dataset merge`",
-                )
-            )
-    return problems
-
-
-def same_file_ref(a: Any, b: Any) -> bool:
-    """Two references to an input file (a path string or a dict with sha256/name/path) name the same file:
-    compared by the first of sha256, name, path that both give."""
-    a = a if isinstance(a, dict) else {"path": a}
-    b = b if isinstance(b, dict) else {"path": b}
-    for key in ("sha256", "name", "path"):
-        if a.get(key) is not None and b.get(key) is not None:
-            return a[key] == b[key]
-    return True
