@@ -10,7 +10,7 @@ from conftest import PROTOCOLS
 
 from neatskin.cli import main
 from neatskin.errors import ExitCode
-from neatskin.rig.forecast import hours_for_error
+from neatskin.rig.forecast import PLOT_DPI, hours_for_error, plan_figure
 from neatskin.rig.protocol import load_protocol
 from neatskin.rig.runner import build_plan
 from neatskin.rig.simcampaign import CampaignSize, rig_hours, simulate_presses, skin_of, strategy_positions
@@ -67,6 +67,29 @@ def test_hours_for_an_error_interpolates_in_log_hours_along_the_envelope():
     assert hours_for_error(frame, 3.0) == pytest.approx(np.sqrt(2.0 * 4.0))
     assert hours_for_error(frame, 4.5) == pytest.approx(1.0)
     assert hours_for_error(frame, 1.0) is None
+
+
+def test_the_plans_title_and_labels_lie_inside_the_figure():
+    """The PNG's title, axis labels and size labels are drawn inside the figure at its dpi (the one-line title of
+    the paper's plan was cut on the right)."""
+    rows = []
+    for design, shift in (("random", 1.0), ("adaptive", 0.9)):
+        for positions, repeats, hours in ((25, 7, 0.38), (50, 7, 0.76), (100, 28, 6.05), (200, 28, 12.1)):
+            rows.append((design, positions, repeats, 3.5, hours, shift * 20 / positions**0.5, 0.2))
+    rows.append(("random", 100, 28, 2.5, 5.6, 2.6, 0.1))
+    frame = pd.DataFrame(
+        rows, columns=["design", "positions", "repeats", "depth_mm", "rig_hours", "mean_error_mm", "std_error_mm"]
+    )
+    fig = plan_figure(frame, protocol_hours=6.05)
+    assert fig.dpi == PLOT_DPI  # measured at the dpi the PNG is written at
+    renderer = fig.canvas.get_renderer()
+    page = fig.bbox
+    ax = fig.axes[0]
+    texts = [ax.title, ax.xaxis.label, ax.yaxis.label, *ax.texts]
+    assert len(ax.texts) == 4  # one label per random size at the protocol's depth
+    for text in texts:
+        box = text.get_window_extent(renderer)
+        assert page.x0 <= box.x0 and box.x1 <= page.x1 and page.y0 <= box.y0 and box.y1 <= page.y1, text.get_text()
 
 
 def test_campaign_plan_prints_sizes_with_rig_hours_and_errors(tmp_path, capsys):

@@ -39,6 +39,7 @@ DEFAULT_SEEDS = 5
 TEST_POSITIONS, TEST_REPEATS = 60, 4  # the new-position test campaign of every seed
 CANDIDATES = 400  # the adaptive design's pool of strategy positions
 SEED_OFFSET_TEST = 7919  # the test campaign's positions: another seed than any campaign's
+PLOT_DPI = 120
 
 
 @dataclass(frozen=True)
@@ -256,6 +257,16 @@ def format_plan(frame: pd.DataFrame, protocol_name: str, paper_hours: float | No
 
 
 def plot_plan(frame: pd.DataFrame, path: Path, protocol_hours: float | None = None) -> Path:
+    """plan_figure written as a PNG."""
+    import matplotlib.pyplot as plt
+
+    fig = plan_figure(frame, protocol_hours)
+    fig.savefig(path, dpi=PLOT_DPI)
+    plt.close(fig)
+    return path
+
+
+def plan_figure(frame: pd.DataFrame, protocol_hours: float | None = None) -> Any:
     """Error against rig hours per design (the protocol's depth), std over seeds as error bars; depth variants as
     separate markers; the protocol's own size marked."""
     import matplotlib
@@ -263,7 +274,7 @@ def plot_plan(frame: pd.DataFrame, path: Path, protocol_hours: float | None = No
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=PLOT_DPI)  # laid out at the dpi it is written at
     depth0 = frame.loc[frame["design"] == "random", "depth_mm"].mode().iloc[0]
     repeats0 = frame.loc[frame["design"] == "random", "repeats"].max()
     for design, color, shift in (("random", "C0", 0.97), ("adaptive", "C1", 1.03)):
@@ -309,13 +320,12 @@ def plot_plan(frame: pd.DataFrame, path: Path, protocol_hours: float | None = No
     ax.set_xscale("log")
     ax.set_xlabel("rig hours (G-code time)")
     ax.set_ylabel("mean error for new positions, mm")
+    # two lines: on one, the title was wider than the figure and cut on the right
     ax.set_title(
-        f"Predicted error against rig time (simulated campaigns; line: {repeats0} repeats, mean +- std over seeds)",
+        f"Predicted error against rig time (simulated campaigns)\nline: {repeats0} repeats; mean +- std over seeds",
         fontsize=9,
     )
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return fig
