@@ -68,6 +68,13 @@ def real_transcript(build: str, script: Script = SCRIPT) -> tuple[bytes, list[tu
             return banner, replay(port.fd, script)
 
 
+def assert_same_replies(real: list[tuple[bytes, bytes]], sim: list[tuple[bytes, bytes]], script: Script) -> None:
+    """Every line of the script answered alike, but for the documented exceptions (normalise)."""
+    assert len(sim) == len(real) == len(script)
+    for (line, want), (_, got) in zip(real, sim):
+        assert normalise(got) == normalise(want), line
+
+
 @pytest.mark.skipif(MARLIN is None, reason="the real firmware is absent: no shared/marlin beside the repository")
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize("build", [PLAIN, ADVANCED_OK])
@@ -75,9 +82,7 @@ def test_the_simulator_answers_the_script_as_the_real_firmware(build):
     real_banner, real = real_transcript(build)
     sim_banner, sim = sim_transcript(advanced_ok=build == ADVANCED_OK)
     assert normalise(sim_banner) == normalise(real_banner)
-    assert len(sim) == len(real) == len(SCRIPT)
-    for (line, want), (_, got) in zip(real, sim):
-        assert normalise(got) == normalise(want), line
+    assert_same_replies(real, sim, SCRIPT)
 
 
 @pytest.mark.skipif(MARLIN is None, reason="the real firmware is absent: no shared/marlin beside the repository")
@@ -86,9 +91,7 @@ def test_moves_before_homing_answer_as_the_real_firmware():
     """Plain `ok`s only: with ADVANCED_OK the planner's free slots (`P`) depend on when the real moves end."""
     _, real = real_transcript(PLAIN, BEFORE_HOMING)
     _, sim = sim_transcript(advanced_ok=False, script=BEFORE_HOMING)
-    assert len(sim) == len(real) == len(BEFORE_HOMING)
-    for (line, want), (_, got) in zip(real, sim):
-        assert normalise(got) == normalise(want), line
+    assert_same_replies(real, sim, BEFORE_HOMING)
 
 
 def test_the_before_homing_script_shows_the_moves():
