@@ -220,3 +220,34 @@ def test_lift_rule():
         "G91",
     )
     assert lift_lines(48.0, 60.0, max_z_mm=50.0, feed_mm_s=5.0, absolute=True).lines[1] == "G0 Z2.000 F300"
+
+
+@pytest.mark.timeout(30)
+def test_sim_printer_built_with_no_motion_before_homing(tmp_path):
+    """`--no-motion-before-homing`: a move before G28 gets Marlin's refusal; without it the move runs (stock)."""
+    import time
+
+    import serial
+
+    def answer(*flags: str) -> bytes:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "neatskin", "sim", "printer", "--time", "virtual", *flags],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=REPO,
+        )
+        try:
+            with serial.Serial(proc.stdout.readline().strip(), timeout=0.2) as port:
+                port.reset_input_buffer()
+                port.write(b"G1 X10\n")
+                got, end = b"", time.monotonic() + 10
+                while not got.endswith(b"ok\n") and time.monotonic() < end:
+                    got += port.read(64)
+                return got.split(b"M301 P22.20 I1.08 D114.00\n")[-1]  # the banner, if it came after the flush
+        finally:
+            proc.send_signal(signal.SIGINT)
+            proc.communicate(timeout=10)
+
+    assert answer("--no-motion-before-homing") == b"echo:Home XYZ First\nok\n"
+    assert answer() == b"ok\n"

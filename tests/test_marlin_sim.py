@@ -135,6 +135,21 @@ def test_a_move_before_homing_steps_the_probe_from_where_it_is(profile):
     assert [t for _, t in core.executed][-3:] == ["G28", "G1 X10 Y20 Z5", "M400"]
 
 
+def test_a_printer_built_with_no_motion_before_homing_refuses_until_every_axis_is_homed(profile):
+    """Marlin's NO_MOTION_BEFORE_HOMING (motion.cpp homing_needed_error): the move does nothing but name the axes not
+    homed, then `ok`; the probe stays where it is."""
+    core = fresh(profile, no_motion_before_homing=True)
+    park = tuple(profile.park_mm)
+    assert talk(core, b"G1 X10\n") == b"echo:Home XYZ First\nok\n"
+    assert talk(core, b"G28 X\n") == b"echo:busy: processing\n" * 3 + b"ok\n"
+    assert talk(core, b"G1 X10\n") == b"echo:Home YZ First\nok\n"
+    assert talk(core, b"M114\n") == b"X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0\nok\n"
+    assert core.timeline.position_mm(core.clock.now()) == (0.0, park[1], park[2])  # only the homing moved it
+    talk(core, b"G28\n")
+    assert talk(core, b"G1 X10\nM400\n") == b"ok\nok\n"
+    assert core.timeline.position_mm(core.clock.now()) == (10.0, 0.0, 0.0)
+
+
 def test_m84_keeps_the_axes_homed(profile):
     """Stock Marlin (HOME_AFTER_DEACTIVATE off) keeps its homing when the steppers go off: the soft limits still
     clamp, and M119 still reports the endstops (the native build: G28, M84, G1 X-5 -> M114 X:0.00, M119 TRIGGERED)."""
@@ -261,6 +276,23 @@ def test_driver_against_the_sim(profile, transport):
         pos = driver.position()
         assert (pos.x_mm, pos.y_mm, pos.z_mm, pos.count) == (0.0, 0.0, 0.0, (0, 0, 0))
         assert sim.probe_position() == (100.0, 50.0, 2.0)
+    finally:
+        driver.close()
+        sim.stop()
+
+
+@pytest.mark.timeout(20)
+def test_the_driver_raises_a_refused_move(profile):
+    """A printer built with NO_MOTION_BEFORE_HOMING refuses a move before homing: the driver raises it, through a pty."""
+    sim = SimulatedPrinter(profile, no_motion_before_homing=True)
+    driver = MarlinDriver(serial.serial_for_url(sim.start_pty(), do_not_open=True), config=CONFIG)
+    try:
+        driver.connect()
+        with pytest.raises(E.CommandRejected, match="Home XYZ First"):
+            driver.send("G1 X10")
+        driver.send("G28")
+        driver.send_lines(["G1 X10", "M400"])
+        assert sim.probe_position() == (10.0, 0.0, 0.0)
     finally:
         driver.close()
         sim.stop()

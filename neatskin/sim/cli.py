@@ -34,6 +34,12 @@ def register(subparsers) -> None:
     )
     printer.add_argument("--speed", type=float, default=1.0, help="time scale of --time scaled (default 1)")
     printer.add_argument("--advanced-ok", action="store_true", help="answer `ok N.. P.. B..` (ADVANCED_OK)")
+    printer.add_argument(
+        "--no-motion-before-homing",
+        action="store_true",
+        help="refuse G0/G1 until every axis is homed (`echo:Home XYZ First`), as Marlin built with "
+        "NO_MOTION_BEFORE_HOMING; by default it moves from where it believes it is, as stock Marlin",
+    )
     printer.set_defaults(handler=sim_printer_handler)
 
 
@@ -47,7 +53,13 @@ def sim_printer_handler(args: argparse.Namespace) -> int:
     faults = FaultConfig.parse(args.faults)
     profile = load_printer_profile(args.profile)
     sim = SimulatedPrinter(
-        profile, seed=args.seed, faults=faults, time_mode=args.time, speed=args.speed, advanced_ok=args.advanced_ok
+        profile,
+        seed=args.seed,
+        faults=faults,
+        time_mode=args.time,
+        speed=args.speed,
+        advanced_ok=args.advanced_ok,
+        no_motion_before_homing=args.no_motion_before_homing,
     )
     path = sim.start_pty()
     print(path, flush=True)

@@ -13,7 +13,8 @@ in order from a BUFSIZE-slot queue; moves go to a planner of `planner_buffer_siz
 planner delays the `ok`). As stock Marlin (built without NO_MOTION_BEFORE_HOMING), a move before
 homing runs from where the firmware believes the head is (zeros at boot), unclamped on the axes not
 homed, and the probe moves by the same steps from where it really is (`_frame_mm`: real minus
-believed, per axis; zero once the axis is homed). Time is a clock object: virtual (jumps to when
+believed, per axis; zero once the axis is homed); `no_motion_before_homing=True` refuses it instead
+(`echo:Home XYZ First`, then `ok`), as a Marlin built with that option. Time is a clock object: virtual (jumps to when
 the motion is done; no sleeping) or scaled real time. Faults (faults.FaultConfig) are drawn from a
 seeded numpy Generator.
 Its memory is bounded however long it runs: the latest `history_lines` executed commands (and
@@ -94,6 +95,7 @@ class MarlinCore:
         advanced_ok: bool = False,
         marlin_version: str = "2.1",
         ok_after_resend: bool = True,
+        no_motion_before_homing: bool = False,
         bufsize: int = 4,
         rx_buffer_size: int | None = None,
         keepalive_s: float = 2.0,
@@ -108,6 +110,7 @@ class MarlinCore:
         self.advanced_ok = advanced_ok
         self.marlin_version = marlin_version
         self.ok_after_resend = ok_after_resend
+        self.no_motion_before_homing = no_motion_before_homing
         self.bufsize = bufsize
         # the serial receive ring: bytes past it are lost, as on an AVR board (None: unbounded, as the
         # native build's HAL, which reads stdin only into free space)
@@ -376,7 +379,7 @@ class MarlinCore:
         wait = self._wait(self._head_ready)
         if wait > 0:
             return wait
-        moved = code in _MOVES and line is not None
+        moved = code in _MOVES and line is not None and not self._refuses_motion()
         if moved:
             self._move(line)  # type: ignore[arg-type]
         self.executed.append((number, text))
@@ -393,12 +396,16 @@ class MarlinCore:
         h = self.homed
         return h[0] and h[1] and h[2]
 
+    def _refuses_motion(self) -> bool:
+        """NO_MOTION_BEFORE_HOMING: Marlin's G0/G1 does nothing but say so while an axis is not homed."""
+        return self.no_motion_before_homing and not self.homed_all
+
     def _start(self, code: str, line: GcodeLine | None) -> float | None:
         """Side effects at the start of a command; the time its `ok` waits for (None: at once)."""
         now = self.clock.now()
         tl = self.timeline
         if code in _MOVES:
-            return tl.slot_free_s(now, self.profile.planner_buffer_size)
+            return None if self._refuses_motion() else tl.slot_free_s(now, self.profile.planner_buffer_size)
         if code == "M400":
             return tl.end_s
         if code == "G4" and line is not None:
@@ -434,8 +441,11 @@ class MarlinCore:
         self.timeline.add(now, event._replace(start_mm=self.timeline.end_mm, end_mm=(end[0], end[1], end[2])))
 
     def _reply(self, code: str, line: GcodeLine | None, text: str) -> bool:
-        """Replies of a command other than a homed move; True when its `ok` is already sent."""
-        if code in _MODES or code == "G92":
+        """Replies of a command other than a move that ran; True when its `ok` is already sent."""
+        if code in _MOVES:
+            if self._refuses_motion():  # motion.cpp homing_needed_error: every main axis not homed, named
+                self._emit("echo:Home " + "".join(a for a, h in zip("XYZ", self.homed) if not h) + " First")
+        elif code in _MODES or code == "G92":
             if line is not None:
                 self.machine.step(line)
             if code == "G92":
