@@ -14,9 +14,9 @@ planner delays the `ok`). As stock Marlin (built without NO_MOTION_BEFORE_HOMING
 homing runs from where the firmware believes the head is (zeros at boot), unclamped on the axes not
 homed, and the probe moves by the same steps from where it really is (`_frame_mm`: real minus
 believed, per axis; zero once the axis is homed); `no_motion_before_homing=True` refuses it instead
-(`echo:Home XYZ First`, then `ok`), as a Marlin built with that option. Time is a clock object: virtual (jumps to when
-the motion is done; no sleeping) or scaled real time. Faults (faults.FaultConfig) are drawn from a
-seeded numpy Generator.
+(`echo:Home XYZ First`, then `ok`), as a Marlin built with that option. Time is a clock object:
+virtual (jumps to when the motion is done; no sleeping) or scaled real time. Faults
+(faults.FaultConfig) are drawn from a seeded numpy Generator.
 Its memory is bounded however long it runs: the latest `history_lines` executed commands (and
 `executed_count` of them all) and the latest `keep_segments` moves (sim.motion.Timeline).
 """
