@@ -91,3 +91,44 @@ def replay(fd: int, script: list[tuple[bytes, float]] = SCRIPT, max_wait_s: floa
                 break
         out.append((line, got))
     return out
+
+
+# Homing and the soft endstops. G28 raises Z before homing X or Y (by Z_CLEARANCE_FOR_HOMING, 5 mm in the stock
+# configuration: relative while Z is not homed, to 5 once it is, never down), moves Z to 5 once Z is homed, and
+# reports the position; M211 with S only sets (no reply), bare M211 reports; M211 S0 clamps nothing. G28 runs in
+# real time on the native board (about 20 s for X from where G0 Z5 leaves it, 40 s for all, a few s for Y once
+# homed), so this script homes four times only; `HOMING_WAIT_S` bounds each line's answer.
+HOMING_WAIT_S = 120.0
+HOMING: list[tuple[bytes, float]] = [
+    (b"M110 N0\n", OK_WAIT_S),
+    (frame("M211", 1), OK_WAIT_S),
+    (frame("M211 S0", 2), OK_WAIT_S),
+    (frame("M211", 3), OK_WAIT_S),
+    (frame("M211 S", 4), OK_WAIT_S),
+    (frame("G0 Z5 F600", 5), OK_WAIT_S),
+    (frame("M400", 6), OK_WAIT_S),
+    (frame("G28 X", 7), OK_WAIT_S),
+    (frame("M114", 8), OK_WAIT_S),
+    (frame("G92 Z7", 9), OK_WAIT_S),
+    (frame("M211", 10), OK_WAIT_S),
+    (frame("G28", 11), OK_WAIT_S),
+    (frame("M114", 12), OK_WAIT_S),
+    (frame("M211", 13), OK_WAIT_S),
+    (frame("G1 X-5 Z-1 F600", 14), OK_WAIT_S),
+    (frame("M400", 15), OK_WAIT_S),
+    (frame("M114", 16), OK_WAIT_S),
+    (frame("M211 S0", 17), OK_WAIT_S),
+    (frame("G1 X-5 Z-1", 18), OK_WAIT_S),
+    (frame("M400", 19), OK_WAIT_S),
+    (frame("M114", 20), OK_WAIT_S),
+    (frame("M211 S1", 21), OK_WAIT_S),
+    (frame("G1 X-6 Z-2", 22), OK_WAIT_S),
+    (frame("M400", 23), OK_WAIT_S),
+    (frame("M114", 24), OK_WAIT_S),
+    (frame("G1 Z2", 25), OK_WAIT_S),
+    (frame("M400", 26), OK_WAIT_S),
+    (frame("G28 Y", 27), OK_WAIT_S),
+    (frame("G1 Z20", 28), OK_WAIT_S),
+    (frame("G28 Y", 29), OK_WAIT_S),
+    (frame("M114", 30), OK_WAIT_S),
+]

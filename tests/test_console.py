@@ -220,18 +220,18 @@ def test_console_over_the_simulated_printer(sim_printer, tmp_path):
 
     try:
         child.expect_exact("marlin>")
-        run("home", "X0.000 Y0.000 Z0.000")
-        run("x+ 20", "X20.000 Y0.000 Z0.000")
+        run("home", "X0.000 Y0.000 Z5.000")
+        run("x+ 20", "X20.000 Y0.000 Z5.000")
         run("step 5", "jog step 5 mm")
-        run("\x1b\x1b[A", "X20.000 Y5.000 Z0.000", line=False)  # Alt+Up: Y+ by the step
-        run("\x1b\x1b[5~", "X20.000 Y5.000 Z5.000", line=False)  # Alt+PageUp: Z+
-        run("z- 5", "X20.000 Y5.000 Z0.000")
-        run("point 0 0", "point 1: sensor (0, 0) = printer X20.000 Y5.000 Z0.000")
-        run("x+ 30", "X50.000 Y5.000 Z0.000")
-        run("point 30 0", "point 2: sensor (30, 0) = printer X50.000 Y5.000 Z0.000")
+        run("\x1b\x1b[A", "X20.000 Y5.000 Z5.000", line=False)  # Alt+Up: Y+ by the step
+        run("\x1b\x1b[5~", "X20.000 Y5.000 Z10.000", line=False)  # Alt+PageUp: Z+
+        run("z- 5", "X20.000 Y5.000 Z5.000")
+        run("point 0 0", "point 1: sensor (0, 0) = printer X20.000 Y5.000 Z5.000")
+        run("x+ 30", "X50.000 Y5.000 Z5.000")
+        run("point 30 0", "point 2: sensor (30, 0) = printer X50.000 Y5.000 Z5.000")
         run("save", "wrote")
-        run("M114", "X50.000 Y5.000 Z0.000")  # the M114 helper
-        run("\x1b[A" * 4, "X80.000 Y5.000 Z0.000")  # history: 4 x Up recalls `x+ 30`, Enter runs it
+        run("M114", "X50.000 Y5.000 Z5.000")  # the M114 helper
+        run("\x1b[A" * 4, "X80.000 Y5.000 Z5.000")  # history: 4 x Up recalls `x+ 30`, Enter runs it
         # Ctrl-C while the printer is busy with a long move: the move finishes, then the probe lifts 5 mm
         run("G1 X150 F60", "ok")  # 70 mm at 1 mm/s: 70 s, 3.5 s at 20x; acknowledged at once, still moving
         child.send("M400\r")  # waits for the move
@@ -239,9 +239,9 @@ def test_console_over_the_simulated_printer(sim_printer, tmp_path):
         time.sleep(0.5)  # let it hand the terminal back (cooked mode, so ^C is a SIGINT)
         child.sendintr()
         child.expect_exact("Ctrl-C: letting the move in flight finish (no M410 quickstop), then lifting the probe")
-        child.expect_exact("halted and lifted 5 mm: X150.000 Y5.000 Z5.000")
+        child.expect_exact("halted and lifted 5 mm: X150.000 Y5.000 Z10.000")
         child.expect_exact("marlin>")
-        run("pos", "X150.000 Y5.000 Z5.000")
+        run("pos", "X150.000 Y5.000 Z10.000")
         child.send("quit\r")
         child.expect(pexpect.EOF)
     finally:
@@ -251,7 +251,7 @@ def test_console_over_the_simulated_printer(sim_printer, tmp_path):
         "offset_x_mm = 20.000",
         "offset_y_mm = 5.000",
         "rotation_deg = 0.0000",
-        "surface_z_mm = 0.000",
+        "surface_z_mm = 5.000",  # homing leaves Z 5 mm up (Z_POST_CLEARANCE), as Marlin
     ]
     typed = [line[1:] for line in history.read_text().splitlines() if line.startswith("+")]
     assert typed[:3] == ["home", "x+ 20", "step 5"] and typed[-2:] == ["pos", "quit"]

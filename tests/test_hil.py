@@ -142,13 +142,16 @@ def test_a_printer_not_where_its_program_put_it_stops_the_campaign():
     profile = load_printer_profile(PROTOCOLS / "printers" / "paper.toml")
     driver = _OffPrinter((0.0, 0.0, 5.0))
     tracker = LineTracker(driver, profile)
-    tracker.send_lines(["G90", "G28", "M400"], source="preamble")  # homing: the printer's report is followed
-    assert tracker.commanded_mm() == (0.0, 0.0, 5.0)
-    assert len(tracker.homing_corrections) == 1
-    driver.reported_mm = (50.0, 60.0, 5.0 + POSITION_TOLERANCE_MM / 2)  # within M114's rounding: accepted
+    tracker.send_lines(["G90", "G28", "M400"], source="preamble")  # stock Marlin's G28 ends at Z 5: so does the shadow
+    assert tracker.commanded_mm() == (0.0, 0.0, 5.0) and tracker.homing_corrections == []
+    driver.reported_mm = (0.0, 0.0, 10.0)  # a printer built with Z_AFTER_HOMING 10: after a G28 its report is followed
+    tracker.send_lines(["G28", "M400"], source="re-home")
+    assert tracker.commanded_mm() == (0.0, 0.0, 10.0)
+    assert tracker.homing_corrections == [((0.0, 0.0, 5.0), (0.0, 0.0, 10.0))]
+    driver.reported_mm = (50.0, 60.0, 10.0 + POSITION_TOLERANCE_MM / 2)  # within M114's rounding: accepted
     tracker.send_lines(["G0 X50 Y60 F6000", "M400"], source="travel")
-    driver.reported_mm = (50.0, 60.0, 5.0)  # commanded to Z 2, the printer stayed at Z 5
-    with pytest.raises(HardwareError, match=r"reports X50.00 Y60.00 Z5.00 but its program put the probe at .*Z2\.000"):
+    driver.reported_mm = (50.0, 60.0, 10.0)  # commanded to Z 2, the printer stayed at Z 10
+    with pytest.raises(HardwareError, match=r"reports X50.00 Y60.00 Z10.00 but its program put the probe at .*Z2\.000"):
         tracker.send_lines(["G1 Z2 F120", "M400"], source="press 0 press")
     assert driver.sent[-1] == ["G1 Z2 F120", "M400"]  # the printer got the batch once; nothing was resent
 

@@ -7,10 +7,11 @@ so the settings report's numbers agree too. Documented exceptions, each normalis
   (the HAL's line before `start`), and M115's FIRMWARE_NAME and MACHINE_TYPE line;
 - timing: `echo:busy: processing` keep-alives come every 2 s of a long command on either side, at
   times neither controls, so they are left out of both;
-- homing: G28 takes 30 s on the native build's simulated board, so no script homes (test_marlin_sim pins
-  the simulator's homing; the real G28 also raises Z and reports the position, which the simulator does not).
+- time: G28 takes 30 s on the native build's simulated board and the simulator's `homing_time_s` (its
+  keep-alives are left out, as above; the simulator runs the homing script 10 times faster).
 Motion before homing is compared (BEFORE_HOMING): both move from where they believe they are, zeros at boot,
-with no `echo:` or `Error:` word, unclamped on axes not homed.
+with no `echo:` or `Error:` word, unclamped on axes not homed. So are homing and the soft endstops (HOMING):
+G28's Z raises and its position report, M211's report, `M211 S` silent, `M211 S0` clamping nothing.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from pathlib import Path
 
 import pytest
 import serial
-from marlin_replay import BEFORE_HOMING, SCRIPT, replay
+from marlin_replay import BEFORE_HOMING, HOMING, HOMING_WAIT_S, SCRIPT, replay
 
 from neatskin.gcode.profile import load_printer_profile
 from neatskin.sim.printer import SimulatedPrinter
@@ -49,23 +50,29 @@ def normalise(data: bytes) -> bytes:
 Script = list[tuple[bytes, float]]
 
 
-def sim_transcript(advanced_ok: bool, script: Script = SCRIPT) -> tuple[bytes, list[tuple[bytes, bytes]]]:
-    printer = SimulatedPrinter(load_printer_profile(NATIVE_PROFILE), advanced_ok=advanced_ok, time_mode="scaled")
+def sim_transcript(
+    advanced_ok: bool, script: Script = SCRIPT, *, speed: float = 1.0, max_wait_s: float = 10.0
+) -> tuple[bytes, list[tuple[bytes, bytes]]]:
+    printer = SimulatedPrinter(
+        load_printer_profile(NATIVE_PROFILE), advanced_ok=advanced_ok, time_mode="scaled", speed=speed
+    )
     banner = printer.core.take_output()  # what it printed at boot (pyserial's open flushes a pty's input)
     path = printer.start_pty()
     try:
         with serial.Serial(path, timeout=0) as port:
-            return banner, replay(port.fd, script)
+            return banner, replay(port.fd, script, max_wait_s)
     finally:
         printer.stop()
 
 
-def real_transcript(build: str, script: Script = SCRIPT) -> tuple[bytes, list[tuple[bytes, bytes]]]:
+def real_transcript(
+    build: str, script: Script = SCRIPT, *, max_wait_s: float = 10.0
+) -> tuple[bytes, list[tuple[bytes, bytes]]]:
     assert MARLIN is not None
     with FirmwareRelay(MARLIN / build) as relay:
         banner = b"".join(relay.replies())
         with serial.Serial(relay.path, timeout=0) as port:
-            return banner, replay(port.fd, script)
+            return banner, replay(port.fd, script, max_wait_s)
 
 
 def assert_same_replies(real: list[tuple[bytes, bytes]], sim: list[tuple[bytes, bytes]], script: Script) -> None:
@@ -92,6 +99,34 @@ def test_moves_before_homing_answer_as_the_real_firmware():
     _, real = real_transcript(PLAIN, BEFORE_HOMING)
     _, sim = sim_transcript(advanced_ok=False, script=BEFORE_HOMING)
     assert_same_replies(real, sim, BEFORE_HOMING)
+
+
+@pytest.mark.skipif(MARLIN is None, reason="the real firmware is absent: no shared/marlin beside the repository")
+@pytest.mark.timeout(400)
+def test_homing_and_soft_endstops_answer_as_the_real_firmware():
+    """Four G28s in real time on the native board (about 70 s); the simulator runs 10 times faster."""
+    _, real = real_transcript(PLAIN, HOMING, max_wait_s=HOMING_WAIT_S)
+    _, sim = sim_transcript(advanced_ok=False, script=HOMING, speed=10.0, max_wait_s=HOMING_WAIT_S)
+    assert_same_replies(real, sim, HOMING)
+
+
+def test_the_homing_script_shows_the_raises_and_the_reports():
+    """The script itself (no firmware needed): what the simulator answers, as the native build did on 2026-11-25."""
+    _, sim = sim_transcript(advanced_ok=False, script=HOMING, speed=20.0, max_wait_s=HOMING_WAIT_S)
+    answers = [normalise(got) for _, got in sim]
+    on = b"  Min:  X0.00 Y0.00 Z0.00   Max:  X200.00 Y200.00 Z200.00\n"
+    assert answers[1] == b"  M211 S1 ; ON\n" + on + b"ok\n"
+    assert answers[2] == answers[4] == b"ok\n"  # M211 S0 and a bare S (on) say nothing
+    assert answers[3] == b"  M211 S0 ; OFF\n" + on + b"ok\n"
+    # Z not homed: it rises by 5 from where it is believed (5) before X homes, and the position is reported
+    assert answers[7] == b"X:0.00 Y:0.00 Z:10.00 E:0.00 Count X:0 Y:0 Z:4000\nok\n"
+    assert answers[10] == b"  M211 S1 ; ON\n  Min:  X0.00 Y0.00 Z-3.00   Max:  X200.00 Y200.00 Z197.00\nok\n"
+    assert answers[11] == b"X:0.00 Y:0.00 Z:5.00 E:0.00 Count X:0 Y:0 Z:2000\nok\n"  # Z homed, then up to 5
+    assert answers[16] == b"X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0\nok\n"  # clamped (M211 S1)
+    assert answers[20] == b"X:-5.00 Y:0.00 Z:-1.00 E:0.00 Count X:-400 Y:0 Z:-400\nok\n"  # M211 S0: not clamped
+    assert answers[24] == answers[16]
+    assert answers[27] == b"X:0.00 Y:0.00 Z:5.00 E:0.00 Count X:0 Y:0 Z:2000\nok\n"  # Z homed at 2: up to 5
+    assert answers[29] == b"X:0.00 Y:0.00 Z:20.00 E:0.00 Count X:0 Y:0 Z:8000\nok\n"  # at 20: never down
 
 
 def test_the_before_homing_script_shows_the_moves():

@@ -85,20 +85,30 @@ def test_homing_limits_m114_m119_m211_m118(profile):
     # as stock Marlin (the native build does it: test_marlin_real_vs_sim): a move before homing runs, unclamped
     assert talk(core, b"G1 X-5 Y10\n") == b"ok\n"
     assert talk(core, b"M114\n") == b"X:-5.00 Y:10.00 Z:0.00 E:0.00 Count X:-400 Y:800 Z:0\nok\n"
-    assert talk(core, b"G28 X\n") == b"echo:busy: processing\n" * 3 + b"ok\n"  # a third of 25 s
-    assert talk(core, b"G1 X-5 Y-5\n") == b"ok\n"  # the soft limits hold on the homed axis only
-    assert talk(core, b"M114\n") == b"X:0.00 Y:-5.00 Z:0.00 E:0.00 Count X:0 Y:-400 Z:0\nok\n"
-    assert talk(core, b"G28\n") == b"echo:busy: processing\n" * 3 + b"ok\n"  # 25 s of homing, virtual
-    assert (
-        talk(core, b"M119\n") == b"Reporting endstop status\nx_min: TRIGGERED\ny_min: TRIGGERED\nz_min: TRIGGERED\nok\n"
+    # a third of 25 s; Z (not homed) rises 5 mm first, and G28 reports the position (the native build does both)
+    assert talk(core, b"G28 X\n") == (
+        b"echo:busy: processing\n" * 3 + b"X:0.00 Y:10.00 Z:5.00 E:0.00 Count X:0 Y:800 Z:2000\nok\n"
     )
+    assert talk(core, b"G1 X-5 Y-5\n") == b"ok\n"  # the soft limits hold on the homed axis only
+    assert talk(core, b"M114\n") == b"X:0.00 Y:-5.00 Z:5.00 E:0.00 Count X:0 Y:-400 Z:2000\nok\n"
+    # 25 s of homing, virtual: Z rises to 10, every axis homes, Z moves to 5
+    assert talk(core, b"G28\n") == (
+        b"echo:busy: processing\n" * 3 + b"X:0.00 Y:0.00 Z:5.00 E:0.00 Count X:0 Y:0 Z:2000\nok\n"
+    )
+    assert talk(core, b"M119\n") == b"Reporting endstop status\nx_min: TRIGGERED\ny_min: TRIGGERED\nz_min: open\nok\n"
     assert talk(core, b"G1 X300 Y-5 Z12 F6000\n") == b"ok\n"  # outside the soft limits: clipped, as Marlin
     # Count is where the queued motion ends (Marlin's planner position), not where the probe is now
     assert talk(core, b"M114\n") == b"X:220.00 Y:0.00 Z:12.00 E:0.00 Count X:17600 Y:0 Z:4800\nok\n"
     assert core.clip_events[-1][2:] == ((300.0, -5.0, 12.0), (220.0, 0.0, 12.0))
-    assert talk(core, b"M211\n") == (
-        b"echo:Soft endstops: ON  Min:  X0.00 Y0.00 Z0.00   Max:  X220.00 Y220.00 Z250.00\nok\n"
+    assert talk(core, b"M211\n") == (  # M211.cpp's report, as the native build prints it
+        b"  M211 S1 ; ON\n  Min:  X0.00 Y0.00 Z0.00   Max:  X220.00 Y220.00 Z250.00\nok\n"
     )
+    assert talk(core, b"M211 S0\n") == b"ok\n"  # setting says nothing
+    assert talk(core, b"G1 X-5 Z-1\nM114\n").endswith(b"X:-5.00 Y:0.00 Z:-1.00 E:0.00 Count X:-400 Y:0 Z:-400\nok\n")
+    assert core.timeline.end_mm[::2] == (0.0, 0.0)  # unclamped, but the probe stops at the end of its travel
+    assert talk(core, b"M211 S1\nG1 X-6 Z-2\nM114\n").endswith(b"X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0\nok\n")
+    assert core.timeline.end_mm[::2] == (5.0, 1.0)  # the steps lost against the frame stay lost
+    talk(core, b"G1 X220 Y0 Z12\nM400\n")
     assert talk(core, b"M118 E1 NS press=3 phase=press\n") == b"echo:NS press=3 phase=press\r\nok\n"
     assert talk(core, b"M118 A1 action:pause\n") == b"//action:pause\r\nok\n"
     # G92 reports the position it set; the steppers did not move
@@ -111,7 +121,7 @@ def test_m114_before_homing_is_zeros_and_count_follows_the_queue(profile):
     talk(core, b"G28\n")
     core.receive(b"G1 X100 F600\nM114\n")  # 10 s of motion queued; M114 runs at once
     core.step()
-    assert core.take_output() == b"ok\nX:100.00 Y:0.00 Z:0.00 E:0.00 Count X:8000 Y:0 Z:0\nok\n"
+    assert core.take_output() == b"ok\nX:100.00 Y:0.00 Z:5.00 E:0.00 Count X:8000 Y:0 Z:2000\nok\n"
     assert core.timeline.position_mm(core.clock.now())[0] < 100.0  # the probe is still on its way
 
 
@@ -128,11 +138,11 @@ def test_a_move_before_homing_steps_the_probe_from_where_it_is(profile):
     assert core.timeline.position_mm(core.clock.now())[1] == profile.bed_y_mm
     talk(core, b"G1 Y10\nM400\n")
     assert core.timeline.position_mm(core.clock.now())[1] == profile.bed_y_mm - 20
-    talk(core, b"G28 Z\nM400\n")  # Z goes home; X and Y stay where the probe is
-    assert core.timeline.position_mm(core.clock.now()) == (park[0] + 30, profile.bed_y_mm - 20, 0.0)
-    talk(core, b"G28\nG1 X10 Y20 Z5\nM400\n")  # homed: the probe is where the firmware believes
-    assert core.timeline.position_mm(core.clock.now()) == (10.0, 20.0, 5.0)
-    assert [t for _, t in core.executed][-3:] == ["G28", "G1 X10 Y20 Z5", "M400"]
+    talk(core, b"G28 Z\nM400\n")  # Z goes home, then to 5 mm; X and Y stay where the probe is
+    assert core.timeline.position_mm(core.clock.now()) == (park[0] + 30, profile.bed_y_mm - 20, 5.0)
+    talk(core, b"G28\nG1 X10 Y20 Z7\nM400\n")  # homed: the probe is where the firmware believes
+    assert core.timeline.position_mm(core.clock.now()) == (10.0, 20.0, 7.0)
+    assert [t for _, t in core.executed][-3:] == ["G28", "G1 X10 Y20 Z7", "M400"]
 
 
 def test_a_printer_built_with_no_motion_before_homing_refuses_until_every_axis_is_homed(profile):
@@ -141,22 +151,28 @@ def test_a_printer_built_with_no_motion_before_homing_refuses_until_every_axis_i
     core = fresh(profile, no_motion_before_homing=True)
     park = tuple(profile.park_mm)
     assert talk(core, b"G1 X10\n") == b"echo:Home XYZ First\nok\n"
-    assert talk(core, b"G28 X\n") == b"echo:busy: processing\n" * 3 + b"ok\n"
+    # G28's own Z raise is no G0/G1: it runs
+    assert talk(core, b"G28 X\n") == (
+        b"echo:busy: processing\n" * 3 + b"X:0.00 Y:0.00 Z:5.00 E:0.00 Count X:0 Y:0 Z:2000\nok\n"
+    )
     assert talk(core, b"G1 X10\n") == b"echo:Home YZ First\nok\n"
-    assert talk(core, b"M114\n") == b"X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0\nok\n"
-    assert core.timeline.position_mm(core.clock.now()) == (0.0, park[1], park[2])  # only the homing moved it
+    assert talk(core, b"M114\n") == b"X:0.00 Y:0.00 Z:5.00 E:0.00 Count X:0 Y:0 Z:2000\nok\n"
+    assert core.timeline.position_mm(core.clock.now()) == (0.0, park[1], park[2] + 5)  # only the homing moved it
     talk(core, b"G28\n")
     assert talk(core, b"G1 X10\nM400\n") == b"ok\nok\n"
-    assert core.timeline.position_mm(core.clock.now()) == (10.0, 0.0, 0.0)
+    assert core.timeline.position_mm(core.clock.now()) == (10.0, 0.0, 5.0)
 
 
 def test_m84_keeps_the_axes_homed(profile):
     """Stock Marlin (HOME_AFTER_DEACTIVATE off) keeps its homing when the steppers go off: the soft limits still
-    clamp, and M119 still reports the endstops (the native build: G28, M84, G1 X-5 -> M114 X:0.00, M119 TRIGGERED)."""
+    clamp, and M119 still reports the endstops. The native build printed these very lines (G28, M84, G1 X-5, M400,
+    M114, M119; Z stands 5 mm above its endstop after G28, so z_min is open until G1 Z0)."""
     core = fresh(profile)
     talk(core, b"G28\n")
     assert talk(core, b"M84\n") == b"ok\n"
-    assert talk(core, b"G1 X-5\nM400\nM114\n").endswith(b"X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0\nok\n")
+    assert talk(core, b"G1 X-5\nM400\nM114\n").endswith(b"X:0.00 Y:0.00 Z:5.00 E:0.00 Count X:0 Y:0 Z:2000\nok\n")
+    assert talk(core, b"M119\n") == b"Reporting endstop status\nx_min: TRIGGERED\ny_min: TRIGGERED\nz_min: open\nok\n"
+    talk(core, b"G1 Z0\nM400\n")
     assert talk(core, b"M119\n") == (
         b"Reporting endstop status\nx_min: TRIGGERED\ny_min: TRIGGERED\nz_min: TRIGGERED\nok\n"
     )
@@ -187,35 +203,36 @@ def test_motion_clock_and_probe_position_follow_the_trapezoid(profile):
     core = fresh(profile)
     talk(core, b"G28\n")
     t_home = core.clock.now()
-    assert t_home == pytest.approx(profile.homing_time_s)
+    assert t_home == pytest.approx(profile.homing_time_s)  # the measured G28, its Z raises included
     talk(core, b"G1 X100 F6000\nM400\n")
     feed, accel = limited_feed_and_accel((100.0, 0.0, 0.0), 100.0, profile)
     duration = trapezoid_time_s(100.0, feed, accel)
     assert core.clock.now() == pytest.approx(t_home + duration)
     tl = core.timeline
-    assert tl.position_mm(t_home) == (0.0, 0.0, 0.0)
+    assert tl.position_mm(t_home) == (0.0, 0.0, 5.0)  # Z_POST_CLEARANCE above the endstop
     assert tl.position_mm(t_home + duration / 2)[0] == pytest.approx(50.0)  # symmetric profile: halfway at half time
     v = min(feed, math.sqrt(accel * 100.0))
     t_a = v / accel
     assert tl.position_mm(t_home + t_a)[0] == pytest.approx(v * v / (2 * accel))
-    assert tl.position_mm(t_home + duration + 5) == (100.0, 0.0, 0.0)
+    assert tl.position_mm(t_home + duration + 5) == (100.0, 0.0, 5.0)
     sim = SimulatedPrinter(profile)
     sim.core = core
     # the move the probe last rested after, and every later one
-    assert [seg.p1_mm for seg in sim.segments(t_home + 1)] == [(0.0, 0.0, 0.0), (100.0, 0.0, 0.0)]
-    assert [seg.p1_mm for seg in sim.segments(t_home + duration + 1)] == [(100.0, 0.0, 0.0)]
+    assert [seg.p1_mm for seg in sim.segments(t_home + 1)] == [(0.0, 0.0, 5.0), (100.0, 0.0, 5.0)]
+    assert [seg.p1_mm for seg in sim.segments(t_home + duration + 1)] == [(100.0, 0.0, 5.0)]
 
 
 def test_full_planner_delays_the_ok_until_a_slot_frees(profile):
     core = fresh(profile)
     talk(core, b"G28\n")
     t0 = core.clock.now()
+    first = len(core.timeline.segments)  # after G28's homing and Z moves
     for i in range(profile.planner_buffer_size):
         talk(core, f"G1 X{10 * (i % 2 + 1)} F6000\n".encode())
     assert core.clock.now() == t0  # 16 slots: every ok at once, no time passes
     assert core.timeline.pending(t0) == 16
     talk(core, b"G1 X30 F6000\n")
-    assert core.clock.now() == pytest.approx(core.timeline.segments[1].t1_s)  # waited for the first move
+    assert core.clock.now() == pytest.approx(core.timeline.segments[first].t1_s)  # waited for the first move
 
 
 @settings(max_examples=60, deadline=None)
@@ -292,7 +309,7 @@ def test_the_driver_raises_a_refused_move(profile):
             driver.send("G1 X10")
         driver.send("G28")
         driver.send_lines(["G1 X10", "M400"])
-        assert sim.probe_position() == (10.0, 0.0, 0.0)
+        assert sim.probe_position() == (10.0, 0.0, 5.0)
     finally:
         driver.close()
         sim.stop()

@@ -1,6 +1,7 @@
 """The simulated devices of the dry run, behind the same interfaces as the real ones.
 
-firmware (the Marlin firmware model: line protocol, modal G-code, motion clock, faults), motion
+firmware (the Marlin firmware model: commands, homing, motion, replies), intake (its serial side: the
+receive ring, line numbers, checksums, resends, the command queue), clock (virtual or scaled time), motion
 (the printer's trajectory), printer (that firmware served on a real pseudo-terminal), pty,
 faults, scripted (scripted serial peers for tests), daq (the simulated DAQ sampling a skin),
 noise (its imperfections), moments (the features path's statistics), recorder (the dry probe and

@@ -1,90 +1,59 @@
-"""The simulated printer's firmware: Marlin's serial queue, command set and replies, without any I/O.
+"""The simulated printer's firmware: Marlin's command set, motion and replies, without any I/O.
 
-`MarlinCore.receive(bytes)` takes what the host wrote; `step()` runs what can run now and says
-how long (in real seconds) until something is due; `take_output()` gives the reply bytes.
-Line numbers, checksums and resends follow Marlin 2.1's queue.cpp (a repeated line just below
-the counter is dropped silently; `marlin_version="2.0"` answers it with an error instead; a bare
-`ok` follows every `Resend:`, as Marlin sends it; `ok_after_resend=False` leaves it out, as a
-Repetier-like peer). What it prints matches the real firmware byte for byte where
-tests/test_marlin_real_vs_sim.py compares them (`\r\n` after M118 and the M111 echo, the
-banner, M115's capabilities, M114 zeros before homing, `Count` at the end of the queued motion,
-M112 only as a command, nothing after a kill until a reset, moves before homing). Commands run
+`MarlinCore.receive(bytes)` takes what the host wrote (sim.intake: the receive ring, line numbers,
+checksums, resends, the command queue); `step()` runs what can run now and says how long (in real
+seconds) until something is due; `take_output()` gives the reply bytes. What it prints matches the
+real firmware byte for byte where tests/test_marlin_real_vs_sim.py compares them (`\r\n` after M118
+and the M111 echo, the banner, M115's capabilities, M114 zeros before homing, `Count` at the end of
+the queued motion, M112 only as a command, nothing after a kill until a reset, moves before homing,
+G28's Z raises and its position report, M211's report and its S0 that clamps nothing). Commands run
 in order from a BUFSIZE-slot queue; moves go to a planner of `planner_buffer_size` slots (a full
 planner delays the `ok`). As stock Marlin (built without NO_MOTION_BEFORE_HOMING), a move before
 homing runs from where the firmware believes the head is (zeros at boot), unclamped on the axes not
 homed, and the probe moves by the same steps from where it really is (`_frame_mm`: real minus
-believed, per axis; zero once the axis is homed); `no_motion_before_homing=True` refuses it instead
-(`echo:Home XYZ First`, then `ok`), as a Marlin built with that option. Time is a clock object:
-virtual (jumps to when the motion is done; no sleeping) or scaled real time. Faults
-(faults.FaultConfig) are drawn from a seeded numpy Generator.
-Its memory is bounded however long it runs: the latest `history_lines` executed commands (and
-`executed_count` of them all) and the latest `keep_segments` moves (sim.motion.Timeline).
+believed, per axis; zero once the axis is homed, until steps are lost against the frame);
+`no_motion_before_homing=True` refuses it instead (`echo:Home XYZ First`, then `ok`), as a Marlin
+built with that option. Time is a clock object (sim.clock): virtual (jumps to when the motion is
+done; no sleeping) or scaled real time. Faults (faults.FaultConfig) are drawn from a seeded numpy
+Generator. Its memory is bounded however long it runs: the latest `history_lines` executed commands
+(and `executed_count` of them all) and the latest `keep_segments` moves (sim.motion.Timeline).
 """
 
 from __future__ import annotations
 
 import collections
 import math
-import re
-import time
 
 import numpy as np
 
-from neatskin.errors import ConfigError
 from neatskin.gcode.machine import Machine, MaybeXyz, Move, Xyz
-from neatskin.gcode.parse import GcodeLine, checksum, parse_line
+from neatskin.gcode.parse import GcodeLine
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.marlin import replies as R
+from neatskin.sim.clock import ScaledClock, VirtualClock
 from neatskin.sim.faults import FaultConfig
 from neatskin.sim.firmware_texts import STEPS_PER_MM, banner_lines, m115_lines
+from neatskin.sim.intake import LineIntake
 from neatskin.sim.motion import Timeline
 
-_N = re.compile(r"N\s*(-?\d+)")
-_DIGITS = re.compile(r"\d+")
-_EOL = re.compile(rb"[\r\n]")
-_FRAMED = re.compile(r"N(\d+)([^*]*)\*(\d+)")  # the common framed line: N<n> <command>*<checksum>
+__all__ = ["MarlinCore", "ScaledClock", "VirtualClock"]
+
 _MOVES = frozenset({"G0", "G1"})
 _MODES = frozenset({"G90", "G91", "M82", "M83"})
-_SILENT = frozenset({"G0", "G1", "G4", "G28", "M400", "M999", "M111"})
+_SILENT = frozenset({"G0", "G1", "G4", "M400", "M999", "M111"})
 _OK = b"ok\n"
-_PARSE_CACHE_LINES = 1024  # distinct command texts kept parsed (the repeated ones come first)
 # (M84/M18 among them: stock Marlin keeps the axes homed when it turns the steppers off, HOME_AFTER_DEACTIVATE off)
 _QUIET = frozenset(
     {"G21", "G90", "G91", "M17", "M18", "M82", "M83", "M84", "M104", "M106", "M107", "M117", "M140", "M220", "M221"}
 )
+# G28's Z moves in stock Marlin's Configuration.h (the native build's): Z_CLEARANCE_BETWEEN_PROBES 5 makes
+# Z_CLEARANCE_FOR_HOMING 5 (Conditionals_post.h) and, without Z_AFTER_HOMING, Z_POST_CLEARANCE 5 (motion.h);
+# HOMING_FEEDRATE_MM_M's Z is 4 mm/s
+Z_CLEARANCE_FOR_HOMING_MM = 5.0
+Z_HOMING_FEED_MM_S = 4.0
 
 
-class VirtualClock:
-    """Simulated seconds that jump forward to whatever the printer waits for."""
-
-    def __init__(self) -> None:
-        self.t_s = 0.0
-
-    def now(self) -> float:
-        return self.t_s
-
-    def wait_until(self, t_s: float) -> float:
-        self.t_s = max(self.t_s, t_s)
-        return 0.0
-
-
-class ScaledClock:
-    """Real time, `speed` times faster (speed=1: wall clock)."""
-
-    def __init__(self, speed: float = 1.0) -> None:
-        if speed <= 0:
-            raise ConfigError(f"time speed {speed!r} must be > 0", field="speed", fix="use e.g. 1 or 10")
-        self.speed = speed
-        self._t0 = time.monotonic()
-
-    def now(self) -> float:
-        return (time.monotonic() - self._t0) * self.speed
-
-    def wait_until(self, t_s: float) -> float:
-        return max(0.0, (t_s - self.now()) / self.speed)
-
-
-class MarlinCore:
+class MarlinCore(LineIntake):
     def __init__(
         self,
         profile: PrinterProfile,
@@ -101,21 +70,26 @@ class MarlinCore:
         keepalive_s: float = 2.0,
         history_lines: int = 10_000,
         keep_segments: int = 4096,
+        z_clearance_for_homing_mm: float = Z_CLEARANCE_FOR_HOMING_MM,
+        z_after_homing_mm: float | None = None,
     ) -> None:
+        super().__init__(
+            faults,
+            np.random.default_rng(seed),
+            marlin_version=marlin_version,
+            ok_after_resend=ok_after_resend,
+            bufsize=bufsize,
+            rx_buffer_size=rx_buffer_size,
+        )
         self.profile = profile
-        self.faults = faults
-        self.rng = np.random.default_rng(seed)
         self.clock = clock or VirtualClock()
         self._virtual = isinstance(self.clock, VirtualClock)
         self.advanced_ok = advanced_ok
-        self.marlin_version = marlin_version
-        self.ok_after_resend = ok_after_resend
         self.no_motion_before_homing = no_motion_before_homing
-        self.bufsize = bufsize
-        # the serial receive ring: bytes past it are lost, as on an AVR board (None: unbounded, as the
-        # native build's HAL, which reads stdin only into free space)
-        self.rx_buffer_size = rx_buffer_size
-        self.rx_overflow_bytes = 0
+        # G28 raises Z by this before homing X or Y (to it, once Z is homed), and moves Z to z_after_homing_mm
+        # (Z_POST_CLEARANCE: by default the same) once Z is homed; 0 raises nothing
+        self.z_clearance_for_homing_mm = z_clearance_for_homing_mm
+        self.z_after_homing_mm = z_clearance_for_homing_mm if z_after_homing_mm is None else z_after_homing_mm
         self.echo_commands = False  # M111 S1
         self.keepalive_s = keepalive_s
         self.timeline = Timeline(profile, tuple(profile.park_mm), keep_segments)
@@ -125,21 +99,14 @@ class MarlinCore:
         self.clip_events: collections.deque[tuple[float, str, MaybeXyz, MaybeXyz]] = collections.deque(
             maxlen=history_lines
         )
-        self.out = bytearray()
-        self.dead = False
-        self.closed = False
         self.resets = 0
-        self._parsed: dict[str, tuple[str, GcodeLine | None]] = {}
         self._plain_ok = not (faults.drop_ok or faults.duplicate) and R.OK == "ok"
         self._boot()
 
     # ---- state ----------------------------------------------------------------------------
 
     def _boot(self) -> None:
-        self.rx = bytearray()
-        # (line number, command, code, parsed, the line as received: M111 S1 echoes it)
-        self.queue: collections.deque[tuple[int | None, str, str, GcodeLine | None, str]] = collections.deque()
-        self.last_n = 0
+        self._clear_intake()
         self.homed = [False, False, False]
         # the one G-code machine model (gcode.machine): native position, G92 offsets, modes: what the firmware
         # believes (zeros at boot, as Marlin); the timeline is where the probe is, _frame_mm the difference
@@ -164,13 +131,9 @@ class MarlinCore:
         self.timeline.teleport(self.clock.now(), self.timeline.position_mm(self.clock.now()))
         self._boot()
 
-    def take_output(self) -> bytes:
-        data = bytes(self.out)
-        self.out.clear()
-        return data
-
     def _set_soft_endstops(self, on: bool) -> None:
-        """M211: the machine clamps native targets to the bed, and to the soft limits while they are on."""
+        """M211: the machine clamps native targets on homed axes to the soft limits while they are on (and to
+        nothing while they are off: the real firmware, `M211 S0` then `G1 X-5`, reports X:-5.00)."""
         self.soft_endstops = on
         self._apply_limits()
 
@@ -186,133 +149,12 @@ class MarlinCore:
 
     def _apply_limits(self) -> None:
         # Marlin's apply_motion_limits clamps only the axes it has homed (motion.cpp: `if (axis_was_homed(..))`)
-        lo, hi = self._travel_mm(self.soft_endstops)
-        h = self.homed
+        lo, hi = self._travel_mm(True)
+        h = self.homed if self.soft_endstops else (False, False, False)
         self.machine.limits_mm = (
             (lo[0] if h[0] else -math.inf, lo[1] if h[1] else -math.inf, lo[2] if h[2] else -math.inf),
             (hi[0] if h[0] else math.inf, hi[1] if h[1] else math.inf, hi[2] if h[2] else math.inf),
         )
-
-    def _emit(self, text: str, *, is_ok: bool = False, eol: bytes = b"\n") -> None:
-        if self.dead:
-            return
-        if is_ok and self.faults.drop_ok and self.rng.random() < self.faults.drop_ok:
-            return
-        line = text.encode("ascii") + eol
-        self.out += line
-        if self.faults.duplicate and self.rng.random() < self.faults.duplicate:
-            self.out += line
-
-    # ---- serial input ---------------------------------------------------------------------
-
-    def receive(self, data: bytes) -> None:
-        if self.dead or self.halted:
-            return  # a killed Marlin reads nothing until it is reset
-        room = None if self.rx_buffer_size is None else self.rx_buffer_size - 1 - len(self.rx)
-        if room is not None and len(data) > room:
-            self.rx_overflow_bytes += len(data) - max(room, 0)
-            data = data[: max(room, 0)]
-        self.rx += data
-        self._read_lines()
-
-    def _read_lines(self) -> None:
-        rx = self.rx
-        while len(self.queue) < self.bufsize and not self.dead:
-            eol = _EOL.search(rx)
-            if eol is None:
-                return
-            cut = eol.start()
-            raw = bytes(rx[:cut])
-            del rx[: cut + 1]
-            self._accept(raw)
-
-    def _accept(self, raw: bytes) -> None:
-        faults = self.faults
-        if faults.drop_line and raw.strip() and self.rng.random() < faults.drop_line:
-            return
-        if faults.corrupt and raw.strip() and self.rng.random() < faults.corrupt:
-            raw = self._corrupt(raw)
-        text = raw.decode("ascii", "replace").strip()
-        if not text or self.halted:
-            return
-        number = None
-        framed = _FRAMED.fullmatch(text)
-        if framed is not None and "M110" not in text:  # the common case, checked as the general path below
-            number = int(framed.group(1))
-            if not self._in_sequence(number):
-                return
-            if int(framed.group(3)) != checksum(text[: framed.start(3) - 1]):
-                self._line_error(R.ERR_CHECKSUM)
-                return
-            self.last_n = number
-            self._enqueue(number, framed.group(2).strip(), text)
-            return
-        if text.startswith("N"):
-            is_m110 = "M110" in text
-            npos = text
-            if is_m110 and "N" in text[4:]:
-                npos = text[text.index("N", 4) :]
-            match = _N.match(npos)
-            number = int(match.group(1)) if match else 0
-            if not is_m110 and not self._in_sequence(number):
-                return
-            star = text.rfind("*")
-            if star < 0:
-                self._line_error(R.ERR_NO_CHECKSUM)
-                return
-            digits = _DIGITS.match(text, star + 1)
-            if digits is None or int(digits.group(0)) != checksum(text[:star]):
-                self._line_error(R.ERR_CHECKSUM)
-                return
-            self.last_n = number
-            head = _N.match(text)
-            self._enqueue(number, text[head.end() : star].strip() if head else text[:star].strip(), text)
-            return
-        if text.startswith("M112"):  # no emergency parser: queue.cpp kills on an unnumbered M112 as it reads it
-            self._kill()
-            return
-        self._enqueue(number, text, text)
-
-    def _in_sequence(self, number: int) -> bool:
-        """True for the next line number; otherwise the line is refused (or dropped) here."""
-        if number == self.last_n + 1:
-            return True
-        if not (self.marlin_version >= "2.1" and self.last_n - 1 <= number <= self.last_n):
-            self._line_error(R.ERR_LINE_NO)
-        # else: a repeat from a crossed resend, dropped without a word (Marlin 2.1)
-        return False
-
-    def _enqueue(self, number: int | None, text: str, raw: str) -> None:
-        """Queue a command, parsed once (Marlin parses at execution; the result is the same).
-
-        A campaign repeats most of its lines (`M400`, the descend and lift moves): each distinct
-        text is parsed once (a bounded cache of immutable parses)."""
-        parsed = self._parsed.get(text)
-        if parsed is None:
-            try:
-                line = parse_line(text)
-            except ConfigError:
-                line = None
-            parsed = (line.code if line is not None else text.split(" ", 1)[0], line)
-            if len(self._parsed) < _PARSE_CACHE_LINES:
-                self._parsed[text] = parsed
-        self.queue.append((number, text, parsed[0], parsed[1], raw))
-
-    def _corrupt(self, raw: bytes) -> bytes:
-        # never the leading 'N': a line that loses it is taken unnumbered, a hole in Marlin's protocol
-        start = 1 if raw.startswith(b"N") else 0
-        if len(raw) <= start:
-            return raw
-        i = int(self.rng.integers(start, len(raw)))
-        choices = [c for c in b"0123456789ABCDEFGXYZ .-" if c != raw[i]]
-        return raw[:i] + bytes([choices[int(self.rng.integers(len(choices)))]]) + raw[i + 1 :]
-
-    def _line_error(self, message: str) -> None:
-        self._emit(f"Error:{message}{self.last_n}")
-        self.rx.clear()  # Marlin empties its RX buffer before asking again
-        self._emit(f"{R.RESEND}{self.last_n + 1}")
-        if self.ok_after_resend:
-            self._emit(R.OK, is_ok=True)  # bare even with ADVANCED_OK (queue.cpp flush_and_request_resend)
 
     def _kill(self) -> None:
         self.queue.clear()
@@ -411,30 +253,72 @@ class MarlinCore:
         if code == "G4" and line is not None:
             return max(now, tl.end_s) + (line.get("P", 0.0) or 0.0) / 1000.0 + (line.get("S", 0.0) or 0.0)
         if code == "G28":
-            event = self.machine.home(
+            return self._home(
                 tuple(i for i, a in enumerate("XYZ") if line is not None and a in line.params) or (0, 1, 2)
             )
-            for i in event.axes:
-                self.homed[i] = True
-                self._frame_mm[i] = 0.0
-            self._apply_limits()
-            # the axes homed go home; the others stay where the probe is
-            end = tuple(h if i in event.axes else p for i, (h, p) in enumerate(zip(event.end_mm, tl.end_mm)))
-            return tl.add_homing(now, end, event.duration_s).t1_s  # type: ignore[arg-type]
         return None
 
+    def _home(self, axes: tuple[int, ...]) -> float:
+        """G28 as Marlin's G28.cpp; when it is done. Before homing X or Y, Z rises by the homing clearance
+        (relative while Z is not homed, to that height once it is; never down); the axes go home; once Z is
+        homed it moves to the post-homing height (down too). The native build: G0 Z5, G28 X -> Z:10.00; a full
+        G28 -> Z:5.00; G1 Z2, G28 Y -> Z:5.00; G1 Z20, G28 Y -> Z:20.00. _reply prints the position. The
+        profile's `homing_time_s` is a whole G28 as measured, raises included: the homing takes what they leave."""
+        now = self.clock.now()
+        tl, machine = self.timeline, self.machine
+        z_max = self.profile.soft_max_mm.z  # Z_MAX_POS: do_z_clearance goes no higher
+        rise = after = None
+        if 0 in axes or 1 in axes:  # G28.cpp's may_skate: lateral motion wants clearance first
+            z = machine.position_mm[2]
+            assert z is not None  # the machine starts at zeros
+            target = min(self.z_clearance_for_homing_mm + (0.0 if self.homed[2] else z), z_max)
+            if target > z:
+                rise = self._z_move(target)
+                self._queue_move(rise, "G28")
+        home = machine.home(axes)
+        for i in home.axes:
+            self.homed[i] = True
+            self._frame_mm[i] = 0.0
+        self._apply_limits()
+        if 2 in axes:  # do_move_after_z_homing: Z_POST_CLEARANCE, lower allowed
+            target = min(self.z_after_homing_mm, z_max)
+            if target != machine.position_mm[2]:
+                after = self._z_move(target)
+        raises_s = sum(m.duration_s or 0.0 for m in (rise, after) if m is not None)
+        # the axes homed go home; the others stay where the probe is
+        end = tuple(h if i in home.axes else p for i, (h, p) in enumerate(zip(home.end_mm, tl.end_mm)))
+        tl.add_homing(now, end, max(0.0, home.duration_s - raises_s))  # type: ignore[arg-type]
+        if after is not None:
+            self._queue_move(after, "G28")
+        return tl.end_s
+
+    def _z_move(self, z_mm: float) -> Move:
+        """G28's own Z move (do_blocking_move_to_z) to a native height at Z's homing feed, in the firmware's
+        belief (the caller queues it); the modes and the feed stay."""
+        machine = self.machine
+        absolute, feed = machine.absolute, machine.feed_mm_s
+        machine.absolute = True
+        event = machine.step(GcodeLine("G0", {"Z": z_mm + machine.offset_mm[2], "F": Z_HOMING_FEED_MM_S * 60.0}))
+        machine.absolute, machine.feed_mm_s = absolute, feed
+        assert isinstance(event, Move)
+        return event
+
     def _move(self, line: GcodeLine) -> None:
-        event = self.machine.step(line)
-        assert isinstance(event, Move) and event.duration_s is not None  # the machine starts at zeros: all known
+        self._queue_move(self.machine.step(line), line.raw)  # type: ignore[arg-type]
+
+    def _queue_move(self, event: Move, raw: str) -> None:
+        """The probe's motion for a move the firmware believes it made."""
+        assert event.duration_s is not None  # the machine starts at zeros: all known
         now = self.clock.now()
         if event.clamped:
-            self.clip_events.append((now, line.raw, event.requested_mm, event.end_mm))
-        if self.homed_all:
-            self.timeline.add(now, event)
-            return
-        # not homed: the steppers step from where the probe is; a stop at the end of the bed's travel loses steps
-        lo, hi = self._travel_mm(False)
+            self.clip_events.append((now, raw, event.requested_mm, event.end_mm))
         frame = self._frame_mm
+        if self.homed_all and self.soft_endstops and frame[0] == frame[1] == frame[2] == 0.0:
+            self.timeline.add(now, event)  # the targets are clamped inside the bed: the probe is where it is believed
+            return
+        # not homed, or soft endstops off: the steppers step from where the probe is; a stop at the end of the
+        # bed's travel loses steps (the firmware still believes the target)
+        lo, hi = self._travel_mm(False)
         end = [min(max(e + f, a), b) for e, f, a, b in zip(event.end_mm, frame, lo, hi)]  # type: ignore[operator]
         for i in range(3):
             frame[i] = end[i] - event.end_mm[i]  # type: ignore[operator]
@@ -452,7 +336,7 @@ class MarlinCore:
                 self._emit(self._m114())  # G92 reports the position it set
         elif code == "M110" and line is not None:
             self.last_n = int(line.get("N", 0.0) or 0)
-        elif code == "M114":
+        elif code == "M114" or code == "G28":  # G28 reports where it left the head (report_current_position)
             self._emit(self._m114())
         elif code == "M119":
             self._emit("Reporting endstop status")
@@ -460,10 +344,12 @@ class MarlinCore:
             for i, axis in enumerate("xyz"):
                 hit = self.homed[i] and here[i] <= tuple(self.profile.soft_min_mm)[i] + 1e-9
                 self._emit(f"{axis}_min: {'TRIGGERED' if hit else 'open'}")
-        elif code == "M211":
-            if line is not None and line.get("S") is not None:
-                self._set_soft_endstops(bool(line.get("S")))
-            self._emit(self._m211())
+        elif code == "M211" and line is not None:
+            if "S" in line.params:  # sets, silently: parser.value_bool (a bare S is on, S0 off)
+                s = line.params["S"]
+                self._set_soft_endstops(not isinstance(s, float) or int(s) > 0)
+            else:
+                self._m211_report()
         elif code == "M118" and line is not None:
             prefix = "echo:" if line.get("E") else ("//" if line.get("A") else "")
             self._emit(prefix + line.text, eol=b"\r\n")
@@ -502,9 +388,11 @@ class MarlinCore:
             f"Count X:{counts[0]} Y:{counts[1]} Z:{counts[2]}"
         )
 
-    def _m211(self) -> str:
-        lo, hi = self.profile.soft_min_mm, self.profile.soft_max_mm
-        return (
-            f"echo:Soft endstops: {'ON' if self.soft_endstops else 'OFF'}  "
-            f"Min:  X{lo.x:.2f} Y{lo.y:.2f} Z{lo.z:.2f}   Max:  X{hi.x:.2f} Y{hi.y:.2f} Z{hi.z:.2f}"
-        )
+    def _m211_report(self) -> None:
+        """M211 alone (M211.cpp M211_report): the state, then the limits in logical mm (G92 shifts them)."""
+        on = self.soft_endstops
+        self._emit(f"  M211 S{int(on)} ; {'ON' if on else 'OFF'}")
+        o = self.machine.offset_mm
+        lo = [v + k + 0.0 for v, k in zip(self.profile.soft_min_mm, o)]
+        hi = [v + k + 0.0 for v, k in zip(self.profile.soft_max_mm, o)]
+        self._emit(f"  Min:  X{lo[0]:.2f} Y{lo[1]:.2f} Z{lo[2]:.2f}   Max:  X{hi[0]:.2f} Y{hi[1]:.2f} Z{hi[2]:.2f}")
