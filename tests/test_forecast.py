@@ -119,7 +119,9 @@ def test_a_kernel_skins_pinch_scales_from_the_same_skin_to_the_unpressed_one(pap
     x, y, depth = xy[:, 0], xy[:, 1], np.full(len(xy), 3.5)
     pressed = kernel_skin.pair_resistance_ohm(x, y, depth)
     base = np.broadcast_to(kernel_skin.baseline_pair_resistance_ohm, pressed.shape)
-    assert np.all(pressed > base + 1.0)  # every press changes every pair: the scales below are told apart
+    # every press changes every pair (the quasi-3D kernel: by 0.48 ohm at least, at a quadrant centre), so the
+    # scales below are told apart
+    assert np.all(pressed > base + 0.1)
     np.testing.assert_array_equal(scale_pinch(kernel_skin, 1.0).pair_resistance_ohm(x, y, depth), pressed)
     np.testing.assert_allclose(scale_pinch(kernel_skin, 0.0).pair_resistance_ohm(x, y, depth), base, rtol=1e-12)
     half = scale_pinch(kernel_skin, 0.5).pair_resistance_ohm(x, y, depth)

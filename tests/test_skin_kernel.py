@@ -153,7 +153,8 @@ def test_the_packaged_kernel_is_what_the_solver_gives():
     kernel, spec = read_kernel(path), KernelSpec.for_layout(LAYOUT)
     row = int(np.flatnonzero(kernel.offsets_mm == 2.0)[0])
     result = solve_press(spec.geometry, spec.material, spec.settings, 2.0)
-    assert np.allclose(result.area_ratio, kernel.area_ratio[row], rtol=0, atol=1e-9, equal_nan=True)
+    strip = kernel.extra["area_ratio_plane_strain"][row]  # the quasi-3D kernel's plane-strain source row
+    assert np.allclose(result.area_ratio, strip, rtol=0, atol=1e-9, equal_nan=True)
 
 
 def test_skin_mechanics_cli_writes_the_kernel_with_provenance_and_a_plot(tmp_path):
@@ -180,11 +181,15 @@ def test_skin_mechanics_cli_writes_the_kernel_with_provenance_and_a_plot(tmp_pat
     )
     table = pq.read_table(tmp_path / "pinch_kernel.parquet")
     assert {"offset_mm", "depth_mm", "area_ratio", "force_n", "solved"} <= set(table.column_names)
+    assert {"area_ratio_plane_strain", "closing_plane_strain_mm", "closing_axisymmetric_mm"} <= set(table.column_names)
     frame = table.to_pandas()
     assert sorted(frame.offset_mm.unique()) == [0.0, 0.5] and frame.depth_mm.max() == 4.5
     assert frame.loc[frame.depth_mm == 0, "area_ratio"].eq(1.0).all()
-    assert frame.loc[frame.depth_mm >= 1.5, "area_ratio"].eq(0.0).all()  # shut under the probe
+    assert (
+        frame.loc[frame.depth_mm >= 1.75, "area_ratio"].eq(0.0).all()
+    )  # shut under the probe (quasi-3D: 1.5 in the strip)
     provenance = json.loads(table.schema.metadata[b"neatskin.provenance"])
     assert provenance["material"]["shear_modulus_mpa"] == 0.023 and "scikit-fem" in provenance["software"]
     assert provenance["settings"]["element_mm"] == 1.0
+    assert provenance["formulation"].startswith("quasi-3D: plane-strain channel kernel, axisymmetric host")
     assert (tmp_path / "pinch_kernel.png").stat().st_size > 10_000

@@ -68,7 +68,9 @@ def register(subparsers) -> None:
         "mechanics",
         help="finite-element press across a channel: the pinch kernel (A/A0 against offset and depth) and the force",
         description="Solve the press with scikit-fem (plane strain across one channel, nearly incompressible "
-        "neo-Hookean, large deformation) at every probe offset, and write pinch_kernel.parquet and pinch_kernel.png.",
+        "neo-Hookean, large deformation) at every probe offset, and the intact skin under the strip and the round "
+        "probe (axisymmetric); carry the channel kernel onto the round probe (quasi-3D) and write "
+        "pinch_kernel.parquet and pinch_kernel.png.",
     )
     mech.add_argument("--layout", default=DEFAULT_LAYOUT, help=f"skin layout TOML (default {DEFAULT_LAYOUT})")
     add_out(mech, "output folder (created; default out/skin-mechanics)", default="out/skin-mechanics")
@@ -106,7 +108,7 @@ def mechanics_handler(args: argparse.Namespace) -> int:
         raise ConfigError(str(exc), field="layout", fix="give the channels one cross-section") from exc
     out = Path(args.out)
     t0 = time.perf_counter()
-    with tqdm(total=len(offsets), desc="FE press", unit="offset") as bar:
+    with tqdm(total=len(offsets) + 2, desc="FE press", unit="solve") as bar:
         kernel = compute_kernel(spec, n_jobs=max(1, args.jobs), progress=bar.update)
     elapsed = time.perf_counter() - t0
     data = write_kernel(kernel, out / "pinch_kernel.parquet")
@@ -114,7 +116,7 @@ def mechanics_handler(args: argparse.Namespace) -> int:
     title = (
         f"{layout.name}: {g.thickness_mm:g} mm skin, {g.channel_width_mm:g} x {g.channel_height_mm:g} mm channel "
         f"{g.channel_depth_mm:g} mm deep, {2 * g.probe_radius_mm:g} mm flat bonded probe, mu "
-        f"{spec.material.shear_modulus_mpa * 1e3:g} kPa; plane strain, {args.element_mm:g} mm elements"
+        f"{spec.material.shear_modulus_mpa * 1e3:g} kPa; quasi-3D, {args.element_mm:g} mm elements"
     )
     plot = plot_kernel(kernel, out / "pinch_kernel.png", title)
     print(f"kernel {kernel.key}: {len(offsets)} offsets x {kernel.depths_mm.size} depths in {elapsed:.0f} s")

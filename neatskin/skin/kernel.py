@@ -1,6 +1,7 @@
-"""The pinch kernel: a channel's area ratio A/A0 against the probe's lateral offset from the channel axis and
-its depth, from the finite-element press (skin/mechanics.py); computing it, its parquet file with provenance,
-the packaged and cached copies keyed by content, and its vectorised bilinear interpolation."""
+"""The pinch kernel: a channel's area ratio A/A0 against the horizontal distance from the round probe's axis and
+its depth, from the finite-element press (skin/mechanics.py) carried onto the round probe (skin/quasi3d.py);
+computing it, its parquet file with provenance, the packaged and cached copies keyed by content, and its
+vectorised bilinear interpolation."""
 
 from __future__ import annotations
 
@@ -14,9 +15,10 @@ import numpy as np
 
 from neatskin.skin.fesetup import SHUT_AREA_RATIO, Material, PressGeometry, SolverSettings
 
-KERNEL_FORMAT = 1  # bump when the solver's output for the same settings changes
+KERNEL_FORMAT = 2  # bump when the solver's output for the same settings changes (2: quasi-3D transfer)
 PAPER_KERNEL = "paper_pinch_kernel.parquet"  # in neatskin/protocols/skins/
 DEFAULT_OFFSETS_MM = tuple(np.round(np.arange(0.0, 10.0001, 0.5), 6))
+SPREAD_MM = 1.0  # the quasi-3D transfer's uncertainty reads the strip's table this far to either side (half a width)
 
 
 @dataclass(frozen=True)
@@ -62,6 +64,7 @@ class PinchKernel:
     force_n: np.ndarray  # (n_o, n_d), quasi-3D probe force
     key: str
     provenance: str  # JSON
+    extra: dict[str, np.ndarray] | None = None  # (n_o, n_d) columns beside these: the plane-strain table, the hosts
 
     def __post_init__(self) -> None:
         filled = self.area_ratio.copy()
@@ -138,35 +141,105 @@ class PinchKernel:
         return np.where(value < SHUT_AREA_RATIO, 0.0, value)
 
 
-def compute_kernel(spec: KernelSpec, n_jobs: int = 2, progress=None) -> PinchKernel:
-    """Solve the press at every offset of the spec (in parallel over offsets) and gather the kernel."""
+_PROVENANCE_SPEC = ("geometry", "material", "settings")
+
+
+def _solve_task(spec: KernelSpec, task):
+    """One solve of the kernel: ("channel", offset) in plane strain, or ("host", axisymmetric) without a channel."""
+    from neatskin.skin.mechanics import solve_press  # the solver (scipy.sparse, scikit-fem) only when computing
+
+    kind, value = task
+    if kind == "channel":
+        return task, solve_press(spec.geometry, spec.material, spec.settings, value)
+    return task, solve_press(
+        spec.geometry, spec.material, spec.settings, 0.0, channel=False, axisymmetric=value, bands_mm=spec.offsets_mm
+    )
+
+
+def plane_strain_rows(kernel: PinchKernel, spec: KernelSpec) -> tuple[np.ndarray, np.ndarray, dict]:
+    """(A/A0, chord force, provenance) of the plane-strain channel solves inside a kernel file (the quasi-3D
+    kernel's `area_ratio_plane_strain`, or a format-1 kernel's `area_ratio`), checked to be of this spec."""
+    provenance = json.loads(kernel.provenance or "{}")
+    mine = json.loads(json.dumps({k: v for k, v in asdict(spec).items() if k in _PROVENANCE_SPEC}, default=float))
+    theirs = {k: provenance.get(k) for k in _PROVENANCE_SPEC}
+    if theirs != mine or not np.allclose(kernel.offsets_mm, spec.offsets_mm, rtol=0, atol=1e-9):
+        raise ValueError("the plane-strain rows given were solved for another spec (geometry, material, settings)")
+    extra = kernel.extra or {}
+    area = extra.get("area_ratio_plane_strain", kernel.area_ratio)
+    ps = provenance.get("plane_strain", provenance)
+    return area, kernel.force_n, {k: ps[k] for k in ("elements", "newton_iterations", "max_volume_change")}
+
+
+def compute_kernel(spec: KernelSpec, n_jobs: int = 2, progress=None, plane_strain=None) -> PinchKernel:
+    """Solve the press at every offset of the spec in plane strain and the intact skin under the strip and the
+    round probe (in parallel), and carry the channel kernel onto the round probe (skin/quasi3d.py).
+    `plane_strain` (A/A0, chord force, provenance) of this spec (`plane_strain_rows`) skips the channel solves."""
     from joblib import Parallel, delayed
 
     from neatskin import __version__
-    from neatskin.skin.mechanics import solve_press  # the solver (scipy.sparse, scikit-fem) only when computing
+    from neatskin.skin.quasi3d import band_average, local_spread, transfer
 
+    tasks: list[tuple[str, float | bool]] = [("host", False), ("host", True)]
+    if plane_strain is None:
+        tasks += [("channel", float(o)) for o in spec.offsets_mm]
     run = Parallel(n_jobs=n_jobs, return_as="generator")
-    results = []
-    for result in run(delayed(solve_press)(spec.geometry, spec.material, spec.settings, o) for o in spec.offsets_mm):
-        results.append(result)
+    solved = {}
+    for task, result in run(delayed(_solve_task)(spec, t) for t in tasks):
+        solved[task] = result
         if progress is not None:
             progress(1)
-    depths = results[0].depth_mm
-    ratio = np.stack([r.area_ratio for r in results])
-    force = np.stack([r.chord_force_n for r in results])
+    host_ps, host_ax = solved[("host", False)], solved[("host", True)]
+    depths = host_ax.depth_mm
+    if plane_strain is None:
+        results = [solved[("channel", float(o))] for o in spec.offsets_mm]
+        area_ps = np.stack([r.area_ratio for r in results])
+        force = np.stack([r.chord_force_n for r in results])
+        ps_info = {
+            "elements": [r.n_elements for r in results],
+            "newton_iterations": int(sum(r.newton_iterations for r in results)),
+            "max_volume_change": float(np.nanmax(np.abs(np.stack([r.volume_change for r in results])))),
+        }
+    else:
+        area_ps, force, ps_info = plane_strain
+    area, d_star = transfer(area_ps, host_ps.strain_eq, host_ax.strain_eq, depths)
+    step = max(1, int(round(SPREAD_MM / float(spec.offsets_mm[1] - spec.offsets_mm[0])))) if len(area) > 1 else 1
+    spread = local_spread(area_ps, host_ps.strain_eq, host_ax.strain_eq, depths, step)
+    width = spec.geometry.channel_width_mm
+
+    def closing(r, axisymmetric):
+        return band_average(r.line_x_mm, r.closing_mm, spec.offsets_mm, width, axisymmetric).T
+
+    extra = {
+        "area_ratio_plane_strain": area_ps,
+        "matched_depth_mm": d_star,
+        "area_ratio_spread": spread,
+        "strain_eq_plane_strain": host_ps.strain_eq.T,
+        "strain_eq_axisymmetric": host_ax.strain_eq.T,
+        "closing_plane_strain_mm": closing(host_ps, False),
+        "closing_axisymmetric_mm": closing(host_ax, True),
+        "force_axisymmetric_n": np.broadcast_to(host_ax.force_n_per_mm, area.shape).copy(),
+    }
     provenance = {
         "kernel_format": KERNEL_FORMAT,
         "key": spec.key(),
         **{k: v for k, v in asdict(spec).items() if k != "offsets_mm"},
-        "elements": [r.n_elements for r in results],
-        "newton_iterations": int(sum(r.newton_iterations for r in results)),
-        "max_volume_change": float(np.nanmax(np.abs(np.stack([r.volume_change for r in results])))),
-        "formulation": "plane strain across the channel, mixed u-p Taylor-Hood P2/P1, neo-Hookean, Newton with load "
-        "steps; bonded flat probe with a rounded rim; roof-floor penalty contact; open channel (no fluid pressure)",
+        "plane_strain": ps_info,
+        "hosts": {
+            "elements": [host_ps.n_elements, host_ax.n_elements],
+            "newton_iterations": [host_ps.newton_iterations, host_ax.newton_iterations],
+        },
+        "formulation": "quasi-3D: plane-strain channel kernel, axisymmetric host transfer. The channel: plane strain "
+        "across it, mixed u-p Taylor-Hood P2/P1, neo-Hookean, Newton with load steps; bonded flat probe with a "
+        "rounded rim; roof-floor penalty contact; open channel (no fluid pressure). The transfer: at distance r "
+        "from the round probe's axis and depth d, A/A0 of the strip at offset r and the depth d* where the intact "
+        "skin's band-averaged equivalent strain under the strip equals the round probe's (axisymmetric solve)",
         "software": f"neatskin {__version__}, scikit-fem {_version('scikit-fem')}, scipy {_version('scipy')}",
-        "force": "force_n: the strip's reaction per mm spread over the round probe's chords (quasi-3D)",
+        "force": "force_n: the strip's reaction per mm spread over the round probe's chords (quasi-3D); "
+        "force_axisymmetric_n: the round probe on the intact skin (axisymmetric, 3D)",
     }
-    return PinchKernel(np.asarray(spec.offsets_mm, float), depths, ratio, force, spec.key(), json.dumps(provenance))
+    return PinchKernel(
+        np.asarray(spec.offsets_mm, float), depths, area, force, spec.key(), json.dumps(provenance), extra
+    )
 
 
 def _version(dist: str) -> str:
@@ -187,6 +260,7 @@ def write_kernel(kernel: PinchKernel, path: Path) -> Path:
             "area_ratio": kernel.area_ratio.ravel(),
             "force_n": kernel.force_n.ravel(),
             "solved": np.isfinite(kernel.area_ratio.ravel()),
+            **{name: np.asarray(column, float).ravel() for name, column in (kernel.extra or {}).items()},
         }
     )
     meta = {b"neatskin.kernel_key": kernel.key.encode(), b"neatskin.provenance": kernel.provenance.encode()}
@@ -203,6 +277,11 @@ def read_kernel(path: Path) -> PinchKernel:
     cols = {name: table.column(name).to_numpy() for name in ("offset_mm", "depth_mm", "area_ratio", "force_n")}
     offsets, depths = np.unique(cols["offset_mm"]), np.unique(cols["depth_mm"])
     shape = (offsets.size, depths.size)
+    extra = {
+        name: table.column(name).to_numpy().astype(float).reshape(shape)
+        for name in table.column_names
+        if name not in (*cols, "solved")
+    }
     return PinchKernel(
         offsets,
         depths,
@@ -210,6 +289,7 @@ def read_kernel(path: Path) -> PinchKernel:
         cols["force_n"].reshape(shape),
         meta.get(b"neatskin.kernel_key", b"").decode(),
         meta.get(b"neatskin.provenance", b"{}").decode(),
+        extra or None,
     )
 
 

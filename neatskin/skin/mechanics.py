@@ -43,11 +43,17 @@ class PressResult:
     newton_iterations: int
     line_x_mm: np.ndarray | None = None  # without a channel: where the solid's closing is sampled
     closing_mm: np.ndarray | None = None  # (steps, points): u_y(roof line) - u_y(floor line), > 0 closing
+    band_x_mm: np.ndarray | None = None  # without a channel: the centres of the channel-sized bands (skin/hostband.py)
+    driver_tangential: np.ndarray | None = None  # (steps, bands): the hole driver of a channel along the hoop (z)
+    driver_radial: np.ndarray | None = None  # (steps, bands): of one running radially (= tangential in plane strain)
+    strain_eq: np.ndarray | None = None
+    pressure: np.ndarray | None = None
 
 
 def _lines(forced: list[float], lo: float, hi: float, fine_lo: float, fine_hi: float, h: float) -> np.ndarray:
     """Grid lines on [lo, hi]: spacing h on [fine_lo, fine_hi], growing by 1.4 per line outside it up to 4 h,
     through every forced coordinate."""
+    fine_lo, fine_hi = max(fine_lo, lo), min(fine_hi, hi)  # a probe as wide as the skin: no lines beyond its ends
     inner = np.linspace(fine_lo, fine_hi, max(1, math.ceil((fine_hi - fine_lo) / h - 1e-9)) + 1)
     outer = []
     for edge, end, sign in ((fine_lo, lo, -1.0), (fine_hi, hi, 1.0)):
@@ -200,6 +206,7 @@ def solve_press(
     offset_mm: float,
     channel: bool = True,
     axisymmetric: bool = False,
+    bands_mm: tuple[float, ...] | None = None,
 ) -> PressResult:
     """Load-step the probe at `offset_mm` from the channel axis down to settings.max_depth_mm.
 
@@ -207,9 +214,12 @@ def solve_press(
     below SHUT_AREA_RATIO, or Newton fails below CLOSING_AREA_RATIO (the walls folding into each other): its
     area ratio is then 0 at that depth and every deeper one (the load only grows), and the solve stops there.
     channel=False solves the skin without a channel; axisymmetric=True (channel False, offset 0) the round probe
-    in (r, z), its force the total in N (`force_n_per_mm` and `chord_force_n` both hold it)."""
+    in (r, z), its force the total in N (`force_n_per_mm` and `chord_force_n` both hold it). Without a channel,
+    `bands_mm` (band centres, mm from the probe axis) records the hole drivers of skin/hostband.py per depth."""
     if axisymmetric and (channel or offset_mm != 0):
         raise ValueError("the axisymmetric solve is of the skin without a channel, probe on the axis")
+    if bands_mm is not None and channel:
+        raise ValueError("band drivers are a property of the skin without a channel")
     pr = _Problem(geometry, material, settings, offset_mm, channel, axisymmetric)
     mu = material.shear_modulus_mpa
     if axisymmetric:
@@ -219,6 +229,11 @@ def solve_press(
     else:
         asm = _Assembler(pr.ub, pr.pb, mu, material.bulk_ratio * mu)
     nu = pr.nu
+    bands = None
+    if bands_mm is not None:
+        from neatskin.skin.hostband import HostBands
+
+        bands = HostBands(pr.ub, geometry, np.asarray(bands_mm, float), axisymmetric)
     area_solid = asm.solid_area(np.zeros(pr.n))
     tol = settings.newton_tol * mu * geometry.thickness_mm  # N/mm: the residual's natural size
 
@@ -272,6 +287,9 @@ def solve_press(
     area, force, vol, chord = (np.full(depths.size, np.nan) for _ in range(4))
     closing = np.full((depths.size, pr.line_x.size), np.nan)
     closing[0] = 0.0
+    n_bands = 0 if bands_mm is None else len(bands_mm)
+    drivers = np.full((4, depths.size, n_bands), np.nan)
+    drivers[:, 0] = 0.0
     area[0], force[0], vol[0], chord[0] = 1.0, 0.0, 0.0, 0.0
     x, reached, iterations, shut_at = np.zeros(pr.n), 0.0, 0, None
     for k, depth in enumerate(depths[1:], start=1):
@@ -299,6 +317,8 @@ def solve_press(
         chord[k] = force[k] if axisymmetric else float(reaction @ pr.probe_chord_mm)
         vol[k] = asm.solid_area(x) / area_solid - 1.0
         closing[k] = x[pr.line_floor] - x[pr.line_roof]
+        if bands is not None:
+            drivers[:, k] = bands.drivers(asm, x)
         area[k] = ratio
         if channel and (bool(np.all(gap <= 0)) or ratio < SHUT_AREA_RATIO):
             shut_at = k + 1
@@ -307,7 +327,12 @@ def solve_press(
     if shut_at is not None:
         area[shut_at:] = 0.0
     lines = (pr.line_x, closing) if pr.line_x.size else (None, None)
-    return PressResult(offset_mm, depths, area, force, vol, chord, pr.mesh.t.shape[1], iterations, *lines)
+    band = (
+        (np.asarray(bands_mm, float), drivers[0], drivers[1], drivers[2], drivers[3])
+        if bands_mm is not None
+        else (None,) * 5
+    )
+    return PressResult(offset_mm, depths, area, force, vol, chord, pr.mesh.t.shape[1], iterations, *lines, *band)
 
 
 def _solve(K, rhs):

@@ -128,46 +128,60 @@ def plot_pairs(
     return path
 
 
+# issue 22's independent estimate (quasi-3D FE), A/A0 of the channel: at 3.5 mm deep against the horizontal distance
+# from the probe axis, and under the probe against depth (below 0.05 from 1 mm: drawn as an upper bound)
+ESTIMATE_AT_3P5_MM = ((4.0, 0.14), (5.0, 0.72), (6.0, 0.92), (7.5, 1.0))
+ESTIMATE_UNDER_PROBE = ((0.5, 0.56),)
+ESTIMATE_UNDER_PROBE_BELOW = ((1.0, 0.05),)
+
+
 def plot_kernel(kernel, path: Path, title: str) -> Path:
-    """The pinch kernel: A/A0 against offset (one line per depth), A/A0 against depth (one line per offset), and
-    the quasi-3D probe force against depth."""
+    """The pinch kernel: A/A0 against the distance from the probe axis (a few depths) and against depth (a few
+    distances), the quasi-3D kernel (solid, its transfer spread shaded) beside the plane-strain strip (dashed) and
+    the independent estimate of issue 22 (black); and the probe force against depth."""
     plt = _pyplot()
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6))
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.8))
     cmap = plt.get_cmap("viridis")
-    depths = [d for d in kernel.depths_mm if d > 0 and abs(d * 2 - round(d * 2)) < 1e-9]
+    extra = kernel.extra or {}
+    strip, spread = extra.get("area_ratio_plane_strain"), extra.get("area_ratio_spread")
+    depths = [d for d in (0.5, 1.0, 2.0, 3.5) if d <= kernel.depths_mm[-1] + 1e-9]
     for k, d in enumerate(depths):
-        j = int(np.argmin(np.abs(kernel.depths_mm - d)))
-        axes[0].plot(
-            kernel.offsets_mm,
-            kernel.area_ratio[:, j],
-            "o-",
-            ms=3,
-            color=cmap(k / max(len(depths) - 1, 1)),
-            label=f"{d:g} mm",
-        )
-    axes[0].set(xlabel="probe offset from the channel axis (mm)", ylabel="A / A0", title="channel area against offset")
-    axes[0].legend(title="depth", fontsize=7)
-    offsets = [o for o in (0.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.5, 10.0) if o <= kernel.offsets_mm[-1]]
+        j, color = int(np.argmin(np.abs(kernel.depths_mm - d))), cmap(k / max(len(depths) - 1, 1))
+        a = kernel.area_ratio[:, j]
+        axes[0].plot(kernel.offsets_mm, a, "o-", ms=3, color=color, label=f"{d:g} mm, quasi-3D")
+        if spread is not None:
+            lo, hi = np.clip(a - spread[:, j], 0, 1), np.clip(a + spread[:, j], 0, 1)
+            axes[0].fill_between(kernel.offsets_mm, lo, hi, color=color, alpha=0.12, lw=0)
+        if strip is not None:
+            axes[0].plot(kernel.offsets_mm, strip[:, j], "--", color=color, lw=1, label=f"{d:g} mm, plane strain")
+    ex, ey = zip(*ESTIMATE_AT_3P5_MM, strict=True)
+    axes[0].plot(ex, ey, "k*", ms=11, label="independent estimate, 3.5 mm")
+    axes[0].set(xlabel="distance from the probe axis (mm)", ylabel="A / A0", title="channel area against distance")
+    axes[0].legend(fontsize=6.5, ncol=2, loc="lower right")
+    offsets = [o for o in (0.0, 3.0, 4.0, 5.0, 6.0, 7.5, 10.0) if o <= kernel.offsets_mm[-1]]
     for k, o in enumerate(offsets):
-        i = int(np.argmin(np.abs(kernel.offsets_mm - o)))
-        axes[1].plot(
-            kernel.depths_mm,
-            kernel.area_ratio[i],
-            "o-",
-            ms=3,
-            color=cmap(k / max(len(offsets) - 1, 1)),
-            label=f"{kernel.offsets_mm[i]:g} mm",
-        )
-    axes[1].set(xlabel="press depth (mm)", ylabel="A / A0", title="channel area against depth")
-    axes[1].legend(title="offset", fontsize=7)
+        i, color = int(np.argmin(np.abs(kernel.offsets_mm - o))), cmap(k / max(len(offsets) - 1, 1))
+        axes[1].plot(kernel.depths_mm, kernel.area_ratio[i], "o-", ms=3, color=color, label=f"{o:g} mm")
+        if strip is not None:
+            axes[1].plot(kernel.depths_mm, strip[i], "--", color=color, lw=1)
+    for (d, a), marker in ((ESTIMATE_UNDER_PROBE[0], "k*"), (ESTIMATE_UNDER_PROBE_BELOW[0], "kv")):
+        axes[1].plot([d], [a], marker, ms=10)
+    axes[1].set(
+        xlabel="press depth (mm)",
+        ylabel="A / A0",
+        title="against depth (dashed: plane strain; black: estimate under the probe)",
+    )
+    axes[1].legend(title="distance", fontsize=7)
     for ax in axes[:2]:
         ax.axhline(0.02, color="grey", lw=0.8, ls=":")
-        ax.set_ylim(-0.03, 1.03)
+        ax.set_ylim(-0.03, 1.05)
         ax.grid(alpha=0.3)
     for o in offsets[:1] + offsets[-1:]:
         i = int(np.argmin(np.abs(kernel.offsets_mm - o)))
-        axes[2].plot(kernel.depths_mm, kernel.force_n[i], "o-", ms=3, label=f"offset {kernel.offsets_mm[i]:g} mm")
-    axes[2].set(xlabel="press depth (mm)", ylabel="probe force (N), quasi-3D", title="probe force")
+        axes[2].plot(kernel.depths_mm, kernel.force_n[i], "o-", ms=3, label=f"strip over the chords, {o:g} mm")
+    if "force_axisymmetric_n" in extra:
+        axes[2].plot(kernel.depths_mm, extra["force_axisymmetric_n"][0], "s-", ms=3, label="round probe, intact (3D)")
+    axes[2].set(xlabel="press depth (mm)", ylabel="probe force (N)", title="probe force")
     axes[2].legend(fontsize=7)
     axes[2].grid(alpha=0.3)
     fig.suptitle(title, fontsize=10)
