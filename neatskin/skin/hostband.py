@@ -1,12 +1,13 @@
 """What the intact skin (no channel) does where a channel would be: per band centre x (the channel's width around
-it, its height around its centre line), the closing across the channel's height and the hole driver, the linear
-estimate of a channel's area change from the host's stress and strain there. The quasi-3D transfer (skin/quasi3d.py)
-matches these between the plane-strain strip and the axisymmetric round probe.
+it, its height around its centre line), the mean equivalent strain, which the quasi-3D transfer (skin/quasi3d.py)
+matches between the plane-strain strip and the axisymmetric round probe, the hole driver (the linear estimate of a
+channel's area change from the host's stress and strain there) and the pressure. (The closing across the channel's
+height is sampled along lines by skin/mechanics.py and band-averaged by skin/quasi3d.py.)
 
 The hole driver. A long cylindrical hole in a nearly incompressible solid under a uniform far field changes its
 cross-section's area by dA/A = (s_11 + s_22) / (2 mu) - e_33 to first order, where 1, 2 span the cross-section
 and 3 is the hole's axis (generalised plane strain: a uniform state with e_11 = e_22 = -e_33 / 2 and no in-plane
-stress scales the hole by -e_33; the rest is Kirsch's plane-strain hole, dA/A = (S_11 + S_22)(kappa + 1) / (8 mu)
+stress scales the hole by -e_33; the rest is Kirsch's plane-strain hole, dA/A = (S_11 + S_22)(kappa + 1) / (4 mu)
 with kappa = 1). In plane strain e_33 = 0, so it is the in-plane mean stress over mu. For the round probe, a channel
 running tangentially (its nearest point to the probe axis) has 3 = hoop: D = (s_rr + s_zz) / (2 mu) - ln F_33; one
 running radially has 3 = r: D = (s_tt + s_zz) / (2 mu) - ln lambda_r. Cauchy stress, logarithmic axial strain."""
@@ -14,10 +15,6 @@ running radially has 3 = r: D = (s_tt + s_zz) / (2 mu) - ln lambda_r. Cauchy str
 from __future__ import annotations
 
 import numpy as np
-
-
-def band_centres(offsets_mm) -> np.ndarray:
-    return np.asarray(offsets_mm, float)
 
 
 class HostBands:
@@ -35,8 +32,10 @@ class HostBands:
         self.weights /= self.weights.sum(axis=(1, 2))[:, None, None]
         self.axisymmetric = axisymmetric
 
-    def drivers(self, asm, x):
-        """(tangential, radial) hole driver per band; equal in plane strain (no hoop: the channel runs along z)."""
+    def drivers(self, asm, x) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Per band: the hole driver of a channel along the hoop (tangential) and along the radius, the equivalent
+        strain (what the quasi-3D transfer matches) and the pressure field over mu. The two drivers are equal in plane
+        strain (no hoop: the channel runs along z)."""
         kin = asm.kinematics(x)
         F, J, p = kin[0], kin[1], kin[3]
         F3 = kin[4] if self.axisymmetric else np.ones_like(J)

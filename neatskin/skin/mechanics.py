@@ -46,8 +46,8 @@ class PressResult:
     band_x_mm: np.ndarray | None = None  # without a channel: the centres of the channel-sized bands (skin/hostband.py)
     driver_tangential: np.ndarray | None = None  # (steps, bands): the hole driver of a channel along the hoop (z)
     driver_radial: np.ndarray | None = None  # (steps, bands): of one running radially (= tangential in plane strain)
-    strain_eq: np.ndarray | None = None
-    pressure: np.ndarray | None = None
+    strain_eq: np.ndarray | None = None  # (steps, bands): von Mises equivalent Hencky strain (the transfer's measure)
+    pressure: np.ndarray | None = None  # (steps, bands): the mixed form's pressure field over mu
 
 
 def _lines(forced: list[float], lo: float, hi: float, fine_lo: float, fine_hi: float, h: float) -> np.ndarray:

@@ -133,6 +133,7 @@ def plot_pairs(
 ESTIMATE_AT_3P5_MM = ((4.0, 0.14), (5.0, 0.72), (6.0, 0.92), (7.5, 1.0))
 ESTIMATE_UNDER_PROBE = ((0.5, 0.56),)
 ESTIMATE_UNDER_PROBE_BELOW = ((1.0, 0.05),)
+ESTIMATE_FORCE_3P5_MM_N = 3.5
 
 
 def plot_kernel(kernel, path: Path, title: str) -> Path:
@@ -140,7 +141,7 @@ def plot_kernel(kernel, path: Path, title: str) -> Path:
     distances), the quasi-3D kernel (solid, its transfer spread shaded) beside the plane-strain strip (dashed) and
     the independent estimate of issue 22 (black); and the probe force against depth."""
     plt = _pyplot()
-    fig, axes = plt.subplots(1, 3, figsize=(16, 4.8))
+    fig, axes = plt.subplots(1, 3, figsize=(16, 5.6))
     cmap = plt.get_cmap("viridis")
     extra = kernel.extra or {}
     strip, spread = extra.get("area_ratio_plane_strain"), extra.get("area_ratio_spread")
@@ -157,7 +158,7 @@ def plot_kernel(kernel, path: Path, title: str) -> Path:
     ex, ey = zip(*ESTIMATE_AT_3P5_MM, strict=True)
     axes[0].plot(ex, ey, "k*", ms=11, label="independent estimate, 3.5 mm")
     axes[0].set(xlabel="distance from the probe axis (mm)", ylabel="A / A0", title="channel area against distance")
-    axes[0].legend(fontsize=6.5, ncol=2, loc="lower right")
+    axes[0].legend(fontsize=6.5, ncol=3, loc="upper center", bbox_to_anchor=(0.5, -0.14))
     offsets = [o for o in (0.0, 3.0, 4.0, 5.0, 6.0, 7.5, 10.0) if o <= kernel.offsets_mm[-1]]
     for k, o in enumerate(offsets):
         i, color = int(np.argmin(np.abs(kernel.offsets_mm - o))), cmap(k / max(len(offsets) - 1, 1))
@@ -181,6 +182,7 @@ def plot_kernel(kernel, path: Path, title: str) -> Path:
         axes[2].plot(kernel.depths_mm, kernel.force_n[i], "o-", ms=3, label=f"strip over the chords, {o:g} mm")
     if "force_axisymmetric_n" in extra:
         axes[2].plot(kernel.depths_mm, extra["force_axisymmetric_n"][0], "s-", ms=3, label="round probe, intact (3D)")
+    axes[2].plot([3.5], [ESTIMATE_FORCE_3P5_MM_N], "k*", ms=11, label="independent estimate")
     axes[2].set(xlabel="press depth (mm)", ylabel="probe force (N)", title="probe force")
     axes[2].legend(fontsize=7)
     axes[2].grid(alpha=0.3)
