@@ -3,7 +3,7 @@ presses with an open circuit (a pair whose electrodes are cut apart: R_eq = inf,
 localisation error of a simple learned baseline; for the parametric pinch and the FE kernel.
 
 A small dry simulation through skin/ only (not the rig): per campaign seed, 100 random positions x 28 presses,
-each landed with the paper-like placement error (1.35 mm per axis) and depth jitter (0.2 mm), R_eq of the 28 pairs
+each landed with the paper-like preset's placement error and depth jitter (neatskin/config/scene.py), R_eq of the 28 pairs
 plus 1 ohm of reading noise, an open pair clipped at 4x the largest baseline R_eq. Localisation: k-nearest
 neighbours (k = 5, distance-weighted) on the standardised dR of the 28 pairs, a random 80/20 split of the presses
 (the paper's split is by press too). Not the paper's LM network: a like-for-like comparison across depths.
@@ -23,19 +23,21 @@ from sklearn.neighbors import KNeighborsRegressor
 from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 
+from neatskin.config.scene import PAPER_LIKE
 from neatskin.layout import load_layout
 from neatskin.skin.kernel import packaged_kernel_path, read_kernel
 from neatskin.skin.model import SkinModel
 
 DEPTHS_MM = (1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)
+PLACEMENT_MM, JITTER_MM = PAPER_LIKE["placement_error_mm"], PAPER_LIKE["depth_jitter_mm"]
 
 
 def campaign(model: SkinModel, depth_mm: float, seed: int):
     rng = np.random.default_rng(seed)
     pos = rng.uniform(1.0, 30.0, (100, 2))
     cmd = np.repeat(pos, 28, axis=0)
-    landed = cmd + rng.normal(0.0, 1.35, cmd.shape)
-    depth = depth_mm + rng.normal(0.0, 0.2, cmd.shape[0])
+    landed = cmd + PLACEMENT_MM * rng.standard_normal(cmd.shape)
+    depth = depth_mm + JITTER_MM * rng.standard_normal(cmd.shape[0])
     resistance = model.channel_resistance_ohm(landed[:, 0], landed[:, 1], depth)
     shut = np.isinf(resistance).mean(axis=1)
     r_eq = model.pair_resistance_ohm(landed[:, 0], landed[:, 1], depth)
@@ -84,13 +86,20 @@ def main() -> None:
                 )
             )
     load = os.getloadavg()[0]
-    print(f"{args.seeds} campaign seeds x 2,800 presses per row; mean +- std over seeds; load average {load:.1f}")
+    print(
+        f"{args.seeds} campaign seeds x 2,800 presses per row, placement {PLACEMENT_MM} mm, depth jitter "
+        f"{JITTER_MM} mm; mean +- std over seeds; load average {load:.1f}"
+    )
     print("| model | depth (mm) | channels shut | presses with an open pair | KNN error (mm) |")
     print("|---|---:|---:|---:|---:|")
     for name, d, s, ss, o, os_, e, es in rows:
         print(
             f"| {name} | {d:.1f} | {100 * s:.1f} +- {100 * ss:.1f} % | {100 * o:.1f} +- {100 * os_:.1f} % | {e:.2f} +- {es:.2f} |"
         )
+    for name in models:
+        sel = [r for r in rows if r[0] == name]
+        best = min(sel, key=lambda r: r[6])
+        print(f"{name}: lowest KNN error at {best[1]:.1f} mm ({best[6]:.2f} +- {best[7]:.2f} mm)")
     import matplotlib
 
     matplotlib.use("Agg")
@@ -109,7 +118,10 @@ def main() -> None:
             ax.set(xlabel="press depth (mm)", ylabel=label)
             ax.grid(alpha=0.3)
     axes[0].legend()
-    fig.suptitle(f"paper skin, paper-like placement 1.35 mm and depth jitter 0.2 mm, {args.seeds} seeds", fontsize=10)
+    fig.suptitle(
+        f"paper skin, paper-like placement {PLACEMENT_MM} mm and depth jitter {JITTER_MM} mm, {args.seeds} seeds",
+        fontsize=10,
+    )
     fig.tight_layout()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -1,9 +1,10 @@
 """Per-press cost of the skin model: the parametric pinch against the finite-element kernel ("fe-kernel"), as the
-dry probe calls it (one press = one call with its few probe states), alternating in one process; with --base DIR,
-also the parametric skin of another checkout (e.g. a worktree of the base commit) in a subprocess per round,
-alternating with this tree's, for the "at most 1.2 times today's per-press skin" target.
+dry probe calls it (one press = one call with its few probe states), alternating in one process; with --base DIR
+(repeatable), also the skins of other checkouts (e.g. worktrees of the base commits), each in a fresh subprocess per
+round, alternating with this tree's: the parametric skin always, the fe-kernel skin where that tree has one. For the
+"at most 1.2 times today's per-press skin" target: this tree's fe-kernel over the old base's parametric skin.
 
-    python benchmarks/bench_kernel_skin.py [--presses 300] [--states 8] [--rounds 3] [--base /tmp/base-wt]
+    python benchmarks/bench_kernel_skin.py [--presses 300] [--states 8] [--rounds 3] [--base /tmp/base-wt ...]
 """
 
 from __future__ import annotations
@@ -45,10 +46,14 @@ def make_model(name: str, root: Path):
     return SkinModel(layout, kernel=read_kernel(packaged_kernel_path()))
 
 
-def in_subprocess(root: Path, n: int, states: int) -> float:
-    """Per-press ms of `root`'s parametric skin, measured in a fresh interpreter with `root` on the path."""
+def has_kernel(root: Path) -> bool:
+    return (root / "neatskin" / "skin" / "kernelpinch.py").exists()
+
+
+def in_subprocess(root: Path, name: str, n: int, states: int) -> float:
+    """Per-press ms of `root`'s `name` skin, measured in a fresh interpreter with `root` on the path."""
     env = {**os.environ, "PYTHONPATH": str(root)}
-    cmd = [sys.executable, __file__, "--one", str(root), "--presses", str(n), "--states", str(states)]
+    cmd = [sys.executable, __file__, "--one", str(root), "--model", name, "--presses", str(n), "--states", str(states)]
     return float(json.loads(subprocess.run(cmd, env=env, capture_output=True, text=True, check=True).stdout))
 
 
@@ -57,12 +62,15 @@ def main() -> None:
     parser.add_argument("--presses", type=int, default=300)
     parser.add_argument("--states", type=int, default=8, help="probe states per press (depths along the stroke)")
     parser.add_argument("--rounds", type=int, default=3)
-    parser.add_argument("--base", type=Path, help="a checkout whose parametric skin to time beside this tree's")
-    parser.add_argument("--one", type=Path, help=argparse.SUPPRESS)  # subprocess mode: one parametric timing
+    parser.add_argument(
+        "--base", type=Path, action="append", default=[], help="a checkout whose skins to time beside this tree's"
+    )
+    parser.add_argument("--one", type=Path, help=argparse.SUPPRESS)  # subprocess mode: one timing
+    parser.add_argument("--model", default="parametric", help=argparse.SUPPRESS)
     args = parser.parse_args()
     x, y, depth = presses(args.presses, args.states)
     if args.one is not None:
-        model = make_model("parametric", args.one)
+        model = make_model(args.model, args.one)
         per_press_ms(model, x[:20], y[:20], depth[:20])
         print(json.dumps(per_press_ms(model, x, y, depth)))
         return
@@ -71,21 +79,30 @@ def main() -> None:
     for model in models.values():
         per_press_ms(model, x[:20], y[:20], depth[:20])  # warm up
     times: dict[str, list[float]] = {name: [] for name in models}
-    if args.base is not None:
-        times["base parametric"] = []
+    others = [
+        (root.resolve(), name)
+        for root in args.base
+        for name in ("parametric", "fe-kernel")
+        if name == "parametric" or has_kernel(root)
+    ]
+    for root, name in others:
+        times[f"{root.name} {name}"] = []
+    load_start = os.getloadavg()[0]
     for _ in range(args.rounds):
         for name, model in models.items():
             times[name].append(per_press_ms(model, x, y, depth))
-        if args.base is not None:
-            times["base parametric"].append(in_subprocess(args.base.resolve(), args.presses, args.states))
-    load = os.getloadavg()
-    print(f"{args.presses} presses x {args.states} states, CPU ms per press, load average {load[0]:.1f}")
+        for root, name in others:
+            times[f"{root.name} {name}"].append(in_subprocess(root, name, args.presses, args.states))
+    load = os.getloadavg()[0]
+    print(
+        f"{args.presses} presses x {args.states} states, CPU ms per press, load average {load_start:.1f} -> {load:.1f}"
+    )
     for name, values in times.items():
-        print(f"  {name:<16s} median {np.median(values):.3f}  ({', '.join(f'{v:.3f}' for v in values)})")
-    print(f"  fe-kernel / parametric: {np.median(times['fe-kernel']) / np.median(times['parametric']):.2f}")
-    if args.base is not None:
-        ratio = np.median(times["fe-kernel"]) / np.median(times["base parametric"])
-        print(f"  fe-kernel / base parametric ({args.base}): {ratio:.2f}")
+        print(f"  {name:<28s} median {np.median(values):.3f}  ({', '.join(f'{v:.3f}' for v in values)})")
+    mine = np.median(times["fe-kernel"])
+    print(f"  fe-kernel / parametric (this tree): {mine / np.median(times['parametric']):.2f}")
+    for root, name in others:
+        print(f"  fe-kernel / {root.name} {name}: {mine / np.median(times[f'{root.name} {name}']):.2f}")
 
 
 if __name__ == "__main__":

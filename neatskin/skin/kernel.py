@@ -72,6 +72,7 @@ class PinchKernel:
             good = np.flatnonzero(np.isfinite(filled[i]))
             filled[i, good[-1] + 1 :] = filled[i, good[-1]]
         object.__setattr__(self, "_table", np.clip(filled, 0.0, 1.0))
+        object.__setattr__(self, "_table_t", np.ascontiguousarray(self._table.T))  # type: ignore[attr-defined]
         object.__setattr__(self, "_step", (float(self.offsets_mm[1]), float(self.depths_mm[1])))
 
     def scaled(self, factor: float) -> PinchKernel:
@@ -89,21 +90,54 @@ class PinchKernel:
 
     def ratio(self, offset_mm, depth_mm) -> np.ndarray:
         """A/A0 at (offset, depth), broadcast; bilinear. 1 beyond the largest offset and at depth <= 0; the
-        deepest row beyond the deepest depth. Shut (0) where the interpolated ratio is below SHUT_AREA_RATIO."""
+        deepest row beyond the deepest depth. Shut (0) where the interpolated ratio is below SHUT_AREA_RATIO.
+        The same two steps the fe-kernel channel integral takes (skin/kernelpinch.py): the table's row at each
+        depth (`depth_rows`), then the offset's place in it (`offset_index`, `lerp_rows`)."""
+        offset, depth = np.broadcast_arrays(np.asarray(offset_mm, float), np.asarray(depth_mm, float))
+        rows = self.depth_rows(depth.ravel())
+        lo, weight = self.offset_index(offset.ravel())
+        return self.lerp_rows(rows, lo, weight, np.arange(offset.size)).reshape(offset.shape)
+
+    def depth_rows(self, depth_mm) -> np.ndarray:
+        """(n, offsets + 2): A/A0 at every tabulated offset for each of n depths (linear in depth; the deepest
+        row beyond the deepest depth; all 1 at depth <= 0), then two columns of 1 that `offset_index` points an
+        offset beyond the kernel's reach at. One row per press state: the 48 nodes x channels of a press only
+        differ in offset, so the depth is interpolated once per state, not once per node."""
+        depth = np.asarray(depth_mm, float).ravel()
+        table_t: np.ndarray = self._table_t  # type: ignore[attr-defined]
+        n_d = table_t.shape[0]
+        fd = np.clip(depth / self._step[1], 0.0, n_d - 1.0)  # type: ignore[attr-defined]
+        jd = np.minimum(fd.astype(np.intp), n_d - 2)
+        td = (fd - jd)[:, None]
+        rows = np.ones((depth.size, table_t.shape[1] + 2))
+        rows[:, :-2] = table_t[jd] * (1 - td) + table_t[jd + 1] * td
+        rows[depth <= 0, :-2] = 1.0
+        return rows
+
+    def offset_index(self, offset_mm) -> tuple[np.ndarray, np.ndarray]:
+        """(lower grid index, weight of the next) of each |offset| in a `depth_rows` row; an offset beyond the
+        largest tabulated one points at the rows' two trailing 1s with weight 0 (A/A0 = 1 exactly)."""
         offset = np.abs(np.asarray(offset_mm, float))
-        depth = np.asarray(depth_mm, float)
-        table: np.ndarray = self._table  # type: ignore[attr-defined]
-        step_o, step_d = self._step  # type: ignore[attr-defined]
-        fo = np.clip(offset / step_o, 0.0, table.shape[0] - 1.0)
-        fd = np.clip(depth / step_d, 0.0, table.shape[1] - 1.0)
-        io = np.minimum(fo.astype(np.intp), table.shape[0] - 2)
-        jd = np.minimum(fd.astype(np.intp), table.shape[1] - 2)
-        to, td = fo - io, fd - jd
-        value = (table[io, jd] * (1 - to) + table[io + 1, jd] * to) * (1 - td) + (
-            table[io, jd + 1] * (1 - to) + table[io + 1, jd + 1] * to
-        ) * td
-        value = np.where(offset > self.offsets_mm[-1], 1.0, value)
-        value = np.where(depth <= 0, 1.0, value)
+        n_o = self.offsets_mm.size
+        fo = np.minimum(offset / self._step[0], n_o - 1.0)  # type: ignore[attr-defined]
+        lo = np.minimum(fo.astype(np.intp), n_o - 2)
+        weight = fo - lo
+        beyond = offset > self.offsets_mm[-1]
+        lo[beyond], weight[beyond] = n_o, 0.0
+        return lo, weight
+
+    @staticmethod
+    def lerp_rows(rows: np.ndarray, lo: np.ndarray, weight: np.ndarray, row_of=None) -> np.ndarray:
+        """A/A0 at (lo, weight) of `offset_index` in `depth_rows` rows, 0 where below SHUT_AREA_RATIO (shut).
+        row_of None: every row at every offset, shape (rows, *lo.shape) (one press's states at its nodes);
+        else the row of each offset, broadcast with lo and weight."""
+        if row_of is None:
+            low, high = rows[:, lo], rows[:, lo + 1]
+        else:
+            flat = rows.ravel()
+            at = np.asarray(row_of) * rows.shape[1] + lo
+            low, high = flat[at], flat[at + 1]
+        value = low * (1 - weight) + high * weight
         return np.where(value < SHUT_AREA_RATIO, 0.0, value)
 
 
