@@ -1,6 +1,6 @@
 """Benchmark: the paper's sensitivity map (each of 12 channels +50 % in turn, 28 pairs) against Ahkab, side by side.
 
-    python benchmarks/bench_sensitivity_ahkab.py [--rounds 9]
+    python benchmarks/bench_sensitivity_ahkab.py [--rounds 9] [--against DIR]
 
 Ahkab (a pure-Python SPICE-like simulator, `pip install ahkab`, the `bench` extra) computes the map as a
 circuit simulator would: for each of the 13 states (unchanged, then each channel at +50 %) and each of the
@@ -8,7 +8,11 @@ circuit simulator would: for each of the 13 states (unchanged, then each channel
 grounded, R_eq = V. Beside it, two neatskin paths on the same layout:
 
     rank-one   skin.maps.paper_sensitivity: Sherman-Morrison updates of one grounded inverse (this branch)
-    full solve the 13 states through network.equivalent_resistance, then differences (the path before)
+    full solve the 13 states through network.equivalent_resistance, then differences
+
+and, with --against DIR (a checkout of another commit, e.g. `git worktree add --detach DIR 513ce57`), that
+checkout's skin.maps.paper_sensitivity, timed in a worker process that imports the toolkit from DIR (the same
+Python, BLAS pinned the same way), in the same alternating rounds.
 
 Each round times every path once, alternating (Ahkab's one map against the mean of enough neatskin maps to
 fill ~0.2 s), in process CPU time; the table gives the median over rounds of the per-round ratio, with the
@@ -27,6 +31,9 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUME
 import argparse  # noqa: E402
 import contextlib  # noqa: E402
 import io  # noqa: E402
+import json  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -96,32 +103,90 @@ def _cpu_per_call(fn, budget_s: float = 0.2) -> float:
             return spent / calls
 
 
+class _Against:
+    """paper_sensitivity of another checkout, in a worker process that imports the toolkit from there."""
+
+    def __init__(self, checkout: Path) -> None:
+        self.name = checkout.name[:11]  # the table's path column
+        self.proc = subprocess.Popen(
+            [sys.executable, str(Path(__file__).resolve()), "--worker"],
+            cwd=checkout,
+            env={**os.environ, "PYTHONPATH": str(checkout)},
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        self.map = np.array(json.loads(self._ask("map")))
+
+    def _ask(self, command: str) -> str:
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self.proc.stdin.write(command + "\n")
+        self.proc.stdin.flush()
+        return self.proc.stdout.readline()
+
+    def cpu_per_call(self) -> float:
+        return float(self._ask("time"))
+
+    def close(self) -> None:
+        self._ask("quit")
+        self.proc.wait(timeout=30)
+
+
+def _worker() -> None:
+    """The --against side: answers 'map' (the map as JSON), 'time' (CPU s a map), 'quit', one per line."""
+    layout = load_layout(Path.cwd() / "protocols" / "skins" / "paper.toml")
+    for line in sys.stdin:
+        command = line.strip()
+        if command == "map":
+            print(json.dumps(paper_sensitivity(layout).delta_ohm.tolist()), flush=True)
+        elif command == "time":
+            print(repr(_cpu_per_call(lambda: paper_sensitivity(layout).delta_ohm)), flush=True)
+        else:
+            print("bye", flush=True)
+            return
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=9)
+    parser.add_argument("--against", type=Path, help="a checkout of another commit: time its paper_sensitivity too")
+    parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.worker:
+        _worker()
+        return
     layout = load_layout(REPO / "protocols" / "skins" / "paper.toml")
     ahkab = _import_ahkab()
     reference = ahkab_map(ahkab, layout)
     ours = {"rank-one": lambda: paper_sensitivity(layout).delta_ohm, "full solve": lambda: full_solve_map(layout)}
-    ratios: dict[str, list[float]] = {name: [] for name in ours}
-    per_call: dict[str, list[float]] = {name: [] for name in ours}
+    maps = {"rank-one": ours["rank-one"](), "full solve": ours["full solve"]()}
+    timers = {name: (lambda fn=fn: _cpu_per_call(fn)) for name, fn in ours.items()}
+    against = _Against(args.against.resolve()) if args.against else None
+    if against is not None:
+        timers[against.name] = against.cpu_per_call
+        maps[against.name] = against.map
+    ratios: dict[str, list[float]] = {name: [] for name in timers}
+    per_call: dict[str, list[float]] = {name: [] for name in timers}
     ahkab_s = []
     load_before = os.getloadavg()
     for _ in range(args.rounds):
         started = time.process_time()
         ahkab_map(ahkab, layout)
         ahkab_s.append(time.process_time() - started)
-        for name, fn in ours.items():
-            per_call[name].append(_cpu_per_call(fn))
+        for name, timer in timers.items():
+            per_call[name].append(timer())
             ratios[name].append(ahkab_s[-1] / per_call[name][-1])
     load_after = os.getloadavg()
+    if against is not None:
+        against.close()
     print(f"sensitivity map (12 channels x 28 pairs), paper skin, {args.rounds} alternating rounds, CPU time, 1 thread")
     print(f"load average (1 min) before {load_before[0]:.2f}, after {load_after[0]:.2f}")
     print(f"Ahkab: median {np.median(ahkab_s) * 1e3:.1f} ms a map")
+    if against is not None:
+        print(f"{against.name}: paper_sensitivity of the checkout {args.against.resolve()}, in a worker process")
     print(f"{'path':<11} {'us a map':>9} {'x Ahkab (median)':>17} {'range':>19} {'max |diff| ohm':>15}")
-    for name, fn in ours.items():
-        diff = float(np.max(np.abs(fn() - reference)))
+    for name in timers:
+        diff = float(np.max(np.abs(maps[name] - reference)))
         lo, hi = min(ratios[name]), max(ratios[name])
         print(
             f"{name:<11} {np.median(per_call[name]) * 1e6:>9.1f} {np.median(ratios[name]):>17,.0f} "

@@ -97,6 +97,14 @@ def test_a_channel_shut_gives_exact_changes_and_zero_on_cut_pairs(paper_layout):
     _assert_exact(paper_layout, cut, 1.5, delta_cut, scale_rtol=1e-13)
 
 
+def test_an_unchanged_resistance_changes_nothing_on_both_paths(paper_layout):
+    # factor 1 is dg = 0: the rank-one form's denominator R_c f / (f - 1) is infinite, the change exactly 0 (not NaN)
+    g = 1.0 / paper_layout.channel_resistance_ohm
+    assert np.all(channel_change_delta_ohm(paper_layout, g, 1.0) == 0.0)
+    stiff = g * 10.0 ** np.arange(paper_layout.n_channels)  # 1e11 apart: the GTH full solve
+    assert np.all(channel_change_delta_ohm(paper_layout, stiff, 1.0) == 0.0)
+
+
 @pytest.mark.parametrize(
     ("g_fix", "factor", "match"),
     [

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from neatskin.layout import ElectrodePair, Layout
+from neatskin.skin.layoutcache import LayoutCache, per_layout
 from neatskin.skin.model import SkinModel
 from neatskin.skin.network import channel_change_delta_ohm
 
@@ -67,10 +68,20 @@ def paper_sensitivity(layout: Layout, increase: float = 0.5) -> SensitivityMap:
     'press' per channel, placed at the channel's midpoint (paper Fig. 3, black dots). The changes come from
     rank-one updates of one grounded inverse (`network.channel_change_delta_ohm`), not 13 full solves."""
     delta = channel_change_delta_ohm(layout, 1.0 / layout.channel_resistance_ohm, 1.0 + increase)
+    x_mm, y_mm = per_layout(_MIDPOINTS, layout, _read_only_midpoints)
+    return SensitivityMap(f"paper_plus{round(increase * 100)}pct", x_mm, y_mm, delta, layout.pairs)
+
+
+# per layout object: the channel midpoints' x and y, read only (shared by every paper map of the layout)
+_MIDPOINTS: LayoutCache[tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _read_only_midpoints(layout: Layout) -> tuple[np.ndarray, np.ndarray]:
     mid = channel_midpoints_mm(layout)
-    return SensitivityMap(
-        f"paper_plus{round(increase * 100)}pct", mid[:, 0].copy(), mid[:, 1].copy(), delta, layout.pairs
-    )
+    x_mm, y_mm = mid[:, 0].copy(), mid[:, 1].copy()
+    x_mm.flags.writeable = False
+    y_mm.flags.writeable = False
+    return x_mm, y_mm
 
 
 def grid_positions_mm(layout: Layout, step_mm: float, margin_mm: float = 0.0) -> tuple[np.ndarray, np.ndarray]:

@@ -33,11 +33,12 @@ Two paths, picked by size (`equivalent_resistance(..., method="auto")`):
 from __future__ import annotations
 
 import math
-import weakref
+from collections.abc import Callable
 
 import numpy as np
 
 from neatskin.layout import Layout
+from neatskin.skin.layoutcache import LayoutCache, per_layout
 
 DENSE_MAX_JUNCTIONS = 64
 # Stiff inputs (conductances more than STIFF_SPREAD apart) stay on the exact dense path up to this size:
@@ -192,57 +193,68 @@ def channel_change_delta_ohm(layout: Layout, conductance_s: np.ndarray, resistan
     (channels, pairs): the paper's sensitivity simulation (each channel +50 % in turn: factor 1.5).
 
     Changing one channel's conductance by dg is a rank-one change of the Laplacian, so by Sherman-Morrison
-        R'_ab - R_ab = -dg (b_c^T Z p_ab)^2 / (1 + dg b_c^T Z b_c)
-    with Z the grounded inverse of the unchanged Laplacian, b_c the channel's incidence vector and p_ab = e_a - e_b:
-    one inverse and two products for every channel and pair at once, and the change itself, not the difference of
-    two resistances (no cancellation). Used where the grounded path is (every conductance > 0 and within
-    GROUNDED_MAX_SPREAD of the others: relative error ~1e-14, tested against exact rationals); anything stiffer
-    (conductances 1e12 apart, a channel shut) takes the GTH full solve of the channels + 1 states, which is exact to
-    a few ulps of each R_eq. A pair cut apart before and after gets 0 (the change does not connect it), never NaN.
+        R'_ab - R_ab = -dg (b_c^T Z p_ab)^2 / (1 + dg b_c^T Z b_c)  =  (b_c^T Z p_ab)^2 / (-1/dg - b_c^T Z b_c)
+    with Z the grounded inverse of the unchanged Laplacian, b_c the channel's incidence vector, p_ab = e_a - e_b and
+    -1/dg = R_c f / (f - 1): one Cholesky solve and one product for every channel and pair at once, and the change
+    itself, not the difference of two resistances (no cancellation). Used where the grounded path is (every
+    conductance > 0 and within GROUNDED_MAX_SPREAD of the others: relative error ~1e-15, tested against exact
+    rationals); anything stiffer (conductances 1e12 apart, a channel shut) takes the GTH full solve of the
+    channels + 1 states, which is exact to a few ulps of each R_eq. A pair cut apart before and after gets 0 (the
+    change does not connect it), never NaN.
     """
     g = np.asarray(conductance_s, dtype=float)
-    g_min, g_max = (float(g.min()), float(g.max())) if g.shape == (layout.n_channels,) else (math.nan, math.nan)
-    if not (g_min >= 0 and g_max < math.inf):  # also false on NaN, and on a wrong shape
-        raise ValueError(f"conductance_s must be ({layout.n_channels},) finite values >= 0, got shape {g.shape}")
+    n_channels = layout.n_channels
+    # the checks on a dozen Python floats: numpy's min and max cost microseconds each, a map costs a few more
+    values = g.tolist() if g.shape == (n_channels,) else [math.nan]
+    g_min, g_max, total = min(values), max(values), sum(values)
+    if not (g_min >= 0 and g_max < math.inf and total == total):  # the sum is NaN if any value is (min may skip it)
+        raise ValueError(f"conductance_s must be ({n_channels},) finite values >= 0, got shape {g.shape}")
     if not (math.isfinite(resistance_factor) and resistance_factor > 0):
         raise ValueError(f"resistance_factor must be finite and > 0, got {resistance_factor!r}")
-    dg = g * (1.0 / resistance_factor - 1.0)
     if layout.n_junctions > DENSE_MAX_JUNCTIONS or not (g_min > 0 and g_max <= GROUNDED_MAX_SPREAD * g_min):
-        states = np.tile(g, (layout.n_channels + 1, 1))
-        states[np.arange(1, layout.n_channels + 1), np.arange(layout.n_channels)] += dg
-        method = "dense" if layout.n_junctions <= STIFF_DENSE_MAX_JUNCTIONS else "auto"
-        r_eq = equivalent_resistance(layout, states, method)
-        with np.errstate(invalid="ignore"):
-            delta = r_eq[1:] - r_eq[0]
-        return np.where(np.isinf(r_eq[1:]) & np.isinf(r_eq[0]), 0.0, delta)
-    incidence, pair_vectors = _grounded_incidence(layout)  # (free junctions, channels), (free junctions, pairs)
-    z_b = np.linalg.solve((incidence * g) @ incidence.T, incidence)  # Z b_c for every channel
-    drop = z_b.T @ pair_vectors  # b_c^T Z p_ab: (channels, pairs)
-    own = np.einsum("fc,fc->c", incidence, z_b)  # b_c^T Z b_c: the channel's own effective resistance
-    return -(dg / (1.0 + dg * own))[:, None] * drop * drop
+        return _channel_change_full_solve(layout, g, resistance_factor)
+    lap_map, free_shape, posv, incidence, basis_t = per_layout(_INCIDENCE, layout, _rank_one_structure)
+    # the grounded Laplacian sum_c g_c b_c b_c^T, symmetric: its transpose is the Fortran-ordered array LAPACK
+    # factors in place (a temporary), so no copy is made
+    _, z_b, info = posv(np.dot(lap_map, g).reshape(free_shape).T, incidence, overwrite_a=1)  # Z b_c
+    if info != 0:  # not positive definite: cannot happen on a connected layout within the spread, but never guess
+        return _channel_change_full_solve(layout, g, resistance_factor)
+    gram = basis_t @ z_b  # (channels + pairs, channels): b_d^T Z b_c, then p_ab^T Z b_c (contiguous rows)
+    f = resistance_factor
+    scale = f / (f - 1.0) if f != 1.0 else math.inf  # f = 1: an infinite denominator, a change of exactly 0
+    denominator = scale / g - gram.diagonal()  # R_c f / (f - 1) - b_c^T Z b_c: > R_c / (f - 1) > 0 when f > 1
+    delta = np.square(gram[n_channels:])  # (pairs, channels)
+    delta /= denominator
+    return delta.T
 
 
-# per layout object (by identity: hashing a Layout costs more than building these), dropped with the layout
-_INCIDENCE: dict[int, tuple[weakref.ref, tuple[np.ndarray, np.ndarray]]] = {}
+def _channel_change_full_solve(layout: Layout, g: np.ndarray, resistance_factor: float) -> np.ndarray:
+    """channel_change_delta_ohm by the GTH full solve of the channels + 1 states: exact on stiff inputs."""
+    dg = g * (1.0 / resistance_factor - 1.0)
+    states = np.tile(g, (layout.n_channels + 1, 1))
+    states[np.arange(1, layout.n_channels + 1), np.arange(layout.n_channels)] += dg
+    method = "dense" if layout.n_junctions <= STIFF_DENSE_MAX_JUNCTIONS else "auto"
+    r_eq = equivalent_resistance(layout, states, method)
+    with np.errstate(invalid="ignore"):
+        delta = r_eq[1:] - r_eq[0]
+    return np.where(np.isinf(r_eq[1:]) & np.isinf(r_eq[0]), 0.0, delta)
 
 
-def _grounded_incidence(layout: Layout) -> tuple[np.ndarray, np.ndarray]:
-    """The channel incidence vectors b_c and the pair vectors e_a - e_b over the junctions with the first
-    electrode's grounded (its row dropped), read only; cached per layout object."""
-    key = id(layout)
-    entry = _INCIDENCE.get(key)
-    if entry is not None and entry[0]() is layout:
-        return entry[1]
-    arrays = _build_grounded_incidence(layout)
-
-    def forget(_ref: weakref.ref, key: int = key) -> None:
-        _INCIDENCE.pop(key, None)
-
-    _INCIDENCE[key] = (weakref.ref(layout, forget), arrays)
-    return arrays
+# per layout object: what the rank-one path needs that depends on the layout alone (layoutcache.per_layout)
+_INCIDENCE: LayoutCache[tuple[np.ndarray, tuple[int, int], Callable[..., tuple], np.ndarray, np.ndarray]] = {}
 
 
-def _build_grounded_incidence(layout: Layout) -> tuple[np.ndarray, np.ndarray]:
+def _rank_one_structure(
+    layout: Layout,
+) -> tuple[np.ndarray, tuple[int, int], Callable[..., tuple], np.ndarray, np.ndarray]:
+    """Over the junctions with the first electrode's grounded (its row dropped), read only: lap_map
+    (free * free, channels) with lap_map @ g the grounded Laplacian, flat, and its shape (free, free); LAPACK's
+    dposv (Cholesky factor and solve in one call: a few microseconds where numpy.linalg.solve spends ten in its
+    wrappers; imported here, on first use, as scipy.linalg is not otherwise loaded by the skin); the channel
+    incidence vectors b_c (free, channels, Fortran-ordered for LAPACK); and [b_c | e_a - e_b]^T
+    (channels + pairs, free)."""
+    from scipy.linalg.lapack import dposv
+
     n = layout.n_junctions
     ends = layout.channel_ends
     incidence = np.zeros((n, layout.n_channels))
@@ -253,10 +265,13 @@ def _build_grounded_incidence(layout: Layout) -> tuple[np.ndarray, np.ndarray]:
     pairs[elec[layout.pair_electrode_index[:, 0]], np.arange(len(layout.pairs))] = 1.0
     pairs[elec[layout.pair_electrode_index[:, 1]], np.arange(len(layout.pairs))] = -1.0
     free = np.arange(n) != int(elec[0])
-    out = (incidence[free], pairs[free])
-    for array in out:
+    incidence, pairs = incidence[free], pairs[free]
+    lap_map = np.einsum("ic,jc->ijc", incidence, incidence).reshape(-1, layout.n_channels).copy()
+    incidence_f = np.asfortranarray(incidence)
+    basis_t = np.ascontiguousarray(np.hstack([incidence, pairs]).T)
+    for array in (lap_map, incidence_f, basis_t):
         array.flags.writeable = False
-    return out
+    return lap_map, (n - 1, n - 1), dposv, incidence_f, basis_t
 
 
 # ---- grounded: Kron reduction, then one batched inverse ----------------------------------
