@@ -178,3 +178,17 @@ def test_on_dry_run_rows_the_batched_solver_ends_at_bounded_minima_no_worse_than
         for h_mm in (1e-3, 1e-2):
             assert _lowest_nearby(skin, data.X[i], ours[i], lo, hi, h_mm) >= cost[i] * (1 - 1e-9), (i, h_mm, ours[i])
     assert batched.n_model_evaluations < capped.n_model_evaluations < longer.n_model_evaluations
+
+
+def test_two_running_starts_of_one_press_that_meet_continue_as_one():
+    from neatskin.baselines.inversion import _merge_starts
+
+    # 3 presses x 2 starts, start-major: press 0's starts 5e-4 mm apart (merge: the costlier stops), press 1's
+    # 2e-3 apart (both run on), press 2's together but one already stopped (nothing to merge)
+    p = np.array(
+        [[1.0, 1.0, 3.0], [5.0, 5.0, 3.0], [9.0, 9.0, 3.0], [1.0005, 1.0, 3.0], [5.002, 5.0, 3.0], [9.0, 9.0, 3.0]]
+    )
+    cost = np.array([2.0, 1.0, 1.0, 1.0, 2.0, 1.0])
+    active = np.array([True, True, False, True, True, True])
+    _merge_starts(p, cost, active, 2, 1e-3)
+    assert active.tolist() == [False, True, False, True, True, True]

@@ -33,6 +33,10 @@ _BIG_OHM = 1e9  # stands in for an infinite model resistance (a channel pinched 
 # rows per model call: the skin's quadrature of a deep press (graded panels) outgrows its reused node buffer in
 # larger calls and costs about twice as much per row (measured: ~10 us a row at 256, ~20-30 us at 1,000-3,000)
 _MODEL_CHUNK = 256
+# two running starts of one press closer than this (mm, every coordinate) share a basin: the costlier stops
+# (paper dry run: 17 % fewer model evaluations, every press within 1e-3 mm of the unmerged answer at no worse
+# a residual; at 1e-2 mm two presses of 2,800 moved 0.33 mm to a worse residual, so not more)
+MERGE_MM = 1e-3
 
 
 class ForwardModel(Protocol):
@@ -135,7 +139,7 @@ def invert_presses(
     cost = np.einsum("np,np->n", r, r)
     refine = _refine_reference if method == "reference" else _refine
     cost, iteration, refine_evaluations = refine(
-        skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tolerance_mm
+        skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tolerance_mm, n_start
     )
     evaluations += refine_evaluations
     n = len(observed)
@@ -167,7 +171,7 @@ def _jacobian(skin, baseline, pa, model_a, step_mm, hi) -> np.ndarray:
     return jac.transpose(1, 2, 0)
 
 
-def _refine(skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tolerance_mm):
+def _refine(skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tolerance_mm, n_start=1):
     """Bounded Levenberg-Marquardt over every (press, start) row at once, with a secant estimate of the
     residual's curvature (method="batched", the default).
 
@@ -205,6 +209,8 @@ def _refine(skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tol
     evaluations = 0
     iteration = 0
     for iteration in range(1, max_iterations + 1):  # noqa: B007 (the count is read after the loop)
+        if n_start > 1 and MERGE_MM > 0:
+            _merge_starts(p, cost, active, n_start, MERGE_MM)
         idx = np.flatnonzero(active)
         if idx.size == 0:
             break
@@ -273,6 +279,24 @@ def _refine(skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tol
     return cost, iteration, evaluations
 
 
+def _merge_starts(p, cost, active, n_start, within_mm) -> None:
+    """Two running starts of one press closer than within_mm (every coordinate) are in one basin: the costlier
+    stops (its cost, above the other's, never wins). Rows are start-major, [j * n + i] press i from start j."""
+    n = len(p) // n_start
+    pp = p.reshape(n_start, n, 3)
+    cc = cost.reshape(n_start, n)
+    aa = active.reshape(n_start, n)  # a view: writes reach `active`
+    for j in range(n_start):
+        for k in range(j + 1, n_start):
+            both = aa[j] & aa[k]
+            if not both.any():
+                continue
+            near = both & (np.max(np.abs(pp[j] - pp[k]), axis=1) < within_mm)
+            drop_k = near & (cc[k] >= cc[j])
+            aa[k, drop_k] = False
+            aa[j, near & ~drop_k] = False
+
+
 def _secant_update(s_mat: np.ndarray, step: np.ndarray, dgrad: np.ndarray, dgrad_sharp: np.ndarray) -> np.ndarray:
     """NL2SOL's update of S ~ sum_i r_i d2r_i (Dennis, Gay and Welsch 1981, eq. 3.4, with their sizing), per row.
 
@@ -294,7 +318,7 @@ def _secant_update(s_mat: np.ndarray, step: np.ndarray, dgrad: np.ndarray, dgrad
     return np.where(ok[:, None, None], s_mat + change, s_mat)
 
 
-def _refine_reference(skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tolerance_mm):
+def _refine_reference(skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tolerance_mm, n_start=1):
     """The solver before issue 27 (method="reference"): a fresh Jacobian every iteration, accepted or not, and
     a press stops only on an accepted step under tolerance_mm or damping past 1e8. Kept to test the default
     against. Updates p, r, cost in place; returns (cost, iterations, model evaluations)."""
