@@ -8,11 +8,12 @@ from a forward model with the `pair_resistance_ohm(x_mm, y_mm, depth_mm)` signat
 1. a coarse grid start: the model is evaluated once on a grid of (x, y, depth) over the skin,
    and each press starts from the few grid points nearest to it in dR space that lie apart on
    the skin (one distance matrix, in chunks), so a start in each plausible basin;
-2. a batched Levenberg-Marquardt: all unconverged presses take a damped Gauss-Newton step
-   together, with a forward-difference Jacobian (3 extra model evaluations per press, only after
-   it moved); each press keeps its own damping, accepts a step only if its residual falls, and
-   stops once its proposed step is under the tolerance (`_refine`; `method="reference"` is the
-   solver before it, `_refine_reference`, kept to test against).
+2. a batched, bounded Levenberg-Marquardt (`_refine`): every (press, start) row in one array, a
+   forward-difference Jacobian (3 model evaluations a row, only after it moved), per-row damping by
+   the gain ratio, bounds by an active set, a secant estimate of the large residuals' curvature
+   (NL2SOL), and starts of one press that meet merged; a row stops once its proposed step is under
+   the tolerance (`method="reference"` is the solver before issue 27, `_refine_reference`, kept to
+   test against; docs/baselines.md has the figures).
 
 Parameters are kept inside the skin's bounds and a depth range. The cost is reported like a
 learned model's (fit time 0, predict time per press).
