@@ -84,13 +84,13 @@ def _model_dr(skin, x, y, depth):
 
 def _refine_from(skin, dr, start, lo, hi, method="batched", max_iterations=40):
     """One solver run from given starts (rows of (x, y, depth)), as invert_presses runs it after the grid."""
-    from neatskin.baselines import inversion
+    from neatskin.baselines import inversion, invref
 
     baseline = skin.baseline_pair_resistance_ohm
     p = np.array(start, dtype=float)
     r = inversion._model_dr(skin, baseline, p) - dr
     cost = np.einsum("np,np->n", r, r)
-    refine = inversion._refine if method == "batched" else inversion._refine_reference
+    refine = inversion._refine if method == "batched" else invref.refine_reference
     cost, _, _ = refine(skin, baseline, p, r, cost, dr, np.asarray(lo), np.asarray(hi), max_iterations, 1e-3, 1e-5)
     return p, cost
 

@@ -12,7 +12,7 @@ from a forward model with the `pair_resistance_ohm(x_mm, y_mm, depth_mm)` signat
    forward-difference Jacobian (3 model evaluations a row, only after it moved), per-row damping by
    the gain ratio, bounds by an active set, a secant estimate of the large residuals' curvature
    (NL2SOL), and starts of one press that meet merged; a row stops once its proposed step is under
-   the tolerance (`method="reference"` is the solver before issue 27, `_refine_reference`, kept to
+   the tolerance (`method="reference"` is the solver before issue 27, `invref.refine_reference`, kept to
    test against; docs/baselines.md has the figures).
 
 Parameters are kept inside the skin's bounds and a depth range. The cost is reported like a
@@ -138,7 +138,10 @@ def invert_presses(
     r = _model_dr(skin, baseline, p) - dr
     evaluations += len(p)
     cost = np.einsum("np,np->n", r, r)
-    refine = _refine_reference if method == "reference" else _refine
+    if method == "reference":
+        from neatskin.baselines.invref import refine_reference as refine
+    else:
+        refine = _refine
     cost, iteration, refine_evaluations = refine(
         skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tolerance_mm, n_start
     )
@@ -179,7 +182,7 @@ def _refine(skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tol
     All rows in one array, each with its own damping and a mask of the rows still running; per iteration one
     batched model call for the Jacobians of the rows that moved (3 forward-difference offsets each) and one for
     the trial steps. A row stops once its proposed step is under tolerance_mm (neither evaluated nor taken) or
-    its damping passes 1e8. Against the solver at 513ce57 (`_refine_reference` is the one before it):
+    its damping passes 1e8. Against the solver at 513ce57 (`invref.refine_reference` is the one before it):
 
     - bounds by an active set, not by clipping alone: a coordinate at its bound whose gradient points out of the
       box is held there and the step is solved over the others. Clipping the full step shortens every step of a
@@ -317,47 +320,6 @@ def _secant_update(s_mat: np.ndarray, step: np.ndarray, dgrad: np.ndarray, dgrad
     change = (w[:, :, None] * dgrad[:, None, :] + dgrad[:, :, None] * w[:, None, :]) / ys[:, None, None]
     change -= (np.einsum("ma,ma->m", w, step) / ys**2)[:, None, None] * dgrad[:, :, None] * dgrad[:, None, :]
     return np.where(ok[:, None, None], s_mat + change, s_mat)
-
-
-def _refine_reference(skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tolerance_mm, n_start=1):
-    """The solver before issue 27 (method="reference"): a fresh Jacobian every iteration, accepted or not, and
-    a press stops only on an accepted step under tolerance_mm or damping past 1e8. Kept to test the default
-    against. Updates p, r, cost in place; returns (cost, iterations, model evaluations)."""
-    evaluations = 0
-    damping = np.full(len(p), 1e-3)
-    active = np.ones(len(p), dtype=bool)
-    iteration = 0
-    for iteration in range(1, max_iterations + 1):  # noqa: B007 (the count is read after the loop)
-        idx = np.flatnonzero(active)
-        if idx.size == 0:
-            break
-        pa, ra = p[idx], r[idx]
-        # forward differences, stepping inward at the upper bound
-        h = np.where(pa + step_mm > hi, -step_mm, step_mm)
-        shifted = np.repeat(pa[None], 3, axis=0)  # (3, m, 3)
-        for k in range(3):
-            shifted[k, :, k] += h[:, k]
-        dr_shift = _model_dr(skin, baseline, shifted.reshape(-1, 3)).reshape(3, len(idx), -1)
-        jac = (dr_shift - (ra + dr[idx])[None]) / h.T[:, :, None]  # (3, m, pairs)
-        jac = jac.transpose(1, 2, 0)  # (m, pairs, 3)
-        jtj = np.einsum("mpa,mpb->mab", jac, jac)
-        jtr = np.einsum("mpa,mp->ma", jac, ra)
-        diag = np.einsum("maa->ma", jtj)
-        lhs = jtj + (damping[idx, None] * (diag + 1e-12))[:, :, None] * np.eye(3)[None]
-        delta = -np.linalg.solve(lhs, jtr[:, :, None])[:, :, 0]
-        candidate = np.clip(pa + delta, lo, hi)
-        r_new = _model_dr(skin, baseline, candidate) - dr[idx]
-        evaluations += 4 * len(idx)
-        cost_new = np.einsum("np,np->n", r_new, r_new)
-        better = cost_new < cost[idx]
-        moved = np.max(np.abs(candidate - pa), axis=1)
-        good = idx[better]
-        p[good], r[good], cost[good] = candidate[better], r_new[better], cost_new[better]
-        damping[good] = np.maximum(damping[good] * 0.1, 1e-9)
-        damping[idx[~better]] *= 10.0
-        done = (better & (moved < tolerance_mm)) | (damping[idx] > 1e8)
-        active[idx[done]] = False
-    return cost, iteration, evaluations
 
 
 def skin_inversion(
