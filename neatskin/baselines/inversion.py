@@ -163,14 +163,20 @@ def invert_presses(
     )
 
 
-def _jacobian(skin, baseline, pa, model_a, step_mm, hi) -> np.ndarray:
+def _jacobian(skin, baseline, pa, model_a, step_mm, hi, columns=None) -> np.ndarray:
     """d(dR)/d(x, y, depth) (m, pairs, 3) by forward differences at pa, stepping inward at the upper bound;
-    model_a is the model's dR at pa."""
+    model_a is the model's dR at pa. columns (m, 3) bool: only those offsets are evaluated (one model call
+    for all of them), the others are NaN."""
     h = np.where(pa + step_mm > hi, -step_mm, step_mm)
     shifted = np.repeat(pa[None], 3, axis=0)  # (3, m, 3)
     for k in range(3):
         shifted[k, :, k] += h[:, k]
-    dr_shift = _model_dr(skin, baseline, shifted.reshape(-1, 3)).reshape(3, len(pa), -1)
+    if columns is None:
+        dr_shift = _model_dr(skin, baseline, shifted.reshape(-1, 3)).reshape(3, len(pa), -1)
+    else:
+        wanted = columns.T  # (3, m)
+        dr_shift = np.full((3, len(pa), model_a.shape[1]), np.nan)
+        dr_shift[wanted] = _model_dr(skin, baseline, shifted[wanted])
     jac = (dr_shift - model_a[None]) / h.T[:, :, None]  # (3, m, pairs)
     return jac.transpose(1, 2, 0)
 
@@ -209,6 +215,10 @@ def _refine(skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tol
     old_jac_new_r = np.zeros((n, 3))  # the old J' times the new r
     has_step = np.zeros(n, dtype=bool)
     use_secant = np.zeros(n, dtype=bool)  # NL2SOL's switch: the model that predicted the last step's change better
+    # a coordinate held on its bound in the last step keeps its Jacobian column (a stale one: it only decides
+    # whether the coordinate stays held) until the row would stop, when the whole Jacobian is fresh again
+    skip = np.zeros((n, 3), dtype=bool)
+    partial = np.zeros(n, dtype=bool)
     eye = np.eye(3)[None]
     evaluations = 0
     iteration = 0
@@ -220,11 +230,14 @@ def _refine(skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tol
             break
         need = idx[stale[idx]]
         if need.size:
-            jac[need] = _jacobian(skin, baseline, p[need], r[need] + dr[need], step_mm, hi)
+            columns = ~skip[need]
+            fresh = _jacobian(skin, baseline, p[need], r[need] + dr[need], step_mm, hi, columns)
+            jac[need] = np.where(columns[:, None, :], fresh, jac[need])
             jtj[need] = np.einsum("mpa,mpb->mab", jac[need], jac[need])
             jtr[need] = np.einsum("mpa,mp->ma", jac[need], r[need])
             stale[need] = False
-            evaluations += 3 * need.size
+            partial[need] = skip[need].any(axis=1)
+            evaluations += int(columns.sum())
             upd = need[has_step[need]]
             if upd.size:
                 curvature[upd] = _secant_update(
@@ -250,9 +263,12 @@ def _refine(skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tol
         # proposes again; only a short Gauss-Newton step stops a row (it stays where its residual is known)
         secant = definite & use_secant[idx]
         use_secant[idx[small & secant]] = False
-        active[idx[small & ~secant]] = False
+        recheck = idx[small & ~secant & partial[idx]]  # would stop on a stale column: a whole Jacobian first
+        stale[recheck], skip[recheck] = True, False
+        active[idx[small & ~secant & ~partial[idx]]] = False
         keep = ~small
         idx, candidate, step, g, model = idx[keep], candidate[keep], step[keep], g[keep], model[keep]
+        held = held[keep]
         curv = curvature[idx]
         if idx.size == 0:
             continue
@@ -274,6 +290,7 @@ def _refine(skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tol
         gain = np.where(np.isfinite(gain), gain, 1.0)
         p[good], r[good], cost[good] = candidate[better], r_new[better], cost_new[better]
         stale[good] = True
+        skip[good] = held[better] & (np.abs(step[better]) == 0.0)
         damping[good] = np.maximum(damping[good] * np.maximum(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 1e-9)
         growth[good] = 2.0
         bad = idx[~better]
