@@ -192,3 +192,20 @@ def test_two_running_starts_of_one_press_that_meet_continue_as_one():
     active = np.array([True, True, False, True, True, True])
     _merge_starts(p, cost, active, 2, 1e-3)
     assert active.tolist() == [False, True, False, True, True, True]
+
+
+def test_starts_taken_per_grid_point_are_the_starts_taken_per_row():
+    from neatskin.baselines.inversion import _diverse_starts
+
+    rng = np.random.default_rng(7)
+    g = np.linspace(0.0, 10.0, 11)
+    grid = np.stack(np.meshgrid(g, g, [1.0, 2.0, 3.0], indexing="ij"), axis=-1).reshape(-1, 3)
+    grid_dr = rng.normal(size=(len(grid), 5))
+    dr = rng.normal(size=(40, 5))
+    every_row = _diverse_starts(grid[:, :2], grid_dr, dr, 4, 2.5)
+    assert np.array_equal(_diverse_starts(grid[:, :2], grid_dr, dr, 4, 2.5, per_xy=3), every_row)
+    # a grid whose rows do not come in runs of one (x, y) takes the per-row path: the same starts
+    assert np.array_equal(_diverse_starts(grid[:, :2], grid_dr, dr, 4, 2.5, per_xy=2), every_row)
+    xy = grid[every_row][..., :2]  # every pair of a press's starts at least 2.5 mm apart
+    apart = np.hypot(*(xy[:, :, None] - xy[:, None, :]).transpose(3, 0, 1, 2))
+    assert np.all(apart[:, ~np.eye(4, dtype=bool)] >= 2.5)

@@ -68,12 +68,23 @@ def _model_dr(skin: ForwardModel, baseline_ohm: np.ndarray, p: np.ndarray) -> np
 
 
 def _diverse_starts(
-    grid_xy: np.ndarray, grid_dr: np.ndarray, dr: np.ndarray, k: int, separation_mm: float, chunk: int = 256
+    grid_xy: np.ndarray,
+    grid_dr: np.ndarray,
+    dr: np.ndarray,
+    k: int,
+    separation_mm: float,
+    chunk: int = 256,
+    per_xy: int = 1,
 ) -> np.ndarray:
     """Indices (n, k): per press the grid row nearest in dR space, then the nearest at least `separation_mm`
-    (in x, y) from every start already taken: starts in different basins, not k neighbours of one."""
+    (in x, y) from every start already taken: starts in different basins, not k neighbours of one.
+
+    per_xy: the grid's rows come in runs of this many with one (x, y) (the depths of one grid point): the
+    distances in (x, y) are then taken once per run, the same numbers on 1 / per_xy of the work."""
+    if per_xy < 1 or len(grid_xy) % per_xy or np.any(grid_xy.reshape(-1, per_xy, 2) != grid_xy[::per_xy, None]):
+        per_xy = 1
     g2 = np.einsum("gp,gp->g", grid_dr, grid_dr)
-    gx, gy = grid_xy[:, 0], grid_xy[:, 1]
+    gx, gy = grid_xy[::per_xy, 0], grid_xy[::per_xy, 1]
     out = np.empty((len(dr), k), dtype=np.int64)
     for start in range(0, len(dr), chunk):
         block = dr[start : start + chunk]
@@ -84,13 +95,13 @@ def _diverse_starts(
             if j == k - 1:
                 break
             # the same sums, in the same order, as np.linalg.norm over (dx, dy): the same starts, bit for bit
-            dx = gx[None, :] - gx[best][:, None]
-            dy = gy[None, :] - gy[best][:, None]
+            dx = gx[None, :] - gx[best // per_xy][:, None]
+            dy = gy[None, :] - gy[best // per_xy][:, None]
             dx *= dx
             dy *= dy
             dx += dy
             np.sqrt(dx, out=dx)
-            dist[dx < separation_mm] = np.inf
+            dist.reshape(len(block), -1, per_xy)[dx < separation_mm] = np.inf
     return out
 
 
@@ -131,7 +142,7 @@ def invert_presses(
     grid = np.stack(np.meshgrid(gx, gy, gd, indexing="ij"), axis=-1).reshape(-1, 3)
     grid_dr = _model_dr(skin, baseline, grid)
     evaluations = len(grid)
-    starts = _diverse_starts(grid[:, :2], grid_dr, observed, max(1, n_starts), separation_mm)  # (n, k)
+    starts = _diverse_starts(grid[:, :2], grid_dr, observed, max(1, n_starts), separation_mm, per_xy=len(gd))
     n_start = starts.shape[1]
     p = grid[starts.T.ravel()]  # start-major: rows [j * n + i] are press i from start j
     dr = np.tile(observed, (n_start, 1))
