@@ -156,6 +156,7 @@ def dry_run_rows(tmp_path_factory):
     return load_baseline_data(folder)
 
 
+@pytest.mark.slow  # a dry run of 84 presses and three inversions of them: ~17 s
 def test_on_dry_run_rows_the_batched_solver_ends_at_bounded_minima_no_worse_than_the_reference(dry_run_rows):
     data = dry_run_rows
     assert len(data.y) == 84 and data.n_saturated > 0
