@@ -32,7 +32,7 @@ _FIT_COST_S = {"ridge": 0.005, "knn": 0.003, "kernel_ridge": 0.7, "extra_trees":
 _COST_EXPONENT = {"kernel_ridge": 2.0}
 _COST_ROWS = 2700
 INVERSION_COST_S_PER_PRESS = 0.7e-3  # the physics inversion, per press (all presses in one task; 2.5e-3 before
-# issue 27's solver, which is 3.6x faster on a paper dry run: benchmarks/bench_inversion.py)
+# issue 27's solver, which is 3.8x faster on a paper dry run: benchmarks/bench_inversion.py)
 
 # Above these many training rows a model trains on an even draw over the positions (`even_draw`), so a
 # merged dataset of 100 campaigns (280,000 presses) stays within memory and minutes: kernel ridge's kernel
