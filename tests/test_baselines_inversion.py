@@ -106,8 +106,8 @@ def _lowest_nearby(skin, dr_row, q, lo, hi, h_mm):
 
 def test_a_press_on_the_corner_of_the_box_comes_back_exact():
     # truth on two bounds at once (the box is the skin's own extent here): both coordinates held by the active set;
-    # and on one. (A corner press at (0, 0) or (30, 0) from 0.5 mm off ends ~0.6 mm inward along the diagonal,
-    # a local minimum of the cost: not asserted here, see docs/baselines.md)
+    # and on one. (A corner press at (0, 0) or (30, 0) ends ~0.6 mm inward along the diagonal at a residual under
+    # 2e-4 ohm, where the reference ends too: the model cannot tell them apart; see docs/baselines.md)
     layout = load_layout(PAPER_SKIN)
     skin = SkinModel(layout, fidelity="deformation")
     truth = np.array([[30.0, 30.0, 3.2], [0.0, 17.0, 3.0]])
