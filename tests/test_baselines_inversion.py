@@ -27,21 +27,27 @@ def _presses(n: int, placement_sd_mm: float, noise_ohm: float, seed: int):
 @pytest.mark.parametrize(("placement_sd_mm", "noise_ohm"), [(0.0, 0.0), (0.3, 0.5)])
 def test_the_batched_solver_lands_where_the_reference_does(placement_sd_mm, noise_ohm):
     layout, xy, dr = _presses(60, placement_sd_mm, noise_ohm, seed=3)
-    reference = skin_inversion(layout, dr, method="reference")
+    # the reference run to convergence: at its 40-step cap it stops short on some presses (2 of these 60 by
+    # 0.6 and 1.7 mm, at a residual 1.45x the converged one), so it is no yardstick there
+    reference = skin_inversion(layout, dr, method="reference", max_iterations=400)
+    capped = skin_inversion(layout, dr, method="reference")
     batched = skin_inversion(layout, dr)
-    apart = np.hypot(*(batched.xy_mm - reference.xy_mm).T)
+    # like for like, the same step budget: converged (400) against converged, the default cap (40) against it
+    converged = skin_inversion(layout, dr, max_iterations=400)
+    apart = np.hypot(*(converged.xy_mm - reference.xy_mm).T)
     # every press within a few tolerances (1e-5 mm) of the reference's answer but the odd one in a flat
-    # valley of the cost, where neither solver has converged and neither fit is better than the other
+    # valley of the cost, where neither fit is better than the other
     assert np.mean(apart < 1e-4) >= 0.95, np.sort(apart)[-5:]
-    # a fit as good: the batched solver stops a step under the tolerance earlier, which on noise-free presses
-    # leaves up to ~1e-3 ohm (the position 1e-5 mm off) of a residual the reference takes to ~1e-6 (the dry
-    # run's noise is ~0.5 ohm)
-    assert np.all(batched.residual_ohm <= reference.residual_ohm * 1.02 + 1e-3)
-    err_batched = np.hypot(*(batched.xy_mm - xy).T)
-    err_reference = np.hypot(*(reference.xy_mm - xy).T)
-    assert np.mean(err_batched) == pytest.approx(np.mean(err_reference), abs=0.02)
-    # the saving is in model evaluations: a rejected step reuses its Jacobian, a converged press stops
-    assert batched.n_model_evaluations < reference.n_model_evaluations
+    # a fit as good: never a worse residual than the converged reference (to the tolerance's worth of residual
+    # on noise-free presses, ~1e-3 ohm against the dry run's ~0.5 ohm noise), nor than the capped one
+    assert np.all(converged.residual_ohm <= reference.residual_ohm * (1 + 1e-6) + 1e-3)
+    assert np.all(batched.residual_ohm <= capped.residual_ohm * (1 + 1e-6) + 1e-3)
+    for ours, theirs in ((converged, reference), (batched, capped)):
+        err_ours, err_theirs = np.hypot(*(ours.xy_mm - xy).T), np.hypot(*(theirs.xy_mm - xy).T)
+        # to 0.05 mm: a few noise-free presses end in a flat valley, at a residual under 1e-3 ohm (500x below
+        # the dry run's noise) but up to ~1 mm from the truth the reference reaches (measured: mean 0.035 against
+        # 0.002 mm over these 60; with noise 0.42 against 0.44 mm)
+        assert np.mean(err_ours) == pytest.approx(np.mean(err_theirs), abs=0.05)
 
 
 def test_noise_free_presses_come_back_exact_from_either_solver():
@@ -65,3 +71,142 @@ def test_an_unknown_method_is_refused():
     layout, _, dr = _presses(2, 0.0, 0.0, seed=1)
     with pytest.raises(ValueError, match="method"):
         skin_inversion(layout, dr, method="newton")
+
+
+# ---- issue 27: the bounded, secant-augmented batched solver against the reference and exact answers -----------
+
+
+def _model_dr(skin, x, y, depth):
+    return skin.pair_resistance_ohm(np.atleast_1d(x), np.atleast_1d(y), np.atleast_1d(depth)) - (
+        skin.baseline_pair_resistance_ohm
+    )
+
+
+def _refine_from(skin, dr, start, lo, hi, method="batched", max_iterations=40):
+    """One solver run from given starts (rows of (x, y, depth)), as invert_presses runs it after the grid."""
+    from neatskin.baselines import inversion, invref
+
+    baseline = skin.baseline_pair_resistance_ohm
+    p = np.array(start, dtype=float)
+    r = inversion._model_dr(skin, baseline, p) - dr
+    cost = np.einsum("np,np->n", r, r)
+    refine = inversion._refine if method == "batched" else invref.refine_reference
+    cost, _, _ = refine(skin, baseline, p, r, cost, dr, np.asarray(lo), np.asarray(hi), max_iterations, 1e-3, 1e-5)
+    return p, cost
+
+
+def _lowest_nearby(skin, dr_row, q, lo, hi, h_mm):
+    """The lowest cost (sum of squares) on the 26 points of a cube of half-side h_mm around q, kept in the box:
+    no lower than the cost at q means q is a local minimum at that scale (bounds included)."""
+    offsets = np.stack(np.meshgrid(*([-h_mm, 0.0, h_mm],) * 3, indexing="ij"), -1).reshape(-1, 3)
+    points = np.clip(q + offsets[np.any(offsets != 0, axis=1)], lo, hi)
+    r = skin.pair_resistance_ohm(points[:, 0], points[:, 1], points[:, 2]) - skin.baseline_pair_resistance_ohm
+    return float(np.min(np.sum((r - dr_row) ** 2, axis=1)))
+
+
+def test_a_press_on_the_corner_of_the_box_comes_back_exact():
+    # truth on two bounds at once (the box is the skin's own extent here): both coordinates held by the active set;
+    # and on one. (A corner press at (0, 0) or (30, 0) ends ~0.6 mm inward along the diagonal at a residual under
+    # 2e-4 ohm, where the reference ends too: the model cannot tell them apart; see docs/baselines.md)
+    layout = load_layout(PAPER_SKIN)
+    skin = SkinModel(layout, fidelity="deformation")
+    truth = np.array([[30.0, 30.0, 3.2], [0.0, 17.0, 3.0]])
+    dr = _model_dr(skin, *truth.T)
+    start = np.clip(truth + [[-0.3, -0.5, 0.2], [0.5, 0.4, 0.3]], 0.0, 30.0)
+    lo, hi = np.array([0.0, 0.0, 0.2]), np.array([30.0, 30.0, 5.2])
+    p, cost = _refine_from(skin, dr, start, lo, hi)
+    assert np.max(np.abs(p - truth)) < 1e-4, p - truth
+    assert (
+        p[0, 0] == 30.0 and p[0, 1] == 30.0 and abs(p[1, 0]) < 1e-5
+    )  # the corner held; the edge within tol  # exactly on the bounds
+    assert np.all(np.sqrt(cost / dr.shape[1]) < 1e-2)  # ohm: ~1e-5 mm times a corner's ~100 ohm/mm slope
+
+
+def test_a_press_past_the_depth_bound_is_clamped_to_a_bounded_minimum():
+    # truth at 4.5 mm, searched only down to 3.5: the fit must sit on the bound, at a minimum over x and y
+    # (no point of a cube around it, kept in the box, is lower: at 1e-3 and at 1e-2 mm); the reference from the
+    # same start crawls along the bound and stops higher, at its cap and at ten times it
+    layout = load_layout(PAPER_SKIN)
+    skin = SkinModel(layout, fidelity="deformation")
+    truth = np.array([[9.0, 14.0, 4.5], [21.0, 7.5, 4.5], [15.0, 22.0, 4.5]])
+    dr = _model_dr(skin, *truth.T)
+    lo, hi = np.array([-0.5, -0.5, 0.5]), np.array([30.5, 30.5, 3.5])
+    start = truth + [[0.3, -0.2, -1.4], [-0.2, 0.3, -1.2], [0.2, 0.2, -1.3]]
+    p, cost = _refine_from(skin, dr, start, lo, hi)
+    assert np.all(p[:, 2] == 3.5)
+    for i in range(len(truth)):
+        for h_mm in (1e-3, 1e-2):
+            assert _lowest_nearby(skin, dr[i], p[i], lo, hi, h_mm) >= cost[i] * (1 - 1e-9), (i, h_mm)
+    for max_iterations in (40, 400):
+        _, reference_cost = _refine_from(skin, dr, start, lo, hi, method="reference", max_iterations=max_iterations)
+        assert np.all(cost < reference_cost), (cost, reference_cost)
+
+
+@pytest.fixture(scope="module")
+def dry_run_rows(tmp_path_factory):
+    """84 presses (3 positions x 28) of the paper protocol's dry run: the FE-kernel skin, the paper-like scene;
+    some presses cut pairs apart (flagged, kept with their inf dR saturated, the dataset's default)."""
+    from neatskin.baselines.dataset import load_baseline_data
+    from neatskin.rig.protocol import load_protocol
+    from neatskin.rig.runner import run_campaign
+
+    folder = tmp_path_factory.mktemp("paper") / "campaign"
+    protocol = load_protocol(PAPER_SKIN.parent.parent / "paper.toml")
+    run_campaign(protocol, folder, dry_run=True, progress=False, report=False, limit=84)
+    return load_baseline_data(folder)
+
+
+@pytest.mark.slow  # a dry run of 84 presses and three inversions of them: ~17 s
+def test_on_dry_run_rows_the_batched_solver_ends_at_bounded_minima_no_worse_than_the_reference(dry_run_rows):
+    data = dry_run_rows
+    assert len(data.y) == 84 and data.n_saturated > 0
+    capped = skin_inversion(data.layout, data.X, method="reference")
+    longer = skin_inversion(data.layout, data.X, method="reference", max_iterations=400)
+    batched = skin_inversion(data.layout, data.X)
+    assert np.all(np.isfinite(batched.xy_mm)) and np.all(np.isfinite(batched.residual_ohm))
+    # never a worse fit than the reference, at its cap or at ten times it (the parametric model cannot reach
+    # the FE-kernel skin's dR: most fits end on the depth bound, where the reference's clipped steps crawl)
+    assert np.all(batched.residual_ohm <= capped.residual_ohm * (1 + 1e-6))
+    assert np.all(batched.residual_ohm <= longer.residual_ohm * (1 + 1e-6))
+    # each answer a bounded local minimum: no point of a cube around it (in the box) is lower
+    skin = SkinModel(data.layout, fidelity=data.skin_fidelity or "deformation")
+    x0, y0, x1, y1 = data.layout.bounds_mm
+    lo = np.array([x0 - 0.5, y0 - 0.5, 0.05 * data.layout.thickness_mm])
+    hi = np.array([x1 + 0.5, y1 + 0.5, 0.95 * data.layout.thickness_mm])
+    ours = np.c_[batched.xy_mm, batched.depth_mm]
+    cost = batched.residual_ohm**2 * data.X.shape[1]
+    for i in range(0, 84, 3):
+        for h_mm in (1e-3, 1e-2):
+            assert _lowest_nearby(skin, data.X[i], ours[i], lo, hi, h_mm) >= cost[i] * (1 - 1e-9), (i, h_mm, ours[i])
+    assert batched.n_model_evaluations < capped.n_model_evaluations < longer.n_model_evaluations
+
+
+def test_two_running_starts_of_one_press_that_meet_continue_as_one():
+    from neatskin.baselines.inversion import _merge_starts
+
+    # 3 presses x 2 starts, start-major: press 0's starts 5e-4 mm apart (merge: the costlier stops), press 1's
+    # 2e-3 apart (both run on), press 2's together but one already stopped (nothing to merge)
+    p = np.array(
+        [[1.0, 1.0, 3.0], [5.0, 5.0, 3.0], [9.0, 9.0, 3.0], [1.0005, 1.0, 3.0], [5.002, 5.0, 3.0], [9.0, 9.0, 3.0]]
+    )
+    cost = np.array([2.0, 1.0, 1.0, 1.0, 2.0, 1.0])
+    active = np.array([True, True, False, True, True, True])
+    _merge_starts(p, cost, active, 2, 1e-3)
+    assert active.tolist() == [False, True, False, True, True, True]
+
+
+def test_starts_taken_per_grid_point_are_the_starts_taken_per_row():
+    from neatskin.baselines.inversion import _diverse_starts
+
+    rng = np.random.default_rng(7)
+    g = np.linspace(0.0, 10.0, 11)
+    grid = np.stack(np.meshgrid(g, g, [1.0, 2.0, 3.0], indexing="ij"), axis=-1).reshape(-1, 3)
+    grid_dr = rng.normal(size=(len(grid), 5))
+    dr = rng.normal(size=(40, 5))
+    every_row = _diverse_starts(grid[:, :2], grid_dr, dr, 4, 2.5)
+    assert np.array_equal(_diverse_starts(grid[:, :2], grid_dr, dr, 4, 2.5, per_xy=3), every_row)
+    # a grid whose rows do not come in runs of one (x, y) takes the per-row path: the same starts
+    assert np.array_equal(_diverse_starts(grid[:, :2], grid_dr, dr, 4, 2.5, per_xy=2), every_row)
+    xy = grid[every_row][..., :2]  # every pair of a press's starts at least 2.5 mm apart
+    apart = np.hypot(*(xy[:, :, None] - xy[:, None, :]).transpose(3, 0, 1, 2))
+    assert np.all(apart[:, ~np.eye(4, dtype=bool)] >= 2.5)

@@ -31,7 +31,8 @@ SMALL_ROWS = 500  # below this many training rows the costly models get small de
 _FIT_COST_S = {"ridge": 0.005, "knn": 0.003, "kernel_ridge": 0.7, "extra_trees": 0.6, "mlp": 1.2, "lm_network": 0.5}
 _COST_EXPONENT = {"kernel_ridge": 2.0}
 _COST_ROWS = 2700
-INVERSION_COST_S_PER_PRESS = 2.5e-3  # the physics inversion, per press (all presses in one task)
+INVERSION_COST_S_PER_PRESS = 0.7e-3  # the physics inversion, per press (all presses in one task; 2.5e-3 before
+# issue 27's solver, which is 3.8x faster on a paper dry run: benchmarks/bench_inversion.py)
 
 # Above these many training rows a model trains on an even draw over the positions (`even_draw`), so a
 # merged dataset of 100 campaigns (280,000 presses) stays within memory and minutes: kernel ridge's kernel
@@ -40,7 +41,7 @@ INVERSION_COST_S_PER_PRESS = 2.5e-3  # the physics inversion, per press (all pre
 # 2,240 training rows, so the paper's campaign and anything up to a few merged campaigns is never capped.
 # Ridge uses every row.
 TRAIN_ROW_CAP = {"kernel_ridge": 5_000, "extra_trees": 20_000, "mlp": 20_000, "lm_network": 20_000, "knn": 20_000}
-INVERSION_MAX_PRESSES = 20_000  # above this the physics inversion (2.5 ms a press) runs only when named
+INVERSION_MAX_PRESSES = 20_000  # above this the physics inversion (~1 ms a press) runs only when named
 
 DESCRIPTIONS = {
     "ridge": "linear: standardised features, ridge with alpha by leave-one-out CV",

@@ -1,0 +1,133 @@
+"""Benchmark: the physics inversion's CPU time against another checkout's, side by side (issue 27).
+
+Usage:
+    python benchmarks/bench_inversion.py DATASET --against DIR [--rounds N]
+
+DATASET: a campaign folder, e.g. a paper dry run
+(`neatskin campaign run protocols/paper.toml --dry-run --no-report -o RUN`); DIR: another checkout, e.g.
+the base commit (`git -C /work/main worktree add --detach /tmp/base-invert 513ce57`).
+
+Each checkout runs `skin_inversion` (as the report calls it: the dataset's layout, fidelity and probe) in a
+child process with that checkout first on the path, alternating checkouts, --rounds times, on three row
+sets: every press (what the report inverts, once, and cuts per repeat), and repeat 0's test rows of the
+random and of the grouped split. Process CPU time (the inversion alone, after the dataset is read), the
+best of the rounds, with the load average; the ratio column is against / this. It also prints, per row
+set, the mean and median position error of each checkout, its model evaluations, and the distance between
+the two checkouts' positions (the base's solver stops at its 40-step cap on most rows: see
+docs/baselines.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+ROW_SETS = ("every press", "random test", "grouped test")
+
+
+def _rows(dataset: str) -> dict[str, np.ndarray]:
+    from neatskin.baselines.dataset import load_baseline_data
+    from neatskin.baselines.evaluate import repeat_splits
+
+    data = load_baseline_data(dataset)
+    random_split, _ = repeat_splits("random", data.groups, 1, 0)
+    grouped_split, _ = repeat_splits("grouped", data.groups, 1, 0)
+    return {
+        "every press": np.arange(len(data.y)),
+        "random test": np.asarray(random_split[0].test),
+        "grouped test": np.asarray(grouped_split[0].test),
+    }
+
+
+def here(dataset: str, row_set: str, out: str) -> None:
+    """In the child: invert one row set with the checkout on the path, write CPU s and the answers."""
+    import time
+
+    from neatskin.baselines.dataset import load_baseline_data
+    from neatskin.baselines.inversion import skin_inversion
+
+    data = load_baseline_data(dataset)
+    rows = _rows(dataset)[row_set]
+    started = time.process_time()
+    res = skin_inversion(
+        data.layout,
+        data.X[rows],
+        fidelity=data.skin_fidelity or "deformation",
+        probe_radius_mm=data.probe_radius_mm or 2.75,
+    )
+    cpu_s = time.process_time() - started
+    np.savez(out, cpu_s=cpu_s, xy_mm=res.xy_mm, depth_mm=res.depth_mm, y=data.y[rows], evals=res.n_model_evaluations)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("dataset")
+    parser.add_argument("--against", type=Path, required=False)
+    parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--row-set", choices=ROW_SETS, nargs="*", default=list(ROW_SETS))
+    parser.add_argument("--here", nargs=2, metavar=("ROW_SET", "OUT"), help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.here:
+        here(args.dataset, *args.here)
+        return 0
+    checkouts = {"this": REPO} | ({"against": args.against.resolve()} if args.against else {})
+    best: dict[tuple[str, str], float] = {}
+    answers: dict[tuple[str, str], dict] = {}
+    load = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for round_ in range(args.rounds):
+            order = list(checkouts.items())
+            if round_ % 2:
+                order.reverse()  # the first to run alternates too
+            for row_set in args.row_set:
+                for name, checkout in order:
+                    out = str(Path(tmp) / f"{name}-{row_set.replace(' ', '_')}.npz")
+                    env = dict(os.environ, PYTHONPATH=str(checkout))
+                    subprocess.run(
+                        [sys.executable, __file__, args.dataset, "--here", row_set, out], env=env, check=True
+                    )
+                    load.append(os.getloadavg()[0])
+                    with np.load(out) as z:
+                        got = {k: z[k] for k in z.files}
+                    key = (name, row_set)
+                    best[key] = min(best.get(key, np.inf), float(got["cpu_s"]))
+                    answers[key] = got
+    print(f"\ninversion CPU s, best of {args.rounds} round(s); load average {min(load):.2f} to {max(load):.2f}")
+    print(f"{'rows':<13} {'n':>5} " + " ".join(f"{n + ' s':>11}" for n in checkouts) + f" {'ratio':>8}")
+    for row_set in args.row_set:
+        n = len(answers[("this", row_set)]["y"])
+        cells = " ".join(f"{best[(name, row_set)]:>11.2f}" for name in checkouts)
+        ratio = f"{best[('against', row_set)] / best[('this', row_set)]:>7.1f}x" if args.against else ""
+        print(f"{row_set:<13} {n:>5} {cells} {ratio}")
+    print(f"\n{'rows':<13} {'checkout':<8} {'mean err mm':>12} {'median mm':>10} {'evals/press':>12}")
+    summary = {}
+    for row_set in args.row_set:
+        for name in checkouts:
+            a = answers[(name, row_set)]
+            err = np.hypot(*(a["xy_mm"] - a["y"]).T)
+            summary[f"{name} {row_set}"] = float(np.mean(err))
+            print(
+                f"{row_set:<13} {name:<8} {np.mean(err):>12.4f} {np.median(err):>10.4f} "
+                f"{float(a['evals']) / len(err):>12.0f}"
+            )
+        if args.against:
+            a, b = answers[("this", row_set)], answers[("against", row_set)]
+            apart = np.max(np.abs(np.c_[a["xy_mm"], a["depth_mm"]] - np.c_[b["xy_mm"], b["depth_mm"]]), axis=1)
+            q = np.quantile(apart, [0.5, 0.9, 0.99, 1.0])
+            print(
+                f"{'':<13} apart (largest coordinate, mm): median {q[0]:.2g}, 90 % {q[1]:.2g}, 99 % {q[2]:.2g}, max {q[3]:.2g}"
+            )
+    print(json.dumps(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
