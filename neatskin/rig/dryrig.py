@@ -28,7 +28,7 @@ from neatskin.sim.dryscene import DryProbe, DryScene, dry_daq, dry_probe, dry_sk
 from neatskin.sim.faults import FaultConfig
 from neatskin.sim.printer import SimulatedPrinter
 from neatskin.sim.recorder import SimulatedRecorder
-from neatskin.sim.skinworker import SkinWorker
+from neatskin.sim.skinworker import SkinWorker, discard_prestarted
 from neatskin.skin.model import SkinModel
 
 SKIN_WORKER_ENV = "NEATSKIN_SKIN_WORKER"  # on | off: force the dry run's skin worker either way (benchmarks)
@@ -76,8 +76,10 @@ def build_dry_rig(
     closers: list[Callable[[], None]] = []
     worker = None
     if use_skin_worker(protocol, plan.n_presses, skin_worker):
-        worker = SkinWorker(functools.partial(skin_estimator, dry, sweep)).start()
+        worker = SkinWorker(functools.partial(skin_estimator, dry, sweep)).start()  # adopts a prestarted one
         closers.append(worker.close)
+    else:
+        discard_prestarted()  # the CLI launched one for a campaign that turns out to compute inline
     skin = dry_skin(dry)
     faults = FaultConfig() if printer_faults is None else printer_faults
     # a Marlin built with ADVANCED_OK (`ok N.. P.. B..`), so the driver pipelines as it would on such a printer
