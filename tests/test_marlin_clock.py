@@ -136,36 +136,3 @@ def test_an_idle_driver_does_not_poll():
     finally:
         driver.close()
         printer.stop()
-
-
-@pytest.mark.timeout(20)
-def test_a_waiting_caller_reads_its_own_replies_and_an_idle_driver_still_hears_the_printer():
-    """While a caller waits on its lines, it reads the printer's replies itself: a round trip wakes the printer
-    and the caller, not the reader thread and then the caller. Idle, the reader still looks at the port every
-    min_timeout_s, so a line the printer sends unasked (a reset's `start`, a host action) is not left unread."""
-    printer = sim_printer_for_tests(advanced_ok=True)
-    config = DriverConfig(boot_timeout_s=0.1, min_timeout_s=0.5, motion_time_scale=0, max_in_flight=4)
-    driver = MarlinDriver.open(printer.start_pty(), config=config)
-    try:
-        driver.connect()
-        readers: list[str] = []
-        channel = driver._channel
-        read = channel.read
-
-        def recorded(timeout_s):
-            readers.append(threading.current_thread().name)
-            return read(timeout_s)
-
-        channel.read = recorded
-        assert driver.send_lines(["G28", "G1 X10 Y10 Z10 F3000", "M400"]) == 3
-        assert driver.send_lines(["M118 E1 a", "M118 E1 b", "M118 E1 c", "M400"]) == 4  # two round trips
-        assert readers and set(readers) == {threading.current_thread().name}
-        printer.reset()  # the printer reboots while the driver is idle: its `start` comes unasked
-        deadline = time.monotonic() + 5
-        while driver.failure is None and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert "reboot" in str(driver.failure) or "start" in str(driver.failure)
-        assert any(name.startswith("marlin-reader") for name in readers)  # the reader's look at the idle port
-    finally:
-        driver.close()
-        printer.stop()

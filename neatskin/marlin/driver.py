@@ -71,8 +71,6 @@ class MarlinDriver:
         self._draining = 0
         self._reader_running = False
         self._asleep = False  # the reader is in a read that ends at _sleeping_until (None: only on data or wake())
-        # someone (the reader thread, or a caller waiting on its job) is in a read of the port: one at a time
-        self._reading = False
         self._sleeping_until: float | None = None
         self.reader_wakeups = 0  # reads that ended (data, a deadline, a wake): the reader does not poll
         self._progress_waiters = 0
@@ -199,8 +197,6 @@ class MarlinDriver:
         self._stop.set()
         if self._channel is not None:
             self._channel.wake()
-        with self._cond:
-            self._cond.notify_all()  # a reader off the port
         self._reader.join(timeout=2.0)
         self._reader = None
         if self._channel is not None:
@@ -213,12 +209,7 @@ class MarlinDriver:
     # ---- the transport: the reader thread and the writes --------------------------------------
 
     def _run(self) -> None:
-        """Read, feed the protocol, write what it asks for; sleep until its next deadline, not by polling.
-
-        While a caller waits on a job, the caller reads its own replies (`_read_as_caller`): the printer's
-        answer then wakes one thread, not the reader and then the caller. The reader reads whenever lines are
-        in flight or a deadline is due and no caller waits; idle, it looks at the port every min_timeout_s
-        (unsolicited lines, a reset's `start`) and otherwise leaves it to the next caller."""
+        """Read, feed the protocol, write what it asks for; sleep until its next deadline, not by polling."""
         channel = self._channel
         assert channel is not None
         protocol, clock, cond = self._protocol, self.clock, self._cond
@@ -226,78 +217,34 @@ class MarlinDriver:
         try:
             while not self._stop.is_set():
                 with cond:
-                    deadline = protocol.next_deadline()
-                    if self._awaited or self._reading or deadline is None:
-                        # a caller reads for itself, or nothing is due: off the port until woken (work without
-                        # a caller waiting on it: stop_after_line_in_flight, a caller gone) or min_timeout_s
-                        cond.wait(idle_s)
-                        if self._awaited or self._reading or self._stop.is_set():
-                            continue
-                        deadline = protocol.next_deadline()
                     now = clock()
                     # until the next deadline, and no longer than min_timeout_s: a line a caller writes has
-                    # a deadline at least that far ahead, so the reader wakes in time without being woken;
-                    # idle, one look at the port
-                    until = now if deadline is None else min(deadline, now + idle_s)
-                    self._sleeping_until, self._asleep, self._reading = until, True, True
+                    # a deadline at least that far ahead, so the reader wakes in time without being woken
+                    deadline = protocol.next_deadline()
+                    until = now + idle_s if deadline is None else min(deadline, now + idle_s)
+                    self._sleeping_until, self._asleep = until, True
                 try:
                     data = channel.read(max(0.0, until - now))
                 except Exception as exc:  # noqa: BLE001 - SerialException, OSError: the port is gone
-                    with cond:
-                        self._reading = False
-                        if not self._stop.is_set():
+                    if not self._stop.is_set():
+                        with cond:
                             protocol.port_failed(f"read failed: {exc}")
                     return
                 with cond:
-                    self._asleep = self._reading = False  # awake: it reads the next deadline before it sleeps
+                    self._asleep = False  # awake: it reads the next deadline before it sleeps again
                     self.reader_wakeups += 1
-                    self._feed(data)
-                    if self._awaited or self._should_wake():  # a waiting caller takes the port over
+                    if data:
+                        self._log("<", data)
+                        protocol.receive(data, clock())
+                    else:
+                        protocol.tick(clock())
+                    self._flush()
+                    if self._should_wake():
                         cond.notify_all()
         finally:
             with cond:
                 self._reader_running = False
                 cond.notify_all()  # a caller waiting on a job sees that no one will finish it
-
-    def _feed(self, data: bytes) -> None:
-        """What a read gave (nothing: time passed) to the protocol, and its writes out (lock held)."""
-        if data:
-            self._log("<", data)
-            self._protocol.receive(data, self.clock())
-        else:
-            self._protocol.tick(self.clock())
-        self._flush()
-
-    def _read_as_caller(self, job: Job) -> None:
-        """One read of the port by a caller waiting on `job` (lock held, released during the read): what the
-        reader thread would do, on the caller's thread. Other waiters are woken only when they have something
-        to see, so a lone caller's round trip wakes no other thread."""
-        channel, clock, protocol = self._channel, self.clock, self._protocol
-        assert channel is not None
-        now = clock()
-        deadline = protocol.next_deadline()
-        idle_s = self.config.min_timeout_s
-        until = now + idle_s if deadline is None else min(deadline, now + idle_s)
-        self._sleeping_until, self._asleep, self._reading = until, True, True
-        failed: Exception | None = None
-        self._cond.release()
-        try:
-            data = channel.read(max(0.0, until - now))
-        except Exception as exc:  # noqa: BLE001 - SerialException, OSError: the port is gone
-            data, failed = b"", exc
-        finally:
-            self._cond.acquire()
-            self._asleep = self._reading = False
-        self.reader_wakeups += 1
-        if failed is not None:
-            if not self._stop.is_set():
-                protocol.port_failed(f"read failed: {failed}")
-            self._cond.notify_all()
-            return
-        self._feed(data)
-        others = len(self._awaited) > 1 or self._draining or protocol.failure is not None
-        if others and self._should_wake():
-            self._cond.notify_all()
 
     def _should_wake(self) -> bool:
         """Whether a blocked caller has something to see (called with the lock held)."""
@@ -390,20 +337,14 @@ class MarlinDriver:
                         self._collect()
                         self._results.setdefault(job, Failed(job, error))
                         break
-                    if not self._reading and not self._stop.is_set() and self._channel is not None:
-                        self._read_as_caller(job)  # its replies wake this thread alone
-                    else:
-                        # no timeout: the reader notifies when this job finishes, the session fails, progress
-                        # is due (0.1 s on the driver's clock), the port is free to read, or the reader ends;
-                        # every line has a deadline
-                        self._cond.wait()
+                    # no timeout: the reader notifies when this job finishes, the session fails, progress
+                    # is due (0.1 s on the driver's clock) or the reader ends; every line has a deadline
+                    self._cond.wait()
                     if progress is not None:
                         progress()
             finally:
                 self._awaited.remove(job)
                 self._progress_waiters -= progress is not None
-                if not self._awaited and (self._protocol.next_deadline() is not None or self._draining):
-                    self._cond.notify_all()  # lines still in flight (an interrupt): the reader takes the port
             result = self._results[job]
         if isinstance(result, Failed):
             raise result.error
@@ -517,7 +458,6 @@ class MarlinDriver:
             # the time limit is the protocol's, on the driver's clock: the reader wakes for it and tells us
             self._protocol.drain(self.clock(), timeout_s if timeout_s is not None else self.config.max_busy_s)
             self._wake_reader_for()
-            self._cond.notify_all()  # a reader off the port: lines in flight and no caller reading them
             self._draining += 1
             try:
                 while not self._protocol.drained and self._reader_running:
