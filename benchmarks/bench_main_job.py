@@ -114,9 +114,13 @@ def run_child(argv: list[str], checkout: Path, cwd: Path) -> Measurement:
     return Measurement(wall, cpu, usage.ru_maxrss / 1024.0, child.returncode == 0, sampler.peak_mb)
 
 
-def phases(checkout: Path, protocol: Path, work: Path) -> dict[str, Measurement]:
-    """The three phases on one checkout, each in a fresh campaign folder. A protocol inside this checkout is
-    run from the same relative path in the other one (its own protocols, which its schema accepts)."""
+PHASES = ("campaign", "report", "main job")
+
+
+def phases(checkout: Path, protocol: Path, work: Path, only: tuple[str, ...] = PHASES) -> dict[str, Measurement]:
+    """The phases on one checkout (all three, or `only` these), each in a fresh campaign folder. A protocol inside
+    this checkout is run from the same relative path in the other one (its own protocols, which its schema
+    accepts). The report needs the campaign phase's folder: asking for it runs the campaign too."""
     try:
         protocol = checkout / protocol.relative_to(REPO.resolve())
     except ValueError:
@@ -124,17 +128,30 @@ def phases(checkout: Path, protocol: Path, work: Path) -> dict[str, Measurement]
     neatskin = [sys.executable, "-m", "neatskin"]
     out = {}
     campaign = work / "campaign"
-    out["campaign"] = run_child(
-        [*neatskin, "campaign", "run", str(protocol), "--dry-run", "--no-report", "--quiet", "--out", str(campaign)],
-        checkout,
-        work,
-    )
-    out["report"] = run_child([*neatskin, "baselines", str(campaign), "--split", "both"], checkout, work)
-    out["main job"] = run_child(
-        [*neatskin, "campaign", "run", str(protocol), "--dry-run", "--quiet", "--out", str(work / "main")],
-        checkout,
-        work,
-    )
+    if "campaign" in only or "report" in only:
+        out["campaign"] = run_child(
+            [
+                *neatskin,
+                "campaign",
+                "run",
+                str(protocol),
+                "--dry-run",
+                "--no-report",
+                "--quiet",
+                "--out",
+                str(campaign),
+            ],
+            checkout,
+            work,
+        )
+    if "report" in only:
+        out["report"] = run_child([*neatskin, "baselines", str(campaign), "--split", "both"], checkout, work)
+    if "main job" in only:
+        out["main job"] = run_child(
+            [*neatskin, "campaign", "run", str(protocol), "--dry-run", "--quiet", "--out", str(work / "main")],
+            checkout,
+            work,
+        )
     return out
 
 
@@ -143,6 +160,9 @@ def main() -> None:
     parser.add_argument("--protocol", type=Path, default=REPO / "protocols" / "paper.toml")
     parser.add_argument("--against", type=Path, help="another checkout of the toolkit to measure side by side")
     parser.add_argument("--rounds", type=int, default=1, help="alternating rounds per checkout (best is kept)")
+    parser.add_argument(
+        "--phases", nargs="+", choices=PHASES, default=list(PHASES), help="only these phases (e.g. campaign)"
+    )
     args = parser.parse_args()
     protocol = args.protocol.resolve()
     checkouts = {"this": REPO}
@@ -150,11 +170,14 @@ def main() -> None:
         checkouts["against"] = args.against.resolve()
     best: dict[str, dict[str, Measurement]] = {name: {} for name in checkouts}
     load_before = os.getloadavg()
-    for _ in range(args.rounds):
-        for name, checkout in checkouts.items():
+    walls: dict[str, dict[str, list[float]]] = {name: {} for name in checkouts}
+    for round_ in range(args.rounds):
+        order = list(checkouts.items())
+        for name, checkout in order if round_ % 2 == 0 else order[::-1]:  # who goes first alternates too
             work = Path(tempfile.mkdtemp(prefix=f"bench-main-{name}-"))
             try:
-                for phase, m in phases(checkout, protocol, work).items():
+                for phase, m in phases(checkout, protocol, work, tuple(args.phases)).items():
+                    walls[name].setdefault(phase, []).append(m.wall_s)
                     kept = best[name].get(phase)
                     if kept is None or m.wall_s < kept.wall_s:
                         best[name][phase] = m
@@ -182,6 +205,10 @@ def main() -> None:
                 other = best["against"].get(phase)
                 line += f" {m.wall_s / other.wall_s:>15.2f}x" if other else ""
             print(line)
+    print("wall s of every round, in order (best above):")
+    for name in checkouts:
+        for phase, values in walls[name].items():
+            print(f"  {name:<9} {phase:<10} " + " ".join(f"{w:.1f}" for w in values))
 
 
 if __name__ == "__main__":

@@ -5,11 +5,13 @@ table, and residual dents computed per block of presses (pure in the press id, s
 import numpy as np
 import pytest
 from conftest import PROTOCOLS
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from neatskin.gcode.calibration import Calibration
 from neatskin.layout import load_layout
 from neatskin.sim.moments import _sine, _weighted_sin2_sums
-from neatskin.sim.motion import Segment, positions_mm
+from neatskin.sim.motion import Segment, positions_mm, segment_fraction
 from neatskin.sim.recorder import DryProbe, PressConditions, _positions_mm, _unique_states
 from neatskin.skin.model import SkinModel
 
@@ -46,6 +48,28 @@ def test_positions_by_slices_are_the_bits_of_positions_mm():
     assert _positions_mm(segments, times, slice(2, 3)).tobytes() == np.ascontiguousarray(full[:, 2:]).tobytes()
     shuffled = np.random.default_rng(0).permutation(times)  # not a sample clock: positions_mm itself
     assert _positions_mm(segments, shuffled).tobytes() == positions_mm(segments, shuffled).tobytes()
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    length=st.floats(0.001, 200.0),
+    feed=st.floats(0.1, 300.0),
+    accel=st.floats(1.0, 5000.0),
+    n=st.integers(1, 400),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_a_move_on_a_sample_clock_by_slices_is_the_bits_of_the_masks(length, feed, accel, n, seed):
+    """segment_fraction(ordered=True), each phase (accelerate, cruise, brake) one slice of an increasing clock,
+    gives the mask version's bits, the phase boundaries themselves among the times."""
+    seg = Segment(0.0, 1.0, (0.0, 0.0, 0.0), (length, 0.0, 0.0), feed, accel, False, None)
+    v = min(feed, float(np.sqrt(accel * length)))
+    t_a = v / accel
+    t_c = max(0.0, (length - 2 * v * v / (2 * accel)) / v)
+    total = 2 * t_a + t_c
+    rng = np.random.default_rng(seed)
+    tau = np.sort(np.concatenate([rng.uniform(0.0, 1.2 * total, n), [0.0, t_a, t_a + t_c, total, 2 * total]]))
+    want = segment_fraction(seg, tau)
+    assert segment_fraction(seg, tau, ordered=True).tobytes() == want.tobytes()
 
 
 def test_unique_states_sort_and_invert_as_numpy_unique_rows():

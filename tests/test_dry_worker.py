@@ -21,6 +21,7 @@ from conftest import PROTOCOLS
 import neatskin.rig.control as control
 import neatskin.rig.dryrig as dryrig
 import neatskin.sim.dryscene as dryscene
+import neatskin.sim.skinworker as skinworker
 from neatskin.datasets.paths import press_parts
 from neatskin.datasets.reader import read_presses
 from neatskin.errors import ConfigError, HardwareError
@@ -276,3 +277,42 @@ def test_ctrl_c_to_the_group_stops_cleanly_and_resume_equals_inline(worker_proto
     pd.testing.assert_frame_equal(_rows(folder), inline_rows.iloc[:done], check_exact=True)
     resume_campaign(folder, progress=False, report=False)
     pd.testing.assert_frame_equal(_rows(folder), inline_rows, check_exact=True)
+
+
+def echo_estimator():
+    def echo(job):
+        return ("estimates of", job.press_id, os.getpid())
+
+    return echo
+
+
+def _prestarted_pid() -> int:
+    (entry,) = skinworker._PRESTARTED
+    return entry[1].pid
+
+
+def test_a_prestarted_worker_is_adopted_by_the_next_start():
+    """The CLI launches the worker's process before the protocol's plan exists (its start-up overlaps the main
+    process's); the next SkinWorker.start adopts that process and sends it the factory."""
+    skinworker.prestart(preload=("neatskin.sim.dryscene",))
+    pid = _prestarted_pid()
+    worker = SkinWorker(echo_estimator).start()
+    try:
+        assert worker.pid == pid and not skinworker._PRESTARTED
+        ticket = worker.submit(EstimateJob(3, 1, ()))
+        assert worker.result(ticket, 3) == ("estimates of", 3, pid)  # computed in the prestarted process
+    finally:
+        worker.close()
+    assert _gone(pid, 0.0)
+
+
+def test_a_prestarted_worker_a_campaign_does_not_use_is_ended():
+    skinworker.prestart()
+    pid = _prestarted_pid()
+    protocol = load_protocol(PROTOCOLS / "smoke.toml")  # the waveforms scene computes inline
+    rig = dryrig.build_dry_rig(protocol, build_plan(protocol))
+    try:
+        assert not skinworker._PRESTARTED and _gone(pid)
+    finally:
+        for close in reversed(rig.closers):
+            close()

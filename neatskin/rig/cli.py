@@ -107,9 +107,12 @@ def printer_time_text(seconds: float, presses: int, which: str = "") -> str:
 def _run(args: argparse.Namespace) -> int:
     from neatskin.errors import ConfigError
     from neatskin.rig.protocol import load_protocol
-    from neatskin.rig.runner import run_campaign
 
     protocol = load_protocol(args.protocol)
+    if args.dry_run:
+        _prestart_skin_worker(protocol)
+    from neatskin.rig.runner import run_campaign  # after the prestart: its imports overlap the worker's start
+
     if not args.dry_run and not args.port:
         raise ConfigError(
             "choose the rig: --dry-run (simulated, no hardware) or --port PORT (the real printer)",
@@ -140,6 +143,24 @@ def _run(args: argparse.Namespace) -> int:
     if monitor is not None:
         print(f"the live page stopped with the campaign; to look again: neatskin monitor {out}")
     return ExitCode.INTERRUPTED if result.interrupted else ExitCode.OK
+
+
+def _prestart_skin_worker(protocol) -> None:
+    """A dry run of a features scene computes its estimates in a skin worker (neatskin.rig.dryrig.use_skin_worker
+    has the rule): launch its process now, so its interpreter start and imports overlap this process's imports,
+    plan and folder instead of the first presses; the dry rig adopts it, or ends it when the campaign turns out
+    to compute inline (under the batching writer's size). Only a hint: without it the rig starts its own."""
+    import os
+
+    if getattr(protocol.scene, "signal", None) != "features":
+        return
+    if os.environ.get("NEATSKIN_SKIN_WORKER", "").strip().lower() == "off":
+        return
+    if len(os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else range(os.cpu_count() or 1)) < 2:
+        return
+    from neatskin.sim.skinworker import prestart
+
+    prestart(preload=("neatskin.sim.dryscene", "pyarrow.parquet"))
 
 
 def _start_monitor(out: Path, port: int):

@@ -9,16 +9,18 @@ from __future__ import annotations
 
 import functools
 import os
+import threading
 from collections.abc import Callable
 from os import PathLike
 from pathlib import Path
+from typing import Any
 
 from neatskin.datasets import writer as dataset_writer  # its batch rule looked up when used (tests set it)
 from neatskin.datasets.paths import PHYSICAL_LIMIT
 from neatskin.errors import ConfigError
 from neatskin.marlin.driver import DriverConfig, MarlinDriver
 from neatskin.rig.assembly import CAMPAIGN_MAX_IN_FLIGHT, Rig, daq_config
-from neatskin.rig.physlimit import write_physical_limit
+from neatskin.rig.physlimit import physical_limit_table, write_physical_limit
 from neatskin.rig.plan import Plan
 from neatskin.rig.protocol import CampaignProtocol
 from neatskin.sim.daq import SimulatedDAQ
@@ -26,7 +28,7 @@ from neatskin.sim.dryscene import DryProbe, DryScene, dry_daq, dry_probe, dry_sk
 from neatskin.sim.faults import FaultConfig
 from neatskin.sim.printer import SimulatedPrinter
 from neatskin.sim.recorder import SimulatedRecorder
-from neatskin.sim.skinworker import SkinWorker
+from neatskin.sim.skinworker import SkinWorker, discard_prestarted
 from neatskin.skin.model import SkinModel
 
 SKIN_WORKER_ENV = "NEATSKIN_SKIN_WORKER"  # on | off: force the dry run's skin worker either way (benchmarks)
@@ -74,8 +76,10 @@ def build_dry_rig(
     closers: list[Callable[[], None]] = []
     worker = None
     if use_skin_worker(protocol, plan.n_presses, skin_worker):
-        worker = SkinWorker(functools.partial(skin_estimator, dry, sweep)).start()
+        worker = SkinWorker(functools.partial(skin_estimator, dry, sweep)).start()  # adopts a prestarted one
         closers.append(worker.close)
+    else:
+        discard_prestarted()  # the CLI launched one for a campaign that turns out to compute inline
     skin = dry_skin(dry)
     faults = FaultConfig() if printer_faults is None else printer_faults
     # a Marlin built with ADVANCED_OK (`ok N.. P.. B..`), so the driver pipelines as it would on such a printer
@@ -119,13 +123,47 @@ def build_dry_rig(
             **(scene.variability() if hasattr(scene, "variability") else {}),
         },
     }
-    derived = {PHYSICAL_LIMIT: functools.partial(_physical_limit, protocol, plan, skin, daq)}
+    # the physical limit depends on no press: with a skin worker the main process waits for the worker's estimates
+    # part of the time, so a thread computes it then, and the campaign's end only writes it (the same table)
+    table = Ahead(functools.partial(physical_limit_table, protocol, plan, skin, daq)).result if worker else None
+    derived = {PHYSICAL_LIMIT: functools.partial(_physical_limit, protocol, plan, skin, daq, table)}
     batch = dataset_writer.dry_run_batch_presses(plan.n_presses)
     return Rig("dry-run", driver, recorder, daq.fsr, description, closers, derived, fsync=False, batch_presses=batch)
 
 
-def _physical_limit(protocol: CampaignProtocol, plan: Plan, skin: SkinModel, daq: SimulatedDAQ, folder: Path) -> Path:
-    return write_physical_limit(folder, protocol, plan, skin, daq)
+def _physical_limit(
+    protocol: CampaignProtocol,
+    plan: Plan,
+    skin: SkinModel,
+    daq: SimulatedDAQ,
+    table: Callable[[], Any] | None,
+    folder: Path,
+) -> Path:
+    return write_physical_limit(folder, protocol, plan, skin, daq, table=table)
+
+
+class Ahead:
+    """A pure computation started now in a daemon thread; `result()` waits for it and gives its value, or raises
+    its error. Nothing waits for a result nobody asks for (an interrupted campaign writes no physical limit)."""
+
+    def __init__(self, compute: Callable[[], Any], name: str = "physical-limit") -> None:
+        self._compute = compute
+        self._value: Any = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            self._value = self._compute()
+        except BaseException as exc:  # raised again, in the caller's thread, by result()
+            self._error = exc
+
+    def result(self) -> Any:
+        self._thread.join()  # a finite computation (no I/O): it ends
+        if self._error is not None:
+            raise self._error
+        return self._value
 
 
 def dry_scene(protocol: CampaignProtocol, plan: Plan) -> DryScene:

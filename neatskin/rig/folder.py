@@ -20,7 +20,6 @@ from neatskin.datasets.durable import fsync_dir, write_bytes_durably, write_erro
 from neatskin.datasets.lock import CampaignLock, lock_state
 from neatskin.datasets.manifest import create_manifest
 from neatskin.datasets.paths import CONSOLIDATED_NAME, COPY_NAME, PHYSICAL_LIMIT
-from neatskin.datasets.reader import read_metadata
 from neatskin.datasets.writer import file_sha256
 from neatskin.errors import ConfigError, DataError, Problem
 from neatskin.rig.plan import Plan
@@ -145,6 +144,8 @@ OPTIONAL_INPUT_KEYS = ("skin_profile",)  # copied and checked when the protocol 
 def _recorded_input_sha(folder: Path, manifest: dict) -> dict[str, str | None]:
     """The sha256 each input file had when the campaign started: from the manifest, else from the parquet
     metadata (every press file carries the same references), so deleting a hash switches no check off."""
+    from neatskin.datasets.reader import read_metadata  # pandas: a new campaign's start does not need it
+
     try:
         metadata = read_metadata(folder)
     except (DataError, OSError, pa.ArrowException):  # a truncated presses.parquet: the manifest's hashes hold

@@ -38,8 +38,9 @@ from neatskin.skin.bound import feature_jacobian, position_bound_mm
 from neatskin.skin.model import SkinModel
 from neatskin.skin.variability import drift_resistivity_factor
 
-if TYPE_CHECKING:  # pandas is imported when a frame is made: this module stays numpy-only to import
+if TYPE_CHECKING:  # pandas and pyarrow are imported when a frame is made: this module stays numpy-only to import
     import pandas as pd
+    import pyarrow as pa
 
 METADATA_KEY = b"neatskin.physical_limit"
 RESISTIVITY_TEMPCO_PER_K = -0.02  # the skin model's default, used when the skin does not say
@@ -200,14 +201,28 @@ def _bound_mm(jacobian: np.ndarray, noise_std_ohm: np.ndarray, priors: dict[str,
 
 
 def write_physical_limit(
-    folder: Path, protocol: CampaignProtocol, plan: Plan, skin: SkinModel, daq: SimulatedDAQ
+    folder: Path,
+    protocol: CampaignProtocol,
+    plan: Plan,
+    skin: SkinModel,
+    daq: SimulatedDAQ,
+    *,
+    table: Callable[[], pa.Table] | None = None,
 ) -> Path:
     """Per position, the Cramér-Rao bounds on the position error that the simulated skin, its noise and
-    the scene's nuisances allow."""
+    the scene's nuisances allow, written durably beside the presses. `table`: the `physical_limit_table` of
+    these arguments computed already (the dry rig computes it while the campaign presses), else computed here."""
+    from neatskin.datasets.writer import write_table_durably  # pyarrow: this module stays numpy-only to import
+
+    computed = physical_limit_table(protocol, plan, skin, daq) if table is None else table()
+    return write_table_durably(folder / PHYSICAL_LIMIT, computed)
+
+
+def physical_limit_table(protocol: CampaignProtocol, plan: Plan, skin: SkinModel, daq: SimulatedDAQ) -> pa.Table:
+    """The physical limit's table (what `write_physical_limit` writes): a pure function of the protocol, the plan
+    and the simulated skin and DAQ, none of the presses."""
     import pandas as pd
     import pyarrow as pa
-
-    from neatskin.datasets.writer import write_table_durably  # pyarrow: this module stays numpy-only to import
 
     positions = plan.program.positions
     ids = np.unique(plan.program.presses.position_ids)  # the positions pressed, in id order
@@ -265,8 +280,7 @@ def write_physical_limit(
         "basis": priors.basis,
         "depth_mm": float(protocol.press.press.depth_mm),
     }
-    table = table.replace_schema_metadata({**(table.schema.metadata or {}), METADATA_KEY: json.dumps(meta).encode()})
-    return write_table_durably(folder / PHYSICAL_LIMIT, table)
+    return table.replace_schema_metadata({**(table.schema.metadata or {}), METADATA_KEY: json.dumps(meta).encode()})
 
 
 def _by_chunks(

@@ -226,7 +226,7 @@ def _positions_mm(segments: list, times_s: np.ndarray, axes: slice = slice(None)
         if hi <= lo:
             continue
         p0, p1 = np.asarray(seg.p0_mm, float), np.asarray(seg.p1_mm, float)
-        frac = segment_fraction(seg, np.clip(times_s[lo:hi] - seg.t0_s, 0.0, None))
+        frac = segment_fraction(seg, np.clip(times_s[lo:hi] - seg.t0_s, 0.0, None), ordered=True)
         out[lo:hi] = p0[axes] + frac[:, None] * (p1 - p0)[axes]
     return out
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import importlib
 import logging
 import multiprocessing
 import signal
@@ -101,14 +102,11 @@ class SkinWorker:
         return None if self._process is None else self._process.pid
 
     def start(self) -> SkinWorker:
-        ctx: Any = multiprocessing.get_context(self.context)  # spawn or forkserver (typeshed: BaseContext)
-        ours, theirs = ctx.Pipe(duplex=True)
-        process = ctx.Process(target=serve, args=(theirs,), name="neatskin-skin-worker", daemon=True)
-        with _sigint_ignored():  # the child starts with SIGINT ignored, before its first line could catch it
-            process.start()
-        theirs.close()  # ours is then the pipe's only other end: the worker sees EOF when this process dies
+        """Start the worker's process (or adopt the one `prestart` launched) and send it the factory."""
+        adopted = _take_prestarted(self.context)
+        process, ours = adopted if adopted is not None else _launch(self.context)
         self._process, self._conn = process, ours
-        log.debug("skin worker started, pid %s", process.pid)
+        log.debug("skin worker %s, pid %s", "adopted" if adopted else "started", process.pid)
         # the factory (the protocol, ~70 kB) goes over our pipe, not in spawn's start-up data: spawn writes that
         # to a pipe the child reads only after importing the main module, so a payload over the pipe's 64 kB
         # would hold start() until then (and forever if the child dies first)
@@ -236,6 +234,51 @@ class SkinWorker:
         )
 
 
+def _launch(context: str, preload: tuple[str, ...] = ()) -> tuple[Any, Connection]:
+    """A worker process waiting for its factory, and our end of its pipe; it imports `preload` meanwhile."""
+    ctx: Any = multiprocessing.get_context(context)  # spawn or forkserver (typeshed: BaseContext)
+    ours, theirs = ctx.Pipe(duplex=True)
+    process = ctx.Process(target=serve, args=(theirs, preload), name="neatskin-skin-worker", daemon=True)
+    with _sigint_ignored():  # the child starts with SIGINT ignored, before its first line could catch it
+        process.start()
+    theirs.close()  # ours is then the pipe's only other end: the worker sees EOF when this process dies
+    return process, ours
+
+
+# at most one worker launched ahead of its factory (`prestart`): (context, process, our end of its pipe)
+_PRESTARTED: list[tuple[str, Any, Connection]] = []
+
+
+def prestart(preload: tuple[str, ...] = (), context: str = CONTEXT) -> None:
+    """Launch a worker process now, before the campaign that needs it exists: its interpreter start, imports and
+    `preload` modules run while this process loads the protocol, plans and opens the campaign folder; the next
+    `SkinWorker.start()` adopts it. One not adopted ends at `discard_prestarted()` or, at the latest, when this
+    process ends (EOF on its pipe)."""
+    if not _PRESTARTED:
+        _PRESTARTED.append((context, *_launch(context, preload)))
+
+
+def discard_prestarted() -> None:
+    """End a prestarted worker nobody adopted (a campaign that computes its estimates inline)."""
+    while _PRESTARTED:
+        _, process, conn = _PRESTARTED.pop()
+        conn.close()  # EOF: the worker returns
+        process.join(CLOSE_TIMEOUT_S)
+        if process.is_alive():
+            process.kill()
+            process.join(CLOSE_TIMEOUT_S)
+
+
+def _take_prestarted(context: str) -> tuple[Any, Connection] | None:
+    while _PRESTARTED:
+        kind, process, conn = _PRESTARTED.pop()
+        if kind == context and process.is_alive():
+            return process, conn
+        conn.close()
+        process.join(CLOSE_TIMEOUT_S)
+    return None
+
+
 def _signal_name(number: int) -> str:
     try:
         return signal.Signals(number).name
@@ -259,10 +302,15 @@ def _sigint_ignored() -> Iterator[None]:
         signal.signal(signal.SIGINT, previous)
 
 
-def serve(conn: Connection) -> None:
-    """The worker's loop: receive the factory and build the estimator, say ready, answer each job in order;
-    end on None or EOF."""
+def serve(conn: Connection, preload: tuple[str, ...] = ()) -> None:
+    """The worker's loop: import `preload` (a prestarted worker waits for its factory), receive the factory and
+    build the estimator, say ready, answer each job in order; end on None or EOF."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the main process handles it
+    for name in preload:
+        try:
+            importlib.import_module(name)
+        except ImportError as exc:  # the factory's own import then names the problem
+            log.debug("skin worker: cannot preload %s: %s", name, exc)
     try:
         factory = conn.recv()
     except (EOFError, OSError):
