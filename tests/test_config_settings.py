@@ -171,3 +171,13 @@ def test_constructs_if_and_only_if_the_file_schema_accepts(kind, data):
         assert shown(exc.problems) == shown(from_file) != []
     else:
         assert from_file == [] and built == parsed
+
+
+@pytest.mark.parametrize("bad", [[1.0], {"a": 1}, 3])
+def test_a_scene_preset_that_is_not_text_is_one_config_error_as_in_the_file(bad):
+    # a list preset once escaped as TypeError (unhashable) from the preset lookup, before the schema's check
+    _, from_file = parse_collect(Scene, {"preset": bad}, "f.toml", Scene.TOML_TABLE)
+    with pytest.raises(ConfigError) as caught:
+        Scene(preset=bad)
+    assert shown(caught.value.problems) == shown(from_file)
+    assert len(from_file) == 1 and "preset" in str(caught.value)

@@ -80,12 +80,16 @@ class Scene(Settings):
     mains_frequency_hz: float = _knob("Hz", "mains frequency of that hum")
 
     def __post_init__(self) -> None:
-        preset = PRESETS.get(self.preset, PRESETS["ideal"])  # a bad preset is reported, not also each knob
+        # a bad preset (an unknown name, or not a string at all: a list is not even hashable) is reported by the
+        # schema's check below, not also each knob it would have filled
+        name_ok = isinstance(self.preset, str) and self.preset in PRESETS
+        preset = PRESETS[self.preset] if name_ok else PRESETS["ideal"]
         for name in SCENE_KNOBS:
             if getattr(self, name) is None:
                 object.__setattr__(self, name, preset[name])
         if self.deformation == "auto":
-            object.__setattr__(self, "deformation", PRESET_DEFORMATION.get(self.preset, "parametric"))
+            deformation = PRESET_DEFORMATION.get(self.preset, "parametric") if name_ok else "parametric"
+            object.__setattr__(self, "deformation", deformation)
         super().__post_init__()
 
     def cross_problems(self) -> list[tuple[str, str, str]]:
