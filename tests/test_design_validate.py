@@ -93,3 +93,17 @@ def test_a_study_rerun_after_validate_keeps_its_section(tmp_path):
     assert validated == first.rstrip("\n") + "\n\n" + SECTION + "\n\nmeasured\n"
     run_study(study, tmp_path, pngs=False)
     assert (tmp_path / "report.md").read_text() == validated
+
+
+@pytest.mark.slow
+def test_the_negative_controls_power_is_about_the_studys_own_pinch():
+    """Power belongs to the check, not to the campaigns a run presses: under the negative control (pinch x 0.6)
+    a 5 % change of the study's pinch stays undetected, as in the plain run (the sweep once scaled the weakened
+    pinch, 0.6 x 0.95, and called every change detected). About 15 s on 2 cores."""
+    from neatskin.design.study import load_study
+    from neatskin.design.validate import validate_study
+
+    v = validate_study(load_study(STUDY), pinch_scale=0.6, power=True, n_jobs=2)
+    assert not v.agree
+    found = dict(v.power)
+    assert not found[0.95] and not found[1.05] and found[0.7]

@@ -210,7 +210,8 @@ def validate_study(
     n_jobs: int = 2,
 ) -> Validation:
     """The checks for every fixed candidate, with campaigns whose pinch is scaled by `pinch_scale`; with `power`,
-    the transfer check again at POWER_SCALES (the smallest change it detects)."""
+    the transfer check again with the study's pinch scaled by each of POWER_SCALES (the smallest change it detects;
+    the same whatever `pinch_scale` is)."""
     from joblib import Parallel, delayed
 
     from neatskin.rig.protocol import load_protocol
@@ -224,7 +225,10 @@ def validate_study(
     if power:
         probe = candidates[0]
         scaled = Parallel(n_jobs=n_jobs)(
-            delayed(check_candidate)(study, base, probe, pinch_scale * s, 3) for s in POWER_SCALES
+            # the study's own pinch scaled, whatever `pinch_scale` the run's campaigns press: power is the check's,
+            # and scaling a negative control's already weakened pinch called every change detected
+            delayed(check_candidate)(study, base, probe, s, 3)
+            for s in POWER_SCALES
         )
         found = [(s, not (c.transfer_agrees and c.level_agrees)) for s, c in zip(POWER_SCALES, scaled, strict=True)]
     return Validation(tuple(checks), pinch_scale, agrees, tau, tuple(found))
