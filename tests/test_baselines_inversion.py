@@ -144,16 +144,29 @@ def test_a_press_past_the_depth_bound_is_clamped_to_a_bounded_minimum():
 
 @pytest.fixture(scope="module")
 def dry_run_rows(tmp_path_factory):
-    """84 presses (3 positions x 28) of the paper protocol's dry run: the FE-kernel skin, the paper-like scene;
-    some presses cut pairs apart (flagged, kept with their inf dR saturated, the dataset's default)."""
+    """84 presses of the paper protocol's dry run (the FE-kernel skin, the paper-like scene), taken from its first
+    280 (10 positions x 28) so that a share of them cut pairs apart (flagged, kept with their inf dR saturated,
+    the dataset's default): every such press up to 42, the others' first rows after them."""
+    import dataclasses
+
     from neatskin.baselines.dataset import load_baseline_data
     from neatskin.rig.protocol import load_protocol
     from neatskin.rig.runner import run_campaign
 
     folder = tmp_path_factory.mktemp("paper") / "campaign"
     protocol = load_protocol(PAPER_SKIN.parent.parent / "paper.toml")
-    run_campaign(protocol, folder, dry_run=True, progress=False, report=False, limit=84)
-    return load_baseline_data(folder)
+    run_campaign(protocol, folder, dry_run=True, progress=False, report=False, limit=280)
+    data = load_baseline_data(folder)
+    cut = (
+        np.any(data.X == np.asarray(data.saturation_ohm), axis=1)
+        if data.saturation_ohm
+        else np.zeros(len(data.X), bool)
+    )
+    rows = np.r_[np.flatnonzero(cut)[:42], np.flatnonzero(~cut)][:84]
+    rows.sort()
+    return dataclasses.replace(
+        data, X=data.X[rows], y=data.y[rows], groups=data.groups[rows], n_saturated=int(cut[rows].sum())
+    )
 
 
 @pytest.mark.slow  # a dry run of 84 presses and three inversions of them: ~17 s
