@@ -13,7 +13,7 @@ from dataclasses import replace
 import pytest
 
 from neatskin.gcode.bounds import check_commands, check_moves
-from neatskin.gcode.machine import Dwell, Home, Machine, Move, SetPosition, Sync
+from neatskin.gcode.machine import Dwell, Machine, Move, SetPosition, Sync
 from neatskin.gcode.motion import MotionClock
 from neatskin.gcode.parse import checksum, parse_line
 from neatskin.gcode.profile import Axes, load_printer_profile
@@ -34,24 +34,34 @@ def run(machine: Machine, *commands: str) -> list:
 def test_a_hand_computed_program(shifted):
     m = Machine(shifted, homing_time_s=shifted.homing_time_s)
     (home,) = run(m, "G28")
-    assert home == Home((0, 1, 2), (None, None, None), (5.0, 10.0, 1.0), 25.0)
+    # Z at its homing feed, 4 mm/s and 100 mm/s^2: 0.04 s ramps over 0.08 mm each. Unhomed, Z first rises 5 mm
+    # from an unknown height (0.08 s + 4.84 mm / 4); once homed at 1 it moves to 5 (0.08 s + 3.84 mm / 4)
+    assert home.axes == (0, 1, 2) and home.start_mm == (None, None, None) and home.end_mm == (5.0, 10.0, 5.0)
+    assert home.rise is not None and home.rise.end_mm == (None, None, None) and home.rise.length_mm == 5.0
+    assert home.rise.duration_s == pytest.approx(0.08 + 4.84 / 4, abs=1e-12)
+    assert home.after is not None and (home.after.start_mm, home.after.end_mm) == ((5.0, 10.0, 1.0), home.end_mm)
+    assert home.after.duration_s == pytest.approx(0.08 + 3.84 / 4, abs=1e-12)
+    assert home.duration_s == 25.0 and home.homing_s == pytest.approx(25.0 - 1.29 - 1.04, abs=1e-12)
     _, move = run(m, "G91", "G1 X100 F6000")
     # 100 mm/s, 500 mm/s^2: 20 mm to speed up and slow down < 100 mm: 0.2 s + 80 mm at 100 mm/s
-    assert move.end_mm == (105.0, 10.0, 1.0) and move.duration_s == pytest.approx(1.2, abs=1e-12)
+    assert move.end_mm == (105.0, 10.0, 5.0) and move.duration_s == pytest.approx(1.2, abs=1e-12)
     (g92,) = run(m, "G92 X0")
     assert g92 == SetPosition((0.0, None, None))
-    assert m.position_mm == [105.0, 10.0, 1.0] and m.logical_mm == (0.0, 10.0, 1.0)
+    assert m.position_mm == [105.0, 10.0, 5.0] and m.logical_mm == (0.0, 10.0, 5.0)
     _, move = run(m, "G90", "G1 X10")  # logical 10 = native 115; 10 mm < 20 mm: a triangle, 2 sqrt(10/500)
-    assert move.end_mm == (115.0, 10.0, 1.0) and move.duration_s == pytest.approx(0.282842712474619, abs=1e-12)
+    assert move.end_mm == (115.0, 10.0, 5.0) and move.duration_s == pytest.approx(0.282842712474619, abs=1e-12)
     (move,) = run(m, "G1 Z3 F600")  # z caps 10 mm/s at 5 and 100 mm/s^2: 2 x 0.05 s ramps + 1.75 mm / 5
     assert (move.feed_mm_s, move.accel_mm_s2) == (5.0, 100.0)
     assert move.duration_s == pytest.approx(0.45, abs=1e-12)
-    (home,) = run(m, "G28 X")  # homes X only: native 5, its G92 offset cleared, a third of the homing time
-    assert home.axes == (0,) and home.end_mm == (5.0, 10.0, 3.0) and home.duration_s == pytest.approx(25 / 3)
-    assert m.logical_mm == (5.0, 10.0, 3.0)
+    # homes X only: Z (homed, at 3) first rises to 5 (0.08 s + 1.84 mm / 4); X native 5, its G92 offset cleared;
+    # a third of the homing time
+    (home,) = run(m, "G28 X")
+    assert home.axes == (0,) and home.end_mm == (5.0, 10.0, 5.0) and home.duration_s == pytest.approx(25 / 3)
+    assert home.rise is not None and home.rise.duration_s == pytest.approx(0.08 + 1.84 / 4, abs=1e-12)
+    assert home.after is None and m.logical_mm == (5.0, 10.0, 5.0)
     (move,) = run(m, "G1 X10")  # the modal F600: 5 mm at 10 mm/s, 0.1 mm ramps: 0.02 s + 0.5 s
-    assert move.start_mm == (5.0, 10.0, 3.0) and move.duration_s == pytest.approx(0.52, abs=1e-12)
-    (move,) = run(m, "G1 X13 Z7")  # (3, 0, 4): z share 0.8 caps feed at 6.25 mm/s and accel at 125 mm/s^2
+    assert move.start_mm == (5.0, 10.0, 5.0) and move.duration_s == pytest.approx(0.52, abs=1e-12)
+    (move,) = run(m, "G1 X13 Z9")  # (3, 0, 4): z share 0.8 caps feed at 6.25 mm/s and accel at 125 mm/s^2
     assert (move.feed_mm_s, move.accel_mm_s2) == (6.25, 125.0)
     assert move.length_mm == 5.0 and move.duration_s == pytest.approx(0.05 + 0.8, abs=1e-12)
     assert run(m, "G4 P500", "G4 S2", "M400") == [Dwell(0.5), Dwell(2.0), Sync()]
@@ -70,8 +80,8 @@ def test_unknown_position_until_homed_or_moved_absolutely(shifted):
 
 def test_limits_clamp_the_native_target(shifted):
     m = Machine(shifted, limits_mm=((5.0, 10.0, 1.0), (220.0, 220.0, 250.0)))
-    _, move = run(m, "G28", "G1 X300 Y-5")
-    assert move.requested_mm == (300.0, -5.0, 1.0) and move.end_mm == (220.0, 10.0, 1.0) and move.clamped
+    _, move = run(m, "G28", "G1 X300 Y-5")  # G28 leaves Z at 5 (Z_POST_CLEARANCE)
+    assert move.requested_mm == (300.0, -5.0, 5.0) and move.end_mm == (220.0, 10.0, 5.0) and move.clamped
 
 
 def test_without_a_profile_home_is_zero_and_no_axis_limits():
@@ -80,15 +90,15 @@ def test_without_a_profile_home_is_zero_and_no_axis_limits():
     assert move.start_mm == (0.0, 0.0, 0.0) and move.duration_s == pytest.approx(0.125 + 0.4, abs=1e-12)
 
 
-# Z ends above 5 mm: the simulated printer's G28 then raises nothing (Marlin's G28 lifts Z to 5 mm before homing
-# X or Y and after homing Z; the machine model's G28 does not: see test_marlin_real_vs_sim's HOMING)
-PROGRAM = ("G28", "G91", "G1 X20 Y30 F3000", "G92 X0", "G90", "G1 X7 Z6", "G28 Y", "G1 Y15", "M400")
+# Z goes down to 2 mm, so the G28 Y lifts it to 5 first (Marlin's G28: Z_CLEARANCE_FOR_HOMING once Z is homed),
+# in every consumer (see also test_marlin_real_vs_sim's HOMING)
+PROGRAM = ("G28", "G91", "G1 X20 Y30 F3000", "G92 X0", "G90", "G1 X7 Z2", "G28 Y", "G1 Y15", "M400")
 
 
 def test_every_consumer_agrees_on_home_and_g92(shifted):
     """The estimate, the host's deadlines, the bounds check and the simulated printer step the same model."""
-    logical = (7.0, 15.0, 6.0)
-    native = (32.0, 15.0, 6.0)  # X: home 5 + 20 relative, G92 X0 there, X7 logical -> 32 native
+    logical = (7.0, 15.0, 5.0)
+    native = (32.0, 15.0, 5.0)  # X: home 5 + 20 relative, G92 X0 there, X7 logical -> 32 native; Z: 2, raised to 5
     clock = MotionClock(shifted)
     tracker = MotionTracker(shifted)
     for command in PROGRAM:
@@ -104,7 +114,7 @@ def test_every_consumer_agrees_on_home_and_g92(shifted):
     core.take_output()
     core.receive(b"M114\n")
     core.step()
-    assert core.take_output().startswith(b"X:7.00 Y:15.00 Z:6.00 E:0.00 Count X:2560 Y:1200 Z:2400\nok\n")
+    assert core.take_output().startswith(b"X:7.00 Y:15.00 Z:5.00 E:0.00 Count X:2560 Y:1200 Z:2000\nok\n")
     assert core.timeline.end_mm == native
     lines = [parse_line(c) for c in PROGRAM]
     assert check_moves(shifted, lines) == []  # every native target is inside the bed and the soft limits
@@ -114,9 +124,10 @@ def test_every_consumer_agrees_on_home_and_g92(shifted):
 def test_g28_homes_to_the_profiles_home_in_the_estimate(shifted):
     clock = MotionClock(shifted, start_mm=(100.0, 100.0, 50.0))
     clock.step("G28")
-    seconds = clock.step("G1 X5 Y10 Z11 F600")  # from home (5, 10, 1): a pure 10 mm z move
-    assert seconds == pytest.approx(2 * 0.05 + 9.75 / 5, abs=1e-12)  # ramps of 0.25 mm, 9.5 mm cruise
-    assert clock.estimate().homing_s == 25.0
+    # from home (5, 10, 1), Z then moved to 5 (Z_POST_CLEARANCE): a pure 6 mm z move
+    seconds = clock.step("G1 X5 Y10 Z11 F600")
+    assert seconds == pytest.approx(2 * 0.05 + 5.75 / 5, abs=1e-12)  # ramps of 0.25 mm, 5.5 mm cruise
+    assert clock.estimate().homing_s == 25.0  # the measured whole G28, its Z moves (1.29 s + 1.04 s) inside
 
 
 def test_move_event_is_a_frozen_value():
@@ -131,9 +142,42 @@ def test_host_deadlines_from_the_model(shifted):
     # unknown start: 500 mm on the slowest axis (5 mm/s, 100 mm/s^2): 2 x 0.05 s ramps + 499.75 mm / 5
     assert tracker.line_time_s("G1 X10") == (pytest.approx(100.05, abs=1e-9), False)
     assert tracker.line_time_s("G28") == (60.0, True)  # the host's bound: max(60, 2 x 25 s)
-    assert tracker.position_mm == [5.0, 10.0, 1.0]
-    # from home (5, 10, 1) to x = 15: 10 mm at 100 mm/s, 500 mm/s^2 is a triangle, 2 sqrt(10 / 500)
+    assert tracker.position_mm == [5.0, 10.0, 5.0]  # home (5, 10, 1), then Z to 5 (Z_POST_CLEARANCE)
+    # from (5, 10, 5) to x = 15: 10 mm at 100 mm/s, 500 mm/s^2 is a triangle, 2 sqrt(10 / 500)
     seconds, waits = tracker.line_time_s("G1 X15 F6000")
     assert seconds == pytest.approx(0.282842712474619, abs=1e-12) and not waits
     assert tracker.line_time_s("G4 P250") == (0.25, True) and tracker.line_time_s("M400") == (0.0, True)
     assert tracker.line_time_s("; comment") == (0.0, False) and tracker.line_time_s("G1 X1e999") == (0.0, True)
+
+
+def test_a_g28_takes_at_least_its_z_moves(shifted):
+    """`homing_time_s` is a whole G28 as measured, raises included: a homing time shorter than G28's Z moves (at
+    Z's homing feed, 4 mm/s, 100 mm/s^2) gives way to them, in the machine, the estimate and the firmware alike."""
+    quick = replace(shifted, homing_time_s=0.5)
+    m = Machine(quick, start_mm=(50.0, 50.0, 20.0), homing_time_s=quick.homing_time_s)
+    (home,) = run(m, "G28")  # unhomed at 20: up to 25 (0.08 s + 4.84 mm / 4), home at 1, then to 5 (3.84 mm)
+    assert home.rise is not None and home.rise.end_mm == (50.0, 50.0, 25.0)
+    assert home.duration_s == pytest.approx(0.08 + 4.84 / 4 + 0.08 + 3.84 / 4, abs=1e-12) and home.homing_s == 0.0
+    clock = MotionClock(quick, start_mm=(50.0, 50.0, 20.0))
+    assert clock.step("G28") == home.duration_s and clock.estimate().homing_s == home.duration_s
+    core = MarlinCore(quick)
+    before = core.clock.now()
+    core.receive(b"G28\nM400\n")
+    for _ in range(100):  # a cap: the virtual clock jumps to when each command is done
+        core.step()
+    assert core.take_output().count(b"ok\n") == 2
+    # the firmware believes zeros at boot: up 5 from 0, home, up 4 from 1: 1.29 s + 1.04 s, more than 0.5 s
+    assert core.timeline.end_s - before == pytest.approx(0.08 + 4.84 / 4 + 0.08 + 3.84 / 4, abs=1e-9)
+
+
+def test_no_clearance_no_z_moves(shifted):
+    """A profile with `z_clearance_for_homing_mm = 0` raises nothing; `z_after_homing_mm` at Z's home (1 here:
+    the post-homing move goes to that native height, so 0, the clearance, would move down) leaves Z there."""
+    m = Machine(replace(shifted, z_clearance_for_homing_mm=0.0, z_after_homing_mm=1.0), start_mm=(50.0, 50.0, 20.0))
+    (home,) = run(m, "G28 X")
+    assert home.rise is None and home.after is None and home.end_mm == (5.0, 50.0, 20.0)
+    (home,) = run(m, "G28")
+    assert home.rise is None and home.after is None and home.end_mm == (5.0, 10.0, 1.0)
+    low = Machine(replace(shifted, z_after_homing_mm=2.0), start_mm=(50.0, 50.0, 20.0))
+    (home,) = run(low, "G28 Z")  # Z alone: no raise; Z_AFTER_HOMING 2 from home 1
+    assert home.rise is None and home.after is not None and home.end_mm == (50.0, 50.0, 2.0)

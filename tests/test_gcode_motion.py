@@ -65,8 +65,9 @@ def test_phase_durations_by_hand(profile, paper_layout):
     ps = PositionSet((10.0,), (0.0,), ("channel:J00-J10",))
     prog = build_program(paper_layout, ps, PressSpec(depth_mm=3.5, repeats=2, hold_s=0.5), profile, hold_in_gcode=True)
     d = phase_durations_s(prog, profile)
-    # after G28 the probe is at (0, 0, 0): up 15.5 mm at Z limits, then 105 x 95 mm of travel at 100 mm/s
-    up = 0.05 + (15.5 - 0.25) / 5 + 0.05
+    # after G28 the probe is at (0, 0, 5) (home, then Z_POST_CLEARANCE): up 10.5 mm at Z limits, then 105 x 95
+    # mm of travel at 100 mm/s
+    up = 0.05 + (10.5 - 0.25) / 5 + 0.05
     xy = 2 * 0.2 + (((105.0**2 + 95.0**2) ** 0.5) - 20.0) / 100.0
     descend = 0.05 + 9.75 / 5 + 0.05  # 10 mm at 5 mm/s, 100 mm/s^2
     press = 0.02 + 3.46 / 2 + 0.02 + 0.5  # 3.5 mm at 2 mm/s, then the 0.5 s hold

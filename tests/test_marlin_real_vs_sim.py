@@ -16,12 +16,15 @@ G28's Z raises and its position report, M211's report, `M211 S` silent, `M211 S0
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
 import serial
 from marlin_replay import BEFORE_HOMING, HOMING, HOMING_WAIT_S, SCRIPT, replay
 
+from neatskin.gcode.machine import Home, Machine
+from neatskin.gcode.parse import parse_line
 from neatskin.gcode.profile import load_printer_profile
 from neatskin.sim.printer import SimulatedPrinter
 from neatskin.sim.realmarlin import ADVANCED_OK, PLAIN, FirmwareRelay, find_marlin_dir
@@ -158,3 +161,45 @@ def test_the_script_covers_every_difference_the_issue_lists():
     kill = next(got for line, got in sim if line.startswith(b"N17 M112"))
     assert kill == b"echo:M112 Shutdown\nError:Printer halted. kill() called!\n"
     assert [got for line, got in sim][-3:] == [b"", b"", b""]  # after a kill: nothing, M999 included
+
+
+_REPORT = re.compile(rb"^X:(-?[0-9.]+) Y:(-?[0-9.]+) Z:(-?[0-9.]+) E:", re.MULTILINE)
+
+
+def test_the_machine_model_ends_every_g28_where_the_firmware_reports():
+    """The host's G-code machine model (gcode.machine, behind the time and bounds estimates and the host's position
+    tracker) stepped through the HOMING script from the firmware's boot belief (zeros) is where the simulator
+    reports after every G28 and M114: the raise before homing X or Y (relative while Z is not homed, to 5 once
+    it is, never down) and Z to 5 once homed. The simulator's answers are the native build's (the test above;
+    the raises and reports are also pinned byte for byte in test_the_homing_script_shows_the_raises_and_the_reports).
+    M211 is the test's to model (the machine has no soft endstops of its own): its limits on with S1 or a bare
+    S, off with S0."""
+    profile = load_printer_profile(NATIVE_PROFILE)
+    _, sim = sim_transcript(advanced_ok=False, script=HOMING, speed=20.0, max_wait_s=HOMING_WAIT_S)
+    on = (tuple(profile.soft_min_mm), tuple(profile.soft_max_mm))
+    machine = Machine(profile, start_mm=(0.0, 0.0, 0.0), homing_time_s=profile.homing_time_s, limits_mm=on)
+    compared = []
+    for line, got in sim:
+        command = parse_line(line.decode().strip())
+        assert command is not None
+        if command.code == "M211" and "S" in command.params:
+            s = command.params["S"]
+            machine.limits_mm = on if not isinstance(s, float) or s > 0 else None  # type: ignore[assignment]
+        event = machine.step(command)
+        report = _REPORT.search(got)
+        if command.code in ("G28", "M114"):
+            assert report is not None, (line, got)
+            reported = tuple(float(v) for v in report.groups())
+            assert machine.logical_mm == pytest.approx(reported, abs=0.005), line
+            compared.append((command.code, reported))
+        if command.code == "G28":
+            assert isinstance(event, Home) and event.duration_s == pytest.approx(
+                profile.homing_time_s * len(event.axes) / 3
+            )
+    # four G28s, each ending up in Z: 10 (5 above the believed 5), 5 (homed), 5 (from 2), 20 (never down)
+    assert [r for code, r in compared if code == "G28"] == [
+        (0.0, 0.0, 10.0),
+        (0.0, 0.0, 5.0),
+        (0.0, 0.0, 5.0),
+        (0.0, 0.0, 20.0),
+    ]

@@ -340,6 +340,26 @@ class PrinterTable(Settings):
     planner_buffer_size: int = setting(16, gt=0, le=10_000, doc="BLOCK_BUFFER_SIZE: moves queued ahead")
     rx_buffer_size: int = setting(128, gt=0, le=1_000_000, doc="RX_BUFFER_SIZE: bytes of serial input")
     homing_time_s: float = setting(20.0, unit="s", gt=0, le=3_600, doc="G28 of all axes, worst case")
+    z_clearance_for_homing_mm: float = setting(
+        5.0,
+        unit="mm",
+        ge=0,
+        le=10_000,
+        doc="Z_CLEARANCE_FOR_HOMING: G28 raises Z by this before homing X or Y (to it once Z is homed; 0: no raise);"
+        " stock Marlin 5 (Z_CLEARANCE_BETWEEN_PROBES, Conditionals_post.h)",
+    )
+    z_after_homing_mm: float | None = setting(
+        None,
+        unit="mm",
+        ge=0,
+        le=10_000,
+        default_doc="z_clearance_for_homing_mm",
+        doc="Z_AFTER_HOMING: where G28 leaves Z once Z is homed; stock Marlin leaves it undefined, so motion.h's"
+        " Z_POST_CLEARANCE is the homing clearance",
+    )
+    z_homing_feed_mm_s: float = setting(
+        4.0, unit="mm/s", gt=0, le=10_000, doc="HOMING_FEEDRATE_MM_M's Z: G28's Z moves; stock Marlin 4*60 mm/min"
+    )
     stepper_timeout_s: float = setting(
         120.0,
         unit="s",

@@ -14,11 +14,16 @@ printer (sim.firmware, sim.motion). Semantics, taken from Marlin (motion.cpp, G9
   trapezoid at the feed and acceleration scaled so that no axis exceeds its own maximum.
 - `G92 X.. Y.. Z..`: sets the logical position of the named axes without moving (the offset
   changes, the native position does not); `G92` without words is a no-op here.
-- `G28 [X] [Y] [Z]`: homes the named axes (all three when none is named): the native position
-  becomes the home position (Marlin's X_HOME_POS, i.e. the soft minimum for min endstops: the
-  printer profile's `soft_min_mm`; (0, 0, 0) without a profile), the G92 offset of those axes is
-  cleared (Marlin's `set_axis_is_at_home` zeroes `position_shift`), and the homing takes
-  `homing_time_s` times the share of axes homed.
+- `G28 [X] [Y] [Z]`: homes the named axes (all three when none is named), as G28.cpp: before
+  homing X or Y, Z rises by the profile's `z_clearance_for_homing_mm` (relative while Z is not
+  homed, to that height once it is, never down, never above the Z soft maximum); the native
+  position of the named axes becomes the home position (Marlin's X_HOME_POS, i.e. the soft
+  minimum for min endstops: the profile's `soft_min_mm`; (0, 0, 0) without a profile) and their
+  G92 offset is cleared (Marlin's `set_axis_is_at_home` zeroes `position_shift`); once Z is homed
+  it moves to `z_after_homing_mm` (Z_POST_CLEARANCE, down too). The Z moves run at the profile's
+  `z_homing_feed_mm_s`. Without a profile there are no Z moves. The whole G28 takes
+  `homing_time_s` (a whole G28 as measured, raises included) times the share of axes homed, and
+  never less than its Z moves.
 - `G4 P<ms> S<s>`: a dwell after the queued motion has run out; `M400`: waits for the motion.
 - Before an axis is homed or moved absolutely its position is unknown (None); a relative move
   on it gives a `Move` whose `duration_s` is None (the caller bounds it).
@@ -52,6 +57,14 @@ class Kinematics(Protocol):
     def soft_min_mm(self) -> Iterable[float]: ...
     @property
     def accel_mm_s2(self) -> float: ...
+    @property
+    def soft_max_mm(self) -> Iterable[float]: ...
+    @property
+    def z_clearance_for_homing_mm(self) -> float: ...
+    @property
+    def z_after_homing_mm(self) -> float | None: ...
+    @property
+    def z_homing_feed_mm_s(self) -> float: ...
 
 
 def trapezoid_time_s(
@@ -144,12 +157,22 @@ class Move(NamedTuple):
 
 @dataclass(frozen=True, slots=True)
 class Home:
-    """A G28: the named axes (indices 0-2) go from start_mm to end_mm (native) in duration_s."""
+    """A G28: the named axes (indices 0-2) go from start_mm to end_mm (native) in duration_s, the Z moves
+    included: `rise` (Z up before homing X or Y) and `after` (Z to its post-homing height once Z is homed),
+    each a Move at Z's homing feed or None. The homing proper runs from rise.end_mm (start_mm without a rise)
+    to after.start_mm (end_mm without one) and takes `homing_s`."""
 
     axes: tuple[int, ...]
     start_mm: MaybeXyz
     end_mm: MaybeXyz
     duration_s: float
+    rise: Move | None = None
+    after: Move | None = None
+
+    @property
+    def homing_s(self) -> float:
+        """The time left for the homing proper: the whole G28's, less its Z moves'."""
+        return self.duration_s - sum(m.duration_s or 0.0 for m in (self.rise, self.after) if m is not None)
 
 
 @dataclass(frozen=True, slots=True)
@@ -185,8 +208,9 @@ SYNC = Sync()
 class Machine:
     """The modal state (native position, G92 offsets, G90/G91, feed) and `step(line) -> Event`.
 
-    `profile` gives the axis limits, acceleration and home (`soft_min_mm`); without one, moves run
-    at `accel_mm_s2` with no per-axis limits and home is (0, 0, 0). `limits_mm` (lo, hi) clamps
+    `profile` gives the axis limits, acceleration, home (`soft_min_mm`) and G28's Z clearances; without
+    one, moves run at `accel_mm_s2` with no per-axis limits, home is (0, 0, 0) and G28 moves no Z. `homed`
+    says which axes a G28 has homed (G28's Z rise depends on it). `limits_mm` (lo, hi) clamps
     native targets (soft endstops), None for no clamping. `start_mm` is the native position
     before any command (None per axis: unknown)."""
 
@@ -209,15 +233,22 @@ class Machine:
         self.feed_mm_s = feed_mm_s
         self.homing_time_s = homing_time_s
         self.limits_mm = limits_mm
+        self.homed = [False, False, False]
         if profile is not None:
             self._accel = float(profile.accel_mm_s2)
             self._vmax = _xyz(profile.max_feed_mm_s)
             self._amax = _xyz(profile.max_accel_mm_s2)
             default_home = _xyz(profile.soft_min_mm)
+            self._z_max = _xyz(profile.soft_max_mm)[2]  # Z_MAX_POS: do_z_clearance goes no higher
+            self._z_clearance = float(profile.z_clearance_for_homing_mm)
+            after = profile.z_after_homing_mm  # Marlin without Z_AFTER_HOMING: Z_POST_CLEARANCE = the clearance
+            self._z_after: float | None = self._z_clearance if after is None else float(after)
+            self._z_homing_feed = float(profile.z_homing_feed_mm_s)
         else:
             self._accel = accel_mm_s2
             self._vmax = self._amax = (math.inf, math.inf, math.inf)
             default_home = (0.0, 0.0, 0.0)
+            self._z_max, self._z_clearance, self._z_after, self._z_homing_feed = math.inf, 0.0, None, 1.0
         self.home_mm: Xyz = home_mm if home_mm is not None else default_home
 
     @property
@@ -248,11 +279,42 @@ class Machine:
         return Other(code)
 
     def home(self, axes: tuple[int, ...] = (0, 1, 2)) -> Home:
-        start = tuple(self.position_mm)
+        """G28 of `axes` as G28.cpp (see the module's docstring): the rise, the homing, the post-homing Z move."""
+        position = self.position_mm
+        start = (position[0], position[1], position[2])
+        rise = after = None
+        if (0 in axes or 1 in axes) and self._z_clearance > 0:  # G28.cpp's may_skate: clearance first
+            z = position[2]
+            if z is None:  # relative to an unknown height: the height stays unknown, the distance is known
+                rise = self._z_move(None, self._z_clearance)
+            else:
+                target = min(self._z_clearance + (0.0 if self.homed[2] else z), self._z_max)
+                if target > z:  # never down
+                    rise = self._z_move(target, target - z)
         for i in axes:
-            self.position_mm[i] = self.home_mm[i]
+            position[i] = self.home_mm[i]
             self.offset_mm[i] = 0.0
-        return Home(axes, start, tuple(self.position_mm), self.homing_time_s * len(axes) / 3)  # type: ignore[arg-type]
+            self.homed[i] = True
+        if 2 in axes and self._z_after is not None:  # do_move_after_z_homing: Z_POST_CLEARANCE, lower allowed
+            target = min(self._z_after, self._z_max)
+            if target != position[2]:
+                after = self._z_move(target, abs(target - position[2]))  # type: ignore[operator]
+        raises_s = sum(m.duration_s or 0.0 for m in (rise, after) if m is not None)
+        duration = max(self.homing_time_s * len(axes) / 3, raises_s)
+        end = (position[0], position[1], position[2])
+        return Home(axes, start, end, duration, rise, after)
+
+    def _z_move(self, z_mm: float | None, distance_mm: float) -> Move:
+        """G28's own Z move (do_blocking_move_to_z) of `distance_mm` to native height `z_mm` (None: unknown) at
+        Z's homing feed; the modes and the modal feed stay."""
+        position = self.position_mm
+        begin = (position[0], position[1], position[2])
+        position[2] = z_mm
+        end = (position[0], position[1], z_mm)
+        feed, accel = _limited(
+            (0.0, 0.0, distance_mm), distance_mm, self._z_homing_feed, self._accel, self._vmax, self._amax
+        )
+        return Move(begin, end, end, feed, accel, distance_mm, _rest_to_rest_s(distance_mm, feed, accel))
 
     def _set_position(self, params: dict[str, float | str]) -> SetPosition:
         logical: list[float | None] = [None, None, None]

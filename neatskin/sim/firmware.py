@@ -46,11 +46,6 @@ _OK = b"ok\n"
 _QUIET = frozenset(
     {"G21", "G90", "G91", "M17", "M18", "M82", "M83", "M84", "M104", "M106", "M107", "M117", "M140", "M220", "M221"}
 )
-# G28's Z moves in stock Marlin's Configuration.h (the native build's): Z_CLEARANCE_BETWEEN_PROBES 5 makes
-# Z_CLEARANCE_FOR_HOMING 5 (Conditionals_post.h) and, without Z_AFTER_HOMING, Z_POST_CLEARANCE 5 (motion.h);
-# HOMING_FEEDRATE_MM_M's Z is 4 mm/s
-Z_CLEARANCE_FOR_HOMING_MM = 5.0
-Z_HOMING_FEED_MM_S = 4.0
 
 
 class MarlinCore(LineIntake):
@@ -70,8 +65,6 @@ class MarlinCore(LineIntake):
         keepalive_s: float = 2.0,
         history_lines: int = 10_000,
         keep_segments: int = 4096,
-        z_clearance_for_homing_mm: float = Z_CLEARANCE_FOR_HOMING_MM,
-        z_after_homing_mm: float | None = None,
     ) -> None:
         super().__init__(
             faults,
@@ -86,10 +79,6 @@ class MarlinCore(LineIntake):
         self._virtual = isinstance(self.clock, VirtualClock)
         self.advanced_ok = advanced_ok
         self.no_motion_before_homing = no_motion_before_homing
-        # G28 raises Z by this before homing X or Y (to it, once Z is homed), and moves Z to z_after_homing_mm
-        # (Z_POST_CLEARANCE: by default the same) once Z is homed; 0 raises nothing
-        self.z_clearance_for_homing_mm = z_clearance_for_homing_mm
-        self.z_after_homing_mm = z_clearance_for_homing_mm if z_after_homing_mm is None else z_after_homing_mm
         self.echo_commands = False  # M111 S1
         self.keepalive_s = keepalive_s
         self.timeline = Timeline(profile, tuple(profile.park_mm), keep_segments)
@@ -107,7 +96,6 @@ class MarlinCore(LineIntake):
 
     def _boot(self) -> None:
         self._clear_intake()
-        self.homed = [False, False, False]
         # the one G-code machine model (gcode.machine): native position, G92 offsets, modes: what the firmware
         # believes (zeros at boot, as Marlin); the timeline is where the probe is, _frame_mm the difference
         self.machine = Machine(
@@ -116,6 +104,7 @@ class MarlinCore(LineIntake):
             feed_mm_s=self.profile.travel_feed_mm_s,
             homing_time_s=self.profile.homing_time_s,
         )
+        self.homed = self.machine.homed  # which axes G28 homed: the machine's (G28's Z rise depends on it)
         self._frame_mm = list(self.timeline.end_mm)
         self._set_soft_endstops(True)
         self.halted = False
@@ -259,49 +248,27 @@ class MarlinCore(LineIntake):
         return None
 
     def _home(self, axes: tuple[int, ...]) -> float:
-        """G28 as Marlin's G28.cpp; when it is done. Before homing X or Y, Z rises by the homing clearance
-        (relative while Z is not homed, to that height once it is; never down); the axes go home; once Z is
-        homed it moves to the post-homing height (down too). The native build: G0 Z5, G28 X -> Z:10.00; a full
-        G28 -> Z:5.00; G1 Z2, G28 Y -> Z:5.00; G1 Z20, G28 Y -> Z:20.00. _reply prints the position. The
-        profile's `homing_time_s` is a whole G28 as measured, raises included: the homing takes what they leave."""
+        """G28 as Marlin's G28.cpp; when it is done. The machine model (gcode.machine `Machine.home`) says what
+        the firmware does: before homing X or Y, Z rises by the profile's homing clearance (relative while Z is
+        not homed, to that height once it is; never down); the axes go home; once Z is homed it moves to the
+        post-homing height (down too). The native build: G0 Z5, G28 X -> Z:10.00; a full G28 -> Z:5.00; G1 Z2,
+        G28 Y -> Z:5.00; G1 Z20, G28 Y -> Z:20.00. _reply prints the position. The profile's `homing_time_s` is
+        a whole G28 as measured, raises included: the homing takes what they leave."""
         now = self.clock.now()
-        tl, machine = self.timeline, self.machine
-        z_max = self.profile.soft_max_mm.z  # Z_MAX_POS: do_z_clearance goes no higher
-        rise = after = None
-        if 0 in axes or 1 in axes:  # G28.cpp's may_skate: lateral motion wants clearance first
-            z = machine.position_mm[2]
-            assert z is not None  # the machine starts at zeros
-            target = min(self.z_clearance_for_homing_mm + (0.0 if self.homed[2] else z), z_max)
-            if target > z:
-                rise = self._z_move(target)
-                self._queue_move(rise, "G28")
-        home = machine.home(axes)
+        tl = self.timeline
+        home = self.machine.home(axes)
+        if home.rise is not None:
+            self._queue_move(home.rise, "G28")
         for i in home.axes:
-            self.homed[i] = True
             self._frame_mm[i] = 0.0
         self._apply_limits()
-        if 2 in axes:  # do_move_after_z_homing: Z_POST_CLEARANCE, lower allowed
-            target = min(self.z_after_homing_mm, z_max)
-            if target != machine.position_mm[2]:
-                after = self._z_move(target)
-        raises_s = sum(m.duration_s or 0.0 for m in (rise, after) if m is not None)
         # the axes homed go home; the others stay where the probe is
-        end = tuple(h if i in home.axes else p for i, (h, p) in enumerate(zip(home.end_mm, tl.end_mm)))
-        tl.add_homing(now, end, max(0.0, home.duration_s - raises_s))  # type: ignore[arg-type]
-        if after is not None:
-            self._queue_move(after, "G28")
+        homed_end = home.after.start_mm if home.after is not None else home.end_mm
+        end = tuple(h if i in home.axes else p for i, (h, p) in enumerate(zip(homed_end, tl.end_mm)))
+        tl.add_homing(now, end, home.homing_s)  # type: ignore[arg-type]
+        if home.after is not None:
+            self._queue_move(home.after, "G28")
         return tl.end_s
-
-    def _z_move(self, z_mm: float) -> Move:
-        """G28's own Z move (do_blocking_move_to_z) to a native height at Z's homing feed, in the firmware's
-        belief (the caller queues it); the modes and the feed stay."""
-        machine = self.machine
-        absolute, feed = machine.absolute, machine.feed_mm_s
-        machine.absolute = True
-        event = machine.step(GcodeLine("G0", {"Z": z_mm + machine.offset_mm[2], "F": Z_HOMING_FEED_MM_S * 60.0}))
-        machine.absolute, machine.feed_mm_s = absolute, feed
-        assert isinstance(event, Move)
-        return event
 
     def _move(self, line: GcodeLine) -> None:
         self._queue_move(self.machine.step(line), line.raw)  # type: ignore[arg-type]
