@@ -8,6 +8,7 @@ import pytest
 import scipy.sparse.linalg as sla
 from scipy.optimize import brentq
 
+from neatskin.skin.feassembly import dof_component
 from neatskin.skin.mechanics import Material, PressGeometry, SolverSettings, _Assembler, solve_press
 
 MU = 0.023
@@ -64,8 +65,7 @@ def _kirsch_hole_area_change(bulk_ratio):
     nu_p = (3 * bulk_ratio - 2) / (2 * (3 * bulk_ratio + 1))
     kappa = 3 - 4 * nu_p
     dx, dy = ub.doflocs
-    comp = np.zeros(ub.N, dtype=np.intp)
-    comp[ub.nodal_dofs[1]] = comp[ub.facet_dofs[1]] = 1
+    comp = dof_component(ub)
     outer = np.zeros(ub.N, bool)  # every dof on the outer arc's facets, midpoints too (they sit on the chords)
     outer[ub.get_dofs(lambda p: np.hypot(p[0], p[1]) > R * (1 - 1e-3)).all()] = True
     sym_x = np.isclose(dx, 0.0, atol=1e-12) & (comp == 0)  # u_x = 0 on x = 0
@@ -101,8 +101,7 @@ def test_homogeneous_plane_strain_compression_is_exact_at_large_strain():
     mesh, ub, pb = _bases(np.vstack([xx.ravel(), yy.ravel()]), _structured(g, g))
     asm = _Assembler(ub, pb, MU, bulk)
     dx, dy = ub.doflocs
-    comp = np.zeros(ub.N, dtype=np.intp)
-    comp[ub.nodal_dofs[1]] = comp[ub.facet_dofs[1]] = 1
+    comp = dof_component(ub)
     # compress along y by 0.6 between frictionless platens; x free (rollers at x = 0)
     bottom = np.isclose(dy, 0) & (comp == 1)
     top = np.isclose(dy, 1) & (comp == 1)
@@ -176,8 +175,7 @@ def test_axisymmetric_homogeneous_compression_is_exact():
     mesh, ub, pb = _bases(np.vstack([xx.ravel(), yy.ravel()]), _structured(g, g))
     asm = AxisymmetricAssembler(ub, pb, MU, bulk)
     dx, dy = ub.doflocs
-    comp = np.zeros(ub.N, dtype=np.intp)
-    comp[ub.nodal_dofs[1]] = comp[ub.facet_dofs[1]] = 1
+    comp = dof_component(ub)
     top = np.isclose(dy, 1) & (comp == 1)
     axis = np.isclose(dx, 0) & (comp == 0)
     dirichlet = np.flatnonzero((np.isclose(dy, 0) & (comp == 1)) | top | axis)

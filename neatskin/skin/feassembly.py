@@ -9,6 +9,14 @@ import scipy.sparse as sp
 _EYE = np.eye(2)[:, :, None, None]
 
 
+def dof_component(ub) -> np.ndarray:
+    """(ub.N,) 0 for each x (or r) displacement dof of a P2 vector basis, 1 for each y (or z) one."""
+    comp = np.zeros(ub.N, dtype=np.intp)
+    comp[ub.nodal_dofs[1]] = 1
+    comp[ub.facet_dofs[1]] = 1
+    return comp
+
+
 class Assembler:
     """Residual and tangent of the mixed neo-Hookean solid, assembled with one einsum per block over every element
     and quadrature point (the local basis gradients are fixed; only F and p change between Newton iterations)."""

@@ -24,6 +24,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve
 
 from neatskin.skin.feassembly import Assembler as _Assembler
+from neatskin.skin.feassembly import dof_component
 from neatskin.skin.fesetup import CLOSING_AREA_RATIO, SHUT_AREA_RATIO, Material, PressGeometry, SolverSettings
 
 _FORM_ORDER = 4  # quadrature degree: exact for the P2 x P2 mass terms, ample for the nonlinear ones
@@ -131,10 +132,7 @@ class _Problem:
         self.thickness = g.thickness_mm
         eps = 1e-7
         dx, dy = self.ub.doflocs
-        comp = np.zeros(self.nu, dtype=np.intp)
-        comp[self.ub.nodal_dofs[1]] = 1
-        comp[self.ub.facet_dofs[1]] = 1
-        self.comp = comp
+        self.comp = comp = dof_component(self.ub)
         top = np.isclose(dy, g.thickness_mm, atol=eps)
         under = top & (np.abs(dx - offset_mm) <= g.probe_radius_mm + eps)
         self.probe_y = np.flatnonzero(under & (comp == 1))
