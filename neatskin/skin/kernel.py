@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from neatskin.skin.fesetup import SHUT_AREA_RATIO, Material, PressGeometry, SolverSettings
+from neatskin.skin.quasi3d import fill_unsolved
 
 KERNEL_FORMAT = 2  # bump when the solver's output for the same settings changes (2: quasi-3D transfer)
 PAPER_KERNEL = "paper_pinch_kernel.parquet"  # in neatskin/protocols/skins/
@@ -67,10 +68,7 @@ class PinchKernel:
     extra: dict[str, np.ndarray] | None = None  # (n_o, n_d) columns beside these: the plane-strain table, the hosts
 
     def __post_init__(self) -> None:
-        filled = self.area_ratio.copy()
-        for i in range(filled.shape[0]):  # deeper than the solve reached: the last solved value (the load only grows)
-            good = np.flatnonzero(np.isfinite(filled[i]))
-            filled[i, good[-1] + 1 :] = filled[i, good[-1]]
+        filled = fill_unsolved(self.area_ratio)
         object.__setattr__(self, "_table", np.clip(filled, 0.0, 1.0))
         object.__setattr__(self, "_table_t", np.ascontiguousarray(self._table.T))  # type: ignore[attr-defined]
         object.__setattr__(self, "_step", (float(self.offsets_mm[1]), float(self.depths_mm[1])))
@@ -203,7 +201,7 @@ def compute_kernel(spec: KernelSpec, n_jobs: int = 2, progress=None, plane_strai
         area_ps, force, ps_info = plane_strain
     area, d_star = transfer(area_ps, host_ps.strain_eq, host_ax.strain_eq, depths)
     step = max(1, int(round(SPREAD_MM / float(spec.offsets_mm[1] - spec.offsets_mm[0])))) if len(area) > 1 else 1
-    spread = local_spread(area_ps, host_ps.strain_eq, host_ax.strain_eq, depths, step)
+    spread = local_spread(area_ps, host_ps.strain_eq, host_ax.strain_eq, depths, step, d_star)
     width = spec.geometry.channel_width_mm
 
     def closing(r, axisymmetric):

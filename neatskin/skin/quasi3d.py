@@ -57,14 +57,22 @@ def matched_depth(host_ps: np.ndarray, host_ax: np.ndarray, depths_mm: np.ndarra
     return out
 
 
+def fill_unsolved(table: np.ndarray) -> np.ndarray:
+    """(offsets, depths) with each row's depths past its deepest solved (finite) one given that value: deeper than
+    the solve reached, the last solved value (the load only grows). Every row has a solved depth (depth 0)."""
+    finite = np.isfinite(table)
+    last = table.shape[1] - 1 - np.argmax(finite[:, ::-1], axis=1)
+    beyond = np.arange(table.shape[1])[None, :] > last[:, None]
+    return np.where(beyond, table[np.arange(table.shape[0]), last][:, None], table)
+
+
 def area_at_depth(area_ps: np.ndarray, depths_mm: np.ndarray, d_star: np.ndarray) -> np.ndarray:
     """A_ps(r, d*) per offset row, linear in depth between the solved depths; a depth the strip's channel solve did
-    not reach takes its deepest solved value (as PinchKernel does); nan d* stays nan."""
+    not reach takes its deepest solved value (fill_unsolved, as PinchKernel does); nan d* stays nan."""
     out = np.full(d_star.shape, np.nan)
+    filled = fill_unsolved(area_ps)
     for i in range(area_ps.shape[0]):
-        row = area_ps[i].copy()
-        good = np.flatnonzero(np.isfinite(row))
-        row[good[-1] + 1 :] = row[good[-1]]
+        row = filled[i]
         ok = np.isfinite(d_star[i])
         j = np.clip(np.searchsorted(depths_mm, d_star[i][ok], side="right") - 1, 0, depths_mm.size - 2)
         t = (d_star[i][ok] - depths_mm[j]) / (depths_mm[j + 1] - depths_mm[j])
@@ -95,13 +103,18 @@ def monotone(area: np.ndarray) -> np.ndarray:
 
 
 def local_spread(
-    area_ps: np.ndarray, host_ps: np.ndarray, host_ax: np.ndarray, depths_mm: np.ndarray, step: int
+    area_ps: np.ndarray,
+    host_ps: np.ndarray,
+    host_ax: np.ndarray,
+    depths_mm: np.ndarray,
+    step: int,
+    d_star: np.ndarray,
 ) -> np.ndarray:
     """(offsets, depths): the transfer's stated uncertainty. If the strip's A/A0 were a function of the host
     measure alone, reading the strip's table at a neighbouring offset r +- step (grid steps), at the depth where
     the strip strains the host there as much as the round probe does at r, would give the same A. The spread is
-    the largest difference from the transfer's own value over the two neighbours (0 at an edge of the table)."""
-    d_star = matched_depth(host_ps, host_ax, depths_mm)
+    the largest difference from the transfer's own value over the two neighbours (0 at an edge of the table).
+    `d_star`: the transfer's matched depths (transfer's second value), not matched again here."""
     own = area_at_depth(area_ps, depths_mm, d_star)
     spread = np.zeros_like(own)
     n = area_ps.shape[0]
