@@ -150,16 +150,17 @@ def _prestart_skin_worker(protocol) -> None:
     has the rule): launch its process now, so its interpreter start and imports overlap this process's imports,
     plan and folder instead of the first presses; the dry rig adopts it, or ends it when the campaign turns out
     to compute inline (under the batching writer's size). Only a hint: without it the rig starts its own."""
-    import os
-
     if getattr(protocol.scene, "signal", None) != "features":
         return
-    if os.environ.get("NEATSKIN_SKIN_WORKER", "").strip().lower() == "off":
-        return
-    if len(os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else range(os.cpu_count() or 1)) < 2:
-        return
-    from neatskin.sim.skinworker import prestart
+    from neatskin.errors import ConfigError
+    from neatskin.sim.skinworker import forced_by_env, prestart, usable_cores
 
+    try:
+        forced = forced_by_env()
+    except ConfigError:
+        return  # the dry rig reports it, with the campaign's other errors
+    if forced is False or (forced is None and usable_cores() < 2):
+        return
     prestart(preload=("neatskin.sim.dryscene", "pyarrow.parquet"))
 
 

@@ -8,7 +8,6 @@ The dry scene itself (skin, probe, DAQ, per-press conditions) is built by neatsk
 from __future__ import annotations
 
 import functools
-import os
 import threading
 from collections.abc import Callable
 from os import PathLike
@@ -17,7 +16,6 @@ from typing import Any
 
 from neatskin.datasets import writer as dataset_writer  # its batch rule looked up when used (tests set it)
 from neatskin.datasets.paths import PHYSICAL_LIMIT
-from neatskin.errors import ConfigError
 from neatskin.marlin.driver import DriverConfig, MarlinDriver
 from neatskin.rig.assembly import CAMPAIGN_MAX_IN_FLIGHT, Rig, daq_config
 from neatskin.rig.physlimit import physical_limit_table, write_physical_limit
@@ -28,10 +26,9 @@ from neatskin.sim.dryscene import DryProbe, DryScene, dry_daq, dry_probe, dry_sk
 from neatskin.sim.faults import FaultConfig
 from neatskin.sim.printer import SimulatedPrinter
 from neatskin.sim.recorder import SimulatedRecorder
-from neatskin.sim.skinworker import SkinWorker, discard_prestarted
+from neatskin.sim.skinworker import SKIN_WORKER_ENV as SKIN_WORKER_ENV  # tests set it through this module
+from neatskin.sim.skinworker import SkinWorker, discard_prestarted, forced_by_env, usable_cores
 from neatskin.skin.model import SkinModel
-
-SKIN_WORKER_ENV = "NEATSKIN_SKIN_WORKER"  # on | off: force the dry run's skin worker either way (benchmarks)
 
 
 def use_skin_worker(protocol: CampaignProtocol, planned: int | None, skin_worker: bool | None = None) -> bool:
@@ -43,17 +40,10 @@ def use_skin_worker(protocol: CampaignProtocol, planned: int | None, skin_worker
     if protocol.scene.signal != "features":
         return False
     if skin_worker is None:
-        forced = os.environ.get(SKIN_WORKER_ENV, "").strip().lower()
-        if forced in ("on", "off"):
-            return forced == "on"
-        if forced:
-            raise ConfigError(
-                f"{SKIN_WORKER_ENV}={forced!r} is not a skin worker setting",
-                field=SKIN_WORKER_ENV,
-                fix="set it to on or off, or unset it for the default",
-            )
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        return planned is not None and planned >= dataset_writer.BATCH_FROM_PRESSES and cores >= 2
+        forced = forced_by_env()
+        if forced is not None:
+            return forced
+        return planned is not None and planned >= dataset_writer.BATCH_FROM_PRESSES and usable_cores() >= 2
     return bool(skin_worker)
 
 

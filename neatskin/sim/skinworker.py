@@ -20,6 +20,7 @@ import contextlib
 import importlib
 import logging
 import multiprocessing
+import os
 import signal
 import threading
 import time
@@ -28,7 +29,7 @@ from multiprocessing.connection import Connection, wait
 from typing import Any, Protocol
 
 from neatskin.acquisition.estimates import PairEstimates
-from neatskin.errors import HardwareError
+from neatskin.errors import ConfigError, HardwareError
 from neatskin.sim.deferred import EstimateJob
 from neatskin.sim.recorder import PRESS_SLOT_S, DryProbe, features_estimates
 
@@ -247,6 +248,29 @@ def _launch(context: str, preload: tuple[str, ...] = ()) -> tuple[Any, Connectio
 
 # at most one worker launched ahead of its factory (`prestart`): (context, process, our end of its pipe)
 _PRESTARTED: list[tuple[str, Any, Connection]] = []
+
+
+SKIN_WORKER_ENV = "NEATSKIN_SKIN_WORKER"  # on | off: force the dry run's skin worker either way (benchmarks)
+
+
+def forced_by_env() -> bool | None:
+    """SKIN_WORKER_ENV: on True, off False, unset None (the dry rig's own rule decides); anything else is one
+    ConfigError naming the variable."""
+    forced = os.environ.get(SKIN_WORKER_ENV, "").strip().lower()
+    if forced in ("on", "off"):
+        return forced == "on"
+    if forced:
+        raise ConfigError(
+            f"{SKIN_WORKER_ENV}={forced!r} is not a skin worker setting",
+            field=SKIN_WORKER_ENV,
+            fix="set it to on or off, or unset it for the default",
+        )
+    return None
+
+
+def usable_cores() -> int:
+    """The cores this process may run on (its affinity where the OS tells it)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def prestart(preload: tuple[str, ...] = (), context: str = CONTEXT) -> None:
