@@ -286,11 +286,15 @@ def discard_prestarted() -> None:
     """End a prestarted worker nobody adopted (a campaign that computes its estimates inline)."""
     while _PRESTARTED:
         _, process, conn = _PRESTARTED.pop()
-        conn.close()  # EOF: the worker returns
+        _end_prestarted(process, conn)
+
+
+def _end_prestarted(process, conn: Connection) -> None:
+    conn.close()  # EOF: the worker returns
+    process.join(CLOSE_TIMEOUT_S)
+    if process.is_alive():
+        process.kill()
         process.join(CLOSE_TIMEOUT_S)
-        if process.is_alive():
-            process.kill()
-            process.join(CLOSE_TIMEOUT_S)
 
 
 def _take_prestarted(context: str) -> tuple[Any, Connection] | None:
@@ -298,8 +302,7 @@ def _take_prestarted(context: str) -> tuple[Any, Connection] | None:
         kind, process, conn = _PRESTARTED.pop()
         if kind == context and process.is_alive():
             return process, conn
-        conn.close()
-        process.join(CLOSE_TIMEOUT_S)
+        _end_prestarted(process, conn)
     return None
 
 
