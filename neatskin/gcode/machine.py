@@ -155,6 +155,11 @@ class Move(NamedTuple):
         return self.requested_mm != self.end_mm
 
 
+def _z_moves_s(*moves: Move | None) -> float:
+    """The time of a G28's Z moves (its raise before homing X or Y, its move after homing Z), those it made."""
+    return sum(m.duration_s or 0.0 for m in moves if m is not None)
+
+
 @dataclass(frozen=True, slots=True)
 class Home:
     """A G28: the named axes (indices 0-2) go from start_mm to end_mm (native) in duration_s, the Z moves
@@ -172,7 +177,7 @@ class Home:
     @property
     def homing_s(self) -> float:
         """The time left for the homing proper: the whole G28's, less its Z moves'."""
-        return self.duration_s - sum(m.duration_s or 0.0 for m in (self.rise, self.after) if m is not None)
+        return self.duration_s - _z_moves_s(self.rise, self.after)
 
 
 @dataclass(frozen=True, slots=True)
@@ -299,8 +304,7 @@ class Machine:
             target = min(self._z_after, self._z_max)
             if target != position[2]:
                 after = self._z_move(target, abs(target - position[2]))  # type: ignore[operator]
-        raises_s = sum(m.duration_s or 0.0 for m in (rise, after) if m is not None)
-        duration = max(self.homing_time_s * len(axes) / 3, raises_s)
+        duration = max(self.homing_time_s * len(axes) / 3, _z_moves_s(rise, after))
         end = (position[0], position[1], position[2])
         return Home(axes, start, end, duration, rise, after)
 
