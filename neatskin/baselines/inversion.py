@@ -174,7 +174,7 @@ def invert_presses(
     )
 
 
-def _jacobian(skin, baseline, pa, model_a, step_mm, hi, columns=None) -> np.ndarray:
+def _jacobian(skin, baseline, pa, model_a, step_mm, hi, columns) -> np.ndarray:
     """d(dR)/d(x, y, depth) (m, pairs, 3) by forward differences at pa, stepping inward at the upper bound;
     model_a is the model's dR at pa. columns (m, 3) bool: only those offsets are evaluated (one model call
     for all of them), the others are NaN."""
@@ -182,12 +182,9 @@ def _jacobian(skin, baseline, pa, model_a, step_mm, hi, columns=None) -> np.ndar
     shifted = np.repeat(pa[None], 3, axis=0)  # (3, m, 3)
     for k in range(3):
         shifted[k, :, k] += h[:, k]
-    if columns is None:
-        dr_shift = _model_dr(skin, baseline, shifted.reshape(-1, 3)).reshape(3, len(pa), -1)
-    else:
-        wanted = columns.T  # (3, m)
-        dr_shift = np.full((3, len(pa), model_a.shape[1]), np.nan)
-        dr_shift[wanted] = _model_dr(skin, baseline, shifted[wanted])
+    wanted = columns.T  # (3, m)
+    dr_shift = np.full((3, len(pa), model_a.shape[1]), np.nan)
+    dr_shift[wanted] = _model_dr(skin, baseline, shifted[wanted])
     jac = (dr_shift - model_a[None]) / h.T[:, :, None]  # (3, m, pairs)
     return jac.transpose(1, 2, 0)
 
