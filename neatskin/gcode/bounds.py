@@ -8,6 +8,7 @@ parsed file (`check_moves`).
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 
 import numpy as np
@@ -15,6 +16,7 @@ import numpy as np
 from neatskin.errors import ConfigError, Problem
 from neatskin.gcode.emit import PHASES
 from neatskin.gcode.machine import Machine, Move
+from neatskin.gcode.parse import TEXT_COMMANDS
 from neatskin.gcode.profile import PrinterProfile
 
 DEPTH_MARGIN_MM = 0.5  # the probe stops at least this far above the skin's underside
@@ -246,13 +248,58 @@ REFUSED_COMMANDS = {
 }
 
 
+# Stock Marlin keeps MAX_CMD_SIZE - 1 = 95 characters of a line (queue.cpp drops the rest; a comment is not
+# stored). The host frames a command as `N<n> <command>*<cs>`: with up to 7 digits of line number and 3 of
+# checksum that leaves 95 - 13 characters for the command. A longer one loses its tail on the real firmware:
+# with its number, the checksum, so the firmware asks for the line again for ever (`No Checksum with line number`).
+MARLIN_MAX_CMD_SIZE = 96
+MAX_COMMAND_CHARS = MARLIN_MAX_CMD_SIZE - 1 - len("N1234567 ") - len("*255")
+_FRAMING = re.compile(r"^\s*N\s*\d+\s*|\*\s*\d+\s*$", re.IGNORECASE)
+_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
+_CODE = re.compile(r"[A-Za-z]\s*\d+(?:\.\d+)?")
+
+
+def firmware_text_problem(line) -> tuple[str, str] | None:
+    """(what, fix) when the real firmware would not run the line as written, else None.
+
+    Stock Marlin (GCODE_CASE_INSENSITIVE off) answers `echo:Unknown command` to a lower-case command letter and
+    skips a lower-case parameter: `G1 X5 y7` moves X only (the native build in ../shared/marlin does exactly
+    that), while this parser, the G-code machine model and the simulated printer read it as a move in Y. The
+    text of M117/M118 and comments may be in any case. Past MAX_COMMAND_CHARS the firmware loses the line's tail."""
+    body = _FRAMING.sub("", line.raw.partition(";")[0]).strip()
+    head = _CODE.match(body)
+    if head is None:
+        return None
+    lower = head.group(0)[0].islower()
+    if not lower and line.code not in TEXT_COMMANDS:
+        lower = any(c.islower() for c in _NUMBER.sub("", body[head.end() :]))
+    if lower:
+        return (
+            f"{body!r} has a lower-case letter: stock Marlin answers 'Unknown command' to a lower-case command "
+            "and ignores a lower-case parameter (G1 X5 y7 moves X only), while this check would read it as a move",
+            f"write the command and its parameter letters in upper case ({body.upper()!r})",
+        )
+    if len(body) > MAX_COMMAND_CHARS:
+        return (
+            f"the command is {len(body)} characters: Marlin keeps {MARLIN_MAX_CMD_SIZE - 1} of a line, its line "
+            "number and checksum included, and loses the rest (a numbered line then fails its checksum on every resend)",
+            f"shorten it to at most {MAX_COMMAND_CHARS} characters (drop repeated spaces, or split the move)",
+        )
+    return None
+
+
 def check_commands(lines, source: str = "<program>", line_numbers: Sequence[int] | None = None) -> list[Problem]:
     """One problem per command a press program must never contain: EEPROM writes, heaters, M112, G92,
-    and any command outside PRESS_COMMANDS (unknown or unsupported). Every offending line is listed."""
+    any command outside PRESS_COMMANDS (unknown or unsupported), and any the real firmware would not run as
+    written (`firmware_text_problem`: lower case, too long). Every offending line is listed."""
     problems: list[Problem] = []
     allowed = ", ".join(sorted(PRESS_COMMANDS, key=lambda c: (c[0], int(float(c[1:])))))
     for k, line in enumerate(lines):
         code = line.code
+        as_written = firmware_text_problem(line)
+        if as_written is not None:
+            problems.append(Problem(as_written[0], source, _where(k, line_numbers), as_written[1]))
+            continue
         if code in PRESS_COMMANDS:
             continue
         why = REFUSED_COMMANDS.get(code, "is not a command a press program uses (unknown or unsupported here)")
