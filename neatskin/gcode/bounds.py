@@ -94,10 +94,8 @@ def check_press_plan(
         )
     x = np.asarray(printer_x_mm, float)
     y = np.asarray(printer_y_mm, float)
-    checks = (
-        ("x", x, max(0.0, profile.soft_min_mm.x), min(profile.bed_x_mm, profile.soft_max_mm.x)),
-        ("y", y, max(0.0, profile.soft_min_mm.y), min(profile.bed_y_mm, profile.soft_max_mm.y)),
-    )
+    (lo_x, lo_y, _), (hi_x, hi_y, _) = profile.soft_box_mm
+    checks = (("x", x, lo_x, hi_x), ("y", y, lo_y, hi_y))
     # one problem per axis, whatever the number of presses: a wrong offset moves them all, and is one mistake
     press_ids = np.asarray(press_ids)
     position_ids = np.asarray(position_ids)
@@ -138,12 +136,7 @@ def check_moves(
     outside the bed or soft limits, relative moves from an unknown position, feeds over the maxima.
     Each names `line N` (line_numbers[k] of the k-th command) or, without numbers, `command k`."""
     problems: list[Problem] = []
-    lo = [max(0.0, profile.soft_min_mm.x), max(0.0, profile.soft_min_mm.y), profile.soft_min_mm.z]
-    hi = [
-        min(profile.bed_x_mm, profile.soft_max_mm.x),
-        min(profile.bed_y_mm, profile.soft_max_mm.y),
-        profile.soft_max_mm.z,
-    ]
+    lo, hi = profile.soft_box_mm  # the simulated printer clamps homed axes to the same box
     fmax = max(profile.max_feed_mm_s)
     machine = Machine(profile)
     for k, line in enumerate(lines):

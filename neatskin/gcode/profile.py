@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, replace
+from functools import cached_property
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -31,6 +32,9 @@ class Axes:
 
     def __iter__(self):
         return iter((self.x, self.y, self.z))
+
+
+Box = tuple[tuple[float, float, float], tuple[float, float, float]]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -65,6 +69,20 @@ class PrinterProfile(PrinterTable):
     def printer_name(self) -> str:
         """The printer's name: `[printer] name`, or the file's stem (filled in at construction)."""
         return self.name or Path(self.source).stem
+
+    @cached_property
+    def travel_box_mm(self) -> Box:
+        """(lo, hi) the head can reach, native mm: the bed in x and y (from 0), the soft limits in z. A stepper
+        driven past it loses steps against the frame (the simulated printer, unhomed or with M211 S0)."""
+        return (0.0, 0.0, self.soft_min_mm.z), (self.bed_x_mm, self.bed_y_mm, self.soft_max_mm.z)
+
+    @cached_property
+    def soft_box_mm(self) -> Box:
+        """(lo, hi) the travel within the soft limits: where a move may go with M211 S1. One box for
+        `gcode check` (bounds.check_moves) and the simulated printer's clamp of homed axes."""
+        (lx, ly, lz), (hx, hy, hz) = self.travel_box_mm
+        lo, hi = self.soft_min_mm, self.soft_max_mm
+        return (max(lx, lo.x), max(ly, lo.y), max(lz, lo.z)), (min(hx, hi.x), min(hy, hi.y), min(hz, hi.z))
 
     def with_calibration(self, calibration: Calibration) -> PrinterProfile:
         """The same printer with a refitted calibration (checked again against the z limits)."""

@@ -127,14 +127,8 @@ class MarlinCore(LineIntake):
         self._apply_limits()
 
     def _travel_mm(self, soft: bool) -> tuple[Xyz, Xyz]:
-        """The bed's travel (lo, hi), within the soft limits when `soft`."""
-        p = self.profile
-        lo = (0.0, 0.0, p.soft_min_mm.z)
-        hi = (p.bed_x_mm, p.bed_y_mm, p.soft_max_mm.z)
-        if soft:
-            lo = (max(lo[0], p.soft_min_mm.x), max(lo[1], p.soft_min_mm.y), max(lo[2], p.soft_min_mm.z))
-            hi = (min(hi[0], p.soft_max_mm.x), min(hi[1], p.soft_max_mm.y), min(hi[2], p.soft_max_mm.z))
-        return lo, hi
+        """The bed's travel (lo, hi), within the soft limits when `soft`: the profile's boxes, built once."""
+        return self.profile.soft_box_mm if soft else self.profile.travel_box_mm
 
     def _apply_limits(self) -> None:
         # Marlin's apply_motion_limits clamps only the axes it has homed (motion.cpp: `if (axis_was_homed(..))`)
