@@ -107,3 +107,34 @@ def test_the_negative_controls_power_is_about_the_studys_own_pinch():
     assert not v.agree
     found = dict(v.power)
     assert not found[0.95] and not found[1.05] and found[0.7]
+
+
+def test_the_power_sweep_builds_the_studys_side_once_and_matches_the_full_check(monkeypatch):
+    """The power sweep's scales share one study side (the study's learned error and its trained kNN do not depend
+    on the campaigns' pinch): per run the study side is built once per candidate plus once for the sweep, not once
+    per scale; and the sweep's shortened check (no protocol-scene campaigns, which it does not read) gives the
+    full check's numbers."""
+    import neatskin.design.learned as learned
+    import neatskin.design.validate as validate
+    from neatskin.design.study import load_study
+    from neatskin.rig.protocol import load_protocol
+
+    study = load_study(STUDY)
+    base = load_protocol("protocols/paper.toml")
+    probe = validate.validation_candidates(study)[0]
+    full = validate.check_candidate(study, base, probe, 0.7, 2)
+    short = validate.check_candidate(
+        study, base, probe, 0.7, 2, validate.study_side(study, probe), protocol_scene=False
+    )
+    for name in ("study_mm", "campaign_mm", "transfer_mm"):
+        np.testing.assert_array_equal(getattr(short, name), getattr(full, name))
+    assert len(full.scene_mm) == 2 and len(short.scene_mm) == 0
+    assert (short.level_agrees, short.transfer_agrees) == (full.level_agrees, full.transfer_agrees)
+
+    calls = []
+    real = learned.learned_error_mm
+    monkeypatch.setattr(learned, "learned_error_mm", lambda *a, **k: calls.append(1) or real(*a, **k))
+    monkeypatch.setattr(validate, "POWER_SCALES", (0.95, 0.7, 1.3))
+    v = validate.validate_study(study, power=True, n_jobs=1)
+    assert len(calls) == len(v.checks) + 1  # was len(v.checks) + len(POWER_SCALES)
+    assert [s for s, _ in v.power] == [0.95, 0.7, 1.3]

@@ -142,12 +142,22 @@ def _knn_error(features, targets, groups) -> float:
     return float(np.mean(np.concatenate(errors)))
 
 
-def check_candidate(study: Study, base_protocol, candidate, pinch_scale: float = 1.0, seeds: int = CAMPAIGN_SEEDS):
-    """The numbers of one candidate (a picklable unit of work for joblib)."""
+@dataclass(frozen=True)
+class StudySide:
+    """What a candidate's checks take from the study, whatever pinch the campaigns press: its layout, the study's
+    learned error over its seeds, a kNN trained on its own simulated dataset and the pair noise's std. Built once
+    per candidate (`study_side`) and shared by the power sweep's scales."""
+
+    layout: Any
+    study_mm: np.ndarray
+    trained: Any
+    sigma: np.ndarray
+
+
+def study_side(study: Study, candidate) -> StudySide:
     from neatskin.baselines.models import make_models
     from neatskin.design.evaluate import candidate_layout, pair_noise
     from neatskin.design.learned import learned_error_mm, simulated_features
-    from neatskin.rig.simcampaign import simulate_presses, skin_of, strategy_positions
     from neatskin.skin.model import SkinModel
 
     layout = candidate_layout(study, candidate, candidate.nodes)
@@ -157,11 +167,30 @@ def check_candidate(study: Study, base_protocol, candidate, pinch_scale: float =
     trained = make_models(["knn"], random_state=0, n_features=features.shape[1], n_rows=len(features))["knn"]
     trained.fit(features, targets)
     sigma = noise.std(SkinModel(layout, fidelity=study.fidelity).baseline_pair_resistance_ohm)
+    return StudySide(layout, study_mm, trained, sigma)
+
+
+def check_candidate(
+    study: Study,
+    base_protocol,
+    candidate,
+    pinch_scale: float = 1.0,
+    seeds: int = CAMPAIGN_SEEDS,
+    side: StudySide | None = None,
+    protocol_scene: bool = True,
+):
+    """The numbers of one candidate (a picklable unit of work for joblib). `side`: the study's side when already
+    built; `protocol_scene=False` skips the campaigns in the protocol's scene (the ranking's, which the power
+    sweep does not read: its scene_mm is then empty)."""
+    from neatskin.rig.simcampaign import simulate_presses, skin_of, strategy_positions
+
+    side = study_side(study, candidate) if side is None else side
     campaign: list[float] = []
     transfer: list[float] = []
     scene: list[float] = []
-    for ideal, out in ((True, campaign), (False, scene)):
-        proto = _campaign_protocol(base_protocol, study, candidate, layout, ideal)
+    runs = ((True, campaign), (False, scene)) if protocol_scene else ((True, campaign),)
+    for ideal, out in runs:
+        proto = _campaign_protocol(base_protocol, study, candidate, side.layout, ideal)
         skin = skin_of(proto, pinch_scale)
         for k in range(seeds):
             seed = SEED_BASE + k
@@ -172,16 +201,16 @@ def check_candidate(study: Study, base_protocol, candidate, pinch_scale: float =
                 study.learned.repeats,
                 candidate.depth_mm,
                 seed,
-                sigma,
+                side.sigma,
                 skin=skin,
                 interval_s=float(proto.scene.press_interval_s or 7.78),
             )
             out.append(_knn_error(presses.features, presses.commanded_mm, presses.groups))
             if ideal:
-                predicted = trained.predict(presses.features)
+                predicted = side.trained.predict(presses.features)
                 transfer.append(float(np.mean(np.linalg.norm(predicted - presses.commanded_mm, axis=1))))
     label = f"{candidate.placement.rstrip('-')} {candidate.count}"
-    return CandidateCheck(label, study_mm, np.array(campaign), np.array(transfer), np.array(scene))
+    return CandidateCheck(label, side.study_mm, np.array(campaign), np.array(transfer), np.array(scene))
 
 
 def ranking(checks: list[CandidateCheck]) -> tuple[bool, float]:
@@ -224,10 +253,11 @@ def validate_study(
     found: list[tuple[float, bool]] = []
     if power:
         probe = candidates[0]
+        side = study_side(study, probe)  # the study's side does not depend on the scale: built once, not per scale
         scaled = Parallel(n_jobs=n_jobs)(
             # the study's own pinch scaled, whatever `pinch_scale` the run's campaigns press: power is the check's,
             # and scaling a negative control's already weakened pinch called every change detected
-            delayed(check_candidate)(study, base, probe, s, 3)
+            delayed(check_candidate)(study, base, probe, s, 3, side, protocol_scene=False)
             for s in POWER_SCALES
         )
         found = [(s, not (c.transfer_agrees and c.level_agrees)) for s, c in zip(POWER_SCALES, scaled, strict=True)]
