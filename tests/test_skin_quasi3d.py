@@ -162,3 +162,14 @@ def test_the_transfer_is_mesh_converged_on_the_host_side():
     wobble = edge[:, None] & (depths[depths <= 3.5] >= 2.0)[None, :]
     assert np.max(diff[~wobble]) <= 0.02
     assert np.max(diff) <= 0.05
+
+
+def test_a_press_result_stores_only_what_the_transfer_checks_and_benchmarks_read():
+    """The band outputs of an intact-host solve are the two hole drivers and the equivalent strain (quasi3d, the
+    tests above, benchmarks/quasi3d_evidence.py); the pressure over mu was computed per band and stored unread."""
+    import dataclasses
+
+    from neatskin.skin.mechanics import PressResult
+
+    band_fields = [f.name for f in dataclasses.fields(PressResult)][-4:]
+    assert band_fields == ["band_x_mm", "driver_tangential", "driver_radial", "strain_eq"]

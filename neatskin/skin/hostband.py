@@ -1,7 +1,7 @@
 """What the intact skin (no channel) does where a channel would be: per band centre x (the channel's width around
 it, its height around its centre line), the mean equivalent strain, which the quasi-3D transfer (skin/quasi3d.py)
-matches between the plane-strain strip and the axisymmetric round probe, the hole driver (the linear estimate of a
-channel's area change from the host's stress and strain there) and the pressure. (The closing across the channel's
+matches between the plane-strain strip and the axisymmetric round probe, and the hole driver (the linear estimate of a
+channel's area change from the host's stress and strain there). (The closing across the channel's
 height is sampled along lines by skin/mechanics.py and band-averaged by skin/quasi3d.py.)
 
 The hole driver. A long cylindrical hole in a nearly incompressible solid under a uniform far field changes its
@@ -32,10 +32,10 @@ class HostBands:
         self.weights /= self.weights.sum(axis=(1, 2))[:, None, None]
         self.axisymmetric = axisymmetric
 
-    def drivers(self, asm, x) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Per band: the hole driver of a channel along the hoop (tangential) and along the radius, the equivalent
-        strain (what the quasi-3D transfer matches) and the pressure field over mu. The two drivers are equal in plane
-        strain (no hoop: the channel runs along z)."""
+    def drivers(self, asm, x) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per band: the hole driver of a channel along the hoop (tangential) and along the radius, and the equivalent
+        strain (what the quasi-3D transfer matches). The two drivers are equal in plane strain (no hoop: the channel
+        runs along z)."""
         kin = asm.kinematics(x)
         F, J, p = kin[0], kin[1], kin[3]
         F3 = kin[4] if self.axisymmetric else np.ones_like(J)
@@ -52,4 +52,4 @@ class HostBands:
         e = e - e.mean(axis=0)
         eq = np.sqrt(2.0 / 3.0 * np.sum(e * e, axis=0))
         avg = lambda v: np.einsum("beq,eq->b", self.weights, v)  # noqa: E731
-        return avg(tangential), avg(radial), avg(eq), avg(p / mu)
+        return avg(tangential), avg(radial), avg(eq)

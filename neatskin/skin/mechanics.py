@@ -48,7 +48,6 @@ class PressResult:
     driver_tangential: np.ndarray | None = None  # (steps, bands): the hole driver of a channel along the hoop (z)
     driver_radial: np.ndarray | None = None  # (steps, bands): of one running radially (= tangential in plane strain)
     strain_eq: np.ndarray | None = None  # (steps, bands): von Mises equivalent Hencky strain (the transfer's measure)
-    pressure: np.ndarray | None = None  # (steps, bands): the mixed form's pressure field over mu
 
 
 def _lines(forced: list[float], lo: float, hi: float, fine_lo: float, fine_hi: float, h: float) -> np.ndarray:
@@ -286,7 +285,7 @@ def solve_press(
     closing = np.full((depths.size, pr.line_x.size), np.nan)
     closing[0] = 0.0
     n_bands = 0 if bands_mm is None else len(bands_mm)
-    drivers = np.full((4, depths.size, n_bands), np.nan)
+    drivers = np.full((3, depths.size, n_bands), np.nan)
     drivers[:, 0] = 0.0
     area[0], force[0], vol[0], chord[0] = 1.0, 0.0, 0.0, 0.0
     x, reached, iterations, shut_at = np.zeros(pr.n), 0.0, 0, None
@@ -325,11 +324,7 @@ def solve_press(
     if shut_at is not None:
         area[shut_at:] = 0.0
     lines = (pr.line_x, closing) if pr.line_x.size else (None, None)
-    band = (
-        (np.asarray(bands_mm, float), drivers[0], drivers[1], drivers[2], drivers[3])
-        if bands_mm is not None
-        else (None,) * 5
-    )
+    band = (np.asarray(bands_mm, float), drivers[0], drivers[1], drivers[2]) if bands_mm is not None else (None,) * 4
     return PressResult(offset_mm, depths, area, force, vol, chord, pr.mesh.t.shape[1], iterations, *lines, *band)
 
 
