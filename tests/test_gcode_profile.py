@@ -128,3 +128,24 @@ def test_soft_limits_upside_down_are_one_problem_not_also_the_park(paper_dict):
     with pytest.raises(ConfigError) as info:
         printer_profile_from_dict(paper_dict, "printer.toml")
     assert [p.field for p in info.value.problems] == ["soft_limits.max_x_mm"]
+
+
+@pytest.mark.parametrize("baud", [2400, 57600, 115200, 250000, 1000000])
+def test_every_marlin_baud_rate_is_accepted(paper_dict, baud):
+    paper_dict["printer"]["baud_rate"] = baud
+    assert printer_profile_from_dict(paper_dict, "p.toml").baud_rate == baud
+
+
+@pytest.mark.parametrize(("baud", "nearest"), [(115201, 115200), (11520, 9600), (230400, 250000), (25000, 19200)])
+def test_a_baud_rate_marlin_cannot_run_at_is_refused_with_the_nearest(paper_dict, baud, nearest):
+    """A typo in the baud rate opens the port and reads garbage from a real printer (a pty ignores it, so a dry run
+    never notices): refused when the profile says Marlin, naming the field and the nearest rate Marlin runs at."""
+    paper_dict["printer"]["baud_rate"] = baud
+    with pytest.raises(ConfigError) as caught:
+        printer_profile_from_dict(paper_dict, "p.toml")
+    (problem,) = caught.value.problems
+    assert (problem.file, problem.field) == ("p.toml", "printer.baud_rate")
+    assert problem.message.startswith(f"baud_rate = {baud} is not a speed Marlin runs at")
+    assert problem.fix.endswith(f"(nearest: {nearest})")
+    paper_dict["printer"]["firmware"] = "Repetier"  # another firmware's rates are its own
+    assert printer_profile_from_dict(paper_dict, "p.toml").baud_rate == baud

@@ -336,7 +336,13 @@ class PrinterTable(Settings):
     name: str | None = setting(None, max_len=200, default_doc="the file's stem", doc="printer name")
     description: str = setting("", allow_empty=True, doc="free text")
     firmware: str = setting("Marlin", max_len=64, doc="firmware family")
-    baud_rate: int = setting(115_200, gt=0, le=10_000_000, doc="serial speed")
+    baud_rate: int = setting(
+        115_200,
+        gt=0,
+        le=10_000_000,
+        doc="serial speed; with firmware Marlin one of the rates Marlin runs at (2400, 9600, 19200, 38400, 57600,"
+        " 115200, 250000, 500000, 1000000: Configuration.h's BAUDRATE list, M575's), else refused with the nearest",
+    )
     planner_buffer_size: int = setting(16, gt=0, le=10_000, doc="BLOCK_BUFFER_SIZE: moves queued ahead")
     rx_buffer_size: int = setting(128, gt=0, le=1_000_000, doc="RX_BUFFER_SIZE: bytes of serial input")
     homing_time_s: float = setting(20.0, unit="s", gt=0, le=3_600, doc="G28 of all axes, worst case")

@@ -133,6 +133,10 @@ def printer_profile_from_dict(data: dict, source: str = "<memory>") -> PrinterPr
     return PrinterProfile(**values, calibration=Calibration(**dataclasses.asdict(cal)))
 
 
+# The serial speeds Marlin can run at: Configuration.h's BAUDRATE list, the rates M575 accepts (M575.cpp).
+MARLIN_BAUD_RATES = (2400, 9600, 19200, 38400, 57600, 115200, 250000, 500000, 1000000)
+
+
 def _check(p) -> list[Problem]:
     """Cross-field checks; a comparison involving a field that failed to load (NaN) is skipped."""
     problems: list[Problem] = []
@@ -142,6 +146,16 @@ def _check(p) -> list[Problem]:
 
     def known(*values: float) -> bool:
         return all(math.isfinite(v) for v in values)
+
+    baud = p.baud_rate
+    if str(p.firmware).lower() == "marlin" and isinstance(baud, int) and baud not in MARLIN_BAUD_RATES:
+        nearest = min(MARLIN_BAUD_RATES, key=lambda rate: abs(rate - baud))
+        problem(
+            "printer.baud_rate",
+            f"baud_rate = {baud} is not a speed Marlin runs at ({', '.join(map(str, MARLIN_BAUD_RATES))}): the "
+            "port would open and the printer answer with garbage",
+            f"set baud_rate to the BAUDRATE the printer's firmware was built with (nearest: {nearest})",
+        )
 
     for axis in "xyz":
         lo, hi = getattr(p.soft_min_mm, axis), getattr(p.soft_max_mm, axis)
