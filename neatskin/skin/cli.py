@@ -20,7 +20,7 @@ def register(subparsers) -> None:
     maps = commands.add_parser(
         "maps",
         help="sensitivity maps (paper Fig. 3 and 5, and the dense deformation-model maps)",
-        description="Write the paper's simulated sensitivity maps (each channel +50 %% in turn) and the same "
+        description="Write the paper's simulated sensitivity maps (each channel +50 % in turn) and the same "
         "maps from the deformation model on a dense grid of presses, as PNG and parquet.",
     )
     maps.add_argument("--layout", default=DEFAULT_LAYOUT, help=f"skin layout TOML (default {DEFAULT_LAYOUT})")
@@ -58,7 +58,7 @@ def register(subparsers) -> None:
         "fit",
         help="fit the skin model to a recorded campaign (channel baselines, pinch, placement, noise, drift)",
         description="Estimate the skin model's parameters from a recorded campaign by nonlinear least squares "
-        "through the forward model, with 95 %% intervals and the pinch's correlation, and write a skin profile.",
+        "through the forward model, with 95 % intervals and the pinch's correlation, and write a skin profile.",
     )
     fit.add_argument("campaign", metavar="CAMPAIGN_DIR", help="a finished campaign folder (presses.parquet)")
     add_out(fit, "skin profile TOML to write (default CAMPAIGN_DIR/skin_profile.toml)")
