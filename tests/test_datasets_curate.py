@@ -265,3 +265,22 @@ def test_plots_are_pngs_of_the_expected_size(paper_layout, tmp_path):
         plot_press_map(tmp_path / "c", tmp_path / "x.png")
     assert err.value.field == "layout"
     assert png_size(plot_press_map(tmp_path / "c", tmp_path / "y.png", layout=paper_layout)) == (600, 500)
+
+
+def test_the_sensitivity_maps_title_counts_what_it_drew_and_what_it_left_out():
+    from neatskin.datasets.plots import sensitivity_title
+
+    df = pd.DataFrame(
+        {
+            "position_id": [0, 0, 1, 1, 2],
+            "x_mm": [1.0, 1.0, 2.0, 2.0, 3.0],
+            "y_mm": [0.0, 0.0, 5.0, 5.0, 9.0],
+            "flags": [[], ["open_circuit:1-2"], [], [], ["open_circuit:1-3"]],
+            "dR_ohm_1_2": [10.0, np.inf, -4.0, -8.0, 999.0],
+            "dR_ohm_1_3": [5.0, 5.0, -2.0, -2.0, np.inf],
+        }
+    )
+    title = sensitivity_title(df, sensitivity_by_position(df))
+    assert title.splitlines()[1:] == ["2 positions, 3 presses", "2 flagged presses left out (1 position wholly)"]
+    clean = df.iloc[[0, 2, 3]]
+    assert sensitivity_title(clean, sensitivity_by_position(clean)).splitlines()[1:] == ["2 positions, 3 presses"]
