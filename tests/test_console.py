@@ -255,3 +255,28 @@ def test_console_over_the_simulated_printer(sim_printer, tmp_path):
     ]
     typed = [line[1:] for line in history.read_text().splitlines() if line.startswith("+")]
     assert typed[:3] == ["home", "x+ 20", "step 5"] and typed[-2:] == ["pos", "quit"]
+
+
+def test_a_typed_move_below_the_surface_is_refused_as_a_jog_is():
+    """The z- guard covered jogs only: `G1 Z0` typed over the skin went straight to the printer."""
+    d = Clamping()
+    d.pos = Pos(95.0, 95.0, 10.0)
+    s = ConsoleSession(d, surface_z_mm=5.5)
+    assert s.handle("G1 Z0 F300") == [
+        "refused: 'G1 Z0 F300' would take the probe to Z 0.000, 5.500 mm below the skin surface at Z 5.500; "
+        "type G1 Z0 F300 ! to send it anyway"
+    ]
+    assert s.handle("g0 x10 z2")[0].startswith("refused: 'g0 x10 z2' would take the probe to Z 2.000")
+    assert d.sent == []  # nothing sent, not even M114 (absolute mode)
+    assert s.handle("G1 X90 Z5.5") == ["ok"] and s.handle("G1 X80") == ["ok"]  # to the surface, or no Z: sent
+    assert s.handle("G1 Z0 F300 !") == ["ok"] and d.sent[-1] == "G1 Z0 F300"  # confirmed: sent without the '!'
+    # relative mode typed here: the target is the reported Z plus the move
+    s.handle("G91")
+    d.pos = Pos(95.0, 95.0, 7.0)
+    assert s.handle("G1 Z-1") == ["ok"]  # 7 - 1 = 6, above 5.5
+    assert s.handle("G1 Z-2")[0].startswith("refused: 'G1 Z-2' would take the probe to Z 5.000")
+    s.handle("G90")
+    assert s.handle("G1 Z6") == ["ok"]
+    # with no surface known (no profile, no point taken) nothing is refused, as for jogs
+    assert ConsoleSession(FakeDriver()).handle("G1 Z0") == ["ok"]
+    assert s.handle("!") == []

@@ -18,7 +18,10 @@ terminal; `run_console` is the prompt_toolkit shell around it. Commands:
   calibration                        the [calibration] block fitted to the points, and the equivalent
                                      `neatskin gcode calibrate --point ...` command
   save [FILE]                        write the [calibration] block to FILE
-  G0 ..., M..., anything else        sent as is; the printer's reply is printed
+  G0 ..., M..., anything else        sent as is; the printer's reply is printed. A G0/G1 whose Z ends below
+                                     the skin surface is refused as a z- jog is: end the line with `!` to
+                                     send it (G91 typed here makes its Z relative; until then absolute,
+                                     Marlin's boot mode, which can only refuse more, never less)
   help, quit
 
 Ctrl-C while a command runs halts motion by waiting and lifting, not by M410: the moves in flight finish
@@ -132,6 +135,7 @@ class ConsoleSession:
         self.calibration_out = calibration_out
         self.lift_mm = lift_mm
         self.done = False
+        self.relative = False  # a G91 typed in this session (the console's own jogs restore G90)
 
     def handle(self, line: str) -> list[str]:
         text = line.strip()
@@ -160,7 +164,41 @@ class ConsoleSession:
         }.get(command)
         if handler is not None:
             return handler(rest.strip())
-        return self._raw(text)
+        confirmed = text.endswith("!")
+        raw = text[:-1].rstrip() if confirmed else text
+        if not raw:
+            return []
+        refusal = None if confirmed else self._below_surface(raw)
+        if refusal is not None:
+            return [refusal]
+        out = self._raw(raw)
+        code = raw.split(None, 1)[0].upper()
+        if code in ("G90", "G91"):
+            self.relative = code == "G91"
+        return out
+
+    def _below_surface(self, raw: str) -> str | None:
+        """The refusal of a typed G0/G1 whose Z ends below the known skin surface, else None. (Only jogs were
+        guarded: `G1 Z0` typed over the skin went straight to the printer.)"""
+        from neatskin.gcode.parse import GcodeSyntaxError, parse_line
+
+        surface = self.surface_z_mm
+        if surface is None:
+            return None
+        try:
+            line = parse_line(raw)
+        except GcodeSyntaxError:
+            return None  # the printer answers it
+        z = None if line is None or line.code not in ("G0", "G1") else line.get("Z")
+        if z is None:
+            return None
+        target = self.driver.position().z_mm + z if self.relative else z
+        if target >= surface - 1e-9:
+            return None
+        return (
+            f"refused: {raw!r} would take the probe to Z {target:.3f}, {surface - target:.3f} mm below the skin "
+            f"surface at Z {surface:.3f}; type {raw} ! to send it anyway"
+        )
 
     # ---- commands ----
 
