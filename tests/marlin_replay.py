@@ -132,3 +132,50 @@ HOMING: list[tuple[bytes, float]] = [
     (frame("G28 Y", 29), OK_WAIT_S),
     (frame("M114", 30), OK_WAIT_S),
 ]
+
+
+# What a host sends around the motion, and text a host or a hand-typed terminal line can carry: a comment-only
+# line (no answer at all), a line of spaces (an unknown command ""), a tab (not skipped as a space is), lower
+# case (an unknown command; `y2` no parameter), a comment after a command (its spaces before ';' kept), a line
+# past 95 characters (cut there), and commands the stock build runs: M155 (the temperature auto-report M115
+# advertises: two reports in 2.5 s), M113 (the keep-alive interval), the print job timer (M75 to M77 and M31:
+# none started, 0s), the settings commands (M500 to M503), M108, T0, an arc (G2: its end; M114 reports it), M410.
+# The waits end at the `ok`; the comment-only line, answered by nothing, waits its quiet time out. M410 holds the
+# planner for a second (Planner::quick_stop's cleaning_buffer_counter), longer on a busy native board.
+QUICK_STOP_WAIT_S = 8.0
+HOST_TEXT: list[tuple[bytes, float]] = [
+    (b"M110 N0\n", OK_WAIT_S),
+    (b";only a comment\n", 1.0),
+    (b"   \n", OK_WAIT_S),
+    (b"\tM118 E1 tab\n", OK_WAIT_S),
+    (b"g4 p1\n", OK_WAIT_S),
+    (b"G92 X1 y2 Z3\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+    (b"M118 e1 lower flag\n", OK_WAIT_S),
+    (b"M118 E1 hi ; a comment\n", OK_WAIT_S),
+    (b" M118 E1 leading spaces\n", OK_WAIT_S),
+    (b"M118 E1 " + b"c" * 87 + b"\n", OK_WAIT_S),
+    (b"M118 E1 " + b"d" * 88 + b"\n", OK_WAIT_S),
+    (b"M155 S1\n", OK_WAIT_S),
+    (b"G4 P2500\n", OK_WAIT_S),
+    (b"M155 S0\n", OK_WAIT_S),
+    (b"M113\n", OK_WAIT_S),
+    (b"M113 S1\n", OK_WAIT_S),
+    (b"M113\n", OK_WAIT_S),
+    (b"M31\n", OK_WAIT_S),
+    (b"M75\n", OK_WAIT_S),
+    (b"M77\n", OK_WAIT_S),
+    (b"M500\n", OK_WAIT_S),
+    (b"M501\n", OK_WAIT_S),
+    (b"M502\n", OK_WAIT_S),
+    (b"M503\n", OK_WAIT_S),
+    (b"M503 S0\n", OK_WAIT_S),
+    (b"M108\n", OK_WAIT_S),
+    (b"T0\n", OK_WAIT_S),
+    (b"G92 X0 Y0 Z0\n", OK_WAIT_S),
+    (b"G2 X2 Y0 I1 J0 F6000\n", OK_WAIT_S),
+    (b"M400\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+    (b"M410\n", QUICK_STOP_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+]

@@ -7,6 +7,7 @@ so the settings report's numbers agree too. Documented exceptions, each normalis
   (the HAL's line before `start`), and M115's FIRMWARE_NAME and MACHINE_TYPE line;
 - timing: `echo:busy: processing` keep-alives come every 2 s of a long command on either side, at
   times neither controls, so they are left out of both;
+- temperatures: the native board's thermistor reads 19.38 C, the simulator's room 25.00 C (M105, M155);
 - time: G28 takes 30 s on the native build's simulated board and the simulator's `homing_time_s` (its
   keep-alives are left out, as above; the simulator runs the homing script 10 times faster).
 Motion before homing is compared (BEFORE_HOMING): both move from where they believe they are, zeros at boot,
@@ -21,7 +22,7 @@ from pathlib import Path
 
 import pytest
 import serial
-from marlin_replay import BEFORE_HOMING, HOMING, HOMING_WAIT_S, SCRIPT, replay
+from marlin_replay import BEFORE_HOMING, HOMING, HOMING_WAIT_S, HOST_TEXT, SCRIPT, replay
 
 from neatskin.gcode.machine import Home, Machine
 from neatskin.gcode.parse import parse_line
@@ -32,6 +33,9 @@ from neatskin.sim.realmarlin import ADVANCED_OK, PLAIN, FirmwareRelay, find_marl
 REPO = Path(__file__).resolve().parent.parent
 MARLIN = find_marlin_dir(REPO)
 NATIVE_PROFILE = REPO / "protocols" / "printers" / "marlin-native.toml"
+
+
+_TEMPERATURE = re.compile(rb"([TB]:)\d+\.\d\d(?= /)")
 
 
 def normalise(data: bytes) -> bytes:
@@ -46,6 +50,7 @@ def normalise(data: bytes) -> bytes:
             line = b"echo: Compiled: <date>\n"
         elif text.startswith(b"FIRMWARE_NAME:"):
             line = b"FIRMWARE_NAME:<name>\n"
+        line = _TEMPERATURE.sub(b"\\1<C>", line)
         out.append(line)
     return b"".join(out)
 
@@ -111,6 +116,40 @@ def test_homing_and_soft_endstops_answer_as_the_real_firmware():
     _, real = real_transcript(PLAIN, HOMING, max_wait_s=HOMING_WAIT_S)
     _, sim = sim_transcript(advanced_ok=False, script=HOMING, speed=10.0, max_wait_s=HOMING_WAIT_S)
     assert_same_replies(real, sim, HOMING)
+
+
+@pytest.mark.skipif(MARLIN is None, reason="the real firmware is absent: no shared/marlin beside the repository")
+@pytest.mark.timeout(120)
+def test_host_text_and_housekeeping_answer_as_the_real_firmware():
+    """Comments, blank and lower-case lines, long lines, M155/M113/M31/M500-M503/M108/T0/G2/M410 (HOST_TEXT)."""
+    _, real = real_transcript(PLAIN, HOST_TEXT)
+    _, sim = sim_transcript(advanced_ok=False, script=HOST_TEXT)
+    assert_same_replies(real, sim, HOST_TEXT)
+
+
+def test_the_host_text_script_shows_what_marlin_does_with_it():
+    """The script itself (no firmware needed): what the simulator answers, as the native build did on 2026-11-26."""
+    _, sim = sim_transcript(advanced_ok=False, script=HOST_TEXT)
+    answers = [normalise(got) for _, got in sim]
+    assert answers[1] == b""  # a comment-only line: nothing, not even an ok
+    assert answers[2] == b'echo:Unknown command: ""\nok\n'  # spaces: kept, and unknown
+    assert answers[3] == b'echo:Unknown command: "\tM118 E1 tab"\nok\n'
+    assert answers[4] == b'echo:Unknown command: "g4 p1"\nok\n'
+    assert answers[6] == b"X:1.00 Y:0.00 Z:3.00 E:0.00 Count X:0 Y:0 Z:0\nok\n"  # y2 is no parameter
+    assert answers[7] == b"e1 lower flag\r\nok\n"
+    assert answers[8] == b"echo:hi \r\nok\n"
+    assert answers[9] == b"echo:leading spaces\r\nok\n"
+    assert answers[10] == b"echo:" + b"c" * 87 + b"\r\nok\n"  # 95 characters: whole
+    assert answers[11] == b"echo:" + b"d" * 87 + b"\r\nok\n"  # 96: the last one cut
+    assert answers[13] == b" T:<C> /0.00 B:<C> /0.00 @:0 B@:0\n" * 2 + b"ok\n"  # M155 S1, G4 P2500 (keep-alives aside)
+    assert answers[15] == b"echo:M113 S2\nok\n" and answers[17] == b"echo:M113 S1\nok\n"
+    assert answers[18] == b"echo:Print time: 0s\nok\n"
+    assert answers[21] == b"Warning:EEPROM disabled\nok\n"
+    assert answers[23] == b"echo:Hardcoded Default Settings Loaded\nok\n"
+    assert answers[24].startswith(b"echo:; Linear Units:\necho:  G21 ; (mm)\n")
+    assert answers[25].startswith(b"  G21 ; (mm)\n  M149 C ; Units in Celsius\n")
+    assert answers[26] == answers[27] == b"ok\n"  # M108, T0
+    assert answers[31] == answers[33] == b"X:2.00 Y:0.00 Z:0.00 E:0.00 Count X:160 Y:0 Z:0\nok\n"  # the arc's end
 
 
 def test_the_homing_script_shows_the_raises_and_the_reports():

@@ -32,19 +32,23 @@ from neatskin.gcode.profile import PrinterProfile
 from neatskin.marlin import replies as R
 from neatskin.sim.clock import ScaledClock, VirtualClock
 from neatskin.sim.faults import FaultConfig
-from neatskin.sim.firmware_texts import STEPS_PER_MM, banner_lines, m115_lines
+from neatskin.sim.firmware_texts import STEPS_PER_MM, banner_lines, m115_lines, settings_report
+from neatskin.sim.housekeeping import CODES as HOUSEKEEPING
+from neatskin.sim.housekeeping import TEMPERATURES, Housekeeping
 from neatskin.sim.intake import LineIntake
 from neatskin.sim.motion import Timeline
 
 __all__ = ["MarlinCore", "ScaledClock", "VirtualClock"]
 
-_MOVES = frozenset({"G0", "G1"})
+_MOVES = frozenset({"G0", "G1", "G2", "G3"})  # an arc (G2/G3) goes along its chord: the end is right, the path not
 _MODES = frozenset({"G90", "G91", "M82", "M83"})
 _SILENT = frozenset({"G0", "G1", "G4", "M400", "M999", "M111"})
 _OK = b"ok\n"
+QUICK_STOP_HOLD_S = 1.0
 # (M84/M18 among them: stock Marlin keeps the axes homed when it turns the steppers off, HOME_AFTER_DEACTIVATE off)
 _QUIET = frozenset(
-    {"G21", "G90", "G91", "M17", "M18", "M82", "M83", "M84", "M104", "M106", "M107", "M117", "M140", "M220", "M221"}
+    {"G21", "G90", "G91", "M17", "M18", "M82", "M83", "M84", "M104", "M106", "M107", "M108", "M117", "M140", "M220"}
+    | {"M221", "M410"}
 )
 
 
@@ -111,6 +115,7 @@ class MarlinCore(LineIntake):
         self._head_ready: float | None = None
         self._last_busy = self.clock.now()
         self.echo_commands = False
+        self.housekeeping = Housekeeping(self._emit, self.clock.now, self.keepalive_s)  # M113, M155, M31, M500-M503
         for line in banner_lines(self.profile):
             self._emit(line)
 
@@ -152,6 +157,9 @@ class MarlinCore(LineIntake):
 
     def step(self) -> float | None:
         """Run queued commands; real seconds until the head command can go on, or None when idle."""
+        housekeeping = self.housekeeping
+        if housekeeping.report_every_s and housekeeping.next_report_s <= self.clock.now():  # M155 on: rarely
+            housekeeping.reports_due(self.clock.now())
         while self.queue and not self.dead and not self.halted:
             wait = self._run_head()
             if self.halted:  # it ran M112: the queue is gone
@@ -178,12 +186,15 @@ class MarlinCore(LineIntake):
         now = self.clock.now()
         if self._virtual:
             if ready_s > now:
-                for _ in range(min(int((ready_s - now) // self.keepalive_s), 3)):
+                self.housekeeping.reports_due(ready_s)
+                every_s = self.housekeeping.keepalive_s
+                for _ in range(min(int((ready_s - now) // every_s), 3) if every_s > 0 else 0):
                     self._emit(f"echo:{R.BUSY_PROCESSING}")
                 self.clock.wait_until(ready_s)
             return 0.0
         left = self.clock.wait_until(ready_s)
-        if left > 0 and now - self._last_busy >= self.keepalive_s:
+        every_s = self.housekeeping.keepalive_s
+        if left > 0 and every_s > 0 and now - self._last_busy >= every_s:
             self._last_busy = now
             self._emit(f"echo:{R.BUSY_PROCESSING}")
         return left
@@ -233,6 +244,9 @@ class MarlinCore(LineIntake):
             return None if self._refuses_motion() else tl.slot_free_s(now, self.profile.planner_buffer_size)
         if code == "M400":
             return tl.end_s
+        if code == "M410":  # Planner::quick_stop then holds the planner for a second (cleaning_buffer_counter)
+            self._quick_stop()
+            return now + QUICK_STOP_HOLD_S
         if code == "G4" and line is not None:
             return max(now, tl.end_s) + (line.get("P", 0.0) or 0.0) / 1000.0 + (line.get("S", 0.0) or 0.0)
         if code == "G28":
@@ -265,7 +279,21 @@ class MarlinCore(LineIntake):
         return tl.end_s
 
     def _move(self, line: GcodeLine) -> None:
+        if line.code in ("G2", "G3"):  # the arc's chord, to the same end
+            line = GcodeLine("G1", {k: v for k, v in line.params.items() if k in "XYZF"}, raw=line.raw)
         self._queue_move(self.machine.step(line), line.raw)  # type: ignore[arg-type]
+
+    def _quick_stop(self) -> None:
+        """M410 (quickstop_stepper): the planned motion is dropped and the steppers stop where they are, which the
+        firmware then believes (set_current_from_steppers); a queued command waiting for the motion goes on."""
+        now = self.clock.now()
+        here = self.timeline.position_mm(now)
+        self.timeline.teleport(now, here)
+        position, frame = self.machine.position_mm, self._frame_mm
+        for i in range(3):
+            position[i] = here[i] - frame[i]
+        if self.queue and self._head_ready is not None and (self.queue[0][2] in _MOVES or self.queue[0][2] == "M400"):
+            self._head_ready = now
 
     def _queue_move(self, event: Move, raw: str) -> None:
         """The probe's motion for a move the firmware believes it made."""
@@ -318,12 +346,15 @@ class MarlinCore(LineIntake):
             self.echo_commands = bool(line is not None and int(line.get("S", 0) or 0) & 1)
             self._emit("echo:DEBUG:ECHO" if self.echo_commands else "echo:DEBUG:off")
         elif code == "M105":
-            self._emit("ok T:25.00 /0.00 B:25.00 /0.00 @:0 B@:0", is_ok=True)
+            self._emit("ok " + TEMPERATURES, is_ok=True)
             return True
         elif code == "M115":
             for text_line in m115_lines():
                 self._emit(text_line)
-        elif code not in _QUIET and code not in _SILENT:
+        elif code in HOUSEKEEPING:
+            self.housekeeping.run(code, line, lambda comments: settings_report(self.profile, comments))
+
+        elif code not in _QUIET and code not in _SILENT and code[:1] != "T":  # a tool change: ok (one tool)
             self._emit(f'echo:{R.UNKNOWN_COMMAND}{text}"')
         return False
 

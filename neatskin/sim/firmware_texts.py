@@ -64,10 +64,6 @@ def m115_lines() -> list[str]:
 
 def banner_lines(profile: PrinterProfile) -> list[str]:
     """`start` and what Marlin prints after it at boot: version, memory, the settings report (M503's)."""
-    fx, fy, fz = profile.max_feed_mm_s
-    ax, ay, az = profile.max_accel_mm_s2
-    a = profile.accel_mm_s2
-    sx, sy, sz, se = STEPS_PER_MM
     return [
         "start",
         "PowerUp",
@@ -76,24 +72,35 @@ def banner_lines(profile: PrinterProfile) -> list[str]:
         "echo: Compiled: neatskin",
         f"echo: Free Memory: 0  PlannerBufferBytes: {92 * profile.planner_buffer_size}",
         "echo:Hardcoded Default Settings Loaded",
-        "echo:; Linear Units:",
-        "echo:  G21 ; (mm)",
-        "echo:; Temperature Units:",
-        "echo:  M149 C ; Units in Celsius",
-        "echo:; Filament settings (Disabled):",
-        "echo:  M200 S0 D1.75",
-        "echo:; Steps per unit:",
-        f"echo:  M92 X{sx:.2f} Y{sy:.2f} Z{sz:.2f} E{se:.2f}",
-        "echo:; Max feedrates (units/s):",
-        f"echo:  M203 X{fx:.2f} Y{fy:.2f} Z{fz:.2f} E25.00",
-        "echo:; Max Acceleration (units/s2):",
-        f"echo:  M201 X{ax:.2f} Y{ay:.2f} Z{az:.2f} E10000.00",
-        "echo:; Acceleration (units/s2) (P<print-accel> R<retract-accel> T<travel-accel>):",
-        f"echo:  M204 P{a:.2f} R{a:.2f} T{a:.2f}",
-        "echo:; Advanced (B<min_segment_time_us> S<min_feedrate> T<min_travel_feedrate> J<junc_dev>):",
-        "echo:  M205 B20000.00 S0.00 T0.00 J0.01",
-        "echo:; Home offset:",
-        "echo:  M206 X0.00 Y0.00 Z0.00",
-        "echo:; Hotend PID:",
-        "echo:  M301 P22.20 I1.08 D114.00",
+        *settings_report(profile, comments=True),
     ]
+
+
+def settings_report(profile: PrinterProfile, comments: bool) -> list[str]:
+    """M503's report (MarlinSettings::report): with comments, each setting under its `; heading`, every line after
+    `echo:`; without (M503 S0), the commands alone and no `echo:`."""
+    fx, fy, fz = profile.max_feed_mm_s
+    ax, ay, az = profile.max_accel_mm_s2
+    a = profile.accel_mm_s2
+    sx, sy, sz, se = STEPS_PER_MM
+    sections = [
+        ("Linear Units:", "G21 ; (mm)"),
+        ("Temperature Units:", "M149 C ; Units in Celsius"),
+        ("Filament settings (Disabled):", "M200 S0 D1.75"),
+        ("Steps per unit:", f"M92 X{sx:.2f} Y{sy:.2f} Z{sz:.2f} E{se:.2f}"),
+        ("Max feedrates (units/s):", f"M203 X{fx:.2f} Y{fy:.2f} Z{fz:.2f} E25.00"),
+        ("Max Acceleration (units/s2):", f"M201 X{ax:.2f} Y{ay:.2f} Z{az:.2f} E10000.00"),
+        (
+            "Acceleration (units/s2) (P<print-accel> R<retract-accel> T<travel-accel>):",
+            f"M204 P{a:.2f} R{a:.2f} T{a:.2f}",
+        ),
+        (
+            "Advanced (B<min_segment_time_us> S<min_feedrate> T<min_travel_feedrate> J<junc_dev>):",
+            "M205 B20000.00 S0.00 T0.00 J0.01",
+        ),
+        ("Home offset:", "M206 X0.00 Y0.00 Z0.00"),
+        ("Hotend PID:", "M301 P22.20 I1.08 D114.00"),
+    ]
+    if not comments:
+        return [f"  {command}" for _, command in sections]
+    return [line for heading, command in sections for line in (f"echo:; {heading}", f"echo:  {command}")]

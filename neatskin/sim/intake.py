@@ -10,12 +10,13 @@ are drawn from the seeded Generator the firmware hands over.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import re
 
 import numpy as np
 
 from neatskin.errors import ConfigError
-from neatskin.gcode.parse import GcodeLine, checksum, parse_line
+from neatskin.gcode.parse import TEXT_COMMANDS, GcodeLine, checksum, parse_line
 from neatskin.marlin import replies as R
 from neatskin.sim.faults import FaultConfig
 
@@ -24,6 +25,8 @@ _DIGITS = re.compile(r"\d+")
 _EOL = re.compile(rb"[\r\n]")
 _FRAMED = re.compile(r"N(\d+)([^*]*)\*(\d+)")  # the common framed line: N<n> <command>*<checksum>
 _PARSE_CACHE_LINES = 1024  # distinct command texts kept parsed (the repeated ones come first)
+MAX_LINE_CHARS = 95  # Marlin's MAX_CMD_SIZE (96) less its terminating NUL
+_COMMAND = re.compile(r"[GMT]\d")  # parser.cpp: the command letter, upper case (stock: not GCODE_CASE_INSENSITIVE)
 
 #: A queued command: (line number, command, code, parsed, the line as received: M111 S1 echoes it)
 Queued = tuple[int | None, str, str, GcodeLine | None, str]
@@ -66,6 +69,10 @@ class LineIntake:
 
     def _kill(self) -> None:
         """M112: the firmware's to do (it stops the motion too)."""
+        raise NotImplementedError
+
+    def _quick_stop(self) -> None:
+        """M410: the firmware's to do."""
         raise NotImplementedError
 
     # ---- output ---------------------------------------------------------------------------
@@ -114,9 +121,13 @@ class LineIntake:
             return
         if faults.corrupt and raw.strip() and self.rng.random() < faults.corrupt:
             raw = self._corrupt(raw)
-        text = raw.decode("ascii", "replace").strip()
-        if not text or self.halted:
+        # Marlin's reader (queue.cpp process_stream_char): a ';' starts a comment to the end of the line, a line keeps
+        # its first MAX_CMD_SIZE - 1 characters, and one with nothing kept is skipped without a word (a line of
+        # spaces is kept: it is an unknown command ""); the command starts after the leading spaces (not tabs)
+        line = raw.decode("ascii", "replace").split(";", 1)[0][:MAX_LINE_CHARS]
+        if not line or self.halted:
             return
+        text = line.lstrip(" ")
         number = None
         framed = _FRAMED.fullmatch(text)
         if framed is not None and "M110" not in text:  # the common case, checked as the general path below
@@ -153,6 +164,8 @@ class LineIntake:
         if text.startswith("M112"):  # no emergency parser: queue.cpp kills on an unnumbered M112 as it reads it
             self._kill()
             return
+        if text.startswith("M410"):  # ... and stops the motion on an unnumbered M410 (it is queued too)
+            self._quick_stop()
         self._enqueue(number, text, text)
 
     def _in_sequence(self, number: int) -> bool:
@@ -171,11 +184,7 @@ class LineIntake:
         text is parsed once (a bounded cache of immutable parses)."""
         parsed = self._parsed.get(text)
         if parsed is None:
-            try:
-                line = parse_line(text)
-            except ConfigError:
-                line = None
-            parsed = (line.code if line is not None else text.split(" ", 1)[0], line)
+            parsed = _marlin_parse(text)
             if len(self._parsed) < _PARSE_CACHE_LINES:
                 self._parsed[text] = parsed
         self.queue.append((number, text, parsed[0], parsed[1], raw))
@@ -195,3 +204,22 @@ class LineIntake:
         self._emit(f"{R.RESEND}{self.last_n + 1}")
         if self.ok_after_resend:
             self._emit(R.OK, is_ok=True)  # bare even with ADVANCED_OK (queue.cpp flush_and_request_resend)
+
+
+def _marlin_parse(text: str) -> tuple[str, GcodeLine | None]:
+    """(code, parsed line) as stock Marlin's parser reads a command: the letter G, M or T in upper case and a
+    number, or it is unknown (code ""); a parameter is an upper-case letter, so `y7` is no parameter and is
+    ignored (free text, M117/M118's, is kept as it came)."""
+    if _COMMAND.match(text) is None:
+        return "", None
+    code_end = text.find(" ")
+    code_text = text if code_end < 0 else text[:code_end]
+    if code_end >= 0 and code_text not in TEXT_COMMANDS and any(c.islower() for c in text):
+        text = " ".join([code_text] + [word for word in text[code_end:].split() if not word[0].islower()])
+    try:
+        line = parse_line(text)
+    except ConfigError:
+        line = None
+    if line is not None and code_text in TEXT_COMMANDS and text[-1:] == " ":  # Marlin keeps the text's spaces
+        line = dataclasses.replace(line, params={**line.params, "text": line.text + text[len(text.rstrip(" ")) :]})
+    return (line.code if line is not None else code_text, line)
