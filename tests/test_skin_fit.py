@@ -148,6 +148,30 @@ def test_a_dataset_without_positions_is_refused(tmp_path, paper_layout):
     assert "x_mm" in str(err.value) and "presses.parquet" in str(err.value)
 
 
+def test_presses_with_a_pair_cut_off_are_left_out_and_counted_but_a_nan_is_refused(tmp_path, paper_layout):
+    """A paper dry run records a pair cut off by a channel pinched shut as R = dR = +inf (valid data: `dataset
+    validate` accepts it); the fit leaves those presses out, says how many, and fits the rest exactly as it fits
+    a campaign without them. A NaN is damage: refused, naming the column."""
+    write_campaign(tmp_path / "c", paper_layout, seed=8, positions=10, repeats=3)
+    df = pd.read_parquet(tmp_path / "c" / "presses.parquet")
+    cut = df.copy()
+    cut.loc[[2, 7, 11], ["R_ohm_1_2", "dR_ohm_1_2"]] = np.inf
+    write_campaign(tmp_path / "cut", paper_layout, seed=8, positions=10, repeats=3)
+    cut.to_parquet(tmp_path / "cut" / "presses.parquet")
+    kept = df.drop(index=[2, 7, 11])
+    write_campaign(tmp_path / "kept", paper_layout, seed=8, positions=10, repeats=3)
+    kept.to_parquet(tmp_path / "kept" / "presses.parquet")
+    fit_cut, fit_kept = fit_skin(tmp_path / "cut"), fit_skin(tmp_path / "kept")
+    assert any(note.startswith("3 of 30 presses left out") for note in fit_cut.notes)
+    assert fit_cut.pinch_gain.value == fit_kept.pinch_gain.value
+    nan = df.copy()
+    nan.loc[4, "dR_ohm_2_6"] = np.nan
+    nan.to_parquet(tmp_path / "c" / "presses.parquet")
+    with pytest.raises(DataError) as err:
+        fit_skin(tmp_path / "c")
+    assert err.value.field == "dR_ohm_2_6" and "press ids [4]" in str(err.value)
+
+
 def test_the_command_prints_the_fit_and_writes_a_profile(tmp_path, paper_layout, capsys):
     from neatskin.cli import main
 

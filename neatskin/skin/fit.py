@@ -181,17 +181,20 @@ def load_campaign(folder: str | Path) -> tuple[Layout, dict, dict[str, np.ndarra
 
 
 def _refuse_nonfinite(df, table: Path) -> None:
-    """One DataError naming every column with a NaN or an infinity: the fit has no use for them (a pair cut off
-    by a pinched channel is +inf: such a press carries no pinch to fit)."""
+    """One DataError naming every column with a NaN, an infinite position or a resistance of -inf: the fit has no
+    use for them. A resistance of +inf is data, not damage: a pair cut off by a channel pinched shut (the DAQ flags
+    it open circuit; `dataset validate` accepts it); fit_skin leaves such presses out and says how many."""
     columns = ["x_mm", "y_mm", "depth_mm", *(c for c in df.columns if c.startswith(("R_ohm_", "dR_ohm_")))]
     values = df[columns].to_numpy(float)
-    bad = ~np.isfinite(values)
+    bad = np.isnan(values) | (values == -np.inf)
+    bad[:, :3] |= ~np.isfinite(values[:, :3])
     if bad.any():
         names = [c for c, b in zip(columns, bad.any(axis=0)) if b]
         ids = df["press_id"].to_numpy()[bad.any(axis=1)][:8].tolist()
         raise DataError(
-            f"the fit needs finite values: NaN or infinite in {', '.join(names[:5])}"
-            f"{f' (and {len(names) - 5} more columns)' if len(names) > 5 else ''} (press ids {ids})",
+            f"the fit needs finite positions and resistances that are numbers: NaN or infinite in "
+            f"{', '.join(names[:5])}{f' (and {len(names) - 5} more columns)' if len(names) > 5 else ''} "
+            f"(press ids {ids})",
             file=str(table),
             field=names[0],
             fix="`neatskin dataset validate` names every problem; re-press those presses or drop their rows",
@@ -205,7 +208,8 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
 
     layout, _, c = load_campaign(folder)
     source = str(folder)
-    base = c["R"] - c["dR"]
+    with np.errstate(invalid="ignore"):  # a cut pair: inf - inf, left out below
+        base = c["R"] - c["dR"]
     ok = np.all(np.isfinite(base), axis=1) & np.all(np.isfinite(c["dR"]), axis=1)
     if ok.sum() < 3:
         raise DataError(f"{source}: fewer than 3 presses with finite R", field="R_ohm", fix="record more presses")
@@ -213,6 +217,11 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
     x, y, depth, position = c["x"][ok], c["y"][ok], c["depth"][ok], c["position"][ok]
     n_presses, n_pairs = base.shape
     notes = []
+    if not ok.all():
+        notes.append(
+            f"{int((~ok).sum())} of {ok.size} presses left out: a pair cut off (R_eq infinite, a channel pinched "
+            "shut) carries no graded pinch to fit"
+        )
     # 1. drift: log R_base = a_pair + k t
     span = float(np.ptp(hours))
     logb = np.log(base)
