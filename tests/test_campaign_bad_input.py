@@ -290,6 +290,8 @@ def test_the_papers_2_mA_clips_at_the_mux_rails(protocols):
     assert "2 mA x (5625 ohm (pair 2-6, undeformed) x 1.5 press margin" in problem.message
     assert "= 17.3 V peak, beyond the mux supply rails (-8 V .. +8 V): 8 V" in problem.message
     assert "lower amplitude_a to <= 0.925 mA" in problem.fix and "more conductive fluid" in problem.fix
+    # the skin's file as seen from the protocol's folder: a bare "paper.toml" would read as the protocol's own
+    assert "resistivity_ohm_m = 0.5 ohm m in skins/paper.toml)" in problem.fix
 
 
 def test_electrical_limits_come_from_the_wiring_and_the_protocol(protocols):

@@ -453,10 +453,19 @@ def _electrical_problems(
             source,
             "excitation.amplitude_a",
             f"lower amplitude_a to <= {amp_max * 1e3:.3g} mA, or use a more conductive fluid (skin "
-            f"resistivity_ohm_m = {layout.resistivity_ohm_m:g} ohm m in {Path(layout.source).name}), or other rails "
-            f"(wiring [electrical])",
+            f"resistivity_ohm_m = {layout.resistivity_ohm_m:g} ohm m in {_beside(layout.source, source)}), or other "
+            "rails (wiring [electrical])",
         )
     ]
+
+
+def _beside(path: str, protocol: str) -> str:
+    """`path` as seen from the protocol's folder (`skins/paper.toml` for paper.toml's skin), else whole: a bare
+    file name can be the protocol's own (paper.toml and skins/paper.toml)."""
+    try:
+        return Path(path).resolve().relative_to(Path(protocol).resolve().parent).as_posix()
+    except ValueError:
+        return str(path)
 
 
 def _collect(problems: list[Problem], load: Any, *args: Any) -> Any:
