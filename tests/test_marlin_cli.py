@@ -80,6 +80,17 @@ def test_printer_send_refuses_bad_gcode_before_opening_the_port(tmp_path, capsys
     assert "bad.gcode" in err and "line 2" in err and "'foo' is not a G, M or T command" in err
 
 
+def test_printer_send_refuses_what_the_firmware_would_not_run_as_written_before_opening_the_port(tmp_path, capsys):
+    """Lower case (stock Marlin: unknown command, or a parameter ignored) and a line past what Marlin keeps (a
+    numbered one fails its checksum on every resend): every such line named, nothing sent."""
+    bad = tmp_path / "bad.gcode"
+    bad.write_text("G28\ng1 X10\nG1 X5 y7\nM118 E1 any case text\nG1 " + "X1.000000000 " * 8 + "\n")
+    assert main(["printer", "send", "--port", "/dev/nonexistent-port", str(bad)]) == 3
+    err = capsys.readouterr().err
+    assert "[line 2]" in err and "[line 3]" in err and "[line 5]" in err and "[line 4]" not in err
+    assert "upper case ('G1 X5 Y7')" in err and "/dev/nonexistent-port" not in err
+
+
 def test_sim_printer_refuses_a_bad_fault_spec(capsys):
     assert main(["sim", "printer", "--faults", "noise=1"]) == 3
     assert "unknown fault 'noise'" in capsys.readouterr().err

@@ -117,8 +117,9 @@ def lift_lines(
 def printer_send_handler(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from neatskin.errors import ConfigError
-    from neatskin.gcode.parse import parse_program
+    from neatskin.errors import ConfigError, Problem
+    from neatskin.gcode.bounds import firmware_text_problem
+    from neatskin.gcode.parse import parse_numbered
     from neatskin.gcode.profile import load_printer_profile
     from neatskin.marlin.driver import DriverConfig, MarlinDriver
 
@@ -127,7 +128,16 @@ def printer_send_handler(args: argparse.Namespace) -> int:
         text = path.read_text(encoding="ascii")
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"cannot read G-code: {exc}", file=path, fix="give a readable ASCII G-code file") from exc
-    parse_program(text, source=str(path))  # a syntax error is reported before the port is touched
+    # a syntax error, or a line the firmware would not run as written (lower case, too long), is reported before
+    # the port is touched: on the board a long numbered line fails its checksum on every resend
+    refused = [
+        Problem(what, str(path), f"line {number}", fix)
+        for number, line in parse_numbered(text, source=str(path))
+        if (problem := firmware_text_problem(line)) is not None
+        for what, fix in [problem]
+    ]
+    if refused:
+        raise ConfigError(problems=refused)
     all_lines = text.splitlines()
     if not 1 <= args.from_line <= len(all_lines) + 1:
         raise ConfigError(
