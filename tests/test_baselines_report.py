@@ -295,3 +295,16 @@ def test_on_a_dry_run_dataset_the_grouped_folds_keep_positions_apart(smoke_dry_r
     # the smoke protocol's ideal scene has no nuisance: both bounds are the same
     assert report.bound_nuisance_rms_mm == report.bound_rms_mm
     assert (smoke_dry_run / "baselines_bound_map.png").is_file()
+
+
+def test_an_infinite_nuisance_bound_notes_no_model_and_says_why(tmp_path):
+    """On the FE skin the bound is infinite at positions on a channel the probe shuts, so the pooled bound is
+    infinite: rms / inf = 0 had noted every model "below the nuisance bound (0×)". No ratio, no note, a reason."""
+    folder = write_dataset(tmp_path / "ds", small_table(10, 4), layout=True, crb_mm=0.5, crb_nuisance_mm=np.inf)
+    with pytest.warns(UserWarning):
+        report = run_baselines(folder, split="both", models=["ridge", "knn"], progress=False, n_repeats=2)
+    assert report.bound_nuisance_rms_mm == np.inf
+    assert report.table["rms_over_crb_nuisance"].isna().all()
+    text = (folder / "report.md").read_text()
+    assert "below the nuisance bound (" not in text and "Closest to it" not in text  # no row noted
+    assert "Here the bound with nuisances is infinite" in text

@@ -201,7 +201,14 @@ def _bound_text(bound: float, nuisance_bound: float | None, table: pd.DataFrame)
             "nuisance in the scene (the `ideal` preset) the two bounds are equal. The full table gives every "
             "result's RMS error over each bound.",
         ]
-        if "rms_over_crb_nuisance" in table.columns:
+        if not np.isfinite(nuisance_bound):
+            lines += [
+                "",
+                "Here the bound with nuisances is infinite: at some positions (a press on a channel the probe shuts) "
+                "no graded reading tells where the press landed along the channel, so the pooled bound says nothing "
+                "and no result is compared with it (`physical_limit.parquet` has it position by position).",
+            ]
+        elif "rms_over_crb_nuisance" in table.columns:
             k = int(np.argmin(table["rms_over_crb_nuisance"].to_numpy(float)))
             model, split, ratio = table["model"].iloc[k], table["split"].iloc[k], table["rms_over_crb_nuisance"].iloc[k]
             where = (
