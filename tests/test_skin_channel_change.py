@@ -110,6 +110,10 @@ def test_an_unchanged_resistance_changes_nothing_on_both_paths(paper_layout):
     [
         (lambda g: g[:5], 1.5, "shape"),
         (lambda g: -g, 1.5, ">= 0"),
+        # a NaN anywhere leaves the sorted order undefined (the ends may be fine): the sum still refuses it
+        (lambda g: np.where(np.arange(g.size) == 5, np.nan, g), 1.5, ">= 0"),
+        (lambda g: np.where(np.arange(g.size) == 0, np.nan, g), 1.5, ">= 0"),
+        (lambda g: np.where(np.arange(g.size) == 7, np.inf, g), 1.5, ">= 0"),
         (lambda g: g, 0.0, "factor"),
         (lambda g: g, np.inf, "factor"),
     ],
