@@ -110,6 +110,10 @@ def test_an_unchanged_resistance_changes_nothing_on_both_paths(paper_layout):
     [
         (lambda g: g[:5], 1.5, "shape"),
         (lambda g: -g, 1.5, ">= 0"),
+        # a NaN anywhere leaves the sorted order undefined (the ends may be fine): the sum still refuses it
+        (lambda g: np.where(np.arange(g.size) == 5, np.nan, g), 1.5, ">= 0"),
+        (lambda g: np.where(np.arange(g.size) == 0, np.nan, g), 1.5, ">= 0"),
+        (lambda g: np.where(np.arange(g.size) == 7, np.inf, g), 1.5, ">= 0"),
         (lambda g: g, 0.0, "factor"),
         (lambda g: g, np.inf, "factor"),
     ],
@@ -135,3 +139,18 @@ def test_each_layout_gets_its_own_cached_incidence(paper_layout):
         gc.collect()
     np.testing.assert_array_equal(channel_change_delta_ohm(paper_layout, g_paper, 1.5), first)
     assert network._INCIDENCE[id(paper_layout)][0]() is paper_layout
+
+
+def test_a_layout_above_the_dense_size_takes_the_full_solve_and_caches_no_rank_one_structure():
+    from neatskin.skin import network
+
+    layout = grid_layout(9, 8)  # 72 junctions > DENSE_MAX_JUNCTIONS: no grounded inverse is built for it
+    assert layout.n_junctions > network.DENSE_MAX_JUNCTIONS
+    g = np.exp(np.random.default_rng(3).uniform(0.0, 2.0, layout.n_channels)) * 1e-4
+    delta = channel_change_delta_ohm(layout, g, 1.5)
+    assert network._INCIDENCE[id(layout)][1] == (layout.n_channels, None)
+    states = np.tile(g, (layout.n_channels + 1, 1))
+    states[np.arange(1, layout.n_channels + 1), np.arange(layout.n_channels)] /= 1.5
+    r_eq = equivalent_resistance(layout, states, "dense")
+    assert np.all(np.abs(delta - (r_eq[1:] - r_eq[0])) <= 1e-11 * r_eq[0])
+    assert np.all(delta >= -1e-12 * r_eq[0])  # Rayleigh: +50 % on one channel never lowers an R_eq

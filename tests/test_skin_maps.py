@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
@@ -9,7 +11,7 @@ import pytest
 
 from neatskin.cli import main
 from neatskin.layout import ElectrodePair
-from neatskin.skin.maps import deformation_sensitivity, grid_positions_mm, paper_sensitivity
+from neatskin.skin.maps import SensitivityMap, deformation_sensitivity, grid_positions_mm, paper_sensitivity
 from neatskin.skin.model import SkinModel
 
 
@@ -131,3 +133,18 @@ def test_cli_press_prints_every_pair(capsys, paper_layout):
     assert max(rows, key=lambda k: rows[k][2]) == "1-8"  # the press sits on channel 8-1
     assert main(["skin", "press", "--x-mm", "nan", "--y-mm", "0"]) == 3
     assert "--x-mm" in capsys.readouterr().err
+
+
+def test_sensitivity_map_is_a_frozen_validated_value(paper_layout, paper_map):
+    pairs = paper_layout.pairs
+    x, y = np.zeros(3), np.ones(3)
+    made = SensitivityMap("s", x, y, np.zeros((3, len(pairs))), pairs)
+    assert made.source == "s" and made.x_mm is x and made.y_mm is y and made.pairs is pairs
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        made.source = "t"  # type: ignore[misc]
+    for bad_y, bad_delta in ((np.ones(2), np.zeros((3, len(pairs)))), (y, np.zeros((3, len(pairs) - 1)))):
+        with pytest.raises(ValueError, match="inconsistent map shapes"):
+            SensitivityMap("s", x, bad_y, bad_delta, pairs)
+    same = SensitivityMap(paper_map.source, paper_map.x_mm, paper_map.y_mm, paper_map.delta_ohm, pairs)
+    assert repr(same) == repr(paper_map) and same.source == "paper_plus50pct"
+    assert paper_sensitivity(paper_layout, 0.25).source == "paper_plus25pct"

@@ -203,27 +203,34 @@ def channel_change_delta_ohm(layout: Layout, conductance_s: np.ndarray, resistan
     change does not connect it), never NaN.
     """
     g = np.asarray(conductance_s, dtype=float)
-    n_channels = layout.n_channels
-    # the checks on a dozen Python floats: numpy's min and max cost microseconds each, a map costs a few more
+    n_channels, rank_one = per_layout(_INCIDENCE, layout, _rank_one_structure)  # Layout.n_channels is a property
+    # the checks on a dozen Python floats (numpy's min and max cost microseconds each, a map costs a few more):
+    # one sort gives both ends, in half the time of min() and max(); a NaN leaves the order undefined, but the sum
+    # is then NaN too, and refused
     values = g.tolist() if g.shape == (n_channels,) else [math.nan]
-    g_min, g_max, total = min(values), max(values), sum(values)
-    if not (g_min >= 0 and g_max < math.inf and total == total):  # the sum is NaN if any value is (min may skip it)
+    values.sort()
+    g_min, g_max, total = values[0], values[-1], sum(values)
+    if not (g_min >= 0 and g_max < math.inf and total == total):
         raise ValueError(f"conductance_s must be ({n_channels},) finite values >= 0, got shape {g.shape}")
     if not (math.isfinite(resistance_factor) and resistance_factor > 0):
         raise ValueError(f"resistance_factor must be finite and > 0, got {resistance_factor!r}")
-    if layout.n_junctions > DENSE_MAX_JUNCTIONS or not (g_min > 0 and g_max <= GROUNDED_MAX_SPREAD * g_min):
+    if rank_one is None or not (g_min > 0 and g_max <= GROUNDED_MAX_SPREAD * g_min):
         return _channel_change_full_solve(layout, g, resistance_factor)
-    lap_map, free_shape, posv, incidence, basis_t = per_layout(_INCIDENCE, layout, _rank_one_structure)
+    lap_map, free_shape, posv, incidence, basis_t = rank_one
     # the grounded Laplacian sum_c g_c b_c b_c^T, symmetric: its transpose is the Fortran-ordered array LAPACK
-    # factors in place (a temporary), so no copy is made
-    _, z_b, info = posv(np.dot(lap_map, g).reshape(free_shape).T, incidence, overwrite_a=1)  # Z b_c
+    # factors in place (a temporary), so no copy is made. The array methods, not np.dot and @ (their dispatch
+    # costs more than these small products); posv's flags positional (lower=0, overwrite_a=1): f2py parses
+    # keywords slower than LAPACK factors the matrix
+    _, z_b, info = posv(lap_map.dot(g).reshape(free_shape).T, incidence, 0, 1)  # Z b_c
     if info != 0:  # not positive definite: cannot happen on a connected layout within the spread, but never guess
         return _channel_change_full_solve(layout, g, resistance_factor)
-    gram = basis_t @ z_b  # (channels + pairs, channels): b_d^T Z b_c, then p_ab^T Z b_c (contiguous rows)
+    gram = basis_t.dot(z_b)  # (channels + pairs, channels): b_d^T Z b_c, then p_ab^T Z b_c (contiguous rows)
     f = resistance_factor
     scale = f / (f - 1.0) if f != 1.0 else math.inf  # f = 1: an infinite denominator, a change of exactly 0
-    denominator = scale / g - gram.diagonal()  # R_c f / (f - 1) - b_c^T Z b_c: > R_c / (f - 1) > 0 when f > 1
-    delta = np.square(gram[n_channels:])  # (pairs, channels)
+    denominator = scale / g
+    denominator -= gram.diagonal()  # R_c f / (f - 1) - b_c^T Z b_c: > R_c / (f - 1) > 0 when f > 1
+    delta = gram[n_channels:]  # (pairs, channels), squared and divided in place: gram is this call's own
+    delta *= delta
     delta /= denominator
     return delta.T
 
@@ -240,14 +247,16 @@ def _channel_change_full_solve(layout: Layout, g: np.ndarray, resistance_factor:
     return np.where(np.isinf(r_eq[1:]) & np.isinf(r_eq[0]), 0.0, delta)
 
 
-# per layout object: what the rank-one path needs that depends on the layout alone (layoutcache.per_layout)
-_INCIDENCE: LayoutCache[tuple[np.ndarray, tuple[int, int], Callable[..., tuple], np.ndarray, np.ndarray]] = {}
+_RankOne = tuple[np.ndarray, tuple[int, int], Callable[..., tuple], np.ndarray, np.ndarray]
+
+# per layout object: its channel count, and what the rank-one path needs that depends on the layout alone
+# (None above DENSE_MAX_JUNCTIONS junctions, where the full solve is used) (layoutcache.per_layout)
+_INCIDENCE: LayoutCache[tuple[int, _RankOne | None]] = {}
 
 
-def _rank_one_structure(
-    layout: Layout,
-) -> tuple[np.ndarray, tuple[int, int], Callable[..., tuple], np.ndarray, np.ndarray]:
-    """Over the junctions with the first electrode's grounded (its row dropped), read only: lap_map
+def _rank_one_structure(layout: Layout) -> tuple[int, _RankOne | None]:
+    """The channel count, and (up to DENSE_MAX_JUNCTIONS junctions) over the junctions with the first electrode's
+    grounded (its row dropped), read only: lap_map
     (free * free, channels) with lap_map @ g the grounded Laplacian, flat, and its shape (free, free); LAPACK's
     dposv (Cholesky factor and solve in one call: a few microseconds where numpy.linalg.solve spends ten in its
     wrappers; imported here, on first use, as scipy.linalg is not otherwise loaded by the skin); the channel
@@ -256,6 +265,8 @@ def _rank_one_structure(
     from scipy.linalg.lapack import dposv
 
     n = layout.n_junctions
+    if n > DENSE_MAX_JUNCTIONS:
+        return layout.n_channels, None
     ends = layout.channel_ends
     incidence = np.zeros((n, layout.n_channels))
     incidence[ends[:, 0], np.arange(layout.n_channels)] = 1.0
@@ -271,7 +282,7 @@ def _rank_one_structure(
     basis_t = np.ascontiguousarray(np.hstack([incidence, pairs]).T)
     for array in (lap_map, incidence_f, basis_t):
         array.flags.writeable = False
-    return lap_map, (n - 1, n - 1), dposv, incidence_f, basis_t
+    return layout.n_channels, (lap_map, (n - 1, n - 1), dposv, incidence_f, basis_t)
 
 
 # ---- grounded: Kron reduction, then one batched inverse ----------------------------------
