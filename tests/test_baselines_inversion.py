@@ -84,13 +84,13 @@ def _model_dr(skin, x, y, depth):
 
 def _refine_from(skin, dr, start, lo, hi, method="batched", max_iterations=40):
     """One solver run from given starts (rows of (x, y, depth)), as invert_presses runs it after the grid."""
-    from neatskin.baselines import inversion, invref
+    from neatskin.baselines import invref, invsolve
 
     baseline = skin.baseline_pair_resistance_ohm
     p = np.array(start, dtype=float)
-    r = inversion._model_dr(skin, baseline, p) - dr
+    r = invsolve.model_dr(skin, baseline, p) - dr
     cost = np.einsum("np,np->n", r, r)
-    refine = inversion._refine if method == "batched" else invref.refine_reference
+    refine = invsolve.refine if method == "batched" else invref.refine_reference
     cost, _, _ = refine(skin, baseline, p, r, cost, dr, np.asarray(lo), np.asarray(hi), max_iterations, 1e-3, 1e-5)
     return p, cost
 
@@ -195,7 +195,7 @@ def test_on_dry_run_rows_the_batched_solver_ends_at_bounded_minima_no_worse_than
 
 
 def test_two_running_starts_of_one_press_that_meet_continue_as_one():
-    from neatskin.baselines.inversion import _merge_starts
+    from neatskin.baselines.invsolve import merge_starts
 
     # 3 presses x 2 starts, start-major: press 0's starts 5e-4 mm apart (merge: the costlier stops), press 1's
     # 2e-3 apart (both run on), press 2's together but one already stopped (nothing to merge)
@@ -204,7 +204,7 @@ def test_two_running_starts_of_one_press_that_meet_continue_as_one():
     )
     cost = np.array([2.0, 1.0, 1.0, 1.0, 2.0, 1.0])
     active = np.array([True, True, False, True, True, True])
-    _merge_starts(p, cost, active, 2, 1e-3)
+    merge_starts(p, cost, active, 2, 1e-3)
     assert active.tolist() == [False, True, False, True, True, True]
 
 
