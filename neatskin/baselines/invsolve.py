@@ -42,7 +42,9 @@ def jacobian(skin, baseline, pa, model_a, step_mm, hi, columns) -> np.ndarray:
     return jac.transpose(1, 2, 0)
 
 
-def refine(skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tolerance_mm, n_start=1):
+def refine(
+    skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tolerance_mm, n_start=1, race=None, ceiling=None
+):
     """Bounded Levenberg-Marquardt over every (press, start) row at once, with a secant estimate of the
     residual's curvature (method="batched", the default).
 
@@ -61,7 +63,8 @@ def refine(skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tole
       system is not positive definite is a Gauss-Newton one;
     - the damping follows the gain ratio (Nielsen's rule: x max(1/3, 1 - (2 rho - 1)^3) on success, x 2, 4, 8 ...
       on failure) instead of /10 and x10, which alternated between a rejected and an accepted step.
-    Updates p, r, cost in place; returns (cost, iterations, model evaluations)."""
+    race: (steps, factor) or None: after `steps` steps the rows that lose (`drop_losers`, against ceiling too)
+    stop. Updates p, r, cost in place; returns (cost, iterations, model evaluations)."""
     n = len(p)
     damping = np.full(n, 1e-3)
     growth = np.full(n, 2.0)
@@ -86,6 +89,8 @@ def refine(skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tole
     for iteration in range(1, max_iterations + 1):  # noqa: B007 (the count is read after the loop)
         if n_start > 1 and MERGE_MM > 0:
             merge_starts(p, cost, active, n_start, MERGE_MM)
+        if race is not None and iteration == race[0] + 1:
+            drop_losers(cost, active, n_start, race[1], ceiling)
         idx = np.flatnonzero(active)
         if idx.size == 0:
             break
@@ -159,6 +164,19 @@ def refine(skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tole
         growth[bad] *= 2.0
         active[idx[damping[idx] > 1e8]] = False
     return cost, iteration, evaluations
+
+
+def drop_losers(cost, active, n_start, factor, ceiling=None) -> None:
+    """After the race's first steps: a running row whose cost is above `factor` times the lowest cost of its
+    press's rows (and above `factor` times `ceiling`, a cost per press already reached elsewhere) stops.
+    Rows are start-major, [j * n + i] press i from start j."""
+    n = len(cost) // n_start
+    cc = cost.reshape(n_start, n)
+    best = cc.min(axis=0)
+    if ceiling is not None:
+        best = np.minimum(best, np.asarray(ceiling, dtype=float))
+    aa = active.reshape(n_start, n)  # a view: writes reach `active`
+    aa &= cc <= factor * best[None, :]
 
 
 def merge_starts(p, cost, active, n_start, within_mm) -> None:
