@@ -178,9 +178,11 @@ def skin_inversion(
     margin_mm: float = 0.5,
     retry_residual_factor: float | None = 2.0,
     retry_race: tuple[int, float] | None = (6, 1.0),
+    deformation: str = "parametric",
     **kwargs,
 ) -> InversionResult:
-    """invert_presses on `SkinModel(layout, fidelity, probe_radius_mm)` over the layout's bounds widened by
+    """invert_presses on `SkinModel(layout, fidelity, probe_radius_mm)` (the parametric pinch unless `deformation`
+    says otherwise) over the layout's bounds widened by
     margin_mm (a press on an edge channel may land just outside them) and depths from 5 % to 95 %
     of the skin's thickness.
 
@@ -193,10 +195,21 @@ def skin_inversion(
     its press's best start's) after `steps` steps stops: a start that has not beaten the first fit by then
     rarely does (issue 27: 148 -> 112 model evaluations a press on paper dry runs, the same answers to 7e-4 mm
     at the 99th percentile; 3 steps lost a noise-free press's true minimum, 6 did not). None: every start
-    runs to its end."""
-    from neatskin.skin.model import SkinModel
+    runs to its end.
+    deformation: the forward model's pinch: "parametric" (default; `SkinModel`'s parametric pinch, whatever skin
+    made the data) or "fe-kernel" (the packaged or cached finite-element pinch kernel of this layout and probe,
+    the dry run's; never solved here: FileNotFoundError names the command that makes it). On paper dry runs the
+    kernel fits lower residuals but worse positions (docs/baselines.md), so it is not the default."""
+    from neatskin.skin.model import DEFORMATIONS, SkinModel
 
-    skin = SkinModel(layout, fidelity=fidelity, probe_radius_mm=probe_radius_mm)
+    if deformation not in DEFORMATIONS:
+        raise ValueError(f"deformation must be one of {DEFORMATIONS}, got {deformation!r}")
+    kernel = None
+    if deformation == "fe-kernel":
+        from neatskin.skin.kernel import KernelSpec, load_kernel
+
+        kernel = load_kernel(KernelSpec.for_layout(layout, probe_radius_mm), compute=False)
+    skin = SkinModel(layout, fidelity=fidelity, probe_radius_mm=probe_radius_mm, kernel=kernel)
     depth = (0.05 * layout.thickness_mm, 0.95 * layout.thickness_mm)
     x0, y0, x1, y1 = layout.bounds_mm
     r = margin_mm
