@@ -244,24 +244,25 @@ def test_a_start_that_loses_the_race_stops_and_one_that_leads_runs_on():
     assert active.tolist() == [True, False, True, False, True, False]
 
 
-def test_the_raced_second_pass_keeps_the_fits_of_the_full_one_for_fewer_evaluations():
-    # the default races the second pass's starts (a start still above the first fit's cost after 6 steps stops)
+def test_a_raced_second_pass_saves_evaluations_and_can_lose_a_true_minimum():
+    # retry_race (an option, not the default): a second-pass start still above the first fit's cost after 6 steps
+    # stops. On these noisy presses it keeps every fit of the full second pass, for fewer evaluations
     layout, _, dr = _presses(60, 0.3, 0.5, seed=3)
-    full = skin_inversion(layout, dr, retry_race=None)
-    raced = skin_inversion(layout, dr)
+    full = skin_inversion(layout, dr)
+    raced = skin_inversion(layout, dr, retry_race=(6, 1.0))
     np.testing.assert_allclose(raced.residual_ohm, full.residual_ohm, rtol=1e-9)
     np.testing.assert_allclose(raced.xy_mm, full.xy_mm, atol=1e-9)
     assert raced.n_model_evaluations < full.n_model_evaluations
-    # the negative control: a race after 1 step loses fits (a start in the right basin is still behind then)
+    # a race after 1 step loses fits (a start in the right basin is still behind then)
     hasty = skin_inversion(layout, dr, retry_race=(1, 1.0))
     assert np.max(hasty.residual_ohm - full.residual_ohm) > 0.5  # ohm (measured: 1.0, and a press 2.1 mm away)
-    # noise-free presses: every fit within 1e-2 ohm of the full pass's (50x below the dry run's noise); measured:
-    # one press of 60 ends 0.14 mm along a flat valley at 0.0068 against 0.0008 ohm, the others within 1e-5 mm
-    layout, _, dr = _presses(60, 0.0, 0.0, seed=3)
-    full = skin_inversion(layout, dr, retry_race=None)
-    raced = skin_inversion(layout, dr)
-    assert np.all(raced.residual_ohm <= full.residual_ohm + 1e-2)
-    assert np.sum(np.hypot(*(raced.xy_mm - full.xy_mm).T) > 1e-4) <= 1
+    # why it is not the default: on noise-free presses of the model itself a start in the true basin can still be
+    # behind after 6 steps (measured: one press ends 0.42 mm off at 0.13 ohm, where the full pass reaches 2e-6)
+    layout, xy, dr = _presses(60, 0.0, 0.0, seed=11)
+    full = skin_inversion(layout, dr)
+    raced = skin_inversion(layout, dr, retry_race=(6, 1.0))
+    assert np.max(raced.residual_ohm - full.residual_ohm) > 0.1
+    assert np.mean(np.hypot(*(raced.xy_mm - xy).T)) > np.mean(np.hypot(*(full.xy_mm - xy).T)) + 0.05
 
 
 def test_the_fe_kernel_option_fits_the_kernel_skins_presses_the_parametric_model_cannot():
