@@ -225,7 +225,7 @@ def test_starts_taken_per_grid_point_are_the_starts_taken_per_row():
     assert np.all(apart[:, ~np.eye(4, dtype=bool)] >= 2.5)
 
 
-def test_a_start_that_loses_the_race_stops_and_one_that_leads_runs_on():
+def test_a_start_that_loses_the_race_stops_and_one_that_leads_or_descends_runs_on():
     from neatskin.baselines.invsolve import drop_losers
 
     # 3 presses x 2 starts, start-major; press 0: start 1 at 1.5x start 0 (stops at factor 1, runs at 2); press 1:
@@ -242,27 +242,30 @@ def test_a_start_that_loses_the_race_stops_and_one_that_leads_runs_on():
     active = np.ones(6, bool)
     drop_losers(cost, active, 2, 1.0)  # no ceiling: against the press's best start only
     assert active.tolist() == [True, False, True, False, True, False]
+    # losers still descending run on (press 0's start 1, press 1's start 0); a stopped row is not started again
+    # (press 2's start 0); a loser that stalled stops (press 2's start 1)
+    active = np.array([True, True, False, True, True, True])
+    descending = np.array([False, True, True, True, False, False])
+    drop_losers(cost, active, 2, 1.0, ceiling, descending=descending)
+    assert active.tolist() == [True, True, False, True, True, False]
 
 
-def test_a_raced_second_pass_saves_evaluations_and_can_lose_a_true_minimum():
-    # retry_race (an option, not the default): a second-pass start still above the first fit's cost after 6 steps
-    # stops. On these noisy presses it keeps every fit of the full second pass, for fewer evaluations
-    layout, _, dr = _presses(60, 0.3, 0.5, seed=3)
-    full = skin_inversion(layout, dr)
-    raced = skin_inversion(layout, dr, retry_race=(6, 1.0))
-    np.testing.assert_allclose(raced.residual_ohm, full.residual_ohm, rtol=1e-9)
-    np.testing.assert_allclose(raced.xy_mm, full.xy_mm, atol=1e-9)
+@pytest.mark.parametrize(("placement_sd_mm", "noise_ohm", "seed"), [(0.0, 0.0, 3), (0.3, 0.5, 3), (0.0, 0.0, 11)])
+def test_the_raced_second_pass_keeps_the_full_passs_fits_for_fewer_evaluations(placement_sd_mm, noise_ohm, seed):
+    # the default races the second pass's starts: behind the first fit after 6 steps and stalled (less than 10 %
+    # down in the last 3) stops. On these presses, noise-free and noisy, every fit is the full pass's
+    layout, xy, dr = _presses(60, placement_sd_mm, noise_ohm, seed=seed)
+    full = skin_inversion(layout, dr, retry_race=None)
+    raced = skin_inversion(layout, dr)
+    assert np.all(raced.residual_ohm <= full.residual_ohm + 1e-4), np.max(raced.residual_ohm - full.residual_ohm)
+    assert np.mean(np.hypot(*(raced.xy_mm - xy).T)) == pytest.approx(np.mean(np.hypot(*(full.xy_mm - xy).T)), abs=2e-3)
     assert raced.n_model_evaluations < full.n_model_evaluations
-    # a race after 1 step loses fits (a start in the right basin is still behind then)
-    hasty = skin_inversion(layout, dr, retry_race=(1, 1.0))
-    assert np.max(hasty.residual_ohm - full.residual_ohm) > 0.5  # ohm (measured: 1.0, and a press 2.1 mm away)
-    # why it is not the default: on noise-free presses of the model itself a start in the true basin can still be
-    # behind after 6 steps (measured: one press ends 0.42 mm off at 0.13 ohm, where the full pass reaches 2e-6)
-    layout, xy, dr = _presses(60, 0.0, 0.0, seed=11)
-    full = skin_inversion(layout, dr)
-    raced = skin_inversion(layout, dr, retry_race=(6, 1.0))
-    assert np.max(raced.residual_ohm - full.residual_ohm) > 0.1
-    assert np.mean(np.hypot(*(raced.xy_mm - xy).T)) > np.mean(np.hypot(*(full.xy_mm - xy).T)) + 0.05
+    if seed == 11:
+        # the negative control: without the descending exception a start in the true basin that is still behind
+        # after 6 steps stops (measured: one press ends 0.42 mm off at 0.13 ohm where the full pass reaches 2e-6)
+        plain = skin_inversion(layout, dr, retry_race=(6, 1.0, 0.0))
+        assert np.max(plain.residual_ohm - full.residual_ohm) > 0.1
+        assert np.mean(np.hypot(*(plain.xy_mm - xy).T)) > np.mean(np.hypot(*(full.xy_mm - xy).T)) + 0.05
 
 
 def test_the_fe_kernel_option_fits_the_kernel_skins_presses_the_parametric_model_cannot():

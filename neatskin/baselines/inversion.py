@@ -111,7 +111,7 @@ def invert_presses(
     max_iterations: int = 40,
     step_mm: float = 1e-3,
     tolerance_mm: float = 1e-5,
-    race: tuple[int, float] | None = None,
+    race: tuple[int, float, float] | None = None,
     ceiling: np.ndarray | None = None,
     method: str = "batched",
 ) -> InversionResult:
@@ -121,9 +121,10 @@ def invert_presses(
     n_starts: each press is refined from n_starts grid points, the best in dR space and then the best
     at least separation_mm away from those taken (a channel's two sides, an edge and its mirror);
     the lowest residual wins. Every loop is capped: at most `max_iterations` steps.
-    race: (steps, factor) or None: after that many steps a start whose cost (sum of squares) is above factor
-    times the lowest of its press's starts, or of `ceiling` (n,), a cost the press reached elsewhere, stops
-    (`invsolve.drop_losers`). None (the default here): every start runs to its end.
+    race: (steps, factor, progress) or None: after that many steps a start whose cost (sum of squares) is above
+    factor times the lowest of its press's starts, or of `ceiling` (n,), a cost the press reached elsewhere, stops
+    unless it is still descending (its cost under progress times its cost halfway through those steps)
+    (`invsolve.drop_losers`). None (the default here, the first pass): every start runs to its end.
     method: "batched" (default) or "reference" (the pre-issue-27 loop: a Jacobian every step).
     """
     if method not in ("batched", "reference"):
@@ -185,7 +186,7 @@ def skin_inversion(
     probe_radius_mm: float = 2.75,
     margin_mm: float = 0.5,
     retry_residual_factor: float | None = 2.0,
-    retry_race: tuple[int, float] | None = None,
+    retry_race: tuple[int, float, float] | None = (6, 1.0, 0.9),
     deformation: str = "parametric",
     **kwargs,
 ) -> InversionResult:
@@ -199,11 +200,13 @@ def skin_inversion(
     keep the better fit. On the parametric-skin dry run of earlier versions: ~9 % of the presses, mean error
     0.39 -> 0.24 mm; on today's paper dry run (FE-kernel skin) ~38 % of the presses, mean error unchanged (the
     high residuals are the model mismatch's, not local minima). None: no second pass.
-    retry_race: (steps, factor) or None (default): in that second pass a start still above factor times the first
-    fit's cost (or its press's best start's) after `steps` steps stops. (6, 1.0) cuts a paper dry run's model
-    evaluations 151 -> 115 a press with the same answers (8e-4 mm), but on noise-free presses of the model itself
-    it loses true minima (60 presses, seed 11: mean error 0.08 -> 0.19 mm; at 10 steps 0.18), so it is not the
-    default.
+    retry_race: (steps, factor, progress) or None: in that second pass a start still above factor times the first
+    fit's cost (or its press's best start's) after `steps` steps, and no longer descending (its cost above progress
+    times its cost halfway), stops: a start that is behind and has stalled rarely wins. Default (6, 1.0, 0.9): on
+    paper dry runs ~148 -> ~120 model evaluations a press with the same answers (docs/baselines.md); on synthetic
+    presses of the model, noise-free and noisy, the full pass's fits. Without the descending exception (progress
+    0) it loses true minima of noise-free presses (60 presses, seed 11: mean error 0.08 -> 0.19 mm). None: every
+    start runs to its end.
     deformation: the forward model's pinch: "parametric" (default; `SkinModel`'s parametric pinch, whatever skin
     made the data) or "fe-kernel" (the packaged or cached finite-element pinch kernel of this layout and probe,
     the dry run's; never solved here: FileNotFoundError names the command that makes it). On paper dry runs the

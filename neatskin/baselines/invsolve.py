@@ -63,8 +63,8 @@ def refine(
       system is not positive definite is a Gauss-Newton one;
     - the damping follows the gain ratio (Nielsen's rule: x max(1/3, 1 - (2 rho - 1)^3) on success, x 2, 4, 8 ...
       on failure) instead of /10 and x10, which alternated between a rejected and an accepted step.
-    race: (steps, factor) or None: after `steps` steps the rows that lose (`drop_losers`, against ceiling too)
-    stop. Updates p, r, cost in place; returns (cost, iterations, model evaluations)."""
+    race: (steps, factor, progress) or None: after `steps` steps the rows that lose and no longer descend stop
+    (`drop_losers`, against ceiling too; descending: a cost under progress times the cost halfway through). Updates p, r, cost in place; returns (cost, iterations, model evaluations)."""
     n = len(p)
     damping = np.full(n, 1e-3)
     growth = np.full(n, 2.0)
@@ -89,8 +89,10 @@ def refine(
     for iteration in range(1, max_iterations + 1):  # noqa: B007 (the count is read after the loop)
         if n_start > 1 and MERGE_MM > 0:
             merge_starts(p, cost, active, n_start, MERGE_MM)
+        if race is not None and iteration == race[0] // 2 + 1:
+            cost_halfway = cost.copy()
         if race is not None and iteration == race[0] + 1:
-            drop_losers(cost, active, n_start, race[1], ceiling)
+            drop_losers(cost, active, n_start, race[1], ceiling, descending=cost < race[2] * cost_halfway)
         idx = np.flatnonzero(active)
         if idx.size == 0:
             break
@@ -166,9 +168,11 @@ def refine(
     return cost, iteration, evaluations
 
 
-def drop_losers(cost, active, n_start, factor, ceiling=None) -> None:
+def drop_losers(cost, active, n_start, factor, ceiling=None, descending=None) -> None:
     """After the race's first steps: a running row whose cost is above `factor` times the lowest cost of its
-    press's rows (and above `factor` times `ceiling`, a cost per press already reached elsewhere) stops.
+    press's rows (and above `factor` times `ceiling`, a cost per press already reached elsewhere) stops, unless
+    `descending` (rows,) says it is still going down fast (a start in a better basin can be behind for a while:
+    on noise-free presses it descends by orders of magnitude a step, where a start in a worse basin stalls).
     Rows are start-major, [j * n + i] press i from start j."""
     n = len(cost) // n_start
     cc = cost.reshape(n_start, n)
@@ -176,7 +180,10 @@ def drop_losers(cost, active, n_start, factor, ceiling=None) -> None:
     if ceiling is not None:
         best = np.minimum(best, np.asarray(ceiling, dtype=float))
     aa = active.reshape(n_start, n)  # a view: writes reach `active`
-    aa &= cc <= factor * best[None, :]
+    keep = cc <= factor * best[None, :]
+    if descending is not None:
+        keep |= np.asarray(descending, dtype=bool).reshape(n_start, n)
+    aa &= keep
 
 
 def merge_starts(p, cost, active, n_start, within_mm) -> None:
