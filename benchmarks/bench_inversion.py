@@ -1,7 +1,7 @@
 """Benchmark: the physics inversion's CPU time against another checkout's, side by side (issue 27).
 
 Usage:
-    python benchmarks/bench_inversion.py DATASET --against DIR [--rounds N]
+    python benchmarks/bench_inversion.py DATASET --against DIR [--rounds N] [--reference]
 
 DATASET: a campaign folder, e.g. a paper dry run
 (`neatskin campaign run protocols/paper.toml --dry-run --no-report -o RUN`); DIR: another checkout, e.g.
@@ -14,7 +14,8 @@ random and of the grouped split. Process CPU time (the inversion alone, after th
 best of the rounds, with the load average; the ratio column is against / this. It also prints, per row
 set, the mean and median position error of each checkout, its model evaluations, and the distance between
 the two checkouts' positions (the base's solver stops at its 40-step cap on most rows: see
-docs/baselines.md).
+docs/baselines.md). --reference adds a third column: this checkout's `method="reference"` (invref: the solver
+before issue 27, at the same 40-step budget), in the same alternation.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ def _rows(dataset: str) -> dict[str, np.ndarray]:
     }
 
 
-def here(dataset: str, row_set: str, out: str) -> None:
+def here(dataset: str, row_set: str, out: str, method: str = "batched") -> None:
     """In the child: invert one row set with the checkout on the path, write CPU s and the answers."""
     import time
 
@@ -62,6 +63,7 @@ def here(dataset: str, row_set: str, out: str) -> None:
         data.X[rows],
         fidelity=data.skin_fidelity or "deformation",
         probe_radius_mm=data.probe_radius_mm or 2.75,
+        method=method,
     )
     cpu_s = time.process_time() - started
     np.savez(out, cpu_s=cpu_s, xy_mm=res.xy_mm, depth_mm=res.depth_mm, y=data.y[rows], evals=res.n_model_evaluations)
@@ -73,12 +75,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--against", type=Path, required=False)
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--row-set", choices=ROW_SETS, nargs="*", default=list(ROW_SETS))
-    parser.add_argument("--here", nargs=2, metavar=("ROW_SET", "OUT"), help=argparse.SUPPRESS)
+    parser.add_argument("--reference", action="store_true", help="also time this checkout's method='reference'")
+    parser.add_argument("--here", nargs=3, metavar=("ROW_SET", "OUT", "METHOD"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.here:
         here(args.dataset, *args.here)
         return 0
     checkouts = {"this": REPO} | ({"against": args.against.resolve()} if args.against else {})
+    checkouts |= {"reference": REPO} if args.reference else {}
     best: dict[tuple[str, str], float] = {}
     answers: dict[tuple[str, str], dict] = {}
     load = []
@@ -91,8 +95,9 @@ def main(argv: list[str] | None = None) -> int:
                 for name, checkout in order:
                     out = str(Path(tmp) / f"{name}-{row_set.replace(' ', '_')}.npz")
                     env = dict(os.environ, PYTHONPATH=str(checkout))
+                    method = "reference" if name == "reference" else "batched"
                     subprocess.run(
-                        [sys.executable, __file__, args.dataset, "--here", row_set, out], env=env, check=True
+                        [sys.executable, __file__, args.dataset, "--here", row_set, out, method], env=env, check=True
                     )
                     load.append(os.getloadavg()[0])
                     with np.load(out) as z:
@@ -101,13 +106,14 @@ def main(argv: list[str] | None = None) -> int:
                     best[key] = min(best.get(key, np.inf), float(got["cpu_s"]))
                     answers[key] = got
     print(f"\ninversion CPU s, best of {args.rounds} round(s); load average {min(load):.2f} to {max(load):.2f}")
-    print(f"{'rows':<13} {'n':>5} " + " ".join(f"{n + ' s':>11}" for n in checkouts) + f" {'ratio':>8}")
+    others = [name for name in checkouts if name != "this"]
+    print(f"{'rows':<13} {'n':>5} " + " ".join(f"{n + ' s':>11}" for n in checkouts) + " ratios (other / this)")
     for row_set in args.row_set:
         n = len(answers[("this", row_set)]["y"])
         cells = " ".join(f"{best[(name, row_set)]:>11.2f}" for name in checkouts)
-        ratio = f"{best[('against', row_set)] / best[('this', row_set)]:>7.1f}x" if args.against else ""
-        print(f"{row_set:<13} {n:>5} {cells} {ratio}")
-    print(f"\n{'rows':<13} {'checkout':<8} {'mean err mm':>12} {'median mm':>10} {'evals/press':>12}")
+        ratios = " ".join(f"{name} {best[(name, row_set)] / best[('this', row_set)]:.1f}x" for name in others)
+        print(f"{row_set:<13} {n:>5} {cells} {ratios}")
+    print(f"\n{'rows':<13} {'checkout':<8} {'mean err mm':>12} {'median mm':>10} {'<= 2.75 %':>10} {'evals/press':>12}")
     summary = {}
     for row_set in args.row_set:
         for name in checkouts:
@@ -115,15 +121,16 @@ def main(argv: list[str] | None = None) -> int:
             err = np.hypot(*(a["xy_mm"] - a["y"]).T)
             summary[f"{name} {row_set}"] = float(np.mean(err))
             print(
-                f"{row_set:<13} {name:<8} {np.mean(err):>12.4f} {np.median(err):>10.4f} "
+                f"{row_set:<13} {name:<9} {np.mean(err):>12.4f} {np.median(err):>10.4f} {100 * np.mean(err <= 2.75):>10.2f} "
                 f"{float(a['evals']) / len(err):>12.0f}"
             )
-        if args.against:
-            a, b = answers[("this", row_set)], answers[("against", row_set)]
+        for name in others:
+            a, b = answers[("this", row_set)], answers[(name, row_set)]
             apart = np.max(np.abs(np.c_[a["xy_mm"], a["depth_mm"]] - np.c_[b["xy_mm"], b["depth_mm"]]), axis=1)
             q = np.quantile(apart, [0.5, 0.9, 0.99, 1.0])
             print(
-                f"{'':<13} apart (largest coordinate, mm): median {q[0]:.2g}, 90 % {q[1]:.2g}, 99 % {q[2]:.2g}, max {q[3]:.2g}"
+                f"{'':<13} apart from {name} (largest coordinate, mm): median {q[0]:.2g}, 90 % {q[1]:.2g}, "
+                f"99 % {q[2]:.2g}, max {q[3]:.2g}"
             )
     print(json.dumps(summary))
     return 0

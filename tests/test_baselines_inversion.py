@@ -84,13 +84,13 @@ def _model_dr(skin, x, y, depth):
 
 def _refine_from(skin, dr, start, lo, hi, method="batched", max_iterations=40):
     """One solver run from given starts (rows of (x, y, depth)), as invert_presses runs it after the grid."""
-    from neatskin.baselines import inversion, invref
+    from neatskin.baselines import invref, invsolve
 
     baseline = skin.baseline_pair_resistance_ohm
     p = np.array(start, dtype=float)
-    r = inversion._model_dr(skin, baseline, p) - dr
+    r = invsolve.model_dr(skin, baseline, p) - dr
     cost = np.einsum("np,np->n", r, r)
-    refine = inversion._refine if method == "batched" else invref.refine_reference
+    refine = invsolve.refine if method == "batched" else invref.refine_reference
     cost, _, _ = refine(skin, baseline, p, r, cost, dr, np.asarray(lo), np.asarray(hi), max_iterations, 1e-3, 1e-5)
     return p, cost
 
@@ -195,7 +195,7 @@ def test_on_dry_run_rows_the_batched_solver_ends_at_bounded_minima_no_worse_than
 
 
 def test_two_running_starts_of_one_press_that_meet_continue_as_one():
-    from neatskin.baselines.inversion import _merge_starts
+    from neatskin.baselines.invsolve import merge_starts
 
     # 3 presses x 2 starts, start-major: press 0's starts 5e-4 mm apart (merge: the costlier stops), press 1's
     # 2e-3 apart (both run on), press 2's together but one already stopped (nothing to merge)
@@ -204,7 +204,7 @@ def test_two_running_starts_of_one_press_that_meet_continue_as_one():
     )
     cost = np.array([2.0, 1.0, 1.0, 1.0, 2.0, 1.0])
     active = np.array([True, True, False, True, True, True])
-    _merge_starts(p, cost, active, 2, 1e-3)
+    merge_starts(p, cost, active, 2, 1e-3)
     assert active.tolist() == [False, True, False, True, True, True]
 
 
@@ -223,3 +223,99 @@ def test_starts_taken_per_grid_point_are_the_starts_taken_per_row():
     xy = grid[every_row][..., :2]  # every pair of a press's starts at least 2.5 mm apart
     apart = np.hypot(*(xy[:, :, None] - xy[:, None, :]).transpose(3, 0, 1, 2))
     assert np.all(apart[:, ~np.eye(4, dtype=bool)] >= 2.5)
+
+
+def test_a_start_that_loses_the_race_stops_and_one_that_leads_or_descends_runs_on():
+    from neatskin.baselines.invsolve import drop_losers
+
+    # 3 presses x 2 starts, start-major; press 0: start 1 at 1.5x start 0 (stops at factor 1, runs at 2); press 1:
+    # start 0 above the ceiling (a fit reached elsewhere) stops, start 1 under it runs; press 2: already stopped
+    cost = np.array([2.0, 5.0, 1.0, 3.0, 4.0, 9.0])
+    ceiling = np.array([10.0, 4.5, 10.0])
+    for factor, expected in (
+        (1.0, [True, False, False, False, True, False]),
+        (2.0, [True, True, False, True, True, False]),
+    ):
+        active = np.array([True, True, False, True, True, True])
+        drop_losers(cost, active, 2, factor, ceiling)
+        assert active.tolist() == expected, factor
+    active = np.ones(6, bool)
+    drop_losers(cost, active, 2, 1.0)  # no ceiling: against the press's best start only
+    assert active.tolist() == [True, False, True, False, True, False]
+    # losers still descending run on (press 0's start 1, press 1's start 0); a stopped row is not started again
+    # (press 2's start 0); a loser that stalled stops (press 2's start 1)
+    active = np.array([True, True, False, True, True, True])
+    descending = np.array([False, True, True, True, False, False])
+    drop_losers(cost, active, 2, 1.0, ceiling, descending=descending)
+    assert active.tolist() == [True, True, False, True, True, False]
+
+
+@pytest.mark.parametrize(("placement_sd_mm", "noise_ohm", "seed"), [(0.0, 0.0, 3), (0.3, 0.5, 3), (0.0, 0.0, 11)])
+def test_the_raced_second_pass_keeps_the_full_passs_fits_for_fewer_evaluations(placement_sd_mm, noise_ohm, seed):
+    # the default races the second pass's starts: behind the first fit after 6 steps and stalled (less than 10 %
+    # down in the last 3) stops. On these presses, noise-free and noisy, every fit is the full pass's
+    layout, xy, dr = _presses(60, placement_sd_mm, noise_ohm, seed=seed)
+    full = skin_inversion(layout, dr, retry_race=None)
+    raced = skin_inversion(layout, dr)
+    assert np.all(raced.residual_ohm <= full.residual_ohm + 1e-4), np.max(raced.residual_ohm - full.residual_ohm)
+    assert np.mean(np.hypot(*(raced.xy_mm - xy).T)) == pytest.approx(np.mean(np.hypot(*(full.xy_mm - xy).T)), abs=2e-3)
+    assert raced.n_model_evaluations < full.n_model_evaluations
+    if seed == 11:
+        # the negative control: without the descending exception a start in the true basin that is still behind
+        # after 6 steps stops (measured: one press ends 0.42 mm off at 0.13 ohm where the full pass reaches 2e-6)
+        plain = skin_inversion(layout, dr, retry_race=(6, 1.0, 0.0))
+        assert np.max(plain.residual_ohm - full.residual_ohm) > 0.1
+        assert np.mean(np.hypot(*(plain.xy_mm - xy).T)) > np.mean(np.hypot(*(full.xy_mm - xy).T)) + 0.05
+
+
+def test_the_fe_kernel_option_fits_the_kernel_skins_presses_the_parametric_model_cannot():
+    # noise-free presses made by the FE-kernel skin (the dry run's pinch): through the same kernel their dR is fitted
+    # exactly; through the parametric pinch (the default) the mismatch leaves ~100 ohm. Positions: not all come
+    # back through the kernel either (measured: 7 of 20 within 1e-3 mm, 4 end 3.7 to 6.3 mm away at zero residual:
+    # the kernel's pinch is local, and a press that reaches no channel in the same way is not identifiable)
+    from neatskin.skin.kernel import KernelSpec, load_kernel
+
+    layout = load_layout(PAPER_SKIN)
+    skin = SkinModel(layout, fidelity="deformation", kernel=load_kernel(KernelSpec.for_layout(layout), compute=False))
+    rng = np.random.default_rng(4)
+    xy = rng.uniform(4.0, 26.0, (20, 2))
+    dr = skin.pair_resistance_ohm(xy[:, 0], xy[:, 1], np.full(20, 3.5)) - skin.baseline_pair_resistance_ohm
+    assert np.all(np.isfinite(dr))
+    kernel = skin_inversion(layout, dr, deformation="fe-kernel")
+    parametric = skin_inversion(layout, dr)
+    assert np.median(kernel.residual_ohm) < 1e-2 and np.median(parametric.residual_ohm) > 10.0
+    err_kernel = np.hypot(*(kernel.xy_mm - xy).T)
+    err_parametric = np.hypot(*(parametric.xy_mm - xy).T)
+    assert np.mean(err_kernel < 1e-3) >= 0.3 and np.mean(err_parametric < 1e-3) == 0.0
+    with pytest.raises(ValueError, match="deformation"):
+        skin_inversion(layout, dr[:2], deformation="fem")
+
+
+@pytest.mark.slow  # 3 simulated campaigns, each inverted three ways: ~40 s under load
+def test_over_campaign_seeds_the_batched_solver_places_presses_as_the_reference_does():
+    # paper-like campaigns from the simulated-campaign engine (FE-kernel skin, placement error, noise, cut pairs
+    # saturated), 40 positions x 2 presses each: the default's errors against the commanded positions equal the
+    # reference solver's (invref) to a stated tolerance; measured at 2,800 presses a seed the reference is 0.015 to
+    # 0.027 mm better (docs/baselines.md). The negative control: the same presses through a wrong model (the probe
+    # radius 1.5 mm instead of 2.75) land measurably worse: the tolerance sees a changed inversion. Measured: ours
+    # minus the reference +0.001, -0.052, +0.057 mm and +2.5, 0, -2.5 points; the wrong model +0.55 to +0.79 mm
+    from neatskin.rig.protocol import load_protocol
+    from neatskin.rig.simcampaign import pair_noise_std_ohm, simulate_presses, skin_of
+
+    paper = load_protocol(PAPER_SKIN.parent.parent / "paper.toml")
+    skin = skin_of(paper)
+    noise = pair_noise_std_ohm(paper)
+    diffs, shares, wrong_diffs = [], [], []
+    for seed in (1, 2, 3):
+        xy = np.random.default_rng(seed).uniform(0.0, 30.0, (40, 2))
+        presses = simulate_presses(paper, xy, 2, 3.5, seed, noise, skin=skin)
+        errors = {}
+        for name, kwargs in (("ours", {}), ("reference", {"method": "reference"}), ("wrong", {"probe_radius_mm": 1.5})):
+            res = skin_inversion(skin.layout, presses.features, **kwargs)
+            errors[name] = np.hypot(*(res.xy_mm - presses.commanded_mm).T)
+        diffs.append(errors["ours"].mean() - errors["reference"].mean())
+        shares.append(np.mean(errors["ours"] <= 2.75) - np.mean(errors["reference"] <= 2.75))
+        wrong_diffs.append(errors["wrong"].mean() - errors["ours"].mean())
+    assert np.all(np.abs(diffs) < 0.25) and abs(np.mean(diffs)) < 0.15, diffs
+    assert np.all(np.abs(shares) <= 0.075), shares  # 6 presses of 80
+    assert np.mean(wrong_diffs) > 0.2, wrong_diffs

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from neatskin.baselines.inversion import _model_dr
+from neatskin.baselines.invsolve import model_dr as _model_dr
 
 
 def refine_reference(skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tolerance_mm, n_start=1):
