@@ -167,7 +167,7 @@ def test_a_pair_cut_off_at_a_position_leaves_the_others_their_information(tmp_pa
 
 
 def test_the_limit_computed_while_the_worker_presses_is_the_one_computed_at_the_end(tmp_path, monkeypatch):
-    """With a skin worker the worker's process computes the physical limit while the campaign presses (it
+    """With a skin worker the dry rig computes the physical limit in a thread while the campaign presses (it
     depends on no press); the file is the one the run without a worker computes at the end, bit for bit."""
     import dataclasses
 
@@ -176,7 +176,7 @@ def test_the_limit_computed_while_the_worker_presses_is_the_one_computed_at_the_
     smoke = load_protocol(PROTOCOLS / "smoke.toml")
     protocol = dataclasses.replace(smoke, scene=dataclasses.replace(smoke.scene, signal="features"))
     started = []
-    monkeypatch.setattr(dryrig.SkinWorker, "aside", _counted(dryrig.SkinWorker.aside, started))
+    monkeypatch.setattr(dryrig.Ahead, "__init__", _counted(dryrig.Ahead.__init__, started))
     tables = {}
     for mode in ("off", "on"):
         monkeypatch.setenv("NEATSKIN_SKIN_WORKER", mode)
@@ -187,9 +187,22 @@ def test_the_limit_computed_while_the_worker_presses_is_the_one_computed_at_the_
     assert tables["on"].schema.metadata == tables["off"].schema.metadata
 
 
-def _counted(method, calls):
+def _counted(init, calls):
     def counted(self, *args, **kwargs):
         calls.append(1)
-        return method(self, *args, **kwargs)
+        init(self, *args, **kwargs)
 
     return counted
+
+
+def test_a_computation_ahead_gives_its_value_or_raises_its_error_when_asked():
+    from neatskin.rig.dryrig import Ahead
+
+    assert Ahead(lambda: 6 * 7).result() == 42
+
+    def fails() -> None:
+        raise ValueError("no skin")
+
+    ahead = Ahead(fails)
+    with pytest.raises(ValueError, match="no skin"):
+        ahead.result()
