@@ -15,7 +15,6 @@ import time
 from pathlib import Path
 
 import pandas as pd
-import pyarrow.parquet as pq
 import pytest
 from conftest import PROTOCOLS
 
@@ -23,7 +22,7 @@ import neatskin.rig.control as control
 import neatskin.rig.dryrig as dryrig
 import neatskin.sim.dryscene as dryscene
 import neatskin.sim.skinworker as skinworker
-from neatskin.datasets.paths import PHYSICAL_LIMIT, press_parts
+from neatskin.datasets.paths import press_parts
 from neatskin.datasets.reader import read_presses
 from neatskin.errors import ConfigError, HardwareError
 from neatskin.rig.plan import build_plan
@@ -59,11 +58,7 @@ def inline_rows(worker_protocol, tmp_path_factory):
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv(dryrig.SKIN_WORKER_ENV, "off")
         run_campaign(load_protocol(worker_protocol), folder, progress=False, report=False)
-    _INLINE_LIMIT["table"] = pq.read_table(folder / PHYSICAL_LIMIT)
     return _rows(folder)
-
-
-_INLINE_LIMIT: dict = {}  # the inline run's physical limit (computed in the main process)
 
 
 @pytest.fixture
@@ -106,8 +101,6 @@ def test_the_worker_records_the_inline_rows_bit_for_bit(worker_protocol, inline_
     rows = _rows(tmp_path / "run")
     assert rows["R_ohm_1_2"].notna().all() and len(rows) == PRESSES
     pd.testing.assert_frame_equal(rows, inline_rows, check_exact=True)
-    # the physical limit, computed in the worker's process beside the presses, is the inline run's table
-    assert pq.read_table(tmp_path / "run" / PHYSICAL_LIMIT).equals(_INLINE_LIMIT["table"])
 
 
 def test_a_stop_writes_every_press_pressed_first(worker_protocol, inline_rows, tmp_path, worker_on, monkeypatch):

@@ -8,6 +8,7 @@ The dry scene itself (skin, probe, DAQ, per-press conditions) is built by neatsk
 from __future__ import annotations
 
 import functools
+import threading
 from collections.abc import Callable
 from os import PathLike
 from pathlib import Path
@@ -26,7 +27,7 @@ from neatskin.sim.faults import FaultConfig
 from neatskin.sim.printer import SimulatedPrinter
 from neatskin.sim.recorder import SimulatedRecorder
 from neatskin.sim.skinworker import SKIN_WORKER_ENV as SKIN_WORKER_ENV  # tests set it through this module
-from neatskin.sim.skinworker import PressEstimator, SkinWorker, discard_prestarted, forced_by_env, usable_cores
+from neatskin.sim.skinworker import SkinWorker, discard_prestarted, forced_by_env, usable_cores
 from neatskin.skin.model import SkinModel
 
 
@@ -112,10 +113,9 @@ def build_dry_rig(
             **(scene.variability() if hasattr(scene, "variability") else {}),
         },
     }
-    # the physical limit depends on no press: with a skin worker, the worker's process computes it beside the
-    # presses, on its own skin and DAQ (built from the same DryScene: the same table, tested), and the campaign's
-    # end only writes it; the main process, the campaign's critical path, spends none of its CPU or GIL on it
-    table = worker.aside(functools.partial(_physical_limit_table_in_worker, protocol, plan)) if worker else None
+    # the physical limit depends on no press: with a skin worker the main process waits for the worker's estimates
+    # part of the time, so a thread computes it then, and the campaign's end only writes it (the same table)
+    table = Ahead(functools.partial(physical_limit_table, protocol, plan, skin, daq)).result if worker else None
     derived = {PHYSICAL_LIMIT: functools.partial(_physical_limit, protocol, plan, skin, daq, table)}
     batch = dataset_writer.dry_run_batch_presses(plan.n_presses)
     return Rig("dry-run", driver, recorder, daq.fsr, description, closers, derived, fsync=False, batch_presses=batch)
@@ -132,9 +132,28 @@ def _physical_limit(
     return write_physical_limit(folder, protocol, plan, skin, daq, table=table)
 
 
-def _physical_limit_table_in_worker(protocol: CampaignProtocol, plan: Plan, estimator: PressEstimator) -> Any:
-    """The physical limit's table in the skin worker (`SkinWorker.aside`), on its estimator's skin and DAQ."""
-    return physical_limit_table(protocol, plan, estimator.probe.skin, estimator.daq)
+class Ahead:
+    """A pure computation started now in a daemon thread; `result()` waits for it and gives its value, or raises
+    its error. Nothing waits for a result nobody asks for (an interrupted campaign writes no physical limit)."""
+
+    def __init__(self, compute: Callable[[], Any], name: str = "physical-limit") -> None:
+        self._compute = compute
+        self._value: Any = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            self._value = self._compute()
+        except BaseException as exc:  # raised again, in the caller's thread, by result()
+            self._error = exc
+
+    def result(self) -> Any:
+        self._thread.join()  # a finite computation (no I/O): it ends
+        if self._error is not None:
+            raise self._error
+        return self._value
 
 
 def dry_scene(protocol: CampaignProtocol, plan: Plan) -> DryScene:

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import collections
 import contextlib
-import functools
 import importlib
 import logging
 import multiprocessing
@@ -25,8 +24,7 @@ import os
 import signal
 import threading
 import time
-import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from multiprocessing.connection import Connection, wait
 from typing import Any, Protocol
 
@@ -46,13 +44,6 @@ RESUME_HINT = "the presses before it are written, `neatskin campaign resume` pre
 
 class Estimator(Protocol):
     def __call__(self, job: EstimateJob) -> PairEstimates: ...
-
-
-class AsideTask(Protocol):
-    """Work the worker does beside the presses (`SkinWorker.aside`), given its estimator (its skin and DAQ);
-    picklable, returns a picklable value."""
-
-    def __call__(self, estimator: Any) -> Any: ...
 
 
 class EstimatorFactory(Protocol):
@@ -105,10 +96,6 @@ class SkinWorker:
         self._received = 0  # answers taken: the next ticket due
         self._pending: collections.deque[int] = collections.deque()  # press ids submitted, not yet answered
         self._broken: HardwareError | None = None  # once failed, every later call raises this at once
-        self._early: collections.deque[tuple] = collections.deque()  # press answers read while awaiting an aside
-        self._asides: dict[int, tuple] = {}  # aside answers read, by aside number, until taken
-        self._n_asides = 0
-        self._unsent_asides: collections.deque[tuple] = collections.deque()
         self.wait_s = 0.0  # how long the caller waited for answers (the worker behind), logged at close
 
     @property
@@ -133,49 +120,10 @@ class SkinWorker:
     def submit(self, job: EstimateJob) -> int:
         """Queue a press; returns its ticket (the order it will come back in)."""
         conn = self._connection()
-        self._send_asides(conn)
         with contextlib.suppress(OSError):  # the worker is gone: result() still reads the answers it sent, then
             conn.send(job)  # names the first press it owes
         self._pending.append(job.press_id)
         return self._received + len(self._pending) - 1
-
-    def aside(self, compute: AsideTask) -> Callable[[], Any]:
-        """Run `compute(estimator)` in the worker's process beside the presses (in a thread there, so the presses'
-        answers keep coming), on the worker's own skin and DAQ; returns a `result()` that waits for its value (or
-        raises its error). For work that depends on no press, such as the physical limit: the main process, the
-        campaign's critical path, then spends none of its CPU or GIL on it."""
-        self._connection()
-        number = self._n_asides
-        self._n_asides += 1
-        self._unsent_asides.append(("aside", number, compute))
-        return functools.partial(self._aside_result, number)
-
-    def _send_asides(self, conn: Connection) -> None:
-        # sent with the first press, not at once: a large aside (the physical limit's protocol and plan, 250 kB)
-        # would block the caller until the worker reads it, and a starting worker reads nothing while it builds
-        # its skin; by the first press it has, or soon will
-        while self._unsent_asides:
-            with contextlib.suppress(OSError):  # a worker gone: the result names it
-                conn.send(self._unsent_asides.popleft())
-
-    def _aside_result(self, number: int) -> Any:
-        self._send_asides(self._connection())  # no press was submitted
-        while number not in self._asides:
-            message = self._receive(None)
-            if message[0] == "ready":
-                self._ready = True
-            elif message[0] in ("aside", "aside-error"):
-                self._asides[message[1]] = message
-            elif message[0] == "error" and message[1] is None:
-                raise self._fail(HardwareError(f"the dry run's skin worker could not start: {message[2]}"))
-            else:  # a press's answer (its caller takes it later, in order)
-                self._early.append(message)
-        kind, _, value, caught = self._asides.pop(number)
-        for text, category, filename, lineno in caught:  # the aside's warnings, as if it had run here
-            warnings.warn_explicit(text, category, filename, lineno)
-        if kind == "aside-error":
-            raise HardwareError(f"the dry run's skin worker failed on work beside the presses: {value}")
-        return value
 
     def result(self, ticket: int, press_id: int) -> PairEstimates:
         """The estimates of the press with this ticket, the next one due."""
@@ -187,9 +135,6 @@ class SkinWorker:
             message = self._receive(press_id)
             if message[0] == "ready":
                 self._ready = True
-                continue
-            if message[0] in ("aside", "aside-error"):  # kept for its own result()
-                self._asides[message[1]] = message
                 continue
             if message[0] == "ok" and message[1] == press_id:
                 self._received += 1
@@ -229,9 +174,7 @@ class SkinWorker:
             raise RuntimeError("the skin worker is not running: start() it first")
         return self._conn
 
-    def _receive(self, press_id: int | None) -> tuple:
-        if self._early:
-            return self._early.popleft()
+    def _receive(self, press_id: int) -> tuple:
         conn = self._connection()
         if conn.poll():
             return self._recv(conn, press_id)
@@ -241,13 +184,13 @@ class SkinWorker:
         finally:
             self.wait_s += time.perf_counter() - started
 
-    def _recv(self, conn: Connection, press_id: int | None) -> tuple:
+    def _recv(self, conn: Connection, press_id: int) -> tuple:
         try:
             return conn.recv()
         except (EOFError, OSError):
             raise self._fail(self._died(press_id)) from None
 
-    def _wait_receive(self, conn: Connection, press_id: int | None) -> tuple:
+    def _wait_receive(self, conn: Connection, press_id: int) -> tuple:
         timeout = self.press_timeout_s if self._ready else self.start_timeout_s
         deadline = time.monotonic() + timeout
         while True:
@@ -257,7 +200,7 @@ class SkinWorker:
             if remaining <= 0:
                 raise self._fail(
                     HardwareError(
-                        f"the dry run's skin worker (pid {self.pid}) gave no {_owed(press_id)} within "
+                        f"the dry run's skin worker (pid {self.pid}) gave no estimates for press {press_id} within "
                         f"{timeout:.0f} s; {RESUME_HINT}"
                     )
                 )
@@ -269,10 +212,9 @@ class SkinWorker:
         self._broken = error
         return error
 
-    def _died(self, press_id: int | None) -> HardwareError:
+    def _died(self, press_id: int) -> HardwareError:
         """The error for a worker that is gone, naming the first press it owes (else `press_id`)."""
         press_id = self._pending[0] if self._pending else press_id
-        owed = "its work beside the presses" if press_id is None else f"press {press_id}'s estimates"
         process = self._process
         if process is not None:
             process.join(0.5)
@@ -288,12 +230,9 @@ class SkinWorker:
                 "NEATSKIN_SKIN_WORKER=off)"
             )
         return HardwareError(
-            f"the dry run's skin worker (pid {self.pid}) ended (exit code {code}) before {owed}{hint}; {RESUME_HINT}"
+            f"the dry run's skin worker (pid {self.pid}) ended (exit code {code}) before press {press_id}'s "
+            f"estimates{hint}; {RESUME_HINT}"
         )
-
-
-def _owed(press_id: int | None) -> str:
-    return "work beside the presses" if press_id is None else f"estimates for press {press_id}"
 
 
 def _launch(context: str, preload: tuple[str, ...] = ()) -> tuple[Any, Connection]:
@@ -403,13 +342,12 @@ def serve(conn: Connection, preload: tuple[str, ...] = ()) -> None:
         factory = conn.recv()
     except (EOFError, OSError):
         return
-    sending = threading.Lock()  # an aside's thread answers on the same pipe
     try:
         estimate = factory()
     except Exception as exc:
-        _send(conn, ("error", None, f"{type(exc).__name__}: {exc}"), sending)
+        _send(conn, ("error", None, f"{type(exc).__name__}: {exc}"))
         return
-    if not _send(conn, ("ready",), sending):
+    if not _send(conn, ("ready",)):
         return
     while True:
         try:
@@ -418,43 +356,17 @@ def serve(conn: Connection, preload: tuple[str, ...] = ()) -> None:
             return
         if job is None:
             return
-        if isinstance(job, tuple) and job[0] == "aside":
-            threading.Thread(
-                target=_run_aside, args=(conn, sending, job[1], job[2], estimate), name="aside", daemon=True
-            ).start()
-            continue
         try:
             message: tuple = ("ok", job.press_id, estimate(job))
         except Exception as exc:
             message = ("error", job.press_id, f"{type(exc).__name__}: {exc}")
-        if not _send(conn, message, sending):
+        if not _send(conn, message):
             return
 
 
-def _run_aside(conn: Connection, sending: threading.Lock, number: int, compute: AsideTask, estimate: Any) -> None:
-    """An aside in the worker: its value, or its error's text, back on the pipe (a daemon thread: a worker told to
-    end does not wait for it)."""
-    with warnings.catch_warnings(record=True) as caught:  # shown by the caller as its own (the CLI's format)
-        try:
-            message: tuple = ("aside", number, compute(estimate))
-        except Exception as exc:
-            message = ("aside-error", number, f"{type(exc).__name__}: {exc}")
-    shown = [(*_portable(w.message, w.category), w.filename, w.lineno) for w in caught]
-    _send(conn, (*message, shown), sending)
-
-
-def _portable(message: Warning | str, category: type[Warning]) -> tuple[str, type[Warning]]:
-    """A warning's text and a category the caller can unpickle without importing its library (a builtin
-    category as is; another, such as scikit-learn's, as a RuntimeWarning that names it)."""
-    if category.__module__ == "builtins":
-        return str(message), category
-    return f"{category.__name__}: {message}", RuntimeWarning
-
-
-def _send(conn: Connection, message: tuple, lock: threading.Lock) -> bool:
+def _send(conn: Connection, message: tuple) -> bool:
     try:
-        with lock:
-            conn.send(message)
+        conn.send(message)
     except OSError:
         return False
     return True
