@@ -8,8 +8,11 @@ phase of the README's main job), in three modes, alternating, in one run of this
     against   another checkout (--against DIR, e.g. `git worktree add /tmp/base HEAD~2`), as it runs
 
 Per run: wall time; CPU of the main process and of its children (the worker, once reaped); the peak RSS of
-the main process and of its largest child (the worker). With both worker and inline runs, their rows are
-compared (R, dR, flags, FSR columns: identical expected). The load average is printed before and after.
+the main process and of its largest child (the worker); how long the main process waited for the worker's
+estimates (the worker's own count, logged when it closes): near 0, the main process is the critical path; a
+large share of the wall time, the worker is (it computes the presses' estimates behind at most 4 presses in
+flight). With both worker and inline runs, their rows are compared (R, dR, flags, FSR columns: identical
+expected). The load average is printed before and after.
 
     python benchmarks/bench_dry_worker.py                               # paper protocol, 2,800 presses
     python benchmarks/bench_dry_worker.py --limit 1000 --rounds 3 --against /tmp/base
@@ -32,12 +35,23 @@ REPO = Path(__file__).resolve().parent.parent
 
 # the child: the CLI, then its own and its reaped children's CPU and peak RSS on stderr's last line
 _CHILD = r"""
-import json, resource, sys
+import json, logging, re, resource, sys
+waited = []  # the skin worker's closing debug line: how long the main process waited for its estimates
+class Waits(logging.Handler):
+    def emit(self, record):
+        found = re.search(r"the caller waited ([0-9.]+) s", record.getMessage())
+        if found:
+            waited.append(float(found.group(1)))
+worker_log = logging.getLogger("neatskin.sim.skinworker")
+worker_log.setLevel(logging.DEBUG)
+worker_log.addHandler(Waits())
+worker_log.propagate = False
 from neatskin.cli import main
 code = main(sys.argv[1:])
 me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
 print(json.dumps({"cpu_main_s": me.ru_utime + me.ru_stime, "cpu_children_s": kids.ru_utime + kids.ru_stime,
-                  "rss_main_mb": me.ru_maxrss / 1024, "rss_child_mb": kids.ru_maxrss / 1024}), file=sys.stderr)
+                  "rss_main_mb": me.ru_maxrss / 1024, "rss_child_mb": kids.ru_maxrss / 1024,
+                  "waited_s": sum(waited) if waited else None}), file=sys.stderr)
 sys.exit(code)
 """
 
@@ -117,7 +131,7 @@ def main() -> None:
     )
     print(
         f"{'mode':<8} {'wall s (each round)':<24} {'median':>7} {'cpu main s':>11} {'cpu worker s':>13} "
-        f"{'RSS main MB':>12} {'RSS worker MB':>14} {'wall vs inline':>15}"
+        f"{'RSS main MB':>12} {'RSS worker MB':>14} {'waited s':>9} {'wall vs inline':>15}"
     )
     inline = statistics.median(r["wall_s"] for r in results["inline"])
     for mode, runs in results.items():
@@ -125,12 +139,14 @@ def main() -> None:
         med = statistics.median(walls)
         child_cpu = statistics.median(r["cpu_children_s"] for r in runs)
         child_rss = max(r["rss_child_mb"] for r in runs)
+        waits = [r["waited_s"] for r in runs if r.get("waited_s") is not None]
+        waited = f"{statistics.median(waits):.1f}" if waits else "-"
         print(
             f"{mode:<8} {' '.join(f'{w:.1f}' for w in walls):<24} {med:>7.1f} "
             f"{statistics.median(r['cpu_main_s'] for r in runs):>11.1f} "
             f"{(f'{child_cpu:.1f}' if mode == 'worker' else '-'):>13} "
             f"{max(r['rss_main_mb'] for r in runs):>12.0f} {(f'{child_rss:.0f}' if mode == 'worker' else '-'):>14} "
-            f"{med / inline:>14.2f}x"
+            f"{waited:>9} {med / inline:>14.2f}x"
         )
     if same is not None:
         print(f"rows of the last round, worker vs inline (R, dR, flags, FSR): {same}")

@@ -11,12 +11,14 @@ worker returns its ticket (neatskin.sim.skinworker.DeferredRecord), whose estima
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
 
 from neatskin.acquisition.estimates import PairEstimates
+from neatskin.acquisition.pressvalues import PressValues, press_values
 
 
 @dataclass
@@ -31,6 +33,15 @@ class PressRecord:
     fsr_v: np.ndarray | None = None
     waveforms: dict[str, np.ndarray] | None = field(default=None, repr=False)
     fsr_rate_hz: float | None = None  # rate of fsr_v (the DAQ rate unless decimated)
+    # the row's per-pair values, when computed where the estimates were (the dry run's skin worker); else None
+    # and `values` computes them here: the same function (acquisition.pressvalues), the same bits
+    computed_values: PressValues | None = field(default=None, repr=False)
+
+    def values(self, pair_labels: Sequence[str]) -> PressValues:
+        """The row's per-pair values (neatskin.acquisition.pressvalues.press_values of the estimates and marks)."""
+        if self.computed_values is not None:
+            return self.computed_values
+        return press_values(self.estimates, self.marks, pair_labels)
 
     # an already-done PendingPress: nothing is deferred, so keeping it starts nothing and its result is itself
     def keep(self) -> PressRecord:

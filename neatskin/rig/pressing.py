@@ -28,7 +28,7 @@ from neatskin.gcode.blocks import PressBlock, PressBlocks
 from neatskin.rig.assembly import Driver, Rig
 from neatskin.rig.control import Checkpoint
 from neatskin.rig.plan import Plan
-from neatskin.rig.pressrow import fsr_label, press_values
+from neatskin.rig.pressrow import fsr_label
 from neatskin.rig.protocol import CampaignProtocol
 
 if TYPE_CHECKING:  # tqdm is imported when the loop starts (a progress bar, nothing else needs it)
@@ -233,7 +233,7 @@ def _press_row(
 ) -> tuple[dict[str, Any], dict[str, np.ndarray] | None]:
     """The press's dataset row (and waveforms), its record awaited when it is still pending."""
     record = pressed.record.result()
-    values = press_values(record.estimates, record.marks, pair_labels)
+    values = record.values(pair_labels)
     block, label = pressed.block, pressed.label
     row = {
         "campaign": protocol.name,

@@ -13,6 +13,7 @@ from typing import Protocol
 import numpy as np
 
 from neatskin.acquisition.estimates import PairEstimates
+from neatskin.acquisition.pressvalues import PressValues
 from neatskin.acquisition.record import PressRecord
 
 
@@ -23,6 +24,17 @@ class EstimateJob:
     press_id: int
     n_sweeps: int
     segments: tuple  # sim.motion.Segment of the press, on its own clock (DryProbe.segments after load)
+    # the press's motion-sync marks (DAQ sample indices): given, the worker also computes the row's per-pair values
+    # (acquisition.pressvalues) beside the estimates, off the main process, the campaign's critical path
+    marks: dict[str, int] | None = None
+
+
+@dataclass(frozen=True)
+class Estimated:
+    """A worker's answer to a job with marks: the press's estimates and the row's per-pair values of them."""
+
+    estimates: PairEstimates
+    values: PressValues
 
 
 class EstimateQueue(Protocol):
@@ -32,8 +44,8 @@ class EstimateQueue(Protocol):
         """Queue a press; returns its ticket."""
         ...
 
-    def result(self, ticket: int, press_id: int) -> PairEstimates:
-        """The estimates of the press with this ticket, the next one due."""
+    def result(self, ticket: int, press_id: int) -> PairEstimates | Estimated:
+        """The estimates of the press with this ticket (with its values when its job had marks), the next one due."""
         ...
 
 
@@ -73,7 +85,8 @@ class DeferredRecord:
         if self._record is None:
             if self.ticket is None:
                 raise RuntimeError(f"press {self.press_id}: result() before keep()")
-            estimates = self.worker.result(self.ticket, self.press_id)
+            answer = self.worker.result(self.ticket, self.press_id)
+            estimates, values = (answer.estimates, answer.values) if isinstance(answer, Estimated) else (answer, None)
             self._record = PressRecord(
                 estimates,
                 self.first_sample,
@@ -83,5 +96,6 @@ class DeferredRecord:
                 self.fsr_v,
                 None,
                 self.fsr_rate_hz,
+                values,
             )
         return self._record

@@ -123,7 +123,10 @@ def skin_estimator(dry: DryScene, sweep: Sweep) -> PressEstimator:
     the same skin, conditions and DAQ as the inline dry rig, with a probe that is given each press's moves."""
     skin = dry_skin(dry)
     probe = dry_probe(dry, skin, _no_printer)
-    return PressEstimator(dry_daq(dry, probe), sweep, probe, seed=dry.seed, method=dry.demodulation, window=dry.window)
+    labels = tuple(pair.label for pair in dry.layout.pairs)  # the runner's pair labels: the same layout's
+    return PressEstimator(
+        dry_daq(dry, probe), sweep, probe, seed=dry.seed, method=dry.demodulation, window=dry.window, pair_labels=labels
+    )
 
 
 def _no_printer(t0_s: float) -> list:

@@ -347,12 +347,13 @@ class SimulatedRecorder:
         `result`. Only a press that is kept is sent: a retried attempt costs the worker nothing."""
         press_id, n_sweeps, first, n = self._load()
         fsr_v = self._fsr_trace(first, n, press_id) if self.fsr_enabled else None
-        job = EstimateJob(press_id, n_sweeps, tuple(self.probe.segments))
+        marks = self._sample_marks(first)
+        job = EstimateJob(press_id, n_sweeps, tuple(self.probe.segments), marks)
         record = DeferredRecord(
             first,
             n,
             self.sweep.rate_hz,
-            self._sample_marks(first),
+            marks,
             fsr_v,
             self.sweep.rate_hz / FSR_DECIMATION,
             job,

@@ -29,8 +29,9 @@ from multiprocessing.connection import Connection, wait
 from typing import Any, Protocol
 
 from neatskin.acquisition.estimates import PairEstimates
+from neatskin.acquisition.pressvalues import press_values
 from neatskin.errors import ConfigError, HardwareError
-from neatskin.sim.deferred import EstimateJob
+from neatskin.sim.deferred import Estimated, EstimateJob
 from neatskin.sim.recorder import PRESS_SLOT_S, DryProbe, features_estimates
 
 log = logging.getLogger(__name__)
@@ -43,7 +44,7 @@ RESUME_HINT = "the presses before it are written, `neatskin campaign resume` pre
 
 
 class Estimator(Protocol):
-    def __call__(self, job: EstimateJob) -> PairEstimates: ...
+    def __call__(self, job: EstimateJob) -> PairEstimates | Estimated: ...
 
 
 class EstimatorFactory(Protocol):
@@ -53,13 +54,31 @@ class EstimatorFactory(Protocol):
 
 
 class PressEstimator:
-    """The worker's side: a probe with no printer (it is given each press's moves), the simulated DAQ reading it."""
+    """The worker's side: a probe with no printer (it is given each press's moves), the simulated DAQ reading it;
+    for a job with marks, also the row's per-pair values (`pair_labels`: the layout's pairs, which name the flags)."""
 
-    def __init__(self, daq: Any, sweep: Any, probe: DryProbe, *, seed: int, method: str, window: int) -> None:
+    def __init__(
+        self,
+        daq: Any,
+        sweep: Any,
+        probe: DryProbe,
+        *,
+        seed: int,
+        method: str,
+        window: int,
+        pair_labels: tuple[str, ...] | None = None,
+    ) -> None:
         self.daq, self.sweep, self.probe = daq, sweep, probe
         self.seed, self.method, self.window = seed, method, window
+        self.pair_labels = pair_labels
 
-    def __call__(self, job: EstimateJob) -> PairEstimates:
+    def __call__(self, job: EstimateJob) -> PairEstimates | Estimated:
+        estimates = self._estimates(job)
+        if job.marks is None or self.pair_labels is None:
+            return estimates
+        return Estimated(estimates, press_values(estimates, job.marks, self.pair_labels))
+
+    def _estimates(self, job: EstimateJob) -> PairEstimates:
         self.probe.load_segments(job.press_id, list(job.segments), job.press_id * PRESS_SLOT_S)
         return features_estimates(
             self.daq,
@@ -125,7 +144,7 @@ class SkinWorker:
         self._pending.append(job.press_id)
         return self._received + len(self._pending) - 1
 
-    def result(self, ticket: int, press_id: int) -> PairEstimates:
+    def result(self, ticket: int, press_id: int) -> PairEstimates | Estimated:
         """The estimates of the press with this ticket, the next one due."""
         if self._broken is not None:
             raise self._broken

@@ -270,13 +270,14 @@ def write_kernel(kernel: PinchKernel, path: Path) -> Path:
 def read_kernel(path: Path) -> PinchKernel:
     import pyarrow.parquet as pq
 
-    table = pq.read_table(path)
+    # one file: ParquetFile reads it without pq.read_table's dataset layer, whose import pulls in pandas
+    table = pq.ParquetFile(path).read()
     meta = table.schema.metadata or {}
-    cols = {name: table.column(name).to_numpy() for name in ("offset_mm", "depth_mm", "area_ratio", "force_n")}
+    cols = {name: _column(table, name) for name in ("offset_mm", "depth_mm", "area_ratio", "force_n")}
     offsets, depths = np.unique(cols["offset_mm"]), np.unique(cols["depth_mm"])
     shape = (offsets.size, depths.size)
     extra = {
-        name: table.column(name).to_numpy().astype(float).reshape(shape)
+        name: _column(table, name).astype(float).reshape(shape)
         for name in table.column_names
         if name not in (*cols, "solved")
     }
@@ -289,6 +290,18 @@ def read_kernel(path: Path) -> PinchKernel:
         meta.get(b"neatskin.provenance", b"{}").decode(),
         extra or None,
     )
+
+
+def _column(table, name: str) -> np.ndarray:
+    """A column as a numpy array of its own. A float64 column without nulls (every column the kernel writes) is
+    copied from its data buffer: pyarrow's to_numpy imports pandas to ask about the type (0.3 s of a dry run's
+    start, in the main process and in the skin worker)."""
+    import pyarrow as pa
+
+    column = table.column(name).combine_chunks()
+    if column.type == pa.float64() and column.null_count == 0:
+        return np.frombuffer(column.buffers()[1], np.float64, len(column), column.offset * 8).copy()
+    return column.to_numpy(zero_copy_only=False)
 
 
 def cache_dir() -> Path:
