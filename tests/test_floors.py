@@ -6,8 +6,11 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy import integrate, stats
 
+from neatskin.baselines import floors
 from neatskin.baselines.floors import label_noise_floor, landing_point_bound_mm
 from neatskin.baselines.floortext import add_floor_columns, below_label_floor, floors_section, read_floors
 
@@ -95,3 +98,19 @@ def test_the_memorisation_flag_uses_the_floor_of_its_own_split():
 
 def test_an_older_physical_limit_has_no_floors():
     assert read_floors(pd.DataFrame({"crb_mm": [0.1]})) is None
+
+
+@settings(max_examples=12, deadline=None)
+@given(std_mm=st.floats(0.05, 4.0), seed=st.integers(0, 10**6))
+def test_leaving_out_prior_points_of_negligible_weight_changes_nothing_a_double_holds(std_mm, seed):
+    """The floor sums over the prior points whose posterior weight is at least WEIGHT_CUTOFF of the nearest one's;
+    with every neighbour (cutoff 0) it is the same to 1e-12 relative, from a placement much finer than the prior's
+    spacing to one far coarser (where every neighbour counts)."""
+    rng = np.random.default_rng(seed)
+    commanded, prior = rng.uniform(0, 30, (12, 2)), rng.uniform(0, 30, (3000, 2))
+    cut = label_noise_floor(commanded, prior, std_mm, draws=16, seed=seed)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(floors, "WEIGHT_CUTOFF", 0.0)
+        full = label_noise_floor(commanded, prior, std_mm, draws=16, seed=seed)
+    np.testing.assert_allclose(cut.mean_mm, full.mean_mm, rtol=1e-12)
+    np.testing.assert_allclose(cut.rms_mm, full.rms_mm, rtol=1e-12)

@@ -20,6 +20,7 @@ priors (Schur complement S), for unbiased estimators of the landing point.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,6 +30,7 @@ LABEL_FLOOR_DRAWS = 64  # landing points per commanded position: the pooled floo
 WEISZFELD_STEPS = 12
 NEIGHBOURS = 1024  # prior points per landing point (the nearest): a 5,000-draw paper prior reaches 5.7 s at 1.35 mm
 CHUNK_ROWS = 1024  # landing points evaluated at once: memory = CHUNK_ROWS x NEIGHBOURS x 2 floats
+WEIGHT_CUTOFF = 1e-12  # a prior point whose posterior weight is below this share of the nearest one's is left out
 SPLIT_PRIOR = {"grouped": "new_positions", "random": "by_row", "design": "by_row"}
 
 
@@ -73,11 +75,16 @@ def label_noise_floor(
     sq = np.empty(len(flat))
     eu = np.empty(len(flat))
     tree = cKDTree(prior)
+    weight_span_mm2 = -2.0 * math.log(WEIGHT_CUTOFF) * placement_std_mm**2 if WEIGHT_CUTOFF > 0 else math.inf
     k = min(NEIGHBOURS, len(prior))
     for start in range(0, len(flat), CHUNK_ROWS):
         part = slice(start, start + CHUNK_ROWS)
-        _, idx = tree.query(flat[part], k=k)
-        near = prior[np.asarray(idx).reshape(len(flat[part]), k)]
+        dist, idx = tree.query(flat[part], k=k)
+        dist, idx = np.asarray(dist).reshape(-1, k), np.asarray(idx).reshape(-1, k)
+        # the neighbours (sorted by distance) past where every row's weight has fallen below WEIGHT_CUTOFF of its
+        # nearest point's are left out: the floors move by less than 1e-12 relative (tests/test_floors.py)
+        reach = np.count_nonzero(dist**2 - dist[:, :1] ** 2 < weight_span_mm2, axis=1)
+        near = prior[idx[:, : int(reach.max())]]
         mean_xy, median_xy = _posterior_estimates(flat[part], near, placement_std_mm)
         sq[part] = np.sum((mean_xy - truth[part]) ** 2, axis=1)
         eu[part] = np.linalg.norm(median_xy - truth[part], axis=1)
