@@ -89,7 +89,7 @@ def _rollup(pid: int) -> tuple[int, int, int] | None:
     return values.get(b"Pss", 0), values.get(b"Pss_Anon", 0), values.get(b"Pss_File", 0)
 
 
-def _name(pid: int, root: int) -> str:
+def _name(pid: int, root: int, campaign_done: bool) -> str:
     if pid == root:
         return "main"
     try:
@@ -101,8 +101,8 @@ def _name(pid: int, root: int) -> str:
         return "resource-tracker"
     if "loky" in cmd or "joblib" in cmd:
         return "fit-worker"
-    if "spawn_main" in cmd or "forkserver" in cmd:
-        return "skin-worker"  # the dry run's only spawned process (checked against the thread names below)
+    if "spawn_main" in cmd or "forkserver" in cmd:  # the same command line: told apart by when they start
+        return "fit-worker" if campaign_done else "skin-worker"
     return cmd.split(" ", 2)[-1][:30]
 
 
@@ -145,12 +145,12 @@ def measure(checkout: Path, protocol: Path, work: Path, every_s: float = 0.1, re
     while child.poll() is None:
         now = time.monotonic()
         sizes = {}
+        markers = tuple(m for m in MARKERS if (folder / m).exists())
         for pid in _tree(child.pid):
             rollup = _rollup(pid)
             if rollup is not None:
                 sizes[pid] = rollup
-                names.setdefault(pid, _name(pid, child.pid))
-        markers = tuple(m for m in MARKERS if (folder / m).exists())
+                names.setdefault(pid, _name(pid, child.pid, report is not None or MARKERS[0] in markers))
         run.samples.append(Sample(now, sizes, {p: names[p] for p in sizes}, markers))
         time.sleep(max(0.0, every_s - (time.monotonic() - now)))
     run.wall_s = time.monotonic() - started

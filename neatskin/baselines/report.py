@@ -248,7 +248,8 @@ def run_baselines(
     models: names from MODEL_NAMES and "inversion" (inversion needs the dataset's layout); None: DEFAULT_MODELS;
         "all" (or ["all"]): every model.
     n_repeats: (seed, split) repeats per model and split, one fit each.
-    n_jobs: processes for the fits (default: every core, or 1 below SMALL_ROWS presses); backend: joblib's.
+    n_jobs: processes for the fits, this one among them (default: every core, or 1 below SMALL_ROWS presses);
+        backend: joblib's.
     lm_restarts: restarts per LM fit (default 1: each repeat trains one network, as each of the paper's ten).
     out: folder for the outputs (the dataset folder by default).
     confirm(estimate_s): told the estimated wall time before any fit (the CLI prints it and may refuse).
