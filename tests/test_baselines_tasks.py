@@ -146,6 +146,7 @@ def test_this_process_is_a_lane_taking_the_cheap_end_and_the_worker_ends_with_th
 
     import numpy  # noqa: F401  (loads the BLAS whose threads the lanes set)
 
+    others = set(multiprocessing.active_children())  # an earlier test's pool in this process, e.g. loky's
     dear = tmp_path / "dear-started"
     tasks = [Task("dear", 10.0, _pid_and_blas_threads, ("dear", 0.0, str(dear)))]
     tasks += [Task(f"cheap{k}", 0.1 * k, _pid_and_blas_threads, (f"cheap{k}", 0.0, "")) for k in range(4)]
@@ -154,7 +155,7 @@ def test_this_process_is_a_lane_taking_the_cheap_end_and_the_worker_ends_with_th
     assert set(out) == {t.key for t in tasks}
     assert out["dear"][1] != os.getpid()  # the costliest went to the worker
     assert out["cheap0"][1] == os.getpid()  # the cheapest was this process's first
-    assert multiprocessing.active_children() == []  # no worker outlives the tasks (nor holds their memory)
+    assert set(multiprocessing.active_children()) <= others  # no worker outlives the tasks (nor holds their memory)
     threads = max((os.cpu_count() or 1) // 2, 1)  # as joblib gives each of 2 workers
     assert {tuple(v[2]) for v in out.values()} == {(threads,)}  # the same BLAS threads in either lane
 
@@ -168,7 +169,8 @@ def _fails(x: int) -> int:
 def test_a_task_failing_in_a_worker_is_raised_here_and_no_worker_is_left():
     import multiprocessing
 
+    others = set(multiprocessing.active_children())
     tasks = [Task(k, 10.0 if k == 3 else 0.0, _fails, (k,)) for k in range(6)]  # 3 is the dearest: a worker's
     with pytest.raises(ArithmeticError, match="task 3 failed"):
         run_tasks(tasks, n_jobs=2)
-    assert multiprocessing.active_children() == []
+    assert set(multiprocessing.active_children()) <= others

@@ -58,25 +58,27 @@ def test_the_report_starts_with_no_campaign_process_or_thread_left_and_leaves_no
 ):
     monkeypatch.setenv(dryrig.SKIN_WORKER_ENV, "on")
     threads_before = {t.ident for t in threading.enumerate()}
+    others = set(_child_pids())  # an earlier test's pool in this process (e.g. loky's idle workers)
+    others_mp = set(multiprocessing.active_children())
     real = report.run_baselines
     seen = {}
 
     def run_baselines(folder, **kwargs):
-        seen["children"] = _child_pids()
-        seen["mp_children"] = multiprocessing.active_children()
+        seen["children"] = set(_child_pids()) - others
+        seen["mp_children"] = set(multiprocessing.active_children()) - others_mp
         # tqdm's monitor is one thread per process, shared by every progress bar, sleeping: not the campaign's
         seen["threads"] = [
             t.name for t in threading.enumerate() if t.ident not in threads_before and t.name != "tqdm_monitor"
         ]
         # the report itself, smaller: two models, two repeats, in processes as the main job makes it
         made = real(folder, models=["ridge", "extra_trees"], n_repeats=2, **kwargs)
-        seen["children_after"] = _child_pids()
+        seen["children_after"] = set(_child_pids()) - others
         return made
 
     monkeypatch.setattr(report, "run_baselines", run_baselines)
     result = run_campaign(load_protocol(worker_protocol), tmp_path / "run", progress=False, report=True)
     assert result.completed == PRESSES and result.report_summary
-    assert seen["children"] == [] and seen["mp_children"] == []  # the skin worker ended with the rig
+    assert seen["children"] == set() and seen["mp_children"] == set()  # the skin worker ended with the rig
     assert seen["threads"] == []  # the physical-limit thread, the driver's reader: all joined
-    assert seen["children_after"] == []  # the report's fit worker ended with its tasks
+    assert seen["children_after"] == set()  # the report's fit worker ended with its tasks
     assert (tmp_path / "run" / "report.md").is_file()
