@@ -117,3 +117,60 @@ def test_a_report_in_processes_equals_one_in_this_process(tmp_path):
     inv_here = next(r for r in here.results if r.model == "inversion" and r.split == "grouped")
     inv_pool = next(r for r in pool.results if r.model == "inversion" and r.split == "grouped")
     np.testing.assert_array_equal(inv_here.y_pred_mm, inv_pool.y_pred_mm)
+
+
+def _pid_and_blas_threads(key: str, sleep_s: float, flag: str) -> tuple[str, int, list[int]]:
+    import os
+    import time
+
+    from threadpoolctl import threadpool_info
+
+    time.sleep(sleep_s)
+    if flag:
+        Path(flag).touch()
+    return key, os.getpid(), sorted({lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"})
+
+
+def _wait_for(path: Path, deadline_s: float = 60.0) -> None:
+    import time
+
+    end = time.monotonic() + deadline_s
+    while not path.exists() and time.monotonic() < end:
+        time.sleep(0.01)
+    assert path.exists(), "the worker never took the costliest task"
+
+
+def test_this_process_is_a_lane_taking_the_cheap_end_and_the_worker_ends_with_the_tasks(tmp_path):
+    import multiprocessing
+    import os
+
+    import numpy  # noqa: F401  (loads the BLAS whose threads the lanes set)
+
+    others = set(multiprocessing.active_children())  # an earlier test's pool in this process, e.g. loky's
+    dear = tmp_path / "dear-started"
+    tasks = [Task("dear", 10.0, _pid_and_blas_threads, ("dear", 0.0, str(dear)))]
+    tasks += [Task(f"cheap{k}", 0.1 * k, _pid_and_blas_threads, (f"cheap{k}", 0.0, "")) for k in range(4)]
+    # meanwhile waits until the worker has the costliest task, so this process's share is decided by the order
+    out = run_tasks(tasks, n_jobs=2, meanwhile=lambda: _wait_for(dear))
+    assert set(out) == {t.key for t in tasks}
+    assert out["dear"][1] != os.getpid()  # the costliest went to the worker
+    assert out["cheap0"][1] == os.getpid()  # the cheapest was this process's first
+    assert set(multiprocessing.active_children()) <= others  # no worker outlives the tasks (nor holds their memory)
+    threads = max((os.cpu_count() or 1) // 2, 1)  # as joblib gives each of 2 workers
+    assert {tuple(v[2]) for v in out.values()} == {(threads,)}  # the same BLAS threads in either lane
+
+
+def _fails(x: int) -> int:
+    if x == 3:
+        raise ArithmeticError(f"task {x} failed")
+    return x
+
+
+def test_a_task_failing_in_a_worker_is_raised_here_and_no_worker_is_left():
+    import multiprocessing
+
+    others = set(multiprocessing.active_children())
+    tasks = [Task(k, 10.0 if k == 3 else 0.0, _fails, (k,)) for k in range(6)]  # 3 is the dearest: a worker's
+    with pytest.raises(ArithmeticError, match="task 3 failed"):
+        run_tasks(tasks, n_jobs=2)
+    assert set(multiprocessing.active_children()) <= others

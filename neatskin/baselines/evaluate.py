@@ -11,7 +11,7 @@
 - `repeat_splits`: n (seed, split) repeats of a split, each one fit. Grouped repeat r is fold
   r mod k of the k-fold partition seeded random_state + r // k.
 - `evaluate_models`: every (model, split, repeat) fit as one task (`fit_tasks`), run in processes
-  through joblib, costliest first (`neatskin.baselines.tasks`; its backend can be Dask); per
+  (this one among them), costliest first (`neatskin.baselines.tasks`; a joblib backend, e.g. Dask); per
   repeat the held-out errors, pooled and summarised (`collect_results`).
 
 Anything that makes a figure weak (few test rows, folds cut) is returned as a warning text.
@@ -406,8 +406,8 @@ def evaluate_models(
 ) -> list[ModelResult]:
     """Every (split, model, repeat) fit as one task (see `fit_tasks`); results in (split, model) order.
 
-    n_jobs: processes (1 = in this process, -1 = every core). backend: a joblib backend name
-    ("loky" by default; "dask" with a dask.distributed client registered).
+    n_jobs: processes, this one among them (1 = only this one, -1 = every core). backend: a joblib backend name
+    (none by default: the tasks' own lanes; "dask" with a dask.distributed client registered).
     progress: optional callable(done_tasks, total_tasks). costs_s: estimated seconds per fit by
     model name: in processes the costliest fits start first (the results do not depend on it).
     """

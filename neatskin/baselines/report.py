@@ -254,7 +254,8 @@ def run_baselines(
     models: names from MODEL_NAMES and "inversion" (inversion needs the dataset's layout); None: DEFAULT_MODELS;
         "all" (or ["all"]): every model.
     n_repeats: (seed, split) repeats per model and split, one fit each.
-    n_jobs: processes for the fits (default: every core, or 1 below SMALL_ROWS presses); backend: joblib's.
+    n_jobs: processes for the fits, this one among them (default: every core, or 1 below SMALL_ROWS presses);
+        backend: joblib's.
     lm_restarts: restarts per LM fit (default 1: each repeat trains one network, as each of the paper's ten).
     out: folder for the outputs (the dataset folder by default).
     confirm(estimate_s): told the estimated wall time before any fit (the CLI prints it and may refuse).
@@ -316,13 +317,9 @@ def run_baselines(
         bar.update(done - bar.n)
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    files: dict[str, Path] = {}
-
-    def bound_map() -> None:  # needs no fit: drawn here while the workers fit
-        if data.physical_limit is not None and len(data.physical_limit):
-            files["bound map"] = plot_bound_map(data.physical_limit, out_dir / "baselines_bound_map.png", data.layout)
-
-    outputs = run_tasks(tasks, n_jobs=n_jobs, backend=backend, progress=advance, meanwhile=bound_map)
+    # this process is one of the fits' lanes (tasks.run_tasks), so the figures, the bound map too, are drawn
+    # after the fits: matplotlib is imported once the workers have ended, not beside them
+    outputs = run_tasks(tasks, n_jobs=n_jobs, backend=backend, progress=advance)
     bar.close()
     learned_results = collect_results(learned, split_repeats, outputs, data.y, data.groups)
     results = []
@@ -342,19 +339,16 @@ def run_baselines(
     notes += result_warnings(table, data, bound)
     _warn(notes)
 
-    bound_map_file = files.pop("bound map", None)
-    files.update(
-        {
-            "table (CSV)": out_dir / f"{TABLE_NAME}.csv",
-            "table (parquet)": out_dir / f"{TABLE_NAME}.parquet",
-            "error vs time": out_dir / "baselines_error_vs_time.png",
-        }
-    )
+    files: dict[str, Path] = {
+        "table (CSV)": out_dir / f"{TABLE_NAME}.csv",
+        "table (parquet)": out_dir / f"{TABLE_NAME}.parquet",
+        "error vs time": out_dir / "baselines_error_vs_time.png",
+    }
     table.to_csv(files["table (CSV)"], index=False)
     table.to_parquet(files["table (parquet)"], index=False)
     plot_error_vs_time(results, files["error vs time"], bound, table, floors=floors_mm(data.physical_limit))
-    if bound_map_file is not None:
-        files["bound map"] = bound_map_file
+    if data.physical_limit is not None and len(data.physical_limit):
+        files["bound map"] = plot_bound_map(data.physical_limit, out_dir / "baselines_bound_map.png", data.layout)
     for s in splits:
         if s == "random":  # one prediction per test position: Fig. 9 is drawn from the 11 x 6 design instead
             continue
