@@ -22,16 +22,12 @@ radius around every electrode's fitting (`electrode_keep_out_mm`).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from neatskin.config.files import POSITION_STRATEGIES, PositionSpec, square_grid
 from neatskin.errors import ConfigError
 from neatskin.layout import Layout
-
-if TYPE_CHECKING:  # matplotlib (0.3 s to import) only where a point-in-polygon test runs
-    from matplotlib.path import Path as PolygonPath
 
 STRATEGIES = POSITION_STRATEGIES
 _DECIMALS = 3
@@ -80,8 +76,8 @@ def classify(layout: Layout, x_mm, y_mm) -> tuple[str, ...]:
     on = dist <= half_width + 1e-9
     nearest = np.where(on, dist, np.inf).argmin(axis=1)
     face = np.full(len(pts), -1)
-    for k, poly in enumerate(_face_paths(layout)):
-        inside = poly.contains_points(pts) & (face < 0)
+    for k, corners in enumerate(layout.faces):
+        inside = inside_polygon(pts, layout.xy_mm[list(corners)]) & (face < 0)
         face[inside] = k
     labels = []
     for i in range(len(pts)):
@@ -97,10 +93,17 @@ def classify(layout: Layout, x_mm, y_mm) -> tuple[str, ...]:
 # ---- sampling ----------------------------------------------------------------------------
 
 
-def _face_paths(layout: Layout) -> list[PolygonPath]:
-    from matplotlib.path import Path as PolygonPath
-
-    return [PolygonPath(layout.xy_mm[list(face)]) for face in layout.faces]
+def inside_polygon(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """(n,) whether each point (n, 2) is inside the polygon with these corners (m, 2), by the even-odd rule: a ray
+    from the point towards +x crosses its edges an odd number of times. A point on an edge may go either way (a
+    face's edges are channel centre lines, which every caller treats as a channel first)."""
+    x, y = points[:, :1], points[:, 1:]
+    x0, y0 = corners[:, 0], corners[:, 1]
+    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
+    straddles = (y0 > y) != (y1 > y)  # an edge that spans the ray's height (never a horizontal one)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x_at_y = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+    return np.count_nonzero(straddles & (x < x_at_y), axis=1) % 2 == 1
 
 
 def _face_areas(layout: Layout) -> np.ndarray:
@@ -125,9 +128,6 @@ def _on_channel(layout: Layout, rng: np.random.Generator, channel: np.ndarray, s
 def _in_face(layout: Layout, rng: np.random.Generator, face: int, n: int) -> np.ndarray:
     """n points uniform inside a face polygon and off every channel strip (rejection from its bounding box)."""
     pts = layout.xy_mm[list(layout.faces[face])]
-    from matplotlib.path import Path as PolygonPath
-
-    poly = PolygonPath(pts)
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     half_width = np.array([c.width_mm / 2 for c in layout.channels])
     out = np.zeros((0, 2))
@@ -135,7 +135,7 @@ def _in_face(layout: Layout, rng: np.random.Generator, face: int, n: int) -> np.
         if len(out) >= n:
             break
         cand = lo + rng.random((max(2 * n, 16), 2)) * (hi - lo)
-        keep = poly.contains_points(cand) & np.all(layout.distance_to_channels_mm(cand) > half_width, axis=1)
+        keep = inside_polygon(cand, pts) & np.all(layout.distance_to_channels_mm(cand) > half_width, axis=1)
         out = np.vstack([out, cand[keep]])
     if len(out) < n:
         raise ConfigError(
