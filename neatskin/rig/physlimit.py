@@ -339,7 +339,8 @@ def _dr_noise_std_ohm(
             window=protocol.acquisition.window,
             n_sweeps=draws,
         )
-        var[k] = est.resistance_ohm.var(axis=0)
+        with np.errstate(invalid="ignore"):  # a pair cut off (R_eq infinite) has no variance: NaN, no information
+            var[k] = est.resistance_ohm.var(axis=0)
     durations = _typical_phases_s(plan, protocol)
     n_base = max(1, int(durations[1] // sweep.duration_s))  # sweeps while descending through air
     n_press = max(1, int(plan.hold_s // sweep.duration_s) - 1)  # whole sweeps inside the hold
