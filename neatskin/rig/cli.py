@@ -111,6 +111,7 @@ def _run(args: argparse.Namespace) -> int:
     protocol = load_protocol(args.protocol)
     if args.dry_run:
         _prestart_skin_worker(protocol)
+        _preimport("scipy.ndimage")  # the FSR labelling's (0.3 s): at the first press it would be on the critical path
     from neatskin.rig.runner import run_campaign  # after the prestart: its imports overlap the worker's start
 
     if not args.dry_run and not args.port:
@@ -162,6 +163,15 @@ def _prestart_skin_worker(protocol) -> None:
     if forced is False or (forced is None and usable_cores() < 2):
         return
     prestart(preload=("neatskin.sim.dryscene", "pyarrow.parquet"))
+
+
+def _preimport(module: str) -> None:
+    """Import `module` in a thread now, while this process's own imports and the campaign's start (the printer's
+    boot, the skin worker's start) leave the CPU idle in waits, instead of where its first use is."""
+    import importlib
+    import threading
+
+    threading.Thread(target=importlib.import_module, args=(module,), name=f"import {module}", daemon=True).start()
 
 
 def _start_monitor(out: Path, port: int):
