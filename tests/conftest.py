@@ -27,3 +27,24 @@ def protocols_dir() -> Path:
 @pytest.fixture(scope="session")
 def paper_layout():
     return load_layout(PROTOCOLS / "skins" / "paper.toml")
+
+
+WORKER_PRESSES = 512  # the batching writer's threshold: the smallest campaign that gets a skin worker by default
+
+
+def write_worker_protocol(root: Path, *, paper_like: bool) -> Path:
+    """A copy of smoke.toml with its hardware files under root: 512 presses (8 positions x 64 repeats), features
+    only (the dry run's skin worker takes it by default); `paper_like`: the paper-like scene, so every per-press
+    condition (placement, depth jitter, drift, dents) reaches the worker."""
+    import shutil
+
+    for sub in ("skins", "wiring", "printers"):
+        shutil.copytree(PROTOCOLS / sub, root / sub)
+    text = (PROTOCOLS / "smoke.toml").read_text()
+    text = text.replace("count = 6", "count = 8").replace("repeats = 2", "repeats = 64")
+    text = text.replace("waveforms = true", "waveforms = false").replace('signal = "waveforms"', 'signal = "features"')
+    if paper_like:
+        text = text.replace('preset = "ideal"', 'preset = "paper-like"').replace("placement_error_mm = 0.0\n", "")
+    path = root / "worker.toml"
+    path.write_text(text)
+    return path

@@ -7,7 +7,6 @@ import json
 import logging
 import os
 import re
-import shutil
 import signal
 import subprocess
 import sys
@@ -16,7 +15,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from conftest import PROTOCOLS
+from conftest import PROTOCOLS, WORKER_PRESSES, write_worker_protocol
 
 import neatskin.rig.control as control
 import neatskin.rig.dryrig as dryrig
@@ -30,7 +29,7 @@ from neatskin.rig.protocol import load_protocol
 from neatskin.rig.runner import resume_campaign, run_campaign
 from neatskin.sim.skinworker import EstimateJob, SkinWorker
 
-PRESSES = 512  # the batching writer's threshold: the smallest campaign that gets a worker by default
+PRESSES = WORKER_PRESSES
 COMPARED = ["press_id", "flags", "fsr_onset_s", "fsr_offset_s", "fsr_peak_n"]
 FAIL_AT = 40
 
@@ -39,15 +38,7 @@ FAIL_AT = 40
 def worker_protocol(tmp_path_factory):
     """512 presses (8 positions x 64 repeats), features only, the paper-like scene: placement error, depth
     jitter, drift and the dents of earlier presses, so every per-press condition reaches the worker."""
-    root = tmp_path_factory.mktemp("protocols")
-    for sub in ("skins", "wiring", "printers"):
-        shutil.copytree(PROTOCOLS / sub, root / sub)
-    text = (PROTOCOLS / "smoke.toml").read_text()
-    text = text.replace("count = 6", "count = 8").replace("repeats = 2", "repeats = 64")
-    text = text.replace("waveforms = true", "waveforms = false").replace('signal = "waveforms"', 'signal = "features"')
-    text = text.replace('preset = "ideal"', 'preset = "paper-like"').replace("placement_error_mm = 0.0\n", "")
-    path = root / "worker.toml"
-    path.write_text(text)
+    path = write_worker_protocol(tmp_path_factory.mktemp("protocols"), paper_like=True)
     assert build_plan(load_protocol(path)).n_presses == PRESSES
     return path
 

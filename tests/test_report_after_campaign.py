@@ -4,12 +4,11 @@ it returns (benchmarks/bench_memory.py measures what this saves; no test asserts
 
 import multiprocessing
 import os
-import shutil
 import threading
 from pathlib import Path
 
 import pytest
-from conftest import PROTOCOLS
+from conftest import WORKER_PRESSES, write_worker_protocol
 
 import neatskin.baselines.report as report
 import neatskin.rig.dryrig as dryrig
@@ -17,7 +16,7 @@ from neatskin.rig.plan import build_plan
 from neatskin.rig.protocol import load_protocol
 from neatskin.rig.runner import run_campaign
 
-PRESSES = 512  # the smallest campaign that gets a skin worker, and a report in processes (above SMALL_ROWS)
+PRESSES = WORKER_PRESSES  # the smallest campaign that gets a skin worker, and a report in processes (above SMALL_ROWS)
 
 
 def _child_pids() -> list[int]:
@@ -40,14 +39,7 @@ def _child_pids() -> list[int]:
 
 @pytest.fixture
 def worker_protocol(tmp_path):
-    root = tmp_path / "protocols"
-    for sub in ("skins", "wiring", "printers"):
-        shutil.copytree(PROTOCOLS / sub, root / sub)
-    text = (PROTOCOLS / "smoke.toml").read_text()
-    text = text.replace("count = 6", "count = 8").replace("repeats = 2", "repeats = 64")
-    text = text.replace("waveforms = true", "waveforms = false").replace('signal = "waveforms"', 'signal = "features"')
-    path = root / "worker.toml"
-    path.write_text(text)
+    path = write_worker_protocol(tmp_path / "protocols", paper_like=False)
     assert build_plan(load_protocol(path)).n_presses == PRESSES
     return path
 
