@@ -353,7 +353,6 @@ class MarlinCore(LineIntake):
                 self._emit(text_line)
         elif code in HOUSEKEEPING:
             self.housekeeping.run(code, line, lambda comments: settings_report(self.profile, comments))
-
         elif code not in _QUIET and code not in _SILENT and code[:1] != "T":  # a tool change: ok (one tool)
             self._emit(f'echo:{R.UNKNOWN_COMMAND}{text}"')
         return False
