@@ -141,7 +141,8 @@ import hashlib, json, sys, time
 import numpy as np
 from neatskin.acquisition.estimates import PairEstimates
 from neatskin.acquisition.fsr import FsrModel
-from neatskin.rig.pressrow import fsr_label, press_values
+from neatskin.acquisition.pressvalues import press_values
+from neatskin.rig.pressrow import fsr_label
 
 data = np.load(sys.argv[1])
 repeats = int(sys.argv[2])

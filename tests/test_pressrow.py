@@ -5,7 +5,8 @@ import pytest
 
 from neatskin.acquisition.estimates import PairEstimates, PairFlag, flag_names
 from neatskin.acquisition.fsr import FsrModel
-from neatskin.rig.pressrow import fsr_label, press_values
+from neatskin.acquisition.pressvalues import press_values
+from neatskin.rig.pressrow import fsr_label
 
 MARKS = {"contact": 300, "hold_start": 500, "hold_end": 800, "lifted": 1000}
 

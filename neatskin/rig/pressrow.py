@@ -1,9 +1,9 @@
-"""From a press's record to its dataset row: baseline and pressed sweeps by motion sync, FSR labels, flags.
+"""From a press's record to its dataset row: the FSR labels (onset, offset, peak), which also catch a press the
+G-code commanded that never touched the skin.
 
-Pure functions of the record: the per-pair values (`press_values`, neatskin.acquisition.pressvalues: the
-baseline is every sweep that ended before the probe reached the surface, the `contact` mark, the pressed value
-every sweep that lies inside the hold, `hold_start` .. `hold_end`). The FSR labels the press (onset, offset,
-peak) and catches a press the G-code commanded that never touched the skin.
+Pure functions of the record. The row's per-pair values (baseline and pressed sweeps by motion sync, their
+difference, flags) are `neatskin.acquisition.pressvalues.press_values`, reached through `PressRecord.values`
+(computed where the estimates are: the skin worker's process in a dry run).
 """
 
 from __future__ import annotations
@@ -13,8 +13,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from neatskin.acquisition.fsr import FsrModel, PressDetection, detect_presses
-from neatskin.acquisition.pressvalues import PressValues as PressValues  # the row's values, computed where the
-from neatskin.acquisition.pressvalues import press_values as press_values  # estimates are (the skin worker's)
 
 
 @dataclass(frozen=True)
