@@ -182,8 +182,7 @@ class ConsoleSession:
         guarded: `G1 Z0` typed over the skin went straight to the printer.)"""
         from neatskin.gcode.parse import GcodeSyntaxError, parse_line
 
-        surface = self.surface_z_mm
-        if surface is None:
+        if self.surface_z_mm is None:
             return None
         try:
             line = parse_line(raw)
@@ -193,11 +192,16 @@ class ConsoleSession:
         if z is None:
             return None
         target = self.driver.position().z_mm + z if self.relative else z
-        if target >= surface - 1e-9:
+        return self._surface_refusal(repr(raw), target, f"type {raw} ! to send it anyway")
+
+    def _surface_refusal(self, what: str, target_z_mm: float, override: str) -> str | None:
+        """The one refusal of a move (a z- jog or a typed G0/G1) whose Z ends below the known skin surface."""
+        surface = self.surface_z_mm
+        if surface is None or target_z_mm >= surface - 1e-9:
             return None
         return (
-            f"refused: {raw!r} would take the probe to Z {target:.3f}, {surface - target:.3f} mm below the skin "
-            f"surface at Z {surface:.3f}; type {raw} ! to send it anyway"
+            f"refused: {what} would take the probe to Z {target_z_mm:.3f}, {surface - target_z_mm:.3f} mm below the "
+            f"skin surface at Z {surface:.3f}; {override}"
         )
 
     # ---- commands ----
@@ -228,13 +232,9 @@ class ConsoleSession:
         before: PositionLike | None = None
         if axis == "Z" and dist < 0:  # down: where it ends is checked against the surface and the printer's limit
             before = self.driver.position()
-            surface = self.surface_z_mm
-            target = before.z_mm + dist
-            if surface is not None and target < surface - 1e-9 and not confirmed:
-                return [
-                    f"refused: z- {step:g} would take the probe to Z {target:.3f}, {surface - target:.3f} mm below "
-                    f"the skin surface at Z {surface:.3f}; type z- {step:g}! to go there anyway"
-                ]
+            refusal = self._surface_refusal(f"z- {step:g}", before.z_mm + dist, f"type z- {step:g}! to go there anyway")
+            if refusal is not None and not confirmed:
+                return [refusal]
         self.driver.send("G91")
         try:
             self.driver.send(f"G0 {axis}{dist:g} F{JOG_FEED_MM_MIN[axis]:g}")
