@@ -90,6 +90,14 @@ def assert_same_replies(real: list[tuple[bytes, bytes]], sim: list[tuple[bytes, 
         assert normalise(got) == normalise(want), line
 
 
+def assert_plain_replays_alike(script: Script, *, speed: float = 1.0, max_wait_s: float = 10.0) -> None:
+    """The script replayed to the real firmware's plain build and to the simulator (plain `ok`, `speed` times real
+    time), answered alike line by line."""
+    _, real = real_transcript(PLAIN, script, max_wait_s=max_wait_s)
+    _, sim = sim_transcript(advanced_ok=False, script=script, speed=speed, max_wait_s=max_wait_s)
+    assert_same_replies(real, sim, script)
+
+
 @pytest.mark.skipif(MARLIN is None, reason="the real firmware is absent: no shared/marlin beside the repository")
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize("build", [PLAIN, ADVANCED_OK])
@@ -104,27 +112,21 @@ def test_the_simulator_answers_the_script_as_the_real_firmware(build):
 @pytest.mark.timeout(120)
 def test_moves_before_homing_answer_as_the_real_firmware():
     """Plain `ok`s only: with ADVANCED_OK the planner's free slots (`P`) depend on when the real moves end."""
-    _, real = real_transcript(PLAIN, BEFORE_HOMING)
-    _, sim = sim_transcript(advanced_ok=False, script=BEFORE_HOMING)
-    assert_same_replies(real, sim, BEFORE_HOMING)
+    assert_plain_replays_alike(BEFORE_HOMING)
 
 
 @pytest.mark.skipif(MARLIN is None, reason="the real firmware is absent: no shared/marlin beside the repository")
 @pytest.mark.timeout(400)
 def test_homing_and_soft_endstops_answer_as_the_real_firmware():
     """Four G28s in real time on the native board (about 70 s); the simulator runs 10 times faster."""
-    _, real = real_transcript(PLAIN, HOMING, max_wait_s=HOMING_WAIT_S)
-    _, sim = sim_transcript(advanced_ok=False, script=HOMING, speed=10.0, max_wait_s=HOMING_WAIT_S)
-    assert_same_replies(real, sim, HOMING)
+    assert_plain_replays_alike(HOMING, speed=10.0, max_wait_s=HOMING_WAIT_S)
 
 
 @pytest.mark.skipif(MARLIN is None, reason="the real firmware is absent: no shared/marlin beside the repository")
 @pytest.mark.timeout(120)
 def test_host_text_and_housekeeping_answer_as_the_real_firmware():
     """Comments, blank and lower-case lines, long lines, M155/M113/M31/M500-M503/M108/T0/G2/M410 (HOST_TEXT)."""
-    _, real = real_transcript(PLAIN, HOST_TEXT)
-    _, sim = sim_transcript(advanced_ok=False, script=HOST_TEXT)
-    assert_same_replies(real, sim, HOST_TEXT)
+    assert_plain_replays_alike(HOST_TEXT)
 
 
 def test_the_host_text_script_shows_what_marlin_does_with_it():
