@@ -154,3 +154,46 @@ def test_a_layout_above_the_dense_size_takes_the_full_solve_and_caches_no_rank_o
     r_eq = equivalent_resistance(layout, states, "dense")
     assert np.all(np.abs(delta - (r_eq[1:] - r_eq[0])) <= 1e-11 * r_eq[0])
     assert np.all(delta >= -1e-12 * r_eq[0])  # Rayleigh: +50 % on one channel never lowers an R_eq
+
+
+def _with_widths(layout, widths_mm):
+    """The layout with each channel's width replaced (so its own conductances spread as the widths do)."""
+    import dataclasses
+
+    channels = tuple(dataclasses.replace(c, width_mm=float(w)) for c, w in zip(layout.channels, widths_mm))
+    return dataclasses.replace(layout, channels=channels)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    decades=st.floats(0.0, 12.0),
+    factor=st.sampled_from([1.5, 1.0, 0.5, 20.0, 0.05]),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_the_undeformed_path_gives_the_public_paths_bits_on_every_route(decades, factor, seed):
+    # the layout's own conductances (1 / R from its geometry), checked and routed once per layout object: the same
+    # bits as channel_change_delta_ohm given them, whether they take the rank-one path (within 1e3) or the full solve
+    from neatskin.skin import network
+
+    rng = np.random.default_rng(seed)
+    layout = _with_widths(grid_layout(3, 4), 10.0 ** rng.uniform(0.0, decades, grid_layout(3, 4).n_channels))
+    own = network.undeformed_channel_change_delta_ohm(layout, factor)
+    g = 1.0 / layout.channel_resistance_ohm
+    np.testing.assert_array_equal(own, channel_change_delta_ohm(layout, g, factor))
+    np.testing.assert_array_equal(network.undeformed_channel_change_delta_ohm(layout, factor), own)  # cached
+    rank_one = g.max() <= GROUNDED_MAX_SPREAD * g.min()
+    assert (network._UNDEFORMED[id(layout)][1][1] is not None) == rank_one  # (weakref, (g, route))
+
+
+def test_the_undeformed_path_on_a_stiff_layout_takes_the_exact_full_solve(paper_layout):
+    from neatskin.skin import network
+
+    widths = 10.0 ** np.random.default_rng(5).choice([-4.0, 2.0, 8.0], paper_layout.n_channels)  # 1e12 apart
+    layout = _with_widths(paper_layout, widths)
+    delta = network.undeformed_channel_change_delta_ohm(layout, 1.5)
+    assert network._UNDEFORMED[id(layout)][1][1] is None  # beyond GROUNDED_MAX_SPREAD: the GTH full solve
+    _assert_exact(layout, 1.0 / layout.channel_resistance_ohm, 1.5, delta, scale_rtol=1e-13)
+    np.testing.assert_array_equal(paper_sensitivity(layout).delta_ohm, delta)
+    for factor in (0.0, -1.0, np.inf, np.nan):
+        with pytest.raises(ValueError, match="factor"):
+            network.undeformed_channel_change_delta_ohm(layout, factor)

@@ -16,7 +16,7 @@ import numpy as np
 from neatskin.layout import ElectrodePair, Layout
 from neatskin.skin.layoutcache import LayoutCache, per_layout
 from neatskin.skin.model import SkinModel
-from neatskin.skin.network import channel_change_delta_ohm
+from neatskin.skin.network import undeformed_channel_change_delta_ohm
 
 
 @dataclass(frozen=True)
@@ -73,7 +73,7 @@ def paper_sensitivity(layout: Layout, increase: float = 0.5) -> SensitivityMap:
     """The paper's simulation: each channel's resistance raised by `increase` (+50 %) in turn; one
     'press' per channel, placed at the channel's midpoint (paper Fig. 3, black dots). The changes come from
     rank-one updates of one grounded inverse (`network.channel_change_delta_ohm`), not 13 full solves."""
-    delta = channel_change_delta_ohm(layout, np.reciprocal(layout.channel_resistance_ohm), 1.0 + increase)
+    delta = undeformed_channel_change_delta_ohm(layout, 1.0 + increase)
     x_mm, y_mm = per_layout(_MIDPOINTS, layout, _read_only_midpoints)
     source = _PAPER_SOURCE if increase == 0.5 else f"paper_plus{round(increase * 100)}pct"  # the f-string: 1 us
     return SensitivityMap(source, x_mm, y_mm, delta, layout.pairs)

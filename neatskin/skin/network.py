@@ -203,6 +203,33 @@ def channel_change_delta_ohm(layout: Layout, conductance_s: np.ndarray, resistan
     change does not connect it), never NaN.
     """
     g = np.asarray(conductance_s, dtype=float)
+    rank_one = _checked_route(layout, g)
+    if not (math.isfinite(resistance_factor) and resistance_factor > 0):
+        raise ValueError(f"resistance_factor must be finite and > 0, got {resistance_factor!r}")
+    if rank_one is None:
+        return _channel_change_full_solve(layout, g, resistance_factor)
+    return _rank_one_change(layout, rank_one, g, resistance_factor)
+
+
+def undeformed_channel_change_delta_ohm(layout: Layout, resistance_factor: float) -> np.ndarray:
+    """channel_change_delta_ohm at the layout's own channel conductances, 1 / Layout.channel_resistance_ohm (the
+    paper's simulation, maps.paper_sensitivity), the same bits. Those conductances, their check and the path they
+    take depend on the layout alone, so they are worked out once per layout object; the solve is done every call."""
+    g, rank_one = per_layout(_UNDEFORMED, layout, _undeformed_route)
+    if not (math.isfinite(resistance_factor) and resistance_factor > 0):
+        raise ValueError(f"resistance_factor must be finite and > 0, got {resistance_factor!r}")
+    if rank_one is None:
+        return _channel_change_full_solve(layout, g, resistance_factor)
+    return _rank_one_change(layout, rank_one, g, resistance_factor)
+
+
+_RankOne = tuple[np.ndarray, tuple[int, int], Callable[..., tuple], np.ndarray, np.ndarray, slice]
+
+
+def _checked_route(layout: Layout, g: np.ndarray) -> _RankOne | None:
+    """Refuses g unless it holds (channels,) finite values >= 0; the rank-one structure where g may take the
+    rank-one path (every conductance > 0, within GROUNDED_MAX_SPREAD, at most DENSE_MAX_JUNCTIONS junctions), else
+    None: the full solve."""
     n_channels, rank_one = per_layout(_INCIDENCE, layout, _rank_one_structure)  # Layout.n_channels is a property
     # the checks on a dozen Python floats (numpy's min and max cost microseconds each, a map costs a few more):
     # one sort gives both ends, in half the time of min() and max(); a NaN leaves the order undefined, but the sum
@@ -212,11 +239,18 @@ def channel_change_delta_ohm(layout: Layout, conductance_s: np.ndarray, resistan
     g_min, g_max, total = values[0], values[-1], sum(values)
     if not (g_min >= 0 and g_max < math.inf and total == total):
         raise ValueError(f"conductance_s must be ({n_channels},) finite values >= 0, got shape {g.shape}")
-    if not (math.isfinite(resistance_factor) and resistance_factor > 0):
-        raise ValueError(f"resistance_factor must be finite and > 0, got {resistance_factor!r}")
-    if rank_one is None or not (g_min > 0 and g_max <= GROUNDED_MAX_SPREAD * g_min):
-        return _channel_change_full_solve(layout, g, resistance_factor)
-    lap_map, free_shape, posv, incidence, basis_t = rank_one
+    return rank_one if g_min > 0 and g_max <= GROUNDED_MAX_SPREAD * g_min else None
+
+
+def _undeformed_route(layout: Layout) -> tuple[np.ndarray, _RankOne | None]:
+    g = np.reciprocal(layout.channel_resistance_ohm)
+    g.flags.writeable = False
+    return g, _checked_route(layout, g)
+
+
+def _rank_one_change(layout: Layout, rank_one: _RankOne, g: np.ndarray, resistance_factor: float) -> np.ndarray:
+    """The rank-one path of channel_change_delta_ohm, on a checked g."""
+    lap_map, free_shape, posv, incidence, basis, pair_columns = rank_one
     # the grounded Laplacian sum_c g_c b_c b_c^T, symmetric: its transpose is the Fortran-ordered array LAPACK
     # factors in place (a temporary), so no copy is made. The array methods, not np.dot and @ (their dispatch
     # costs more than these small products); posv's flags positional (lower=0, overwrite_a=1): f2py parses
@@ -224,15 +258,19 @@ def channel_change_delta_ohm(layout: Layout, conductance_s: np.ndarray, resistan
     _, z_b, info = posv(lap_map.dot(g).reshape(free_shape).T, incidence, 0, 1)  # Z b_c
     if info != 0:  # not positive definite: cannot happen on a connected layout within the spread, but never guess
         return _channel_change_full_solve(layout, g, resistance_factor)
-    gram = basis_t.dot(z_b)  # (channels + pairs, channels): b_d^T Z b_c, then p_ab^T Z b_c (contiguous rows)
+    # (channels, channels + pairs): b_c^T Z b_d, then b_c^T Z p_ab, one row per channel. z_b^T times the basis
+    # rather than basis^T times z_b: the same bits (every column of the basis has at most two entries, +-1, so each
+    # entry is one exact difference whatever the summation order), in fewer instructions of OpenBLAS's dgemm
+    gram = z_b.T.dot(basis)
     f = resistance_factor
     scale = f / (f - 1.0) if f != 1.0 else math.inf  # f = 1: an infinite denominator, a change of exactly 0
     denominator = scale / g
     denominator -= gram.diagonal()  # R_c f / (f - 1) - b_c^T Z b_c: > R_c / (f - 1) > 0 when f > 1
-    delta = gram[n_channels:]  # (pairs, channels), squared and divided in place: gram is this call's own
-    delta *= delta
-    delta /= denominator
-    return delta.T
+    # squared and divided in place on the product's own array, whole: one contiguous operand takes numpy's fast
+    # path, where the pair block alone (a strided view) would take its general iterator at twice the cost
+    gram *= gram
+    gram /= denominator[:, None]
+    return gram[:, pair_columns]
 
 
 def _channel_change_full_solve(layout: Layout, g: np.ndarray, resistance_factor: float) -> np.ndarray:
@@ -247,11 +285,11 @@ def _channel_change_full_solve(layout: Layout, g: np.ndarray, resistance_factor:
     return np.where(np.isinf(r_eq[1:]) & np.isinf(r_eq[0]), 0.0, delta)
 
 
-_RankOne = tuple[np.ndarray, tuple[int, int], Callable[..., tuple], np.ndarray, np.ndarray]
-
-# per layout object: its channel count, and what the rank-one path needs that depends on the layout alone
-# (None above DENSE_MAX_JUNCTIONS junctions, where the full solve is used) (layoutcache.per_layout)
+# per layout object (layoutcache.per_layout): its channel count, and what the rank-one path needs that depends on
+# the layout alone (None above DENSE_MAX_JUNCTIONS junctions, where the full solve is used)
 _INCIDENCE: LayoutCache[tuple[int, _RankOne | None]] = {}
+# per layout object: its own (undeformed) channel conductances, read only, and the path they take
+_UNDEFORMED: LayoutCache[tuple[np.ndarray, _RankOne | None]] = {}
 
 
 def _rank_one_structure(layout: Layout) -> tuple[int, _RankOne | None]:
@@ -260,8 +298,8 @@ def _rank_one_structure(layout: Layout) -> tuple[int, _RankOne | None]:
     (free * free, channels) with lap_map @ g the grounded Laplacian, flat, and its shape (free, free); LAPACK's
     dposv (Cholesky factor and solve in one call: a few microseconds where numpy.linalg.solve spends ten in its
     wrappers; imported here, on first use, as scipy.linalg is not otherwise loaded by the skin); the channel
-    incidence vectors b_c (free, channels, Fortran-ordered for LAPACK); and [b_c | e_a - e_b]^T
-    (channels + pairs, free)."""
+    incidence vectors b_c (free, channels, Fortran-ordered for LAPACK); the basis [b_c | e_a - e_b]
+    (free, channels + pairs); and the slice of its pair columns."""
     from scipy.linalg.lapack import dposv
 
     n = layout.n_junctions
@@ -279,10 +317,10 @@ def _rank_one_structure(layout: Layout) -> tuple[int, _RankOne | None]:
     incidence, pairs = incidence[free], pairs[free]
     lap_map = np.einsum("ic,jc->ijc", incidence, incidence).reshape(-1, layout.n_channels).copy()
     incidence_f = np.asfortranarray(incidence)
-    basis_t = np.ascontiguousarray(np.hstack([incidence, pairs]).T)
-    for array in (lap_map, incidence_f, basis_t):
+    basis = np.hstack([incidence, pairs])
+    for array in (lap_map, incidence_f, basis):
         array.flags.writeable = False
-    return layout.n_channels, (lap_map, (n - 1, n - 1), dposv, incidence_f, basis_t)
+    return layout.n_channels, (lap_map, (n - 1, n - 1), dposv, incidence_f, basis, slice(layout.n_channels, None))
 
 
 # ---- grounded: Kron reduction, then one batched inverse ----------------------------------
