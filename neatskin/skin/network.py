@@ -223,7 +223,7 @@ def undeformed_channel_change_delta_ohm(layout: Layout, resistance_factor: float
     return _rank_one_change(layout, rank_one, g, resistance_factor)
 
 
-_RankOne = tuple[np.ndarray, tuple[int, int], Callable[..., tuple], np.ndarray, np.ndarray, slice]
+_RankOne = tuple[np.ndarray, tuple[int, int], Callable[..., tuple], np.ndarray, np.ndarray, int, slice]
 
 
 def _checked_route(layout: Layout, g: np.ndarray) -> _RankOne | None:
@@ -250,7 +250,7 @@ def _undeformed_route(layout: Layout) -> tuple[np.ndarray, _RankOne | None]:
 
 def _rank_one_change(layout: Layout, rank_one: _RankOne, g: np.ndarray, resistance_factor: float) -> np.ndarray:
     """The rank-one path of channel_change_delta_ohm, on a checked g."""
-    lap_map, free_shape, posv, incidence, basis, pair_columns = rank_one
+    lap_map, free_shape, posv, incidence, basis, row_length, pair_columns = rank_one
     # the grounded Laplacian sum_c g_c b_c b_c^T, symmetric: its transpose is the Fortran-ordered array LAPACK
     # factors in place (a temporary), so no copy is made. The array methods, not np.dot and @ (their dispatch
     # costs more than these small products); posv's flags positional (lower=0, overwrite_a=1): f2py parses
@@ -266,10 +266,12 @@ def _rank_one_change(layout: Layout, rank_one: _RankOne, g: np.ndarray, resistan
     scale = f / (f - 1.0) if f != 1.0 else math.inf  # f = 1: an infinite denominator, a change of exactly 0
     denominator = scale / g
     denominator -= gram.diagonal()  # R_c f / (f - 1) - b_c^T Z b_c: > R_c / (f - 1) > 0 when f > 1
-    # squared and divided in place on the product's own array, whole: one contiguous operand takes numpy's fast
-    # path, where the pair block alone (a strided view) would take its general iterator at twice the cost
-    gram *= gram
-    gram /= denominator[:, None]
+    # squared and divided in place on the product's own array, whole and flat: numpy's fast path takes 1-D
+    # operands of one length, so each channel's denominator is repeated along its row (one C call) rather than
+    # broadcast down a column (numpy's general iterator, with buffering: three times the cost of the division)
+    flat = gram.ravel()  # a view: the product is C-contiguous
+    flat *= flat
+    flat /= denominator.repeat(row_length)
     return gram[:, pair_columns]
 
 
@@ -299,7 +301,7 @@ def _rank_one_structure(layout: Layout) -> tuple[int, _RankOne | None]:
     dposv (Cholesky factor and solve in one call: a few microseconds where numpy.linalg.solve spends ten in its
     wrappers; imported here, on first use, as scipy.linalg is not otherwise loaded by the skin); the channel
     incidence vectors b_c (free, channels, Fortran-ordered for LAPACK); the basis [b_c | e_a - e_b]
-    (free, channels + pairs); and the slice of its pair columns."""
+    (free, channels + pairs), its column count and the slice of its pair columns."""
     from scipy.linalg.lapack import dposv
 
     n = layout.n_junctions
@@ -320,7 +322,8 @@ def _rank_one_structure(layout: Layout) -> tuple[int, _RankOne | None]:
     basis = np.hstack([incidence, pairs])
     for array in (lap_map, incidence_f, basis):
         array.flags.writeable = False
-    return layout.n_channels, (lap_map, (n - 1, n - 1), dposv, incidence_f, basis, slice(layout.n_channels, None))
+    pair_columns = slice(layout.n_channels, None)
+    return layout.n_channels, (lap_map, (n - 1, n - 1), dposv, incidence_f, basis, basis.shape[1], pair_columns)
 
 
 # ---- grounded: Kron reduction, then one batched inverse ----------------------------------
