@@ -4,6 +4,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from neatskin.baselines.inversion import invert_presses, skin_inversion
 from neatskin.layout import load_layout
@@ -319,3 +321,59 @@ def test_over_campaign_seeds_the_batched_solver_places_presses_as_the_reference_
     assert np.all(np.abs(diffs) < 0.25) and abs(np.mean(diffs)) < 0.15, diffs
     assert np.all(np.abs(shares) <= 0.075), shares  # 6 presses of 80
     assert np.mean(wrong_diffs) > 0.2, wrong_diffs
+
+
+# ---- issue 27, third round: the start search's squared comparison, and BLAS on one thread -----------------------
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    limit=st.floats(min_value=0.0, max_value=1e6, allow_nan=False, allow_infinity=False),
+    factor=st.floats(min_value=0.0, max_value=4.0, allow_nan=False),
+)
+def test_the_squared_threshold_separates_exactly_where_the_square_root_does(limit, factor):
+    from neatskin.baselines.inversion import _sqrt_threshold
+
+    t = _sqrt_threshold(limit)
+    assert np.sqrt(t) >= limit and (t == 0 or np.sqrt(np.nextafter(t, 0.0)) < limit)  # the least such float
+    # squares near the threshold (its neighbours and limit^2 itself) and anywhere else: the same verdict
+    for s in (t, np.nextafter(t, 0.0), np.nextafter(t, np.inf), limit * limit, (factor * limit) ** 2):
+        assert (s < t) == (np.sqrt(s) < limit), (limit, s, t)
+
+
+def test_the_plain_square_of_the_limit_is_not_always_that_threshold():
+    # the negative control: comparing against limit * limit disagrees with the square root on some limits, so the
+    # search for the threshold is not for show (a grid's separations are such products: 2.0 mm, 3.0 mm, 0.1 steps)
+    from neatskin.baselines.inversion import _sqrt_threshold
+
+    limits = np.random.default_rng(0).uniform(0.0, 10.0, 20000)
+    differs = [x for x in limits if _sqrt_threshold(x) != x * x]
+    assert differs, "every plain square was the threshold"
+    x = differs[0]
+    s = min(x * x, _sqrt_threshold(x))  # the lower of the two: on it the plain square's verdict is wrong
+    assert (s < x * x) != (np.sqrt(s) < x)
+    assert (s < _sqrt_threshold(x)) == (np.sqrt(s) < x)
+
+
+def test_the_inversion_runs_blas_on_one_thread_and_gives_the_answers_it_gives_on_two():
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    layout, _, dr = _presses(12, 0.3, 0.5, seed=9)
+    skin = SkinModel(layout, fidelity="deformation")
+    seen = []
+
+    class Recording:
+        def pair_resistance_ohm(self, x_mm, y_mm, depth_mm):
+            seen.extend(lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas")
+            return skin.pair_resistance_ohm(x_mm, y_mm, depth_mm)
+
+    blas_threads = lambda: [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]  # noqa: E731
+    with threadpool_limits(2, user_api="blas"):
+        before = blas_threads()
+        res = invert_presses(Recording(), dr, (0.0, 0.0, 30.0, 30.0), (0.3, 5.2))
+        after = blas_threads()
+    assert seen and set(seen) == {1}
+    assert after == before  # the caller's setting back afterwards
+    again = invert_presses(skin, dr, (0.0, 0.0, 30.0, 30.0), (0.3, 5.2))
+    np.testing.assert_array_equal(res.xy_mm, again.xy_mm)
+    np.testing.assert_array_equal(res.depth_mm, again.depth_mm)
