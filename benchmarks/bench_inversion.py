@@ -12,7 +12,8 @@ child process with that checkout first on the path, alternating checkouts, --rou
 sets: every press (what the report inverts, once, and cuts per repeat), and repeat 0's test rows of the
 random and of the grouped split. Process CPU time (the inversion alone, after the dataset is read), the
 best of the rounds, with the load average; the ratio column is against / this. It also prints, per row
-set, the mean and median position error of each checkout, its model evaluations, and the distance between
+set, the mean and median position error of each checkout, its model evaluations (rows through the model; since
+the skin's analytic Jacobian a value with its gradient counts one, at ~1.5x a value's cost), and the distance between
 the two checkouts' positions (the base's solver stops at its 40-step cap on most rows: see
 docs/baselines.md). --reference adds a third column: this checkout's `method="reference"` (invref: the solver
 before issue 27, at the same 40-step budget), in the same alternation. --blas-threads 1 runs every child on one
