@@ -1,7 +1,7 @@
 """Benchmark: the physics inversion's CPU time against another checkout's, side by side (issue 27).
 
 Usage:
-    python benchmarks/bench_inversion.py DATASET --against DIR [--rounds N] [--reference]
+    python benchmarks/bench_inversion.py DATASET --against DIR [--rounds N] [--reference] [--blas-threads N]
 
 DATASET: a campaign folder, e.g. a paper dry run
 (`neatskin campaign run protocols/paper.toml --dry-run --no-report -o RUN`); DIR: another checkout, e.g.
@@ -12,10 +12,13 @@ child process with that checkout first on the path, alternating checkouts, --rou
 sets: every press (what the report inverts, once, and cuts per repeat), and repeat 0's test rows of the
 random and of the grouped split. Process CPU time (the inversion alone, after the dataset is read), the
 best of the rounds, with the load average; the ratio column is against / this. It also prints, per row
-set, the mean and median position error of each checkout, its model evaluations, and the distance between
+set, the mean and median position error of each checkout, its model evaluations (rows through the model; since
+the skin's analytic Jacobian a value with its gradient counts one, at ~1.5x a value's cost), and the distance between
 the two checkouts' positions (the base's solver stops at its 40-step cap on most rows: see
 docs/baselines.md). --reference adds a third column: this checkout's `method="reference"` (invref: the solver
-before issue 27, at the same 40-step budget), in the same alternation.
+before issue 27, at the same 40-step budget), in the same alternation. --blas-threads 1 runs every child on one
+BLAS thread, as a report lane runs the inversion (the default leaves the library's default: this checkout's
+`invert_presses` limits itself to one, older checkouts do not).
 """
 
 from __future__ import annotations
@@ -48,10 +51,14 @@ def _rows(dataset: str) -> dict[str, np.ndarray]:
     }
 
 
-def here(dataset: str, row_set: str, out: str, method: str = "batched") -> None:
+def here(dataset: str, row_set: str, out: str, method: str = "batched", blas_threads: int = 0) -> None:
     """In the child: invert one row set with the checkout on the path, write CPU s and the answers."""
     import time
 
+    if blas_threads > 0:  # as a report lane runs it (tasks.py: cores // lanes threads, 1 on this machine)
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(blas_threads)
     from neatskin.baselines.dataset import load_baseline_data
     from neatskin.baselines.inversion import skin_inversion
 
@@ -76,10 +83,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--row-set", choices=ROW_SETS, nargs="*", default=list(ROW_SETS))
     parser.add_argument("--reference", action="store_true", help="also time this checkout's method='reference'")
+    parser.add_argument(
+        "--blas-threads",
+        type=int,
+        default=0,
+        help="BLAS threads in every child (0: the library's default, as a plain call gets; 1: as a report lane runs it)",
+    )
     parser.add_argument("--here", nargs=3, metavar=("ROW_SET", "OUT", "METHOD"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.here:
-        here(args.dataset, *args.here)
+        here(args.dataset, *args.here, blas_threads=args.blas_threads)
         return 0
     checkouts = {"this": REPO} | ({"against": args.against.resolve()} if args.against else {})
     checkouts |= {"reference": REPO} if args.reference else {}
@@ -97,7 +110,10 @@ def main(argv: list[str] | None = None) -> int:
                     env = dict(os.environ, PYTHONPATH=str(checkout))
                     method = "reference" if name == "reference" else "batched"
                     subprocess.run(
-                        [sys.executable, __file__, args.dataset, "--here", row_set, out, method], env=env, check=True
+                        [sys.executable, __file__, args.dataset, "--here", row_set, out, method]
+                        + ["--blas-threads", str(args.blas_threads)],
+                        env=env,
+                        check=True,
                     )
                     load.append(os.getloadavg()[0])
                     with np.load(out) as z:
@@ -105,7 +121,10 @@ def main(argv: list[str] | None = None) -> int:
                     key = (name, row_set)
                     best[key] = min(best.get(key, np.inf), float(got["cpu_s"]))
                     answers[key] = got
-    print(f"\ninversion CPU s, best of {args.rounds} round(s); load average {min(load):.2f} to {max(load):.2f}")
+    threads = f"{args.blas_threads} BLAS thread(s)" if args.blas_threads else "BLAS threads as the library defaults"
+    print(
+        f"\ninversion CPU s, best of {args.rounds} round(s), {threads}; load average {min(load):.2f} to {max(load):.2f}"
+    )
     others = [name for name in checkouts if name != "this"]
     print(f"{'rows':<13} {'n':>5} " + " ".join(f"{n + ' s':>11}" for n in checkouts) + " ratios (other / this)")
     for row_set in args.row_set:

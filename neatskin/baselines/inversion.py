@@ -9,8 +9,10 @@ from a forward model with the `pair_resistance_ohm(x_mm, y_mm, depth_mm)` signat
    and each press starts from the few grid points nearest to it in dR space that lie apart on
    the skin (one distance matrix, in chunks), so a start in each plausible basin; a start's residual is
    its grid row's (no second model call);
-2. a batched, bounded Levenberg-Marquardt (`invsolve.refine`): every (press, start) row in one array, a
-   forward-difference Jacobian (3 model evaluations a row, only after it moved), per-row damping by
+2. a batched, bounded Levenberg-Marquardt (`invsolve.refine`): every (press, start) row in one array, the skin's
+   analytic Jacobian from the trial step's own model call (`SkinModel.pair_resistance_and_jacobian_ohm`; a skin
+   without one, or a row with a channel shut, gets forward differences: 3 model evaluations a row, only after it
+   moved), per-row damping by
    the gain ratio, bounds by an active set, a secant estimate of the large residuals' curvature
    (NL2SOL), and starts of one press that meet merged; a row stops once its proposed step is under
    the tolerance (`method="reference"` is the solver before issue 27, `invref.refine_reference`, kept to
@@ -28,6 +30,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from neatskin.baselines.invsolve import model_dr, refine
 
@@ -48,8 +51,19 @@ class InversionResult:
     depth_mm: np.ndarray  # (n,)
     residual_ohm: np.ndarray  # (n,) RMS over pairs of dR_model - dR
     n_iterations: int
-    n_model_evaluations: int
+    n_model_evaluations: int  # rows through the model; a value with its analytic Jacobian counts one
     time_s: float
+
+
+def _sqrt_threshold(limit: float) -> float:
+    """The least float t with sqrt(t) >= limit (limit >= 0): for every float s >= 0, sqrt(s) < limit exactly when
+    s < t, as the correctly rounded sqrt is monotone."""
+    t = float(limit) * float(limit)
+    while t > 0 and np.sqrt(np.nextafter(t, 0.0)) >= limit:
+        t = float(np.nextafter(t, 0.0))
+    while np.sqrt(t) < limit:
+        t = float(np.nextafter(t, np.inf))
+    return t
 
 
 def _diverse_starts(
@@ -69,17 +83,29 @@ def _diverse_starts(
     if per_xy < 1 or len(grid_xy) % per_xy or np.any(grid_xy.reshape(-1, per_xy, 2) != grid_xy[::per_xy, None]):
         per_xy = 1
     g2 = np.einsum("gp,gp->g", grid_dr, grid_dr)
+    squared_separation = _sqrt_threshold(separation_mm)
     gx, gy = grid_xy[::per_xy, 0], grid_xy[::per_xy, 1]
     out = np.empty((len(dr), k), dtype=np.int64)
     for start in range(0, len(dr), chunk):
         block = dr[start : start + chunk]
         rows = np.arange(len(block))
-        dist = (g2[None, :] - 2.0 * block @ grid_dr.T).reshape(len(block), -1, per_xy)  # up to a per-press constant
+        # up to a per-press constant; 2 x block is exact, so (2 block) @ grid' is 2 (block @ grid') bit for bit,
+        # with one temporary fewer
+        dist = np.matmul(2.0 * block, grid_dr.T)
+        np.subtract(g2[None, :], dist, out=dist)
+        dist = dist.reshape(len(block), -1, per_xy)
         # each grid point's best depth once: the rounds below exclude whole grid points, so they search the
         # (m, points) minima, not the (m, points x depths) rows. The first minimum of the flat rows is the first
         # point's first depth, so these are the same starts
-        depth = np.argmin(dist, axis=2)
-        point_dist = np.take_along_axis(dist, depth[:, :, None], axis=2)[:, :, 0]
+        # (np.argmin over the short last axis costs ~10x these per_xy passes over strided columns; strict < keeps
+        # the first minimum, as argmin does, so the same depths and distances)
+        point_dist = dist[:, :, 0].copy()
+        depth = np.zeros(point_dist.shape, dtype=np.int64)
+        for level in range(1, per_xy):
+            column = dist[:, :, level]
+            lower = column < point_dist
+            np.copyto(point_dist, column, where=lower)
+            depth[lower] = level
         for j in range(k):
             point = np.argmin(point_dist, axis=1)
             # every point excluded (more starts than the separation leaves room for): row 0, as argmin over inf
@@ -87,17 +113,21 @@ def _diverse_starts(
             out[start : start + chunk, j] = np.where(gone, 0, point * per_xy + depth[rows, point])
             if j == k - 1:
                 break
-            # the same sums, in the same order, as np.linalg.norm over (dx, dy): the same starts, bit for bit
+            # the same sums, in the same order, as np.linalg.norm over (dx, dy), compared squared against the
+            # threshold whose square root is the separation: the same starts, bit for bit
             dx = gx[None, :] - gx[point][:, None]
             dy = gy[None, :] - gy[point][:, None]
             dx *= dx
             dy *= dy
             dx += dy
-            np.sqrt(dx, out=dx)
-            point_dist[dx < separation_mm] = np.inf
+            point_dist[dx < squared_separation] = np.inf
     return out
 
 
+# BLAS on one thread: the start search's products are of 32-row blocks and the solver's of 3 x 3 systems, where a
+# second thread only waits (on a loaded 2-core machine the start search cost ~6x the CPU on two threads: 1.5 s
+# against 0.23 s on a paper dry run); the report's lanes run it on one thread anyway (tasks.py)
+@threadpool_limits.wrap(limits=1, user_api="blas")
 def invert_presses(
     skin: ForwardModel,
     dr_ohm: np.ndarray,
@@ -205,7 +235,7 @@ def skin_inversion(
     times its cost halfway), stops: a start that is behind and has stalled rarely wins. Default (6, 1.0, 0.9): on
     paper dry runs ~148 -> ~120 model evaluations a press with the same answers (docs/baselines.md); on synthetic
     presses of the model, noise-free and noisy, the full pass's fits. Without the descending exception (progress
-    0) it loses true minima of noise-free presses (60 presses, seed 11: mean error 0.08 -> 0.19 mm). None: every
+    0) it loses true minima of noise-free presses (60 presses, seed 11: mean error 0.081 -> 0.117 mm). None: every
     start runs to its end.
     deformation: the forward model's pinch: "parametric" (default; `SkinModel`'s parametric pinch, whatever skin
     made the data) or "fe-kernel" (the packaged or cached finite-element pinch kernel of this layout and probe,

@@ -1,7 +1,8 @@
 """The physics inversion's batched solver: a bounded Levenberg-Marquardt over every (press, start) row at once.
 
 `refine` is the default (issue 27); `invref.refine_reference` the loop before issue 27, kept to test against.
-Model calls go through `model_dr` (in chunks; an infinite resistance becomes a large finite one).
+Model calls go through `model_dr` (in chunks; an infinite resistance becomes a large finite one), or `model_drj`
+(the value and the skin's analytic Jacobian, where the skin has one).
 """
 
 from __future__ import annotations
@@ -12,6 +13,9 @@ BIG_OHM = 1e9  # stands in for an infinite model resistance (a channel pinched s
 # rows per model call: the skin's quadrature of a deep press (graded panels) outgrows its reused node buffer in
 # larger calls and costs about twice as much per row (measured: ~10 us a row at 256, ~20-30 us at 1,000-3,000)
 MODEL_CHUNK = 256
+# rows per value-and-gradient call (model_drj): its fixed part (~0.6 ms a call) weighs more, and larger calls pay
+# (measured on the paper skin, 80 % of rows on the depth bound: 13.0 us a row at 256, 11.8 at 384 and 512, 13.5 at 768)
+GRADIENT_CHUNK = 512
 # two running starts of one press closer than this (mm, every coordinate) share a basin: the costlier stops
 # (paper dry run: 17 % fewer model evaluations, every press within 1e-3 mm of the unmerged answer at no worse
 # a residual; at 1e-2 mm two presses of 2,800 moved 0.33 mm to a worse residual, so not more)
@@ -25,6 +29,26 @@ def model_dr(skin, baseline_ohm: np.ndarray, p: np.ndarray) -> np.ndarray:
         q = p[start : start + MODEL_CHUNK]
         out[start : start + MODEL_CHUNK] = skin.pair_resistance_ohm(q[:, 0], q[:, 1], q[:, 2]) - baseline_ohm
     return np.where(np.isfinite(out), out, BIG_OHM)
+
+
+def model_drj(skin, baseline_ohm: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`model_dr` and d(dR)/d(x, y, depth) (m, pairs, 3) from the skin's analytic Jacobian
+    (`SkinModel.pair_resistance_and_jacobian_ohm`), in calls of at most GRADIENT_CHUNK rows. A row the analytic pass
+    cannot give (a channel shut) takes its dR from `pair_resistance_ohm` and a NaN Jacobian (the caller differences
+    it)."""
+    out = np.empty((len(p), baseline_ohm.size))
+    jac = np.empty((len(p), baseline_ohm.size, 3))
+    for start in range(0, len(p), GRADIENT_CHUNK):
+        q = p[start : start + GRADIENT_CHUNK]
+        resistance, jac[start : start + GRADIENT_CHUNK] = skin.pair_resistance_and_jacobian_ohm(
+            q[:, 0], q[:, 1], q[:, 2]
+        )
+        out[start : start + GRADIENT_CHUNK] = resistance - baseline_ohm
+    lost = ~np.all(np.isfinite(out), axis=1)
+    if lost.any():
+        out[lost] = model_dr(skin, baseline_ohm, p[lost])
+        jac[lost] = np.nan
+    return np.where(np.isfinite(out), out, BIG_OHM), jac
 
 
 def jacobian(skin, baseline, pa, model_a, step_mm, hi, columns) -> np.ndarray:
@@ -49,8 +73,10 @@ def refine(
     residual's curvature (method="batched", the default).
 
     All rows in one array, each with its own damping and a mask of the rows still running; per iteration one
-    batched model call for the Jacobians of the rows that moved (3 forward-difference offsets each) and one for
-    the trial steps. A row stops once its proposed step is under tolerance_mm (neither evaluated nor taken) or
+    batched model call for the trial steps. Where the skin has an analytic Jacobian (`has_analytic_jacobian`, as
+    `SkinModel` with the parametric pinch) that call gives it too, and an accepted step's Jacobian is its trial's
+    (a value with its gradient costs ~1.5 a value, forward differences ~2.3 values a row: measured on the paper
+    skin); otherwise one more batched call for the Jacobians of the rows that moved (forward-difference offsets). A row stops once its proposed step is under tolerance_mm (neither evaluated nor taken) or
     its damping passes 1e8. Against the solver at 513ce57 (`invref.refine_reference` is the one before it):
 
     - bounds by an active set, not by clipping alone: a coordinate at its bound whose gradient points out of the
@@ -84,6 +110,23 @@ def refine(
     skip = np.zeros((n, 3), dtype=bool)
     partial = np.zeros(n, dtype=bool)
     eye = np.eye(3)[None]
+    # the skin's own Jacobian where it has one: every trial step's model call gives its Jacobian too, so an accepted
+    # step needs no forward differences (rows it cannot give, a channel shut, are differenced)
+    analytic = bool(getattr(skin, "has_analytic_jacobian", False))
+
+    def take(rows, jac_rows):
+        """Fresh Jacobians for `rows`: J'J, J'r and, after a step, the secant update."""
+        jac[rows] = jac_rows
+        jtj[rows] = np.einsum("mpa,mpb->mab", jac_rows, jac_rows)
+        jtr[rows] = np.einsum("mpa,mp->ma", jac_rows, r[rows])
+        stale[rows] = False
+        partial[rows] = skip[rows].any(axis=1)
+        upd = rows[has_step[rows]]
+        if upd.size:
+            curvature[upd] = secant_update(
+                curvature[upd], moved_by[upd], jtr[upd] - old_jtr[upd], jtr[upd] - old_jac_new_r[upd]
+            )
+
     evaluations = 0
     iteration = 0
     for iteration in range(1, max_iterations + 1):  # noqa: B007 (the count is read after the loop)
@@ -97,20 +140,17 @@ def refine(
         if idx.size == 0:
             break
         need = idx[stale[idx]]
+        if need.size and analytic:  # the starts (their values are the grid's), and nothing else but shut rows
+            _, fresh = model_drj(skin, baseline, p[need])
+            evaluations += len(need)
+            known = np.all(np.isfinite(fresh), axis=(1, 2))
+            take(need[known], fresh[known])
+            need = need[~known]
         if need.size:
             columns = ~skip[need]
             fresh = jacobian(skin, baseline, p[need], r[need] + dr[need], step_mm, hi, columns)
-            jac[need] = np.where(columns[:, None, :], fresh, jac[need])
-            jtj[need] = np.einsum("mpa,mpb->mab", jac[need], jac[need])
-            jtr[need] = np.einsum("mpa,mp->ma", jac[need], r[need])
-            stale[need] = False
-            partial[need] = skip[need].any(axis=1)
+            take(need, np.where(columns[:, None, :], fresh, jac[need]))
             evaluations += int(columns.sum())
-            upd = need[has_step[need]]
-            if upd.size:
-                curvature[upd] = secant_update(
-                    curvature[upd], moved_by[upd], jtr[upd] - old_jtr[upd], jtr[upd] - old_jac_new_r[upd]
-                )
         pa, g = p[idx], jtr[idx]
         held = ((pa <= lo) & (g > 0)) | ((pa >= hi) & (g < 0))  # at a bound, and the descent leaves the box
         free = ~held
@@ -140,7 +180,11 @@ def refine(
         curv = curvature[idx]
         if idx.size == 0:
             continue
-        r_new = model_dr(skin, baseline, candidate) - dr[idx]
+        if analytic:
+            r_new, jac_new = model_drj(skin, baseline, candidate)
+            r_new -= dr[idx]
+        else:
+            r_new = model_dr(skin, baseline, candidate) - dr[idx]
         evaluations += len(idx)
         cost_new = np.einsum("np,np->n", r_new, r_new)
         predicted = -2.0 * np.einsum("ma,ma->m", g, step) - np.einsum("ma,mab,mb->m", step, model, step)
@@ -158,7 +202,11 @@ def refine(
         gain = np.where(np.isfinite(gain), gain, 1.0)
         p[good], r[good], cost[good] = candidate[better], r_new[better], cost_new[better]
         stale[good] = True
-        skip[good] = held[better] & (np.abs(step[better]) == 0.0)
+        if analytic:  # the trial's own Jacobian, whole: nothing held over
+            known = np.all(np.isfinite(jac_new[better]), axis=(1, 2))
+            take(good[known], jac_new[better][known])
+        else:
+            skip[good] = held[better] & (np.abs(step[better]) == 0.0)
         damping[good] = np.maximum(damping[good] * np.maximum(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 1e-9)
         growth[good] = 2.0
         bad = idx[~better]

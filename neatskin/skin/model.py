@@ -250,6 +250,34 @@ class SkinModel:
         with np.errstate(divide="ignore"):
             return equivalent_resistance(self.layout, 1.0 / resistance)
 
+    @property
+    def has_analytic_jacobian(self) -> bool:
+        """Whether `pair_resistance_and_jacobian_ohm` applies: the parametric pinch with the "deformation" fidelity, no
+        fluid widening and no temperature drift (skin/modelgrad.py differentiates that model only)."""
+        return (
+            self.fidelity == "deformation"
+            and self.kernel is None
+            and self.displaced_fluid_fraction == 0
+            and self.temperature_c is None
+        )
+
+    def pair_resistance_and_jacobian_ohm(self, x_mm, y_mm, depth_mm) -> tuple[np.ndarray, np.ndarray]:
+        """`pair_resistance_ohm` (to rounding: ~1e-15 relative) and its derivatives in (x, y, depth), ohm/mm,
+        (n, pairs) and (n, pairs, 3), from one pass (skin/modelgrad.py); NaN where a channel is shut. Only where
+        `has_analytic_jacobian` (ValueError otherwise)."""
+        if not self.has_analytic_jacobian:
+            raise ValueError(
+                "pair_resistance_and_jacobian_ohm differentiates the parametric pinch with the 'deformation' fidelity "
+                "and no fluid widening or temperature drift; difference pair_resistance_ohm for this skin"
+            )
+        from neatskin.skin.modelgrad import factor_and_gradient, pair_resistance_and_gradient
+
+        x, y, depth = _as_presses(x_mm, y_mm, depth_mm)
+        factor, grad = factor_and_gradient(
+            self.layout, x, y, depth, self.probe_radius_mm, self.pinch, self._pinch_scale
+        )
+        return pair_resistance_and_gradient(self.layout, factor, grad, self.channel_baseline_ohm)
+
     @cached_property
     def baseline_pair_resistance_ohm(self) -> np.ndarray:
         """R_eq of every pair with nothing pressing (at the model's temperature), (pairs,)."""

@@ -1,0 +1,210 @@
+"""The skin model's gradient in (x, y, depth): channel factors R / R0 and pair resistances with their derivatives.
+
+For the physics inversion's Jacobian (issue 27): one pass gives the value and its gradient, where forward differences
+take a model call per coordinate. The pinch's factor F = (1 / L) integral ds / (1 - p(r(s))) (`deformation.py`) is
+differentiated under the integral sign: the points where the integral is split (the footprint's edges, the channel's
+ends, the point nearest the probe) contribute nothing, as the integrand is continuous there (1 / (1 - p0) on both
+sides of a footprint edge) or the point is fixed, so
+
+    dF/dtheta = (1 / L) [foot dp0/dtheta / (1 - p0)^2 + integral over the sides of df/dtheta ds],
+    df/dtheta = f^2 dP/dtheta,  P = p0 exp(-u^2),  u = (r - a) / l,  r^2 = (s - s0)^2 + perp^2,
+
+on the value's own panels and nodes (`deformation._factor_chunk`'s). x and y move s0 and perp, depth moves p0 and the
+decay length l. The network's part is Foster's: with Z the inverse of the Laplacian grounded at the first electrode,
+dR_ab/dg_c = -(b_c' Z (e_a - e_b))^2 (the squared potential drop across channel c for a unit current from a to b),
+and g_c = 1 / (R0_c F_c). Exact derivatives of the exact integral, computed by the value's quadrature: they agree
+with central differences of the model to the quadrature's accuracy (tests/test_skin_modelgrad.py).
+
+Supported: the parametric pinch with the "deformation" fidelity, any channel heights; rows with a channel shut
+(p0 = 1, F = inf) get NaN gradients (the caller differences those).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+
+from neatskin.layout import Layout
+from neatskin.skin.deformation import (
+    _CHUNK_PRESSES,
+    _CUTOFF_DECAYS,
+    _GRADED_FROM_P0,
+    _PANEL_EDGES,
+    PinchParams,
+    _channel_geometry,
+    _gauss_legendre,
+    _graded_edges,
+)
+
+_BUFFERS = threading.local()  # the node arrays' memory, reused from call to call (fresh, their page faults cost
+# as much as the arithmetic: deformation._node_buffer's reason); per thread
+
+
+_BUFFER_MAX = 1 << 21  # float64 elements (16 MB) kept at most: a 256-press call near full depth needs ~1.8e6
+
+
+def _buffers(count: int, shape: tuple[int, ...]) -> list[np.ndarray]:
+    """`count` uninitialised arrays of `shape`, views of one per-thread block kept between calls (larger calls get
+    their own)."""
+    size = math.prod(shape)
+    if count * size > _BUFFER_MAX:
+        return [np.empty(shape) for _ in range(count)]
+    block = getattr(_BUFFERS, "block", None)
+    if block is None or block.size < count * size:
+        block = np.empty(max(count * size, 1 << 16))
+        _BUFFERS.block = block
+    return [block[k * size : (k + 1) * size].reshape(shape) for k in range(count)]
+
+
+def factor_and_gradient(
+    layout: Layout,
+    x_mm: np.ndarray,
+    y_mm: np.ndarray,
+    depth_mm: np.ndarray,
+    probe_radius_mm: float,
+    params: PinchParams = PinchParams(),
+    pinch_scale: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """R / R0 of every channel (presses, channels) and its derivatives in (x, y, depth) (presses, channels, 3).
+
+    The same panels as `deformation.resistance_factor` (presses near full depth grouped, graded by the group's
+    deepest), so the factor agrees with it to rounding. A press not touching (depth <= 0): 1 and 0."""
+    x, y, depth = (np.atleast_1d(np.asarray(v, float)) for v in (x_mm, y_mm, depth_mm))
+    scale = None if pinch_scale is None else np.asarray(pinch_scale, float).reshape(1, layout.n_channels)
+    factor = np.ones((x.size, layout.n_channels))
+    grad = np.zeros((x.size, layout.n_channels, 3))
+    p0 = np.minimum(1.0, params.pinch_gain * np.maximum(depth, 0.0) / layout.thickness_mm)
+    if scale is not None:
+        p0 = np.minimum(1.0, p0 * scale.max())
+    near_full = p0 > _GRADED_FROM_P0
+    touching = depth > 0
+    for group, edges in ((~near_full & touching, _PANEL_EDGES), (near_full & touching, _graded_edges(p0[near_full]))):
+        idx = np.flatnonzero(group)
+        for lo in range(0, idx.size, _CHUNK_PRESSES):
+            sl = idx[lo : lo + _CHUNK_PRESSES]
+            factor[sl], grad[sl] = _chunk(layout, x[sl], y[sl], depth[sl], probe_radius_mm, params, scale, edges)
+    return factor, grad
+
+
+def _chunk(layout, x, y, depth, radius, params, scale, panel_edges):
+    start, unit, length = _channel_geometry(layout)
+    d = depth[:, None]
+    raw = params.pinch_gain * d / layout.thickness_mm
+    rate = np.full_like(raw, params.pinch_gain / layout.thickness_mm)  # dp0/d(depth)
+    if scale is not None:
+        raw, rate = raw * scale, rate * scale
+    p0 = np.minimum(1.0, raw)  # (n, 1) or (n, C)
+    rate = np.where(raw < 1.0, rate, 0.0)
+    decay = params.decay_ratio * (layout.channel_depth_mm + d)  # (n, 1)
+    rel_x, rel_y = x[:, None] - start[:, 0], y[:, None] - start[:, 1]
+    s0 = rel_x * unit[:, 0] + rel_y * unit[:, 1]
+    perp = rel_x * unit[:, 1] - rel_y * unit[:, 0]
+    perp2 = perp * perp
+    half_chord = np.sqrt(np.maximum(radius * radius - perp2, 0.0))
+    foot_lo = np.clip(s0 - half_chord, 0.0, length)
+    foot_hi = np.clip(s0 + half_chord, 0.0, length)
+    foot = foot_hi - foot_lo
+    base = np.stack([foot_hi - s0, s0 - foot_lo], axis=-1)  # (n, C, 2)
+    side_len = np.stack([length - foot_hi, foot_lo], axis=-1)
+    reach = np.sqrt(np.maximum((radius + _CUTOFF_DECAYS * decay) ** 2 - perp2, 0.0)) - half_chord
+    active = np.minimum(np.maximum(reach, 0.0)[..., None], side_len)
+    live = np.flatnonzero(active > 0)
+    side_of = live >> 1
+    press_of = side_of // length.size
+    per_side = lambda v: v.reshape(-1)[press_of if v.shape[-1] == 1 else side_of]  # noqa: E731
+    side_active = active.reshape(-1)[live]
+    edges = np.minimum(panel_edges[:, None] * decay.reshape(-1)[press_of], side_active)
+    edges[-1] = side_active
+    width = edges[1:] - edges[:-1]  # (panels, m)
+    begin = base.reshape(-1)[live] + edges[:-1]
+    nodes, weights = _gauss_legendre(params.nodes_per_panel)
+    shape = (nodes.size, *width.shape)
+    # tau: distance from s0 along the channel; r: from the probe axis; u: (r - a) / l; then P, f and the sums
+    tau, r, u, u2, big_p, f = _buffers(6, shape)
+    np.multiply(nodes[:, None, None], width, out=tau)
+    tau += begin
+    np.multiply(tau, tau, out=r)
+    r += perp2.reshape(-1)[side_of]
+    np.sqrt(r, out=r)
+    np.subtract(r, radius, out=u)
+    u *= (1.0 / decay).reshape(-1)[press_of]
+    np.multiply(u, u, out=u2)
+    np.negative(u2, out=big_p)
+    np.exp(big_p, out=big_p)
+    big_p *= per_side(p0)
+    np.subtract(1.0, big_p, out=f)
+    with np.errstate(divide="ignore"):
+        np.reciprocal(f, out=f)
+    sums = np.empty((5, width.shape[1]))
+    flat = (nodes.size, -1)
+    sums[0] = np.sum(np.dot(weights[None, :], f.reshape(flat)).reshape(width.shape) * width, axis=0)
+    fp = np.multiply(f, f, out=f)  # f^2 P from here
+    fp *= big_p
+    a_term = np.multiply(fp, u, out=u)  # f^2 P u / r
+    a_term /= r
+    for k, values in enumerate((a_term, np.multiply(a_term, tau, out=tau), fp, np.multiply(fp, u2, out=u2))):
+        sums[k + 1] = np.sum(np.dot(weights[None, :], values.reshape(flat)).reshape(shape[1:]) * width, axis=0)
+    del r, big_p
+    side = np.zeros((5, active.size))
+    side[:, live] = sums
+    side = side.reshape(5, *active.shape)  # (5, n, C, 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inner = np.where(foot > 0, foot / (1.0 - p0), 0.0)
+        inner_d = np.where(foot > 0, foot * rate / (1.0 - p0) ** 2, 0.0)
+        depth_rate = np.where(p0 > 0, rate / p0, 0.0)
+    factor = (inner + np.sum(side[0] + (side_len - active), axis=-1)) / length
+    two_over_l = (2.0 / decay)[..., None]  # (n, 1, 1)
+    sign = np.array([1.0, -1.0])  # s - s0 = +tau on the far side, -tau on the near one
+    ux, uy = unit[:, 0][None, :, None], unit[:, 1][None, :, None]
+    pp = perp[..., None]
+    with np.errstate(invalid="ignore"):  # a shut channel's sums are inf x 0: NaN, as its gradient is set below
+        gx = two_over_l * (sign * ux * side[2] - pp * uy * side[1])
+        gy = two_over_l * (sign * uy * side[2] + pp * ux * side[1])
+        gd = depth_rate[..., None] * side[3] + params.decay_ratio * two_over_l * side[4]
+        grad = np.stack([gx.sum(-1), gy.sum(-1), gd.sum(-1) + inner_d], axis=-1) / length[None, :, None]
+    grad[~np.isfinite(factor)] = np.nan
+    return factor, grad
+
+
+def pair_resistance_and_gradient(
+    layout: Layout, factor: np.ndarray, factor_grad: np.ndarray, channel_baseline_ohm: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """R_eq of every pair (presses, pairs) and its gradient (presses, pairs, 3), from the channel factors and theirs.
+
+    Z = the Laplacian's inverse, grounded at the first electrode; R_ab = (e_a - e_b)' Z (e_a - e_b) and
+    dR_ab/dtheta = sum_c (b_c' Z (e_a - e_b))^2 g_c (dF_c/dtheta) / F_c. Rows with a channel shut (F inf) or a
+    singular Laplacian: NaN."""
+    incidence, pairs = _grounded_bases(layout)
+    with np.errstate(divide="ignore"):
+        g = 1.0 / (factor * channel_baseline_ohm)  # (n, C)
+    ok = np.all(np.isfinite(factor) & (g > 0), axis=1)
+    r_eq = np.full((factor.shape[0], pairs.shape[1]), np.nan)
+    jac = np.full((*r_eq.shape, 3), np.nan)
+    if not ok.any():
+        return r_eq, jac
+    lap = np.matmul(incidence * g[ok, None, :], incidence.T)  # (n, free, free)
+    potentials = np.matmul(np.linalg.inv(lap), pairs)  # Z (e_a - e_b), (n, free, pairs)
+    r_eq[ok] = np.sum(potentials * pairs, axis=1)
+    drop = np.matmul(incidence.T, potentials)  # (n, C, pairs): the potential drop across each channel
+    drop *= drop
+    weight = g[ok, :, None] * factor_grad[ok] / factor[ok, :, None]  # (n, C, 3)
+    jac[ok] = np.matmul(drop.transpose(0, 2, 1), weight)
+    return r_eq, jac
+
+
+def _grounded_bases(layout: Layout) -> tuple[np.ndarray, np.ndarray]:
+    """Channel incidence (junctions - 1, C) and pair vectors e_a - e_b (junctions - 1, pairs), the first electrode's
+    row dropped (grounded)."""
+    n = layout.n_junctions
+    ends = layout.channel_ends
+    incidence = np.zeros((n, layout.n_channels))
+    incidence[ends[:, 0], np.arange(layout.n_channels)] = 1.0
+    incidence[ends[:, 1], np.arange(layout.n_channels)] = -1.0
+    elec = layout.electrode_junctions
+    pairs = np.zeros((n, len(layout.pairs)))
+    pairs[elec[layout.pair_electrode_index[:, 0]], np.arange(len(layout.pairs))] = 1.0
+    pairs[elec[layout.pair_electrode_index[:, 1]], np.arange(len(layout.pairs))] = -1.0
+    free = np.arange(n) != int(elec[0])
+    return incidence[free], pairs[free]
