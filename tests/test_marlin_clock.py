@@ -162,3 +162,37 @@ def test_a_caller_reads_its_own_replies_and_the_reader_takes_over_when_it_is_gon
     finally:
         driver.close()
         printer.stop()
+
+
+@pytest.mark.timeout(60)
+def test_callers_on_two_threads_hand_the_read_to_each_other():
+    """Two threads send at once: one reads for both, and when its job ends another waiting caller takes the read;
+    each gets its own replies, in order, and every line goes out once."""
+    printer = sim_printer_for_tests()
+    driver = MarlinDriver.open(printer.start_pty(), config=DriverConfig(boot_timeout_s=0.1, motion_time_scale=0))
+    replies: dict[str, list[list[str]]] = {"a": [], "b": []}
+    errors: list[BaseException] = []
+
+    def sender(name: str) -> None:
+        try:
+            for i in range(40):
+                replies[name].append(driver.send(f"M118 E1 {name} {i}"))
+        except BaseException as exc:  # noqa: BLE001 - reported by the assertion below
+            errors.append(exc)
+
+    try:
+        driver.connect()
+        threads = [threading.Thread(target=sender, args=(name,)) for name in ("a", "b")]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join(timeout=30)
+        assert not any(thread.is_alive() for thread in threads) and errors == []
+        for name in ("a", "b"):
+            assert replies[name] == [[f"echo:{name} {i}"] for i in range(40)]
+        assert driver.stats["lines_sent"] == 81 and driver.stats["lines_resent"] == 0  # M110 and the 80 lines
+        executed = [text for _, text in printer.executed if text.startswith("M118")]
+        assert sorted(executed) == sorted(f"M118 E1 {name} {i}" for name in "ab" for i in range(40))
+    finally:
+        driver.close()
+        printer.stop()

@@ -322,6 +322,13 @@ class MarlinDriver:
             self._asleep = False  # one wake is enough
             self._channel.wake()
 
+    def _wake_reading(self) -> None:
+        """(lock held) End the read in progress now, whoever makes it: a caller blocked in a read sees a failed
+        session or a job taken back at once, not at its read's deadline."""
+        if self._asleep and self._channel is not None:
+            self._asleep = False
+            self._channel.wake()
+
     def _flush(self) -> None:
         """Write what the protocol asks for, in one write (called with the lock held).
 
@@ -410,7 +417,10 @@ class MarlinDriver:
                 self._awaited.remove(job)
                 self._progress_waiters -= progress is not None
                 self._callers_seen_s = time.monotonic()
-                if not self._awaited and (self._protocol.next_deadline() is not None or self._draining):
+                if self._awaited:
+                    if not self._reading:
+                        cond.notify_all()  # callers still wait and no one reads: one of them takes the read
+                elif self._protocol.next_deadline() is not None or self._draining:
                     self._park.notify()  # work left with no caller to read for it: the reader takes over now
         result = self._results[job]
         if isinstance(result, Failed):
@@ -522,6 +532,7 @@ class MarlinDriver:
                 E.Interrupted("taken back before sending", last_line=n, last_command=cmd, port=self.port_name)
             )
             self._cond.notify_all()  # a caller blocked on a job taken back sees it now
+            self._wake_reading()
             # the time limit is the protocol's, on the driver's clock: the reader wakes for it and tells us
             self._protocol.drain(self.clock(), timeout_s if timeout_s is not None else self.config.max_busy_s)
             self._wake_reader_for()
@@ -562,3 +573,4 @@ class MarlinDriver:
             self._protocol.emergency_stop()
             self._flush()
             self._cond.notify_all()
+            self._wake_reading()
