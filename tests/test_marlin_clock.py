@@ -136,3 +136,63 @@ def test_an_idle_driver_does_not_poll():
     finally:
         driver.close()
         printer.stop()
+
+
+@pytest.mark.timeout(30)
+def test_a_caller_reads_its_own_replies_and_the_reader_takes_over_when_it_is_gone():
+    """A round trip wakes the printer's side and the blocked caller, no reader thread in between: the caller
+    takes the read while no one reads. The wire carries the same bytes; the reader reads again once idle."""
+    printer = sim_printer_for_tests()
+    driver = MarlinDriver.open(printer.start_pty(), config=DriverConfig(boot_timeout_s=0.1, motion_time_scale=0))
+    try:
+        driver.connect()
+        driver.send("G28")
+        time.sleep(0.05)
+        before_reads, before_callers = driver.reader_wakeups, driver.caller_reads
+        for i in range(30):
+            assert driver.send(f"M118 E1 round {i}") == [f"echo:round {i}"]
+        reads = driver.reader_wakeups - before_reads
+        by_callers = driver.caller_reads - before_callers
+        assert by_callers >= 30  # every reply was read by the caller waiting for it ...
+        assert reads - by_callers <= 1  # ... the reader thread stood by (one read it was in already, at most)
+        assert driver.stats["lines_sent"] == 32  # M110, G28 and the 30 lines: nothing resent, nothing probed
+        time.sleep(0.6)  # past READER_STANDBY_S: the reader reads the idle port again
+        assert driver._reading and driver.caller_reads - before_callers == by_callers
+        assert driver.send("M118 E1 after") == ["echo:after"]  # its read hands the reply over, as before
+    finally:
+        driver.close()
+        printer.stop()
+
+
+@pytest.mark.timeout(60)
+def test_callers_on_two_threads_hand_the_read_to_each_other():
+    """Two threads send at once: one reads for both, and when its job ends another waiting caller takes the read;
+    each gets its own replies, in order, and every line goes out once."""
+    printer = sim_printer_for_tests()
+    driver = MarlinDriver.open(printer.start_pty(), config=DriverConfig(boot_timeout_s=0.1, motion_time_scale=0))
+    replies: dict[str, list[list[str]]] = {"a": [], "b": []}
+    errors: list[BaseException] = []
+
+    def sender(name: str) -> None:
+        try:
+            for i in range(40):
+                replies[name].append(driver.send(f"M118 E1 {name} {i}"))
+        except BaseException as exc:  # noqa: BLE001 - reported by the assertion below
+            errors.append(exc)
+
+    try:
+        driver.connect()
+        threads = [threading.Thread(target=sender, args=(name,)) for name in ("a", "b")]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join(timeout=30)
+        assert not any(thread.is_alive() for thread in threads) and errors == []
+        for name in ("a", "b"):
+            assert replies[name] == [[f"echo:{name} {i}"] for i in range(40)]
+        assert driver.stats["lines_sent"] == 81 and driver.stats["lines_resent"] == 0  # M110 and the 80 lines
+        executed = [text for _, text in printer.executed if text.startswith("M118")]
+        assert sorted(executed) == sorted(f"M118 E1 {name} {i}" for name in "ab" for i in range(40))
+    finally:
+        driver.close()
+        printer.stop()

@@ -273,3 +273,42 @@ def test_any_refusal_pattern_in_any_dialect_runs_each_command_once(dialect, know
     assert all(ok(proto, job) for job in jobs)
     assert firmware.executed == commands
     assert proto.stats["lines_resent"] == sum(rejects.values())
+
+
+def _ok_numbers_by_search(text: str) -> tuple[int | None, int | None, int | None]:
+    """The reference for an `ok` line's numbers: the first `N`, `P` and `B` word anywhere on it."""
+    import re
+
+    found = (re.search(rf"\b{letter}(\d+)", text) for letter in "NPB")
+    return tuple(int(m.group(1)) if m else None for m in found)  # type: ignore[return-value]
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    n=st.integers(0, 10**9),
+    p=st.integers(0, 999),
+    b=st.integers(0, 999),
+    form=st.sampled_from(
+        [
+            "ok N{n} P{p} B{b}",
+            "ok  N{n} P{p} B{b}",
+            "ok N{n} P{p}",
+            "ok P{p} B{b}",
+            "ok N{n}",
+            "ok N{n} P{p} B{b} T:25.0",
+            "ok B{b} P{p} N{n}",
+            "ok:N{n} P{p} B{b}",
+            "ok T:{p}.0 /0.0 B@:{b}",
+        ]
+    ),
+)
+def test_an_ok_line_gives_the_numbers_of_its_words(n, p, b, form):
+    """classify's one-match path for Marlin's own `ok N.. P.. B..` gives what searching each word gives, and
+    any other shape of `ok` line still reads its words (or none)."""
+    from neatskin.marlin.replies import Kind, classify
+
+    text = form.format(n=n, p=p, b=b)
+    reply = classify(text)
+    assert reply.kind is Kind.OK and reply.text == text
+    expected = _ok_numbers_by_search(text) if (" N" in text or " P" in text) else (None, None, None)
+    assert (reply.number, reply.planner_free, reply.buffer_free) == expected

@@ -115,9 +115,10 @@ def phase_durations_s(program, profile: PrinterProfile) -> np.ndarray:
     clock = MotionClock(profile)
     for line in program.preamble:
         clock.step(line)
-    n_phases = max((len(b.phases) for b in program.presses), default=0)
-    out = np.zeros((len(program.presses), n_phases))
-    for i, block in enumerate(program.presses):
-        for j, phase in enumerate(block.phases):
-            out[i, j] = sum(clock.step(line) for line in phase.lines)
+    # one pass over the presses: a block is formatted when asked for (gcode.blocks), so a second pass for the
+    # phase count would format every press again
+    rows = [[sum(clock.step(line) for line in phase.lines) for phase in block.phases] for block in program.presses]
+    out = np.zeros((len(rows), max((len(row) for row in rows), default=0)))
+    for i, row in enumerate(rows):
+        out[i, : len(row)] = row
     return out

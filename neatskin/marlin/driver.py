@@ -33,6 +33,7 @@ from neatskin.marlin.wirelog import WireLog
 __all__ = ["DriverConfig", "MarlinDriver"]
 
 log = logging.getLogger(__name__)
+READER_STANDBY_S = 0.25  # the reader stands by this long after a caller waited (wall seconds: thread scheduling)
 
 
 class MarlinDriver:
@@ -56,7 +57,8 @@ class MarlinDriver:
         self.wire_log_path = wire_log
         self.clock = clock
         self._wire: WireLog | None = None
-        self._cond = threading.Condition(threading.RLock())
+        lock = threading.RLock()
+        self._cond = threading.Condition(lock)
         self._reader: threading.Thread | None = None
         self._channel: Channel | None = None
         self._stop = threading.Event()
@@ -70,9 +72,17 @@ class MarlinDriver:
         self._commands = CommandParser()
         self._draining = 0
         self._reader_running = False
-        self._asleep = False  # the reader is in a read that ends at _sleeping_until (None: only on data or wake())
+        self._asleep = False  # the thread reading is in a read that ends at _sleeping_until (None: on data or wake())
         self._sleeping_until: float | None = None
-        self.reader_wakeups = 0  # reads that ended (data, a deadline, a wake): the reader does not poll
+        self.reader_wakeups = 0  # reads that ended (data, a deadline, a wake): nobody polls
+        self.caller_reads = 0  # of them, those a waiting caller made (the rest are the reader thread's)
+        # the read right: one thread at a time reads the channel and feeds the protocol (bytes stay in order). A
+        # caller blocked on its job takes it when it is free and reads its own replies: a round trip then wakes
+        # the printer's side and the caller, not a reader thread in between (a thread hand-off per command costs
+        # a context switch and a GIL hand-off; on a loaded 2-core machine a wake-up can wait a time slice)
+        self._reading = False
+        self._park = threading.Condition(lock)  # where the reader stands by
+        self._callers_seen_s = -1e9  # time.monotonic() when a caller last waited: the reader stands by after it
         self._progress_waiters = 0
         self._progress_at = 0.0
 
@@ -195,9 +205,13 @@ class MarlinDriver:
         if self._reader is None:
             return
         self._stop.set()
+        with self._cond:
+            self._park.notify_all()
         if self._channel is not None:
             self._channel.wake()
         self._reader.join(timeout=2.0)
+        with self._cond:  # a caller in a read ends it at the wake (or its deadline) before the channel closes
+            self._cond.wait_for(lambda: not self._reading, timeout=2.0)
         self._reader = None
         if self._channel is not None:
             self._channel.close()
@@ -209,42 +223,80 @@ class MarlinDriver:
     # ---- the transport: the reader thread and the writes --------------------------------------
 
     def _run(self) -> None:
-        """Read, feed the protocol, write what it asks for; sleep until its next deadline, not by polling."""
+        """Read, feed the protocol, write what it asks for; sleep until its next deadline, not by polling.
+
+        While callers wait (or waited within READER_STANDBY_S) and nothing is due without them, the reader
+        stands by and the callers read (`_wait`); it takes the channel back when they are gone."""
         channel = self._channel
         assert channel is not None
-        protocol, clock, cond = self._protocol, self.clock, self._cond
-        idle_s = self.config.min_timeout_s
+        cond = self._cond
         try:
             while not self._stop.is_set():
                 with cond:
-                    now = clock()
-                    # until the next deadline, and no longer than min_timeout_s: a line a caller writes has
-                    # a deadline at least that far ahead, so the reader wakes in time without being woken
-                    deadline = protocol.next_deadline()
-                    until = now + idle_s if deadline is None else min(deadline, now + idle_s)
-                    self._sleeping_until, self._asleep = until, True
-                try:
-                    data = channel.read(max(0.0, until - now))
-                except Exception as exc:  # noqa: BLE001 - SerialException, OSError: the port is gone
-                    if not self._stop.is_set():
-                        with cond:
-                            protocol.port_failed(f"read failed: {exc}")
+                    if self._stand_by():
+                        continue
+                    until, now = self._take_read()
+                if not self._read_and_feed(channel, until - now):
                     return
-                with cond:
-                    self._asleep = False  # awake: it reads the next deadline before it sleeps again
-                    self.reader_wakeups += 1
-                    if data:
-                        self._log("<", data)
-                        protocol.receive(data, clock())
-                    else:
-                        protocol.tick(clock())
-                    self._flush()
-                    if self._should_wake():
-                        cond.notify_all()
         finally:
             with cond:
                 self._reader_running = False
                 cond.notify_all()  # a caller waiting on a job sees that no one will finish it
+
+    def _stand_by(self) -> bool:
+        """(lock held, reader thread) Wait aside while a caller reads, or while callers waited within
+        READER_STANDBY_S and nothing is due without them (their next batch reads its own replies); True if it
+        waited. Lines in flight that no caller reads for are the reader's."""
+        if self._reading:
+            self._park.wait(READER_STANDBY_S)
+            return True
+        quiet_s = time.monotonic() - self._callers_seen_s
+        if quiet_s < READER_STANDBY_S and not self._draining and self._protocol.next_deadline() is None:
+            self._park.wait(READER_STANDBY_S - quiet_s)
+            return True
+        return False
+
+    def _take_read(self) -> tuple[float, float]:
+        """(lock held) Take the read right; (until, now): the read ends at the next deadline, and no later than
+        min_timeout_s (a line a caller writes has a deadline at least that far ahead, so it wakes in time)."""
+        self._reading = True
+        now = self.clock()
+        deadline = self._protocol.next_deadline()
+        idle_until = now + self.config.min_timeout_s
+        until = idle_until if deadline is None or deadline > idle_until else deadline
+        self._sleeping_until, self._asleep = until, True
+        return until, now
+
+    def _read_and_feed(self, channel: Channel, timeout_s: float) -> bool:
+        """(lock not held, read right held) One read, fed to the protocol; gives the read right back. False when
+        the port failed (the protocol is told, unless the driver is closing)."""
+        cond, protocol = self._cond, self._protocol
+        try:
+            data = channel.read(timeout_s if timeout_s > 0.0 else 0.0)
+        except BaseException as exc:  # SerialException, OSError: the port is gone; KeyboardInterrupt: a caller's
+            with cond:
+                self._reading = self._asleep = False
+                if isinstance(exc, Exception) and not self._stop.is_set():
+                    protocol.port_failed(f"read failed: {exc}")
+                cond.notify_all()
+                self._park.notify()
+            if not isinstance(exc, Exception):
+                raise
+            return False
+        with cond:
+            self._reading = self._asleep = False  # awake: the next read starts from the next deadline
+            try:
+                self.reader_wakeups += 1
+                if data:
+                    self._log("<", data)
+                    protocol.receive(data, self.clock())
+                else:
+                    protocol.tick(self.clock())
+                self._flush()
+            finally:
+                if self._stop.is_set() or self._should_wake():
+                    cond.notify_all()
+        return True
 
     def _should_wake(self) -> bool:
         """Whether a blocked caller has something to see (called with the lock held)."""
@@ -268,6 +320,13 @@ class MarlinDriver:
         deadline, until = self._protocol.next_deadline(), self._sleeping_until
         if deadline is not None and (until is None or deadline < until):
             self._asleep = False  # one wake is enough
+            self._channel.wake()
+
+    def _wake_reading(self) -> None:
+        """(lock held) End the read in progress now, whoever makes it: a caller blocked in a read sees a failed
+        session or a job taken back at once, not at its read's deadline."""
+        if self._asleep and self._channel is not None:
+            self._asleep = False
             self._channel.wake()
 
     def _flush(self) -> None:
@@ -319,12 +378,15 @@ class MarlinDriver:
 
     def _wait(self, job: Job, progress: Callable[[], None] | None = None) -> Acknowledged:
         """Until the protocol ends job (it has a deadline for every line it sends); its Acknowledged event,
-        or its Failed event's error raised."""
-        with self._cond:
+        or its Failed event's error raised. The caller reads its replies itself while no one else reads."""
+        cond, channel = self._cond, self._channel
+        with cond:
             self._awaited.append(job)
             self._progress_waiters += progress is not None
-            try:
-                while True:
+            self._callers_seen_s = time.monotonic()
+        try:
+            while True:
+                with cond:
                     self._collect()
                     if job in self._results:
                         break
@@ -337,15 +399,30 @@ class MarlinDriver:
                         self._collect()
                         self._results.setdefault(job, Failed(job, error))
                         break
-                    # no timeout: the reader notifies when this job finishes, the session fails, progress
-                    # is due (0.1 s on the driver's clock) or the reader ends; every line has a deadline
-                    self._cond.wait()
-                    if progress is not None:
-                        progress()
-            finally:
+                    reading = not self._reading and channel is not None and not self._stop.is_set()
+                    if reading:
+                        until, now = self._take_read()
+                    else:
+                        # no timeout: whoever reads notifies when this job finishes, the session fails, progress
+                        # is due (0.1 s on the driver's clock) or the reader ends; every line has a deadline
+                        cond.wait()
+                if reading:
+                    assert channel is not None
+                    self.caller_reads += 1
+                    self._read_and_feed(channel, until - now)
+                if progress is not None:
+                    progress()
+        finally:
+            with cond:
                 self._awaited.remove(job)
                 self._progress_waiters -= progress is not None
-            result = self._results[job]
+                self._callers_seen_s = time.monotonic()
+                if self._awaited:
+                    if not self._reading:
+                        cond.notify_all()  # callers still wait and no one reads: one of them takes the read
+                elif self._protocol.next_deadline() is not None or self._draining:
+                    self._park.notify()  # work left with no caller to read for it: the reader takes over now
+        result = self._results[job]
         if isinstance(result, Failed):
             raise result.error
         return result
@@ -455,10 +532,12 @@ class MarlinDriver:
                 E.Interrupted("taken back before sending", last_line=n, last_command=cmd, port=self.port_name)
             )
             self._cond.notify_all()  # a caller blocked on a job taken back sees it now
+            self._wake_reading()
             # the time limit is the protocol's, on the driver's clock: the reader wakes for it and tells us
             self._protocol.drain(self.clock(), timeout_s if timeout_s is not None else self.config.max_busy_s)
             self._wake_reader_for()
             self._draining += 1
+            self._park.notify()  # the reader reads for a drain (the caller waits on the condition)
             try:
                 while not self._protocol.drained and self._reader_running:
                     self._cond.wait()
@@ -494,3 +573,4 @@ class MarlinDriver:
             self._protocol.emergency_stop()
             self._flush()
             self._cond.notify_all()
+            self._wake_reading()

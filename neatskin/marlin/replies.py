@@ -13,6 +13,7 @@ from __future__ import annotations
 import enum
 import re
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from neatskin.gcode.parse import checksum
 
@@ -54,8 +55,10 @@ class Kind(enum.Enum):
     DATA = "data"  # anything else: M114 position, M119 endstops, temperatures...
 
 
-@dataclass(frozen=True)
-class Reply:
+class Reply(NamedTuple):
+    """One reply line, classified. A NamedTuple (immutable, as the frozen dataclass it replaces, and cheaper to
+    make): one is made for every line the printer sends."""
+
     kind: Kind
     text: str
     number: int | None = None  # ok N / Resend N / Last Line N / probe number
@@ -63,6 +66,7 @@ class Reply:
     buffer_free: int | None = None  # ADVANCED_OK B
 
 
+_OK_NPB = re.compile(r"ok N(\d+) P(\d+) B(\d+)")  # ADVANCED_OK as Marlin prints it: the common reply, one match
 _OK_N = re.compile(r"\bN(\d+)")
 _OK_P = re.compile(r"\bP(\d+)")
 _OK_B = re.compile(r"\bB(\d+)")
@@ -83,9 +87,11 @@ def classify(line: str) -> Reply:
     """Classify one reply line (without its end-of-line characters)."""
     text = line.strip()
     if text == OK or text.startswith("ok ") or text.startswith("ok:"):
+        advanced = _OK_NPB.fullmatch(text)  # the numbers the three searches below find in it, in one match
+        if advanced is not None:
+            return Reply(Kind.OK, text, int(advanced[1]), int(advanced[2]), int(advanced[3]))
         if " N" in text or " P" in text:
-            n, p, b = (_int(rx.search(text)) for rx in (_OK_N, _OK_P, _OK_B))
-            return Reply(Kind.OK, text, n, p, b)
+            return Reply(Kind.OK, text, _int(_OK_N.search(text)), _int(_OK_P.search(text)), _int(_OK_B.search(text)))
         return Reply(Kind.OK, text)
     match = _RESEND.match(text)
     if match:
