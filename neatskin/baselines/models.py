@@ -31,8 +31,9 @@ SMALL_ROWS = 500  # below this many training rows the costly models get small de
 _FIT_COST_S = {"ridge": 0.005, "knn": 0.003, "kernel_ridge": 0.7, "extra_trees": 0.6, "mlp": 1.2, "lm_network": 0.5}
 _COST_EXPONENT = {"kernel_ridge": 2.0}
 _COST_ROWS = 2700
-INVERSION_COST_S_PER_PRESS = 0.7e-3  # the physics inversion, per press (all presses in one task; 2.5e-3 before
-# issue 27's solver, which is 3.8x faster on a paper dry run: benchmarks/bench_inversion.py)
+INVERSION_COST_S_PER_PRESS = 0.7e-3  # the physics inversion, per press (all presses in one task; the solver before
+# issue 27 was 5.4x slower on a paper dry run, the analytic Jacobian's 2.25 s for 2,800 presses at load 5: rough,
+# benchmarks/bench_inversion.py)
 
 # Above these many training rows a model trains on an even draw over the positions (`even_draw`), so a
 # merged dataset of 100 campaigns (280,000 presses) stays within memory and minutes: kernel ridge's kernel
