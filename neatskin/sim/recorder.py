@@ -368,7 +368,7 @@ class SimulatedRecorder:
         press_id, n_sweeps, first, n = self._load()
         fsr_v = self._fsr_trace(first, n, press_id) if self.fsr_enabled else None
         marks = self._sample_marks(first)
-        job = EstimateJob(press_id, n_sweeps, tuple(self.probe.segments), marks)
+        job = EstimateJob(press_id, n_sweeps, tuple(self.probe.segments), marks, values_only=True)
         record = DeferredRecord(
             first,
             n,
