@@ -14,6 +14,7 @@ import threading
 import numpy as np
 
 STREAM_FSR = 3  # the FSR noise's stream id (neatskin.sim.recorder re-exports it)
+IDLE_EXIT_S = 2.0  # the drawing thread ends after this long without a draw to make (the next draw starts another)
 
 
 def fsr_noise(seed: int, press_id: int, samples: int, std_v: float) -> np.ndarray:
@@ -25,7 +26,8 @@ def fsr_noise(seed: int, press_id: int, samples: int, std_v: float) -> np.ndarra
 class FsrNoiseAhead:
     """`take(press_id, samples)` gives `fsr_noise(seed, press_id, samples, std_v)` and starts drawing the next
     press's (press_id + 1, the same length) in a daemon thread. At most one draw is kept ahead (68 kB for the paper
-    press); the thread starts on the first foreseen draw and waits on a condition between draws."""
+    press); the thread starts on the first foreseen draw, waits on a condition between draws and ends when none
+    came for IDLE_EXIT_S (a campaign's end, a pause), so no recorder leaves a thread behind for long."""
 
     def __init__(self, seed: int, std_v: float) -> None:
         self.seed, self.std_v = seed, std_v
@@ -66,7 +68,9 @@ class FsrNoiseAhead:
         while True:
             with self._lock:
                 while self._want is None:
-                    self._lock.wait()
+                    if not self._lock.wait(IDLE_EXIT_S) and self._want is None:
+                        self._thread = None  # under the lock: the next _ahead starts a new thread
+                        return
                 key, self._want, self._busy = self._want, None, self._want
             try:
                 noise = fsr_noise(self.seed, key[0], key[1], self.std_v)  # the GIL is released while it fills

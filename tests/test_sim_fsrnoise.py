@@ -1,0 +1,39 @@
+"""The FSR noise drawn one press ahead in a thread (neatskin.sim.fsrnoise) is the stream (seed, press_id,
+STREAM_FSR) of each press, whatever order the presses come in (in order, retried, skipped as a resumed campaign
+skips them), and its thread ends when idle."""
+
+import time
+
+import numpy as np
+
+from neatskin.sim import fsrnoise
+from neatskin.sim.fsrnoise import STREAM_FSR, FsrNoiseAhead, fsr_noise
+
+
+def plain(seed, press_id, samples, std_v):
+    return np.random.default_rng([seed, press_id, STREAM_FSR]).standard_normal(samples) * std_v
+
+
+def test_every_press_gets_its_own_stream_in_any_order():
+    ahead = FsrNoiseAhead(2019, 5e-3)
+    order = [0, 1, 2, 2, 2, 3, 7, 8, 8, 20, 21, 5, 6]  # in order, retries, a resume's gaps, going back
+    for press_id in order:
+        got = ahead.take(press_id, 854)
+        assert got.tobytes() == plain(2019, press_id, 854, 5e-3).tobytes(), press_id
+        time.sleep(0.002 if press_id % 2 else 0.0)  # sometimes the next draw is ready, sometimes still drawing
+    assert ahead.take(9, 100).tobytes() == plain(2019, 9, 100, 5e-3).tobytes()  # another length: drawn again
+    assert fsr_noise(3, 4, 10, 1.0).tobytes() == plain(3, 4, 10, 1.0).tobytes()
+    assert not np.array_equal(ahead.take(10, 854), ahead.take(11, 854))  # a negative control: streams differ
+
+
+def test_the_drawing_thread_ends_when_idle_and_starts_again(monkeypatch):
+    monkeypatch.setattr(fsrnoise, "IDLE_EXIT_S", 0.05)
+    ahead = FsrNoiseAhead(7, 1.0)
+    ahead.take(0, 50)
+    thread = ahead._thread
+    assert thread is not None and thread.is_alive()
+    thread.join(5.0)
+    assert not thread.is_alive() and ahead._thread is None
+    assert ahead.take(1, 50).tobytes() == plain(7, 1, 50, 1.0).tobytes()  # press 1 was drawn ahead before it ended
+    assert ahead.take(2, 50).tobytes() == plain(7, 2, 50, 1.0).tobytes()
+    assert ahead._thread is not None and ahead._thread is not thread  # a new thread for the new draws
