@@ -46,24 +46,28 @@ def _fraction(constants: tuple, tau: np.ndarray) -> np.ndarray:
     i_c, i_b = int(tau.searchsorted(t_a)), int(tau.searchsorted(t_a + t_c))  # the first cruising, braking
     i_b = max(i_b, i_c)
     half_a = 0.5 * a
-    head = dist[:i_c]
-    np.multiply(tau[:i_c], half_a, out=head)  # 0.5 * a * tau * tau, left to right
-    np.multiply(head, tau[:i_c], out=head)
-    cruise = dist[i_c:i_b]
-    np.subtract(tau[i_c:i_b], t_a, out=cruise)  # d_a + v * (tau - t_a)
-    np.multiply(cruise, v, out=cruise)
-    np.add(cruise, d_a, out=cruise)
-    td = tau[i_b:]
-    np.subtract(td, t_a, out=td)  # clip(tau - t_a - t_c, 0, t_a)
-    np.subtract(td, t_c, out=td)
-    np.maximum(td, 0.0, out=td)
-    np.minimum(td, t_a, out=td)
-    brake = dist[i_b:]
-    np.multiply(td, v, out=brake)  # d_a + v * t_c + v * td - 0.5 * a * td * td, left to right
-    np.add(brake, d_a + v * t_c, out=brake)
-    square = np.multiply(td, half_a)
-    np.multiply(square, td, out=square)
-    np.subtract(brake, square, out=brake)
+    # each phase only where it has times: a sample clock cut to the skin (below_runs) often starts braking
+    if i_c:
+        head = dist[:i_c]
+        np.multiply(tau[:i_c], half_a, out=head)  # 0.5 * a * tau * tau, left to right
+        np.multiply(head, tau[:i_c], out=head)
+    if i_b > i_c:
+        cruise = dist[i_c:i_b]
+        np.subtract(tau[i_c:i_b], t_a, out=cruise)  # d_a + v * (tau - t_a)
+        np.multiply(cruise, v, out=cruise)
+        np.add(cruise, d_a, out=cruise)
+    if i_b < tau.shape[0]:
+        td = tau[i_b:]
+        np.subtract(td, t_a, out=td)  # clip(tau - t_a - t_c, 0, t_a)
+        np.subtract(td, t_c, out=td)
+        np.maximum(td, 0.0, out=td)
+        np.minimum(td, t_a, out=td)
+        brake = dist[i_b:]
+        np.multiply(td, v, out=brake)  # d_a + v * t_c + v * td - 0.5 * a * td * td, left to right
+        np.add(brake, d_a + v * t_c, out=brake)
+        square = np.multiply(td, half_a)
+        np.multiply(square, td, out=square)
+        np.subtract(brake, square, out=brake)
     np.minimum(dist, length, out=dist)  # min(dist, length) / length
     return np.divide(dist, length, out=dist)
 
