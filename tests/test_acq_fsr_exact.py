@@ -178,3 +178,22 @@ def test_a_flat_erosion_is_found_exactly_and_gives_the_filtered_baseline(m, size
     smooth = ndimage.uniform_filter1d(opened, max(1, size // 4), mode="nearest")
     want = np.interp(np.arange(n), (np.arange(m) + 0.5) * block, smooth)
     np.testing.assert_array_equal(fsr._baseline(np.zeros(n), blocks, block, rate_hz, window_s), want)
+
+
+@pytest.mark.parametrize("direct", [True, False], ids=["compiled", "public"])
+def test_running_filters_are_scipys_bit_for_bit(monkeypatch, direct):
+    """_running_mean / _running_extreme call scipy.ndimage's compiled routines directly; with them or through
+    the public functions (a scipy without the private module) they give uniform_filter1d / minimum_filter1d /
+    maximum_filter1d's bits, on strided views too."""
+    if not direct:
+        monkeypatch.setattr(fsr, "_ndimage_kernels", lambda: None)
+    rng = np.random.default_rng(5)
+    for n, size in [(1, 1), (1, 533), (7, 3), (4270, 25), (8540, 5), (4270, 2135), (100, 101)]:
+        x = rng.standard_normal(2 * n)[::2]  # a strided view
+        np.testing.assert_array_equal(fsr._running_mean(x, size), ndimage.uniform_filter1d(x, size, mode="nearest"))
+        np.testing.assert_array_equal(
+            fsr._running_extreme(x, size, minimum=True), ndimage.minimum_filter1d(x, size, mode="nearest")
+        )
+        np.testing.assert_array_equal(
+            fsr._running_extreme(x, size, minimum=False), ndimage.maximum_filter1d(x, size, mode="nearest")
+        )

@@ -13,7 +13,8 @@ It runs once per press of a campaign, so each step is a handful of whole-array o
 network for the median, block means and interpolation on the block grid without a search, hysteresis from
 the run starts alone. Each fast step equals the plain numpy / scipy call value for value (the plain
 version is kept as the oracle in tests/fsr_reference.py) and hands non-finite input to that call.
-scipy.ndimage (a few hundred ms to import) is imported by the functions that use it, on first use.
+scipy.ndimage (a few hundred ms to import) is imported by the functions that use it, on first use; its compiled
+1-D filters are called directly (`_running_mean`, `_running_extreme`: the same routine, the same bits).
 """
 
 from __future__ import annotations
@@ -114,8 +115,6 @@ def detect_presses(
     baseline_window_s must exceed the longest press (default: the whole trace's length / 2,
     at least 2 s); the baseline under a press is the running minimum around it.
     """
-    from scipy import ndimage
-
     if units not in ("n", "v"):
         raise ConfigError(f"units must be 'n' or 'v', got {units!r}", field="units", fix="use 'n' or 'v'")
     if not 0 < off_threshold_n < on_threshold_n:
@@ -144,7 +143,7 @@ def detect_presses(
     above = clean - baseline
     onset, offset = _debounce(*_hysteresis(above, on_threshold_n, off_threshold_n), min_len, min_gap)
     # peak on a 5 ms average, so white noise does not bias it up; one argmax per press, not per sample
-    smooth = ndimage.uniform_filter1d(above, max(1, int(round(0.005 * rate_hz))), mode="nearest")
+    smooth = _running_mean(above, max(1, int(round(0.005 * rate_hz))))
     peak_index = np.array([a + int(np.argmax(smooth[a:b])) for a, b in zip(onset, offset)], dtype=np.int64)
     peak = smooth[peak_index] if peak_index.size else np.zeros(0)
     return PressDetection(onset, offset, peak_index, peak, expected, rate_hz, baseline)
@@ -200,8 +199,6 @@ def _sorted3(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, n
 def _baseline(
     force: np.ndarray, blocks: np.ndarray | None, block: int, rate_hz: float, window_s: float | None
 ) -> np.ndarray:
-    from scipy import ndimage
-
     n = force.shape[0]
     window_s = window_s if window_s is not None else max(2.0, n / rate_hz / 2)
     if blocks is None:
@@ -211,14 +208,51 @@ def _baseline(
     if level is not None:
         # the opening is flat, and a running mean of a constant is one value, its first (0 stays 0; otherwise the
         # uniform filter of one sample gives the sum of `size // 4` copies in the filter's own order)
-        smooth = (
-            level if level == 0 else ndimage.uniform_filter1d(np.full(1, level), max(1, size // 4), mode="nearest")[0]
-        )
+        smooth = level if level == 0 else _running_mean(np.full(1, level), max(1, size // 4))[0]
         return np.full(n, smooth)
-    opened = ndimage.maximum_filter1d(ndimage.minimum_filter1d(blocks, size, mode="nearest"), size, mode="nearest")
+    opened = _running_extreme(_running_extreme(blocks, size, minimum=True), size, minimum=False)
     # smooth the staircase of the opening, then back to the sample grid
-    smooth = ndimage.uniform_filter1d(opened, max(1, size // 4), mode="nearest")
+    smooth = _running_mean(opened, max(1, size // 4))
     return _interp_blocks(smooth, n, block)
+
+
+@functools.cache
+def _ndimage_kernels():
+    """scipy.ndimage's compiled 1-D filters (a private module), or None where this scipy lacks them."""
+    try:
+        from scipy.ndimage import _nd_image
+    except ImportError:
+        return None
+    if not (hasattr(_nd_image, "uniform_filter1d") and hasattr(_nd_image, "min_or_max_filter1d")):
+        return None
+    return _nd_image
+
+
+def _running_mean(x: np.ndarray, size: int) -> np.ndarray:
+    """`ndimage.uniform_filter1d(x, size, mode="nearest")`: for a 1-D float array, the compiled routine that call
+    ends in, called directly (the same routine and arguments, so the same bits; its wrapper and scipy's array
+    API dispatch cost more than the filter itself on a press's trace, once a press on the critical path)."""
+    kernels = _ndimage_kernels()
+    if kernels is None or x.ndim != 1 or x.dtype != np.float64:
+        from scipy import ndimage
+
+        return ndimage.uniform_filter1d(x, size, mode="nearest")
+    out = np.empty(x.shape)
+    kernels.uniform_filter1d(x, size, 0, out, 0, 0.0, 0)  # axis 0, mode "nearest" (code 0), cval 0, origin 0
+    return out
+
+
+def _running_extreme(x: np.ndarray, size: int, *, minimum: bool) -> np.ndarray:
+    """`ndimage.minimum_filter1d` (or `maximum_filter1d`) of x with `size` and mode "nearest", as _running_mean."""
+    kernels = _ndimage_kernels()
+    if kernels is None or x.ndim != 1 or x.dtype != np.float64:
+        from scipy import ndimage
+
+        extreme = ndimage.minimum_filter1d if minimum else ndimage.maximum_filter1d
+        return extreme(x, size, mode="nearest")
+    out = np.empty(x.shape)
+    kernels.min_or_max_filter1d(x, size, 0, out, 0, 0.0, 0, int(minimum))
+    return out
 
 
 def _flat_erosion(blocks: np.ndarray, size: int) -> float | None:
@@ -240,14 +274,12 @@ def _flat_erosion(blocks: np.ndarray, size: int) -> float | None:
 def _bridged_baseline(
     force: np.ndarray, blocks: np.ndarray | None, block: int, rate_hz: float, onset: np.ndarray, offset: np.ndarray
 ) -> np.ndarray:
-    from scipy import ndimage
-
     n = force.shape[0]
     if blocks is None:
         return np.full(n, float(np.median(force)))
     m = blocks.shape[0]
     window = max(1, int(round(0.05 * rate_hz / block)))
-    smooth = ndimage.uniform_filter1d(blocks, window, mode="nearest")
+    smooth = _running_mean(blocks, window)
     margin = int(round(0.1 * rate_hz))  # keep 100 ms around each press out of the baseline
     # a block is pressed when its centre sample lies within a press widened by the margin
     centre_sample = _block_centre_samples(m, block)
