@@ -31,9 +31,11 @@ def test_the_drawing_thread_ends_when_idle_and_starts_again(monkeypatch):
     ahead = FsrNoiseAhead(7, 1.0)
     ahead.take(0, 50)
     thread = ahead._thread
-    assert thread is not None and thread.is_alive()
+    assert thread is not None
     thread.join(5.0)
-    assert not thread.is_alive() and ahead._thread is None
-    assert ahead.take(1, 50).tobytes() == plain(7, 1, 50, 1.0).tobytes()  # press 1 was drawn ahead before it ended
+    assert not thread.is_alive()  # nothing more was asked for
+    assert (1, 50) in ahead._drawn  # it drew press 1 ahead before it ended
+    assert ahead.take(1, 50).tobytes() == plain(7, 1, 50, 1.0).tobytes()
+    assert ahead._thread is not thread and ahead._thread.is_alive()  # a new thread for the next draw
     assert ahead.take(2, 50).tobytes() == plain(7, 2, 50, 1.0).tobytes()
-    assert ahead._thread is not None and ahead._thread is not thread  # a new thread for the new draws
+    assert set(ahead._drawn) <= {(3, 50)}  # nothing older is kept

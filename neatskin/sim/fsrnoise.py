@@ -4,11 +4,13 @@ press ahead in a thread.
 The draw is a pure function of (seed, press_id, samples), so drawing it early changes no value. numpy's generators
 release the GIL while they fill an array, so the next press's draw runs on the other core while the main process
 runs the current press's G-code: about 60 to 90 us a press (8,540 normals) off the campaign's critical path. A
-press that was not foreseen (the first, a resumed campaign's gaps) is drawn inline; a retried press reuses its draw.
+press whose draw is not there when it is wanted (the first, a resumed campaign's gaps, a draw still running) is
+drawn inline; a retried press reuses its draw.
 """
 
 from __future__ import annotations
 
+import queue
 import threading
 
 import numpy as np
@@ -24,60 +26,49 @@ def fsr_noise(seed: int, press_id: int, samples: int, std_v: float) -> np.ndarra
 
 
 class FsrNoiseAhead:
-    """`take(press_id, samples)` gives `fsr_noise(seed, press_id, samples, std_v)` and starts drawing the next
-    press's (press_id + 1, the same length) in a daemon thread. At most one draw is kept ahead (68 kB for the paper
-    press); the thread starts on the first foreseen draw, waits on a condition between draws and ends when none
-    came for IDLE_EXIT_S (a campaign's end, a pause), so no recorder leaves a thread behind for long."""
+    """`take(press_id, samples)` gives `fsr_noise(seed, press_id, samples, std_v)` and asks a daemon thread to draw
+    the next press's (press_id + 1, the same length).
+
+    The main thread's side is a dict pop and a put on a C queue (no lock, no condition: a wake-up costs the main
+    process's GIL, which is its bottleneck); whatever the thread has not drawn yet is drawn inline, so every
+    interleaving gives the same values. At most a draw or two are kept (68 kB each for the paper press). The thread
+    ends when no draw came for IDLE_EXIT_S (a campaign's end, a pause), so no recorder leaves it behind for long."""
 
     def __init__(self, seed: int, std_v: float) -> None:
         self.seed, self.std_v = seed, std_v
-        self._lock = threading.Condition()
-        self._want: tuple[int, int] | None = None  # the draw asked for and not yet made
-        self._ready: dict[tuple[int, int], np.ndarray] = {}
-        self._busy: tuple[int, int] | None = None
+        self._requests: queue.SimpleQueue[tuple[int, int]] = queue.SimpleQueue()
+        self._drawn: dict[tuple[int, int], np.ndarray] = {}  # written by the thread, popped by take()
+        self._last: tuple[tuple[int, int], np.ndarray] | None = None  # a retried press asks for the same draw
         self._thread: threading.Thread | None = None
 
     def take(self, press_id: int, samples: int) -> np.ndarray:
         key = (press_id, samples)
-        with self._lock:
-            while self._busy == key:  # being drawn now: wait for it rather than draw it twice
-                self._lock.wait()
-            noise = self._ready.get(key)
-            if noise is None and self._want == key:
-                self._want = None
-            # keep this press's draw (a retried press asks for it again) and any drawn ahead of it
-            self._ready = {k: v for k, v in self._ready.items() if k[0] >= press_id}
+        if self._last is not None and self._last[0] == key:
+            return self._last[1]
+        noise = self._drawn.pop(key, None)
         if noise is None:
             noise = fsr_noise(self.seed, press_id, samples, self.std_v)
-            with self._lock:
-                self._ready[key] = noise
+        for stale in list(self._drawn):  # drawn for a press that was skipped or already drawn inline
+            if stale[0] <= press_id:
+                self._drawn.pop(stale, None)
+        self._last = (key, noise)
         self._ahead((press_id + 1, samples))
         return noise
 
     def _ahead(self, key: tuple[int, int]) -> None:
-        with self._lock:
-            if key in self._ready or self._busy == key:
-                return
-            self._want = key
-            if self._thread is None:
-                self._thread = threading.Thread(target=self._run, name="fsr-noise", daemon=True)
-                self._thread.start()
-            self._lock.notify_all()
+        thread = self._thread
+        if thread is None or not thread.is_alive():
+            thread = self._thread = threading.Thread(target=self._run, name="fsr-noise", daemon=True)
+            thread.start()
+        self._requests.put(key)
 
     def _run(self) -> None:
         while True:
-            with self._lock:
-                while self._want is None:
-                    if not self._lock.wait(IDLE_EXIT_S) and self._want is None:
-                        self._thread = None  # under the lock: the next _ahead starts a new thread
-                        return
-                key, self._want, self._busy = self._want, None, self._want
             try:
-                noise = fsr_noise(self.seed, key[0], key[1], self.std_v)  # the GIL is released while it fills
-            except BaseException:  # take() draws it inline instead
-                noise = None
-            with self._lock:
-                self._busy = None
-                if noise is not None:
-                    self._ready[key] = noise
-                self._lock.notify_all()
+                key = self._requests.get(timeout=IDLE_EXIT_S)
+            except queue.Empty:
+                return  # a request put meanwhile is drawn inline by take(), or by the next thread
+            try:
+                self._drawn[key] = fsr_noise(self.seed, key[0], key[1], self.std_v)  # the GIL is free while it fills
+            except Exception:  # take() draws it inline
+                continue
