@@ -34,8 +34,13 @@ def test_the_drawing_thread_ends_when_idle_and_starts_again(monkeypatch):
     assert thread is not None
     thread.join(5.0)
     assert not thread.is_alive()  # nothing more was asked for
-    assert (1, 50) in ahead._drawn  # it drew press 1 ahead before it ended
-    assert ahead.take(1, 50).tobytes() == plain(7, 1, 50, 1.0).tobytes()
-    assert ahead._thread is not thread and ahead._thread.is_alive()  # a new thread for the next draw
-    assert ahead.take(2, 50).tobytes() == plain(7, 2, 50, 1.0).tobytes()
-    assert set(ahead._drawn) <= {(3, 50)}  # nothing older is kept
+    ahead_ids = sorted(k[0] for k in ahead._drawn)
+    assert ahead_ids == list(range(1, fsrnoise.AHEAD_PRESSES + 1))  # it drew the next presses before it ended
+    for press_id in range(1, fsrnoise.AHEAD_PRESSES):
+        assert ahead.take(press_id, 50).tobytes() == plain(7, press_id, 50, 1.0).tobytes()
+    assert ahead._thread is not thread  # running low: a new thread asked for the next ones
+    last = 3 * fsrnoise.AHEAD_PRESSES
+    for press_id in range(fsrnoise.AHEAD_PRESSES, last + 1):
+        assert ahead.take(press_id, 50).tobytes() == plain(7, press_id, 50, 1.0).tobytes()
+    assert all(k[0] > last for k in ahead._drawn)  # nothing older is kept
+    assert len(ahead._drawn) <= fsrnoise.AHEAD_PRESSES

@@ -17,6 +17,7 @@ import numpy as np
 
 STREAM_FSR = 3  # the FSR noise's stream id (neatskin.sim.recorder re-exports it)
 IDLE_EXIT_S = 2.0  # the drawing thread ends after this long without a draw to make (the next draw starts another)
+AHEAD_PRESSES = 8  # presses drawn per request: a wake-up of the thread costs the main process's GIL too
 
 
 def fsr_noise(seed: int, press_id: int, samples: int, std_v: float) -> np.ndarray:
@@ -26,20 +27,22 @@ def fsr_noise(seed: int, press_id: int, samples: int, std_v: float) -> np.ndarra
 
 
 class FsrNoiseAhead:
-    """`take(press_id, samples)` gives `fsr_noise(seed, press_id, samples, std_v)` and asks a daemon thread to draw
-    the next press's (press_id + 1, the same length).
+    """`take(press_id, samples)` gives `fsr_noise(seed, press_id, samples, std_v)`; when fewer than two of the next
+    presses are asked for, it asks a daemon thread to draw the next AHEAD_PRESSES presses' (the same length).
 
-    The main thread's side is a dict pop and a put on a C queue (no lock, no condition: a wake-up costs the main
-    process's GIL, which is its bottleneck); whatever the thread has not drawn yet is drawn inline, so every
-    interleaving gives the same values. At most a draw or two are kept (68 kB each for the paper press). The thread
-    ends when no draw came for IDLE_EXIT_S (a campaign's end, a pause), so no recorder leaves it behind for long."""
+    The main thread's side is a dict pop and, every few presses, a put on a C queue (no lock, no condition: a
+    wake-up costs the main process's GIL, which is its bottleneck); whatever the thread has not drawn yet is drawn
+    inline, so every interleaving gives the same values. At most AHEAD_PRESSES + 1 draws are kept (68 kB each for
+    the paper press). The thread ends when no request came for IDLE_EXIT_S (a campaign's end, a pause), so no
+    recorder leaves it behind for long."""
 
     def __init__(self, seed: int, std_v: float) -> None:
         self.seed, self.std_v = seed, std_v
-        self._requests: queue.SimpleQueue[tuple[int, int]] = queue.SimpleQueue()
+        self._requests: queue.SimpleQueue[tuple[int, int, int]] = queue.SimpleQueue()
         self._drawn: dict[tuple[int, int], np.ndarray] = {}  # written by the thread, popped by take()
         self._last: tuple[tuple[int, int], np.ndarray] | None = None  # a retried press asks for the same draw
         self._thread: threading.Thread | None = None
+        self._asked: tuple[int, int] = (-1, -1)  # (samples, the last press id asked for)
 
     def take(self, press_id: int, samples: int) -> np.ndarray:
         key = (press_id, samples)
@@ -52,23 +55,29 @@ class FsrNoiseAhead:
             if stale[0] <= press_id:
                 self._drawn.pop(stale, None)
         self._last = (key, noise)
-        self._ahead((press_id + 1, samples))
+        asked_samples, until = self._asked
+        same = asked_samples == samples
+        if not (same and press_id + 2 <= until <= press_id + AHEAD_PRESSES):  # fewer than 2 presses ahead asked for
+            first = until + 1 if same and press_id < until <= press_id + AHEAD_PRESSES else press_id + 1
+            self._ahead(first, press_id + AHEAD_PRESSES, samples)
         return noise
 
-    def _ahead(self, key: tuple[int, int]) -> None:
+    def _ahead(self, first: int, last: int, samples: int) -> None:
         thread = self._thread
         if thread is None or not thread.is_alive():
             thread = self._thread = threading.Thread(target=self._run, name="fsr-noise", daemon=True)
             thread.start()
-        self._requests.put(key)
+        self._asked = (samples, last)
+        self._requests.put((first, last, samples))
 
     def _run(self) -> None:
         while True:
             try:
-                key = self._requests.get(timeout=IDLE_EXIT_S)
+                first, last, samples = self._requests.get(timeout=IDLE_EXIT_S)
             except queue.Empty:
                 return  # a request put meanwhile is drawn inline by take(), or by the next thread
-            try:
-                self._drawn[key] = fsr_noise(self.seed, key[0], key[1], self.std_v)  # the GIL is free while it fills
-            except Exception:  # take() draws it inline
-                continue
+            for press_id in range(first, last + 1):
+                try:  # the GIL is free while it fills
+                    self._drawn[(press_id, samples)] = fsr_noise(self.seed, press_id, samples, self.std_v)
+                except Exception:  # take() draws it inline
+                    break
