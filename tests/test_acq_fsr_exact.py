@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from neatskin.acquisition import fsr
+from neatskin.acquisition import fsr, fsrkernels
 from neatskin.acquisition.fsr import FsrModel, detect_presses
 
 
@@ -186,7 +186,7 @@ def test_running_filters_are_scipys_bit_for_bit(monkeypatch, direct):
     the public functions (a scipy without the private module) they give uniform_filter1d / minimum_filter1d /
     maximum_filter1d's bits, on strided views too."""
     if not direct:
-        monkeypatch.setattr(fsr, "_ndimage_kernels", lambda: None)
+        monkeypatch.setattr(fsrkernels, "_ndimage_kernels", lambda: None)
     rng = np.random.default_rng(5)
     for n, size in [(1, 1), (1, 533), (7, 3), (4270, 25), (8540, 5), (4270, 2135), (100, 101)]:
         x = rng.standard_normal(2 * n)[::2]  # a strided view
@@ -197,3 +197,24 @@ def test_running_filters_are_scipys_bit_for_bit(monkeypatch, direct):
         np.testing.assert_array_equal(
             fsr._running_extreme(x, size, minimum=False), ndimage.maximum_filter1d(x, size, mode="nearest")
         )
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    n=st.integers(1, 400),
+    levels=st.lists(st.sampled_from([0.0, 0.3, 0.6, 0.2, 0.5, 0.25]), min_size=1, max_size=40),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_hysteresis_of_few_run_starts_is_the_array_version(n, levels, seed):
+    """The Python walk over a few run starts gives the array version's onsets and offsets, on traces that sit
+    on, between and across both thresholds (0.5 on, 0.25 off), ending high or low."""
+    rng = np.random.default_rng(seed)
+    x = np.asarray(levels)[rng.integers(0, len(levels), n)]
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(fsrkernels, "FEW_RUNS", 10**9)  # always the walk
+        fast = fsr._hysteresis(x, 0.5, 0.25)
+        patch.setattr(fsrkernels, "FEW_RUNS", -1)  # always the array version
+        slow = fsr._hysteresis(x, 0.5, 0.25)
+    np.testing.assert_array_equal(fast[0], slow[0])
+    np.testing.assert_array_equal(fast[1], slow[1])
+    assert fast[0].dtype == fast[1].dtype == np.int64

@@ -9,12 +9,13 @@ baseline drift, and a hysteresis threshold on the force above the baseline (on a
 on_threshold_n, off below off_threshold_n) with debounce (presses shorter than min_press_s
 dropped, gaps shorter than min_gap_s merged) gives onset, offset and peak per press.
 
-It runs once per press of a campaign, so each step is a handful of whole-array operations: a selection
-network for the median, block means and interpolation on the block grid without a search, hysteresis from
-the run starts alone. Each fast step equals the plain numpy / scipy call value for value (the plain
+It runs once per press of a campaign, so each step is a handful of whole-array operations: the median of 7
+two windows at a time, the opening skipped when the erosion is flat, block means and interpolation on the
+block grid without a search, hysteresis from the run starts alone (the array kernels are in
+neatskin.acquisition.fsrkernels). Each fast step equals the plain numpy / scipy call value for value (the plain
 version is kept as the oracle in tests/fsr_reference.py) and hands non-finite input to that call.
-scipy.ndimage (a few hundred ms to import) is imported by the functions that use it, on first use; its compiled
-1-D filters are called directly (`_running_mean`, `_running_extreme`: the same routine, the same bits).
+scipy.ndimage (a few hundred ms to import) is imported on first use; its compiled 1-D filters are called
+directly (the same routine, the same bits).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from neatskin.acquisition.fsrkernels import _hysteresis, _median_filter, _running_extreme, _running_mean
 from neatskin.errors import ConfigError
 
 
@@ -149,53 +151,6 @@ def detect_presses(
     return PressDetection(onset, offset, peak_index, peak, expected, rate_hz, baseline)
 
 
-def _median_filter(force: np.ndarray, size: int) -> np.ndarray:
-    """`ndimage.median_filter(force, size, mode="nearest")`, value for value; a window of 7 on a finite trace by
-    whole-array min / max (a few microseconds each, where the rank filter's per-sample selection costs ~10 ns a
-    sample), two outputs at a time.
-
-    Windows k and k + 1 share six samples, split into two sorted runs of three, A (a1 <= a2 <= a3) and B; the
-    six's 3rd and 4th smallest are s3 = min(a3, max(a2, b1), max(a1, b2), b3) and s4 = min(max(a3, b1),
-    max(a2, b2), max(a1, b3)) (the k-th of a union of sorted runs is the least max(a_i, b_j) over i + j = k), and
-    each window's median is its own seventh sample clamped to [s3, s4]: about 14 array passes for 22 of a
-    median-of-7 network. Even and odd samples are split first so that every pass reads contiguous memory."""
-    n = force.shape[0]
-    if size != 7 or n < 7 or not np.isfinite(force).all():
-        from scipy import ndimage
-
-        return ndimage.median_filter(force, size=size, mode="nearest")
-    pairs = (n + 1) // 2
-    padded = np.empty(2 * pairs + 6)  # 3 copies of each end ("nearest"), one more at the end when n is odd
-    padded[:3], padded[3 : n + 3], padded[n + 3 :] = force[0], force, force[-1]
-    even, odd = padded[0::2].copy(), padded[1::2].copy()
-    # windows 2k and 2k + 1 share samples 2k + 1 .. 2k + 6 of the padded trace: A = 2k + 1 .. 2k + 3, B = the rest
-    a1, a2, a3 = _sorted3(odd[:pairs], even[1 : pairs + 1], odd[1 : pairs + 1])
-    b1, b2, b3 = _sorted3(even[2 : pairs + 2], odd[2 : pairs + 2], even[3 : pairs + 3])
-    s3 = np.maximum(a2, b1)
-    np.minimum(s3, np.maximum(a1, b2), out=s3)
-    np.minimum(s3, a3, out=s3)
-    np.minimum(s3, b3, out=s3)
-    s4 = np.maximum(a3, b1)
-    np.minimum(s4, np.maximum(a2, b2), out=s4)
-    np.minimum(s4, np.maximum(a1, b3), out=s4)
-    out = np.empty(2 * pairs)
-    own = np.minimum(even[:pairs], s4)  # window 2k's own sample: padded 2k; window 2k + 1's: padded 2k + 7
-    np.maximum(own, s3, out=out[0::2])
-    np.minimum(odd[3 : pairs + 3], s4, out=own)
-    np.maximum(own, s3, out=out[1::2])
-    return out[:n]
-
-
-def _sorted3(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Elementwise the smallest, middle and largest of three arrays (three compare-exchanges)."""
-    low, high = np.minimum(x, y), np.maximum(x, y)
-    top = np.maximum(high, z)
-    np.minimum(high, z, out=high)
-    bottom = np.minimum(low, high)
-    np.maximum(low, high, out=low)
-    return bottom, low, top
-
-
 def _baseline(
     force: np.ndarray, blocks: np.ndarray | None, block: int, rate_hz: float, window_s: float | None
 ) -> np.ndarray:
@@ -216,45 +171,6 @@ def _baseline(
     return _interp_blocks(smooth, n, block)
 
 
-@functools.cache
-def _ndimage_kernels():
-    """scipy.ndimage's compiled 1-D filters (a private module), or None where this scipy lacks them."""
-    try:
-        from scipy.ndimage import _nd_image
-    except ImportError:
-        return None
-    if not (hasattr(_nd_image, "uniform_filter1d") and hasattr(_nd_image, "min_or_max_filter1d")):
-        return None
-    return _nd_image
-
-
-def _running_mean(x: np.ndarray, size: int) -> np.ndarray:
-    """`ndimage.uniform_filter1d(x, size, mode="nearest")`: for a 1-D float array, the compiled routine that call
-    ends in, called directly (the same routine and arguments, so the same bits; its wrapper and scipy's array
-    API dispatch cost more than the filter itself on a press's trace, once a press on the critical path)."""
-    kernels = _ndimage_kernels()
-    if kernels is None or x.ndim != 1 or x.dtype != np.float64:
-        from scipy import ndimage
-
-        return ndimage.uniform_filter1d(x, size, mode="nearest")
-    out = np.empty(x.shape)
-    kernels.uniform_filter1d(x, size, 0, out, 0, 0.0, 0)  # axis 0, mode "nearest" (code 0), cval 0, origin 0
-    return out
-
-
-def _running_extreme(x: np.ndarray, size: int, *, minimum: bool) -> np.ndarray:
-    """`ndimage.minimum_filter1d` (or `maximum_filter1d`) of x with `size` and mode "nearest", as _running_mean."""
-    kernels = _ndimage_kernels()
-    if kernels is None or x.ndim != 1 or x.dtype != np.float64:
-        from scipy import ndimage
-
-        extreme = ndimage.minimum_filter1d if minimum else ndimage.maximum_filter1d
-        return extreme(x, size, mode="nearest")
-    out = np.empty(x.shape)
-    kernels.min_or_max_filter1d(x, size, 0, out, 0, 0.0, 0, int(minimum))
-    return out
-
-
 def _flat_erosion(blocks: np.ndarray, size: int) -> float | None:
     """The value of `ndimage.minimum_filter1d(blocks, size, mode="nearest")` when it is one value everywhere, else
     None: when every window (`size` odd: [k - size // 2, k + size // 2], cut at the ends) holds a block equal to the
@@ -266,7 +182,7 @@ def _flat_erosion(blocks: np.ndarray, size: int) -> float | None:
         return None
     at = (blocks == least).nonzero()[0]
     half, last = size // 2, blocks.shape[0] - 1
-    if at[0] > half or at[-1] < last - half or (at.size > 1 and int(np.diff(at).max()) > size):
+    if at[0] > half or at[-1] < last - half or (at.size > 1 and int((at[1:] - at[:-1]).max()) > size):
         return None
     return least
 
@@ -370,28 +286,6 @@ def _interp_free_blocks(values: np.ndarray, gaps: list[tuple[int, int]], n: int,
         lo, hi = math.floor(ca) + 1, math.ceil(cb)  # the samples strictly between the two centres
         np.add(slope * np.arange(lo - ca, hi - ca), values[a], out=out[lo:hi])
     return out
-
-
-def _hysteresis(x: np.ndarray, on: float, off: float) -> tuple[np.ndarray, np.ndarray]:
-    """Intervals [onset, offset) where x went above `on` and has not yet fallen below `off`.
-
-    The state changes only where a run of samples above `on` (or below `off`) begins: a high run start is an
-    onset when it is the first, or a low run started since the previous high one; a low run start is an
-    offset when a high run started since the previous low one (or before the first)."""
-    n = x.shape[0]
-    high = np.zeros(n + 1, dtype=bool)
-    low = np.zeros(n + 1, dtype=bool)
-    np.greater_equal(x, on, out=high[1:])
-    np.less(x, off, out=low[1:])
-    high_at = (high[1:] > high[:-1]).nonzero()[0]  # sample indices where a high run begins
-    low_at = (low[1:] > low[:-1]).nonzero()[0]
-    lows_before = low_at.searchsorted(high_at)
-    highs_before = high_at.searchsorted(low_at)
-    onset = high_at[np.concatenate(([True], lows_before[1:] > lows_before[:-1]))[: high_at.size]]
-    offset = low_at[np.concatenate((highs_before[:1] > 0, highs_before[1:] > highs_before[:-1]))]
-    if high_at.size and (low_at.size == 0 or high_at[-1] > low_at[-1]):
-        offset = np.concatenate([offset, [n]])
-    return onset.astype(np.int64), offset.astype(np.int64)
 
 
 def _block_means(force: np.ndarray, m: int, block: int) -> np.ndarray:
