@@ -44,3 +44,13 @@ def test_the_drawing_thread_ends_when_idle_and_starts_again(monkeypatch):
         assert ahead.take(press_id, 50).tobytes() == plain(7, press_id, 50, 1.0).tobytes()
     assert all(k[0] > last for k in ahead._drawn)  # nothing older is kept
     assert len(ahead._drawn) <= fsrnoise.AHEAD_PRESSES
+
+
+def test_close_ends_the_thread_and_take_still_gives_the_stream():
+    ahead = FsrNoiseAhead(11, 2.0)
+    ahead.take(4, 30)
+    thread = ahead._thread
+    ahead.close()
+    assert thread is not None and not thread.is_alive() and not ahead._drawn
+    assert ahead.take(5, 30).tobytes() == plain(11, 5, 30, 2.0).tobytes()
+    ahead.close()

@@ -38,7 +38,7 @@ class FsrNoiseAhead:
 
     def __init__(self, seed: int, std_v: float) -> None:
         self.seed, self.std_v = seed, std_v
-        self._requests: queue.SimpleQueue[tuple[int, int, int]] = queue.SimpleQueue()
+        self._requests: queue.SimpleQueue[tuple[int, int, int] | None] = queue.SimpleQueue()
         self._drawn: dict[tuple[int, int], np.ndarray] = {}  # written by the thread, popped by take()
         self._last: tuple[tuple[int, int], np.ndarray] | None = None  # a retried press asks for the same draw
         self._thread: threading.Thread | None = None
@@ -70,12 +70,25 @@ class FsrNoiseAhead:
         self._asked = (samples, last)
         self._requests.put((first, last, samples))
 
+    def close(self, timeout_s: float = 1.0) -> None:
+        """End the drawing thread now (the rig closes: no thread of the campaign outlives it); take() still works,
+        drawing inline or starting a new thread."""
+        thread = self._thread
+        if thread is not None and thread.is_alive():
+            self._requests.put(None)
+            thread.join(timeout_s)  # at most one draw (~0.1 ms) to finish
+        self._drawn.clear()
+        self._asked = (-1, -1)
+
     def _run(self) -> None:
         while True:
             try:
-                first, last, samples = self._requests.get(timeout=IDLE_EXIT_S)
+                request = self._requests.get(timeout=IDLE_EXIT_S)
             except queue.Empty:
                 return  # a request put meanwhile is drawn inline by take(), or by the next thread
+            if request is None:  # close()
+                return
+            first, last, samples = request
             for press_id in range(first, last + 1):
                 try:  # the GIL is free while it fills
                     self._drawn[(press_id, samples)] = fsr_noise(self.seed, press_id, samples, self.std_v)

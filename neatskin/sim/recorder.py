@@ -312,6 +312,11 @@ class SimulatedRecorder:
         self._press: int | None = None
         self._fsr_noise: FsrNoiseAhead | None = None
 
+    def close(self) -> None:
+        """End the FSR noise's drawing thread (the rig's closers call this)."""
+        if self._fsr_noise is not None:
+            self._fsr_noise.close()
+
     def begin(self, press_id: int, n_sweeps: int) -> None:
         self._press, self._n_sweeps = press_id, n_sweeps
         self._t0 = self.clock()
