@@ -5,7 +5,7 @@ table, and residual dents computed per block of presses (pure in the press id, s
 import numpy as np
 import pytest
 from conftest import PROTOCOLS
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from neatskin.gcode.calibration import Calibration
@@ -84,6 +84,8 @@ def test_a_move_on_a_sample_clock_by_slices_is_the_bits_of_the_masks(length, fee
     contact_z_mm=st.floats(1.0, 12.0),
     seed=st.integers(0, 2**32 - 1),
 )
+@example([0.0, 1.0], 0.0, 1.0, 5.5, False, 0.0, 1.0, 0)  # a rise ending at the height: its rest rounds 1 ulp below
+@example([6.0, 1.1], 0.0, 1.0, 5.0, False, 0.0, 1.1, 0)  # a descent ending at the height
 def test_the_z_path_and_its_runs_give_the_bits_of_positions_mm(
     heights, drift_mm, feed, accel, linear, gap_s, contact_z_mm, seed
 ):

@@ -92,7 +92,7 @@ def z_mm(segments: list, times_s: np.ndarray) -> np.ndarray:
 
 
 TRIM_MARGIN_SAMPLES = 2  # kept beyond the analytic crossing time on each side, far more than its rounding error
-Z_TOLERANCE_MM = 1e-9  # a move is left out only if it stays this far above: z's own rounding is ~1e-14 mm
+Z_TOLERANCE_MM = 1e-9  # the height left out is contact + this: z's own rounding (~1e-14 mm) stays below it
 
 
 def below_runs(segments: list, times_s: np.ndarray, contact_z_mm: float) -> list[tuple[int, int]]:
@@ -107,16 +107,17 @@ def below_runs(segments: list, times_s: np.ndarray, contact_z_mm: float) -> list
     t0s = [seg.t0_s for seg in segments]
     bounds = np.searchsorted(times_s, t0s, side="left").tolist()
     runs: list[tuple[int, int]] = []
-    if bounds[0] > 0 and segments[0].p0_mm[2] < contact_z_mm + Z_TOLERANCE_MM:  # before the first move, at its start
+    target = contact_z_mm + Z_TOLERANCE_MM  # a move that ends at the height may round a hair below it
+    if bounds[0] > 0 and segments[0].p0_mm[2] < target:  # before the first move, at its start
         runs.append((0, bounds[0]))
     for seg, lo, hi in zip(segments, bounds, [*bounds[1:], n]):
         if hi <= lo:
             continue
         z0, z1 = float(seg.p0_mm[2]), float(seg.p1_mm[2])
-        if min(z0, z1) >= contact_z_mm + Z_TOLERANCE_MM:  # a move ending at the height may round a hair below
+        if min(z0, z1) >= target:
             continue
-        if max(z0, z1) >= contact_z_mm and z0 != z1:  # crosses: keep the part below (and the rest after a descent)
-            tau = _crossing_s(_move_constants(seg), (contact_z_mm - z0) / (z1 - z0))
+        if max(z0, z1) > target:  # crosses it inside the move: keep the part below (and the rest after a descent)
+            tau = _crossing_s(_move_constants(seg), (target - z0) / (z1 - z0))
             if tau is not None:
                 cut = int(np.searchsorted(times_s[lo:hi], seg.t0_s + tau)) + lo
                 if z1 < z0:  # descending: below from the crossing on
