@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from neatskin.acquisition import fsr
+from neatskin.acquisition import fsr, fsrkernels
 from neatskin.acquisition.fsr import FsrModel, detect_presses
 
 
@@ -108,6 +108,9 @@ def test_median_network_selects_the_middle_of_every_ordering():
     assert np.all(fsr._median_filter(trace, 7)[3::7] == 2.0)
     ties = np.random.default_rng(0).integers(0, 3, 5000).astype(float)
     np.testing.assert_array_equal(fsr._median_filter(ties, 7), ndimage.median_filter(ties, size=7, mode="nearest"))
+    for n in range(7, 40):  # odd and even lengths: the last window pair is cut in half when n is odd
+        for x in (trace[:n], trace[5 : 5 + n], ties[:n]):
+            np.testing.assert_array_equal(fsr._median_filter(x, 7), ndimage.median_filter(x, size=7, mode="nearest"))
 
 
 @pytest.mark.parametrize("block", [1, 2, 3, 6, 7, 8, 20])
@@ -147,3 +150,71 @@ def test_newtons_in_place_is_the_divider_formula_and_leaves_the_trace_alone():
     np.testing.assert_array_equal(model.newtons(volts), model.knee_n * v / (3.3 - v))
     np.testing.assert_array_equal(volts, before)
     assert model.newtons(1.65) == model.knee_n * 1.65 / (3.3 - 1.65)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    m=st.integers(3, 80),
+    size=st.integers(3, 61).map(lambda k: k | 1),  # _baseline's windows: odd, at least 3
+    level=st.sampled_from([0.0, 0.37, -1.25, 1e-3]),
+    share=st.floats(0.05, 0.95),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_a_flat_erosion_is_found_exactly_and_gives_the_filtered_baseline(m, size, level, share, seed):
+    """_flat_erosion says "flat" exactly when the running minimum is one value, and then _baseline (which skips
+    the filters) equals the opening, running mean and interpolation it replaces, value for value; the least
+    value recurs with a random share, so flat and not flat both occur."""
+    rng = np.random.default_rng(seed)
+    blocks = np.where(rng.random(m) < share, level, level + rng.uniform(0.01, 2.0, m))
+    eroded = ndimage.minimum_filter1d(blocks, size, mode="nearest")
+    flat = fsr._flat_erosion(blocks, size)
+    assert (flat is not None) == (eroded.min() == eroded.max())
+    if flat is not None:
+        assert flat == eroded[0]
+    block, n = 2, 2 * m + 1
+    rate_hz = 1000.0
+    window_s = size * block / rate_hz
+    opened = ndimage.maximum_filter1d(eroded, size, mode="nearest")
+    smooth = ndimage.uniform_filter1d(opened, max(1, size // 4), mode="nearest")
+    want = np.interp(np.arange(n), (np.arange(m) + 0.5) * block, smooth)
+    np.testing.assert_array_equal(fsr._baseline(np.zeros(n), blocks, block, rate_hz, window_s), want)
+
+
+@pytest.mark.parametrize("direct", [True, False], ids=["compiled", "public"])
+def test_running_filters_are_scipys_bit_for_bit(monkeypatch, direct):
+    """_running_mean / _running_extreme call scipy.ndimage's compiled routines directly; with them or through
+    the public functions (a scipy without the private module) they give uniform_filter1d / minimum_filter1d /
+    maximum_filter1d's bits, on strided views too."""
+    if not direct:
+        monkeypatch.setattr(fsrkernels, "_ndimage_kernels", lambda: None)
+    rng = np.random.default_rng(5)
+    for n, size in [(1, 1), (1, 533), (7, 3), (4270, 25), (8540, 5), (4270, 2135), (100, 101)]:
+        x = rng.standard_normal(2 * n)[::2]  # a strided view
+        np.testing.assert_array_equal(fsr._running_mean(x, size), ndimage.uniform_filter1d(x, size, mode="nearest"))
+        np.testing.assert_array_equal(
+            fsr._running_extreme(x, size, minimum=True), ndimage.minimum_filter1d(x, size, mode="nearest")
+        )
+        np.testing.assert_array_equal(
+            fsr._running_extreme(x, size, minimum=False), ndimage.maximum_filter1d(x, size, mode="nearest")
+        )
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    n=st.integers(1, 400),
+    levels=st.lists(st.sampled_from([0.0, 0.3, 0.6, 0.2, 0.5, 0.25]), min_size=1, max_size=40),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_hysteresis_of_few_run_starts_is_the_array_version(n, levels, seed):
+    """The Python walk over a few run starts gives the array version's onsets and offsets, on traces that sit
+    on, between and across both thresholds (0.5 on, 0.25 off), ending high or low."""
+    rng = np.random.default_rng(seed)
+    x = np.asarray(levels)[rng.integers(0, len(levels), n)]
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(fsrkernels, "FEW_RUNS", 10**9)  # always the walk
+        fast = fsr._hysteresis(x, 0.5, 0.25)
+        patch.setattr(fsrkernels, "FEW_RUNS", -1)  # always the array version
+        slow = fsr._hysteresis(x, 0.5, 0.25)
+    np.testing.assert_array_equal(fast[0], slow[0])
+    np.testing.assert_array_equal(fast[1], slow[1])
+    assert fast[0].dtype == fast[1].dtype == np.int64

@@ -5,11 +5,12 @@ table, and residual dents computed per block of presses (pure in the press id, s
 import numpy as np
 import pytest
 from conftest import PROTOCOLS
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from neatskin.gcode.calibration import Calibration
 from neatskin.layout import load_layout
+from neatskin.sim.depthtrace import below_runs, z_mm
 from neatskin.sim.moments import _sine, _weighted_sin2_sums
 from neatskin.sim.motion import Segment, positions_mm, segment_fraction
 from neatskin.sim.recorder import DryProbe, PressConditions, _positions_mm, _unique_states
@@ -70,6 +71,42 @@ def test_a_move_on_a_sample_clock_by_slices_is_the_bits_of_the_masks(length, fee
     tau = np.sort(np.concatenate([rng.uniform(0.0, 1.2 * total, n), [0.0, t_a, t_a + t_c, total, 2 * total]]))
     want = segment_fraction(seg, tau)
     assert segment_fraction(seg, tau, ordered=True).tobytes() == want.tobytes()
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    heights=st.lists(st.floats(0.0, 20.0), min_size=2, max_size=6),
+    drift_mm=st.floats(-3.0, 3.0),
+    feed=st.floats(0.5, 50.0),
+    accel=st.floats(5.0, 2000.0),
+    linear=st.booleans(),
+    gap_s=st.floats(0.0, 0.5),
+    contact_z_mm=st.floats(1.0, 12.0),
+    seed=st.integers(0, 2**32 - 1),
+)
+@example([0.0, 1.0], 0.0, 1.0, 5.5, False, 0.0, 1.0, 0)  # a rise ending at the height: its rest rounds 1 ulp below
+@example([6.0, 1.1], 0.0, 1.0, 5.0, False, 0.0, 1.1, 0)  # a descent ending at the height
+def test_the_z_path_and_its_runs_give_the_bits_of_positions_mm(
+    heights, drift_mm, feed, accel, linear, gap_s, contact_z_mm, seed
+):
+    """depthtrace.z_mm is positions_mm's z column bit for bit (trapezoid, linear and still moves, rests between
+    them, times before the first move); below_runs leaves out only times at which that z is at or above the
+    contact height."""
+    segments, t = [], 0.0
+    for k, (z0, z1) in enumerate(zip(heights, heights[1:])):
+        p0, p1 = (10.0 + k * drift_mm, 5.0, z0), (10.0 + (k + 1) * drift_mm, 5.0, z1)
+        length = float(np.linalg.norm(np.subtract(p1, p0)))
+        duration = length / feed + feed / accel if length else 0.0
+        segments.append(Segment(t, t + duration, p0, p1, feed, accel, linear and k % 2 == 0, duration))
+        t += duration + gap_s
+    rng = np.random.default_rng(seed)
+    times = np.sort(np.concatenate([rng.uniform(-0.3, t + 0.5, 700), [s.t0_s for s in segments]]))
+    want = positions_mm(segments, times)[:, 2]
+    assert z_mm(segments, times).tobytes() == want.tobytes()
+    kept = np.zeros(times.size, dtype=bool)
+    for lo, hi in below_runs(segments, times, contact_z_mm):
+        kept[lo:hi] = True
+    assert np.all(want[~kept] >= contact_z_mm)
 
 
 def test_unique_states_sort_and_invert_as_numpy_unique_rows():

@@ -68,3 +68,19 @@ def test_a_record_gives_the_values_it_carries_and_computes_them_when_it_carries_
     inline = PressRecord(plain, 0, 1, 1.0, marks)
     assert inline.values(labels).flags == computed.flags
     assert np.array_equal(inline.values(labels).delta_r_ohm, computed.delta_r_ohm, equal_nan=True)
+
+
+def test_a_values_only_job_gets_the_values_alone_and_its_record_gives_them():
+    """values_only (what the dry run's recorder asks): the worker answers the same PressValues without the
+    estimates, and the deferred record built on that answer gives those values and holds no estimates."""
+    estimate, plan, labels = _estimator()
+    plain = estimate(EstimateJob(9, plan.n_sweeps, ()))
+    marks = _marks(plain.windows)
+    alone = estimate(EstimateJob(9, plan.n_sweeps, (), marks, values_only=True))
+    want = press_values(plain, marks, labels)
+    assert not isinstance(alone, Estimated) and alone.flags == want.flags
+    for name in ("resistance_ohm", "baseline_ohm", "delta_r_ohm"):
+        assert np.array_equal(getattr(alone, name), getattr(want, name), equal_nan=True), name
+    job = EstimateJob(9, plan.n_sweeps, (), marks, values_only=True)
+    record = DeferredRecord(0, 1, 1.0, marks, None, 1.0, job, _Queue([alone])).keep().result()
+    assert record.estimates is None and record.values(labels) is alone

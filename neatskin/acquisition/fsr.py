@@ -9,11 +9,13 @@ baseline drift, and a hysteresis threshold on the force above the baseline (on a
 on_threshold_n, off below off_threshold_n) with debounce (presses shorter than min_press_s
 dropped, gaps shorter than min_gap_s merged) gives onset, offset and peak per press.
 
-It runs once per press of a campaign, so each step is a handful of whole-array operations: a selection
-network for the median, block means and interpolation on the block grid without a search, hysteresis from
-the run starts alone. Each fast step equals the plain numpy / scipy call value for value (the plain
+It runs once per press of a campaign, so each step is a handful of whole-array operations: the median of 7
+two windows at a time, the opening skipped when the erosion is flat, block means and interpolation on the
+block grid without a search, hysteresis from the run starts alone (the array kernels are in
+neatskin.acquisition.fsrkernels). Each fast step equals the plain numpy / scipy call value for value (the plain
 version is kept as the oracle in tests/fsr_reference.py) and hands non-finite input to that call.
-scipy.ndimage (a few hundred ms to import) is imported by the functions that use it, on first use.
+scipy.ndimage (a few hundred ms to import) is imported on first use; its compiled 1-D filters are called
+directly (the same routine, the same bits).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from neatskin.acquisition.fsrkernels import _hysteresis, _median_filter, _running_extreme, _running_mean
 from neatskin.errors import ConfigError
 
 
@@ -114,8 +117,6 @@ def detect_presses(
     baseline_window_s must exceed the longest press (default: the whole trace's length / 2,
     at least 2 s); the baseline under a press is the running minimum around it.
     """
-    from scipy import ndimage
-
     if units not in ("n", "v"):
         raise ConfigError(f"units must be 'n' or 'v', got {units!r}", field="units", fix="use 'n' or 'v'")
     if not 0 < off_threshold_n < on_threshold_n:
@@ -144,78 +145,57 @@ def detect_presses(
     above = clean - baseline
     onset, offset = _debounce(*_hysteresis(above, on_threshold_n, off_threshold_n), min_len, min_gap)
     # peak on a 5 ms average, so white noise does not bias it up; one argmax per press, not per sample
-    smooth = ndimage.uniform_filter1d(above, max(1, int(round(0.005 * rate_hz))), mode="nearest")
+    smooth = _running_mean(above, max(1, int(round(0.005 * rate_hz))))
     peak_index = np.array([a + int(np.argmax(smooth[a:b])) for a, b in zip(onset, offset)], dtype=np.int64)
     peak = smooth[peak_index] if peak_index.size else np.zeros(0)
     return PressDetection(onset, offset, peak_index, peak, expected, rate_hz, baseline)
 
 
-# Median of 7 by Devillard's 13-exchange selection network ("Fast median search", 1998), written as
-# (low, high, keep) triples: keep says which of min and max later exchanges read ("both", "min", "max").
-_MEDIAN7_NETWORK = (
-    (0, 5, "both"),
-    (0, 3, "both"),
-    (1, 6, "both"),
-    (2, 4, "both"),
-    (0, 1, "max"),
-    (3, 5, "both"),
-    (2, 6, "both"),
-    (2, 3, "max"),
-    (3, 6, "min"),
-    (4, 5, "min"),
-    (1, 4, "both"),
-    (1, 3, "max"),
-    (3, 4, "min"),
-)
-
-
-def _median_filter(force: np.ndarray, size: int) -> np.ndarray:
-    """`ndimage.median_filter(force, size, mode="nearest")`, value for value; a window of 7 on a finite trace
-    by a selection network of whole-array min / max (a few microseconds each, where the rank filter's
-    per-sample selection costs ~10 ns a sample)."""
-    n = force.shape[0]
-    if size != 7 or n < 7 or not np.isfinite(force).all():
-        from scipy import ndimage
-
-        return ndimage.median_filter(force, size=size, mode="nearest")
-    padded = np.concatenate([np.full(3, force[0]), force, np.full(3, force[-1])])
-    p: list[np.ndarray] = [padded[k : k + n] for k in range(7)]  # views: each exchange writes new arrays
-    for lo, hi, keep in _MEDIAN7_NETWORK:
-        a, b = p[lo], p[hi]
-        if keep != "max":
-            p[lo] = np.minimum(a, b)
-        if keep != "min":
-            p[hi] = np.maximum(a, b)
-    return p[3]
-
-
 def _baseline(
     force: np.ndarray, blocks: np.ndarray | None, block: int, rate_hz: float, window_s: float | None
 ) -> np.ndarray:
-    from scipy import ndimage
-
     n = force.shape[0]
     window_s = window_s if window_s is not None else max(2.0, n / rate_hz / 2)
     if blocks is None:
         return np.full(n, float(np.median(force)))
     size = max(3, int(round(window_s * rate_hz / block)) | 1)
-    opened = ndimage.maximum_filter1d(ndimage.minimum_filter1d(blocks, size, mode="nearest"), size, mode="nearest")
+    level = _flat_erosion(blocks, size)
+    if level is not None:
+        # the opening is flat, and a running mean of a constant is one value, its first (0 stays 0; otherwise the
+        # uniform filter of one sample gives the sum of `size // 4` copies in the filter's own order)
+        smooth = level if level == 0 else _running_mean(np.full(1, level), max(1, size // 4))[0]
+        return np.full(n, smooth)
+    opened = _running_extreme(_running_extreme(blocks, size, minimum=True), size, minimum=False)
     # smooth the staircase of the opening, then back to the sample grid
-    smooth = ndimage.uniform_filter1d(opened, max(1, size // 4), mode="nearest")
+    smooth = _running_mean(opened, max(1, size // 4))
     return _interp_blocks(smooth, n, block)
+
+
+def _flat_erosion(blocks: np.ndarray, size: int) -> float | None:
+    """The value of `ndimage.minimum_filter1d(blocks, size, mode="nearest")` when it is one value everywhere, else
+    None: when every window (`size` odd: [k - size // 2, k + size // 2], cut at the ends) holds a block equal to the
+    least one. That is the usual trace: the divider reads 0 V, hence 0 N, wherever nothing presses, so the least
+    block recurs all along, and the erosion, the opening and its running mean are that value (a zero's sign aside,
+    which no comparison sees)."""
+    least = float(blocks.min())
+    if not math.isfinite(least):
+        return None
+    at = (blocks == least).nonzero()[0]
+    half, last = size // 2, blocks.shape[0] - 1
+    if at[0] > half or at[-1] < last - half or (at.size > 1 and int((at[1:] - at[:-1]).max()) > size):
+        return None
+    return least
 
 
 def _bridged_baseline(
     force: np.ndarray, blocks: np.ndarray | None, block: int, rate_hz: float, onset: np.ndarray, offset: np.ndarray
 ) -> np.ndarray:
-    from scipy import ndimage
-
     n = force.shape[0]
     if blocks is None:
         return np.full(n, float(np.median(force)))
     m = blocks.shape[0]
     window = max(1, int(round(0.05 * rate_hz / block)))
-    smooth = ndimage.uniform_filter1d(blocks, window, mode="nearest")
+    smooth = _running_mean(blocks, window)
     margin = int(round(0.1 * rate_hz))  # keep 100 ms around each press out of the baseline
     # a block is pressed when its centre sample lies within a press widened by the margin
     centre_sample = _block_centre_samples(m, block)
@@ -306,28 +286,6 @@ def _interp_free_blocks(values: np.ndarray, gaps: list[tuple[int, int]], n: int,
         lo, hi = math.floor(ca) + 1, math.ceil(cb)  # the samples strictly between the two centres
         np.add(slope * np.arange(lo - ca, hi - ca), values[a], out=out[lo:hi])
     return out
-
-
-def _hysteresis(x: np.ndarray, on: float, off: float) -> tuple[np.ndarray, np.ndarray]:
-    """Intervals [onset, offset) where x went above `on` and has not yet fallen below `off`.
-
-    The state changes only where a run of samples above `on` (or below `off`) begins: a high run start is an
-    onset when it is the first, or a low run started since the previous high one; a low run start is an
-    offset when a high run started since the previous low one (or before the first)."""
-    n = x.shape[0]
-    high = np.zeros(n + 1, dtype=bool)
-    low = np.zeros(n + 1, dtype=bool)
-    np.greater_equal(x, on, out=high[1:])
-    np.less(x, off, out=low[1:])
-    high_at = (high[1:] > high[:-1]).nonzero()[0]  # sample indices where a high run begins
-    low_at = (low[1:] > low[:-1]).nonzero()[0]
-    lows_before = low_at.searchsorted(high_at)
-    highs_before = high_at.searchsorted(low_at)
-    onset = high_at[np.concatenate(([True], lows_before[1:] > lows_before[:-1]))[: high_at.size]]
-    offset = low_at[np.concatenate((highs_before[:1] > 0, highs_before[1:] > highs_before[:-1]))]
-    if high_at.size and (low_at.size == 0 or high_at[-1] > low_at[-1]):
-        offset = np.concatenate([offset, [n]])
-    return onset.astype(np.int64), offset.astype(np.int64)
 
 
 def _block_means(force: np.ndarray, m: int, block: int) -> np.ndarray:

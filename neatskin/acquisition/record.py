@@ -25,7 +25,7 @@ from neatskin.acquisition.pressvalues import PressValues, press_values
 class PressRecord:
     """What one press recorded: per-sweep pair estimates, the FSR trace, motion-sync marks (sample indices)."""
 
-    estimates: PairEstimates
+    estimates: PairEstimates | None  # None: only the values came back (the dry run's skin worker, values_only)
     first_sample: int
     n_samples: int
     rate_hz: float
@@ -41,6 +41,8 @@ class PressRecord:
         """The row's per-pair values (neatskin.acquisition.pressvalues.press_values of the estimates and marks)."""
         if self.computed_values is not None:
             return self.computed_values
+        if self.estimates is None:
+            raise RuntimeError("a press record with neither estimates nor values")
         return press_values(self.estimates, self.marks, pair_labels)
 
     # an already-done PendingPress: nothing is deferred, so keeping it starts nothing and its result is itself

@@ -96,6 +96,7 @@ def build_dry_rig(
     probe = dry_probe(dry, skin, printer.segments, force_only=worker is not None)
     daq = dry_daq(dry, probe)
     recorder = simulated_recorder(protocol, plan, dry, daq, probe, printer.now_s, worker=worker)
+    closers.append(recorder.close)  # its FSR noise thread ends with the rig
     profile = getattr(protocol, "skin_profile", None)
     description = {
         "kind": "dry-run",

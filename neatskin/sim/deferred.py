@@ -27,6 +27,9 @@ class EstimateJob:
     # the press's motion-sync marks (DAQ sample indices): given, the worker also computes the row's per-pair values
     # (acquisition.pressvalues) beside the estimates, off the main process, the campaign's critical path
     marks: dict[str, int] | None = None
+    # with marks: answer the values alone (PressValues, ~1 kB), not the estimates too (~24 kB pickled a paper press,
+    # which the main process never reads): less pickling on both sides of the pipe
+    values_only: bool = False
 
 
 @dataclass(frozen=True)
@@ -44,8 +47,9 @@ class EstimateQueue(Protocol):
         """Queue a press; returns its ticket."""
         ...
 
-    def result(self, ticket: int, press_id: int) -> PairEstimates | Estimated:
-        """The estimates of the press with this ticket (with its values when its job had marks), the next one due."""
+    def result(self, ticket: int, press_id: int) -> PairEstimates | Estimated | PressValues:
+        """The estimates of the press with this ticket (with its values when its job had marks; the values alone when
+        it asked for them alone), the next one due."""
         ...
 
 
@@ -86,7 +90,13 @@ class DeferredRecord:
             if self.ticket is None:
                 raise RuntimeError(f"press {self.press_id}: result() before keep()")
             answer = self.worker.result(self.ticket, self.press_id)
-            estimates, values = (answer.estimates, answer.values) if isinstance(answer, Estimated) else (answer, None)
+            estimates: PairEstimates | None
+            if isinstance(answer, PressValues):
+                estimates, values = None, answer
+            elif isinstance(answer, Estimated):
+                estimates, values = answer.estimates, answer.values
+            else:
+                estimates, values = answer, None
             self._record = PressRecord(
                 estimates,
                 self.first_sample,

@@ -17,12 +17,14 @@ import numpy as np
 from neatskin.acquisition.demod import demodulate
 from neatskin.acquisition.record import PendingPress, PressRecord
 from neatskin.sim.deferred import DeferredRecord, EstimateJob, EstimateQueue
+from neatskin.sim.depthtrace import below_runs, z_mm
+from neatskin.sim.fsrnoise import STREAM_FSR as STREAM_FSR  # re-exported: the streams are numbered here
+from neatskin.sim.fsrnoise import FsrNoiseAhead
 from neatskin.sim.motion import positions_mm, relative_segments, segment_fraction
 
 PRESS_SLOT_S = 1000.0  # each press owns [press_id * slot, (press_id + 1) * slot) of the dry run's sample clock
 STREAM_DAQ = 1
 STREAM_PLACEMENT = 2
-STREAM_FSR = 3
 STREAM_DEPTH = 4
 FSR_DECIMATION = 10  # features-only scene: the FSR trace at rate / 10
 
@@ -177,7 +179,7 @@ class DryProbe:
         near = self.may_touch(times_s)
         unique = None
         if near.size and self._segments and self._held_xy():  # a vertical press: x, y once, depths by the z axis
-            z = _positions_mm(self._segments, times_s[near] - self._daq_t0, slice(2, 3))[:, 0]
+            z = _z_mm(self._segments, times_s[near] - self._daq_t0)
             depth = np.round(self.surface_z_mm - z + self._depth_offset, 6)  # state()'s depth column
             touching = depth > 0
             if touching.any():
@@ -198,10 +200,19 @@ class DryProbe:
     def force_n(self, times_s: np.ndarray) -> np.ndarray:
         times_s = np.asarray(times_s, dtype=float)
         force = np.zeros(times_s.size)  # above the skin the force is exactly 0 (contact_force_n of depth <= 0)
+        if self._segments and times_s.ndim == 1 and not (times_s.size > 1 and np.any(times_s[1:] < times_s[:-1])):
+            # a sample clock: only the runs where the probe may be below the surface (depthtrace.below_runs)
+            contact_z = self.surface_z_mm + self._depth_offset + _CONTACT_MARGIN_MM
+            press_t = times_s - self._daq_t0
+            for lo, hi in below_runs(self._segments, press_t, contact_z):
+                z = z_mm(self._segments, press_t[lo:hi])
+                depth = np.maximum(np.round(self.surface_z_mm - z + self._depth_offset, 6), 0.0)
+                force[lo:hi] = np.asarray(self.skin.contact_force_n(depth), dtype=float).reshape(-1)
+            return force
         near = self.may_touch(times_s)
         if near.size:
             press_t = times_s[near] - self._daq_t0
-            z = _positions_mm(self._segments, press_t, slice(2, 3))[:, 0]
+            z = _z_mm(self._segments, press_t)
             depth = np.maximum(np.round(self.surface_z_mm - z + self._depth_offset, 6), 0.0)
             force[near] = np.asarray(self.skin.contact_force_n(depth), dtype=float).reshape(-1)
         return force
@@ -229,6 +240,14 @@ def _positions_mm(segments: list, times_s: np.ndarray, axes: slice = slice(None)
         frac = segment_fraction(seg, np.clip(times_s[lo:hi] - seg.t0_s, 0.0, None), ordered=True)
         out[lo:hi] = p0[axes] + frac[:, None] * (p1 - p0)[axes]
     return out
+
+
+def _z_mm(segments: list, times_s: np.ndarray) -> np.ndarray:
+    """`_positions_mm(segments, times_s, slice(2, 3))[:, 0]`: on a sample clock by neatskin.sim.depthtrace (the
+    same bits, less overhead), else by positions_mm."""
+    if not segments or times_s.ndim != 1 or (times_s.size > 1 and np.any(times_s[1:] < times_s[:-1])):
+        return _positions_mm(segments, times_s, slice(2, 3))[:, 0]
+    return z_mm(segments, times_s)
 
 
 def skin_frame(x_mm, y_mm, frame_error: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
@@ -291,6 +310,12 @@ class SimulatedRecorder:
         self.fsr_enabled, self.keep_waveforms = fsr_enabled, keep_waveforms
         self.worker = worker
         self._press: int | None = None
+        self._fsr_noise: FsrNoiseAhead | None = None
+
+    def close(self) -> None:
+        """End the FSR noise's drawing thread (the rig's closers call this)."""
+        if self._fsr_noise is not None:
+            self._fsr_noise.close()
 
     def begin(self, press_id: int, n_sweeps: int) -> None:
         self._press, self._n_sweeps = press_id, n_sweeps
@@ -348,7 +373,7 @@ class SimulatedRecorder:
         press_id, n_sweeps, first, n = self._load()
         fsr_v = self._fsr_trace(first, n, press_id) if self.fsr_enabled else None
         marks = self._sample_marks(first)
-        job = EstimateJob(press_id, n_sweeps, tuple(self.probe.segments), marks)
+        job = EstimateJob(press_id, n_sweeps, tuple(self.probe.segments), marks, values_only=True)
         record = DeferredRecord(
             first,
             n,
@@ -369,7 +394,9 @@ class SimulatedRecorder:
         times = (first + np.arange(0, n, FSR_DECIMATION)) / rate
         n = times.size
         volts = self.daq.fsr.volts(self.probe.force_n(times))
-        if self.daq.noise.fsr_noise_v > 0:
-            rng = np.random.default_rng([self.seed, press_id, STREAM_FSR])
-            volts = volts + rng.standard_normal(n) * self.daq.noise.fsr_noise_v
+        std_v = self.daq.noise.fsr_noise_v
+        if std_v > 0:  # the stream (seed, press_id, STREAM_FSR), drawn one press ahead in a thread
+            if self._fsr_noise is None or self._fsr_noise.std_v != std_v:
+                self._fsr_noise = FsrNoiseAhead(self.seed, std_v)
+            volts = volts + self._fsr_noise.take(press_id, n)
         return volts

@@ -29,7 +29,7 @@ from multiprocessing.connection import Connection, wait
 from typing import Any, Protocol
 
 from neatskin.acquisition.estimates import PairEstimates
-from neatskin.acquisition.pressvalues import press_values
+from neatskin.acquisition.pressvalues import PressValues, press_values
 from neatskin.errors import ConfigError, HardwareError
 from neatskin.sim.deferred import Estimated, EstimateJob
 from neatskin.sim.recorder import PRESS_SLOT_S, DryProbe, features_estimates
@@ -44,7 +44,7 @@ RESUME_HINT = "the presses before it are written, `neatskin campaign resume` pre
 
 
 class Estimator(Protocol):
-    def __call__(self, job: EstimateJob) -> PairEstimates | Estimated: ...
+    def __call__(self, job: EstimateJob) -> PairEstimates | Estimated | PressValues: ...
 
 
 class EstimatorFactory(Protocol):
@@ -72,11 +72,12 @@ class PressEstimator:
         self.seed, self.method, self.window = seed, method, window
         self.pair_labels = pair_labels
 
-    def __call__(self, job: EstimateJob) -> PairEstimates | Estimated:
+    def __call__(self, job: EstimateJob) -> PairEstimates | Estimated | PressValues:
         estimates = self._estimates(job)
         if job.marks is None or self.pair_labels is None:
             return estimates
-        return Estimated(estimates, press_values(estimates, job.marks, self.pair_labels))
+        values = press_values(estimates, job.marks, self.pair_labels)
+        return values if job.values_only else Estimated(estimates, values)
 
     def _estimates(self, job: EstimateJob) -> PairEstimates:
         self.probe.load_segments(job.press_id, list(job.segments), job.press_id * PRESS_SLOT_S)
@@ -144,7 +145,7 @@ class SkinWorker:
         self._pending.append(job.press_id)
         return self._received + len(self._pending) - 1
 
-    def result(self, ticket: int, press_id: int) -> PairEstimates | Estimated:
+    def result(self, ticket: int, press_id: int) -> PairEstimates | Estimated | PressValues:
         """The estimates of the press with this ticket, the next one due."""
         if self._broken is not None:
             raise self._broken
