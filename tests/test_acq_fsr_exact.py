@@ -199,6 +199,26 @@ def test_running_filters_are_scipys_bit_for_bit(monkeypatch, direct):
         )
 
 
+def test_private_filters_called_otherwise_are_refused_for_the_public_ones():
+    """A later scipy may keep _nd_image's names and change their arguments or meaning: such kernels are refused
+    (a TypeError, a missing name, or other bits than the public filters' on the probe trace), so the public
+    filters are used; the scipy installed here passes."""
+    from types import SimpleNamespace
+
+    from scipy.ndimage import _nd_image
+
+    assert fsrkernels._checked_kernels(_nd_image) is _nd_image
+    real_mean, real_extreme = _nd_image.uniform_filter1d, _nd_image.min_or_max_filter1d
+    changed = [
+        SimpleNamespace(uniform_filter1d=lambda *a: real_mean(*a[:-1]), min_or_max_filter1d=real_extreme),  # arity
+        SimpleNamespace(uniform_filter1d=lambda *a: real_mean(*a[:-1], 1), min_or_max_filter1d=real_extreme),  # origin
+        SimpleNamespace(uniform_filter1d=real_mean, min_or_max_filter1d=lambda *a: real_extreme(*a[:-1], 1 - a[-1])),
+        SimpleNamespace(uniform_filter1d=real_mean),  # a name gone
+    ]
+    for kernels in changed:
+        assert fsrkernels._checked_kernels(kernels) is None
+
+
 @settings(max_examples=300, deadline=None)
 @given(
     n=st.integers(1, 400),

@@ -61,14 +61,37 @@ def _sorted3(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, n
 
 @functools.cache
 def _ndimage_kernels():
-    """scipy.ndimage's compiled 1-D filters (a private module), or None where this scipy lacks them."""
+    """scipy.ndimage's compiled 1-D filters (a private module), or None where this scipy lacks them or calls them
+    otherwise (`_checked_kernels`, once a process)."""
     try:
         from scipy.ndimage import _nd_image
     except ImportError:
         return None
-    if not (hasattr(_nd_image, "uniform_filter1d") and hasattr(_nd_image, "min_or_max_filter1d")):
+    return _checked_kernels(_nd_image)
+
+
+def _checked_kernels(kernels):
+    """kernels if its uniform_filter1d and min_or_max_filter1d, called as _running_mean and _running_extreme call
+    them, give the public filters' bits on a probe trace; else None. A private signature may change with no name
+    gone: an error or other bits then mean the public filters are used."""
+    from scipy import ndimage
+
+    probe = np.sin(np.arange(40.0) * 0.7) + np.arange(40.0) * 0.05
+    try:
+        for size in (1, 4, 7):
+            mean, low, high = np.empty(40), np.empty(40), np.empty(40)
+            kernels.uniform_filter1d(probe, size, 0, mean, 0, 0.0, 0)
+            kernels.min_or_max_filter1d(probe, size, 0, low, 0, 0.0, 0, 1)
+            kernels.min_or_max_filter1d(probe, size, 0, high, 0, 0.0, 0, 0)
+            if not (
+                np.array_equal(mean, ndimage.uniform_filter1d(probe, size, mode="nearest"))
+                and np.array_equal(low, ndimage.minimum_filter1d(probe, size, mode="nearest"))
+                and np.array_equal(high, ndimage.maximum_filter1d(probe, size, mode="nearest"))
+            ):
+                return None
+    except Exception:  # noqa: BLE001 - AttributeError, TypeError, ValueError: another scipy's private module
         return None
-    return _nd_image
+    return kernels
 
 
 def _running_mean(x: np.ndarray, size: int) -> np.ndarray:
