@@ -37,6 +37,7 @@ from neatskin.skin.deformation import (
     _gauss_legendre,
     _graded_edges,
 )
+from neatskin.skin.network import grounded_bases
 
 _BUFFERS = threading.local()  # the node arrays' memory, reused from call to call (fresh, their page faults cost
 # as much as the arithmetic: deformation._node_buffer's reason); per thread
@@ -176,7 +177,7 @@ def pair_resistance_and_gradient(
     Z = the Laplacian's inverse, grounded at the first electrode; R_ab = (e_a - e_b)' Z (e_a - e_b) and
     dR_ab/dtheta = sum_c (b_c' Z (e_a - e_b))^2 g_c (dF_c/dtheta) / F_c. Rows with a channel shut (F inf) or a
     singular Laplacian: NaN."""
-    incidence, pairs = _grounded_bases(layout)
+    incidence, pairs = grounded_bases(layout)
     with np.errstate(divide="ignore"):
         g = 1.0 / (factor * channel_baseline_ohm)  # (n, C)
     ok = np.all(np.isfinite(factor) & (g > 0), axis=1)
@@ -192,19 +193,3 @@ def pair_resistance_and_gradient(
     weight = g[ok, :, None] * factor_grad[ok] / factor[ok, :, None]  # (n, C, 3)
     jac[ok] = np.matmul(drop.transpose(0, 2, 1), weight)
     return r_eq, jac
-
-
-def _grounded_bases(layout: Layout) -> tuple[np.ndarray, np.ndarray]:
-    """Channel incidence (junctions - 1, C) and pair vectors e_a - e_b (junctions - 1, pairs), the first electrode's
-    row dropped (grounded)."""
-    n = layout.n_junctions
-    ends = layout.channel_ends
-    incidence = np.zeros((n, layout.n_channels))
-    incidence[ends[:, 0], np.arange(layout.n_channels)] = 1.0
-    incidence[ends[:, 1], np.arange(layout.n_channels)] = -1.0
-    elec = layout.electrode_junctions
-    pairs = np.zeros((n, len(layout.pairs)))
-    pairs[elec[layout.pair_electrode_index[:, 0]], np.arange(len(layout.pairs))] = 1.0
-    pairs[elec[layout.pair_electrode_index[:, 1]], np.arange(len(layout.pairs))] = -1.0
-    free = np.arange(n) != int(elec[0])
-    return incidence[free], pairs[free]

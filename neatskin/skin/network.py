@@ -305,6 +305,23 @@ _INCIDENCE: LayoutCache[tuple[int, _RankOne | None]] = {}
 _UNDEFORMED: LayoutCache[tuple[np.ndarray, _RankOne | None]] = {}
 
 
+def grounded_bases(layout: Layout) -> tuple[np.ndarray, np.ndarray]:
+    """The channel incidence vectors b_c (junctions - 1, channels) and the pair vectors e_a - e_b (junctions - 1,
+    pairs), the first electrode's row dropped (grounded): the rank-one path's and the skin's analytic Jacobian's
+    (modelgrad) bases."""
+    n = layout.n_junctions
+    ends = layout.channel_ends
+    incidence = np.zeros((n, layout.n_channels))
+    incidence[ends[:, 0], np.arange(layout.n_channels)] = 1.0
+    incidence[ends[:, 1], np.arange(layout.n_channels)] = -1.0
+    elec = layout.electrode_junctions
+    pairs = np.zeros((n, len(layout.pairs)))
+    pairs[elec[layout.pair_electrode_index[:, 0]], np.arange(len(layout.pairs))] = 1.0
+    pairs[elec[layout.pair_electrode_index[:, 1]], np.arange(len(layout.pairs))] = -1.0
+    free = np.arange(n) != int(elec[0])
+    return incidence[free], pairs[free]
+
+
 def _rank_one_structure(layout: Layout) -> tuple[int, _RankOne | None]:
     """The channel count, and (up to DENSE_MAX_JUNCTIONS junctions) over the junctions with the first electrode's
     grounded (its row dropped), read only: lap_map
@@ -318,16 +335,7 @@ def _rank_one_structure(layout: Layout) -> tuple[int, _RankOne | None]:
     n = layout.n_junctions
     if n > DENSE_MAX_JUNCTIONS:
         return layout.n_channels, None
-    ends = layout.channel_ends
-    incidence = np.zeros((n, layout.n_channels))
-    incidence[ends[:, 0], np.arange(layout.n_channels)] = 1.0
-    incidence[ends[:, 1], np.arange(layout.n_channels)] = -1.0
-    elec = layout.electrode_junctions
-    pairs = np.zeros((n, len(layout.pairs)))
-    pairs[elec[layout.pair_electrode_index[:, 0]], np.arange(len(layout.pairs))] = 1.0
-    pairs[elec[layout.pair_electrode_index[:, 1]], np.arange(len(layout.pairs))] = -1.0
-    free = np.arange(n) != int(elec[0])
-    incidence, pairs = incidence[free], pairs[free]
+    incidence, pairs = grounded_bases(layout)
     lap_map = np.einsum("ic,jc->ijc", incidence, incidence).reshape(-1, layout.n_channels).copy()
     incidence_f = np.asfortranarray(incidence)
     basis = np.hstack([incidence, pairs])
