@@ -42,6 +42,7 @@ def build_hil_rig(
     probe = dry_probe(dry, skin, tracker.segments)
     daq = dry_daq(dry, probe)
     recorder = simulated_recorder(protocol, plan, dry, daq, probe, tracker.now_s)
+    closers.append(recorder.close)  # its FSR noise thread ends with the rig, as the dry rig's does
     description = {
         "kind": "real",
         "printer": port,
