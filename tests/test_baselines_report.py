@@ -15,7 +15,7 @@ from neatskin.baselines.models import MODEL_NAMES, make_model, make_models
 from neatskin.baselines.report import report_summary, run_baselines
 from neatskin.baselines.reporttext import sig3
 from neatskin.cli import main
-from neatskin.errors import DataError
+from neatskin.errors import ConfigError, DataError
 from neatskin.layout import load_layout
 from neatskin.skin.synthetic import synthetic_presses
 
@@ -308,3 +308,45 @@ def test_an_infinite_nuisance_bound_notes_no_model_and_says_why(tmp_path):
     text = (folder / "report.md").read_text()
     assert "below the nuisance bound (" not in text and "Closest to it" not in text  # no row noted
     assert "Here the bound with nuisances is infinite" in text
+
+
+def test_the_inversion_model_is_chosen_by_name_and_a_missing_kernel_is_refused_before_any_fit(
+    smoke_dry_run, tmp_path, monkeypatch, capsys
+):
+    """--inversion-model fe-kernel inverts with the packaged FE pinch kernel's forward model (other positions than
+    the parametric pinch's, and a note says which); an unknown name, or a layout and probe with no kernel packaged
+    or cached, is one ConfigError naming the option and the fix, before any fit."""
+    parametric = run_baselines(smoke_dry_run, models=["inversion"], out=tmp_path / "p", progress=False)
+    fe = run_baselines(
+        smoke_dry_run, models=["inversion"], out=tmp_path / "fe", progress=False, inversion_model="fe-kernel"
+    )
+    assert "(--inversion-model fe-kernel)" in fe.text and "fe-kernel" not in parametric.text
+    p_err = parametric.table["mean_error_mm"].to_numpy()
+    fe_err = fe.table["mean_error_mm"].to_numpy()
+    assert np.isfinite(fe_err).all() and not np.allclose(p_err, fe_err)
+    with pytest.raises(ConfigError, match="unknown") as unknown:
+        run_baselines(smoke_dry_run, models=["inversion"], out=tmp_path / "x", progress=False, inversion_model="fe")
+    assert unknown.value.problems[0].field == "--inversion-model"
+
+    import neatskin.skin.kernel as kernel
+
+    monkeypatch.setattr(kernel, "packaged_kernel_path", lambda: tmp_path / "none.parquet")
+    monkeypatch.setattr(kernel, "cache_dir", lambda: tmp_path / "empty-cache")
+    fits = []
+    monkeypatch.setattr("neatskin.baselines.report.run_tasks", lambda *a, **k: fits.append(a))
+    rc = main(
+        [
+            "baselines",
+            str(smoke_dry_run),
+            "--models",
+            "inversion",
+            "--inversion-model",
+            "fe-kernel",
+            "--out",
+            str(tmp_path / "cli"),
+            "--quiet",
+        ]
+    )
+    err = capsys.readouterr().err
+    assert rc == 3 and fits == [] and "--inversion-model" in err and "neatskin skin mechanics" in err
+    assert len([line for line in err.splitlines() if line.strip()]) <= 2

@@ -54,6 +54,13 @@ def register(subparsers) -> None:
     parser.add_argument(
         "--lm-restarts", type=int, default=1, help="LM restarts per fit, best on validation (default 1 per repeat)"
     )
+    parser.add_argument(
+        "--inversion-model",
+        choices=("parametric", "fe-kernel"),
+        default="parametric",
+        help="the physics inversion's forward model: the parametric pinch (default) or the finite-element pinch "
+        "kernel of the dataset's layout and probe (packaged, or made by `neatskin skin mechanics`)",
+    )
     add_quiet(parser)
     parser.add_argument("--yes", action="store_true", help="run even when the estimate is above --max-hours")
     parser.add_argument(
@@ -111,6 +118,7 @@ def handler(args: argparse.Namespace) -> int:
         n_repeats=args.repeats,
         n_jobs=args.jobs,
         lm_restarts=args.lm_restarts,
+        inversion_model=args.inversion_model,
         confirm=lambda estimate_s: confirm_cost(
             estimate_s,
             args.max_hours * 3600.0,

@@ -12,6 +12,7 @@ are logged, raised as `BaselineWarning` and listed at the top of report.md.
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 import warnings
@@ -47,7 +48,7 @@ from neatskin.baselines.models import (
 )
 from neatskin.baselines.reporttext import markdown_report
 from neatskin.baselines.tasks import Task, run_tasks
-from neatskin.errors import DataError
+from neatskin.errors import ConfigError, DataError
 
 logger = logging.getLogger(__name__)
 
@@ -223,6 +224,37 @@ def _resolve(split: str | Iterable[str], models: str | Iterable[str] | None, dat
     return splits, learned, physics, notes, implied
 
 
+def _inversion_model_text(inversion_model: str, data: BaselineData) -> str:
+    """Refuses an unknown inversion model, or "fe-kernel" where no kernel of the dataset's layout and probe is
+    packaged or cached (ConfigError, before any fit); what the report adds to the inversion's description."""
+    from neatskin.skin.model import DEFORMATIONS
+
+    if inversion_model not in DEFORMATIONS:
+        raise ConfigError(
+            f"inversion model {inversion_model!r} is unknown",
+            field="--inversion-model",
+            fix=f"pass one of {', '.join(DEFORMATIONS)}",
+        )
+    if inversion_model == "parametric":
+        return ""
+    from neatskin.skin.kernel import KernelSpec, load_kernel
+
+    probe_mm = data.probe_radius_mm or PROBE_RADIUS_MM
+    try:
+        load_kernel(KernelSpec.for_layout(data.layout, probe_mm), compute=False)
+    except FileNotFoundError as exc:
+        raise ConfigError(
+            f"--inversion-model fe-kernel: {exc}",
+            field="--inversion-model",
+            fix="run `neatskin skin mechanics` for this layout and a probe of radius "
+            f"{probe_mm:g} mm first, or pass --inversion-model parametric",
+        ) from exc
+    return (
+        " Forward model: the finite-element pinch kernel (--inversion-model fe-kernel), not the parametric pinch "
+        "(docs/baselines.md compares the two)."
+    )
+
+
 def estimated_wall_s(tasks: list[Task], n_jobs: int) -> float:
     """The tasks' estimated seconds (models.fit_cost_s, rough) shared over the workers, never below the longest."""
     import os
@@ -247,6 +279,7 @@ def run_baselines(
     backend: str | None = None,
     lm_restarts: int | None = 1,
     confirm: Callable[[float], None] | None = None,
+    inversion_model: str = "parametric",
 ) -> Report:
     """Evaluate the baselines over repeated splits, print the table, and write report.md, CSV, parquet and PNGs.
 
@@ -259,6 +292,9 @@ def run_baselines(
     lm_restarts: restarts per LM fit (default 1: each repeat trains one network, as each of the paper's ten).
     out: folder for the outputs (the dataset folder by default).
     confirm(estimate_s): told the estimated wall time before any fit (the CLI prints it and may refuse).
+    inversion_model: the physics inversion's forward model (`skin_inversion`'s `deformation`): "parametric" (the
+        default) or "fe-kernel" (the finite-element pinch kernel of the dataset's layout and probe, packaged or
+        cached; a ConfigError before any fit when there is none).
     """
     from tqdm.auto import tqdm
 
@@ -268,6 +304,7 @@ def run_baselines(
     started = time.perf_counter()
     data = load_baseline_data(dataset_folder, flagged=flagged)
     splits, learned, physics, notes, design_implied = _resolve(split, models, data)
+    inversion_text = _inversion_model_text(inversion_model, data) if physics else ""
     dataset_path = Path(dataset_folder)
     out_dir = Path(out) if out is not None else (dataset_path if dataset_path.is_dir() else dataset_path.parent)
 
@@ -305,7 +342,7 @@ def run_baselines(
             Task(
                 ("inversion",),
                 INVERSION_COST_S_PER_PRESS * n_rows,
-                skin_inversion,
+                functools.partial(skin_inversion, deformation=inversion_model),
                 (data.layout, data.X, data.skin_fidelity or "deformation", data.probe_radius_mm or PROBE_RADIUS_MM),
             )
         )
@@ -368,7 +405,7 @@ def run_baselines(
         notes=notes,
         n_jobs=n_jobs,
         elapsed_s=elapsed,
-        descriptions={n: DESCRIPTIONS[n] for n in (*learned, *physics)},
+        descriptions={n: DESCRIPTIONS[n] + (inversion_text if n == "inversion" else "") for n in (*learned, *physics)},
         paper=PAPER_REAL_SKIN,
         lm_restarts=lm_restarts,
     )
