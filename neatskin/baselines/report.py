@@ -250,8 +250,8 @@ def _inversion_model_text(inversion_model: str, data: BaselineData) -> str:
             f"{probe_mm:g} mm first, or pass --inversion-model parametric",
         ) from exc
     return (
-        " Forward model: the finite-element pinch kernel (--inversion-model fe-kernel), not the parametric pinch "
-        "(docs/baselines.md compares the two)."
+        "; its forward model the finite-element pinch kernel (--inversion-model fe-kernel), not the parametric pinch "
+        "(docs/baselines.md compares the two)"
     )
 
 
