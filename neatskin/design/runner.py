@@ -178,9 +178,12 @@ def _joblib_results(study: Study, todo: list[Candidate], jobs: int, tick: Tick |
     if tick is None:
         yield from parallel(delayed(evaluate_candidate)(study, c) for c in todo)
         return
-    import multiprocessing
+    import os
+    from multiprocessing.managers import SyncManager
 
-    with multiprocessing.Manager() as manager:
+    manager = SyncManager()
+    manager.start(_end_with_parent, (os.getpid(),))
+    with manager:
         queue = manager.Queue()
 
         def drain() -> None:
@@ -194,6 +197,21 @@ def _joblib_results(study: Study, todo: list[Candidate], jobs: int, tick: Tick |
         finally:
             queue.put(None)
             thread.join(timeout=10.0)
+
+
+def _end_with_parent(parent_pid: int) -> None:
+    """(in the tick queue's manager process) End this process once its parent is gone: a study killed outright
+    (SIGKILL, a crash) would leave the manager serving forever, and with it the workers blocked on its queue."""
+    import os
+    import threading
+    import time
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(0.5)
+        os._exit(0)
+
+    threading.Thread(target=watch, name="end-with-parent", daemon=True).start()
 
 
 def _dask_results(study: Study, todo: list[Candidate], address: str, timeout_s: float) -> Iterator[CandidateResult]:
