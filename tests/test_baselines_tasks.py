@@ -174,3 +174,59 @@ def test_a_task_failing_in_a_worker_is_raised_here_and_no_worker_is_left():
     with pytest.raises(ArithmeticError, match="task 3 failed"):
         run_tasks(tasks, n_jobs=2)
     assert set(multiprocessing.active_children()) <= others
+
+
+def test_a_fit_worker_ends_when_the_report_is_killed_outright(tmp_path):
+    """A report killed by SIGKILL leaves no fit worker behind: the spawned worker (here in a 120 s task) ends
+    within seconds of its parent, where it used to wait forever (neatskin.orphans)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    script = (
+        "import time\n"
+        "from neatskin.baselines.tasks import Task, run_tasks\n"
+        "run_tasks([Task(('a',), 2.0, time.sleep, (120,)), Task(('b',), 1.0, time.sleep, (120,))], n_jobs=2)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parent.parent)}
+    proc = subprocess.Popen([sys.executable, "-c", script], env=env)
+
+    def workers() -> list[int]:
+        found = []
+        for stat in Path("/proc").glob("[0-9]*/stat"):
+            try:
+                fields = stat.read_text().rsplit(")", 1)[1].split()
+                cmdline = (stat.parent / "cmdline").read_bytes()
+            except OSError:
+                continue
+            if int(fields[1]) == proc.pid and b"spawn_main" in cmdline and fields[0] != "Z":
+                found.append(int(stat.parent.name))
+        return found
+
+    def alive(pid: int) -> bool:
+        try:
+            return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+        except OSError:
+            return False
+
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not workers():
+            time.sleep(0.05)
+        started = workers()
+        assert started, "run_tasks with 2 lanes spawns a worker"
+        time.sleep(1.0)  # the worker has taken its task
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and any(alive(pid) for pid in started):
+            time.sleep(0.1)
+        left = [pid for pid in started if alive(pid)]
+        for pid in left:
+            os.kill(pid, signal.SIGKILL)
+        assert not left, "the killed report's fit worker is left running"
+    finally:
+        if proc.poll() is None:
+            proc.kill()

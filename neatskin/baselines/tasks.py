@@ -119,11 +119,15 @@ def _threads_per_lane(lanes: int) -> int:
     return max((os.cpu_count() or 1) // lanes, 1)
 
 
-def _start_worker(threads: int) -> None:
+def _start_worker(threads: int, parent_pid: int) -> None:
     """A worker's initializer: BLAS and OpenMP on `threads` threads (as joblib sets them, the user's own
-    setting kept), and Ctrl-C left to the main process, which ends the workers."""
+    setting kept), Ctrl-C left to the main process, which ends the workers, and the worker's end when that
+    process is killed outright (it would otherwise wait forever to send its result: neatskin.orphans)."""
     import signal
 
+    from neatskin.orphans import end_with_parent
+
+    end_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     for var in THREAD_VARS:
         os.environ.setdefault(var, str(threads))
@@ -182,7 +186,7 @@ class _Lanes:
             self.lanes - 1,
             mp_context=multiprocessing.get_context("spawn"),
             initializer=_start_worker,
-            initargs=(threads,),
+            initargs=(threads, os.getpid()),
         )
         feeders = [threading.Thread(target=self._feed, args=(pool,), daemon=True) for _ in range(self.lanes - 1)]
         for feeder in feeders:

@@ -181,8 +181,10 @@ def _joblib_results(study: Study, todo: list[Candidate], jobs: int, tick: Tick |
     import os
     from multiprocessing.managers import SyncManager
 
+    from neatskin.orphans import end_with_parent
+
     manager = SyncManager()
-    manager.start(_end_with_parent, (os.getpid(),))
+    manager.start(end_with_parent, (os.getpid(),))  # a killed study's manager would serve forever
     with manager:
         queue = manager.Queue()
 
@@ -197,21 +199,6 @@ def _joblib_results(study: Study, todo: list[Candidate], jobs: int, tick: Tick |
         finally:
             queue.put(None)
             thread.join(timeout=10.0)
-
-
-def _end_with_parent(parent_pid: int) -> None:
-    """(in the tick queue's manager process) End this process once its parent is gone: a study killed outright
-    (SIGKILL, a crash) would leave the manager serving forever, and with it the workers blocked on its queue."""
-    import os
-    import threading
-    import time
-
-    def watch() -> None:
-        while os.getppid() == parent_pid:
-            time.sleep(0.5)
-        os._exit(0)
-
-    threading.Thread(target=watch, name="end-with-parent", daemon=True).start()
 
 
 def _dask_results(study: Study, todo: list[Candidate], address: str, timeout_s: float) -> Iterator[CandidateResult]:
