@@ -1,4 +1,4 @@
-"""Each channel changed in turn by rank-one updates (network.channel_change_delta_ohm) against exact rationals."""
+"""Each channel changed in turn by rank-one updates (channelchange.channel_change_delta_ohm) against exact rationals."""
 
 from __future__ import annotations
 
@@ -10,9 +10,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_skin_network import exact_pair_resistance
 
+from neatskin.skin import channelchange
+from neatskin.skin.channelchange import channel_change_delta_ohm
 from neatskin.skin.layouts import grid_layout
 from neatskin.skin.maps import paper_sensitivity
-from neatskin.skin.network import GROUNDED_MAX_SPREAD, channel_change_delta_ohm, equivalent_resistance
+from neatskin.skin.network import GROUNDED_MAX_SPREAD, equivalent_resistance
 
 
 def exact_changes(layout, g: np.ndarray, factor: float) -> list[list[Fraction | None]]:
@@ -126,8 +128,6 @@ def test_bad_input_is_refused(paper_layout, g_fix, factor, match):
 def test_each_layout_gets_its_own_cached_incidence(paper_layout):
     import gc
 
-    from neatskin.skin import network
-
     g_paper = 1.0 / paper_layout.channel_resistance_ohm
     first = channel_change_delta_ohm(paper_layout, g_paper, 1.5)
     for size in (3, 4, 3):  # fresh layouts, some collected between calls (an id may be reused)
@@ -138,7 +138,7 @@ def test_each_layout_gets_its_own_cached_incidence(paper_layout):
         del layout
         gc.collect()
     np.testing.assert_array_equal(channel_change_delta_ohm(paper_layout, g_paper, 1.5), first)
-    assert network._INCIDENCE[id(paper_layout)][0]() is paper_layout
+    assert channelchange._INCIDENCE[id(paper_layout)][0]() is paper_layout
 
 
 def test_a_layout_above_the_dense_size_takes_the_full_solve_and_caches_no_rank_one_structure():
@@ -148,7 +148,7 @@ def test_a_layout_above_the_dense_size_takes_the_full_solve_and_caches_no_rank_o
     assert layout.n_junctions > network.DENSE_MAX_JUNCTIONS
     g = np.exp(np.random.default_rng(3).uniform(0.0, 2.0, layout.n_channels)) * 1e-4
     delta = channel_change_delta_ohm(layout, g, 1.5)
-    assert network._INCIDENCE[id(layout)][1] == (layout.n_channels, None)
+    assert channelchange._INCIDENCE[id(layout)][1] == (layout.n_channels, None)
     states = np.tile(g, (layout.n_channels + 1, 1))
     states[np.arange(1, layout.n_channels + 1), np.arange(layout.n_channels)] /= 1.5
     r_eq = equivalent_resistance(layout, states, "dense")
@@ -173,27 +173,25 @@ def _with_widths(layout, widths_mm):
 def test_the_undeformed_path_gives_the_public_paths_bits_on_every_route(decades, factor, seed):
     # the layout's own conductances (1 / R from its geometry), checked and routed once per layout object: the same
     # bits as channel_change_delta_ohm given them, whether they take the rank-one path (within 1e3) or the full solve
-    from neatskin.skin import network
 
     rng = np.random.default_rng(seed)
     layout = _with_widths(grid_layout(3, 4), 10.0 ** rng.uniform(0.0, decades, grid_layout(3, 4).n_channels))
-    own = network.undeformed_channel_change_delta_ohm(layout, factor)
+    own = channelchange.undeformed_channel_change_delta_ohm(layout, factor)
     g = 1.0 / layout.channel_resistance_ohm
     np.testing.assert_array_equal(own, channel_change_delta_ohm(layout, g, factor))
-    np.testing.assert_array_equal(network.undeformed_channel_change_delta_ohm(layout, factor), own)  # cached
+    np.testing.assert_array_equal(channelchange.undeformed_channel_change_delta_ohm(layout, factor), own)  # cached
     rank_one = g.max() <= GROUNDED_MAX_SPREAD * g.min()
-    assert (network._UNDEFORMED[id(layout)][1][1] is not None) == rank_one  # (weakref, (g, route))
+    assert (channelchange._UNDEFORMED[id(layout)][1][1] is not None) == rank_one  # (weakref, (g, route))
 
 
 def test_the_undeformed_path_on_a_stiff_layout_takes_the_exact_full_solve(paper_layout):
-    from neatskin.skin import network
 
     widths = 10.0 ** np.random.default_rng(5).choice([-4.0, 2.0, 8.0], paper_layout.n_channels)  # 1e12 apart
     layout = _with_widths(paper_layout, widths)
-    delta = network.undeformed_channel_change_delta_ohm(layout, 1.5)
-    assert network._UNDEFORMED[id(layout)][1][1] is None  # beyond GROUNDED_MAX_SPREAD: the GTH full solve
+    delta = channelchange.undeformed_channel_change_delta_ohm(layout, 1.5)
+    assert channelchange._UNDEFORMED[id(layout)][1][1] is None  # beyond GROUNDED_MAX_SPREAD: the GTH full solve
     _assert_exact(layout, 1.0 / layout.channel_resistance_ohm, 1.5, delta, scale_rtol=1e-13)
     np.testing.assert_array_equal(paper_sensitivity(layout).delta_ohm, delta)
     for factor in (0.0, -1.0, np.inf, np.nan):
         with pytest.raises(ValueError, match="factor"):
-            network.undeformed_channel_change_delta_ohm(layout, factor)
+            channelchange.undeformed_channel_change_delta_ohm(layout, factor)

@@ -14,9 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from neatskin.layout import ElectrodePair, Layout
+from neatskin.skin.channelchange import undeformed_channel_change_delta_ohm
 from neatskin.skin.layoutcache import LayoutCache, per_layout
 from neatskin.skin.model import SkinModel
-from neatskin.skin.network import undeformed_channel_change_delta_ohm
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,7 @@ def channel_midpoints_mm(layout: Layout) -> np.ndarray:
 def paper_sensitivity(layout: Layout, increase: float = 0.5) -> SensitivityMap:
     """The paper's simulation: each channel's resistance raised by `increase` (+50 %) in turn; one
     'press' per channel, placed at the channel's midpoint (paper Fig. 3, black dots). The changes come from
-    rank-one updates of one grounded inverse (`network.channel_change_delta_ohm`), not 13 full solves."""
+    rank-one updates of one grounded inverse (`channelchange.channel_change_delta_ohm`), not 13 full solves."""
     delta = undeformed_channel_change_delta_ohm(layout, 1.0 + increase)
     entry = _MIDPOINTS.get(id(layout))  # per_layout's hit path inlined (a call saved on a map of a few microseconds)
     x_mm, y_mm = entry[1] if entry and entry[0]() is layout else per_layout(_MIDPOINTS, layout, _read_only_midpoints)

@@ -27,6 +27,7 @@ import threading
 import numpy as np
 
 from neatskin.layout import Layout
+from neatskin.skin.channelchange import grounded_bases
 from neatskin.skin.deformation import (
     _CHUNK_PRESSES,
     _CUTOFF_DECAYS,
@@ -37,7 +38,6 @@ from neatskin.skin.deformation import (
     _gauss_legendre,
     _graded_edges,
 )
-from neatskin.skin.network import grounded_bases
 
 _BUFFERS = threading.local()  # the node arrays' memory, reused from call to call (fresh, their page faults cost
 # as much as the arithmetic: deformation._node_buffer's reason); per thread
