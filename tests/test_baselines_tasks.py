@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from proctree import alive, children
 
 from neatskin.baselines.inversion import _diverse_starts
 from neatskin.baselines.models import fit_cost_s
@@ -193,29 +194,11 @@ def test_a_fit_worker_ends_when_the_report_is_killed_outright(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parent.parent)}
     proc = subprocess.Popen([sys.executable, "-c", script], env=env)
 
-    def workers() -> list[int]:
-        found = []
-        for stat in Path("/proc").glob("[0-9]*/stat"):
-            try:
-                fields = stat.read_text().rsplit(")", 1)[1].split()
-                cmdline = (stat.parent / "cmdline").read_bytes()
-            except OSError:
-                continue
-            if int(fields[1]) == proc.pid and b"spawn_main" in cmdline and fields[0] != "Z":
-                found.append(int(stat.parent.name))
-        return found
-
-    def alive(pid: int) -> bool:
-        try:
-            return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-        except OSError:
-            return False
-
     try:
         deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not workers():
+        while time.monotonic() < deadline and not children(proc.pid, b"spawn_main"):
             time.sleep(0.05)
-        started = workers()
+        started = children(proc.pid, b"spawn_main")
         assert started, "run_tasks with 2 lanes spawns a worker"
         time.sleep(1.0)  # the worker has taken its task
         os.kill(proc.pid, signal.SIGKILL)

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import pandas as pd
+import proctree
 import pytest
 
 from neatskin.cli import main
@@ -202,27 +203,6 @@ def test_rerun_skips_what_is_done_and_refuses_another_study(tmp_path):
     assert info.value.field == "press_grid"
 
 
-def _children(pid: int) -> list[int]:
-    """The processes whose parent is pid (Linux /proc)."""
-    found = []
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid:
-            found.append(int(stat.parent.name))
-    return found
-
-
-def _alive(pid: int) -> bool:
-    """pid exists and is not a zombie waiting for its reaper."""
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
 @pytest.mark.slow
 def test_resume_after_sigkill_of_the_cli_gives_the_same_results_without_duplicates(tmp_path):
     text = SMALL.replace("press_grid = 8", "press_grid = 14").replace("restarts = 1", "restarts = 6")
@@ -244,16 +224,16 @@ def test_resume_after_sigkill_of_the_cli_gives_the_same_results_without_duplicat
     assert proc.poll() is None, "the study finished before it could be killed; make it bigger"
     # the tick queue's manager, forked from the CLI (its command line is the CLI's), would serve forever; joblib's
     # idle workers beside it end at their own idle timeout (300 s), so they are not waited for here
-    children = [pid for pid in _children(proc.pid) if b"design" in Path(f"/proc/{pid}/cmdline").read_bytes()]
+    children = proctree.children(proc.pid, b"design")
     assert children, "a study over several candidates with a progress tick runs the tick queue's manager"
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(timeout=30)
     proc.stderr.close()
     # the manager ends with its parent
     deadline = time.monotonic() + 15
-    while time.monotonic() < deadline and [pid for pid in children if _alive(pid)]:
+    while time.monotonic() < deadline and [pid for pid in children if proctree.alive(pid)]:
         time.sleep(0.1)
-    assert not [pid for pid in children if _alive(pid)], "the killed study's tick manager is left running"
+    assert not [pid for pid in children if proctree.alive(pid)], "the killed study's tick manager is left running"
     done_at_kill = len(list(parts.glob("*.parquet")))
     assert 2 <= done_at_kill < total
     rerun = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
