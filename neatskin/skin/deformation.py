@@ -201,6 +201,30 @@ def _graded_edges(p0: np.ndarray) -> np.ndarray:
     return np.concatenate([[0.0], graded, _GRADED_OUTER_EDGES])
 
 
+def _footprint_sides(x, y, a, decay, start, unit, length):
+    """Per (press, channel), (n, C): the probe axis' offset across the channel's centre line (perp) and its square,
+    the footprint's length on the line (foot), and (n, C, 2) per side outside the footprint: the distance from the
+    axis' foot s0 to the footprint's edge (base), the side's length (side_len) and the stretch beyond the edge still
+    to integrate (active).
+
+    The two sides outside the footprint are integrated as panels [edge, edge + l] and [edge + l, end]; only
+    (s - s0)^2 enters, and on side k, s - s0 = sign_k * (base_k + offset). Beyond r = a + CUTOFF * l the pinch is
+    below 1e-16: that stretch is exactly its length, so `active` stops there. Shared by the resistance integral and
+    its analytic gradient (modelgrad), so both integrate the same panels."""
+    rel_x, rel_y = x[:, None] - start[:, 0], y[:, None] - start[:, 1]  # (n, C)
+    s0 = rel_x * unit[:, 0] + rel_y * unit[:, 1]
+    perp = rel_x * unit[:, 1] - rel_y * unit[:, 0]
+    perp2 = perp * perp
+    half_chord = np.sqrt(np.maximum(a * a - perp2, 0.0))
+    foot_lo = np.clip(s0 - half_chord, 0.0, length)
+    foot_hi = np.clip(s0 + half_chord, 0.0, length)
+    base = np.stack([foot_hi - s0, s0 - foot_lo], axis=-1)  # (n, C, 2): footprint edge to s0 distance
+    side_len = np.stack([length - foot_hi, foot_lo], axis=-1)
+    reach = np.sqrt(np.maximum((a + _CUTOFF_DECAYS * decay) ** 2 - perp2, 0.0)) - half_chord
+    active = np.minimum(np.maximum(reach, 0.0)[..., None], side_len)  # (n, C, 2)
+    return perp, perp2, foot_hi - foot_lo, base, side_len, active
+
+
 def _factor_chunk(layout, x, y, depth, radius, params, scale=None, volume=False, panel_edges=_PANEL_EDGES):
     start, unit, length = _channel_geometry(layout)
     thickness, cdepth = layout.thickness_mm, layout.channel_depth_mm
@@ -210,21 +234,7 @@ def _factor_chunk(layout, x, y, depth, radius, params, scale=None, volume=False,
     p0 = params.pinch_gain * d / thickness  # (n, 1), or (n, C) with a per-channel height
     p0 = np.minimum(1.0, p0 if scale is None else p0 * scale)
     decay = params.decay_ratio * (cdepth + d)
-    rel_x, rel_y = x[:, None] - start[:, 0], y[:, None] - start[:, 1]  # (n, C)
-    s0 = rel_x * unit[:, 0] + rel_y * unit[:, 1]
-    perp = rel_x * unit[:, 1] - rel_y * unit[:, 0]
-    perp2 = perp * perp
-    half_chord = np.sqrt(np.maximum(a * a - perp2, 0.0))
-    foot_lo = np.clip(s0 - half_chord, 0.0, length)
-    foot_hi = np.clip(s0 + half_chord, 0.0, length)
-    foot = foot_hi - foot_lo
-    # the two sides outside the footprint, each as panels [edge, edge + l] and [edge + l, end];
-    # only (s - s0)^2 enters, and on side k, s - s0 = sign_k * (base_k + offset)
-    base = np.stack([foot_hi - s0, s0 - foot_lo], axis=-1)  # (n, C, 2): footprint edge to s0 distance
-    side_len = np.stack([length - foot_hi, foot_lo], axis=-1)
-    # beyond r = a + CUTOFF * l the pinch is below 1e-16: that stretch is exactly its length
-    reach = np.sqrt(np.maximum((a + _CUTOFF_DECAYS * decay) ** 2 - perp2, 0.0)) - half_chord
-    active = np.minimum(np.maximum(reach, 0.0)[..., None], side_len)  # (n, C, 2)
+    _, perp2, foot, base, side_len, active = _footprint_sides(x, y, a, decay, start, unit, length)
     # integrate only the sides with something left to integrate (far channels have none), laid out as
     # (q, panels, sides) so every broadcast operand is a contiguous block; each live side's press and
     # channel quantities are gathered by index (the values a broadcast to (n, C, 2) would hold)

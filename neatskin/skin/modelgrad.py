@@ -30,11 +30,11 @@ from neatskin.layout import Layout
 from neatskin.skin.channelchange import grounded_bases
 from neatskin.skin.deformation import (
     _CHUNK_PRESSES,
-    _CUTOFF_DECAYS,
     _GRADED_FROM_P0,
     _PANEL_EDGES,
     PinchParams,
     _channel_geometry,
+    _footprint_sides,
     _gauss_legendre,
     _graded_edges,
 )
@@ -99,18 +99,7 @@ def _chunk(layout, x, y, depth, radius, params, scale, panel_edges):
     p0 = np.minimum(1.0, raw)  # (n, 1) or (n, C)
     rate = np.where(raw < 1.0, rate, 0.0)
     decay = params.decay_ratio * (layout.channel_depth_mm + d)  # (n, 1)
-    rel_x, rel_y = x[:, None] - start[:, 0], y[:, None] - start[:, 1]
-    s0 = rel_x * unit[:, 0] + rel_y * unit[:, 1]
-    perp = rel_x * unit[:, 1] - rel_y * unit[:, 0]
-    perp2 = perp * perp
-    half_chord = np.sqrt(np.maximum(radius * radius - perp2, 0.0))
-    foot_lo = np.clip(s0 - half_chord, 0.0, length)
-    foot_hi = np.clip(s0 + half_chord, 0.0, length)
-    foot = foot_hi - foot_lo
-    base = np.stack([foot_hi - s0, s0 - foot_lo], axis=-1)  # (n, C, 2)
-    side_len = np.stack([length - foot_hi, foot_lo], axis=-1)
-    reach = np.sqrt(np.maximum((radius + _CUTOFF_DECAYS * decay) ** 2 - perp2, 0.0)) - half_chord
-    active = np.minimum(np.maximum(reach, 0.0)[..., None], side_len)
+    perp, perp2, foot, base, side_len, active = _footprint_sides(x, y, radius, decay, start, unit, length)
     live = np.flatnonzero(active > 0)
     side_of = live >> 1
     press_of = side_of // length.size
