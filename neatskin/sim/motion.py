@@ -9,6 +9,7 @@ simulated skin and FSR see the press as it happens.
 from __future__ import annotations
 
 import bisect
+import functools
 import math
 from typing import NamedTuple
 
@@ -243,27 +244,11 @@ def segment_fraction(seg, tau: np.ndarray, *, ordered: bool = False) -> np.ndarr
     or the trapezoid of accelerating, cruising and braking, each time by its own phase's expression.
 
     ordered: tau is one increasing run without NaN (a sample clock), so each phase's times are one slice: the
-    same expressions on slices instead of masks (the same bits, tested)."""
-    length = float(np.linalg.norm(np.asarray(seg.p1_mm, float) - np.asarray(seg.p0_mm, float)))
-    duration = seg.own_duration_s
-    if length == 0 or duration <= 0:
-        return np.ones_like(tau)
-    if seg.linear:
-        return np.minimum(tau / duration, 1.0)
-    a = seg.accel_mm_s2
-    v = min(seg.feed_mm_s, float(np.sqrt(a * length)))
-    t_a, d_a = v / a, v * v / (2 * a)
-    t_c = max(0.0, (length - 2 * d_a) / v)
-    if ordered and tau.ndim == 1:
-        dist = np.empty_like(tau)
-        i_c, i_b = int(tau.searchsorted(t_a)), int(tau.searchsorted(t_a + t_c))  # the first cruising, braking
-        i_b = max(i_b, i_c)
-        head = tau[:i_c]
-        dist[:i_c] = 0.5 * a * head * head
-        dist[i_c:i_b] = d_a + v * (tau[i_c:i_b] - t_a)
-        td = np.clip(tau[i_b:] - t_a - t_c, 0.0, t_a)
-        dist[i_b:] = d_a + v * t_c + v * td - 0.5 * a * td * td
-        return np.minimum(dist, length) / length
+    same expressions on slices instead of masks (`ordered_fraction`, the same bits, tested)."""
+    constants = move_constants(seg)
+    if ordered and tau.ndim == 1 or constants[0] != "trapezoid":
+        return ordered_fraction(constants, np.array(tau, dtype=float))
+    _, length, a, v, t_a, d_a, t_c = constants
     accel = tau < t_a
     cruise = ~accel & (tau < t_a + t_c)
     brake = ~accel & ~cruise  # what is neither (NaN included), as np.where's else-branch
@@ -273,3 +258,60 @@ def segment_fraction(seg, tau: np.ndarray, *, ordered: bool = False) -> np.ndarr
     td = np.clip(tau[brake] - t_a - t_c, 0.0, t_a)
     dist[brake] = d_a + v * t_c + v * td - 0.5 * a * td * td
     return np.minimum(dist, length) / length
+
+
+@functools.lru_cache(maxsize=64)
+def move_constants(seg) -> tuple:
+    """What segment_fraction needs of a move before it looks at the times (cached: a paper campaign's 28 repeats of a
+    position share their moves): ("still",) for a move of no length
+    or time, ("linear", duration), or ("trapezoid", length, a, v, t_a, d_a, t_c)."""
+    length = float(np.linalg.norm(np.asarray(seg.p1_mm, float) - np.asarray(seg.p0_mm, float)))
+    duration = seg.own_duration_s
+    if length == 0 or duration <= 0:
+        return ("still",)
+    if seg.linear:
+        return ("linear", duration)
+    a = seg.accel_mm_s2
+    v = min(seg.feed_mm_s, float(np.sqrt(a * length)))
+    t_a, d_a = v / a, v * v / (2 * a)
+    t_c = max(0.0, (length - 2 * d_a) / v)
+    return ("trapezoid", length, a, v, t_a, d_a, t_c)
+
+
+def ordered_fraction(constants: tuple, tau: np.ndarray) -> np.ndarray:
+    """segment_fraction(seg, tau, ordered=True) for tau >= 0, increasing, finite; `tau` is overwritten."""
+    kind = constants[0]
+    if kind == "still":
+        return np.ones_like(tau)
+    if kind == "linear":
+        np.divide(tau, constants[1], out=tau)
+        return np.minimum(tau, 1.0, out=tau)
+    _, length, a, v, t_a, d_a, t_c = constants
+    dist = np.empty_like(tau)
+    i_c, i_b = int(tau.searchsorted(t_a)), int(tau.searchsorted(t_a + t_c))  # the first cruising, braking
+    i_b = max(i_b, i_c)
+    half_a = 0.5 * a
+    # each phase only where it has times: a sample clock cut to the skin (below_runs) often starts braking
+    if i_c:
+        head = dist[:i_c]
+        np.multiply(tau[:i_c], half_a, out=head)  # 0.5 * a * tau * tau, left to right
+        np.multiply(head, tau[:i_c], out=head)
+    if i_b > i_c:
+        cruise = dist[i_c:i_b]
+        np.subtract(tau[i_c:i_b], t_a, out=cruise)  # d_a + v * (tau - t_a)
+        np.multiply(cruise, v, out=cruise)
+        np.add(cruise, d_a, out=cruise)
+    if i_b < tau.shape[0]:
+        td = tau[i_b:]
+        np.subtract(td, t_a, out=td)  # clip(tau - t_a - t_c, 0, t_a)
+        np.subtract(td, t_c, out=td)
+        np.maximum(td, 0.0, out=td)
+        np.minimum(td, t_a, out=td)
+        brake = dist[i_b:]
+        np.multiply(td, v, out=brake)  # d_a + v * t_c + v * td - 0.5 * a * td * td, left to right
+        np.add(brake, d_a + v * t_c, out=brake)
+        square = np.multiply(td, half_a)
+        np.multiply(square, td, out=square)
+        np.subtract(brake, square, out=brake)
+    np.minimum(dist, length, out=dist)  # min(dist, length) / length
+    return np.divide(dist, length, out=dist)
