@@ -319,14 +319,13 @@ class MarlinDriver:
             return
         deadline, until = self._protocol.next_deadline(), self._sleeping_until
         if deadline is not None and (until is None or deadline < until):
-            self._asleep = False  # one wake is enough
-            self._channel.wake()
+            self._wake_reading()
 
     def _wake_reading(self) -> None:
         """(lock held) End the read in progress now, whoever makes it: a caller blocked in a read sees a failed
         session or a job taken back at once, not at its read's deadline."""
         if self._asleep and self._channel is not None:
-            self._asleep = False
+            self._asleep = False  # one wake is enough
             self._channel.wake()
 
     def _flush(self) -> None:
@@ -532,10 +531,10 @@ class MarlinDriver:
                 E.Interrupted("taken back before sending", last_line=n, last_command=cmd, port=self.port_name)
             )
             self._cond.notify_all()  # a caller blocked on a job taken back sees it now
+            # the read in progress ends now, and the next one starts from the drain's deadline: the time limit is the
+            # protocol's, on the driver's clock; whoever reads wakes for it and tells us
             self._wake_reading()
-            # the time limit is the protocol's, on the driver's clock: the reader wakes for it and tells us
             self._protocol.drain(self.clock(), timeout_s if timeout_s is not None else self.config.max_busy_s)
-            self._wake_reader_for()
             self._draining += 1
             self._park.notify()  # the reader reads for a drain (the caller waits on the condition)
             try:
