@@ -178,6 +178,15 @@ def test_no_clearance_no_z_moves(shifted):
     assert home.rise is None and home.after is None and home.end_mm == (5.0, 50.0, 20.0)
     (home,) = run(m, "G28")
     assert home.rise is None and home.after is None and home.end_mm == (5.0, 10.0, 1.0)
+    # Z homed and below its home (no soft endstops: M211 S0): G28.cpp's do_z_clearance(0) still raises it, to 0
+    # native, as the native firmware built with Z_CLEARANCE_FOR_HOMING 0 does (`G1 Z-1`, `G28 Y` -> Z 0)
+    free = Machine(replace(shifted, z_clearance_for_homing_mm=0.0), start_mm=(50.0, 50.0, 20.0))
+    run(free, "G28", "G1 Z-1")
+    (home,) = run(free, "G28 Y")
+    assert home.rise is not None and home.rise.end_mm == (5.0, 10.0, 0.0) and home.end_mm == (5.0, 10.0, 0.0)
+    assert home.rise.start_mm == (5.0, 10.0, -1.0) and home.rise.length_mm == 1.0
+    (home,) = run(free, "G28 X")  # at 0 now: nothing to raise
+    assert home.rise is None and home.end_mm == (5.0, 10.0, 0.0)
     low = Machine(replace(shifted, z_after_homing_mm=2.0), start_mm=(50.0, 50.0, 20.0))
     (home,) = run(low, "G28 Z")  # Z alone: no raise; Z_AFTER_HOMING 2 from home 1
     assert home.rise is None and home.after is not None and home.end_mm == (50.0, 50.0, 2.0)

@@ -288,11 +288,14 @@ class Machine:
         position = self.position_mm
         start = (position[0], position[1], position[2])
         rise = after = None
-        if (0 in axes or 1 in axes) and self._z_clearance > 0:  # G28.cpp's may_skate: clearance first
+        if (0 in axes or 1 in axes) and self.profile is not None:  # G28.cpp's may_skate: do_z_clearance first
             z = position[2]
             if z is None:  # relative to an unknown height: the height stays unknown, the distance is known
-                rise = self._z_move(None, self._z_clearance)
+                if self._z_clearance > 0:
+                    rise = self._z_move(None, self._z_clearance)
             else:
+                # a clearance of 0 still raises a homed Z that is below 0 to 0 (do_z_clearance(0) lowers nothing
+                # but does raise: the native firmware built with Z_CLEARANCE_FOR_HOMING 0, docs/marlin.md)
                 target = min(self._z_clearance + (0.0 if self.homed[2] else z), self._z_max)
                 if target > z:  # never down
                     rise = self._z_move(target, target - z)
