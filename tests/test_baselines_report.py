@@ -26,8 +26,8 @@ def write_dataset(
     folder: Path,
     df: pd.DataFrame,
     layout: bool = False,
-    crb_mm: float | None = None,
-    crb_nuisance_mm: float | None = None,
+    crb_mm: float | np.ndarray | None = None,
+    crb_nuisance_mm: float | np.ndarray | None = None,
 ) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     df.to_parquet(folder / "presses.parquet", index=False)
@@ -42,7 +42,7 @@ def write_dataset(
                 "position_id": pos["position_id"],
                 "x_mm": pos["x_mm"],
                 "y_mm": pos["y_mm"],
-                "crb_mm": np.full(len(pos), crb_mm),
+                "crb_mm": np.broadcast_to(np.asarray(crb_mm, float), len(pos)),
             }
         )
         if crb_nuisance_mm is not None:
@@ -308,6 +308,30 @@ def test_an_infinite_nuisance_bound_notes_no_model_and_says_why(tmp_path):
     text = (folder / "report.md").read_text()
     assert "below the nuisance bound (" not in text and "Closest to it" not in text  # no row noted
     assert "Here the bound with nuisances is infinite" in text
+
+
+def test_an_infinite_bound_is_summarised_by_its_median_and_compared_with_nothing(tmp_path):
+    """Positions whose bound is infinite (a channel shut under the probe) make the pooled bound infinite: no ratio
+    (rms / inf = 0 read as "0x the bound"), no flag; the report and the terminal give each bound's median over
+    positions and how many exceed the probe radius."""
+    crb = np.array([0.3, 0.4, np.inf, 9.0, 0.3, np.inf, 0.2, 0.4, 0.1, np.inf])  # sorted, the 5th and 6th: 0.4
+    folder = write_dataset(tmp_path / "ds", small_table(10, 4), layout=True, crb_mm=crb, crb_nuisance_mm=crb * 2)
+    with pytest.warns(UserWarning):
+        report = run_baselines(folder, split="both", models=["ridge", "knn"], progress=False, n_repeats=2)
+    assert report.bound_rms_mm == np.inf and report.table["rms_over_crb"].isna().all()
+    assert not report.table["below_bound"].any()
+    assert report.spreads == ((0.4, 4, 10), (0.8, 4, 10))  # above 2.75 mm: 9 and inf x 3; 18 and inf x 3
+    text = (folder / "report.md").read_text()
+    assert "| the same, median over the 10 positions (above the probe radius at 4 of them) | 0.400 |" in text
+    assert "| the same, median over the 10 positions (above the probe radius at 4 of them) | 0.800 |" in text
+    assert "Here the electronics-only bound is infinite" in text
+    summary = report_summary(report)
+    assert "electronics only: inf mm (median 0.4 mm; above the probe radius at 4 of 10 positions)" in summary
+    # every position within the probe radius: no such row
+    finite = write_dataset(tmp_path / "f", small_table(10, 4), layout=True, crb_mm=0.5)
+    with pytest.warns(UserWarning):
+        plain = run_baselines(finite, split="both", models=["ridge"], progress=False, n_repeats=2)
+    assert "median over the" not in plain.text and "(median" not in report_summary(plain)
 
 
 def test_the_inversion_model_is_chosen_by_name_and_a_missing_kernel_is_refused_before_any_fit(

@@ -26,6 +26,10 @@ class Floors:
     label_mm: dict[str, tuple[float, float]]
     landing_rms_mm: float
     landing_known_skin_rms_mm: float | None = None
+    # the landing-point bound's median over positions (this skin's fabrication unknown, known) and at how many of
+    # how many positions it is infinite: what the pooled RMS hides when a few positions hold it
+    landing_median_mm: tuple[float, float | None] = (np.nan, None)
+    landing_infinite: tuple[int, int] = (0, 0)
 
     def of_split(self, split: str) -> tuple[float, float]:
         return self.label_mm[SPLIT_PRIOR.get(split, "by_row")]
@@ -41,10 +45,17 @@ def read_floors(limit: pd.DataFrame | None) -> Floors | None:
         rms = limit[f"label_floor_{prior}_rms_mm"].to_numpy(float)
         label[prior] = (float(np.mean(mean)), float(np.sqrt(np.mean(rms**2))))
     landing = limit["landing_bound_mm"].to_numpy(float)
-    known = None
+    known = known_median = None
     if "landing_bound_known_skin_mm" in limit.columns:
-        known = float(np.sqrt(np.mean(limit["landing_bound_known_skin_mm"].to_numpy(float) ** 2)))
-    return Floors(label, float(np.sqrt(np.mean(landing**2))), known)
+        known_skin = limit["landing_bound_known_skin_mm"].to_numpy(float)
+        known, known_median = float(np.sqrt(np.mean(known_skin**2))), float(np.median(known_skin))
+    return Floors(
+        label,
+        float(np.sqrt(np.mean(landing**2))),
+        known,
+        (float(np.median(landing)), known_median),
+        (int(np.count_nonzero(np.isinf(landing))), landing.size),
+    )
 
 
 def add_floor_columns(table: pd.DataFrame, floors: Floors | None) -> pd.DataFrame:
@@ -95,6 +106,15 @@ def floors_section(table: pd.DataFrame, floors: Floors | None, campaign_seeds: i
             "| landing-point bound, this skin's fabrication known | the same for a model trained on this skin, "
             f"which has seen its channels | | {floors.landing_known_skin_rms_mm:.3g} |"
         )
+    if not np.isfinite(floors.landing_rms_mm):
+        median, known_median = floors.landing_median_mm
+        known_text = "" if known_median is None else f" ({known_median:.3g} mm with this skin's fabrication known)"
+        lines += [
+            "",
+            f"The landing-point bound is infinite at {floors.landing_infinite[0]} of {floors.landing_infinite[1]} "
+            "positions (a press on a channel the probe shuts tells which channel, not where along it), so its "
+            f"pooled RMS is too; its median over positions is {median:.3g} mm{known_text}.",
+        ]
     lines += [
         "",
         "The label-noise floor is computed (Monte Carlo over landing points, `neatskin.baselines.floors`), not "

@@ -78,6 +78,8 @@ class Report:
     warnings: tuple[str, ...] = ()
     time_s: float = 0.0
     bound_nuisance_rms_mm: float | None = None  # the same pooled bound with the scene's nuisances
+    # both bounds' median over positions and where they exceed the probe radius (`bound_spread_mm`), or None
+    spreads: tuple[tuple[float, int, int] | None, ...] = (None, None)
 
 
 def bound_rms_mm(limit: pd.DataFrame | None, column: str = "crb_mm") -> float | None:
@@ -87,6 +89,20 @@ def bound_rms_mm(limit: pd.DataFrame | None, column: str = "crb_mm") -> float | 
         return None
     crb = limit[column].to_numpy(dtype=float)
     return float(np.sqrt(np.mean(crb * crb)))
+
+
+def bound_spread_mm(
+    limit: pd.DataFrame | None, column: str = "crb_mm", radius_mm: float = 2.75
+) -> tuple[float, int, int] | None:
+    """(the median over positions of a bound, at how many positions it exceeds the probe radius, how many positions
+    there are): what the skin measures at a typical position and where it does not locate a press within its own
+    footprint, for planning where the pooled RMS is infinite or held by a few positions (on the FE skin a press
+    on a channel the probe shuts tells which channel, not where along it: its bound is infinite or huge). None when
+    the limit or its column is absent."""
+    if limit is None or len(limit) == 0 or column not in limit.columns:
+        return None
+    crb = limit[column].to_numpy(dtype=float)
+    return float(np.median(crb)), int(np.count_nonzero(crb > radius_mm)), int(crb.size)
 
 
 def results_table(
@@ -113,7 +129,10 @@ def results_table(
         )
     if bound is not None:
         table["crb_rms_mm"] = bound
-        table["rms_over_crb"] = table["rms_error_mm"] / bound if bound > 0 else np.inf
+        # an infinite bound has no ratio either (rms / inf = 0 read as "far below the bound")
+        table["rms_over_crb"] = (
+            table["rms_error_mm"] / bound if 0 < bound < np.inf else (np.inf if bound == 0 else np.nan)
+        )
     if bound is not None and np.isfinite(bound):
         table["below_bound"] = (table["rms_error_mm"] < bound) | (table["median_error_mm"] < MEDIAN_BOUND_SHARE * bound)
     else:  # no bound, or an infinite one (a position no graded reading sees, on the FE skin): nothing is below it
@@ -393,12 +412,15 @@ def run_baselines(
         files[key] = out_dir / f"baselines_ellipses_{s}.png"
         plot_error_ellipses([r for r in results if r.split == s], files[key], data.layout)
     files["report"] = out_dir / "report.md"
+    radius = data.probe_radius_mm or PROBE_RADIUS_MM
+    spreads = tuple(bound_spread_mm(data.physical_limit, c, radius) for c in ("crb_mm", "crb_nuisance_mm"))
     elapsed = time.perf_counter() - started
     text = markdown_report(
         data=data,
         table=table,
         bound=bound,
         nuisance_bound=nuisance_bound,
+        spreads=dict(zip(("crb_mm", "crb_nuisance_mm"), spreads, strict=True)),
         splits=splits,
         files=files,
         random_state=random_state,
@@ -410,18 +432,21 @@ def run_baselines(
         lm_restarts=lm_restarts,
     )
     files["report"].write_text(text, encoding="utf-8")
-    return Report(tuple(results), table, bound, text, files, tuple(notes), elapsed, nuisance_bound)
+    return Report(tuple(results), table, bound, text, files, tuple(notes), elapsed, nuisance_bound, spreads)
 
 
 def report_summary(report: Report) -> str:
     """What the terminal shows after a report: the table, the bound and where the report is (the CLIs print it)."""
     lines = [format_table(report.table)]
-    if report.bound_rms_mm is not None:
-        lines.append(f"Cramér-Rao bound (RMS over positions), electronics only: {report.bound_rms_mm:.3g} mm")
-    if report.bound_nuisance_rms_mm is not None:
-        lines.append(
-            f"Cramér-Rao bound (RMS over positions), with depth, drift and placement as nuisances: "
-            f"{report.bound_nuisance_rms_mm:.3g} mm"
-        )
+    for name, pooled, spread in (
+        ("electronics only", report.bound_rms_mm, report.spreads[0]),
+        ("with depth, drift and placement as nuisances", report.bound_nuisance_rms_mm, report.spreads[1]),
+    ):
+        if pooled is None:
+            continue
+        where = ""
+        if spread is not None and spread[1]:
+            where = f" (median {spread[0]:.3g} mm; above the probe radius at {spread[1]} of {spread[2]} positions)"
+        lines.append(f"Cramér-Rao bound (RMS over positions), {name}: {pooled:.3g} mm{where}")
     lines.append(f"wrote {report.files['report']} ({report.time_s:.1f} s)")
     return "\n".join(lines)

@@ -168,20 +168,40 @@ def _like_for_like(table: pd.DataFrame, paper: Mapping[str, float], data: Baseli
     return lines
 
 
-def _bound_text(bound: float, nuisance_bound: float | None, table: pd.DataFrame) -> list[str]:
-    """The physical limit: the electronics-only bound (the memorisation flag) beside the bound with nuisances."""
+def _spread_row(spread: tuple[float, int, int] | None) -> list[str]:
+    """A table row under a pooled bound: its median over positions, and where it exceeds the probe radius."""
+    if spread is None or spread[1] == 0:
+        return []
+    return [
+        f"| the same, median over the {spread[2]} positions (above the probe radius at {spread[1]} of them) "
+        f"| {sig3(spread[0])} |"
+    ]
+
+
+def _bound_text(
+    bound: float,
+    nuisance_bound: float | None,
+    table: pd.DataFrame,
+    spreads: Mapping[str, tuple[float, int, int] | None] | None = None,
+) -> list[str]:
+    """The physical limit: the electronics-only bound (the memorisation flag) beside the bound with nuisances, and
+    where some positions' bound exceeds the probe radius, each bound's median over positions (for planning; the
+    pooled RMS is held by those few positions, or infinite)."""
+    spreads = spreads or {}
     lines = [
         f"## Physical limit (`{PHYSICAL_LIMIT_NAME}`)",
         "",
         "| bound on the RMS position error, pooled as sqrt(mean CRB²) over positions | mm |",
         "|---|---:|",
         f"| electronics only (`crb_mm`): depth, fluid drift and landing point known | {sig3(bound)} |",
+        *_spread_row(spreads.get("crb_mm")),
     ]
     if nuisance_bound is not None:
         lines.append(
             f"| with the scene's press depth jitter, fluid drift and placement error as nuisances "
             f"(`crb_nuisance_mm`; priors in the file's metadata) | {sig3(nuisance_bound)} |"
         )
+        lines += _spread_row(spreads.get("crb_nuisance_mm"))
     lines += [
         "",
         "Both are Cramér-Rao bounds on the RMS error of any unbiased estimator of a press's position from its "
@@ -189,6 +209,16 @@ def _bound_text(bound: float, nuisance_bound: float | None, table: pd.DataFrame)
         "or median error below half of it) is flagged as memorisation: it can only come from memorising training "
         "positions (a split by row).",
     ]
+    if not np.isfinite(bound):
+        lines += [
+            "",
+            "Here the electronics-only bound is infinite at some positions (a press on a channel the probe shuts "
+            "tells which channel, not where along it), so the pooled bound is too: no result is flagged by it. "
+            "The median over positions says what the skin measures at a typical position, and the count above "
+            "the probe radius where it cannot place a press within its own footprint; they are for planning, "
+            "not compared with the errors (`physical_limit.parquet` and the bound map have it position by "
+            "position).",
+        ]
     if nuisance_bound is not None:
         lines += [
             "",
@@ -231,6 +261,7 @@ def markdown_report(
     bound: float | None,
     splits: Sequence[str],
     nuisance_bound: float | None = None,
+    spreads: Mapping[str, tuple[float, int, int] | None] | None = None,
     files: Mapping[str, Path],
     random_state: int | None,
     notes: Sequence[str],
@@ -265,7 +296,7 @@ def markdown_report(
         "",
     ]
     if bound is not None:
-        lines += _bound_text(bound, nuisance_bound, table)
+        lines += _bound_text(bound, nuisance_bound, table, spreads)
     lines += floors_section(table, read_floors(data.physical_limit))
     lm_note = (
         f"The LM network trains {lm_restarts} network(s) per repeat (best on validation)."
