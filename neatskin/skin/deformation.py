@@ -23,6 +23,8 @@ Model (documented with its parameters in docs/skin.md):
   length); each panel gets Gauss-Legendre with `nodes_per_panel` nodes, and the error falls
   exponentially with the node count (table in docs/skin.md; held against QUADPACK in
   tests/test_skin_deformation.py, against a 64-node reference in benchmarks/bench_skin.py).
+  A side whose pinch peaks above 0.9 (near full depth, under or right by the probe) gets graded
+  panels instead (`_side_panels`).
   A channel pinched shut over any length has F = inf (conductance 0).
 
 Everything is vectorised over presses x channels x nodes; presses are processed in chunks, and
@@ -254,12 +256,14 @@ def _side_panels(perp2, base, active, a, decay, p0, max_nodes, standard_edges=_P
         graded[deep] = peak > _GRADED_FROM_P0
         peak = peak[peak > _GRADED_FROM_P0]
     batches = []
-    for pick, panel_edges in ((~graded, standard_edges), (graded, _graded_edges(peak))):
-        sides = np.flatnonzero(pick)
+    groups: list[tuple[np.ndarray | None, np.ndarray]] = [(None, standard_edges)]  # None: every live side
+    if graded.any():
+        groups = [(np.flatnonzero(~graded), standard_edges), (np.flatnonzero(graded), _graded_edges(peak))]
+    for sides, panel_edges in groups:
+        count = live.size if sides is None else sides.size
         step = max(1, max_nodes // (panel_edges.size - 1))
-        for lo in range(0, sides.size, step):
-            whole = sides.size == live.size and sides.size <= step  # one batch of every side: no gathering
-            k = slice(None) if whole else sides[lo : lo + step]
+        for lo in range(0, count, step):
+            k = slice(lo, lo + step) if sides is None else sides[lo : lo + step]  # a slice: views, no gathering
             side_active = active.reshape(-1)[live[k]]
             edges = np.minimum(panel_edges[:, None] * side_decay[k], side_active)
             edges[-1] = side_active  # (panels + 1, m)
