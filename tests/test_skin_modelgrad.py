@@ -167,3 +167,46 @@ def test_sides_batched_to_fit_the_buffers_give_the_same_numbers(monkeypatch):
     np.testing.assert_allclose(batched[0], whole[0], rtol=1e-15)
     np.testing.assert_allclose(batched[1], whole[1], rtol=1e-13, atol=1e-13 * np.nanmax(np.abs(whole[1])))
     np.testing.assert_allclose(whole[0], resistance_factor(LAYOUT, x, y, depth, 2.75, PinchParams(), scale), rtol=1e-14)
+
+
+def test_the_network_part_is_exact_on_a_ring_of_channels():
+    """A 2 x 2 grid is a ring of 4 channels: between two junctions R_eq = A B / (A + B) (A, B the two arcs' sums) and
+    dR_eq/dR_c = (B / (A + B))^2 for a channel on arc A, exact rationals (Fractions) for integer factors. 1,000 rows
+    (two chunks of the reused temporaries), one in ten with a channel shut (NaN)."""
+    from fractions import Fraction
+
+    from neatskin.skin.layouts import grid_layout
+    from neatskin.skin.modelgrad import pair_resistance_and_gradient
+
+    ring = grid_layout(2, 2, pitch_mm=15.0)
+    order = [0, 1, 3, 2]  # junctions around the ring; channel c joins ring[c] and ring[c + 1]
+    arc_channel = {
+        frozenset((order[k], order[(k + 1) % 4])): c
+        for k in range(4)
+        for c in range(4)
+        if set(ring.channel_ends[c]) == {order[k], order[(k + 1) % 4]}
+    }
+    rng = np.random.default_rng(2)
+    n = 1000
+    factor = rng.integers(1, 6, (n, 4)).astype(float)
+    factor[::10, 1] = np.inf
+    factor_grad = rng.integers(-3, 4, (n, 4, 3)).astype(float)
+    baseline = np.array([3.0, 5.0, 7.0, 11.0])
+    r_eq, jac = pair_resistance_and_gradient(ring, factor, factor_grad, baseline)
+    assert np.all(np.isnan(r_eq[::10])) and np.all(np.isnan(jac[::10]))
+    for row in rng.choice(np.flatnonzero(np.isfinite(factor).all(axis=1)), 40, replace=False):
+        ohm = [Fraction(int(baseline[c])) * int(factor[row, c]) for c in range(4)]
+        for p, (i, j) in enumerate(ring.pair_electrode_index):
+            a, b = order.index(int(ring.electrode_junctions[i])), order.index(int(ring.electrode_junctions[j]))
+            lo, hi = min(a, b), max(a, b)
+            arc_a = [arc_channel[frozenset((order[k], order[k + 1]))] for k in range(lo, hi)]
+            arc_b = [c for c in range(4) if c not in arc_a]
+            sum_a, sum_b = sum(ohm[c] for c in arc_a), sum(ohm[c] for c in arc_b)
+            total = sum_a + sum_b
+            assert r_eq[row, p] == pytest.approx(float(sum_a * sum_b / total), rel=1e-13)
+            d_ohm = {c: ((sum_b if c in arc_a else sum_a) / total) ** 2 for c in range(4)}  # dR_eq / dR_c
+            expected = [
+                float(sum(d_ohm[c] * int(baseline[c]) * int(factor_grad[row, c, k]) for c in range(4)))
+                for k in range(3)
+            ]
+            np.testing.assert_allclose(jac[row, p], expected, rtol=1e-12, atol=1e-12 * float(total))

@@ -48,14 +48,22 @@ _BUFFER_MAX = 1 << 21  # float64 elements (16 MB) kept at most; `_side_panels` b
 def _buffers(count: int, shape: tuple[int, ...]) -> list[np.ndarray]:
     """`count` uninitialised arrays of `shape`, views of one per-thread block kept between calls (larger calls get
     their own)."""
-    size = math.prod(shape)
-    if count * size > _BUFFER_MAX:
-        return [np.empty(shape) for _ in range(count)]
+    return _arrays(*([shape] * count))
+
+
+def _arrays(*shapes: tuple[int, ...]) -> list[np.ndarray]:
+    """Uninitialised arrays of these shapes, views of one per-thread block kept between calls (larger calls get
+    their own). A caller's arrays are dead by the next call in the thread: nothing returned is such a view."""
+    sizes = [math.prod(shape) for shape in shapes]
+    total = sum(sizes)
+    if total > _BUFFER_MAX:
+        return [np.empty(shape) for shape in shapes]
     block = getattr(_BUFFERS, "block", None)
-    if block is None or block.size < count * size:
-        block = np.empty(max(count * size, 1 << 16))
+    if block is None or block.size < total:
+        block = np.empty(max(total, 1 << 16))
         _BUFFERS.block = block
-    return [block[k * size : (k + 1) * size].reshape(shape) for k in range(count)]
+    offsets = np.cumsum([0, *sizes])
+    return [block[lo:hi].reshape(shape) for lo, hi, shape in zip(offsets[:-1], offsets[1:], shapes)]
 
 
 def factor_and_gradient(
@@ -161,13 +169,24 @@ def pair_resistance_and_gradient(
     ok = np.all(np.isfinite(factor) & (g > 0), axis=1)
     r_eq = np.full((factor.shape[0], pairs.shape[1]), np.nan)
     jac = np.full((*r_eq.shape, 3), np.nan)
-    if not ok.any():
-        return r_eq, jac
-    lap = np.matmul(incidence * g[ok, None, :], incidence.T)  # (n, free, free)
-    potentials = np.matmul(np.linalg.inv(lap), pairs)  # Z (e_a - e_b), (n, free, pairs)
-    r_eq[ok] = np.sum(potentials * pairs, axis=1)
-    drop = np.matmul(incidence.T, potentials)  # (n, C, pairs): the potential drop across each channel
-    drop *= drop
-    weight = g[ok, :, None] * factor_grad[ok] / factor[ok, :, None]  # (n, C, 3)
-    jac[ok] = np.matmul(drop.transpose(0, 2, 1), weight)
+    for rows in _press_chunks(ok):  # chunks whose temporaries fit the reused block
+        r_eq[rows], jac[rows] = _network_chunk(incidence, pairs, g[rows], factor[rows], factor_grad[rows])
     return r_eq, jac
+
+
+def _network_chunk(incidence, pairs, g, factor, factor_grad):
+    """R_eq (m, pairs) and its gradient (m, pairs, 3) of presses with every channel conducting. The temporaries are
+    views of the reused block: fresh, their page faults cost as much as the arithmetic (measured 5.4 -> 2.5 us a
+    row for 256 presses, the same bits)."""
+    m, (free, n_pairs), n_channels = g.shape[0], pairs.shape, incidence.shape[1]
+    scaled, lap, potentials, product, drop = _arrays(
+        (m, free, n_channels), (m, free, free), (m, free, n_pairs), (m, free, n_pairs), (m, n_channels, n_pairs)
+    )
+    np.multiply(incidence, g[:, None, :], out=scaled)
+    np.matmul(scaled, incidence.T, out=lap)  # (m, free, free)
+    np.matmul(np.linalg.inv(lap), pairs, out=potentials)  # Z (e_a - e_b), (m, free, pairs)
+    r_eq = np.sum(np.multiply(potentials, pairs, out=product), axis=1)
+    np.matmul(incidence.T, potentials, out=drop)  # (m, C, pairs): the potential drop across each channel
+    drop *= drop
+    weight = g[:, :, None] * factor_grad / factor[:, :, None]  # (m, C, 3)
+    return r_eq, np.matmul(drop.transpose(0, 2, 1), weight)
