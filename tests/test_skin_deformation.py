@@ -227,7 +227,7 @@ def test_standard_panels_on_every_side_of_a_near_full_press_fail_the_bound(singl
 
 def test_a_near_full_press_grades_only_the_sides_it_peaks_on(paper_layout, monkeypatch):
     """A press to 0.95 of the skin on a channel's middle: the channels whose pinch peaks at most 0.9 keep the
-    standard panels bit for bit (the same numbers as with grading off); the channels under the probe do not."""
+    standard panels (the numbers of grading off); the channels under the probe do not."""
     x, y, depth = np.array([7.5, 15.0]), np.array([0.0, 7.5]), np.full(2, 0.95 * paper_layout.thickness_mm)
     graded = resistance_factor(paper_layout, x, y, depth, PROBE_MM)
     monkeypatch.setattr(deformation, "_GRADED_FROM_P0", 2.0)
@@ -241,8 +241,9 @@ def test_a_near_full_press_grades_only_the_sides_it_peaks_on(paper_layout, monke
         peak = 0.95 * np.exp(-((np.maximum(gap, 0.0) / decay) ** 2))
         low = peak <= 0.9
         assert 0 < low.sum() < low.size  # both kinds of channel
-        np.testing.assert_array_equal(graded[k, low], standard[k, low])
-        assert np.all(graded[k, ~low] != standard[k, ~low])
+        # to rounding (the BLAS dot's batches differ); grading every side moves them by up to 3e-10 here
+        np.testing.assert_allclose(graded[k, low], standard[k, low], rtol=1e-15)
+        assert np.all(np.abs(graded[k, ~low] / standard[k, ~low] - 1) > 1e-7)  # the graded ones: 2.4e-6
 
 
 @pytest.mark.parametrize("x, y", [(7.5, 0.0), (-2.0, 1.0), (7.5, 2.8)])
