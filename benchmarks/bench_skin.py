@@ -6,7 +6,9 @@ Prints (1) the batched GTH solve against a per-press numpy.linalg.pinv loop on t
 layout, (2) the same on a 30 x 30 grid (sparse path), (3) the whole press -> R_eq pipeline at
 deformation and network fidelity (target: >= 100,000 presses/s for the paper's layout at
 deformation fidelity on one core), (4) the deformation integral's error against run time over
-quadrature resolutions. Runs on one core: BLAS/OpenMP threads are pinned to 1 before numpy loads.
+quadrature resolutions, (5) presses near full depth, (6) the physics inversion's calls (value and Jacobian,
+us a row at 0.5 and 0.95 of the thickness), with --base DIR beside another checkout's skin/deformation.py and
+skin/modelgrad.py loaded into the same process (alternating; --gradient-only runs just that). Runs on one core: BLAS/OpenMP threads are pinned to 1 before numpy loads.
 Times are the best of --repeats runs (the machine may be shared).
 """
 
@@ -152,14 +154,82 @@ def near_full_section(layout, repeats):
         print(f"  {q:>11d} {err(plain):>16.1e} {err(graded):>14.1e} {x.size / t:>17,.0f}{mark}")
 
 
+def _checkout_skin(base_dir: Path):
+    """Another checkout's deformation and modelgrad as modules of their own (modelgrad bound to that deformation)."""
+    import sys
+    import types
+
+    modules = []
+    for name, replace in (("deformation", ()), ("modelgrad", (("neatskin.skin.deformation", "base_deformation"),))):
+        path = base_dir / "neatskin" / "skin" / f"{name}.py"
+        source = path.read_text()
+        for old, new in replace:
+            source = source.replace(old, new)
+        module = types.ModuleType(f"base_{name}")
+        module.__file__ = str(path)
+        sys.modules[module.__name__] = module
+        exec(compile(source, str(path), "exec"), module.__dict__)
+        modules.append(module)
+    return modules
+
+
+def gradient_section(layout, rows: int, repeats: int, base_dir: Path | None) -> None:
+    """us a row of the inversion's calls: the channel factors and their gradient, the value and Jacobian, the value;
+    rows random presses over the skin at one depth, best of `repeats` (each a loop of calls), alternating."""
+    from neatskin.skin import deformation, modelgrad
+
+    skin = SkinModel(layout, probe_radius_mm=2.75)
+    ohm = skin.channel_baseline_ohm
+    rng = np.random.default_rng(0)
+    x, y = rng.uniform(0, 30, rows), rng.uniform(0, 30, rows)
+    sides = {"this": (deformation, modelgrad)}
+    if base_dir is not None:
+        sides = {"base": tuple(_checkout_skin(base_dir)), **sides}
+
+    def calls(dfm, mg, d):
+        def value():
+            with np.errstate(divide="ignore"):
+                return equivalent_resistance(layout, 1.0 / (dfm.resistance_factor(layout, x, y, d, 2.75) * ohm))
+
+        def jacobian():
+            return mg.pair_resistance_and_gradient(layout, *mg.factor_and_gradient(layout, x, y, d, 2.75), ohm)
+
+        return {
+            "factor_and_gradient": lambda: mg.factor_and_gradient(layout, x, y, d, 2.75),
+            "value + Jacobian (pair_resistance_and_jacobian_ohm)": jacobian,
+            "value (pair_resistance_ohm's path)": value,
+        }
+
+    loops = max(3, 3000 // rows)
+    print(f"\nphysics inversion's calls, us a row ({rows} presses, best of {repeats} x {loops} calls, alternating)")
+    print(f"  {'depth':>6s} {'call':52s} " + " ".join(f"{name:>7s}" for name in sides))
+    for fraction in (0.5, 0.95):
+        d = np.full(rows, fraction * layout.thickness_mm)
+        per_side = {name: calls(*modules, d) for name, modules in sides.items()}
+        for call in per_side["this"]:
+            best = dict.fromkeys(sides, np.inf)
+            for _ in range(repeats):
+                for name in sides:
+                    fn = per_side[name][call]
+                    fn()
+                    best[name] = min(best[name], best_time(lambda f=fn: [f() for _ in range(loops)], 1) / loops)
+            print(f"  {fraction:>5.2f}T {call:52s} " + " ".join(f"{best[k] / rows * 1e6:>7.2f}" for k in sides))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--presses", type=int, default=100_000)
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--base", type=Path, help="another checkout to compare the inversion's calls with")
+    parser.add_argument("--gradient-only", action="store_true", help="only the inversion's calls")
+    parser.add_argument("--rows", type=int, default=256, help="presses per call of the inversion's calls")
     args = parser.parse_args()
     rng = np.random.default_rng(0)
     paper = load_layout(REPO / "protocols" / "skins" / "paper.toml")
-    print(f"bench_skin: one core, best of {args.repeats}")
+    print(f"bench_skin: one core, best of {args.repeats}; load {' '.join(open('/proc/loadavg').read().split()[:3])}")
+    if args.gradient_only:
+        gradient_section(paper, args.rows, args.repeats, args.base)
+        return
     solver_section("network solver, paper layout", paper, args.presses, 2000, args.repeats, rng)
     solver_section(
         "network solver, 30 x 30 grid", grid_layout(30, 30, pitch_mm=5.0), 200, 4, max(1, args.repeats // 2), rng
@@ -167,6 +237,7 @@ def main() -> None:
     pipeline_section(paper, args.presses, args.repeats, rng)
     quadrature_section(paper, min(args.presses, 20_000), args.repeats, rng)
     near_full_section(paper, args.repeats)
+    gradient_section(paper, args.rows, args.repeats, args.base)
 
 
 if __name__ == "__main__":

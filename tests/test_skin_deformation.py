@@ -5,8 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.integrate import quad
 
+from neatskin.skin import deformation
 from neatskin.skin.deformation import (
     PinchParams,
     factor_and_length_fraction,
@@ -26,8 +29,8 @@ def single():
     return grid_layout(2, 2, pitch_mm=15.0)
 
 
-def quad_reference(layout, x, y, depth, params=PinchParams()):
-    """Adaptive QUADPACK integral of 1 / (1 - p(r(s))) over channel 0, split at the kinks."""
+def quad_reference(layout, x, y, depth, params=PinchParams(), volume=False):
+    """Adaptive QUADPACK integral of 1 / (1 - p(r(s))) (or of p, volume) over channel 0, split at the kinks."""
     start = layout.xy_mm[layout.channel_ends[0, 0]]
     end = layout.xy_mm[layout.channel_ends[0, 1]]
     length = float(np.hypot(*(end - start)))
@@ -36,7 +39,8 @@ def quad_reference(layout, x, y, depth, params=PinchParams()):
     def integrand(s):
         px, py = start + s * unit
         r = np.hypot(x - px, y - py)
-        return 1.0 / (1.0 - pinch_fraction(r, depth, PROBE_MM, layout.thickness_mm, layout.channel_depth_mm, params))
+        p = pinch_fraction(r, depth, PROBE_MM, layout.thickness_mm, layout.channel_depth_mm, params)
+        return p if volume else 1.0 / (1.0 - p)
 
     s0 = (x - start[0]) * unit[0] + (y - start[1]) * unit[1]
     perp = abs((x - start[0]) * unit[1] - (y - start[1]) * unit[0])
@@ -170,3 +174,84 @@ def test_one_pass_for_factor_and_length_fraction_gives_the_bits_of_two():
         np.testing.assert_array_equal(share, expected_share)
         assert np.all(factor[:3] == 1.0) and np.all(share[:3] == 0.0)
         assert np.isinf(factor).any()  # some press shuts a channel
+
+
+# ---- near full depth: graded panels for the sides the pinch peaks on, the standard ones for the rest ----------------
+
+
+def _near_full_errors(layout, x, y, depth) -> tuple[float, float]:
+    """Relative errors of channel 0's factor and length fraction against QUADPACK (the share's floored at 1e-7 of
+    the channel: a far press's share is ~1e-16, rounding)."""
+    factor, share = factor_and_length_fraction(layout, x, y, depth, PROBE_MM)
+    ref_factor = quad_reference(layout, x, y, depth)
+    ref_share = quad_reference(layout, x, y, depth, volume=True)
+    return abs(factor[0, 0] / ref_factor - 1), abs(share[0, 0] - ref_share) / max(ref_share, 1e-7)
+
+
+def _switch_offset_mm(layout, depth) -> float:
+    """The channel's distance from the probe axis at which its pinch peaks at exactly _GRADED_FROM_P0 (p0 > 0.9)."""
+    p0 = depth / layout.thickness_mm
+    decay = 0.5 * (layout.channel_depth_mm + depth)
+    return PROBE_MM + decay * float(np.sqrt(np.log(p0 / deformation._GRADED_FROM_P0)))
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    p0=st.floats(0.9, 0.99999, exclude_min=True),
+    x=st.floats(-4.0, 19.0),  # along the 15 mm channel, past both ends
+    where=st.sampled_from(["anywhere", "grazing", "at the switch"]),
+    offset=st.floats(-1.0, 1.0),
+)
+def test_near_full_presses_within_the_bound_of_quadpack(single, p0, x, where, offset):
+    """Presses deeper than 0.9 of the skin, anywhere, with the channel grazing the footprint (perp ~ a, the peak
+    spread over the outer panels), or where its peak crosses 0.9 (the side switches panels): both integrals hold
+    the ordinary presses' bound (1e-5)."""
+    depth = p0 * single.thickness_mm
+    y = {"anywhere": 6.0 * offset, "grazing": PROBE_MM + 0.05 * offset}[where] if where != "at the switch" else 0.0
+    if where == "at the switch":
+        y = _switch_offset_mm(single, depth) + 0.05 * offset
+    factor_error, share_error = _near_full_errors(single, x, y, depth)
+    assert factor_error < 1e-5 and share_error < 1e-5
+
+
+@pytest.mark.parametrize("p0", [0.99, 0.999])
+@pytest.mark.parametrize("x, y", [(7.5, 0.0), (7.5, 1.0), (-2.0, 1.0), (16.5, 0.5)])
+def test_standard_panels_on_every_side_of_a_near_full_press_fail_the_bound(single, monkeypatch, p0, x, y):
+    """Negative control: the unsafe shortcut (no side graded) misses the bound for a channel under the probe or
+    past its end, where the test above holds it."""
+    depth = p0 * single.thickness_mm
+    assert _near_full_errors(single, x, y, depth)[0] < 1e-5
+    monkeypatch.setattr(deformation, "_GRADED_FROM_P0", 2.0)
+    assert _near_full_errors(single, x, y, depth)[0] > 1e-5
+
+
+def test_a_near_full_press_grades_only_the_sides_it_peaks_on(paper_layout, monkeypatch):
+    """A press to 0.95 of the skin on a channel's middle: the channels whose pinch peaks at most 0.9 keep the
+    standard panels (the numbers of grading off); the channels under the probe do not."""
+    x, y, depth = np.array([7.5, 15.0]), np.array([0.0, 7.5]), np.full(2, 0.95 * paper_layout.thickness_mm)
+    graded = resistance_factor(paper_layout, x, y, depth, PROBE_MM)
+    monkeypatch.setattr(deformation, "_GRADED_FROM_P0", 2.0)
+    standard = resistance_factor(paper_layout, x, y, depth, PROBE_MM)
+    start, unit, length = deformation._channel_geometry(paper_layout)
+    for k in range(2):
+        rel = np.array([x[k], y[k]]) - start
+        along = np.clip(rel[:, 0] * unit[:, 0] + rel[:, 1] * unit[:, 1], 0.0, length)
+        gap = np.hypot(rel[:, 0] - along * unit[:, 0], rel[:, 1] - along * unit[:, 1]) - PROBE_MM
+        decay = 0.5 * (paper_layout.channel_depth_mm + depth[k])
+        peak = 0.95 * np.exp(-((np.maximum(gap, 0.0) / decay) ** 2))
+        low = peak <= 0.9
+        assert 0 < low.sum() < low.size  # both kinds of channel
+        # to rounding (the BLAS dot's batches differ); grading every side moves them by up to 3e-10 here
+        np.testing.assert_allclose(graded[k, low], standard[k, low], rtol=1e-15)
+        assert np.all(np.abs(graded[k, ~low] / standard[k, ~low] - 1) > 1e-7)  # the graded ones: 2.4e-6
+
+
+@pytest.mark.parametrize("x, y", [(7.5, 0.0), (-2.0, 1.0), (7.5, 2.8)])
+def test_a_lower_channel_near_full_is_graded_by_its_own_pinch(single, x, y):
+    """Fabrication heights: channel 0 at 0.8 of the others' height loses 1.25 x their pinch, so a press to 0.792 of
+    the skin (0.792 for the others, nowhere near full) brings it to p0 = 0.99: its sides are graded by its own p0
+    and hold the bound (the reference: the same pinch as a gain of 1.25)."""
+    depth = 0.792 * single.thickness_mm
+    scale = np.array([1.25, 1.0, 1.0, 1.0])
+    factor = resistance_factor(single, x, y, depth, PROBE_MM, pinch_scale=scale)[0, 0]
+    assert factor == pytest.approx(quad_reference(single, x, y, depth, PinchParams(pinch_gain=1.25)), rel=1e-5)

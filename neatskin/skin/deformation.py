@@ -23,6 +23,8 @@ Model (documented with its parameters in docs/skin.md):
   length); each panel gets Gauss-Legendre with `nodes_per_panel` nodes, and the error falls
   exponentially with the node count (table in docs/skin.md; held against QUADPACK in
   tests/test_skin_deformation.py, against a 64-node reference in benchmarks/bench_skin.py).
+  A side whose pinch peaks above 0.9 (near full depth, under or right by the probe) gets graded
+  panels instead (`_side_panels`).
   A channel pinched shut over any length has F = inf (conductance 0).
 
 Everything is vectorised over presses x channels x nodes; presses are processed in chunks, and
@@ -159,20 +161,14 @@ def _integrate(layout, x_mm, y_mm, depth_mm, probe_radius_mm, params, pinch_scal
     )
     scale = None if pinch_scale is None else np.asarray(pinch_scale, float).reshape(1, layout.n_channels)
     out = np.empty((x.shape[0], layout.n_channels) if volume is not None else (2, x.shape[0], layout.n_channels))
-    p0 = np.minimum(1.0, params.pinch_gain * np.maximum(depth, 0.0) / layout.thickness_mm)
-    if scale is not None:
-        p0 = np.minimum(1.0, p0 * scale.max())
-    near_full = p0 > _GRADED_FROM_P0
-    untouched = depth <= 0  # exactly 1 (no volume) without the quadrature: `_factor_chunk` sets the same
+    untouched = ~(depth > 0)  # exactly 1 (no volume) without the quadrature (NaN too): `_factor_chunk` sets the same
     if volume is None:
         out[0, untouched], out[1, untouched] = 1.0, 0.0
     else:
         out[untouched] = 0.0 if volume else 1.0
-    for group, edges in ((~near_full & ~untouched, _PANEL_EDGES), (near_full, _graded_edges(p0[near_full]))):
-        idx = np.flatnonzero(group)
-        for lo in range(0, idx.size, _CHUNK_PRESSES):
-            sl = idx[lo : lo + _CHUNK_PRESSES]
-            out[..., sl, :] = _factor_chunk(layout, x[sl], y[sl], depth[sl], radius[sl], params, scale, volume, edges)
+    # the chunks are modelgrad.factor_and_gradient's (the graded panels depend on a chunk's deepest side)
+    for sl in _press_chunks(~untouched):
+        out[..., sl, :] = _factor_chunk(layout, x[sl], y[sl], depth[sl], radius[sl], params, scale, volume)
     return out
 
 
@@ -190,15 +186,22 @@ def _node_buffer(shape: tuple[int, ...]) -> np.ndarray:
     return buffer[:size].reshape(shape)
 
 
-def _graded_edges(p0: np.ndarray) -> np.ndarray:
-    """Panel edges (in decay lengths) for presses near full depth: the standard ones, with the first panel
-    cut geometrically towards the footprint's edge down to the narrowest peak's half-width."""
-    if p0.size == 0:
+def _graded_edges(peak: np.ndarray) -> np.ndarray:
+    """Panel edges (in decay lengths) for the sides whose pinch peaks above _GRADED_FROM_P0: the standard ones, with
+    the first panel cut geometrically towards the side's start down to the highest peak's half-width."""
+    if peak.size == 0:
         return _PANEL_EDGES
-    peak = np.sqrt(max(1.0 - float(p0.max()), 1e-300) / float(p0.max()))
-    levels = int(np.clip(np.ceil(np.log(_PANEL_EDGES[1] / peak) / np.log(_GRADING_RATIO)), 1, _MAX_GRADING_LEVELS))
+    width = np.sqrt(max(1.0 - float(peak.max()), 1e-300) / float(peak.max()))
+    levels = int(np.clip(np.ceil(np.log(_PANEL_EDGES[1] / width) / np.log(_GRADING_RATIO)), 1, _MAX_GRADING_LEVELS))
     graded = _PANEL_EDGES[1] * _GRADING_RATIO ** -np.arange(levels, 0, -1.0)
     return np.concatenate([[0.0], graded, _GRADED_OUTER_EDGES])
+
+
+def _press_chunks(touching: np.ndarray) -> list[np.ndarray]:
+    """The touching presses' indices in chunks of _CHUNK_PRESSES: one chunking for the value (here) and the
+    gradient (modelgrad), as a chunk's graded panels depend on its deepest side."""
+    idx = np.flatnonzero(touching)
+    return [idx[lo : lo + _CHUNK_PRESSES] for lo in range(0, idx.size, _CHUNK_PRESSES)]
 
 
 def _footprint_sides(x, y, a, decay, start, unit, length):
@@ -207,10 +210,10 @@ def _footprint_sides(x, y, a, decay, start, unit, length):
     axis' foot s0 to the footprint's edge (base), the side's length (side_len) and the stretch beyond the edge still
     to integrate (active).
 
-    The two sides outside the footprint are integrated as panels [edge, edge + l] and [edge + l, end]; only
-    (s - s0)^2 enters, and on side k, s - s0 = sign_k * (base_k + offset). Beyond r = a + CUTOFF * l the pinch is
-    below 1e-16: that stretch is exactly its length, so `active` stops there. Shared by the resistance integral and
-    its analytic gradient (modelgrad), so both integrate the same panels."""
+    The two sides outside the footprint are integrated as panels from the edge (`_side_panels`); only (s - s0)^2
+    enters, and on side k, s - s0 = sign_k * (base_k + offset). Beyond r = a + CUTOFF * l the pinch is below 1e-16:
+    that stretch is exactly its length, so `active` stops there. Shared by the resistance integral and its analytic
+    gradient (modelgrad), so both integrate the same panels."""
     rel_x, rel_y = x[:, None] - start[:, 0], y[:, None] - start[:, 1]  # (n, C)
     s0 = rel_x * unit[:, 0] + rel_y * unit[:, 1]
     perp = rel_x * unit[:, 1] - rel_y * unit[:, 0]
@@ -225,7 +228,53 @@ def _footprint_sides(x, y, a, decay, start, unit, length):
     return perp, perp2, foot_hi - foot_lo, base, side_len, active
 
 
+def _side_panels(perp2, base, active, a, decay, p0, max_nodes, standard_edges=_PANEL_EDGES):
+    """The live sides (active > 0) of a chunk and their panels, in batches of at most `max_nodes` panels x sides:
+    tuples (live, side_of, press_of, width, begin) of the flat side indices, their (press, channel) and press
+    indices, and the panels' widths and starts (panels, m) along the side from s0.
+
+    A side's integrand 1 / (1 - P) peaks where it starts (tau = base, the point nearest the probe axis) at
+    P_max = p0 exp(-((r_min - a)^+ / l)^2). In u = (r - a) / l its nearest singularity (p0 exp(-u^2) = 1) lies
+    sqrt(u_min^2 - ln p0) = sqrt(-ln P_max) from u_min: a side with P_max <= _GRADED_FROM_P0 is no sharper than a
+    press of the standard panels' range (p0 <= 0.9) and gets them; the others get `_graded_edges`, graded by the
+    chunk's highest peak. Only the 2-4 sides under or right by a deep probe are graded, not all 20-odd live ones."""
+    live = np.flatnonzero(active > 0)
+    side_of = live >> 1  # flat (press, channel) index of each live side
+    press_of = side_of // active.shape[1]
+    per_side = lambda v: _per_side(v, press_of, side_of)  # noqa: E731
+    side_base = base.reshape(-1)[live]
+    side_decay = per_side(decay)
+    graded = np.zeros(live.size, dtype=bool)
+    peak = np.zeros(0)
+    if np.max(p0, initial=0.0) > _GRADED_FROM_P0:  # P_max <= p0: only a deep chunk has sides to grade
+        deep = np.flatnonzero(per_side(p0) > _GRADED_FROM_P0)
+        lift = np.sqrt(side_base[deep] * side_base[deep] + perp2.reshape(-1)[side_of[deep]])  # r_min
+        lift -= per_side(a)[deep] if np.ndim(a) else a
+        np.maximum(lift, 0.0, out=lift)
+        lift /= side_decay[deep]
+        peak = per_side(p0)[deep] * np.exp(-lift * lift)
+        graded[deep] = peak > _GRADED_FROM_P0
+        peak = peak[peak > _GRADED_FROM_P0]
+    batches = []
+    groups: list[tuple[np.ndarray | None, np.ndarray]] = [(None, standard_edges)]  # None: every live side
+    if graded.any():
+        groups = [(np.flatnonzero(~graded), standard_edges), (np.flatnonzero(graded), _graded_edges(peak))]
+    for sides, panel_edges in groups:
+        count = live.size if sides is None else sides.size
+        step = max(1, max_nodes // (panel_edges.size - 1))
+        for lo in range(0, count, step):
+            k = slice(lo, lo + step) if sides is None else sides[lo : lo + step]  # a slice: views, no gathering
+            side_active = active.reshape(-1)[live[k]]
+            edges = np.minimum(panel_edges[:, None] * side_decay[k], side_active)
+            edges[-1] = side_active  # (panels + 1, m)
+            width = edges[1:] - edges[:-1]
+            batches.append((live[k], side_of[k], press_of[k], width, side_base[k] + edges[:-1]))
+    return batches
+
+
 def _factor_chunk(layout, x, y, depth, radius, params, scale=None, volume=False, panel_edges=_PANEL_EDGES):
+    """(n, C) of the factor (volume False), the length share (True) or both stacked (None) of one chunk; panel_edges
+    are the standard panels (the sides peaking above _GRADED_FROM_P0 get graded ones)."""
     start, unit, length = _channel_geometry(layout)
     thickness, cdepth = layout.thickness_mm, layout.channel_depth_mm
     touching = depth > 0
@@ -235,53 +284,69 @@ def _factor_chunk(layout, x, y, depth, radius, params, scale=None, volume=False,
     p0 = np.minimum(1.0, p0 if scale is None else p0 * scale)
     decay = params.decay_ratio * (cdepth + d)
     _, perp2, foot, base, side_len, active = _footprint_sides(x, y, a, decay, start, unit, length)
-    # integrate only the sides with something left to integrate (far channels have none), laid out as
-    # (q, panels, sides) so every broadcast operand is a contiguous block; each live side's press and
-    # channel quantities are gathered by index (the values a broadcast to (n, C, 2) would hold)
-    live = np.flatnonzero(active > 0)
-    side_of = live >> 1  # flat (press, channel) index of each live side
-    press_of = side_of // length.size
-    side_active = active.reshape(-1)[live]
-    edges = np.minimum(panel_edges[:, None] * decay.reshape(-1)[press_of], side_active)  # (panels + 1, m)
-    edges[-1] = side_active
-    width = edges[1:] - edges[:-1]  # (panels, m)
-    begin = base.reshape(-1)[live] + edges[:-1]
-    per_press = lambda v: v.reshape(-1)[press_of if v.shape[-1] == 1 else side_of]  # noqa: E731
     nodes, weights = _gauss_legendre(params.nodes_per_panel)
+    sums = np.zeros((2, active.size))  # per side: the factor's integral, the length share's
+    # only the sides with something left to integrate (far channels have none), laid out as (q, panels, sides) so
+    # every broadcast operand is a contiguous block; each live side's press and channel quantities are gathered by
+    # index (the values a broadcast to (n, C, 2) would hold)
+    max_nodes = _NODE_BUFFER_MAX // nodes.size
+    for live, side_of, press_of, width, begin in _side_panels(
+        perp2, base, active, a, decay, p0, max_nodes, panel_edges
+    ):
+        r = _minus_pinch(nodes, width, begin, perp2, a, decay, p0, side_of, press_of)
+        if volume is not False:
+            sums[1, live] = _node_sums(True, r, weights, width)  # leaves p in r
+            np.negative(r, out=r)  # -p again, exactly
+        if volume is not True:
+            sums[0, live] = _node_sums(False, r, weights, width)
+    parts = (foot, p0, active, side_len, length, touching)
+    if volume is not None:
+        return _finish_chunk(bool(volume), sums[int(volume)], *parts)
+    return np.stack([_finish_chunk(False, sums[0], *parts), _finish_chunk(True, sums[1], *parts)])
+
+
+def _per_side(v, press_of, side_of):
+    """A press's (n, 1) or a (press, channel)'s (n, C) quantity at each live side (a scalar as it is): the value a
+    broadcast to (n, C, 2) would hold there."""
+    return v if np.ndim(v) == 0 else v.reshape(-1)[press_of if v.shape[-1] == 1 else side_of]
+
+
+def _minus_pinch(nodes, width, begin, perp2, a, decay, p0, side_of, press_of):
+    """-p at every node, (q, panels, m), in the reused node buffer."""
     r = np.multiply(nodes[:, None, None], width, out=_node_buffer((nodes.size, *width.shape)))
-    # (q, panels, m), in place from here: one pass per operation
+    # in place from here: one pass per operation
     r += begin
     np.multiply(r, r, out=r)
     r += perp2.reshape(-1)[side_of]
     np.sqrt(r, out=r)
-    r -= per_press(a)
+    r -= _per_side(a, press_of, side_of)
     np.multiply(r, r, out=r)  # outside the footprint r >= a, so this is (r - a)^2
-    r *= per_press(-1.0 / (decay * decay))
+    r *= _per_side(-1.0 / (decay * decay), press_of, side_of)
     np.exp(r, out=r)
-    r *= per_press(-p0)  # -p
-    parts = (foot, p0, weights, width, live, active, side_len, length, touching)
-    if volume is not None:
-        return _finish_chunk(bool(volume), r, *parts)
-    share = _finish_chunk(True, r, *parts)  # leaves p in r
-    np.negative(r, out=r)  # -p again, exactly
-    return np.stack([_finish_chunk(False, r, *parts), share])
+    r *= _per_side(-p0, press_of, side_of)  # -p
+    return r
 
 
-def _finish_chunk(volume, r, foot, p0, weights, width, live, active, side_len, length, touching):
-    """The integrand's last step (in place on r, (q, panels, m) of -p) and the sums: R / R0 or the length share."""
+def _node_sums(volume, r, weights, width):
+    """Each side's integral of p (volume) or of 1 / (1 - p), from r: (q, panels, m) of -p (used in place)."""
     if volume:
-        inner = foot * p0  # exact: p = p0 under the probe
         np.negative(r, out=r)
     else:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inner = np.where(foot > 0, foot / (1.0 - p0), 0.0)
         r += 1.0
         with np.errstate(divide="ignore"):
             np.reciprocal(r, out=r)
-    side_integral = np.zeros(active.size)
     # np.tensordot(weights, r, axes=(0, 0)) is this one dot of (1, q) by (q, panels * m), without its reshaping
     nodes_sum = np.dot(weights[None, :], r.reshape(r.shape[0], -1)).reshape(width.shape)
-    side_integral[live] = np.sum(nodes_sum * width, axis=0)
+    return np.sum(nodes_sum * width, axis=0)
+
+
+def _finish_chunk(volume, side_integral, foot, p0, active, side_len, length, touching):
+    """R / R0 (volume False) or the length share (True) of each (press, channel) from its sides' integrals."""
+    if volume:
+        inner = foot * p0  # exact: p = p0 under the probe
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inner = np.where(foot > 0, foot / (1.0 - p0), 0.0)
     beyond = 0.0 if volume else side_len - active  # past the reach p < 1e-16: exactly its length (or no volume)
     outer = np.sum(side_integral.reshape(active.shape) + beyond, axis=-1)
     factor = (inner + outer) / length
