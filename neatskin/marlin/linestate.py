@@ -6,7 +6,7 @@ caller feeds it what the printer said (`receive(data, now)`), the passing of tim
 and work (`start_session`, `submit`), and takes the bytes to write (`data_to_send()`) and how
 jobs ended (`events()`: Acknowledged or Failed, as h11 returns events; a Job is never mutated). Every wait it keeps has a
 deadline and every retry a cap, so a hostile peer ends in one MarlinError, never a loop.
-The transport around it (driver.py) owns the port, the reader thread and the clock.
+The transport around it (driver.py, link.py) owns the port, the reader thread and the clock.
 This module is the public face and the reading of replies; the machine is one class in three
 layers: the session's state and its send/acknowledge/fail steps (session.py), the recovery of
 lost lines and lost oks (recovery.py), and this (values live in jobs.py).
