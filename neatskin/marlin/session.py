@@ -28,6 +28,8 @@ log = logging.getLogger(__name__)
 
 @dataclass(eq=False)
 class SentLine:
+    """A line written to the printer: number, frame and deadlines, the job it carries (None: a probe), what came back."""
+
     n: int
     command: str
     data: bytes
