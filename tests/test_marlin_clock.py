@@ -157,7 +157,7 @@ def test_a_caller_reads_its_own_replies_and_the_reader_takes_over_when_it_is_gon
         assert reads - by_callers <= 1  # ... the reader thread stood by (one read it was in already, at most)
         assert driver.stats["lines_sent"] == 32  # M110, G28 and the 30 lines: nothing resent, nothing probed
         time.sleep(0.6)  # past READER_STANDBY_S: the reader reads the idle port again
-        assert driver._reading and driver.caller_reads - before_callers == by_callers
+        assert driver._link._reading and driver.caller_reads - before_callers == by_callers
         assert driver.send("M118 E1 after") == ["echo:after"]  # its read hands the reply over, as before
     finally:
         driver.close()

@@ -152,7 +152,7 @@ def test_a_failing_wire_log_is_named_as_such_not_as_a_dead_port(serve, tmp_path)
         def full(direction: str, data: bytes) -> None:
             raise OSError(errno.ENOSPC, "No space left on device")
 
-        driver._wire.write = full  # the disk fills up in mid-session
+        driver._link._wire.write = full  # the disk fills up in mid-session
         with pytest.raises(E.WireLogFailed) as info:
             driver.send("M400")
         assert "No space left" in str(info.value) and info.value.last_command == "G28"

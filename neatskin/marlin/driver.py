@@ -1,21 +1,20 @@
 """MarlinDriver: exactly-once, in-order G-code delivery to Marlin over any pyserial port object.
 
-The driver is the thin transport around the sans-IO `LineProtocol` (linestate.py): it owns the
-port (through one `Channel`, transport.py), a reader thread that feeds the protocol what it
-reads and the time, the writes the protocol asks for, the wire log, and the callers who block
-in `send` / `send_lines` until their jobs finish. All protocol decisions (resends, lost-`ok`
-probes, deadlines, caps) live in the state machine; every wait here ends when the protocol
-finishes or fails the job, and the protocol has a deadline for every line. Halts, resets and a
-dead port raise a MarlinError naming the last line acknowledged; after that nothing is sent but
-an M112 on request.
+The driver is the command API over the sans-IO `LineProtocol` (linestate.py) and its live link
+(link.py: the reader thread, the read right a waiting caller takes, the writes and the wire log):
+it opens the port (exclusively), connects and closes sessions, and turns commands into jobs and
+their endings into answers (`send`, `send_lines`, `position`, `endstops`, `sync`, `emergency_stop`,
+`stop_after_line_in_flight`), raising CommandRejected for a refused command. All protocol decisions
+(resends, lost-`ok` probes, deadlines, caps) live in the state machine; every wait ends when the
+protocol finishes or fails the job, and the protocol has a deadline for every line. Halts, resets
+and a dead port raise a MarlinError naming the last line acknowledged; after that nothing is sent
+but an M112 on request.
 """
 
 from __future__ import annotations
 
 import collections
-import logging
 import os
-import threading
 import time
 from collections.abc import Callable, Iterable
 from os import PathLike
@@ -24,16 +23,13 @@ from typing import Any
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.marlin import errors as E
 from neatskin.marlin.commands import CommandParser, clean_command
-from neatskin.marlin.jobs import Acknowledged, DriverConfig, Event, Failed, Job
+from neatskin.marlin.jobs import Acknowledged, DriverConfig, Job
 from neatskin.marlin.linestate import LineProtocol
+from neatskin.marlin.link import Link
 from neatskin.marlin.replies import Position, parse_m114, parse_m119
-from neatskin.marlin.transport import Channel, Clock, SerialPort, channel_for
-from neatskin.marlin.wirelog import WireLog
+from neatskin.marlin.transport import Clock, SerialPort, channel_for
 
 __all__ = ["DriverConfig", "MarlinDriver"]
-
-log = logging.getLogger(__name__)
-READER_STANDBY_S = 0.25  # the reader stands by this long after a caller waited (wall seconds: thread scheduling)
 
 
 class MarlinDriver:
@@ -56,35 +52,10 @@ class MarlinDriver:
         self.profile = profile
         self.wire_log_path = wire_log
         self.clock = clock
-        self._wire: WireLog | None = None
-        lock = threading.RLock()
-        self._cond = threading.Condition(lock)
-        self._reader: threading.Thread | None = None
-        self._channel: Channel | None = None
-        self._stop = threading.Event()
         self._protocol = LineProtocol(config, profile, self.port_name, rx_buffer_size=rx_buffer_size)
+        self._link = Link(self._protocol, config, clock, self.port_name)
         self._batch: list[Job] = []
-        # what callers block on: the reader wakes them only when one of these finished (or the session
-        # failed, or a drain ended), not for every `ok` of a batch: a waiter woken per line competes with
-        # the reader for the lock and the GIL on the hot path
-        self._awaited: list[Job] = []
-        self._results: dict[Job, Event] = {}  # how each job ended, from the protocol's events, until read
         self._commands = CommandParser()
-        self._draining = 0
-        self._reader_running = False
-        self._asleep = False  # the thread reading is in a read that ends at _sleeping_until (None: on data or wake())
-        self._sleeping_until: float | None = None
-        self.reader_wakeups = 0  # reads that ended (data, a deadline, a wake): nobody polls
-        self.caller_reads = 0  # of them, those a waiting caller made (the rest are the reader thread's)
-        # the read right: one thread at a time reads the channel and feeds the protocol (bytes stay in order). A
-        # caller blocked on its job takes it when it is free and reads its own replies: a round trip then wakes
-        # the printer's side and the caller, not a reader thread in between (a thread hand-off per command costs
-        # a context switch and a GIL hand-off; on a loaded 2-core machine a wake-up can wait a time slice)
-        self._reading = False
-        self._park = threading.Condition(lock)  # where the reader stands by
-        self._callers_seen_s = -1e9  # time.monotonic() when a caller last waited: the reader stands by after it
-        self._progress_waiters = 0
-        self._progress_at = 0.0
 
     @classmethod
     def open(cls, url: str, baud_rate: int = 115200, **kwargs: Any) -> MarlinDriver:
@@ -146,6 +117,16 @@ class MarlinDriver:
         """The error that ended the session, if any."""
         return self._protocol.failure
 
+    @property
+    def reader_wakeups(self) -> int:
+        """Reads that ended (data, a deadline, a wake): nobody polls."""
+        return self._link.reader_wakeups
+
+    @property
+    def caller_reads(self) -> int:
+        """Of the reads, those a waiting caller made (the rest are the reader thread's)."""
+        return self._link.caller_reads
+
     # ---- connect / close ----------------------------------------------------------------------
 
     def connect(self, boot_timeout_s: float | None = None) -> MarlinDriver:
@@ -154,12 +135,8 @@ class MarlinDriver:
         Bounded: a boot loop or a printer that refuses M110 ends in ConnectFailed, silence in NoAnswer."""
         import serial
 
-        self._stop_reader()
-        if self.wire_log_path is not None and self._wire is None:
-            try:
-                self._wire = WireLog(self.wire_log_path, clock=self.clock)
-            except OSError as exc:
-                raise E.WireLogFailed(f"{self.wire_log_path}: {exc}", port=self.port_name) from exc
+        self._link.stop()
+        self._link.open_wire_log(self.wire_log_path)
         try:
             if not self.port.is_open:
                 self.port.open()
@@ -169,16 +146,7 @@ class MarlinDriver:
             if "exclusively lock" in str(exc) or "Resource temporarily unavailable" in str(exc):
                 raise E.PortBusy(f"cannot open it exclusively: {exc}", port=self.port_name) from exc
             raise E.PortDead(f"cannot open: {exc}", port=self.port_name) from exc
-        self._channel = channel_for(self.port, self.clock)
-        with self._cond:
-            hello = self._protocol.start_session(self.clock(), boot_timeout_s)
-            self._flush()
-        self._stop.clear()
-        self._reader_running = True
-        self._reader = threading.Thread(target=self._run, name=f"marlin-reader {self.port_name}", daemon=True)
-        self._reader.start()
-        self._wait(hello)
-        self._results.pop(hello, None)
+        self._link.start(channel_for(self.port, self.clock), boot_timeout_s)
         return self
 
     def reconnect(self, boot_timeout_s: float | None = None) -> MarlinDriver:
@@ -186,245 +154,18 @@ class MarlinDriver:
         return self.connect(boot_timeout_s)
 
     def close(self) -> None:
-        self._stop_reader()
+        self._link.stop()
         try:
             self.port.close()
         except Exception:  # noqa: BLE001 - closing a dead port must not raise
             pass
-        if self._wire is not None:
-            self._wire.close()
-            self._wire = None
+        self._link.close_wire_log()
 
     def __enter__(self) -> MarlinDriver:
-        return self.connect() if self._reader is None else self
+        return self.connect() if not self._link.running else self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-    def _stop_reader(self) -> None:
-        if self._reader is None:
-            return
-        self._stop.set()
-        with self._cond:
-            self._park.notify_all()
-        if self._channel is not None:
-            self._channel.wake()
-        self._reader.join(timeout=2.0)
-        with self._cond:  # a caller in a read ends it at the wake (or its deadline) before the channel closes
-            self._cond.wait_for(lambda: not self._reading, timeout=2.0)
-        self._reader = None
-        if self._channel is not None:
-            self._channel.close()
-        with self._cond:
-            n, cmd = self._protocol.last_acked
-            self._protocol.fail(E.PortDead("the driver was closed", last_line=n, last_command=cmd, port=self.port_name))
-            self._cond.notify_all()
-
-    # ---- the transport: the reader thread and the writes --------------------------------------
-
-    def _run(self) -> None:
-        """Read, feed the protocol, write what it asks for; sleep until its next deadline, not by polling.
-
-        While callers wait (or waited within READER_STANDBY_S) and nothing is due without them, the reader
-        stands by and the callers read (`_wait`); it takes the channel back when they are gone."""
-        channel = self._channel
-        assert channel is not None
-        cond = self._cond
-        try:
-            while not self._stop.is_set():
-                with cond:
-                    if self._stand_by():
-                        continue
-                    until, now = self._take_read()
-                if not self._read_and_feed(channel, until - now):
-                    return
-        finally:
-            with cond:
-                self._reader_running = False
-                cond.notify_all()  # a caller waiting on a job sees that no one will finish it
-
-    def _stand_by(self) -> bool:
-        """(lock held, reader thread) Wait aside while a caller reads, or while callers waited within
-        READER_STANDBY_S and nothing is due without them (their next batch reads its own replies); True if it
-        waited. Lines in flight that no caller reads for are the reader's."""
-        if self._reading:
-            self._park.wait(READER_STANDBY_S)
-            return True
-        quiet_s = time.monotonic() - self._callers_seen_s
-        if quiet_s < READER_STANDBY_S and not self._draining and self._protocol.next_deadline() is None:
-            self._park.wait(READER_STANDBY_S - quiet_s)
-            return True
-        return False
-
-    def _take_read(self) -> tuple[float, float]:
-        """(lock held) Take the read right; (until, now): the read ends at the next deadline, and no later than
-        min_timeout_s (a line a caller writes has a deadline at least that far ahead, so it wakes in time)."""
-        self._reading = True
-        now = self.clock()
-        deadline = self._protocol.next_deadline()
-        idle_until = now + self.config.min_timeout_s
-        until = idle_until if deadline is None or deadline > idle_until else deadline
-        self._sleeping_until, self._asleep = until, True
-        return until, now
-
-    def _read_and_feed(self, channel: Channel, timeout_s: float) -> bool:
-        """(lock not held, read right held) One read, fed to the protocol; gives the read right back. False when
-        the port failed (the protocol is told, unless the driver is closing)."""
-        cond, protocol = self._cond, self._protocol
-        try:
-            data = channel.read(timeout_s if timeout_s > 0.0 else 0.0)
-        except BaseException as exc:  # SerialException, OSError: the port is gone; KeyboardInterrupt: a caller's
-            with cond:
-                self._reading = self._asleep = False
-                if isinstance(exc, Exception) and not self._stop.is_set():
-                    protocol.port_failed(f"read failed: {exc}")
-                cond.notify_all()
-                self._park.notify()
-            if not isinstance(exc, Exception):
-                raise
-            return False
-        with cond:
-            self._reading = self._asleep = False  # awake: the next read starts from the next deadline
-            try:
-                self.reader_wakeups += 1
-                if data:
-                    self._log("<", data)
-                    protocol.receive(data, self.clock())
-                else:
-                    protocol.tick(self.clock())
-                self._flush()
-            finally:
-                if self._stop.is_set() or self._should_wake():
-                    cond.notify_all()
-        return True
-
-    def _should_wake(self) -> bool:
-        """Whether a blocked caller has something to see (called with the lock held)."""
-        if self._protocol.failure is not None:
-            return True
-        if self._draining and self._protocol.drained:
-            return True
-        if self._protocol.has_events:
-            self._collect()
-            if any(job in self._results for job in self._awaited):
-                return True
-        if self._progress_waiters and self.clock() - self._progress_at >= 0.1:
-            self._progress_at = self.clock()
-            return True
-        return False
-
-    def _wake_reader_for(self) -> None:
-        """After new work from a caller's thread (lock held): wake the reader if it sleeps past the new deadline."""
-        if not self._asleep or self._channel is None:
-            return
-        deadline, until = self._protocol.next_deadline(), self._sleeping_until
-        if deadline is not None and (until is None or deadline < until):
-            self._wake_reading()
-
-    def _wake_reading(self) -> None:
-        """(lock held) End the read in progress now, whoever makes it: a caller blocked in a read sees a failed
-        session or a job taken back at once, not at its read's deadline."""
-        if self._asleep and self._channel is not None:
-            self._asleep = False  # one wake is enough
-            self._channel.wake()
-
-    def _flush(self) -> None:
-        """Write what the protocol asks for, in one write (called with the lock held).
-
-        Several lines are due at once when lines are pipelined or replayed after a `Resend:`: one
-        write (and one wire-log entry) for them all lets the printer read them as one burst."""
-        pending = self._protocol.data_to_send()
-        if not pending:
-            return
-        data = pending[0] if len(pending) == 1 else b"".join(pending)
-        if not self._log(">", data):
-            return
-        try:
-            channel = self._channel
-            if channel is None:
-                raise OSError("the port is not open")
-            channel.write(data, self.config.write_timeout_s)
-        except Exception as exc:  # noqa: BLE001 - any port failure is a dead port
-            self._protocol.port_failed(f"write failed: {exc}")
-            self._protocol.data_to_send()
-
-    def _log(self, direction: str, data: bytes) -> bool:
-        """Append to the wire log; a failing log ends the session as such, not as a dead port."""
-        if self._wire is None:
-            return True
-        try:
-            self._wire.write(direction, data)
-            return True
-        except (OSError, ValueError) as exc:
-            n, cmd = self._protocol.last_acked
-            where = f"{self._wire.path}: {exc}"
-            self._protocol.fail(E.WireLogFailed(where, last_line=n, last_command=cmd, port=self.port_name))
-            self._protocol.data_to_send()
-            return False
-
-    def _collect(self) -> None:
-        """Take the protocol's events (lock held); the first event of a job is how it ended."""
-        for event in self._protocol.events():
-            self._results.setdefault(event.job, event)
-
-    def _submit(self, jobs: list[Job]) -> None:
-        with self._cond:
-            if self._reader is None:
-                raise E.PortDead("not connected: call connect() first", port=self.port_name)
-            self._protocol.submit(jobs, self.clock())
-            self._flush()
-            self._wake_reader_for()
-
-    def _wait(self, job: Job, progress: Callable[[], None] | None = None) -> Acknowledged:
-        """Until the protocol ends job (it has a deadline for every line it sends); its Acknowledged event,
-        or its Failed event's error raised. The caller reads its replies itself while no one else reads."""
-        cond, channel = self._cond, self._channel
-        with cond:
-            self._awaited.append(job)
-            self._progress_waiters += progress is not None
-            self._callers_seen_s = time.monotonic()
-        try:
-            while True:
-                with cond:
-                    self._collect()
-                    if job in self._results:
-                        break
-                    if not self._reader_running:
-                        n, cmd = self._protocol.last_acked
-                        error = E.PortDead(
-                            "the reader thread stopped", last_line=n, last_command=cmd, port=self.port_name
-                        )
-                        self._protocol.fail(error)
-                        self._collect()
-                        self._results.setdefault(job, Failed(job, error))
-                        break
-                    reading = not self._reading and channel is not None and not self._stop.is_set()
-                    if reading:
-                        until, now = self._take_read()
-                    else:
-                        # no timeout: whoever reads notifies when this job finishes, the session fails, progress
-                        # is due (0.1 s on the driver's clock) or the reader ends; every line has a deadline
-                        cond.wait()
-                if reading:
-                    assert channel is not None
-                    self.caller_reads += 1
-                    self._read_and_feed(channel, until - now)
-                if progress is not None:
-                    progress()
-        finally:
-            with cond:
-                self._awaited.remove(job)
-                self._progress_waiters -= progress is not None
-                self._callers_seen_s = time.monotonic()
-                if self._awaited:
-                    if not self._reading:
-                        cond.notify_all()  # callers still wait and no one reads: one of them takes the read
-                elif self._protocol.next_deadline() is not None or self._draining:
-                    self._park.notify()  # work left with no caller to read for it: the reader takes over now
-        result = self._results[job]
-        if isinstance(result, Failed):
-            raise result.error
-        return result
 
     # ---- public API ---------------------------------------------------------------------------
 
@@ -440,14 +181,12 @@ class MarlinDriver:
         jobs = [job]
         if self._protocol.confirming:
             jobs.append(Job("", barrier=True))
-        self._submit(jobs)
+        self._link.submit(jobs)
         try:
-            self._wait(jobs[-1])
-            result = self._wait(job)  # ended already: the barrier (if any) came after it
+            self._link.wait(jobs[-1])
+            result = self._link.wait(job)  # ended already: the barrier (if any) came after it
         finally:
-            with self._cond:
-                for one in jobs:
-                    self._results.pop(one, None)
+            self._link.forget(jobs)
         if strict and result.rejected:
             raise E.CommandRejected(
                 f"{result.rejected!r} in answer to N{result.line} {command!r}",
@@ -474,14 +213,12 @@ class MarlinDriver:
             return 0
         batch = object()
         jobs = [Job(command, line, batch) for command, line in program]
-        with self._cond:  # the previous batch's results are no longer asked for
-            for old in self._batch:
-                self._results.pop(old, None)
+        self._link.forget(self._batch)  # the previous batch's results are no longer asked for
         self._batch = jobs
         last = jobs[-1]
         if self._protocol.confirming:
             last = Job("", batch=batch, barrier=True)
-        self._submit(jobs if last is jobs[-1] else [*jobs, last])
+        self._link.submit(jobs if last is jobs[-1] else [*jobs, last])
 
         shown = [0.0]
 
@@ -492,13 +229,12 @@ class MarlinDriver:
                 progress(self.batch_acknowledged(), len(jobs))
 
         try:
-            self._wait(last, report)
+            self._link.wait(last, report)
         finally:
             if last is not jobs[-1]:
-                with self._cond:
-                    self._results.pop(last, None)
+                self._link.forget([last])
         for job in jobs:
-            result = self._results.get(job)
+            result = self._link.result(job)
             if isinstance(result, Acknowledged) and result.rejected:
                 raise E.CommandRejected(
                     f"{result.rejected!r} in answer to N{result.line} {job.command!r}",
@@ -512,36 +248,13 @@ class MarlinDriver:
 
     def batch_acknowledged(self) -> int:
         """How many commands of the latest send_lines batch the printer acknowledged (a prefix, in order)."""
-        with self._cond:
-            self._collect()
-            done = 0
-            for job in self._batch:
-                if not isinstance(self._results.get(job), Acknowledged):
-                    break
-                done += 1
-            return done
+        return self._link.acknowledged_prefix(self._batch)
 
     def stop_after_line_in_flight(self, timeout_s: float | None = None) -> int:
         """Take back every command not yet written, wait for the line in flight; the number acknowledged.
 
         For Ctrl-C: nothing new goes out; the session stays usable (a lift may follow)."""
-        with self._cond:
-            n, cmd = self._protocol.last_acked
-            self._protocol.cancel_queued(
-                E.Interrupted("taken back before sending", last_line=n, last_command=cmd, port=self.port_name)
-            )
-            self._cond.notify_all()  # a caller blocked on a job taken back sees it now
-            # the read in progress ends now, and the next one starts from the drain's deadline: the time limit is the
-            # protocol's, on the driver's clock; whoever reads wakes for it and tells us
-            self._wake_reading()
-            self._protocol.drain(self.clock(), timeout_s if timeout_s is not None else self.config.max_busy_s)
-            self._draining += 1
-            self._park.notify()  # the reader reads for a drain (the caller waits on the condition)
-            try:
-                while not self._protocol.drained and self._reader_running:
-                    self._cond.wait()
-            finally:
-                self._draining -= 1
+        self._link.take_back_and_drain(timeout_s if timeout_s is not None else self.config.max_busy_s)
         return self.batch_acknowledged()
 
     def sync(self) -> None:
@@ -568,8 +281,4 @@ class MarlinDriver:
 
     def emergency_stop(self) -> None:
         """Send M112 at once, ahead of anything queued; the session ends (EmergencyStopped)."""
-        with self._cond:
-            self._protocol.emergency_stop()
-            self._flush()
-            self._cond.notify_all()
-            self._wake_reading()
+        self._link.emergency_stop()
