@@ -133,6 +133,21 @@ HOMING: list[tuple[bytes, float]] = [
     (frame("M114", 30), OK_WAIT_S),
 ]
 
+# G28's R word (G28.cpp's seenR): the raise instead of the clearance, relative to where Z is even once Z is homed,
+# before Z's own homing too; R0 raises nothing. From a homed Z at 20.
+HOMING_R: list[tuple[bytes, float]] = [
+    (b"M110 N0\n", OK_WAIT_S),
+    (frame("G28", 1), OK_WAIT_S),
+    (frame("G1 Z20 F600", 2), OK_WAIT_S),
+    (frame("M400", 3), OK_WAIT_S),
+    (frame("G28 X R3", 4), OK_WAIT_S),
+    (frame("M114", 5), OK_WAIT_S),
+    (frame("G28 Y R0", 6), OK_WAIT_S),
+    (frame("M114", 7), OK_WAIT_S),
+    (frame("G28 Z R2", 8), OK_WAIT_S),
+    (frame("M114", 9), OK_WAIT_S),
+]
+
 
 # What a host sends around the motion, and text a host or a hand-typed terminal line can carry: a comment-only
 # line (no answer at all), a line of spaces (an unknown command ""), a tab (not skipped as a space is), lower

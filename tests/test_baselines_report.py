@@ -307,7 +307,7 @@ def test_an_infinite_nuisance_bound_notes_no_model_and_says_why(tmp_path):
     assert report.table["rms_over_crb_nuisance"].isna().all()
     text = (folder / "report.md").read_text()
     assert "below the nuisance bound (" not in text and "Closest to it" not in text  # no row noted
-    assert "Here the bound with nuisances is infinite" in text
+    assert "Here the bound with nuisances exceeds the skin (30 mm) at some positions" in text
 
 
 def test_an_infinite_bound_is_summarised_by_its_median_and_compared_with_nothing(tmp_path):
@@ -324,7 +324,7 @@ def test_an_infinite_bound_is_summarised_by_its_median_and_compared_with_nothing
     text = (folder / "report.md").read_text()
     assert "| the same, median over the 10 positions (above the probe radius at 4 of them) | 0.400 |" in text
     assert "| the same, median over the 10 positions (above the probe radius at 4 of them) | 0.800 |" in text
-    assert "Here the electronics-only bound is infinite" in text
+    assert "Here the electronics-only bound exceeds the skin (30 mm) at some positions" in text
     summary = report_summary(report)
     assert "electronics only: inf mm (median 0.4 mm; above the probe radius at 4 of 10 positions)" in summary
     # every position within the probe radius: no such row
@@ -332,6 +332,42 @@ def test_an_infinite_bound_is_summarised_by_its_median_and_compared_with_nothing
     with pytest.warns(UserWarning):
         plain = run_baselines(finite, split="both", models=["ridge"], progress=False, n_repeats=2)
     assert "median over the" not in plain.text and "(median" not in report_summary(plain)
+
+
+def test_a_huge_finite_bound_is_no_more_compared_than_an_infinite_one(tmp_path):
+    """One position whose nuisance bound is 1.1e6 mm (just off a shut channel) holds the pooled RMS (3.5e5 mm)
+    without making it infinite: rms / 3.5e5 had noted every model "below the nuisance bound (0.000141x)". A bound
+    that exceeds the skin (30 mm) anywhere is compared with nothing (no estimator answering on the skin is unbiased
+    there); one within it everywhere still is."""
+    nuisance = np.r_[1.1e6, np.full(9, 1.0)]
+    folder = write_dataset(tmp_path / "ds", small_table(10, 4), layout=True, crb_mm=0.5, crb_nuisance_mm=nuisance)
+    with pytest.warns(UserWarning):
+        report = run_baselines(folder, split="both", models=["ridge", "knn"], progress=False, n_repeats=2)
+    assert report.bound_nuisance_rms_mm == pytest.approx(np.sqrt((1.1e6**2 + 9) / 10))
+    assert report.table["rms_over_crb_nuisance"].isna().all()
+    np.testing.assert_allclose(report.table["rms_over_crb"], report.table["rms_error_mm"] / 0.5)  # compared
+    text = (folder / "report.md").read_text()
+    assert "below the nuisance bound (" not in text and "Closest to it" not in text
+    assert "| the same, median over the 10 positions (above the probe radius at 1 of them) | 1.00 |" in text
+    assert "Here the bound with nuisances exceeds the skin (30 mm) at some positions" in text
+    assert "Here the electronics-only bound" not in text
+    # a bound past the probe radius but within the skin at every position (3 mm here) is still compared
+    wide = write_dataset(tmp_path / "w", small_table(10, 4), layout=True, crb_mm=0.5, crb_nuisance_mm=3.0)
+    with pytest.warns(UserWarning):
+        within = run_baselines(wide, split="both", models=["ridge"], progress=False, n_repeats=2)
+    np.testing.assert_allclose(within.table["rms_over_crb_nuisance"], within.table["rms_error_mm"] / 3.0)
+
+
+def test_a_nan_in_the_physical_limit_is_one_data_error_naming_the_column(tmp_path):
+    """A bound is a number or +inf (unobservable), never NaN: a NaN (a hand-edited or merged file) would pool to
+    NaN and print "median nan mm"; it is refused on load, naming the file, the column, the positions and the fix."""
+    crb = np.r_[0.3, np.nan, np.full(8, 0.4)]
+    folder = write_dataset(tmp_path / "ds", small_table(10, 4), layout=True, crb_mm=crb)
+    with pytest.raises(DataError) as info:
+        load_baseline_data(folder)
+    err = info.value
+    assert err.field == "crb_mm" and err.file.endswith("physical_limit.parquet")
+    assert "1 NaN values (position_id [1])" in str(err) and "neatskin campaign finish" in err.problems[0].fix
 
 
 def test_the_inversion_model_is_chosen_by_name_and_a_missing_kernel_is_refused_before_any_fit(

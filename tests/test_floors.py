@@ -96,22 +96,25 @@ def test_the_memorisation_flag_uses_the_floor_of_its_own_split():
     assert "| 1.6 | 1.8 |" in text and "| 1.2 | 1.6 |" in text and "| 0.05 |" in text
 
 
-def test_an_infinite_landing_bound_is_given_by_its_median_and_its_count():
-    """A press on a channel the probe shuts has an infinite landing bound, so the pooled RMS is infinite: the section
-    says at how many positions, and gives the median over positions (0.05 x 7, inf x 3: 0.05; a finite pooled
-    bound has no such sentence)."""
+def test_a_landing_bound_beyond_the_probe_radius_is_given_by_its_median_and_its_count():
+    """A press on a channel the probe shuts has an infinite (or, just off it, a huge) landing bound, which holds
+    the pooled RMS: the section says at how many positions it exceeds the probe radius and gives the median over
+    positions (0.05 x 6, 3e4, inf x 3: 0.05; a bound within the radius everywhere has no such sentence)."""
     limit = _limit().assign(landing_bound_known_skin_mm=np.r_[np.full(7, 0.02), np.full(3, np.inf)])
     limit.loc[7:, "landing_bound_mm"] = np.inf
     floors = read_floors(limit)
-    assert floors.landing_rms_mm == np.inf and floors.landing_infinite == (3, 10)
+    limit.loc[6, "landing_bound_mm"] = 3e4  # huge, finite: beyond the probe radius too
+    floors = read_floors(limit)
+    assert floors.landing_rms_mm == np.inf and floors.landing_beyond == (4, 10)
     assert floors.landing_median_mm == (0.05, 0.02)
     text = "\n".join(floors_section(pd.DataFrame(), floors))
     assert (
-        "The landing-point bound is infinite at 3 of 10 positions (a press on a channel the probe shuts tells which "
-        "channel, not where along it), so its pooled RMS is too; its median over positions is 0.05 mm (0.02 mm with "
-        "this skin's fabrication known)." in text
+        "The landing-point bound exceeds the probe radius at 4 of 10 positions (infinite at 3: a press on a channel "
+        "the probe shuts tells which channel, not where along it); its median over positions is 0.05 mm (0.02 mm "
+        "with this skin's fabrication known)." in text
     )
-    assert "is infinite at" not in "\n".join(floors_section(pd.DataFrame(), read_floors(_limit())))
+    assert read_floors(limit, radius_mm=1e5).landing_beyond == (3, 10)  # the radius is the probe's
+    assert "exceeds the probe radius" not in "\n".join(floors_section(pd.DataFrame(), read_floors(_limit())))
 
 
 def test_an_older_physical_limit_has_no_floors():

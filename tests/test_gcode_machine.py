@@ -150,6 +150,21 @@ def test_host_deadlines_from_the_model(shifted):
     assert tracker.line_time_s("; comment") == (0.0, False) and tracker.line_time_s("G1 X1e999") == (0.0, True)
 
 
+def test_g28_r_raises_relative_to_z_before_any_homing_and_r0_not_at_all(shifted):
+    """G28's R word as G28.cpp's seenR (and as the native build answers: test_g28_with_an_r_word_answers_as_the_real_
+    firmware): the raise is R, relative to Z even once Z is homed, before Z's own homing too; R0 raises nothing."""
+    m = Machine(shifted, start_mm=(50.0, 50.0, 20.0))
+    run(m, "G28", "G1 Z20")
+    (home,) = run(m, "G28 X R3")
+    assert home.rise is not None and home.rise.end_mm == (5.0, 10.0, 23.0) and home.end_mm == (5.0, 10.0, 23.0)
+    (home,) = run(m, "G28 Y R0")
+    assert home.rise is None and home.end_mm == (5.0, 10.0, 23.0)
+    (home,) = run(m, "G28 Z R2")  # up 2 first (a Z-only G28 raises nothing without R), home at 1, then to 5
+    assert home.rise is not None and home.rise.end_mm == (5.0, 10.0, 25.0) and home.end_mm == (5.0, 10.0, 5.0)
+    (home,) = run(m, "G28 Z")
+    assert home.rise is None
+
+
 def test_a_g28_takes_at_least_its_z_moves(shifted):
     """`homing_time_s` is a whole G28 as measured, raises included: a homing time shorter than G28's Z moves (at
     Z's homing feed, 4 mm/s, 100 mm/s^2) gives way to them, in the machine, the estimate and the firmware alike."""
@@ -170,9 +185,10 @@ def test_a_g28_takes_at_least_its_z_moves(shifted):
     assert core.timeline.end_s - before == pytest.approx(0.08 + 4.84 / 4 + 0.08 + 3.84 / 4, abs=1e-9)
 
 
-def test_no_clearance_no_z_moves(shifted):
-    """A profile with `z_clearance_for_homing_mm = 0` raises nothing; `z_after_homing_mm` at Z's home (1 here:
-    the post-homing move goes to that native height, so 0, the clearance, would move down) leaves Z there."""
+def test_a_zero_clearance_raises_only_a_homed_z_below_0(shifted):
+    """A profile with `z_clearance_for_homing_mm = 0` raises nothing above 0; `z_after_homing_mm` at Z's home (1
+    here: the post-homing move goes to that native height, so 0, the clearance, would move down) leaves Z there;
+    a homed Z below 0 rises to 0, as G28.cpp's do_z_clearance(0) does."""
     m = Machine(replace(shifted, z_clearance_for_homing_mm=0.0, z_after_homing_mm=1.0), start_mm=(50.0, 50.0, 20.0))
     (home,) = run(m, "G28 X")
     assert home.rise is None and home.after is None and home.end_mm == (5.0, 50.0, 20.0)

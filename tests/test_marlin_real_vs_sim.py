@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 import serial
-from marlin_replay import BEFORE_HOMING, HOMING, HOMING_WAIT_S, HOST_TEXT, SCRIPT, replay
+from marlin_replay import BEFORE_HOMING, HOMING, HOMING_R, HOMING_WAIT_S, HOST_TEXT, SCRIPT, replay
 
 from neatskin.gcode.machine import Home, Machine
 from neatskin.gcode.parse import parse_line
@@ -120,6 +120,23 @@ def test_moves_before_homing_answer_as_the_real_firmware():
 def test_homing_and_soft_endstops_answer_as_the_real_firmware():
     """Four G28s in real time on the native board (about 70 s); the simulator runs 10 times faster."""
     assert_plain_replays_alike(HOMING, speed=10.0, max_wait_s=HOMING_WAIT_S)
+
+
+@pytest.mark.skipif(MARLIN is None, reason="the real firmware is absent: no shared/marlin beside the repository")
+@pytest.mark.timeout(200)
+def test_g28_with_an_r_word_answers_as_the_real_firmware():
+    """G28's R word (about 35 s on the native board): the raise relative to Z even once homed (G28 X R3 at 20 ->
+    Z:23.00), none with R0, and before Z's own homing; the simulator once ignored it and answered Z:20.00."""
+    assert_plain_replays_alike(HOMING_R, speed=10.0, max_wait_s=HOMING_WAIT_S)
+
+
+def test_the_g28_r_script_shows_the_relative_raise():
+    """The script itself (no firmware needed): what the simulator answers, as the native build did on 2026-11-26."""
+    _, sim = sim_transcript(advanced_ok=False, script=HOMING_R, speed=20.0, max_wait_s=HOMING_WAIT_S)
+    answers = [normalise(got) for _, got in sim]
+    at_23 = b"X:0.00 Y:0.00 Z:23.00 E:0.00 Count X:0 Y:0 Z:9200\nok\n"
+    assert answers[4] == answers[5] == answers[6] == answers[7] == at_23  # R3 from 20; R0 raises nothing
+    assert answers[8] == answers[9] == b"X:0.00 Y:0.00 Z:5.00 E:0.00 Count X:0 Y:0 Z:2000\nok\n"
 
 
 @pytest.mark.skipif(MARLIN is None, reason="the real firmware is absent: no shared/marlin beside the repository")

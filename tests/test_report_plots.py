@@ -36,14 +36,17 @@ def report(tmp_path_factory):
 
 
 def test_floors_are_pooled_per_column_and_named_and_a_missing_column_is_left_out():
-    limit = pd.DataFrame({"crb_mm": [3.0, 4.0], "crb_nuisance_mm": [1.0, 7.0]})
+    limit = pd.DataFrame({"crb_mm": [0.3, 0.4], "crb_nuisance_mm": [1.0, 2.6]})
     floors = floors_mm(limit)
     assert list(floors) == [
         "Cramér-Rao bound, electronics only",
         "Cramér-Rao bound with depth, drift, placement (nuisance floor)",
     ]
-    assert floors["Cramér-Rao bound, electronics only"][0] == pytest.approx(np.sqrt(12.5))  # sqrt((9 + 16) / 2)
-    assert floors["Cramér-Rao bound with depth, drift, placement (nuisance floor)"][0] == pytest.approx(5.0)
+    assert floors["Cramér-Rao bound, electronics only"][0] == pytest.approx(np.sqrt(0.125))  # sqrt((.09 + .16) / 2)
+    assert floors["Cramér-Rao bound with depth, drift, placement (nuisance floor)"][0] == pytest.approx(np.sqrt(3.88))
+    # a bound beyond the skin (extent_mm) at one position is compared with nothing, so not drawn either
+    beyond = pd.DataFrame({"crb_mm": [0.3, 40.0], "crb_nuisance_mm": [1.0, np.inf]})
+    assert floors_mm(beyond, extent_mm=30.0) == {} and len(floors_mm(beyond.assign(crb_mm=4.0), 30.0)) == 1
     limit["label_noise_floor_mm"] = [0.5, 0.5]
     assert floors_mm(limit)["label-noise floor (landing point vs commanded)"][0] == pytest.approx(0.5)
     assert floors_mm(None) == {} and floors_mm(limit.iloc[:0]) == {}

@@ -282,6 +282,17 @@ def load_baseline_data(dataset: str | Path, flagged: str = "saturate") -> Baseli
                 field="crb_mm",
                 fix="write position_id, x_mm, y_mm, crb_mm (see cramer_rao_bound_mm)",
             )
+        for column in limit.columns:  # a bound is a number or +inf (unobservable), never NaN: the report pools them
+            values = limit[column]
+            if pd.api.types.is_numeric_dtype(values) and values.isna().any():
+                where = limit.loc[values.isna(), "position_id"].tolist()[:5] if "position_id" in limit else []
+                raise DataError(
+                    f"{int(values.isna().sum())} NaN values" + (f" (position_id {where})" if where else ""),
+                    file=str(limit_path),
+                    field=column,
+                    fix="delete the file and write it again with `neatskin campaign finish RUN` (a dry run's), or "
+                    "leave it deleted (the report then has no bound)",
+                )
     skin = _rig_skin(folder)
     radius = skin.get("probe_radius_mm")
     return BaselineData(

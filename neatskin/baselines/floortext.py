@@ -26,17 +26,52 @@ class Floors:
     label_mm: dict[str, tuple[float, float]]
     landing_rms_mm: float
     landing_known_skin_rms_mm: float | None = None
-    # the landing-point bound's median over positions (this skin's fabrication unknown, known) and at how many of
-    # how many positions it is infinite: what the pooled RMS hides when a few positions hold it
+    # the landing-point bound's median over positions (this skin's fabrication unknown, known), and at how many of
+    # how many positions it exceeds the probe radius (infinite or huge): what the pooled RMS hides when a few
+    # positions hold it
     landing_median_mm: tuple[float, float | None] = (np.nan, None)
-    landing_infinite: tuple[int, int] = (0, 0)
+    landing_beyond: tuple[int, int] = (0, 0)
+    landing_infinite: int = 0
 
     def of_split(self, split: str) -> tuple[float, float]:
         return self.label_mm[SPLIT_PRIOR.get(split, "by_row")]
 
 
-def read_floors(limit: pd.DataFrame | None) -> Floors | None:
-    """The pooled floors of a physical limit frame; None when it predates them (no `landing_bound_mm`)."""
+def bound_spread_mm(
+    limit: pd.DataFrame | None, column: str = "crb_mm", radius_mm: float = 2.75
+) -> tuple[float, int, int] | None:
+    """(the median over positions of a bound, at how many positions it exceeds the probe radius, how many positions
+    there are): what the skin measures at a typical position and where it does not locate a press within its own
+    footprint, for planning where the pooled RMS is infinite or held by a few positions (on the FE skin a press
+    on a channel the probe shuts tells which channel, not where along it: its bound is infinite or huge). None when
+    the limit or its column is absent."""
+    if limit is None or len(limit) == 0 or column not in limit.columns:
+        return None
+    crb = limit[column].to_numpy(dtype=float)
+    return float(np.median(crb)), int(np.count_nonzero(crb > radius_mm)), int(crb.size)
+
+
+def comparable(limit: pd.DataFrame | None, column: str, extent_mm: float) -> bool:
+    """Whether a pooled bound is compared with the errors: finite and within the skin's extent at every position.
+    Where a position's bound exceeds the skin itself (infinite, or huge just off a shut channel: a press on a
+    channel the probe shuts tells which channel, not where along it), no estimator that answers on the skin is
+    unbiased there, so the bound (of unbiased estimators) says nothing, and it holds the pooled RMS."""
+    if limit is None or len(limit) == 0 or column not in limit.columns:
+        return False
+    return bool(np.all(limit[column].to_numpy(dtype=float) <= extent_mm))
+
+
+def skin_extent_mm(layout, positions_mm: np.ndarray) -> float:
+    """The skin's larger side (the layout's bounds), or the pressed positions' larger spread without a layout."""
+    if layout is not None:
+        x0, y0, x1, y1 = layout.bounds_mm
+        return float(max(x1 - x0, y1 - y0))
+    return float(np.max(np.ptp(np.asarray(positions_mm, float), axis=0))) if len(positions_mm) else np.inf
+
+
+def read_floors(limit: pd.DataFrame | None, radius_mm: float = 2.75) -> Floors | None:
+    """The pooled floors of a physical limit frame (radius_mm: the probe's, for `Floors.landing_beyond`); None when
+    it predates them (no `landing_bound_mm`)."""
     if limit is None or len(limit) == 0 or "landing_bound_mm" not in limit.columns:
         return None
     label = {}
@@ -54,7 +89,8 @@ def read_floors(limit: pd.DataFrame | None) -> Floors | None:
         float(np.sqrt(np.mean(landing**2))),
         known,
         (float(np.median(landing)), known_median),
-        (int(np.count_nonzero(np.isinf(landing))), landing.size),
+        (int(np.count_nonzero(landing > radius_mm)), landing.size),
+        int(np.count_nonzero(np.isinf(landing))),
     )
 
 
@@ -106,14 +142,15 @@ def floors_section(table: pd.DataFrame, floors: Floors | None, campaign_seeds: i
             "| landing-point bound, this skin's fabrication known | the same for a model trained on this skin, "
             f"which has seen its channels | | {floors.landing_known_skin_rms_mm:.3g} |"
         )
-    if not np.isfinite(floors.landing_rms_mm):
+    if floors.landing_beyond[0]:
         median, known_median = floors.landing_median_mm
         known_text = "" if known_median is None else f" ({known_median:.3g} mm with this skin's fabrication known)"
         lines += [
             "",
-            f"The landing-point bound is infinite at {floors.landing_infinite[0]} of {floors.landing_infinite[1]} "
-            "positions (a press on a channel the probe shuts tells which channel, not where along it), so its "
-            f"pooled RMS is too; its median over positions is {median:.3g} mm{known_text}.",
+            f"The landing-point bound exceeds the probe radius at {floors.landing_beyond[0]} of "
+            f"{floors.landing_beyond[1]} positions (infinite at {floors.landing_infinite}: a press on a channel the "
+            "probe shuts tells which channel, not where along it); its median over positions is "
+            f"{median:.3g} mm{known_text}.",
         ]
     lines += [
         "",

@@ -39,15 +39,19 @@ def _split_label_floor_mm(table, split: str) -> float | None:
     return float(values[0]) if values.size else None
 
 
-def floors_mm(limit) -> dict[str, tuple[float, str, str]]:
+def floors_mm(limit, extent_mm: float = np.inf) -> dict[str, tuple[float, str, str]]:
     """The pooled floors (sqrt of the mean square over positions) the physical limit gives: name -> (mm, colour,
-    line style). A column absent from the file (an older dataset, a floor not computed) is left out."""
+    line style). A column absent from the file (an older dataset, a floor not computed) is left out, and so is a
+    Cramér-Rao bound that exceeds the skin (extent_mm) at some position: the report compares no error with it
+    (`floortext.comparable`), and its pooled value, held by those positions, would only stretch the axis."""
     floors: dict[str, tuple[float, str, str]] = {}
     if limit is None or len(limit) == 0:
         return floors
     for column, name, colour, style in FLOOR_COLUMNS:
         if column in limit.columns and name not in floors:
             values = limit[column].to_numpy(dtype=float)
+            if column.startswith("crb") and not np.all(values <= extent_mm):
+                continue
             floors[name] = (float(np.sqrt(np.mean(values * values))), colour, style)
     return floors
 

@@ -33,7 +33,15 @@ from neatskin.baselines.evaluate import (
     repeat_splits,
     result_from_predictions,
 )
-from neatskin.baselines.floortext import Floors, add_floor_columns, below_label_floor, read_floors
+from neatskin.baselines.floortext import (
+    Floors,
+    add_floor_columns,
+    below_label_floor,
+    bound_spread_mm,
+    comparable,
+    read_floors,
+    skin_extent_mm,
+)
 from neatskin.baselines.metrics import PROBE_RADIUS_MM
 from neatskin.baselines.models import (
     DESCRIPTIONS,
@@ -91,18 +99,10 @@ def bound_rms_mm(limit: pd.DataFrame | None, column: str = "crb_mm") -> float | 
     return float(np.sqrt(np.mean(crb * crb)))
 
 
-def bound_spread_mm(
-    limit: pd.DataFrame | None, column: str = "crb_mm", radius_mm: float = 2.75
-) -> tuple[float, int, int] | None:
-    """(the median over positions of a bound, at how many positions it exceeds the probe radius, how many positions
-    there are): what the skin measures at a typical position and where it does not locate a press within its own
-    footprint, for planning where the pooled RMS is infinite or held by a few positions (on the FE skin a press
-    on a channel the probe shuts tells which channel, not where along it: its bound is infinite or huge). None when
-    the limit or its column is absent."""
-    if limit is None or len(limit) == 0 or column not in limit.columns:
-        return None
-    crb = limit[column].to_numpy(dtype=float)
-    return float(np.median(crb)), int(np.count_nonzero(crb > radius_mm)), int(crb.size)
+def _ratio(rms_mm: pd.Series, bound_mm: float, compared: bool) -> pd.Series | float:
+    if bound_mm == 0:
+        return np.inf
+    return rms_mm / bound_mm if compared and np.isfinite(bound_mm) else np.nan
 
 
 def results_table(
@@ -110,6 +110,7 @@ def results_table(
     bound: float | None,
     nuisance_bound: float | None = None,
     floors: Floors | None = None,
+    comparable: tuple[bool, bool] = (True, True),
 ) -> pd.DataFrame:
     """One row per model and split; `below_bound` marks memorisation: an RMS error under the electronics-only
     Cramér-Rao bound, or a median error under half of it (an unbiased estimator at the bound, Gaussian errors
@@ -118,24 +119,18 @@ def results_table(
     physical_limit.parquet, an RMS error below the label-noise floor of the row's own split flags it too, and each
     row gets its split's floor and its excess over it (`floortext.add_floor_columns`)."""
     table = add_floor_columns(pd.DataFrame([r.row() for r in results]), floors)
+    # a pooled bound held by positions where it exceeds the probe radius (infinite, or huge: on the FE skin a press
+    # on a channel the probe shuts tells which channel, not where along it) has no ratio and flags nothing: every
+    # real estimator is biased there, and rms / inf = 0 (or rms / 1e5) read as "far below the bound"
     if nuisance_bound is not None:
         table["crb_nuisance_rms_mm"] = nuisance_bound
-        # an infinite bound (positions no graded reading sees, on the FE skin) has no ratio: rms / inf = 0 read as
-        # "far below the bound" and noted every model so
-        table["rms_over_crb_nuisance"] = (
-            table["rms_error_mm"] / nuisance_bound
-            if 0 < nuisance_bound < np.inf
-            else (np.inf if nuisance_bound == 0 else np.nan)
-        )
+        table["rms_over_crb_nuisance"] = _ratio(table["rms_error_mm"], nuisance_bound, comparable[1])
     if bound is not None:
         table["crb_rms_mm"] = bound
-        # an infinite bound has no ratio either (rms / inf = 0 read as "far below the bound")
-        table["rms_over_crb"] = (
-            table["rms_error_mm"] / bound if 0 < bound < np.inf else (np.inf if bound == 0 else np.nan)
-        )
-    if bound is not None and np.isfinite(bound):
+        table["rms_over_crb"] = _ratio(table["rms_error_mm"], bound, comparable[0])
+    if bound is not None and comparable[0] and np.isfinite(bound):
         table["below_bound"] = (table["rms_error_mm"] < bound) | (table["median_error_mm"] < MEDIAN_BOUND_SHARE * bound)
-    else:  # no bound, or an infinite one (a position no graded reading sees, on the FE skin): nothing is below it
+    else:  # no bound, or one held by positions beyond the probe radius: nothing is below it
         table["below_bound"] = False
     table["below_bound"] = table["below_bound"] | below_label_floor(table)
     return table
@@ -391,7 +386,12 @@ def run_baselines(
         results += [r for r in learned_results if r.split == s] + [r for r in physics_results if r.split == s]
     bound = bound_rms_mm(data.physical_limit)
     nuisance_bound = bound_rms_mm(data.physical_limit, "crb_nuisance_mm")
-    table = results_table(results, bound, nuisance_bound, read_floors(data.physical_limit))
+    radius = data.probe_radius_mm or PROBE_RADIUS_MM
+    spreads = tuple(bound_spread_mm(data.physical_limit, c, radius) for c in ("crb_mm", "crb_nuisance_mm"))
+    extent = skin_extent_mm(data.layout, data.y)
+    compared = tuple(comparable(data.physical_limit, c, extent) for c in ("crb_mm", "crb_nuisance_mm"))
+    floors = read_floors(data.physical_limit, radius)
+    table = results_table(results, bound, nuisance_bound, floors, (compared[0], compared[1]))
     notes += result_warnings(table, data, bound)
     _warn(notes)
 
@@ -402,7 +402,7 @@ def run_baselines(
     }
     table.to_csv(files["table (CSV)"], index=False)
     table.to_parquet(files["table (parquet)"], index=False)
-    plot_error_vs_time(results, files["error vs time"], bound, table, floors=floors_mm(data.physical_limit))
+    plot_error_vs_time(results, files["error vs time"], bound, table, floors=floors_mm(data.physical_limit, extent))
     if data.physical_limit is not None and len(data.physical_limit):
         files["bound map"] = plot_bound_map(data.physical_limit, out_dir / "baselines_bound_map.png", data.layout)
     for s in splits:
@@ -412,8 +412,6 @@ def run_baselines(
         files[key] = out_dir / f"baselines_ellipses_{s}.png"
         plot_error_ellipses([r for r in results if r.split == s], files[key], data.layout)
     files["report"] = out_dir / "report.md"
-    radius = data.probe_radius_mm or PROBE_RADIUS_MM
-    spreads = tuple(bound_spread_mm(data.physical_limit, c, radius) for c in ("crb_mm", "crb_nuisance_mm"))
     elapsed = time.perf_counter() - started
     text = markdown_report(
         data=data,
@@ -421,6 +419,8 @@ def run_baselines(
         bound=bound,
         nuisance_bound=nuisance_bound,
         spreads=dict(zip(("crb_mm", "crb_nuisance_mm"), spreads, strict=True)),
+        compared=dict(zip(("crb_mm", "crb_nuisance_mm"), compared, strict=True)),
+        extent_mm=extent,
         splits=splits,
         files=files,
         random_state=random_state,

@@ -17,6 +17,7 @@ import pandas as pd
 from neatskin.baselines.dataset import PHYSICAL_LIMIT_NAME, BaselineData
 from neatskin.baselines.evaluate import DESIGN_POSITIONS, DESIGN_PRESSES, PAPER_FRACTIONS
 from neatskin.baselines.floortext import floors_section, read_floors
+from neatskin.baselines.metrics import PROBE_RADIUS_MM
 
 SPLIT_TEXT = {
     "grouped": "k-fold over positions: no test position is in training. The honest error for a press at a "
@@ -183,11 +184,16 @@ def _bound_text(
     nuisance_bound: float | None,
     table: pd.DataFrame,
     spreads: Mapping[str, tuple[float, int, int] | None] | None = None,
+    compared: Mapping[str, bool] | None = None,
+    extent_mm: float = np.inf,
 ) -> list[str]:
     """The physical limit: the electronics-only bound (the memorisation flag) beside the bound with nuisances, and
     where some positions' bound exceeds the probe radius, each bound's median over positions (for planning; the
     pooled RMS is held by those few positions, or infinite)."""
     spreads = spreads or {}
+    compared = compared or {}
+    beyond = f"exceeds the skin ({extent_mm:g} mm) at some positions, infinite or huge"
+
     lines = [
         f"## Physical limit (`{PHYSICAL_LIMIT_NAME}`)",
         "",
@@ -209,11 +215,12 @@ def _bound_text(
         "or median error below half of it) is flagged as memorisation: it can only come from memorising training "
         "positions (a split by row).",
     ]
-    if not np.isfinite(bound):
+    if not compared.get("crb_mm", bool(np.isfinite(bound))):
         lines += [
             "",
-            "Here the electronics-only bound is infinite at some positions (a press on a channel the probe shuts "
-            "tells which channel, not where along it), so the pooled bound is too: no result is flagged by it. "
+            f"Here the electronics-only bound {beyond} (a press on a channel the probe shuts tells which channel, "
+            "not where along it), and those positions hold the pooled bound: no estimator that answers on the skin "
+            "is unbiased there, so no result is compared with it or flagged by it. "
             "The median over positions says what the skin measures at a typical position, and the count above "
             "the probe radius where it cannot place a press within its own footprint; they are for planning, "
             "not compared with the errors (`physical_limit.parquet` and the bound map have it position by "
@@ -231,12 +238,12 @@ def _bound_text(
             "nuisance in the scene (the `ideal` preset) the two bounds are equal. The full table gives every "
             "result's RMS error over each bound.",
         ]
-        if not np.isfinite(nuisance_bound):
+        if not compared.get("crb_nuisance_mm", bool(np.isfinite(nuisance_bound))):
             lines += [
                 "",
-                "Here the bound with nuisances is infinite: at some positions (a press on a channel the probe shuts) "
-                "no graded reading tells where the press landed along the channel, so the pooled bound says nothing "
-                "and no result is compared with it (`physical_limit.parquet` has it position by position).",
+                f"Here the bound with nuisances {beyond} (a press on a channel the probe shuts: no graded reading "
+                "tells where the press landed along the channel), so the pooled bound says nothing and no result is "
+                "compared with it (`physical_limit.parquet` has it position by position).",
             ]
         elif "rms_over_crb_nuisance" in table.columns:
             k = int(np.argmin(table["rms_over_crb_nuisance"].to_numpy(float)))
@@ -262,6 +269,8 @@ def markdown_report(
     splits: Sequence[str],
     nuisance_bound: float | None = None,
     spreads: Mapping[str, tuple[float, int, int] | None] | None = None,
+    compared: Mapping[str, bool] | None = None,
+    extent_mm: float = np.inf,
     files: Mapping[str, Path],
     random_state: int | None,
     notes: Sequence[str],
@@ -296,8 +305,8 @@ def markdown_report(
         "",
     ]
     if bound is not None:
-        lines += _bound_text(bound, nuisance_bound, table, spreads)
-    lines += floors_section(table, read_floors(data.physical_limit))
+        lines += _bound_text(bound, nuisance_bound, table, spreads, compared, extent_mm)
+    lines += floors_section(table, read_floors(data.physical_limit, data.probe_radius_mm or PROBE_RADIUS_MM))
     lm_note = (
         f"The LM network trains {lm_restarts} network(s) per repeat (best on validation)."
         if lm_restarts is not None

@@ -14,9 +14,10 @@ printer (sim.firmware, sim.motion). Semantics, taken from Marlin (motion.cpp, G9
   trapezoid at the feed and acceleration scaled so that no axis exceeds its own maximum.
 - `G92 X.. Y.. Z..`: sets the logical position of the named axes without moving (the offset
   changes, the native position does not); `G92` without words is a no-op here.
-- `G28 [X] [Y] [Z]`: homes the named axes (all three when none is named), as G28.cpp: before
+- `G28 [X] [Y] [Z] [R]`: homes the named axes (all three when none is named), as G28.cpp: before
   homing X or Y, Z rises by the profile's `z_clearance_for_homing_mm` (relative while Z is not
-  homed, to that height once it is, never down, never above the Z soft maximum); the native
+  homed, to that height once it is, never down, never above the Z soft maximum; an R word is the
+  raise instead, always relative, before a Z-only G28 too, R0 none); the native
   position of the named axes becomes the home position (Marlin's X_HOME_POS, i.e. the soft
   minimum for min endstops: the profile's `soft_min_mm`; (0, 0, 0) without a profile) and their
   G92 offset is cleared (Marlin's `set_axis_is_at_home` zeroes `position_shift`); once Z is homed
@@ -34,7 +35,7 @@ Events are frozen values; anything else (M-codes, unparsable text) gives `Other`
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
@@ -210,6 +211,13 @@ Event = Move | Home | Dwell | Sync | SetPosition | Other
 SYNC = Sync()
 
 
+def homing_request(params: Mapping[str, float | str]) -> tuple[tuple[int, ...], float | None]:
+    """A G28's words: the axes it homes (indices; all three when it names none) and its R raise (None without one)."""
+    raise_mm = params.get("R")
+    axes = tuple(i for i, a in enumerate(AXES) if a in params) or (0, 1, 2)
+    return axes, raise_mm if isinstance(raise_mm, float) else None
+
+
 class Machine:
     """The modal state (native position, G92 offsets, G90/G91, feed) and `step(line) -> Event`.
 
@@ -278,25 +286,30 @@ class Machine:
         elif code == "M82" or code == "M83":
             self.extruder_absolute = code == "M82"
         elif code == "G28":
-            return self.home(tuple(i for i, a in enumerate(AXES) if a in line.params) or (0, 1, 2))
+            return self.home(*homing_request(line.params))
         elif code == "G92":
             return self._set_position(line.params)
         return Other(code)
 
-    def home(self, axes: tuple[int, ...] = (0, 1, 2)) -> Home:
-        """G28 of `axes` as G28.cpp (see the module's docstring): the rise, the homing, the post-homing Z move."""
+    def home(self, axes: tuple[int, ...] = (0, 1, 2), raise_mm: float | None = None) -> Home:
+        """G28 of `axes` as G28.cpp (see the module's docstring): the rise, the homing, the post-homing Z move.
+        raise_mm: G28's R word: the raise instead of the clearance, always relative to where Z is, before any
+        homing, Z's alone too (G28.cpp's seenR); R0 raises nothing."""
         position = self.position_mm
         start = (position[0], position[1], position[2])
         rise = after = None
-        if (0 in axes or 1 in axes) and self.profile is not None:  # G28.cpp's may_skate: do_z_clearance first
+        seen_r = raise_mm is not None
+        height = self._z_clearance if raise_mm is None else raise_mm
+        may_skate = seen_r or 0 in axes or 1 in axes
+        if may_skate and self.profile is not None and not (seen_r and height == 0):  # do_z_clearance first
             z = position[2]
             if z is None:  # relative to an unknown height: the height stays unknown, the distance is known
-                if self._z_clearance > 0:
-                    rise = self._z_move(None, self._z_clearance)
+                if height > 0:
+                    rise = self._z_move(None, height)
             else:
                 # a clearance of 0 still raises a homed Z that is below 0 to 0 (do_z_clearance(0) lowers nothing
                 # but does raise: the native firmware built with Z_CLEARANCE_FOR_HOMING 0, docs/marlin.md)
-                target = min(self._z_clearance + (0.0 if self.homed[2] else z), self._z_max)
+                target = min(height + (0.0 if self.homed[2] and not seen_r else z), self._z_max)
                 if target > z:  # never down
                     rise = self._z_move(target, target - z)
         for i in axes:

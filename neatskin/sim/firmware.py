@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from neatskin.gcode.machine import Machine, MaybeXyz, Move, Xyz
+from neatskin.gcode.machine import Machine, MaybeXyz, Move, Xyz, homing_request
 from neatskin.gcode.parse import GcodeLine
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.marlin import replies as R
@@ -250,21 +250,20 @@ class MarlinCore(LineIntake):
         if code == "G4" and line is not None:
             return max(now, tl.end_s) + (line.get("P", 0.0) or 0.0) / 1000.0 + (line.get("S", 0.0) or 0.0)
         if code == "G28":
-            return self._home(
-                tuple(i for i, a in enumerate("XYZ") if line is not None and a in line.params) or (0, 1, 2)
-            )
+            return self._home(*homing_request(line.params if line is not None else {}))
         return None
 
-    def _home(self, axes: tuple[int, ...]) -> float:
+    def _home(self, axes: tuple[int, ...], raise_mm: float | None = None) -> float:
         """G28 as Marlin's G28.cpp; when it is done. The machine model (gcode.machine `Machine.home`) says what
         the firmware does: before homing X or Y, Z rises by the profile's homing clearance (relative while Z is
         not homed, to that height once it is; never down); the axes go home; once Z is homed it moves to the
         post-homing height (down too). The native build: G0 Z5, G28 X -> Z:10.00; a full G28 -> Z:5.00; G1 Z2,
-        G28 Y -> Z:5.00; G1 Z20, G28 Y -> Z:20.00. _reply prints the position. The profile's `homing_time_s` is
+        G28 Y -> Z:5.00; G1 Z20, G28 Y -> Z:20.00; G28 X R3 -> Z:23.00 (R: relative); G28 Y R0 -> no raise.
+        _reply prints the position. The profile's `homing_time_s` is
         a whole G28 as measured, raises included: the homing takes what they leave."""
         now = self.clock.now()
         tl = self.timeline
-        home = self.machine.home(axes)
+        home = self.machine.home(axes, raise_mm)
         if home.rise is not None:
             self._queue_move(home.rise, "G28")
         for i in home.axes:
