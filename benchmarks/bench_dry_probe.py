@@ -194,7 +194,6 @@ def recorder_section(protocol: Path, presses: int, repeats: int, against: Path |
 def quadrature_section(states: int, repeats: int) -> None:
     from neatskin.layout import load_layout
     from neatskin.skin.deformation import (
-        _PANEL_EDGES,
         PinchParams,
         _factor_chunk,
         factor_and_length_fraction,
@@ -225,7 +224,7 @@ def quadrature_section(states: int, repeats: int) -> None:
     zero = np.zeros(1)
 
     def untouched_integrated() -> np.ndarray:
-        return _factor_chunk(layout, zero, zero, zero, np.full(1, PROBE_RADIUS_MM), params, None, False, _PANEL_EDGES)
+        return _factor_chunk(layout, zero, zero, zero, np.full(1, PROBE_RADIUS_MM), params, None, False)
 
     def untouched_skipped() -> np.ndarray:
         return resistance_factor(layout, 0.0, 0.0, 0.0, PROBE_RADIUS_MM, params)

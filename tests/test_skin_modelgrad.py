@@ -210,3 +210,13 @@ def test_the_network_part_is_exact_on_a_ring_of_channels():
                 for k in range(3)
             ]
             np.testing.assert_allclose(jac[row, p], expected, rtol=1e-12, atol=1e-12 * float(total))
+
+
+def test_a_scalar_depth_holds_for_every_press_as_in_the_value():
+    """factor_and_gradient broadcasts its inputs as resistance_factor does: a scalar depth is every press's (it once
+    applied to the first press only, and the others came back untouched, factor 1)."""
+    layout = LAYOUT
+    x, y = np.array([7.5, 3.0, 12.0]), np.array([0.0, 0.5, 0.2])
+    factor, grad = factor_and_gradient(layout, x, y, 3.0, 2.75)
+    np.testing.assert_allclose(factor, resistance_factor(layout, x, y, np.full(3, 3.0), 2.75), rtol=1e-13)
+    assert np.all(factor.max(axis=1) > 1.0) and grad.shape == (3, layout.n_channels, 3)

@@ -1,7 +1,8 @@
 """The Marlin line protocol as a sans-IO state machine: bytes and time in, bytes to write and finished jobs out.
 
-`LineProtocol` owns every piece of protocol state (line numbers, the lines in flight, resends,
-deadlines, lost-`ok` probes, the connect handshake) and touches no port, thread or clock: the
+`LineProtocol` is the machine's public face: through its layers it keeps every piece of protocol state (line
+numbers, the lines in flight, resends, deadlines, lost-`ok` probes, the connect handshake) and touches no port,
+thread or clock: the
 caller feeds it what the printer said (`receive(data, now)`), the passing of time (`tick(now)`)
 and work (`start_session`, `submit`), and takes the bytes to write (`data_to_send()`) and how
 jobs ended (`events()`: Acknowledged or Failed, as h11 returns events; a Job is never mutated). Every wait it keeps has a

@@ -121,7 +121,7 @@ class Link:
         """Read, feed the protocol, write what it asks for; sleep until its next deadline, not by polling.
 
         While callers wait (or waited within READER_STANDBY_S) and nothing is due without them, the reader
-        stands by and the callers read (`_wait`); it takes the channel back when they are gone."""
+        stands by and the callers read (`wait`); it takes the channel back when they are gone."""
         channel = self._channel
         assert channel is not None
         cond = self._cond

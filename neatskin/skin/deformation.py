@@ -166,7 +166,7 @@ def _integrate(layout, x_mm, y_mm, depth_mm, probe_radius_mm, params, pinch_scal
         out[0, untouched], out[1, untouched] = 1.0, 0.0
     else:
         out[untouched] = 0.0 if volume else 1.0
-    # the chunks are modelgrad.factor_and_gradient's (the graded panels depend on a chunk's deepest side)
+    # the chunks are modelgrad.factor_and_gradient's (the graded panels depend on a chunk's highest side peak)
     for sl in _press_chunks(~untouched):
         out[..., sl, :] = _factor_chunk(layout, x[sl], y[sl], depth[sl], radius[sl], params, scale, volume)
     return out
@@ -199,7 +199,7 @@ def _graded_edges(peak: np.ndarray) -> np.ndarray:
 
 def _press_chunks(touching: np.ndarray) -> list[np.ndarray]:
     """The touching presses' indices in chunks of _CHUNK_PRESSES: one chunking for the value (here) and the
-    gradient (modelgrad), as a chunk's graded panels depend on its deepest side."""
+    gradient (modelgrad), as a chunk's graded panels depend on its highest side peak."""
     idx = np.flatnonzero(touching)
     return [idx[lo : lo + _CHUNK_PRESSES] for lo in range(0, idx.size, _CHUNK_PRESSES)]
 
@@ -228,7 +228,7 @@ def _footprint_sides(x, y, a, decay, start, unit, length):
     return perp, perp2, foot_hi - foot_lo, base, side_len, active
 
 
-def _side_panels(perp2, base, active, a, decay, p0, max_nodes, standard_edges=_PANEL_EDGES):
+def _side_panels(perp2, base, active, a, decay, p0, max_nodes):
     """The live sides (active > 0) of a chunk and their panels, in batches of at most `max_nodes` panels x sides:
     tuples (live, side_of, press_of, width, begin) of the flat side indices, their (press, channel) and press
     indices, and the panels' widths and starts (panels, m) along the side from s0.
@@ -256,9 +256,9 @@ def _side_panels(perp2, base, active, a, decay, p0, max_nodes, standard_edges=_P
         graded[deep] = peak > _GRADED_FROM_P0
         peak = peak[peak > _GRADED_FROM_P0]
     batches = []
-    groups: list[tuple[np.ndarray | None, np.ndarray]] = [(None, standard_edges)]  # None: every live side
+    groups: list[tuple[np.ndarray | None, np.ndarray]] = [(None, _PANEL_EDGES)]  # None: every live side
     if graded.any():
-        groups = [(np.flatnonzero(~graded), standard_edges), (np.flatnonzero(graded), _graded_edges(peak))]
+        groups = [(np.flatnonzero(~graded), _PANEL_EDGES), (np.flatnonzero(graded), _graded_edges(peak))]
     for sides, panel_edges in groups:
         count = live.size if sides is None else sides.size
         step = max(1, max_nodes // (panel_edges.size - 1))
@@ -272,9 +272,9 @@ def _side_panels(perp2, base, active, a, decay, p0, max_nodes, standard_edges=_P
     return batches
 
 
-def _factor_chunk(layout, x, y, depth, radius, params, scale=None, volume=False, panel_edges=_PANEL_EDGES):
-    """(n, C) of the factor (volume False), the length share (True) or both stacked (None) of one chunk; panel_edges
-    are the standard panels (the sides peaking above _GRADED_FROM_P0 get graded ones)."""
+def _factor_chunk(layout, x, y, depth, radius, params, scale=None, volume=False):
+    """(n, C) of the factor (volume False), the length share (True) or both stacked (None) of one chunk: the
+    standard panels, graded ones on the sides peaking above _GRADED_FROM_P0 (`_side_panels`)."""
     start, unit, length = _channel_geometry(layout)
     thickness, cdepth = layout.thickness_mm, layout.channel_depth_mm
     touching = depth > 0
@@ -290,9 +290,7 @@ def _factor_chunk(layout, x, y, depth, radius, params, scale=None, volume=False,
     # every broadcast operand is a contiguous block; each live side's press and channel quantities are gathered by
     # index (the values a broadcast to (n, C, 2) would hold)
     max_nodes = _NODE_BUFFER_MAX // nodes.size
-    for live, side_of, press_of, width, begin in _side_panels(
-        perp2, base, active, a, decay, p0, max_nodes, panel_edges
-    ):
+    for live, side_of, press_of, width, begin in _side_panels(perp2, base, active, a, decay, p0, max_nodes):
         r = _minus_pinch(nodes, width, begin, perp2, a, decay, p0, side_of, press_of)
         if volume is not False:
             sums[1, live] = _node_sums(True, r, weights, width)  # leaves p in r

@@ -79,7 +79,8 @@ def factor_and_gradient(
 
     The same chunks and panels as `deformation.resistance_factor` (the sides peaking above 0.9 graded by their chunk's
     highest peak), so the factor agrees with it to rounding. A press not touching (depth <= 0): 1 and 0."""
-    x, y, depth = (np.atleast_1d(np.asarray(v, float)) for v in (x_mm, y_mm, depth_mm))
+    # broadcast as deformation._integrate does: a scalar depth (or x, y) holds for every press
+    x, y, depth = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, float)) for v in (x_mm, y_mm, depth_mm)))
     scale = None if pinch_scale is None else np.asarray(pinch_scale, float).reshape(1, layout.n_channels)
     factor = np.ones((x.size, layout.n_channels))
     grad = np.zeros((x.size, layout.n_channels, 3))
