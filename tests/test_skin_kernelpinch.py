@@ -117,3 +117,52 @@ def test_the_comparison_can_fail_a_kernel_off_by_one_grid_step_is_caught():
     want, _ = reference_factor_and_share(KERNEL, x, y, depth)
     with pytest.raises(AssertionError):
         np.testing.assert_allclose(got, want, rtol=1e-12)
+
+
+def _means_of_lerp_rows(rows, lo, weight):
+    """What the single-spot path computed before it used scratch memory: lerp_rows, then numpy's means."""
+    ratio = PinchKernel.lerp_rows(rows, lo, weight)
+    with np.errstate(divide="ignore"):
+        return np.mean(1.0 / ratio, axis=-1), np.mean(ratio, axis=-1)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    depths=st.lists(st.floats(-0.5, 5.5), min_size=1, max_size=300),
+    channels=st.integers(1, 7),
+    nodes=st.integers(1, 60),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_lerp_rows_means_are_the_means_of_lerp_rows_bit_for_bit(depths, channels, nodes, seed):
+    """The dry run's records must not move by an ulp (the same bits as before the scratch memory): shut nodes,
+    offsets beyond reach, depths at and below 0 and deeper than the table, any batch of states."""
+    rng = np.random.default_rng(seed)
+    rows = KERNEL.depth_rows(np.array(depths))
+    lo, weight = KERNEL.offset_index(rng.uniform(-11.0, 11.0, (channels, nodes)))
+    got, want = KERNEL.lerp_rows_means(rows, lo, weight), _means_of_lerp_rows(rows, lo, weight)
+    for g, w in zip(got, want):
+        assert g.shape == w.shape == (len(depths), channels)
+        assert np.array_equal(g.view(np.int64), w.view(np.int64))
+
+
+def test_lerp_rows_means_bit_test_can_fail_a_mean_that_adds_in_another_order():
+    """Negative control: numpy's mean over a contiguous copy adds the nodes pairwise, not one after the other, and
+    that moves some states by an ulp; the bit-for-bit comparison above sees it."""
+    rng = np.random.default_rng(5)
+    rows = KERNEL.depth_rows(rng.uniform(0.1, 4.0, 200))
+    lo, weight = KERNEL.offset_index(rng.uniform(0.0, 9.0, (5, 48)))
+    ratio = np.ascontiguousarray(PinchKernel.lerp_rows(rows, lo, weight))
+    _, want = KERNEL.lerp_rows_means(rows, lo, weight)
+    assert not np.array_equal(np.mean(ratio, axis=-1), want)
+    np.testing.assert_allclose(np.mean(ratio, axis=-1), want, rtol=1e-15)  # only the rounding differs
+
+
+def test_a_calls_results_survive_the_next_call_in_scratch_memory():
+    """The single-spot path works in per-thread scratch memory (skin/scratch.py); what it returns is its own."""
+    depth = np.linspace(0.2, 4.0, 150)
+    first = kernel_factor_and_share(LAYOUT, KERNEL, np.full(150, 12.0), np.full(150, 9.0), depth)
+    kept = [a.copy() for a in first]
+    kernel_factor_and_share(LAYOUT, KERNEL, np.full(150, 3.0), np.full(150, 21.0), depth[::-1])
+    for a, b in zip(first, kept):
+        assert np.array_equal(a, b)
+    assert (kept[0] > 1).any()

@@ -501,3 +501,35 @@ def test_rayleigh_monotonicity_with_shut_channels(net, data):
     before, after = equivalent_resistance(layout, np.stack([g, raised]))
     assert np.all(after >= before * (1 - 1e-12))
     assert np.all(np.isinf(after[np.isinf(before)]))
+
+
+# ---- the grounded path's diagonal: numpy's own sum, bit for bit -----------------------------
+
+
+def _signed_values(rng, shape):
+    """Negated conductances over 24 decades, with exact zeros and negative zeros (a Laplacian's off-diagonal)."""
+    values = -rng.random(shape) * 10.0 ** rng.uniform(-12.0, 12.0, shape)
+    values[rng.random(shape) < 0.2] = 0.0
+    values[rng.random(shape) < 0.2] = -0.0
+    return values
+
+
+@settings(max_examples=60, deadline=None)
+@given(k=st.integers(1, 70), presses=st.integers(1, 40), seed=st.integers(0, 2**32 - 1))
+def test_row_sums_are_numpys_sum_bit_for_bit(k, presses, seed):
+    """The dry run's records must not move by an ulp: `_row_sums` adds in numpy's order (signed zeros included)."""
+    from neatskin.skin.network import _row_sums
+
+    lap = _signed_values(np.random.default_rng(seed), (presses, k, k))
+    assert np.array_equal(_row_sums(lap).view(np.int64), lap.sum(axis=2).view(np.int64))
+
+
+def test_row_sums_bit_test_can_fail_a_sum_in_another_order():
+    """Negative control: adding a row of 8 one after the other (not numpy's pairwise order) moves some sums by an
+    ulp, and the bit-for-bit comparison above sees it."""
+    lap = _signed_values(np.random.default_rng(11), (500, 8, 8))
+    sequential = lap[:, :, 0].copy()
+    for j in range(1, 8):
+        sequential += lap[:, :, j]
+    assert not np.array_equal(sequential, lap.sum(axis=2))
+    np.testing.assert_allclose(sequential, lap.sum(axis=2), rtol=1e-14)  # only the rounding differs

@@ -15,6 +15,7 @@ import numpy as np
 
 from neatskin.skin.fesetup import SHUT_AREA_RATIO, Material, PressGeometry, SolverSettings
 from neatskin.skin.quasi3d import fill_unsolved
+from neatskin.skin.scratch import arrays
 
 KERNEL_FORMAT = 2  # bump when the solver's output for the same settings changes (2: quasi-3D transfer)
 PAPER_KERNEL = "paper_pinch_kernel.parquet"  # in neatskin/protocols/skins/
@@ -137,6 +138,29 @@ class PinchKernel:
             low, high = flat[at], flat[at + 1]
         value = low * (1 - weight) + high * weight
         return np.where(value < SHUT_AREA_RATIO, 0.0, value)
+
+    @staticmethod
+    def lerp_rows_means(rows: np.ndarray, lo: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(mean of 1 / A/A0, mean of A/A0) over the last axis of `lerp_rows(rows, lo, weight)`, each
+        (rows, *lo.shape[:-1]): a channel's midpoint-rule factor and area at every state.
+
+        The same bits as the means of `lerp_rows` (tested), in two scratch arrays (skin/scratch.py) instead of six
+        fresh ones, whose page faults cost as much as the arithmetic. Laid out as `rows[:, lo]` lays out its result
+        (rows innermost), so each mean adds the nodes in the same order, one after the other."""
+        shape = (*lo.shape, rows.shape[0])  # (..., nodes, rows): rows[:, lo]'s memory order
+        value, other = arrays(shape, shape)
+        rows_t = np.ascontiguousarray(rows.T)
+        np.take(rows_t, lo, axis=0, out=value)  # rows[:, lo]
+        np.take(rows_t, lo + 1, axis=0, out=other)
+        value *= (1 - weight)[..., None]
+        other *= weight[..., None]
+        value += other  # low * (1 - weight) + high * weight
+        np.copyto(value, 0.0, where=value < SHUT_AREA_RATIO)  # shut
+        with np.errstate(divide="ignore"):
+            np.divide(1.0, value, out=other)
+        n = lo.shape[-1]
+        inverse, mean = np.add.reduce(other, axis=-2), np.add.reduce(value, axis=-2)  # np.mean: the sum, then / n
+        return np.moveaxis(inverse / n, -1, 0), np.moveaxis(mean / n, -1, 0)
 
 
 _PROVENANCE_SPEC = ("geometry", "material", "settings")

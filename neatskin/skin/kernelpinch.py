@@ -60,10 +60,12 @@ def kernel_factor_and_share(
         block_f, block_s = factor[sl], share[sl]
         if px.size == 1:  # one spot (a dry-run press's states): every pressed state at every near channel's nodes
             states = np.flatnonzero(pressed)
-            ratio = kernel.lerp_rows(rows[states], node_lo, node_w)  # (states, channels in reach, nodes)
-            with np.errstate(divide="ignore"):
-                block_f[states[:, None], chan] = np.mean(1.0 / ratio, axis=2)
-            block_s[states[:, None], chan] = 1.0 - np.mean(ratio, axis=2)
+            # the means over (states, channels in reach, nodes), in place in scratch memory
+            inverse, mean = kernel.lerp_rows_means(
+                rows if states.size == rows.shape[0] else rows[states], node_lo, node_w
+            )
+            block_f[states[:, None], chan] = inverse
+            block_s[states[:, None], chan] = 1.0 - mean
             continue
         pair_of = np.cumsum(near.ravel()).reshape(near.shape) - 1  # (spot, channel) -> its row in node_lo
         press, live_chan = np.nonzero(live)

@@ -21,9 +21,6 @@ Supported: the parametric pinch with the "deformation" fidelity, any channel hei
 
 from __future__ import annotations
 
-import math
-import threading
-
 import numpy as np
 
 from neatskin.layout import Layout
@@ -37,33 +34,9 @@ from neatskin.skin.deformation import (
     _press_chunks,
     _side_panels,
 )
-
-_BUFFERS = threading.local()  # the node arrays' memory, reused from call to call (fresh, their page faults cost
-# as much as the arithmetic: deformation._node_buffer's reason); per thread
-
-
-_BUFFER_MAX = 1 << 21  # float64 elements (16 MB) kept at most; `_side_panels` batches a chunk's sides to fit
-
-
-def _buffers(count: int, shape: tuple[int, ...]) -> list[np.ndarray]:
-    """`count` uninitialised arrays of `shape`, views of one per-thread block kept between calls (larger calls get
-    their own)."""
-    return _arrays(*([shape] * count))
-
-
-def _arrays(*shapes: tuple[int, ...]) -> list[np.ndarray]:
-    """Uninitialised arrays of these shapes, views of one per-thread block kept between calls (larger calls get
-    their own). A caller's arrays are dead by the next call in the thread: nothing returned is such a view."""
-    sizes = [math.prod(shape) for shape in shapes]
-    total = sum(sizes)
-    if total > _BUFFER_MAX:
-        return [np.empty(shape) for shape in shapes]
-    block = getattr(_BUFFERS, "block", None)
-    if block is None or block.size < total:
-        block = np.empty(max(total, 1 << 16))
-        _BUFFERS.block = block
-    offsets = np.cumsum([0, *sizes])
-    return [block[lo:hi].reshape(shape) for lo, hi, shape in zip(offsets[:-1], offsets[1:], shapes)]
+from neatskin.skin.scratch import BLOCK_MAX as _BUFFER_MAX  # `_side_panels` batches a chunk's sides to fit
+from neatskin.skin.scratch import arrays as _arrays
+from neatskin.skin.scratch import buffers as _buffers  # temporaries reused per thread (scratch.py's reason)
 
 
 def factor_and_gradient(

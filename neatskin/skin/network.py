@@ -201,9 +201,8 @@ def _grounded(layout: Layout, g: np.ndarray) -> np.ndarray:
     w = _eliminate(w, list(range(len(electrodes))))  # (k, k, presses), zero diagonal
     k = w.shape[0]
     # press-major and contiguous, so every press is computed the same way whatever the batch (bit for bit)
-    lap = -np.ascontiguousarray(np.moveaxis(w, -1, 0))  # (presses, k, k)
-    diag = np.arange(k)
-    lap[:, diag, diag] = -lap.sum(axis=2)
+    lap = np.negative(w.transpose(2, 0, 1), out=np.empty((g.shape[0], k, k)))  # (presses, k, k)
+    lap.reshape(-1, k * k)[:, :: k + 1] = -_row_sums(lap)  # the diagonal
     a, b = layout.pair_electrode_index[:, 0], layout.pair_electrode_index[:, 1]
     # Routed press by press (never by batch), so that a press gets the same bits whatever batch it comes in.
     # Every channel conducting: one group (Layout refuses a disconnected network), the plain grounding at electrode 0.
@@ -222,11 +221,41 @@ def _grounded(layout: Layout, g: np.ndarray) -> np.ndarray:
     return r
 
 
+def _row_sums(lap: np.ndarray) -> np.ndarray:
+    """`lap.sum(axis=2)` with the same bits, in whole-column adds (numpy reduces each short contiguous row in its
+    own inner-loop call, ~1,700 of them for a dry-run press). numpy's order: 0.0 plus the pairwise sum, which adds a
+    row of fewer than 8 one after the other and a longer one (up to 128) in 8 interleaved partial sums, combined
+    ((0+1)+(2+3))+((4+5)+(6+7)), then the rest of the 8s one after the other (tests/test_skin_network.py)."""
+    k = lap.shape[2]
+    if k > 128:
+        return lap.sum(axis=2)
+    column = lap.transpose(2, 0, 1)
+    if k < 8:
+        total = 0.0 + column[0]
+        for j in range(1, k):
+            total += column[j]
+        return 0.0 + total
+    partial = column[:8].copy()
+    whole = k - k % 8
+    for start in range(8, whole, 8):
+        partial += column[start : start + 8]
+    total = ((partial[0] + partial[1]) + (partial[2] + partial[3])) + (
+        (partial[4] + partial[5]) + (partial[6] + partial[7])
+    )
+    for j in range(whole, k):
+        total += column[j]
+    return 0.0 + total
+
+
 def _one_group(lap: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """R_ab from the electrodes' Laplacians (presses, k, k) of one connected group, grounded at electrode 0."""
+    k = lap.shape[1]
     z = np.zeros_like(lap)
     z[:, 1:, 1:] = np.linalg.inv(np.ascontiguousarray(lap[:, 1:, 1:]))
-    return z[:, a, a] + z[:, b, b] - 2.0 * z[:, a, b]
+    flat = z.reshape(-1, k * k)  # Z_aa + Z_bb - 2 Z_ab, gathered from the flat rows
+    return (np.take(flat, a * (k + 1), axis=1) + np.take(flat, b * (k + 1), axis=1)) - 2.0 * np.take(
+        flat, a * k + b, axis=1
+    )
 
 
 def _group_roots(lap: np.ndarray) -> np.ndarray:
