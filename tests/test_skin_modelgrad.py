@@ -4,7 +4,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 from neatskin.layout import load_layout
@@ -76,6 +76,7 @@ def _near_a_kink(x: float, y: float, radius_mm: float = 2.75, within_mm: float =
 
 
 @settings(max_examples=60, deadline=None)
+@example(x=0.0, y=27.25390625, depth_fraction=0.25)  # 0.0039 mm inside tangency with y = 30: 6 nodes skipped
 @given(
     x=st.floats(-1.0, 31.0),
     y=st.floats(-1.0, 31.0),
@@ -91,8 +92,12 @@ def test_the_gradient_is_the_models_own_central_difference(x, y, depth_fraction)
     press = (np.array([x]), np.array([y]), np.array([depth]))
     # 24 nodes a panel: the quadrature's error is negligible, and the two agree to the differences' own accuracy
     _assert_matches_differences(SkinModel(LAYOUT, pinch=PinchParams(nodes_per_panel=24)), *press)
-    # the default 6: apart by the derivative of the quadrature's error (measured up to 2e-4 of the largest)
-    _assert_matches_differences(SkinModel(LAYOUT), *press, tolerance=1e-3)
+    # the default 6: apart by the derivative of the quadrature's error (measured up to 2e-4 of the largest), which
+    # grows as 1 / sqrt(depth into the chord) just inside a tangency: 8e-5 / sqrt(gap / mm) of the largest (x = 0,
+    # the footprint 0.001 / 0.0039 / 0.01 / 0.1 mm over y = 30: 2.8e-3 / 1.3e-3 / 7.6e-4 / 1.1e-4; 07d1518 alike,
+    # found by hypothesis at y = 27.25390625), so this one keeps 0.01 mm off the kinks
+    if not _near_a_kink(x, y, within_mm=1e-2):
+        _assert_matches_differences(SkinModel(LAYOUT), *press, tolerance=1e-3)
 
 
 def test_where_the_quadratures_derivative_errs_the_gradient_is_the_converged_one():
