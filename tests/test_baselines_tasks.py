@@ -120,7 +120,9 @@ def test_a_report_in_processes_equals_one_in_this_process(tmp_path):
     np.testing.assert_array_equal(inv_here.y_pred_mm, inv_pool.y_pred_mm)
 
 
-def _pid_and_blas_threads(key: str, sleep_s: float, flag: str) -> tuple[str, int, list[int]]:
+def _pid_and_blas_threads(key: str, sleep_s: float, flag: str, hold_for: str = "") -> tuple[str, int, list[int]]:
+    """The task's key, its process and BLAS threads; it touches `flag` and then, given `hold_for`, holds until that
+    file exists (a cap of 60 s), so a test can decide which lane takes which task without racing the scheduler."""
     import os
     import time
 
@@ -129,6 +131,8 @@ def _pid_and_blas_threads(key: str, sleep_s: float, flag: str) -> tuple[str, int
     time.sleep(sleep_s)
     if flag:
         Path(flag).touch()
+    if hold_for:
+        _wait_for(Path(hold_for))
     return key, os.getpid(), sorted({lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"})
 
 
@@ -148,9 +152,12 @@ def test_this_process_is_a_lane_taking_the_cheap_end_and_the_worker_ends_with_th
     import numpy  # noqa: F401  (loads the BLAS whose threads the lanes set)
 
     others = set(multiprocessing.active_children())  # an earlier test's pool in this process, e.g. loky's
-    dear = tmp_path / "dear-started"
-    tasks = [Task("dear", 10.0, _pid_and_blas_threads, ("dear", 0.0, str(dear)))]
-    tasks += [Task(f"cheap{k}", 0.1 * k, _pid_and_blas_threads, (f"cheap{k}", 0.0, "")) for k in range(4)]
+    dear, cheapest = tmp_path / "dear-started", tmp_path / "cheap0-done"
+    # the worker holds the costliest task until the cheapest has run: a worker done at once could otherwise take
+    # every cheap task before this process wakes (seen once in CI, under load)
+    tasks = [Task("dear", 10.0, _pid_and_blas_threads, ("dear", 0.0, str(dear), str(cheapest)))]
+    tasks += [Task("cheap0", 0.0, _pid_and_blas_threads, ("cheap0", 0.0, str(cheapest)))]
+    tasks += [Task(f"cheap{k}", 0.1 * k, _pid_and_blas_threads, (f"cheap{k}", 0.0, "")) for k in range(1, 4)]
     # meanwhile waits until the worker has the costliest task, so this process's share is decided by the order
     out = run_tasks(tasks, n_jobs=2, meanwhile=lambda: _wait_for(dear))
     assert set(out) == {t.key for t in tasks}
