@@ -119,9 +119,9 @@ def results_table(
     physical_limit.parquet, an RMS error below the label-noise floor of the row's own split flags it too, and each
     row gets its split's floor and its excess over it (`floortext.add_floor_columns`)."""
     table = add_floor_columns(pd.DataFrame([r.row() for r in results]), floors)
-    # a pooled bound held by positions where it exceeds the probe radius (infinite, or huge: on the FE skin a press
-    # on a channel the probe shuts tells which channel, not where along it) has no ratio and flags nothing: every
-    # real estimator is biased there, and rms / inf = 0 (or rms / 1e5) read as "far below the bound"
+    # a pooled bound held by positions where it exceeds the skin (infinite, or huge: on the FE skin a press on a
+    # channel the probe shuts tells which channel, not where along it) has no ratio and flags nothing (`comparable`:
+    # no estimator answering on the skin is unbiased there), and rms / inf = 0 (or rms / 1e5) read as "far below"
     if nuisance_bound is not None:
         table["crb_nuisance_rms_mm"] = nuisance_bound
         table["rms_over_crb_nuisance"] = _ratio(table["rms_error_mm"], nuisance_bound, comparable[1])
@@ -130,7 +130,7 @@ def results_table(
         table["rms_over_crb"] = _ratio(table["rms_error_mm"], bound, comparable[0])
     if bound is not None and comparable[0] and np.isfinite(bound):
         table["below_bound"] = (table["rms_error_mm"] < bound) | (table["median_error_mm"] < MEDIAN_BOUND_SHARE * bound)
-    else:  # no bound, or one held by positions beyond the probe radius: nothing is below it
+    else:  # no bound, or one held by positions beyond the skin: nothing is below it
         table["below_bound"] = False
     table["below_bound"] = table["below_bound"] | below_label_floor(table)
     return table
