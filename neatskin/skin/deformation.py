@@ -33,18 +33,16 @@ only channel sides within reach of the pinch are integrated.
 
 from __future__ import annotations
 
-import math
-import threading
 from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 
 from neatskin.layout import Layout
+from neatskin.skin.scratch import arrays
 
 _CHUNK_PRESSES = 768
-_NODE_BUFFER_MAX = 1 << 20  # float64 elements (8 MB): the integrand's reused buffer, per thread, at most
-_NODE_BUFFERS = threading.local()
+_NODE_BUFFER_MAX = 1 << 20  # float64 elements (8 MB): the integrand's batch, from the reused scratch block, at most
 _CUTOFF_DECAYS = 6.1  # exp(-6.1^2) < 1e-16
 _PANEL_EDGES = np.array([0.0, 0.5, 2.0, np.inf])  # side panels in decay lengths from the probe edge
 # Near a full-depth press (p0 -> 1) the integrand 1 / (1 - p0 exp(-u^2)) is a peak of half-width
@@ -172,20 +170,6 @@ def _integrate(layout, x_mm, y_mm, depth_mm, probe_radius_mm, params, pinch_scal
     return out
 
 
-def _node_buffer(shape: tuple[int, ...]) -> np.ndarray:
-    """An uninitialised (q, panels, sides) array for the integrand, reused from call to call within a thread.
-    A fresh array of this size comes from mmap, and its page faults cost as much as the arithmetic over a dry-run
-    press's few hundred states (measured: 0.53 -> 0.38 ms for 204 states). Larger batches get their own."""
-    size = math.prod(shape)
-    if size > _NODE_BUFFER_MAX:
-        return np.empty(shape)
-    buffer = getattr(_NODE_BUFFERS, "buffer", None)
-    if buffer is None or buffer.size < size:
-        buffer = np.empty(max(size, 1 << 14))
-        _NODE_BUFFERS.buffer = buffer
-    return buffer[:size].reshape(shape)
-
-
 def _graded_edges(peak: np.ndarray) -> np.ndarray:
     """Panel edges (in decay lengths) for the sides whose pinch peaks above _GRADED_FROM_P0: the standard ones, with
     the first panel cut geometrically towards the side's start down to the highest peak's half-width."""
@@ -310,8 +294,10 @@ def _per_side(v, press_of, side_of):
 
 
 def _minus_pinch(nodes, width, begin, perp2, a, decay, p0, side_of, press_of):
-    """-p at every node, (q, panels, m), in the reused node buffer."""
-    r = np.multiply(nodes[:, None, None], width, out=_node_buffer((nodes.size, *width.shape)))
+    """-p at every node, (q, panels, m), in the thread's scratch block (skin/scratch.py: a fresh array's page faults
+    cost as much as the arithmetic over a dry-run press's few hundred states, 0.53 -> 0.38 ms for 204 states)."""
+    (r,) = arrays((nodes.size, *width.shape))
+    np.multiply(nodes[:, None, None], width, out=r)
     # in place from here: one pass per operation
     r += begin
     np.multiply(r, r, out=r)
