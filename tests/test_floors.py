@@ -105,15 +105,15 @@ def test_a_landing_bound_beyond_the_probe_radius_is_given_by_its_median_and_its_
     floors = read_floors(limit)
     limit.loc[6, "landing_bound_mm"] = 3e4  # huge, finite: beyond the probe radius too
     floors = read_floors(limit)
-    assert floors.landing_rms_mm == np.inf and floors.landing_beyond == (4, 10)
-    assert floors.landing_median_mm == (0.05, 0.02)
+    assert floors.landing_rms_mm == np.inf and floors.landing_spread[1:] == (4, 10) and floors.landing_infinite == 3
+    assert floors.landing_spread[0] == 0.05 and floors.landing_known_skin_spread == (0.02, 3, 10)
     text = "\n".join(floors_section(pd.DataFrame(), floors))
     assert (
         "The landing-point bound exceeds the probe radius at 4 of 10 positions (infinite at 3: a press on a channel "
         "the probe shuts tells which channel, not where along it); its median over positions is 0.05 mm (0.02 mm "
         "with this skin's fabrication known)." in text
     )
-    assert read_floors(limit, radius_mm=1e5).landing_beyond == (3, 10)  # the radius is the probe's
+    assert read_floors(limit, radius_mm=1e5).landing_spread[1:] == (3, 10)  # the radius is the probe's
     assert "exceeds the probe radius" not in "\n".join(floors_section(pd.DataFrame(), read_floors(_limit())))
 
 

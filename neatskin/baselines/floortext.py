@@ -26,11 +26,11 @@ class Floors:
     label_mm: dict[str, tuple[float, float]]
     landing_rms_mm: float
     landing_known_skin_rms_mm: float | None = None
-    # the landing-point bound's median over positions (this skin's fabrication unknown, known), and at how many of
-    # how many positions it exceeds the probe radius (infinite or huge): what the pooled RMS hides when a few
+    # the landing-point bound's `bound_spread_mm` (median, positions beyond the probe radius, positions), this skin's
+    # fabrication unknown and known, and how many positions it is infinite at: what the pooled RMS hides when a few
     # positions hold it
-    landing_median_mm: tuple[float, float | None] = (np.nan, None)
-    landing_beyond: tuple[int, int] = (0, 0)
+    landing_spread: tuple[float, int, int] = (np.nan, 0, 0)
+    landing_known_skin_spread: tuple[float, int, int] | None = None
     landing_infinite: int = 0
 
     def of_split(self, split: str) -> tuple[float, float]:
@@ -70,7 +70,7 @@ def skin_extent_mm(layout, positions_mm: np.ndarray) -> float:
 
 
 def read_floors(limit: pd.DataFrame | None, radius_mm: float = 2.75) -> Floors | None:
-    """The pooled floors of a physical limit frame (radius_mm: the probe's, for `Floors.landing_beyond`); None when
+    """The pooled floors of a physical limit frame (radius_mm: the probe's, for `Floors.landing_spread`); None when
     it predates them (no `landing_bound_mm`)."""
     if limit is None or len(limit) == 0 or "landing_bound_mm" not in limit.columns:
         return None
@@ -80,16 +80,17 @@ def read_floors(limit: pd.DataFrame | None, radius_mm: float = 2.75) -> Floors |
         rms = limit[f"label_floor_{prior}_rms_mm"].to_numpy(float)
         label[prior] = (float(np.mean(mean)), float(np.sqrt(np.mean(rms**2))))
     landing = limit["landing_bound_mm"].to_numpy(float)
-    known = known_median = None
+    known = None
     if "landing_bound_known_skin_mm" in limit.columns:
-        known_skin = limit["landing_bound_known_skin_mm"].to_numpy(float)
-        known, known_median = float(np.sqrt(np.mean(known_skin**2))), float(np.median(known_skin))
+        known = float(np.sqrt(np.mean(limit["landing_bound_known_skin_mm"].to_numpy(float) ** 2)))
+    spread = bound_spread_mm(limit, "landing_bound_mm", radius_mm)
+    assert spread is not None  # the column is there (checked above)
     return Floors(
         label,
         float(np.sqrt(np.mean(landing**2))),
         known,
-        (float(np.median(landing)), known_median),
-        (int(np.count_nonzero(landing > radius_mm)), landing.size),
+        spread,
+        bound_spread_mm(limit, "landing_bound_known_skin_mm", radius_mm),
         int(np.count_nonzero(np.isinf(landing))),
     )
 
@@ -142,15 +143,15 @@ def floors_section(table: pd.DataFrame, floors: Floors | None, campaign_seeds: i
             "| landing-point bound, this skin's fabrication known | the same for a model trained on this skin, "
             f"which has seen its channels | | {floors.landing_known_skin_rms_mm:.3g} |"
         )
-    if floors.landing_beyond[0]:
-        median, known_median = floors.landing_median_mm
-        known_text = "" if known_median is None else f" ({known_median:.3g} mm with this skin's fabrication known)"
+    median, beyond, positions = floors.landing_spread
+    if beyond:
+        known = floors.landing_known_skin_spread
+        known_text = "" if known is None else f" ({known[0]:.3g} mm with this skin's fabrication known)"
         lines += [
             "",
-            f"The landing-point bound exceeds the probe radius at {floors.landing_beyond[0]} of "
-            f"{floors.landing_beyond[1]} positions (infinite at {floors.landing_infinite}: a press on a channel the "
-            "probe shuts tells which channel, not where along it); its median over positions is "
-            f"{median:.3g} mm{known_text}.",
+            f"The landing-point bound exceeds the probe radius at {beyond} of {positions} positions (infinite at "
+            f"{floors.landing_infinite}: a press on a channel the probe shuts tells which channel, not where along "
+            f"it); its median over positions is {median:.3g} mm{known_text}.",
         ]
     lines += [
         "",

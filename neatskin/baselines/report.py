@@ -16,7 +16,7 @@ import functools
 import logging
 import time
 import warnings
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -90,6 +90,9 @@ class Report:
     spreads: tuple[tuple[float, int, int] | None, ...] = (None, None)
 
 
+BOUND_COLUMNS = ("crb_mm", "crb_nuisance_mm")  # the physical limit's bounds on the position error, in the report
+
+
 def bound_rms_mm(limit: pd.DataFrame | None, column: str = "crb_mm") -> float | None:
     """Pooled RMS bound sqrt(mean crb^2) over the positions (inf if any position is unobservable); None when the
     limit or its column is absent (`crb_nuisance_mm` is missing from datasets written before it existed)."""
@@ -99,10 +102,10 @@ def bound_rms_mm(limit: pd.DataFrame | None, column: str = "crb_mm") -> float | 
     return float(np.sqrt(np.mean(crb * crb)))
 
 
-def _ratio(rms_mm: pd.Series, bound_mm: float, compared: bool) -> pd.Series | float:
+def _ratio(rms_mm: pd.Series, bound_mm: float, compared: bool | None) -> pd.Series | float:
     if bound_mm == 0:
         return np.inf
-    return rms_mm / bound_mm if compared and np.isfinite(bound_mm) else np.nan
+    return rms_mm / bound_mm if compared is not False and np.isfinite(bound_mm) else np.nan
 
 
 def results_table(
@@ -110,7 +113,7 @@ def results_table(
     bound: float | None,
     nuisance_bound: float | None = None,
     floors: Floors | None = None,
-    comparable: tuple[bool, bool] = (True, True),
+    compared: Mapping[str, bool] | None = None,
 ) -> pd.DataFrame:
     """One row per model and split; `below_bound` marks memorisation: an RMS error under the electronics-only
     Cramér-Rao bound, or a median error under half of it (an unbiased estimator at the bound, Gaussian errors
@@ -119,16 +122,17 @@ def results_table(
     physical_limit.parquet, an RMS error below the label-noise floor of the row's own split flags it too, and each
     row gets its split's floor and its excess over it (`floortext.add_floor_columns`)."""
     table = add_floor_columns(pd.DataFrame([r.row() for r in results]), floors)
+    compared = compared or {}  # without a say (a bound's spread unknown): every bound is compared
     # a pooled bound held by positions where it exceeds the skin (infinite, or huge: on the FE skin a press on a
     # channel the probe shuts tells which channel, not where along it) has no ratio and flags nothing (`comparable`:
     # no estimator answering on the skin is unbiased there), and rms / inf = 0 (or rms / 1e5) read as "far below"
     if nuisance_bound is not None:
         table["crb_nuisance_rms_mm"] = nuisance_bound
-        table["rms_over_crb_nuisance"] = _ratio(table["rms_error_mm"], nuisance_bound, comparable[1])
+        table["rms_over_crb_nuisance"] = _ratio(table["rms_error_mm"], nuisance_bound, compared.get("crb_nuisance_mm"))
     if bound is not None:
         table["crb_rms_mm"] = bound
-        table["rms_over_crb"] = _ratio(table["rms_error_mm"], bound, comparable[0])
-    if bound is not None and comparable[0] and np.isfinite(bound):
+        table["rms_over_crb"] = _ratio(table["rms_error_mm"], bound, compared.get("crb_mm"))
+    if bound is not None and compared.get("crb_mm", True) and np.isfinite(bound):
         table["below_bound"] = (table["rms_error_mm"] < bound) | (table["median_error_mm"] < MEDIAN_BOUND_SHARE * bound)
     else:  # no bound, or one held by positions beyond the skin: nothing is below it
         table["below_bound"] = False
@@ -387,11 +391,11 @@ def run_baselines(
     bound = bound_rms_mm(data.physical_limit)
     nuisance_bound = bound_rms_mm(data.physical_limit, "crb_nuisance_mm")
     radius = data.probe_radius_mm or PROBE_RADIUS_MM
-    spreads = tuple(bound_spread_mm(data.physical_limit, c, radius) for c in ("crb_mm", "crb_nuisance_mm"))
     extent = skin_extent_mm(data.layout, data.y)
-    compared = tuple(comparable(data.physical_limit, c, extent) for c in ("crb_mm", "crb_nuisance_mm"))
+    spreads = {c: bound_spread_mm(data.physical_limit, c, radius) for c in BOUND_COLUMNS}
+    compared = {c: comparable(data.physical_limit, c, extent) for c in BOUND_COLUMNS}
     floors = read_floors(data.physical_limit, radius)
-    table = results_table(results, bound, nuisance_bound, floors, (compared[0], compared[1]))
+    table = results_table(results, bound, nuisance_bound, floors, compared)
     notes += result_warnings(table, data, bound)
     _warn(notes)
 
@@ -418,9 +422,10 @@ def run_baselines(
         table=table,
         bound=bound,
         nuisance_bound=nuisance_bound,
-        spreads=dict(zip(("crb_mm", "crb_nuisance_mm"), spreads, strict=True)),
-        compared=dict(zip(("crb_mm", "crb_nuisance_mm"), compared, strict=True)),
+        spreads=spreads,
+        compared=compared,
         extent_mm=extent,
+        floors=floors,
         splits=splits,
         files=files,
         random_state=random_state,
@@ -432,7 +437,9 @@ def run_baselines(
         lm_restarts=lm_restarts,
     )
     files["report"].write_text(text, encoding="utf-8")
-    return Report(tuple(results), table, bound, text, files, tuple(notes), elapsed, nuisance_bound, spreads)
+    return Report(
+        tuple(results), table, bound, text, files, tuple(notes), elapsed, nuisance_bound, tuple(spreads.values())
+    )
 
 
 def report_summary(report: Report) -> str:

@@ -16,8 +16,7 @@ import pandas as pd
 
 from neatskin.baselines.dataset import PHYSICAL_LIMIT_NAME, BaselineData
 from neatskin.baselines.evaluate import DESIGN_POSITIONS, DESIGN_PRESSES, PAPER_FRACTIONS
-from neatskin.baselines.floortext import floors_section, read_floors
-from neatskin.baselines.metrics import PROBE_RADIUS_MM
+from neatskin.baselines.floortext import Floors, floors_section
 
 SPLIT_TEXT = {
     "grouped": "k-fold over positions: no test position is in training. The honest error for a press at a "
@@ -271,6 +270,7 @@ def markdown_report(
     spreads: Mapping[str, tuple[float, int, int] | None] | None = None,
     compared: Mapping[str, bool] | None = None,
     extent_mm: float = np.inf,
+    floors: Floors | None = None,
     files: Mapping[str, Path],
     random_state: int | None,
     notes: Sequence[str],
@@ -306,7 +306,7 @@ def markdown_report(
     ]
     if bound is not None:
         lines += _bound_text(bound, nuisance_bound, table, spreads, compared, extent_mm)
-    lines += floors_section(table, read_floors(data.physical_limit, data.probe_radius_mm or PROBE_RADIUS_MM))
+    lines += floors_section(table, floors)
     lm_note = (
         f"The LM network trains {lm_restarts} network(s) per repeat (best on validation)."
         if lm_restarts is not None
