@@ -10,8 +10,9 @@ from __future__ import annotations
 import numpy as np
 
 BIG_OHM = 1e9  # stands in for an infinite model resistance (a channel pinched shut)
-# rows per model call: the skin's quadrature of a deep press (graded panels) outgrows its reused node buffer in
-# larger calls and costs about twice as much per row (measured: ~10 us a row at 256, ~20-30 us at 1,000-3,000)
+# rows per model call: the skin's quadrature of a deep press (graded panels) outgrew its reused node buffer in
+# larger calls and cost about twice as much per row (measured: ~10 us a row at 256, ~20-30 us at 1,000-3,000).
+# Since 2026-11-26 the quadrature batches its sides to fit the buffer (deformation._side_panels): not re-measured
 MODEL_CHUNK = 256
 # rows per value-and-gradient call (model_drj): its fixed part (~0.6 ms a call) weighs more, and larger calls pay
 # (measured on the paper skin, 80 % of rows on the depth bound: 13.0 us a row at 256, 11.8 at 384 and 512, 13.5 at 768)
