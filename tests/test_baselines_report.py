@@ -326,7 +326,9 @@ def test_an_infinite_bound_is_summarised_by_its_median_and_compared_with_nothing
     assert "| the same, median over the 10 positions (above the probe radius at 4 of them) | 0.800 |" in text
     assert "Here the electronics-only bound exceeds the skin (30 mm) at some positions" in text
     summary = report_summary(report)
-    assert "electronics only: inf mm (median 0.4 mm; above the probe radius at 4 of 10 positions)" in summary
+    # the figures as report.md writes them (sig3), not a second format of their own
+    assert "electronics only: inf mm (median 0.400 mm; above the probe radius at 4 of 10 positions)" in summary
+    assert "as nuisances: inf mm (median 0.800 mm;" in summary
     # every position within the probe radius: no such row
     finite = write_dataset(tmp_path / "f", small_table(10, 4), layout=True, crb_mm=0.5)
     with pytest.warns(UserWarning):
@@ -351,6 +353,11 @@ def test_a_huge_finite_bound_is_no_more_compared_than_an_infinite_one(tmp_path):
     assert "| the same, median over the 10 positions (above the probe radius at 1 of them) | 1.00 |" in text
     assert "Here the bound with nuisances exceeds the skin (30 mm) at some positions" in text
     assert "Here the electronics-only bound" not in text
+    # the terminal gives the pooled bound and its median as report.md does (sig3: 348,000, not 3.48e+05)
+    assert "| 348,000 |" in text
+    assert "as nuisances: 348,000 mm (median 1.00 mm; above the probe radius at 1 of 10 positions)" in report_summary(
+        report
+    )
     # a bound past the probe radius but within the skin at every position (3 mm here) is still compared
     wide = write_dataset(tmp_path / "w", small_table(10, 4), layout=True, crb_mm=0.5, crb_nuisance_mm=3.0)
     with pytest.warns(UserWarning):

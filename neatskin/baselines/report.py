@@ -54,7 +54,7 @@ from neatskin.baselines.models import (
     fit_cost_s,
     make_models,
 )
-from neatskin.baselines.reporttext import markdown_report
+from neatskin.baselines.reporttext import markdown_report, sig3
 from neatskin.baselines.tasks import Task, run_tasks
 from neatskin.errors import ConfigError, DataError
 
@@ -453,7 +453,8 @@ def report_summary(report: Report) -> str:
             continue
         where = ""
         if spread is not None and spread[1]:
-            where = f" (median {spread[0]:.3g} mm; above the probe radius at {spread[1]} of {spread[2]} positions)"
-        lines.append(f"Cramér-Rao bound (RMS over positions), {name}: {pooled:.3g} mm{where}")
+            where = f" (median {sig3(spread[0])} mm; above the probe radius at {spread[1]} of {spread[2]} positions)"
+        # sig3, as report.md writes these bounds: the terminal and the file read the same figures
+        lines.append(f"Cramér-Rao bound (RMS over positions), {name}: {sig3(pooled)} mm{where}")
     lines.append(f"wrote {report.files['report']} ({report.time_s:.1f} s)")
     return "\n".join(lines)
