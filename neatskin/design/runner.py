@@ -172,9 +172,11 @@ def _joblib_results(study: Study, todo: list[Candidate], jobs: int, tick: Tick |
     a thread (the workers' shares only move a progress bar: the results are the same without it)."""
     import threading
 
-    from joblib import Parallel, delayed
+    from joblib import delayed
 
-    parallel = Parallel(n_jobs=jobs, return_as="generator_unordered")
+    from neatskin.orphans import watched_parallel
+
+    parallel = watched_parallel(jobs, return_as="generator_unordered")
     if tick is None:
         yield from parallel(delayed(evaluate_candidate)(study, c) for c in todo)
         return

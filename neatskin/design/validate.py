@@ -241,20 +241,21 @@ def validate_study(
     """The checks for every fixed candidate, with campaigns whose pinch is scaled by `pinch_scale`; with `power`,
     the transfer check again with the study's pinch scaled by each of POWER_SCALES (the smallest change it detects;
     the same whatever `pinch_scale` is)."""
-    from joblib import Parallel, delayed
+    from joblib import delayed
 
+    from neatskin.orphans import watched_parallel
     from neatskin.rig.protocol import load_protocol
     from neatskin.tomlfile import resolve_path
 
     base = load_protocol(resolve_path(protocol))
     candidates = validation_candidates(study)
-    checks = Parallel(n_jobs=n_jobs)(delayed(check_candidate)(study, base, c, pinch_scale) for c in candidates)
+    checks = watched_parallel(n_jobs)(delayed(check_candidate)(study, base, c, pinch_scale) for c in candidates)
     agrees, tau = ranking(checks)
     found: list[tuple[float, bool]] = []
     if power:
         probe = candidates[0]
         side = study_side(study, probe)  # the study's side does not depend on the scale: built once, not per scale
-        scaled = Parallel(n_jobs=n_jobs)(
+        scaled = watched_parallel(n_jobs)(
             # the study's own pinch scaled, whatever `pinch_scale` the run's campaigns press: power is the check's,
             # and scaling a negative control's already weakened pinch called every change detected
             delayed(check_candidate)(study, base, probe, s, 3, side, protocol_scene=False)

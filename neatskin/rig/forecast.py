@@ -152,7 +152,9 @@ def plan_campaign(
     n_jobs: int = 2,
 ) -> pd.DataFrame:
     """One row per design and size: rig hours, presses, mean error (mm) over seeds, its std, and the seeds' errors."""
-    from joblib import Parallel, delayed
+    from joblib import delayed
+
+    from neatskin.orphans import watched_parallel
 
     sizes = default_sizes(protocol) if sizes is None else sizes
     setting = Setting(protocol, pair_noise_std_ohm(protocol), press_interval_s(protocol), model)
@@ -161,7 +163,7 @@ def plan_campaign(
     if adaptive:
         jobs += [("adaptive", s, k) for s in sizes if s.depth_mm == depth0 and s.positions >= 8 for k in range(seeds)]
     work = {"random": random_error_mm, "adaptive": adaptive_error_mm}
-    errors = Parallel(n_jobs=n_jobs)(delayed(work[d])(setting, s, k) for d, s, k in jobs)
+    errors = watched_parallel(n_jobs)(delayed(work[d])(setting, s, k) for d, s, k in jobs)
     hours = {s: rig_hours(protocol, s) for s in sizes}
     rows = []
     for design in ("random", "adaptive"):

@@ -1,0 +1,60 @@
+"""Processes a run starts end with it: joblib's loky workers of a design study, a validation or a campaign forecast
+(`neatskin.orphans.watched_parallel`), when the run is killed outright."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from proctree import alive, children
+
+REPO = Path(__file__).resolve().parent.parent
+
+# two workers each in a 120 s task, as a design study's candidates keep them busy for minutes
+SCRIPT = """
+import time
+from joblib import Parallel, delayed
+from neatskin.orphans import watched_parallel
+parallel = {make}
+parallel(delayed(time.sleep)(120) for _ in range(2))
+"""
+
+
+def _workers_left_after_a_kill(make: str, wait_s: float) -> list[int]:
+    """Run SCRIPT with `make` as its Parallel, SIGKILL it once both workers run, and return those still alive
+    `wait_s` later (the survivors are killed before returning)."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen([sys.executable, "-c", SCRIPT.format(make=make)], env=env)
+    started: list[int] = []
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and len(started) < 2:
+            started = children(proc.pid, b"LokyProcess")  # not its resource tracker
+            time.sleep(0.05)
+        assert len(started) == 2, f"two loky workers start ({started})"
+        time.sleep(1.0)  # each has taken its task
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+        deadline = time.monotonic() + wait_s
+        while time.monotonic() < deadline and any(alive(pid) for pid in started):
+            time.sleep(0.1)
+        return [pid for pid in started if alive(pid)]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        for pid in started:
+            if alive(pid):
+                os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads the process tree from Linux's /proc")
+def test_a_killed_runs_joblib_workers_end_with_it():
+    # watched: both busy workers end within seconds of their parent (the watch looks every 0.5 s)
+    assert _workers_left_after_a_kill("watched_parallel(2)", wait_s=10.0) == []
+    # the negative control: joblib's own Parallel leaves them running their tasks for nobody (then idle for 300 s)
+    assert len(_workers_left_after_a_kill("Parallel(n_jobs=2)", wait_s=3.0)) == 2
