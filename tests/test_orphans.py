@@ -31,6 +31,7 @@ def _workers_left_after_a_kill(make: str, wait_s: float) -> list[int]:
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     proc = subprocess.Popen([sys.executable, "-c", SCRIPT.format(make=make)], env=env)
     started: list[int] = []
+    trackers: list[int] = []
     try:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and len(started) < 2:
@@ -38,6 +39,7 @@ def _workers_left_after_a_kill(make: str, wait_s: float) -> list[int]:
             time.sleep(0.05)
         assert len(started) == 2, f"two loky workers start ({started})"
         time.sleep(1.0)  # each has taken its task
+        trackers = children(proc.pid, b"resource_tracker")
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(timeout=30)
         deadline = time.monotonic() + wait_s
@@ -50,6 +52,11 @@ def _workers_left_after_a_kill(make: str, wait_s: float) -> list[int]:
         for pid in started:
             if alive(pid):
                 os.kill(pid, signal.SIGKILL)
+        # joblib's resource tracker (also its child) removes the run's semaphores and memmapping folders from
+        # /dev/shm once its parent is gone: waited for, so no test run leaves them behind
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and any(alive(pid) for pid in trackers):
+            time.sleep(0.1)
 
 
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads the process tree from Linux's /proc")
