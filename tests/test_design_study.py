@@ -222,18 +222,21 @@ def test_resume_after_sigkill_of_the_cli_gives_the_same_results_without_duplicat
             break
         time.sleep(0.02)
     assert proc.poll() is None, "the study finished before it could be killed; make it bigger"
-    # the tick queue's manager, forked from the CLI (its command line is the CLI's), would serve forever; joblib's
-    # idle workers beside it end at their own idle timeout (300 s), so they are not waited for here
+    # the tick queue's manager, forked from the CLI (its command line is the CLI's), would serve forever, and
+    # joblib's loky workers would run their candidates to the end for nobody (neatskin.orphans)
     children = proctree.children(proc.pid, b"design")
     assert children, "a study over several candidates with a progress tick runs the tick queue's manager"
+    workers = proctree.children(proc.pid, b"LokyProcess")
+    assert workers, "the study's candidates run in joblib's worker processes"
+    children += workers
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(timeout=30)
     proc.stderr.close()
-    # the manager ends with its parent
+    # the manager and the workers end with their parent
     deadline = time.monotonic() + 15
     while time.monotonic() < deadline and [pid for pid in children if proctree.alive(pid)]:
         time.sleep(0.1)
-    assert not [pid for pid in children if proctree.alive(pid)], "the killed study's tick manager is left running"
+    assert not [pid for pid in children if proctree.alive(pid)], "the killed study's manager or workers are left"
     done_at_kill = len(list(parts.glob("*.parquet")))
     assert 2 <= done_at_kill < total
     rerun = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)

@@ -15,21 +15,26 @@ from proctree import alive, children
 
 REPO = Path(__file__).resolve().parent.parent
 
-# two workers each in a 120 s task, as a design study's candidates keep them busy for minutes
+# busy: two workers each in a 120 s task, as a design study's candidates keep them busy for minutes; idle: two
+# workers done with their tasks while the run goes on (loky keeps them for the next call, 300 s)
 SCRIPT = """
 import time
 from joblib import Parallel, delayed
 from neatskin.orphans import watched_parallel
 parallel = {make}
-parallel(delayed(time.sleep)(120) for _ in range(2))
+if {busy}:
+    parallel(delayed(time.sleep)(120) for _ in range(2))
+else:
+    parallel(delayed(time.sleep)(0.5) for _ in range(2))
+    time.sleep(120)
 """
 
 
-def _workers_left_after_a_kill(make: str, wait_s: float) -> list[int]:
+def _workers_left_after_a_kill(make: str, wait_s: float, busy: bool) -> list[int]:
     """Run SCRIPT with `make` as its Parallel, SIGKILL it once both workers run, and return those still alive
     `wait_s` later (the survivors are killed before returning)."""
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    proc = subprocess.Popen([sys.executable, "-c", SCRIPT.format(make=make)], env=env)
+    proc = subprocess.Popen([sys.executable, "-c", SCRIPT.format(make=make, busy=busy)], env=env)
     started: list[int] = []
     trackers: list[int] = []
     try:
@@ -38,7 +43,7 @@ def _workers_left_after_a_kill(make: str, wait_s: float) -> list[int]:
             started = children(proc.pid, b"LokyProcess")  # not its resource tracker
             time.sleep(0.05)
         assert len(started) == 2, f"two loky workers start ({started})"
-        time.sleep(1.0)  # each has taken its task
+        time.sleep(1.0)  # each has taken its task (busy), or finished it (idle)
         trackers = children(proc.pid, b"resource_tracker")
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(timeout=30)
@@ -60,8 +65,9 @@ def _workers_left_after_a_kill(make: str, wait_s: float) -> list[int]:
 
 
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads the process tree from Linux's /proc")
-def test_a_killed_runs_joblib_workers_end_with_it():
-    # watched: both busy workers end within seconds of their parent (the watch looks every 0.5 s)
-    assert _workers_left_after_a_kill("watched_parallel(2)", wait_s=10.0) == []
-    # the negative control: joblib's own Parallel leaves them running their tasks for nobody (then idle for 300 s)
-    assert len(_workers_left_after_a_kill("Parallel(n_jobs=2)", wait_s=3.0)) == 2
+@pytest.mark.parametrize("busy", [True, False], ids=["busy", "idle"])
+def test_a_killed_runs_joblib_workers_end_with_it(busy):
+    # watched: both workers end within seconds of their parent (the watch looks every 0.5 s)
+    assert _workers_left_after_a_kill("watched_parallel(2)", wait_s=10.0, busy=busy) == []
+    # the negative control: joblib's own Parallel leaves them running their tasks for nobody, or idle for 300 s
+    assert len(_workers_left_after_a_kill("Parallel(n_jobs=2)", wait_s=3.0, busy=busy)) == 2
