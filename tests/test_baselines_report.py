@@ -188,7 +188,9 @@ def test_report_writes_table_files_and_plots(tmp_path):
         assert (folder / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not (folder / "baselines_ellipses_random.png").exists()  # one prediction per position: degenerate
     text = (folder / "report.md").read_text()
-    assert "2.03 ± 0.26" in text and "| 82 |" in text and "3.32" in text
+    assert "2.03 ± 0.26" in text and "| 81.8 (54 of 66) |" in text and "3.32" in text
+    # not the paper's protocol: said so, and no claim of a fitted scene
+    assert "not the paper's 100 x 28" in text and "was fitted to the paper's figures" not in text
     assert "95 % train / 3 % validation / 2 % test" in text and "Cramér-Rao" in text
     # 4 presses per position cannot give the 11 x 6 design; 1 test press per random repeat is too few
     assert any("design split skipped" in w for w in report.warnings)
@@ -217,7 +219,7 @@ def test_the_report_shows_both_bounds_and_flags_memorisation_by_the_electronics_
     ratio = table["rms_over_crb_nuisance"].min()
     assert f"at {sig3(ratio)} times the bound with nuisances" in text  # 3 significant figures, as every cell
     summary = report_summary(report)
-    assert "electronics only: 0.5 mm" in summary and "nuisances: 3 mm" in summary
+    assert "electronics only: 0.500 mm" in summary and "nuisances: 3.00 mm" in summary  # report.md's sig3
     assert "RMS/CRB " in summary and "RMS/CRBn" in summary
     assert report.files["bound map"] == folder / "baselines_bound_map.png"
     assert (folder / "baselines_bound_map.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -325,10 +327,18 @@ def test_an_infinite_bound_is_summarised_by_its_median_and_compared_with_nothing
     assert "| the same, median over the 10 positions (above the probe radius at 4 of them) | 0.400 |" in text
     assert "| the same, median over the 10 positions (above the probe radius at 4 of them) | 0.800 |" in text
     assert "Here the electronics-only bound exceeds the skin (30 mm) at some positions" in text
+    # the same reason is not given twice: the nuisance bound's paragraph points to it
+    assert "Here the bound with nuisances exceeds the skin at some positions too, for the same reason" in text
+    assert "Here the bound with nuisances exceeds the skin (30 mm)" not in text
     summary = report_summary(report)
-    # the figures as report.md writes them (sig3), not a second format of their own
-    assert "electronics only: inf mm (median 0.400 mm; above the probe radius at 4 of 10 positions)" in summary
-    assert "as nuisances: inf mm (median 0.800 mm;" in summary
+    # the figures as report.md writes them (sig3); an infinite pooled bound is not printed as a figure ("inf mm"),
+    # its median is, with why nothing is compared with it; no all-NaN ratio columns
+    assert (
+        "Cramér-Rao bound, electronics only: median 0.400 mm over 10 positions, above the probe radius at 4; "
+        "beyond the skin at some positions (a channel shut under the probe), so no result is compared with it"
+    ) in summary
+    assert "as nuisances: median 0.800 mm over 10 positions" in summary
+    assert "inf mm" not in summary and "RMS/CRB" not in summary and " nan" not in summary
     # every position within the probe radius: no such row
     finite = write_dataset(tmp_path / "f", small_table(10, 4), layout=True, crb_mm=0.5)
     with pytest.warns(UserWarning):
@@ -353,11 +363,10 @@ def test_a_huge_finite_bound_is_no_more_compared_than_an_infinite_one(tmp_path):
     assert "| the same, median over the 10 positions (above the probe radius at 1 of them) | 1.00 |" in text
     assert "Here the bound with nuisances exceeds the skin (30 mm) at some positions" in text
     assert "Here the electronics-only bound" not in text
-    # the terminal gives the pooled bound and its median as report.md does (sig3: 348,000, not 3.48e+05)
-    assert "| 348,000 |" in text
-    assert "as nuisances: 348,000 mm (median 1.00 mm; above the probe radius at 1 of 10 positions)" in report_summary(
-        report
-    )
+    assert "| 348,000 |" in text  # sig3, not 3.48e+05
+    summary = report_summary(report)  # the huge pooled bound is not compared: the terminal gives its median
+    assert "as nuisances: median 1.00 mm over 10 positions, above the probe radius at 1; beyond the skin" in summary
+    assert "electronics only: 0.500 mm" in summary and summary.splitlines()[0].split()[-1] == "RMS/CRB"  # no CRBn
     # a bound past the probe radius but within the skin at every position (3 mm here) is still compared
     wide = write_dataset(tmp_path / "w", small_table(10, 4), layout=True, crb_mm=0.5, crb_nuisance_mm=3.0)
     with pytest.warns(UserWarning):

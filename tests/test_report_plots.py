@@ -128,6 +128,33 @@ def test_bound_map_gives_each_panel_its_own_colour_bar_fitted_to_its_values():
         plt.close(fig)
 
 
+def test_bound_map_keeps_infinite_and_beyond_the_skin_positions_off_its_colour_scale():
+    """One position at 2e6 mm (just off a channel the probe shuts) had stretched the panel's log scale to six
+    decades, the other positions all one colour: it is an orange cross, an infinite one a red cross, and the scale
+    spans the others (0.9 to 1.1 mm: linear). The title gives the median, no RMS held by those positions."""
+    limit = pd.DataFrame(
+        {
+            "position_id": [0, 1, 2, 3, 4],
+            "x_mm": [5.0, 15.0, 25.0, 5.0, 25.0],
+            "y_mm": [5.0, 15.0, 25.0, 25.0, 5.0],
+            "crb_mm": [0.9, 1.0, 1.1, 2e6, np.inf],
+        }
+    )
+    fig = bound_map_figure(limit)  # no layout: the skin's extent is the positions' spread, 20 mm
+    try:
+        from matplotlib.collections import PathCollection
+
+        (image,) = [c for ax in fig.axes for c in ax.collections if isinstance(c, PathCollection)]
+        assert type(image.norm) is Normalize and (image.norm.vmin, image.norm.vmax) == (0.9, 1.1)
+        ax = fig.axes[0]
+        crosses = {line.get_label(): (tuple(line.get_xdata()), tuple(line.get_ydata())) for line in ax.get_lines()}
+        assert crosses["beyond the skin (> 20 mm): 1"] == ((5.0,), (25.0,))
+        assert crosses["unobservable (+inf): 1"] == ((25.0,), (5.0,))
+        assert ax.get_title() == "electronics only\nmedian 1.1 mm over 5 positions"
+    finally:
+        plt.close(fig)
+
+
 def test_ellipses_keep_the_whole_skin_outline_in_view(report, tmp_path):
     layout = load_layout(resolve_path("protocols/skins/paper.toml"))
     x0, y0, x1, y1 = layout.bounds_mm

@@ -48,6 +48,11 @@ class BaselineData:
     probe_radius_mm: float | None = None  # from the manifest's rig description, when it gives one
     n_saturated: int = 0  # presses kept with a cut pair, its infinite dR set to the saturation value
     saturation_ohm: tuple[float, ...] = ()  # per pair column, the value a cut pair's dR was given ("saturate")
+    # a dry run's scene, from the manifest (None for a real rig's campaign or an older manifest): its preset, its
+    # pinch ("fe-kernel" or "parametric") and its probe placement error, so the report can say what was fitted
+    scene_preset: str | None = None
+    deformation: str | None = None
+    placement_error_mm: float | None = None
 
 
 def _pair_sort_key(name: str) -> tuple[int, int]:
@@ -78,17 +83,24 @@ def _load_layout(folder: Path, metadata: dict):
 
 
 def _rig_skin(folder: Path) -> dict:
-    """The manifest's rig.skin block (fidelity, probe radius of a dry run), or {}."""
+    """The manifest's rig.skin block (fidelity, probe radius, preset, placement error of a dry run), with the
+    protocol's scene `deformation` when the block has none, or {}."""
     import json
 
     path = folder / "manifest.json"
     if not path.is_file():
         return {}
     try:
-        skin = json.loads(path.read_text(encoding="utf-8")).get("rig", {}).get("skin", {})
+        manifest = json.loads(path.read_text(encoding="utf-8"))
+        skin = manifest.get("rig", {}).get("skin", {})
+        scene = manifest.get("protocol_as_run", {}).get("scene", {})
     except (ValueError, AttributeError):
         return {}
-    return skin if isinstance(skin, dict) else {}
+    if not isinstance(skin, dict):
+        return {}
+    if isinstance(scene, dict) and "deformation" not in skin:
+        skin = {**skin, "deformation": scene.get("deformation")}
+    return skin
 
 
 def check_table(df: pd.DataFrame, source: str, expected_pairs: list[str] | None = None) -> list[str]:
@@ -294,7 +306,7 @@ def load_baseline_data(dataset: str | Path, flagged: str = "saturate") -> Baseli
                     "leave it deleted (the report then has no bound)",
                 )
     skin = _rig_skin(folder)
-    radius = skin.get("probe_radius_mm")
+    radius, placement = skin.get("probe_radius_mm"), skin.get("placement_error_mm")
     return BaselineData(
         source=source,
         X=X,
@@ -304,8 +316,15 @@ def load_baseline_data(dataset: str | Path, flagged: str = "saturate") -> Baseli
         n_flagged_dropped=dropped,
         layout=layout,
         physical_limit=limit,
-        skin_fidelity=skin.get("fidelity") if isinstance(skin.get("fidelity"), str) else None,
+        skin_fidelity=_text(skin.get("fidelity")),
         probe_radius_mm=float(radius) if isinstance(radius, (int, float)) else None,
         n_saturated=n_saturated,
         saturation_ohm=tuple(saturation[c] for c in pairs if c in saturation),
+        scene_preset=_text(skin.get("preset")),
+        deformation=_text(skin.get("deformation")),
+        placement_error_mm=float(placement) if isinstance(placement, (int, float)) else None,
     )
+
+
+def _text(value: object) -> str | None:
+    return value if isinstance(value, str) else None

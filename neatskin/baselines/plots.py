@@ -288,28 +288,40 @@ def bound_map_figure(limit, layout=None):
     the dataset has it, the bound with depth, drift and placement as nuisances; each panel with its own colour
     bar (the two differ by decades: one shared scale saturated one panel).
 
-    Positions are drawn as squares at their (x, y); an unobservable position (+inf) is a red cross."""
+    Positions are drawn as squares at their (x, y); an unobservable position (+inf) is a red cross, and one whose
+    bound exceeds the skin's extent (a press just off a channel the probe shuts: 1e6 mm) an orange one, kept off
+    the colour scale (one such position stretched it over six decades, and the rest read as one colour)."""
+    from neatskin.baselines.floortext import skin_extent_mm
+
     plt = _pyplot()
     columns = [("crb_mm", "electronics only")]
     if "crb_nuisance_mm" in limit.columns:
         columns.append(("crb_nuisance_mm", "depth, drift, placement as nuisances"))
     x, y = limit["x_mm"].to_numpy(float), limit["y_mm"].to_numpy(float)
+    extent = skin_extent_mm(layout, np.column_stack([x, y]))
     spacing = _median_spacing_mm(x, y)
     fig, axes = plt.subplots(1, len(columns), figsize=(6.0 * len(columns), 5.0), squeeze=False, layout="constrained")
     for ax, (column, label) in zip(axes[0], columns):
         bound = limit[column].to_numpy(float)
-        ok = np.isfinite(bound) & (bound > 0)
-        norm, scale = _panel_norm(bound)
+        infinite = ~np.isfinite(bound)
+        beyond = np.isfinite(bound) & (bound > extent)
+        ok = np.isfinite(bound) & (bound > 0) & ~beyond
+        norm, scale = _panel_norm(bound[ok])
         _draw_layout(ax, layout)
         size = max(8.0, min(400.0, (spacing * 72.0 / 25.4 * 1.6) ** 2))  # about one grid step wide
         image = ax.scatter(x[ok], y[ok], c=bound[ok], norm=norm, cmap="viridis", marker="s", s=size)
-        if (~ok).any():
-            ax.plot(x[~ok], y[~ok], "x", color="tab:red", ms=7, label="unobservable (+inf)")
+        for mask, colour, text in (
+            (infinite, "tab:red", f"unobservable (+inf): {int(infinite.sum())}"),
+            (beyond, "tab:orange", f"beyond the skin (> {extent:g} mm): {int(beyond.sum())}"),
+        ):
+            if mask.any():
+                ax.plot(x[mask], y[mask], "x", color=colour, ms=7, mew=2, label=text)
+        if (infinite | beyond).any():
             ax.legend(loc="upper right", fontsize=8)
-        rms = float(np.sqrt(np.mean(bound * bound)))
-        ax.set_title(
-            f"{label}\nmedian {np.median(bound):.3g} mm, RMS {rms:.3g} mm ({len(bound)} positions)", fontsize=9
-        )
+        title = f"{label}\nmedian {np.median(bound):.3g} mm over {len(bound)} positions"
+        if not (infinite | beyond).any():  # a pooled RMS held by an infinite or huge position says nothing
+            title += f", RMS {float(np.sqrt(np.mean(bound * bound))):.3g} mm"
+        ax.set_title(title, fontsize=9)
         ax.set_aspect("equal")
         ax.set_xlabel("x (mm)")
         ax.set_ylabel("y (mm)")

@@ -1,4 +1,4 @@
-"""The text of report.md: warnings first, the paper beside the same protocol on the simulated skin, a compact table,
+"""The text of report.md: warnings first, the paper beside this dataset, a compact table,
 the bounds, and the full table last.
 
 Nothing is bold unless its 95 % interval of the mean error lies wholly below every other
@@ -7,6 +7,7 @@ model's interval on the same split.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -129,32 +130,97 @@ def markdown_table(table: pd.DataFrame) -> list[str]:
     return lines
 
 
-def _like_for_like(table: pd.DataFrame, paper: Mapping[str, float], data: BaselineData) -> list[str]:
+def _processes(n_jobs: int) -> str:
+    """n_jobs as joblib counts it (-1: every core, -2: all but one), in words."""
+    count = n_jobs if n_jobs > 0 else max((os.cpu_count() or 1) + 1 + n_jobs, 1)
+    return "1 process" if count == 1 else f"{count} processes"
+
+
+def _scene_text(data: BaselineData) -> str:
+    """The skin a dataset was pressed on, as the report's tables name it."""
+    if data.scene_preset is None:
+        return f"simulated (`{data.skin_fidelity}`)" if data.skin_fidelity else "as recorded"
+    pinch = f", `{data.deformation}` pinch" if data.deformation else ""
+    return f"simulated, `{data.scene_preset}` scene{pinch}"
+
+
+def _fitted_to_the_paper(data: BaselineData) -> bool:
+    """Whether the dataset's scene is the `paper-like` preset with its placement error, the one fitted to the
+    paper's figures (neatskin.config.scene.PAPER_LIKE; benchmarks/fit_paper_like.py)."""
+    from neatskin.config.scene import PAPER_LIKE
+
+    return (
+        data.scene_preset == "paper-like"
+        and data.placement_error_mm is not None
+        and abs(data.placement_error_mm - PAPER_LIKE["placement_error_mm"]) < 1e-9
+    )
+
+
+def _like_for_like(table: pd.DataFrame, paper: Mapping[str, Any], data: BaselineData) -> list[str]:
+    n_positions = len(np.unique(data.groups))
+    presses = len(data.y) / max(n_positions, 1)
+    hits, predictions = paper["best_within_probe"]
     lines = [
-        "## The paper beside the same protocol on the simulated skin",
+        "## The paper beside this dataset",
         "",
-        "| | skin | split | networks | mean error mm | within probe % | MSE/coord mm² |",
-        "|---|---|---|---|---|---|---|",
-        f"| paper (Judd et al.) | real | random 95/3/2 | 10 | {paper['mean_error_mm']} ± {paper['std_error_mm']} "
-        f"(as reported) | {paper['within_probe_pct']:.0f} | {paper['mse_mm2']} (as reported; likely this convention) |",
+        "| | skin | split | test rows | networks | mean error mm | within probe % | MSE/coord mm² |",
+        "|---|---|---|---|---|---|---|---|",
+        f"| paper (Judd et al.): its 10 networks | real | 95/3/2 stated; 11 positions x 6 presses scored "
+        f"| {predictions} | 10 | {paper['mean_error_mm']} ± {paper['std_error_mm']} (as reported) | not reported "
+        f"| {paper['mse_mm2']} (as reported; likely this convention) |",
+        f"| paper: its best network (lowest MSE, Fig. 9) | real | the same | {predictions} | 1 "
+        f"| {paper['best_mean_error_mm']} | {sig3(100 * hits / predictions)} ({hits} of {predictions}) "
+        f"| {paper['best_mse_mm2']} |",
     ]
-    lm = table[(table["model"] == "lm_network") & (table["split"] == "random")]
-    for row in lm.itertuples(index=False):
-        lines.append(
-            f"| this dataset, same protocol | simulated (`{data.skin_fidelity or 'unknown'}`) | random 95/3/2 "
-            f"| {row.n_repeats} | {_cell(row, 'mean_error_mm')} | {_cell(row, 'within_probe_pct')} "
-            f"| {_cell(row, 'mse_per_coordinate_mm2')} |"
-        )
-    if lm.empty:
-        lines.append("| this dataset | | random split not run (`--split both` runs it) | | | | |")
+    skin = _scene_text(data)
+    shown = False
+    for split, name in (
+        ("random", "random 95/3/2"),
+        ("design", f"Fig. 9 design: {DESIGN_POSITIONS} positions x {DESIGN_PRESSES} presses"),
+    ):
+        for row in table[(table["model"] == "lm_network") & (table["split"] == split)].itertuples(index=False):
+            shown = True
+            lines += [
+                f"| this dataset: {row.n_repeats} network{'s' * (row.n_repeats != 1)} | {skin} | {name} | {row.n_test} | {row.n_repeats} "
+                f"| {_cell(row, 'mean_error_mm')} | {_cell(row, 'within_probe_pct')} "
+                f"| {_cell(row, 'mse_per_coordinate_mm2')} |",
+                f"| this dataset: its best network (lowest test MSE) | | {name} | {row.n_test} | 1 "
+                f"| {sig3(row.best_mean_error_mm)} | {sig3(row.best_within_probe_pct)} "
+                f"| {sig3(row.best_mse_per_coordinate_mm2)} |",
+            ]
+    if not shown:
+        lines.append("| this dataset | | random split not run (`--split both` runs it) | | | | | |")
     lines += [
         "",
-        "Each of our networks is one repeat: a fresh 95/3/2 split, one LM network stopped and chosen on its "
-        "validation rows, scored on its test rows; ± is the std over the networks and [ ] the 95 % interval of "
-        "their mean. The paper's ± is as it reports it. The skins differ (real against simulated), so this row "
-        "compares the method, not the skins.",
-        "",
+        "Each of our networks is one repeat: a fresh split, one LM network stopped and chosen on its validation "
+        "rows, scored on its test rows; ± is the std over the networks and [ ] the 95 % interval of their mean. "
+        "The paper's ± is as it reports it. The paper states a 95/3/2 split (2 % of 2,800 presses: 56 test rows) "
+        "but scores 11 positions x 6 presses (66 predictions, its Fig. 9): our `random` split is the first, our "
+        "`design` split the second. Its 82 % within the probe radius is its best network's, so it stands beside "
+        "our best network's share, not our average's.",
     ]
+    if round(presses) != 28 or n_positions != 100:
+        lines += [
+            "",
+            f"This dataset has {n_positions} positions x {presses:.3g} presses, not the paper's 100 x 28: its figures "
+            "answer for its own protocol and sit beside the paper's for scale only.",
+        ]
+    elif _fitted_to_the_paper(data):
+        lines += [
+            "",
+            f"This scene's probe placement error ({data.placement_error_mm:g} mm) was fitted to the paper's figures "
+            "(`benchmarks/fit_paper_like.py`: the ten networks' 2.03 mm and 3.32 mm², the best network's 1.82 mm "
+            "and 54 of 66, on the random split, over 5 campaign seeds). So the random split's rows check that fit "
+            "on this campaign seed; they are not an independent test of the method. The design split was not "
+            "fitted.",
+        ]
+    elif data.scene_preset is not None:
+        lines += [
+            "",
+            "The skins differ (real against simulated) and this scene was not fitted to the paper's figures: the "
+            "rows compare the method on a different skin.",
+        ]
+    lines.append("")
     grouped = table[(table["model"] == "lm_network") & (table["split"] == "grouped")]
     for row in grouped.itertuples(index=False):
         lines += [
@@ -238,9 +304,13 @@ def _bound_text(
             "result's RMS error over each bound.",
         ]
         if not compared.get("crb_nuisance_mm", bool(np.isfinite(nuisance_bound))):
+            electronics_too = not compared.get("crb_mm", bool(np.isfinite(bound)))
             lines += [
                 "",
-                f"Here the bound with nuisances {beyond} (a press on a channel the probe shuts: no graded reading "
+                "Here the bound with nuisances exceeds the skin at some positions too, for the same reason: no result "
+                "is compared with it."
+                if electronics_too
+                else f"Here the bound with nuisances {beyond} (a press on a channel the probe shuts: no graded reading "
                 "tells where the press landed along the channel), so the pooled bound says nothing and no result is "
                 "compared with it (`physical_limit.parquet` has it position by position).",
             ]
@@ -277,7 +347,7 @@ def markdown_report(
     n_jobs: int,
     elapsed_s: float,
     descriptions: Mapping[str, str],
-    paper: Mapping[str, float],
+    paper: Mapping[str, Any],
     lm_restarts: int | None,
 ) -> str:
     t, v, s = (int(100 * f) for f in PAPER_FRACTIONS)
@@ -288,7 +358,7 @@ def markdown_report(
         f"Dataset: `{data.source}`: {len(data.y)} presses at {len(np.unique(data.groups))} positions, "
         f"{data.X.shape[1]} pair features; {data.n_flagged_dropped} flagged presses dropped, "
         f"{data.n_saturated} kept with a cut pair's dR saturated. Seeds from "
-        f"{random_state}; fits in {n_jobs if n_jobs > 0 else 'all'} process(es); report made in {elapsed_s:.1f} s.",
+        f"{random_state}; fits in {_processes(n_jobs)}; report made in {elapsed_s:.1f} s.",
         "",
         *_like_for_like(table, paper, data),
         "## All models and splits",
