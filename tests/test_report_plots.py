@@ -220,3 +220,31 @@ def test_the_flag_column_and_the_text_agree_on_what_is_memorisation():
     text = "\n".join(_bound_text(0.01, 2.0, table))
     assert "at 0.992 times the bound with nuisances (below it: below the nuisance bound, noted, not flagged" in text
     assert "not flagged as memorisation: the flag is the electronics-only bound alone" in text
+
+
+def test_the_papers_figure_is_drawn_on_both_readings_of_its_test_set_and_not_on_new_positions():
+    from neatskin.baselines.evaluate import ModelResult
+    from neatskin.baselines.metrics import position_errors
+    from neatskin.baselines.report import results_table
+
+    truth = np.zeros((66, 2))
+    results = [
+        ModelResult(
+            "knn", split, (position_errors(truth, truth + [1.0, 0.0]),) * 2, 0.1, 1e-6, 9, truth, truth, truth[:, 0]
+        )
+        for split in ("grouped", "random", "design")
+    ]
+    fig = error_vs_time_figure(results, None, results_table(results, None, None), {})
+    try:
+        paper = {
+            ax.get_title(): [ln.get_label() for ln in ax.get_lines() if ln.get_label().startswith("paper")]
+            for ax in fig.axes
+            if ax.get_title()
+        }
+        assert paper == {
+            "grouped split": [],
+            "random split": ["paper, real skin, its stated 95/3/2 split: 2.03 mm"],
+            "design split": ["paper, real skin, its scored 11 x 6 test: 2.03 mm"],
+        }
+    finally:
+        plt.close(fig)
