@@ -175,7 +175,8 @@ def floors_section(table: pd.DataFrame, floors: Floors | None, campaign_seeds: i
     lines += [
         f"Every interval in this report covers networks and splits of this one campaign ({campaign_seeds} campaign "
         "seed); it does not cover the campaign draw (positions, placement and noise). "
-        "`benchmarks/bench_paper_seeds.py` gives the spread over campaign seeds.",
+        "`benchmarks/paper_dry_runs.py` gives the spread over campaign seeds from full main jobs (the README's "
+        "figures), `benchmarks/bench_paper_seeds.py` from the faster simulated campaigns of `campaign plan`.",
         "",
     ]
     return lines
