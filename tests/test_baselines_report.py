@@ -426,3 +426,43 @@ def test_the_inversion_model_is_chosen_by_name_and_a_missing_kernel_is_refused_b
     err = capsys.readouterr().err
     assert rc == 3 and fits == [] and "--inversion-model" in err and "neatskin skin mechanics" in err
     assert len([line for line in err.splitlines() if line.strip()]) <= 2
+
+
+def test_an_output_folder_the_report_cannot_write_is_refused_before_any_fit(tmp_path, capsys, monkeypatch):
+    """A report into a folder it cannot write (here under a file: no folder can be made there; a read-only dataset
+    folder is the common case) ran every fit, then failed on baselines.csv with a traceback (hostile-input audit)."""
+    folder = write_dataset(tmp_path / "ds", small_table(10, 4))
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+
+    def no_fits(*args, **kwargs):
+        raise AssertionError("the fits ran before the output folder was checked")
+
+    monkeypatch.setattr("neatskin.baselines.report.run_tasks", no_fits)
+    out = blocker / "report"
+    assert main(["baselines", str(folder), "-o", str(out), "--models", "ridge", "--no-progress"]) == 5
+    err = capsys.readouterr().err
+    assert f"neatskin: error: {out}: [--out]: cannot write the report there: Not a directory" in err
+    assert "fix: give a folder you can write with -o/--out" in err and "Traceback" not in err
+
+
+def test_an_os_error_no_check_named_is_one_error_with_the_path_and_a_fix(capsys, monkeypatch):
+    """The CLI's last line of defence: an OSError from a path no command-level check named is one DataError line
+    (exit 5) naming the path, the system's reason and a fix for that reason, not a traceback."""
+    import argparse
+    import errno
+
+    import neatskin.cli as cli
+
+    name = "x" * 300
+
+    def handler(args):
+        raise OSError(errno.ENAMETOOLONG, "File name too long", name)
+
+    parser = argparse.ArgumentParser()
+    parser.set_defaults(handler=handler)
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    assert cli.main([]) == 5
+    assert capsys.readouterr().err == (
+        f"neatskin: error: {name}: cannot use the path: File name too long (fix: give a shorter path)\n"
+    )

@@ -71,3 +71,17 @@ def test_the_rig_time_figures_say_what_they_are_and_agree(capsys):
     assert f"printer time {hours} h for the 12 presses written now (motion and holds" in _summary(done)
     half = CampaignResult(Path("c"), 12, 12, 6, 0, False, 2.0, plan.printer_time_s, None)
     assert f"printer time {plan.printer_time_s / 2 / 3600:.2f} h for the 6 presses written now" in _summary(half)
+
+
+def test_the_run_summary_gives_a_slow_printers_wall_time_ratio_to_two_figures():
+    """A real printer's run (0.6 of its wall time was printer time) read `0x this wall time`."""
+    from neatskin.rig.cli import _times
+
+    assert [_times(r) for r in (0.6, 0.0449, 2.54, 33.4, 150.0, float("inf"))] == [
+        "0.6x",
+        "0.045x",
+        "2.5x",
+        "33x",
+        "150x",
+        "infx",
+    ]

@@ -338,6 +338,7 @@ def run_baselines(
     inversion_text = _inversion_model_text(inversion_model, data) if physics else ""
     dataset_path = Path(dataset_folder)
     out_dir = Path(out) if out is not None else (dataset_path if dataset_path.is_dir() else dataset_path.parent)
+    _check_writable(out_dir)  # before the fits: a report that cannot be written must not cost them first
 
     split_repeats = {}
     for s in splits:
@@ -384,7 +385,6 @@ def run_baselines(
     def advance(done: int, total: int) -> None:
         bar.update(done - bar.n)
 
-    out_dir.mkdir(parents=True, exist_ok=True)
     # this process is one of the fits' lanes (tasks.run_tasks), so the figures, the bound map too, are drawn
     # after the fits: matplotlib is imported once the workers have ended, not beside them
     outputs = run_tasks(tasks, n_jobs=n_jobs, backend=backend, progress=advance)
@@ -463,6 +463,24 @@ def run_baselines(
         tuple(compared.get(c, True) for c in spreads),
         floors,
     )
+
+
+def _check_writable(folder: Path) -> None:
+    """Create `folder` and write (then remove) a probe file in it, or one DataError naming it: a read-only dataset
+    folder used to cost every fit of the report before the first file failed (the hostile-input audit)."""
+    import tempfile
+
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".neatskin-write-check-"):
+            pass
+    except OSError as exc:
+        raise DataError(
+            f"cannot write the report there: {exc.strerror or exc}",
+            file=str(folder),
+            field="--out",
+            fix="give a folder you can write with -o/--out (the dataset itself is only read)",
+        ) from exc
 
 
 def report_summary(report: Report) -> str:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import re
 from datetime import datetime
 from pathlib import Path
@@ -91,8 +92,14 @@ def _summary(result) -> str:
     return (
         f"campaign {state}: {result.completed}/{result.planned} presses in {result.folder} "
         f"({result.written_now} written now, {result.flagged} flagged); wall {result.wall_s:.1f} s; "
-        f"{printer_time_text(rig_s, result.written_now, 'written now')}, {ratio:.0f}x this wall time"
+        f"{printer_time_text(rig_s, result.written_now, 'written now')}, {_times(ratio)} this wall time"
     )
+
+
+def _times(ratio: float) -> str:
+    """A ratio as `33x`, `2.5x` or `0.6x`: two significant figures below 10 (a real printer's run, slower than the
+    simulated one, read `0x`)."""
+    return f"{ratio:.0f}x" if ratio >= 10 or not math.isfinite(ratio) else f"{ratio:.2g}x"
 
 
 def printer_time_text(seconds: float, presses: int, which: str = "") -> str:
