@@ -157,6 +157,39 @@ def test_sparse_path_agrees_with_dense_on_a_grid():
     assert np.max(np.abs(sparse[finite] / dense[finite] - 1)) < 1e-12
 
 
+def _hang_electrode(layout, electrode_index: int, last_s: float) -> np.ndarray:
+    """Unit conductances, but the electrode's channels shut (0) except one at `last_s`: it hangs on that one."""
+    g = np.ones(layout.n_channels)
+    junction = layout.electrode_junctions[electrode_index]
+    touching = np.flatnonzero((layout.channel_ends == junction).any(axis=1))
+    g[touching] = 0.0
+    g[touching[0]] = last_s
+    return g
+
+
+def test_the_sparse_path_stays_exact_with_an_electrode_hanging_on_a_nearly_shut_channel(paper_layout):
+    """The sparse path grounded the first electrode of each component; when that one hung on a 1e-15 S channel,
+    every entry of Z was ~1e15 and R_ab = Z_aa + Z_bb - 2 Z_ab cancelled: (3, 4) read 1.0 against 5/7 (external
+    audit, another channel order). It now grounds the best-connected electrode: every pair to 1e-12 of the exact
+    rational."""
+    # the electrode on the lowest junction index: the one the old rule grounded (the corner (0, 0), electrode 8)
+    g = _hang_electrode(paper_layout, int(np.argmin(paper_layout.electrode_junctions)), 1e-15)
+    exact = np.array([float(v) for v in exact_pair_resistance(paper_layout, g)])
+    sparse = equivalent_resistance(paper_layout, g, method="sparse")
+    assert np.max(np.abs(sparse / exact - 1)) < 1e-12
+
+
+def test_auto_above_the_stiff_dense_size_stays_exact_with_a_hanging_electrode():
+    """289 junctions (above STIFF_DENSE_MAX_JUNCTIONS): "auto" takes the sparse path even on this stiff input; it
+    agrees with the GTH path (relative accuracy whatever the stiffness) to 1e-12, as a 1e15 ohm pair should be."""
+    layout = grid_layout(17, 17, pitch_mm=5.0, electrodes=[(0, 0), (16, 0), (16, 16), (0, 16)])
+    for last_s in (1e-15, 1e-9, 1e-3):
+        g = _hang_electrode(layout, 0, last_s)
+        auto, dense = equivalent_resistance(layout, g), equivalent_resistance(layout, g, method="dense")
+        assert np.max(np.abs(auto / dense - 1)) < 1e-12, last_s
+    assert auto[0] > 1e3  # the hanging electrode's pairs carry its channel's resistance
+
+
 def test_auto_picks_sparse_for_a_30x30_grid_and_matches_a_dense_grounded_solve():
     layout = grid_layout(30, 30, pitch_mm=1.0)
     g = np.random.default_rng(1).uniform(0.1, 10.0, (2, layout.n_channels))

@@ -24,7 +24,7 @@ Two paths, picked by size (`equivalent_resistance(..., method="auto")`):
   forms its own group). Relative error then ~1e-14, tested against the GTH path and exact
   rationals; anything stiffer stays on GTH.
 - sparse (thousands of junctions): a grounded Laplacian solve per press with
-  `scipy.sparse.linalg.splu`, one ground per connected component (`csgraph`), unit
+  `scipy.sparse.linalg.splu`, one ground per connected component (`csgraph`: its best-connected electrode), unit
   currents injected at the electrodes; R_ab = Z_aa + Z_bb - 2 Z_ab. Accurate to the usual
   normwise backward error (fine for ordinary networks, not guaranteed relative accuracy on
   near-shorts); pairs in different components get `inf`.
@@ -317,11 +317,15 @@ def _sparse(layout: Layout, g: np.ndarray) -> np.ndarray:
             shape=(n, n),
         ).tocsc()
         ground = np.zeros(n, dtype=bool)
-        # ground an electrode where the component has one, so its column of Z is simply zero
+        # ground an electrode where the component has one, so its column of Z is simply zero: the best connected
+        # one (largest total conductance). Grounding an electrode that hangs on a nearly shut channel (1e-15 S) put
+        # ~1e15 in every entry of Z, and R_ab = Z_aa + Z_bb - 2 Z_ab then cancelled to a few % between the others
+        degree = np.bincount(a_idx[live], gp[live], minlength=n) + np.bincount(b_idx[live], gp[live], minlength=n)
         for comp in range(n_comp):
             members = np.flatnonzero(label == comp)
             on_electrode = np.intersect1d(members, electrodes)
-            ground[on_electrode[0] if on_electrode.size else members[0]] = True
+            candidates = on_electrode if on_electrode.size else members
+            ground[candidates[np.argmax(degree[candidates])]] = True
         free = np.flatnonzero(~ground)
         position = np.full(n, -1)
         position[free] = np.arange(free.size)
