@@ -136,6 +136,25 @@ def test_drift_leaves_out_the_presses_that_cut_a_pair_off_and_says_so(campaign, 
     )
 
 
+def test_a_press_that_cut_every_pair_off_is_a_gap_in_the_median_too(campaign, tmp_path):
+    table = pq.read_table(campaign / "presses.parquet")
+    for name in table.column_names:
+        if name.startswith(("R_ohm_", "dR_ohm_")):
+            values = table.column(name).to_numpy().copy()
+            values[3] = np.inf
+            table = table.set_column(table.schema.get_field_index(name), name, pa.array(values))
+    (tmp_path / "cut").mkdir()
+    pq.write_table(table, tmp_path / "cut" / "presses.parquet")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # numpy's "All-NaN slice encountered" for the median of press 3
+        assert _png_size(plot_drift(tmp_path / "cut", tmp_path / "drift.png")) == (900, 450)
+    _, _, pct = baseline_drift_pct(read_presses(tmp_path / "cut"))
+    assert np.isnan(pct[3]).all() and np.isfinite(np.delete(pct, 3, axis=0)).all()
+    assert "left out: 28 values where the press cut the pair off (R = inf; 1 press, 28 pairs)" in drift_title(
+        tuple(range(28)), pct, cut_off(read_presses(tmp_path / "cut"))
+    )
+
+
 def test_plots_are_written(campaign, tmp_path):
     assert _png_size(plot_press(campaign, 3, tmp_path / "press-3.png")) == (900, 650)
     assert _png_size(plot_drift(campaign, tmp_path / "drift.png")) == (900, 450)

@@ -249,11 +249,11 @@ def drift_title(labels: tuple[str, ...], pct: np.ndarray, cut: np.ndarray) -> st
     span = np.nanmax(np.abs(pct[np.isfinite(pct)])) if np.isfinite(pct).any() else 0.0
     title = f"baseline drift of {len(labels)} pairs over {pct.shape[0]} presses (largest |change| {span:.3f} %)"
     if cut.any():
-        pairs_cut = int(cut.any(axis=0).sum())
+        pairs_cut, presses_cut, values = int(cut.any(axis=0).sum()), int(cut.any(axis=1).sum()), int(cut.sum())
         title += (
-            f"\nleft out: {int(cut.sum())} values where the press cut the pair off (R = inf; "
-            f"{int(cut.any(axis=1).sum())} presses, {pairs_cut} pair{'s' if pairs_cut != 1 else ''}): gaps in the"
-            " lines;\neach pair's reference is its first press that did not cut it off"
+            f"\nleft out: {values} value{'s' if values != 1 else ''} where the press cut the pair off (R = inf; "
+            f"{presses_cut} press{'es' if presses_cut != 1 else ''}, {pairs_cut} pair{'s' if pairs_cut != 1 else ''}):"
+            " gaps in the lines;\neach pair's reference is its first press that did not cut it off"
         )
     return title
 
@@ -273,8 +273,10 @@ def plot_drift(folder: str | os.PathLike, out: str | os.PathLike) -> Path:
     cmap = plt.get_cmap("viridis")
     for k in range(len(labels)):
         ax.plot(ids, pct[:, k], color=cmap(k / max(len(labels) - 1, 1)), lw=0.7, alpha=0.6)
-    with np.errstate(all="ignore"):
-        median = np.nanmedian(np.where(np.isfinite(pct), pct, np.nan), axis=1)
+    finite = np.where(np.isfinite(pct), pct, np.nan)
+    kept = np.isfinite(finite).any(axis=1)  # a press that cut every pair off has no median (nanmedian would warn)
+    median = np.full(len(ids), np.nan)
+    median[kept] = np.nanmedian(finite[kept], axis=1)
     ax.plot(ids, median, color="k", lw=2.0, label="median over pairs")
     ax.axhline(0.0, color="0.5", lw=0.6)
     ax.set_xlabel("press id (order pressed)")

@@ -57,7 +57,7 @@ def not_a_press_file(path: Path) -> DataError | None:
             head = handle.read(4096)
     except OSError as exc:
         return DataError(f"cannot read the file: {exc.strerror or exc}", file=str(path), fix="check its permissions")
-    fix = f"the dataset commands read {ACCEPTED}: give one"
+    fix = f"neatskin reads {ACCEPTED}: give one"
     if head.startswith(PARQUET_MAGIC):
         try:
             names = pq.read_schema(path).names
@@ -70,13 +70,13 @@ def not_a_press_file(path: Path) -> DataError | None:
         what = "the file is empty (0 bytes), not a press table"
     elif path.name.endswith(".metadata.json"):
         what = "the metadata sidecar of a CSV export, not a press table"
-        fix = f"the dataset commands read {ACCEPTED}: give the campaign folder the CSV was exported from"
+        fix = f"neatskin reads {ACCEPTED}: give the campaign folder the CSV was exported from"
     elif path.name == "manifest.json":
         what, fix = "a campaign's manifest, not its presses", f"give the campaign folder {path.parent}"
     elif path.suffix.lower() in (".csv", ".tsv", ".txt") or (b"," in head.split(b"\n", 1)[0] and _is_text(head)):
         what = "a CSV file, not a press table"
         fix = (
-            f"CSV exports are for other tools (pandas, spreadsheets); the dataset commands read {ACCEPTED}: give the "
+            f"CSV exports are for other tools (pandas, spreadsheets); neatskin reads {ACCEPTED}: give the "
             "campaign folder the CSV was exported from"
         )
     else:
