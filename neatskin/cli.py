@@ -40,16 +40,20 @@ COMMAND_MODULES = (
 )
 
 
+DESCRIPTION = (
+    "Press campaigns on a NeatSkin sensor: run one from a protocol on the real rig or with --dry-run (a simulated "
+    "printer and skin), then curate the dataset and fit the position baselines. `neatskin COMMAND --help` for each."
+)
 # The groups several components add commands to, each declared once: (name, help).
 SHARED_GROUPS = (
-    ("campaign", "run, resume, finish or check a press campaign; pause, continue or stop a running one"),
+    ("campaign", "run, resume, finish, check or plan a press campaign; pause, continue or stop a running one"),
     ("printer", "talk to a Marlin printer over its serial port"),
 )
 
 
 def build_parser() -> argparse.ArgumentParser:
     codes = ", ".join(f"{int(code)} {code.name.lower().replace('_', ' ')}" for code in ExitCode)
-    parser = Parser(prog="neatskin", description=__doc__.splitlines()[0], epilog=f"exit codes: {codes} (docs/cli.md)")
+    parser = Parser(prog="neatskin", description=DESCRIPTION, epilog=f"exit codes: {codes} (docs/cli.md)")
     parser.add_argument("--version", action=_VersionAction, help="show program's version number and exit")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, help_text in SHARED_GROUPS:

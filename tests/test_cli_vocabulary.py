@@ -22,7 +22,11 @@ def _walk(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()):
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
             helped = {choice.dest: choice.help for choice in action._choices_actions}
+            seen: set[int] = set()
             for name, sub in action.choices.items():
+                if id(sub) in seen:  # an alias (`dataset describe` of `info`): its help is its command's
+                    continue
+                seen.add(id(sub))
                 yield (*path, name), helped.get(name), None
                 yield from _walk(sub, (*path, name))
         else:

@@ -128,3 +128,55 @@ def test_real_command_exit_status(paper_layout, tmp_path):
         timeout=120,
     )
     assert missing.returncode == 5 and "no such dataset" in missing.stderr
+
+
+def _cli(argv, capsys):
+    """`neatskin ...` through neatskin.cli.main: (exit code, stdout, stderr lines)."""
+    from neatskin.cli import main
+
+    code = main(argv)
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err.splitlines()
+
+
+def test_what_is_no_dataset_gets_one_error_naming_it_and_what_is_accepted(paper_layout, tmp_path, capsys):
+    """A CSV the toolkit exported, its sidecar, an empty file, a parquet that is no press table, a campaign's manifest
+    and a folder that is no campaign: every dataset command gives one error line naming the path, what it is and what
+    is accepted. (validate said "[pairs]: no electrode pairs given (fix: pass layout.pairs)" for the CSV, naming no
+    file; info called it corrupted; physical_limit.parquet ended in a KeyError traceback; plot of any file named a
+    manifest.json beside it.)"""
+    make(tmp_path / "c", paper_layout)
+    assert _cli(["dataset", "export", str(tmp_path / "c"), "-o", str(tmp_path / "s.csv")], capsys)[0] == 0
+    (tmp_path / "empty.parquet").write_bytes(b"")
+    pd.DataFrame({"position_id": [0, 1], "crb_mm": [0.5, 0.6]}).to_parquet(tmp_path / "physical_limit.parquet")
+    (tmp_path / "plain").mkdir()
+    (tmp_path / "plain" / "notes.txt").write_text("not a campaign")
+    accepted = "a campaign folder (written by `neatskin campaign run`) or its presses.parquet"
+    cases = {
+        tmp_path / "s.csv": ("a CSV file, not a press table", "CSV exports are for other tools"),
+        tmp_path / "s.csv.metadata.json": ("the metadata sidecar of a CSV export", accepted),
+        tmp_path / "empty.parquet": ("the file is empty (0 bytes)", accepted),
+        tmp_path / "physical_limit.parquet": ("a parquet file without a press_id column", accepted),
+        tmp_path / "c" / "manifest.json": (
+            "a campaign's manifest, not its presses",
+            f"give the campaign folder {tmp_path / 'c'}",
+        ),
+        tmp_path / "plain": ("not a campaign folder: no manifest.json, no presses.parquet", accepted),
+    }
+    for path, (what, fix) in cases.items():
+        for argv, code in (
+            (["dataset", "info", str(path)], 5),
+            (["dataset", "validate", str(path)], 1),  # validate's verdict: 1 when anything is wrong
+            (["dataset", "split", str(path), "-o", str(tmp_path / "split")], 5),
+            (["dataset", "export", str(path), "-o", str(tmp_path / "out.parquet")], 5),
+            (["dataset", "plot", str(path), "-o", str(tmp_path / "png"), "--drift"], 5),
+            (["dataset", "merge", str(tmp_path / "c"), str(path), "-o", str(tmp_path / "merged")], 5),
+        ):
+            exit_code, out, err = _cli(argv, capsys)
+            assert (exit_code, out) == (code, ""), (argv, err)
+            assert len(err) == 1 and err[0].startswith(f"neatskin: error: {path}: {what}"), (argv, err)
+            assert "(fix: " in err[0] and fix in err[0], (argv, err)
+    assert not any((tmp_path / name).exists() for name in ("split", "out.parquet", "png", "merged"))
+    # the folder the CSV came from, and its presses.parquet, are what these commands read
+    assert _cli(["dataset", "validate", str(tmp_path / "c")], capsys)[0] == 0
+    assert _cli(["dataset", "validate", str(tmp_path / "c" / "presses.parquet")], capsys)[0] == 0

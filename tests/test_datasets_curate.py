@@ -11,7 +11,15 @@ from conftest import PROTOCOLS
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from neatskin.datasets.curate import describe, export, merge, split, split_positions
+from neatskin.datasets.curate import (
+    SENSITIVITY_MEASURE,
+    describe,
+    export,
+    merge,
+    most_sensitive_pairs,
+    split,
+    split_positions,
+)
 from neatskin.datasets.manifest import create_manifest, update_manifest
 from neatskin.datasets.plots import plot_press_map, plot_sensitivity_map, sensitivity_by_position
 from neatskin.datasets.reader import read_metadata, read_presses
@@ -61,6 +69,42 @@ def test_describe(paper_layout, tmp_path):
     assert info["flagged_presses"] == 2 and info["flags"] == {"fsr_missed": 2}
     assert info["seed"] == 0 and info["status"] == "complete" and info["depth_mm"] == [3.5]
     assert info["files"] == {"consolidated": True, "press_parts": 0, "waveform_parts": 0}
+
+
+def test_describe_ranks_pairs_on_the_presses_that_did_not_cut_them(paper_layout, tmp_path):
+    """A cut pair's dR is +inf on that press: ranked over all presses, every pair ever cut ranked inf and tied, and a
+    paper dry run said ["1-2", "1-3", "1-4"], the first three columns. The ranking is on the finite values."""
+    pairs = [f"{p.i}-{p.j}" for p in paper_layout.pairs]
+    rows = synthetic_rows(paper_layout, 4, 3, seed=0)
+    cut, strong, never = pairs.index("1-2"), pairs.index("2-6"), pairs.index("3-7")
+    for k, row in enumerate(rows):
+        row["dR_ohm"] = np.array(row["dR_ohm"], dtype=float)
+        row["R_ohm"] = np.array(row["R_ohm"], dtype=float)
+        row["dR_ohm"][strong] = 50_000.0 + k  # clearly the most sensitive pair: mean |dR| 50,005.5 ohm
+        row["R_ohm"][never], row["dR_ohm"][never] = np.inf, np.inf  # cut on every press: no value, no rank
+        row["flags"] = ["open_circuit:3-7"]
+    for k in (0, 5):
+        rows[k]["R_ohm"][cut], rows[k]["dR_ohm"][cut] = np.inf, np.inf
+        rows[k]["flags"] = ["open_circuit:1-2", "open_circuit:3-7"]
+    rows[7]["dR_ohm"][pairs.index("1-3")] = -np.inf  # a baseline that was cut, a press that was not
+    dr = pd.DataFrame([r["dR_ohm"] for r in rows], columns=[f"dR_ohm_{p.replace('-', '_')}" for p in pairs])
+    finite = dr.where(np.isfinite(dr))
+    expected = finite.abs().mean().dropna().sort_values(ascending=False)
+    ranked = most_sensitive_pairs(dr)
+    assert ranked["by"] == SENSITIVITY_MEASURE and "did not cut" in ranked["by"]
+    assert list(ranked["pairs"]) == [c.removeprefix("dR_ohm_").replace("_", "-") for c in expected.index[:3]]
+    assert list(ranked["pairs"])[0] == "2-6" and ranked["pairs"]["2-6"] == pytest.approx(50_005.5)
+    assert "3-7" not in most_sensitive_pairs(dr, count=28)["pairs"] and len(most_sensitive_pairs(dr, 28)["pairs"]) == 27
+    # the cut pair's rank comes from its 10 finite presses, not its two inf ones
+    mean_12 = float(np.mean(np.abs(np.delete(dr["dR_ohm_1_2"].to_numpy(), [0, 5]))))
+    assert most_sensitive_pairs(dr, count=28)["pairs"]["1-2"] == pytest.approx(mean_12, abs=1e-3)
+
+    create_manifest(tmp_path, fsync=False, campaign="c", seed=0, layout=LAYOUT_REF, counts={"planned": 12})
+    with CampaignWriter(tmp_path, paper_layout.pairs, {"seed": 0}, fsync=False) as writer:
+        for row in rows:
+            writer.write_press(row)
+        writer.finalize()
+    assert describe(tmp_path)["most_sensitive_pairs"] == ranked  # what `dataset info` prints
 
 
 def test_merge_rekeys_and_keeps_provenance(paper_layout, tmp_path):

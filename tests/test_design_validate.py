@@ -43,6 +43,50 @@ def test_the_study_agrees_with_campaigns_and_the_negative_control_disagrees(tmp_
     assert text.count(SECTION) == 1 and "negative control: the campaigns' skin has its pinch x 0.6" in text
 
 
+TINY_STUDY = """
+[study]
+name = "tiny"
+press_grid = 4
+
+[layouts]
+sizes = [[3, 3]]
+
+[electrodes]
+counts = [4, 6, 8]
+strategies = ["boundary"]
+
+[learned]
+positions = 40
+repeats = 2
+seeds = 2
+"""
+
+
+def test_validate_shows_its_progress_on_stderr_and_the_same_results_without_it(tmp_path, capsys, monkeypatch):
+    """grid5's validation ran ~17 s with nothing on stderr. Now a bar counts its steps on stderr (3 candidates, the
+    power sweep's study side and its 2 scales here: 6), -q turns it off, and the results stay in order: the bar's
+    run on 2 processes (joblib's ordered generator) prints and writes byte for byte what a quiet run on one does."""
+    import neatskin.design.validate as validate
+
+    monkeypatch.setattr(validate, "POWER_SCALES", (0.7, 1.3))
+    study = tmp_path / "tiny.toml"
+    study.write_text(TINY_STUDY)
+    code = main(["design", "validate", str(study), "--out", str(tmp_path / "bar"), "--jobs", "2"])
+    shown = capsys.readouterr()
+    assert main(["design", "validate", str(study), "--out", str(tmp_path / "quiet"), "--jobs", "1", "-q"]) == code
+    quiet = capsys.readouterr()
+    assert "validate tiny" in shown.err and "6/6" in shown.err and "check/s" in shown.err
+    assert quiet.err == ""
+    assert "verdict" in shown.out and "power" in shown.out
+    assert shown.out.replace(str(tmp_path / "bar"), "OUT") == quiet.out.replace(str(tmp_path / "quiet"), "OUT")
+    assert (tmp_path / "bar" / "report.md").read_bytes() == (tmp_path / "quiet" / "report.md").read_bytes()
+    steps = []
+    from neatskin.design.study import load_study
+
+    validate.validate_study(load_study(study), power=False, n_jobs=1, progress=lambda *a: steps.append(a))
+    assert steps == [(0, 3), (1, 3), (2, 3), (3, 3)]
+
+
 def test_the_ranking_check_fails_when_the_campaigns_reverse_a_pair_the_study_separates():
     def check(label, study, scene):
         values = np.array(study), np.array(scene)

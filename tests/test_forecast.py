@@ -117,6 +117,26 @@ def test_campaign_plan_prints_sizes_with_rig_hours_and_errors(tmp_path, capsys):
     assert (tmp_path / "campaign_plan.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_campaign_plan_shows_its_progress_on_stderr_and_the_same_results_without_it(tmp_path, capsys):
+    """The paper's plan ran minutes with nothing on stderr. Now a bar counts the simulated campaigns on stderr (the
+    design x size x seed jobs: 14 for smoke.toml with 2 seeds), -q/--quiet (and the old --no-progress) turns it off,
+    and the results stay in the same order: the bar's run on 2 processes (joblib's ordered generator) writes the
+    CSV and the table byte for byte as a quiet run on one."""
+    argv = ["campaign", "plan", str(PROTOCOLS / "smoke.toml"), "--seeds", "2", "--model", "knn"]
+    assert main([*argv, "--jobs", "2", "--out", str(tmp_path / "bar")]) == 0
+    shown = capsys.readouterr()
+    assert main([*argv, "--jobs", "1", "--out", str(tmp_path / "quiet"), "-q"]) == 0
+    quiet = capsys.readouterr()
+    assert "plan smoke" in shown.err and "14/14" in shown.err and "campaign/s" in shown.err
+    assert quiet.err == ""
+    assert shown.out.replace(str(tmp_path / "bar"), "OUT") == quiet.out.replace(str(tmp_path / "quiet"), "OUT")
+    assert (tmp_path / "bar" / "campaign_plan.csv").read_bytes() == (
+        tmp_path / "quiet" / "campaign_plan.csv"
+    ).read_bytes()
+    assert main([*argv, "--jobs", "1", "--out", str(tmp_path / "old"), "--no-progress"]) == 0
+    assert capsys.readouterr().err == ""
+
+
 def test_campaign_plan_refuses_one_seed(tmp_path, capsys):
     # a wrong option value is a ConfigError: the exit-code table's CONFIG (3), not argparse's USAGE (2)
     code = main(["campaign", "plan", str(PROTOCOLS / "smoke.toml"), "--seeds", "1", "--out", str(tmp_path)])

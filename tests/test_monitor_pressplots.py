@@ -6,12 +6,15 @@ from __future__ import annotations
 import json
 import shutil
 import struct
+import warnings
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 
-from neatskin.datasets.pressplots import baseline_drift_pct, plot_drift, plot_press, press_series
+from neatskin.datasets.pressplots import baseline_drift_pct, cut_off, drift_title, plot_drift, plot_press, press_series
 from neatskin.datasets.reader import read_presses
 from neatskin.errors import DataError
 from neatskin.tomlfile import resolve_path
@@ -95,6 +98,61 @@ def test_baseline_drift_is_r_minus_dr_against_the_first_press(campaign):
     base = df["R_ohm_7_8"].to_numpy() - df["dR_ohm_7_8"].to_numpy()
     np.testing.assert_allclose(pct[:, -1], 100 * (base / base[0] - 1))
     assert np.all(pct[0] == 0.0)
+
+
+def test_drift_leaves_out_the_presses_that_cut_a_pair_off_and_says_so(campaign, tmp_path):
+    """A press that cuts a pair off stores R = dR = +inf: R - dR was inf - inf (numpy's 'invalid value encountered in
+    subtract' on every paper dry run), and a pair cut on the first press lost its whole line. Now those values are
+    gaps, each pair's reference is its first uncut press, and the title counts what was left out."""
+    table = pq.read_table(campaign / "presses.parquet")
+    r, dr = table.column("R_ohm_1_2").to_numpy().copy(), table.column("dR_ohm_1_2").to_numpy().copy()
+    base = r - dr
+    r[[0, 4]] = dr[[0, 4]] = np.inf  # pair 1-2 cut off by presses 0 (the old reference) and 4
+    flags = table.column("flags").to_pylist()
+    for k in (0, 4):
+        flags[k] = [*flags[k], "open_circuit:1-2", "clipped:1-2"]
+    for name, values in (("R_ohm_1_2", r), ("dR_ohm_1_2", dr)):
+        table = table.set_column(table.schema.get_field_index(name), name, pa.array(values))
+    table = table.set_column(table.schema.get_field_index("flags"), "flags", pa.array(flags, pa.list_(pa.string())))
+    (tmp_path / "cut").mkdir()
+    pq.write_table(table, tmp_path / "cut" / "presses.parquet")
+    df = read_presses(tmp_path / "cut")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the old inf - inf warned
+        ids, labels, pct = baseline_drift_pct(df)
+        written = plot_drift(tmp_path / "cut", tmp_path / "drift.png")
+    assert _png_size(written) == (900, 450)
+    assert labels[0] == "1-2" and np.isnan(pct[[0, 4], 0]).all()
+    kept = np.array([k not in (0, 4) for k in range(12)])
+    np.testing.assert_allclose(pct[kept, 0], 100 * (base[kept] / base[1] - 1))  # press 1: the first uncut one
+    assert pct[1, 0] == 0.0 and np.isfinite(pct[:, 1:]).all()
+    np.testing.assert_array_equal(pct[:, 1:], baseline_drift_pct(read_presses(campaign))[2][:, 1:])  # others alike
+    cut = cut_off(df)
+    assert cut.sum() == 2 and cut[[0, 4], 0].all()
+    title = drift_title(labels, pct, cut)
+    assert "left out: 2 values where the press cut the pair off (R = inf; 2 presses, 1 pair)" in title
+    assert "left out" not in drift_title(
+        *baseline_drift_pct(read_presses(campaign))[1:], cut_off(read_presses(campaign))
+    )
+
+
+def test_a_press_that_cut_every_pair_off_is_a_gap_in_the_median_too(campaign, tmp_path):
+    table = pq.read_table(campaign / "presses.parquet")
+    for name in table.column_names:
+        if name.startswith(("R_ohm_", "dR_ohm_")):
+            values = table.column(name).to_numpy().copy()
+            values[3] = np.inf
+            table = table.set_column(table.schema.get_field_index(name), name, pa.array(values))
+    (tmp_path / "cut").mkdir()
+    pq.write_table(table, tmp_path / "cut" / "presses.parquet")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # numpy's "All-NaN slice encountered" for the median of press 3
+        assert _png_size(plot_drift(tmp_path / "cut", tmp_path / "drift.png")) == (900, 450)
+    _, _, pct = baseline_drift_pct(read_presses(tmp_path / "cut"))
+    assert np.isnan(pct[3]).all() and np.isfinite(np.delete(pct, 3, axis=0)).all()
+    assert "left out: 28 values where the press cut the pair off (R = inf; 1 press, 28 pairs)" in drift_title(
+        tuple(range(28)), pct, cut_off(read_presses(tmp_path / "cut"))
+    )
 
 
 def test_plots_are_written(campaign, tmp_path):

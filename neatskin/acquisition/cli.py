@@ -12,7 +12,12 @@ DEFAULT_WIRING = Path("protocols") / "wiring" / "paper.toml"
 
 
 def register(subparsers) -> None:
-    mux = subparsers.add_parser("mux", help="mux board: wiring checks and the switching table")
+    mux = subparsers.add_parser(
+        "mux",
+        help="mux board: the switching table to check the wiring against",
+        description="The mux board: the switching table (chip, address, line states and windows per pair) a "
+        "technician checks the board against with a meter.",
+    )
     sub = mux.add_subparsers(dest="mux_command", metavar="COMMAND", required=True)
     table = sub.add_parser("table", help="print, for each pair in sweep order, chip, address, line states and windows")
     table.add_argument("wiring", nargs="?", type=Path, default=None, help=f"wiring file (default: {DEFAULT_WIRING})")

@@ -26,9 +26,9 @@ def register(subparsers) -> None:
     parser.add_argument(
         "--models",
         default=None,
-        help="comma-separated: ridge,knn,kernel_ridge,extra_trees,mlp,lm_network,inversion, or all (default: "
-        "ridge,knn,extra_trees,lm_network,inversion; inversion, the physics baseline, needs the layout the "
-        "manifest names)",
+        help="comma-separated, e.g. ridge,knn: any of ridge, knn, kernel_ridge, extra_trees, mlp, lm_network, "
+        "inversion, or all (default: ridge, knn, extra_trees, lm_network, inversion; inversion, the physics "
+        "baseline, needs the layout the manifest names)",
     )
     add_out(parser, "output folder (default: the dataset folder); a folder that already holds a report is refused")
     parser.add_argument(
@@ -64,7 +64,7 @@ def register(subparsers) -> None:
     add_quiet(parser)
     parser.add_argument("--yes", action="store_true", help="run even when the estimate is above --max-hours")
     parser.add_argument(
-        "--max-hours", type=float, default=1.0, help="refuse a run estimated longer than this without --yes (1)"
+        "--max-hours", type=float, default=1.0, help="refuse a run estimated longer than this without --yes (default 1)"
     )
     parser.set_defaults(handler=handler)
 

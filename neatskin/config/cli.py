@@ -7,7 +7,11 @@ from pathlib import Path
 
 
 def register(subparsers) -> None:
-    parser = subparsers.add_parser("protocol", help="start a protocol of your own from a packaged one")
+    parser = subparsers.add_parser(
+        "protocol",
+        help="start a protocol of your own from a packaged one",
+        description="Start a protocol of your own from a packaged one (paper, smoke) or any protocol file.",
+    )
     sub = parser.add_subparsers(dest="protocol_command", metavar="ACTION", required=True)
     init = sub.add_parser(
         "init",

@@ -1,5 +1,5 @@
-"""`neatskin dataset info|validate|merge|split|export|plot`: a thin layer over neatskin.datasets.curate,
-.validate and .plots. Heavy imports happen inside the handlers.
+"""`neatskin dataset info|validate|merge|split|export|plot`: a thin layer over neatskin.datasets.curate, .validate,
+.plots and .pressplots. Heavy imports happen inside the handlers.
 """
 
 from __future__ import annotations
@@ -16,12 +16,14 @@ from neatskin.errors import CheckFailed
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "dataset",
-        help="validate, describe, merge, split, export and plot datasets",
-        description=__doc__.splitlines()[0],
+        help="describe (info), validate, merge, split, export and plot campaign datasets",
+        description="Curate campaign datasets: describe (info), validate, merge, split by position, export and plot "
+        "them. Each action reads a campaign folder (written by `neatskin campaign run`) or its presses.parquet "
+        "(docs/datasets.md).",
     )
     sub = parser.add_subparsers(dest="dataset_command", metavar="ACTION", required=True)
 
-    info = sub.add_parser("info", help="summarise a campaign folder or press parquet file")
+    info = sub.add_parser("info", aliases=["describe"], help="summarise a campaign folder or press parquet file")
     info.add_argument("path", type=Path, help="campaign folder or .parquet file")
     info.add_argument("--json", action="store_true", help="print JSON instead of a table")
     info.set_defaults(handler=_info)
@@ -36,7 +38,7 @@ def register(subparsers) -> None:
     val.set_defaults(handler=_validate)
 
     mer = sub.add_parser("merge", help="merge campaigns into one dataset (press and position ids re-keyed)")
-    mer.add_argument("folders", type=Path, nargs="+", help="campaign folders (two or more)")
+    mer.add_argument("folders", type=Path, nargs="+", help="campaign folders or press .parquet files (two or more)")
     add_out(mer, "new folder to write", required=True)
     mer.add_argument("--allow-mixed", action="store_true", help="merge campaigns on different layouts or wirings")
     mer.add_argument(
@@ -52,7 +54,7 @@ def register(subparsers) -> None:
     mer.set_defaults(handler=_merge)
 
     spl = sub.add_parser("split", help="split into train/ and test/ by position (repeats never straddle)")
-    spl.add_argument("path", type=Path, help="campaign folder")
+    spl.add_argument("path", type=Path, help="campaign folder or .parquet file")
     add_out(spl, "new folder for train/ and test/", required=True)
     spl.add_argument("--test-fraction", type=float, default=0.2, help="share of positions in test (default 0.2)")
     spl.add_argument("--seed", type=int, default=0, help="seed of the position shuffle (default 0)")
@@ -76,15 +78,27 @@ def register(subparsers) -> None:
     exp.add_argument("--seed", type=int, default=0, help="hf: seed of the position split (default 0)")
     exp.set_defaults(handler=_export)
 
-    plot = sub.add_parser("plot", help="draw the sensitivity map (paper Fig. 8) and/or the press map as PNG")
-    plot.add_argument("path", type=Path, help="campaign folder")
+    plot = sub.add_parser(
+        "plot",
+        help="draw the sensitivity map (paper Fig. 8) and the press map as PNG; with --press one press, with --drift "
+        "the baseline drift",
+    )
+    plot.add_argument("path", type=Path, help="campaign folder or .parquet file")
     add_out(plot, "folder for the PNG files", required=True)
     plot.add_argument(
         "--kind", choices=("sensitivity", "presses", "all"), default="all", help="which maps to draw (default all)"
     )
-    plot.add_argument("--layout", type=Path, help="skin layout TOML (default: the one the manifest names)")
+    plot.add_argument(
+        "--layout",
+        type=Path,
+        help="skin layout TOML (default: the one the manifest names; for a lone .parquet, the one its metadata names)",
+    )
     plot.add_argument("--press", type=int, metavar="ID", help="also one press: R per pair and FSR against time")
-    plot.add_argument("--drift", action="store_true", help="also every pair's baseline R against press order")
+    plot.add_argument(
+        "--drift",
+        action="store_true",
+        help="also every pair's baseline R against press order (a press that cut a pair off: a gap in its line)",
+    )
     plot.set_defaults(handler=_plot)
 
 

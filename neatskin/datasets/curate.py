@@ -82,7 +82,6 @@ def describe(path: str | os.PathLike) -> dict[str, Any]:
     meta = decode_metadata(table.schema.metadata)
     per_position = df.groupby("position_id").size()
     dr_cols = [c for c in df.columns if c.startswith("dR_ohm_")]
-    mean_dr = df[dr_cols].mean()
     flags = pd.Series([f for fl in df["flags"] for f in fl], dtype=object).value_counts()
     return {
         "path": str(path),
@@ -98,9 +97,7 @@ def describe(path: str | os.PathLike) -> dict[str, Any]:
         "depth_mm": sorted(float(d) for d in df["depth_mm"].unique()),
         "started_at": str(df["started_at"].min()) if len(df) else None,
         "finished_at": str(df["finished_at"].max()) if len(df) else None,
-        "most_sensitive_pairs": [
-            c.removeprefix("dR_ohm_").replace("_", "-") for c in mean_dr.abs().sort_values(ascending=False).index[:3]
-        ],
+        "most_sensitive_pairs": most_sensitive_pairs(df[dr_cols]),
         "status": campaign_status(path, manifest) if manifest else None,
         "seed": manifest.get("seed", meta.get("seed")),
         "layout": manifest.get("layout", meta.get("layout")),
@@ -111,6 +108,20 @@ def describe(path: str | os.PathLike) -> dict[str, Any]:
             "waveform_parts": len(waveform_parts(path)) if path.is_dir() else 0,
         },
     }
+
+
+SENSITIVITY_MEASURE = "mean |dR| (ohm) over the presses that did not cut the pair off"
+
+
+def most_sensitive_pairs(dr: pd.DataFrame, count: int = 3) -> dict[str, Any]:
+    """The `count` pairs of the largest mean |dR| over the presses where the pair's dR is finite, as
+    {"by": what it ranks by, "pairs": {"i-j": mean |dR| ohm}}. A pair cut off by a pinched channel has dR = +inf
+    on that press (its open_circuit flag says so): over all presses every pair ever cut would rank inf (or nan)
+    and tie, and the ranking would be the column order; a pair cut on every press has no value and no rank."""
+    finite = dr.where(np.isfinite(dr.to_numpy(dtype=float)))
+    mean_abs = finite.abs().mean().dropna().sort_values(ascending=False, kind="stable")
+    top = {str(c).removeprefix("dR_ohm_").replace("_", "-"): round(float(v), 3) for c, v in mean_abs[:count].items()}
+    return {"by": SENSITIVITY_MEASURE, "pairs": top}
 
 
 def format_description(info: dict[str, Any]) -> str:

@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 
 from neatskin.datasets.manifest import read_manifest, resolve_manifest_path
+from neatskin.datasets.paths import MANIFEST_NAME
 from neatskin.datasets.reader import pair_labels_from_columns, read_presses
 from neatskin.errors import DataError
 from neatskin.layout import Layout, load_layout
@@ -53,18 +54,33 @@ def sensitivity_title(df: pd.DataFrame, sens: pd.DataFrame) -> str:
 
 
 def layout_for(path: str | os.PathLike, layout: Layout | str | os.PathLike | None = None) -> Layout:
-    """The layout given, or the one the campaign's manifest names."""
+    """The layout given, else the one the campaign's manifest names, else (a press file outside a campaign folder)
+    the one its metadata names, found beside it and checked against its recorded sha256."""
     if isinstance(layout, Layout):
         return layout
     if layout is not None:
         return load_layout(Path(layout))
     path = Path(path)
-    manifest = read_manifest(path if path.is_dir() else path.parent)
-    layout_path = resolve_manifest_path(path if path.is_dir() else path.parent, manifest, "layout")
+    folder = path if path.is_dir() else path.parent
+    if path.is_file() and not (folder / MANIFEST_NAME).is_file():
+        from neatskin.datasets.reader import read_metadata
+        from neatskin.datasets.values import metadata_layout
+
+        found = metadata_layout(folder, read_metadata(path), None)
+        if found is None:
+            raise DataError(
+                "a press file outside its campaign folder, and the layout its metadata names is not beside it",
+                file=str(path),
+                field="layout",
+                fix="pass --layout protocols/skins/<skin>.toml, or plot the campaign folder",
+            )
+        return found
+    manifest = read_manifest(folder)
+    layout_path = resolve_manifest_path(folder, manifest, "layout")
     if layout_path is None:
         raise DataError(
             "the manifest names no layout",
-            file=str(path / "manifest.json"),
+            file=str(folder / MANIFEST_NAME),
             field="layout",
             fix="pass --layout protocols/skins/<skin>.toml",
         )
@@ -122,8 +138,8 @@ def plot_sensitivity_map(
     positions (blank outside their convex hull), pressed positions as dots, channel boundaries dashed."""
     from scipy.interpolate import griddata
 
+    df = read_presses(path)  # first: a path that holds no presses is told as such, not as a missing manifest
     layout = layout_for(path, layout)
-    df = read_presses(path)
     sens = sensitivity_by_position(df)
     plt, fig, ax = _figure()
     x0, y0, x1, y1 = layout.bounds_mm
@@ -163,8 +179,8 @@ def plot_press_map(
     path: str | os.PathLike, out: str | os.PathLike, layout: Layout | str | os.PathLike | None = None
 ) -> Path:
     """The pressed positions, numbered by position_id and coloured by how many presses each received."""
+    df = read_presses(path)  # first: a path that holds no presses is told as such, not as a missing manifest
     layout = layout_for(path, layout)
-    df = read_presses(path)
     per = df.groupby("position_id").agg(x_mm=("x_mm", "first"), y_mm=("y_mm", "first"), presses=("press_id", "size"))
     plt, fig, ax = _figure()
     _draw_channels(ax, layout)

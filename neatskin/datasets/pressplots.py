@@ -214,42 +214,75 @@ def plot_press(folder: str | os.PathLike, press_id: int, out: str | os.PathLike)
     return out
 
 
-def baseline_drift_pct(df: pd.DataFrame) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:
-    """(press ids, pair labels, (presses, pairs) baseline R = R - dR as % change from each pair's first press)."""
+def _pair_values(df: pd.DataFrame) -> tuple[pd.DataFrame, tuple[str, ...], np.ndarray, np.ndarray]:
+    """(rows sorted by press id, pair labels, R and dR as (presses, pairs) arrays in pair order)."""
     df = df.sort_values("press_id", kind="stable")
     pairs = pair_labels_from_columns(df)
     r = df[[f"R_ohm_{p.i}_{p.j}" for p in pairs]].to_numpy(float)
     dr = df[[f"dR_ohm_{p.i}_{p.j}" for p in pairs]].to_numpy(float)
-    base = r - dr
-    first = base[0]
-    with np.errstate(divide="ignore", invalid="ignore"):
+    return df, tuple(p.label for p in pairs), r, dr
+
+
+def cut_off(df: pd.DataFrame) -> np.ndarray:
+    """(presses, pairs) in press-id order: True where the press cut the pair off (a channel pinched shut leaves R and
+    dR = +inf, its open_circuit flag on the row): the row holds no baseline for that pair."""
+    _, _, r, dr = _pair_values(df)
+    return ~(np.isfinite(r) & np.isfinite(dr))
+
+
+def baseline_drift_pct(df: pd.DataFrame) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:
+    """(press ids, pair labels, (presses, pairs) baseline R = R - dR as % change from each pair's first press that
+    did not cut it off). Where a press cut the pair off (cut_off) the value is NaN: R - dR would be inf - inf, and
+    a cut first press would have made the pair's whole line NaN."""
+    df, labels, r, dr = _pair_values(df)
+    cut = ~(np.isfinite(r) & np.isfinite(dr))
+    base = np.where(cut, np.nan, r - np.where(cut, 0.0, dr))  # no inf - inf (numpy's RuntimeWarning)
+    first_kept = np.argmax(~cut, axis=0)  # each pair's first uncut press (0 when every press cut it: NaN below)
+    first = base[first_kept, np.arange(base.shape[1])] if len(base) else np.full(base.shape[1], np.nan)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a baseline of exactly 0 ohm: inf, not a warning
         pct = 100.0 * (base / first - 1.0)
-    return df["press_id"].to_numpy(int), tuple(p.label for p in pairs), pct
+    return df["press_id"].to_numpy(int), labels, pct
+
+
+def drift_title(labels: tuple[str, ...], pct: np.ndarray, cut: np.ndarray) -> str:
+    """The drift plot's title: what it shows, its largest change, and the cut-off values it left out."""
+    span = np.nanmax(np.abs(pct[np.isfinite(pct)])) if np.isfinite(pct).any() else 0.0
+    title = f"baseline drift of {len(labels)} pairs over {pct.shape[0]} presses (largest |change| {span:.3f} %)"
+    if cut.any():
+        pairs_cut, presses_cut, values = int(cut.any(axis=0).sum()), int(cut.any(axis=1).sum()), int(cut.sum())
+        title += (
+            f"\nleft out: {values} value{'s' if values != 1 else ''} where the press cut the pair off (R = inf; "
+            f"{presses_cut} press{'es' if presses_cut != 1 else ''}, {pairs_cut} pair{'s' if pairs_cut != 1 else ''}):"
+            " gaps in the lines;\neach pair's reference is its first press that did not cut it off"
+        )
+    return title
 
 
 def plot_drift(folder: str | os.PathLike, out: str | os.PathLike) -> Path:
-    """PNG of every pair's baseline R against press order (% from its first press), the median across pairs bold."""
+    """PNG of every pair's baseline R against press order (% from its first press that did not cut it off), the median
+    across pairs bold; the values of cut-off pairs are left out (gaps), and the title says how many."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    ids, labels, pct = baseline_drift_pct(read_presses(folder))
+    df = read_presses(folder)
+    ids, labels, pct = baseline_drift_pct(df)
+    cut = cut_off(df)
     fig, ax = plt.subplots(figsize=(FIGSIZE_IN[0], 4.5))
     cmap = plt.get_cmap("viridis")
     for k in range(len(labels)):
         ax.plot(ids, pct[:, k], color=cmap(k / max(len(labels) - 1, 1)), lw=0.7, alpha=0.6)
-    with np.errstate(all="ignore"):
-        median = np.nanmedian(np.where(np.isfinite(pct), pct, np.nan), axis=1)
+    finite = np.where(np.isfinite(pct), pct, np.nan)
+    kept = np.isfinite(finite).any(axis=1)  # a press that cut every pair off has no median (nanmedian would warn)
+    median = np.full(len(ids), np.nan)
+    median[kept] = np.nanmedian(finite[kept], axis=1)
     ax.plot(ids, median, color="k", lw=2.0, label="median over pairs")
     ax.axhline(0.0, color="0.5", lw=0.6)
     ax.set_xlabel("press id (order pressed)")
-    ax.set_ylabel("baseline R (R - dR): % from first press")
+    ax.set_ylabel("baseline R (R - dR): % from the reference")
     ax.legend(fontsize=8)
-    span = np.nanmax(np.abs(pct[np.isfinite(pct)])) if np.isfinite(pct).any() else 0.0
-    ax.set_title(
-        f"baseline drift of {len(labels)} pairs over {len(ids)} presses (largest |change| {span:.3f} %)", fontsize=10
-    )
+    ax.set_title(drift_title(labels, pct, cut), fontsize=9 if cut.any() else 10)
     fig.tight_layout()
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -16,34 +16,97 @@ import pyarrow as pa
 import pyarrow.dataset as pads
 import pyarrow.parquet as pq
 
-from neatskin.datasets.paths import CONSOLIDATED_NAME, WAVEFORMS_DIR, part_press_id, press_parts
+from neatskin.datasets.paths import CONSOLIDATED_NAME, MANIFEST_NAME, WAVEFORMS_DIR, part_press_id, press_parts
 from neatskin.datasets.schema import decode_metadata, parse_pair_column
 from neatskin.datasets.tables import deduplicate_sorted, read_tables, unreadable_presses
 from neatskin.errors import DataError
 from neatskin.layout import ElectrodePair
 
+ACCEPTED = "a campaign folder (written by `neatskin campaign run`) or its presses.parquet"
+PARQUET_MAGIC = b"PAR1"  # the first (and last) four bytes of every parquet file
+
 
 def press_files(path: str | os.PathLike) -> list[Path]:
     """The parquet files holding a dataset's presses: a .parquet file itself, a campaign folder's
-    presses.parquet and presses/part-*.parquet, or the part-*.parquet files of a folder."""
+    presses.parquet and presses/part-*.parquet, or the part-*.parquet files of a folder. Anything else (a CSV
+    export, an empty file, a folder that is no campaign) is one DataError naming it, what is accepted and the fix."""
     path = Path(path)
     if path.is_file():
+        refused = not_a_press_file(path)
+        if refused is not None:
+            raise refused
         return [path]
     if not path.is_dir():
-        raise DataError(
-            "no such dataset file or folder", file=str(path), fix="give a campaign folder or a .parquet file"
-        )
+        raise DataError("no such dataset file or folder", file=str(path), fix=f"give {ACCEPTED}")
     files = [path / CONSOLIDATED_NAME] if (path / CONSOLIDATED_NAME).is_file() else []
     files += list(press_parts(path).values())
     if not files:
         files = sorted(p for p in path.iterdir() if part_press_id(p) is not None)
     if not files:
-        raise DataError(
-            "the folder holds no presses (no presses.parquet, no presses/part-*.parquet)",
-            file=str(path),
+        raise _no_presses_in(path)
+    return files
+
+
+def not_a_press_file(path: Path) -> DataError | None:
+    """None for a parquet file with a press_id column (or one too damaged to tell: the reader and `validate` say what
+    is wrong with it); else the error that says what the file is instead. (A CSV export used to get "Parquet magic
+    bytes not found ... the file is corrupted" from `dataset info` and "[pairs]: no electrode pairs given (fix: pass
+    layout.pairs)" from `dataset validate`.)"""
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(4096)
+    except OSError as exc:
+        return DataError(f"cannot read the file: {exc.strerror or exc}", file=str(path), fix="check its permissions")
+    fix = f"neatskin reads {ACCEPTED}: give one"
+    if head.startswith(PARQUET_MAGIC):
+        try:
+            names = pq.read_schema(path).names
+        except (OSError, pa.ArrowException):
+            return None  # damaged: told by the reader (and by validate, file by file)
+        if "press_id" in names:
+            return None
+        what = "a parquet file without a press_id column, not a press table (a campaign's physical_limit.parquet?)"
+    elif not head:
+        what = "the file is empty (0 bytes), not a press table"
+    elif path.name.endswith(".metadata.json"):
+        what = "the metadata sidecar of a CSV export, not a press table"
+        fix = f"neatskin reads {ACCEPTED}: give the campaign folder the CSV was exported from"
+    elif path.name == "manifest.json":
+        what, fix = "a campaign's manifest, not its presses", f"give the campaign folder {path.parent}"
+    elif path.suffix.lower() in (".csv", ".tsv", ".txt") or (b"," in head.split(b"\n", 1)[0] and _is_text(head)):
+        what = "a CSV file, not a press table"
+        fix = (
+            f"CSV exports are for other tools (pandas, spreadsheets); neatskin reads {ACCEPTED}: give the "
+            "campaign folder the CSV was exported from"
+        )
+    else:
+        what = "not a parquet file (it does not begin with the bytes PAR1)"
+    return DataError(what, file=str(path), fix=fix)
+
+
+def _is_text(head: bytes) -> bool:
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError:
+        return False
+    return True
+
+
+def _no_presses_in(folder: Path) -> DataError:
+    """The error for a folder without presses: a campaign that never finished a press, or no campaign at all."""
+    if (folder / MANIFEST_NAME).is_file():
+        return DataError(
+            "the campaign folder holds no presses (no presses.parquet, no presses/part-*.parquet)",
+            file=str(folder),
             fix="check the path; a campaign that never finished a press has no data",
         )
-    return files
+    tables = sorted(p for p in folder.iterdir() if p.suffix.lower() in (".parquet", ".pq") and p.is_file())
+    hint = f", or one of the parquet files it holds (e.g. {tables[0]})" if tables else ""
+    return DataError(
+        "not a campaign folder: no manifest.json, no presses.parquet, no presses/part-*.parquet",
+        file=str(folder),
+        fix=f"give {ACCEPTED}{hint}",
+    )
 
 
 def read_press_table(path: str | os.PathLike, *, deduplicate: bool = True) -> pa.Table:

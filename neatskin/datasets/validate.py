@@ -23,7 +23,7 @@ import pyarrow as pa
 from neatskin.datasets.folderchecks import integrity_problems, part_ids_valid, unreadable_fix, waveform_problems, where
 from neatskin.datasets.manifest import MANIFEST_NAME, read_manifest
 from neatskin.datasets.manifestchecks import manifest_layout, manifest_problems, same_file_ref
-from neatskin.datasets.reader import press_files
+from neatskin.datasets.reader import ACCEPTED, press_files
 from neatskin.datasets.scan import DatasetScan, read_schema, scan_files
 from neatskin.datasets.schema import BASE_FIELDS, OPTIONAL_COLUMNS, decode_metadata, parse_pair_column, press_schema
 from neatskin.datasets.values import metadata_layout, value_problems
@@ -68,6 +68,8 @@ def validate_dataset(
     try:
         files = press_files(path)
     except DataError as exc:
+        if path.is_dir() and not (path / MANIFEST_NAME).exists():
+            return list(exc.problems)  # "not a campaign folder" says it all: no second line for its missing manifest
         return problems + list(exc.problems)
 
     try:
@@ -78,6 +80,15 @@ def validate_dataset(
     if layout is None and manifest is None:
         layout = metadata_layout(path if path.is_dir() else path.parent, metadata, notes)
     pairs = _expected_pairs(layout, manifest, metadata, first_schema if first_schema is not None else pa.schema([]))
+    if not pairs and first_schema is not None:  # a parquet file, but no press table (e.g. physical_limit.parquet)
+        return problems + [
+            Problem(
+                "a parquet file without dR_ohm_i_j columns or recorded pairs: not a press table",
+                str(files[0]),
+                "dR_ohm_*",
+                f"give {ACCEPTED}",
+            )
+        ]
     expected = press_schema(pairs)
     nullable = {f.name: f.nullable for f in BASE_FIELDS}
     scan = scan_files(files, expected, nullable)

@@ -31,7 +31,10 @@ def register(subparsers) -> None:
     )
     study.add_argument("--yes", action="store_true", help="run even when the estimate is above --max-hours")
     study.add_argument(
-        "--max-hours", type=float, default=1.0, help="refuse a study estimated longer than this without --yes (1)"
+        "--max-hours",
+        type=float,
+        default=1.0,
+        help="refuse a study estimated longer than this without --yes (default 1)",
     )
     study.add_argument("--scheduler", choices=("local", "dask"), default="local", help="where candidates run")
     study.add_argument(
@@ -56,6 +59,7 @@ def register(subparsers) -> None:
     )
     validate.add_argument("--no-power", action="store_true", help="skip the power sweep of pinch changes")
     validate.add_argument("--jobs", type=int, default=2, help="joblib processes (default 2)")
+    add_quiet(validate)
     validate.set_defaults(handler=validate_handler)
 
 
@@ -145,7 +149,25 @@ def validate_handler(args: argparse.Namespace) -> int:
     study = load_study(args.study)
     out = study_out_dir(study, args.out)
     scale = NEGATIVE_PINCH if args.negative_control else 1.0
-    v = validate_study(study, args.protocol, pinch_scale=scale, power=not args.no_power, n_jobs=args.jobs)
+    bar = None
+
+    def progress(done: int, total: int) -> None:
+        nonlocal bar
+        if args.quiet:
+            return
+        if bar is None:
+            from tqdm import tqdm
+
+            bar = tqdm(total=total, unit="check", desc=f"validate {study.name}")
+        bar.update(done - bar.n)
+
+    try:
+        v = validate_study(
+            study, args.protocol, pinch_scale=scale, power=not args.no_power, n_jobs=args.jobs, progress=progress
+        )
+    finally:
+        if bar is not None:
+            bar.close()
     print("\n".join([*table_lines(v), *verdict_lines(v)]))
     write_section(out / "report.md", markdown(v, study.name, str(args.protocol)))
     print(f"section written to {out / 'report.md'}")

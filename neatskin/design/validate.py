@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import re
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -237,10 +238,12 @@ def validate_study(
     pinch_scale: float = 1.0,
     power: bool = True,
     n_jobs: int = 2,
+    progress: Callable[[int, int], None] | None = None,
 ) -> Validation:
     """The checks for every fixed candidate, with campaigns whose pinch is scaled by `pinch_scale`; with `power`,
     the transfer check again with the study's pinch scaled by each of POWER_SCALES (the smallest change it detects;
-    the same whatever `pinch_scale` is)."""
+    the same whatever `pinch_scale` is). `progress(done, total)` is called as each step ends: a candidate's check,
+    the power sweep's study side, each scale of the sweep (the CLI draws it as a bar)."""
     from joblib import delayed
 
     from neatskin.orphans import watched_parallel
@@ -249,17 +252,43 @@ def validate_study(
 
     base = load_protocol(resolve_path(protocol))
     candidates = validation_candidates(study)
-    checks = watched_parallel(n_jobs)(delayed(check_candidate)(study, base, c, pinch_scale) for c in candidates)
+    total = len(candidates) + (1 + len(POWER_SCALES) if power else 0)
+    done = 0
+
+    def step() -> None:
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress(done, total)
+
+    def counted(results: Iterable[CandidateCheck]) -> list[CandidateCheck]:
+        """The results in order (joblib's ordered generator), a step each as it arrives."""
+        out = []
+        for result in results:
+            out.append(result)
+            step()
+        return out
+
+    if progress is not None:
+        progress(0, total)
+    checks = counted(
+        watched_parallel(n_jobs, return_as="generator")(
+            delayed(check_candidate)(study, base, c, pinch_scale) for c in candidates
+        )
+    )
     agrees, tau = ranking(checks)
     found: list[tuple[float, bool]] = []
     if power:
         probe = candidates[0]
         side = study_side(study, probe)  # the study's side does not depend on the scale: built once, not per scale
-        scaled = watched_parallel(n_jobs)(
-            # the study's own pinch scaled, whatever `pinch_scale` the run's campaigns press: power is the check's,
-            # and scaling a negative control's already weakened pinch called every change detected
-            delayed(check_candidate)(study, base, probe, s, 3, side, protocol_scene=False)
-            for s in POWER_SCALES
+        step()
+        scaled = counted(
+            watched_parallel(n_jobs, return_as="generator")(
+                # the study's own pinch scaled, whatever `pinch_scale` the run's campaigns press: power is the
+                # check's, and scaling a negative control's already weakened pinch called every change detected
+                delayed(check_candidate)(study, base, probe, s, 3, side, protocol_scene=False)
+                for s in POWER_SCALES
+            )
         )
         found = [(s, not (c.transfer_agrees and c.level_agrees)) for s, c in zip(POWER_SCALES, scaled, strict=True)]
     return Validation(tuple(checks), pinch_scale, agrees, tau, tuple(found))

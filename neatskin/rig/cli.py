@@ -78,6 +78,7 @@ def register(subparsers) -> None:
     plan.add_argument("--jobs", type=int, default=2, help="joblib processes (default 2)")
     plan.add_argument("--no-adaptive", action="store_true", help="skip the adaptive design")
     add_out(plan, "folder for the CSV and PNG (default campaign-plan)", default=Path("campaign-plan"))
+    add_quiet(plan)
     plan.set_defaults(handler=_plan)
 
 
@@ -259,5 +260,11 @@ def _plan(args: argparse.Namespace) -> int:
     from neatskin.rig.forecastcli import run_plan
 
     return run_plan(
-        args.protocol, args.out, seeds=args.seeds, model=args.model, jobs=args.jobs, adaptive=not args.no_adaptive
+        args.protocol,
+        args.out,
+        seeds=args.seeds,
+        model=args.model,
+        jobs=args.jobs,
+        adaptive=not args.no_adaptive,
+        progress=not args.quiet,
     )

@@ -150,9 +150,12 @@ def plan_campaign(
     model: str = "extra_trees",
     adaptive: bool = True,
     n_jobs: int = 2,
+    progress: bool = False,
 ) -> pd.DataFrame:
-    """One row per design and size: rig hours, presses, mean error (mm) over seeds, its std, and the seeds' errors."""
+    """One row per design and size: rig hours, presses, mean error (mm) over seeds, its std, and the seeds' errors.
+    `progress`: a bar on stderr, one step per simulated campaign (design, size, seed) as it finishes."""
     from joblib import delayed
+    from tqdm import tqdm
 
     from neatskin.orphans import watched_parallel
 
@@ -163,7 +166,15 @@ def plan_campaign(
     if adaptive:
         jobs += [("adaptive", s, k) for s in sizes if s.depth_mm == depth0 and s.positions >= 8 for k in range(seeds)]
     work = {"random": random_error_mm, "adaptive": adaptive_error_mm}
-    errors = watched_parallel(n_jobs)(delayed(work[d])(setting, s, k) for d, s, k in jobs)
+    # the results in the order of `jobs` (joblib's ordered generator), each counted on the bar as it arrives: the
+    # paper's plan is minutes of silence otherwise
+    with tqdm(total=len(jobs), unit="campaign", desc=f"plan {protocol.name}", disable=not progress) as bar:
+        errors = []
+        for error in watched_parallel(n_jobs, return_as="generator")(
+            delayed(work[d])(setting, s, k) for d, s, k in jobs
+        ):
+            errors.append(error)
+            bar.update(1)
     hours = {s: rig_hours(protocol, s) for s in sizes}
     rows = []
     for design in ("random", "adaptive"):

@@ -7,7 +7,9 @@ from pathlib import Path
 from neatskin.errors import ConfigError
 
 
-def run_plan(protocol_path: Path, out: Path, *, seeds: int, model: str, jobs: int, adaptive: bool) -> int:
+def run_plan(
+    protocol_path: Path, out: Path, *, seeds: int, model: str, jobs: int, adaptive: bool, progress: bool = True
+) -> int:
     from neatskin.baselines.models import MODEL_NAMES
     from neatskin.rig.forecast import adaptive_verdict, format_plan, hours_for_error, plan_campaign, plot_plan
     from neatskin.rig.protocol import load_protocol
@@ -30,7 +32,7 @@ def run_plan(protocol_path: Path, out: Path, *, seeds: int, model: str, jobs: in
     protocol = load_protocol(protocol_path)
     press = protocol.press
     own = rig_hours(protocol, CampaignSize(press.positions.count, press.press.repeats, press.press.depth_mm))
-    frame = plan_campaign(protocol, seeds=seeds, model=model, adaptive=adaptive, n_jobs=jobs)
+    frame = plan_campaign(protocol, seeds=seeds, model=model, adaptive=adaptive, n_jobs=jobs, progress=progress)
     out.mkdir(parents=True, exist_ok=True)
     frame.to_csv(out / "campaign_plan.csv", index=False)
     png = plot_plan(frame, out / "campaign_plan.png", own)

@@ -13,8 +13,9 @@ DEFAULT_LAYOUT = "protocols/skins/paper.toml"
 def register(subparsers) -> None:
     skin = subparsers.add_parser(
         "skin",
-        help="the simulated skin: sensitivity maps",
-        description="The simulated skin: network solver and deformation model.",
+        help="the sensor's physics: sensitivity maps, one press's R_eq, fit to a campaign, finite-element pinch",
+        description="The simulated skin (network solver, deformation model, finite-element pinch): sensitivity maps, "
+        "one press's R_eq, fitting the model to a recorded campaign, and the mechanics of a press.",
     )
     commands = skin.add_subparsers(dest="skin_command", metavar="SKIN_COMMAND", required=True)
     maps = commands.add_parser(
