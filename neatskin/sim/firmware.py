@@ -6,7 +6,9 @@ seconds) until something is due; `take_output()` gives the reply bytes. What it 
 real firmware byte for byte where tests/test_marlin_real_vs_sim.py compares them (`\r\n` after M118
 and the M111 echo, the banner, M115's capabilities, M114 zeros before homing, `Count` at the end of
 the queued motion, M112 only as a command, nothing after a kill until a reset, moves before homing,
-G28's Z raises and its position report, M211's report and its S0 that clamps nothing). Commands run
+G28's Z raises and its position report, M211's report and its S0 that clamps nothing; in
+tests/test_marlin_real_settings.py the settings commands of sim.settings, a bare M110's `Line: N`, M114's 32-bit
+numbers and cold extrusion, sim.extruder's). Commands run
 in order from a BUFSIZE-slot queue; moves go to a planner of `planner_buffer_size` slots (a full
 planner delays the `ok`). As stock Marlin (built without NO_MOTION_BEFORE_HOMING), a move before
 homing runs from where the firmware believes the head is (zeros at boot), unclamped on the axes not
@@ -31,12 +33,15 @@ from neatskin.gcode.parse import GcodeLine
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.marlin import replies as R
 from neatskin.sim.clock import ScaledClock, VirtualClock
+from neatskin.sim.extruder import COLD_EXTRUSION, Extruder, position_report
 from neatskin.sim.faults import FaultConfig
-from neatskin.sim.firmware_texts import STEPS_PER_MM, banner_lines, m115_lines, settings_report
+from neatskin.sim.firmware_texts import banner_lines, m115_lines
 from neatskin.sim.housekeeping import CODES as HOUSEKEEPING
 from neatskin.sim.housekeeping import TEMPERATURES, Housekeeping
 from neatskin.sim.intake import LineIntake
 from neatskin.sim.motion import Timeline
+from neatskin.sim.settings import CODES as SETTINGS
+from neatskin.sim.settings import Settings, f32, marlin_float, settings_report
 
 __all__ = ["MarlinCore", "ScaledClock", "VirtualClock"]
 
@@ -49,6 +54,9 @@ QUICK_STOP_HOLD_S = 1.0
 _QUIET = frozenset(
     {"G21", "G90", "G91", "M17", "M18", "M82", "M83", "M84", "M104", "M106", "M107", "M108", "M117", "M140", "M220"}
     | {"M221", "M410"}
+    # M109/M190 wait for a heater to reach its target: the simulated heaters stay at the room's temperature, so a
+    # target at or below it (S0 in slicers' start code: the real firmware answers a plain ok) is reached at once
+    | {"M109", "M190"}
 )
 
 
@@ -116,7 +124,9 @@ class MarlinCore(LineIntake):
         self._last_busy = self.clock.now()
         self.echo_commands = False
         self.housekeeping = Housekeeping(self._emit, self.clock.now, self.keepalive_s)  # M113, M155, M31, M500-M503
-        for line in banner_lines(self.profile):
+        self.settings = Settings(self.profile)  # M92, M201, M203-M206, M301: what M503 reports
+        self.extruder = Extruder()  # E, which Marlin tracks although the probe rig has no extruder
+        for line in banner_lines(self.profile, settings_report(self.settings, comments=True)):
             self._emit(line)
 
     def reset(self) -> None:
@@ -172,6 +182,12 @@ class MarlinCore(LineIntake):
             if self.rx:
                 self._read_lines()
         return None
+
+    def idle(self, real_s: float) -> None:
+        """Real seconds passed with the queue empty: with M155 on, the virtual clock follows them, so the reports go on
+        as a real board's do (standing still, it left OctoPrint without them); with M155 off it stays put."""
+        if self._virtual and real_s > 0 and self.housekeeping.report_every_s and not (self.queue or self.halted):
+            self.clock.wait_until(self.clock.now() + real_s)
 
     def _after_command(self) -> None:
         count = self.executed_count
@@ -263,24 +279,45 @@ class MarlinCore(LineIntake):
         a whole G28 as measured, raises included: the homing takes what they leave."""
         now = self.clock.now()
         tl = self.timeline
+        # M206's home offset: an axis homed is believed to be at its home plus the offset (set_axis_is_at_home), so
+        # the probe, at the home itself, is the offset away from where the firmware believes it (_frame_mm)
+        offset = self.settings.home_offset_mm
+        self.machine.home_mm = tuple(h + o for h, o in zip(self.profile.soft_min_mm, offset))  # type: ignore[assignment]
         home = self.machine.home(axes, raise_mm)
         if home.rise is not None:
             self._queue_move(home.rise, "G28")
         for i in home.axes:
-            self._frame_mm[i] = 0.0
+            self._frame_mm[i] = -offset[i]
         self._apply_limits()
         # the axes homed go home; the others stay where the probe is
         homed_end = home.after.start_mm if home.after is not None else home.end_mm
-        end = tuple(h if i in home.axes else p for i, (h, p) in enumerate(zip(homed_end, tl.end_mm)))
+        frame = self._frame_mm
+        end = tuple(
+            h + frame[i] if i in home.axes and h is not None else p
+            for i, (h, p) in enumerate(zip(homed_end, tl.end_mm))
+        )
         tl.add_homing(now, end, home.homing_s)  # type: ignore[arg-type]
         if home.after is not None:
             self._queue_move(home.after, "G28")
         return tl.end_s
 
     def _move(self, line: GcodeLine) -> None:
+        e = line.get("E")
+        # an arc's segments each say it on the real firmware; the simulated arc (one chord) says nothing
+        if isinstance(e, float) and self.extruder.move(e, self.settings.steps_per_mm[3]) and line.code in ("G0", "G1"):
+            self._emit(COLD_EXTRUSION)
         if line.code in ("G2", "G3"):  # the arc's chord, to the same end
             line = GcodeLine("G1", {k: v for k, v in line.params.items() if k in "XYZF"}, raw=line.raw)
-        self._queue_move(self.machine.step(line), line.raw)  # type: ignore[arg-type]
+        event = self.machine.step(line)
+        self._round_belief()
+        self._queue_move(event, line.raw)  # type: ignore[arg-type]
+
+    def _round_belief(self) -> None:
+        """Marlin's positions and offsets are 32-bit: the machine model's result (of 32-bit numbers: sim.intake)
+        rounds to what the firmware computes, so M114 prints what it prints (-0.335 through a G92 offset)."""
+        machine = self.machine
+        machine.position_mm = [None if p is None else f32(p) for p in machine.position_mm]
+        machine.offset_mm = [f32(o) for o in machine.offset_mm]
 
     def _quick_stop(self) -> None:
         """M410 (quickstop_stepper): the planned motion is dropped and the steppers stop where they are, which the
@@ -320,10 +357,22 @@ class MarlinCore(LineIntake):
         elif code in _MODES or code == "G92":
             if line is not None:
                 self.machine.step(line)
+                self._round_belief()
+            self.extruder.mode(code)
             if code == "G92":
+                e = line.get("E") if line is not None else None
+                if isinstance(e, float):
+                    self.extruder.set_position(e)
                 self._emit(self._m114())  # G92 reports the position it set
-        elif code == "M110" and line is not None:
-            self.last_n = int(line.get("N", 0.0) or 0)
+        elif code == "M110":  # M110.cpp: N sets the line number; alone, it reports it
+            n = line.get("N") if line is not None else None
+            if isinstance(n, float):
+                self.last_n = int(n)
+            else:
+                self._emit(f"Line: {self.last_n}")
+        elif code in SETTINGS:
+            if self.settings.run(code, line, self._emit) and code == "M206":
+                self._emit(self._m114())  # M206.cpp reports the position (the offset applies at the next G28)
         elif code == "M114" or code == "G28":  # G28 reports where it left the head (report_current_position)
             self._emit(self._m114())
         elif code == "M119":
@@ -351,7 +400,9 @@ class MarlinCore(LineIntake):
             for text_line in m115_lines():
                 self._emit(text_line)
         elif code in HOUSEKEEPING:
-            self.housekeeping.run(code, line, lambda comments: settings_report(self.profile, comments))
+            if code in ("M501", "M502"):  # no EEPROM: both load the configuration's defaults
+                self.settings.load_defaults()
+            self.housekeeping.run(code, line, lambda comments: settings_report(self.settings, comments))
         elif code not in _QUIET and code not in _SILENT and code[:1] != "T":  # a tool change: ok (one tool)
             self._emit(f'echo:{R.UNKNOWN_COMMAND}{text}"')
         return False
@@ -369,14 +420,8 @@ class MarlinCore(LineIntake):
         self._emit(f"ok{tag} P{free} B{self.bufsize - len(self.queue)}", is_ok=True)
 
     def _m114(self) -> str:
-        # the planner's position (the end of the queued motion) as Marlin reports it, zeros before homing
-        native = [p if p is not None else 0.0 for p in self.machine.position_mm]
-        logical = [p + o for p, o in zip(native, self.machine.offset_mm)]
-        counts = [round(a * s) for a, s in zip(native, STEPS_PER_MM)]
-        return (
-            f"X:{logical[0]:.2f} Y:{logical[1]:.2f} Z:{logical[2]:.2f} E:0.00 "
-            f"Count X:{counts[0]} Y:{counts[1]} Z:{counts[2]}"
-        )
+        m = self.machine
+        return position_report(m.position_mm, m.offset_mm, self.extruder.e_mm, self.settings.steps_per_mm)
 
     def _m211_report(self) -> None:
         """M211 alone (M211.cpp M211_report): the state, then the limits in logical mm (G92 shifts them)."""
@@ -385,4 +430,5 @@ class MarlinCore(LineIntake):
         o = self.machine.offset_mm
         lo = [v + k + 0.0 for v, k in zip(self.profile.soft_min_mm, o)]
         hi = [v + k + 0.0 for v, k in zip(self.profile.soft_max_mm, o)]
-        self._emit(f"  Min:  X{lo[0]:.2f} Y{lo[1]:.2f} Z{lo[2]:.2f}   Max:  X{hi[0]:.2f} Y{hi[1]:.2f} Z{hi[2]:.2f}")
+        m = marlin_float
+        self._emit(f"  Min:  X{m(lo[0])} Y{m(lo[1])} Z{m(lo[2])}   Max:  X{m(hi[0])} Y{m(hi[1])} Z{m(hi[2])}")
