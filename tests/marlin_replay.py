@@ -291,3 +291,20 @@ ROUNDING_AND_EXTRUSION: list[tuple[bytes, float]] = [
     (b"M400\n", OK_WAIT_S),
     (b"M114\n", OK_WAIT_S),
 ]
+
+# M206's home offset applies at the next G28 (set_axis_is_at_home: the axis is believed at its home plus the
+# offset): X at the endstop reports -2, Z homes to -1 and then moves to the post-homing 5 (native); a move to 0 is 2
+# mm off X's endstop (open) and 1 mm above Z's. Two G28s: about 45 s on the native board.
+HOMING_OFFSET: list[tuple[bytes, float]] = [
+    (b"M110 N0\n", OK_WAIT_S),
+    (b"M206 X-2 Z-1\n", OK_WAIT_S),
+    (b"G28\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+    (b"G1 X0 Z0 F3000\n", OK_WAIT_S),
+    (b"M400\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+    (b"M119\n", OK_WAIT_S),
+    (b"M211\n", OK_WAIT_S),
+    (b"G28 X\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+]

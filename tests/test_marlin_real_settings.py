@@ -22,7 +22,7 @@ import pytest
 import serial
 from hypothesis import given
 from hypothesis import strategies as st
-from marlin_replay import ROUNDING_AND_EXTRUSION, SETTINGS
+from marlin_replay import HOMING_OFFSET, HOMING_WAIT_S, ROUNDING_AND_EXTRUSION, SETTINGS
 from test_marlin_real_vs_sim import MARLIN, NATIVE_PROFILE, assert_plain_replays_alike, normalise, sim_transcript
 
 from neatskin.gcode.profile import load_printer_profile
@@ -44,6 +44,21 @@ def test_settings_commands_answer_as_the_real_firmware():
 @pytest.mark.timeout(180)
 def test_m114_rounding_and_cold_extrusion_answer_as_the_real_firmware():
     assert_plain_replays_alike(ROUNDING_AND_EXTRUSION)
+
+
+@pytest.mark.skipif(MARLIN is None, reason=NO_FIRMWARE)
+@pytest.mark.timeout(300)
+def test_m206_applies_at_homing_as_on_the_real_firmware():
+    """Two G28s in real time on the native board; the simulator runs 10 times faster."""
+    assert_plain_replays_alike(HOMING_OFFSET, speed=10.0, max_wait_s=HOMING_WAIT_S)
+
+
+def test_the_homing_offset_script_shows_the_offset_belief():
+    _, sim = sim_transcript(advanced_ok=False, script=HOMING_OFFSET, speed=20.0, max_wait_s=HOMING_WAIT_S)
+    answers = [normalise(got) for _, got in sim]
+    homed = b"X:-2.00 Y:0.00 Z:5.00 E:0.00 Count X:-160 Y:0 Z:2000\nok\n"
+    assert answers[2] == answers[3] == answers[9] == answers[10] == homed
+    assert answers[7] == b"Reporting endstop status\nx_min: open\ny_min: TRIGGERED\nz_min: open\nok\n"
 
 
 def test_the_settings_script_shows_what_the_native_build_answered():
