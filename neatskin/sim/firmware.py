@@ -309,7 +309,7 @@ class MarlinCore(LineIntake):
         if line.code in ("G2", "G3"):  # the arc's chord, to the same end
             line = GcodeLine("G1", {k: v for k, v in line.params.items() if k in "XYZF"}, raw=line.raw)
         event = self.machine.step(line)
-        self._round_belief()
+        self.machine.position_mm = [None if p is None else f32(p) for p in self.machine.position_mm]  # 32-bit
         self._queue_move(event, line.raw)  # type: ignore[arg-type]
 
     def _round_belief(self) -> None:

@@ -26,9 +26,12 @@ _XYZE = "XYZE"
 J_RANGE_ERROR = "Error:?J out of range (0.01 to 0.3)"
 
 
-def f32(value: float) -> float:
+_FLOAT32 = struct.Struct("<f")
+
+
+def f32(value: float, _pack=_FLOAT32.pack, _unpack=_FLOAT32.unpack) -> float:
     """The nearest 32-bit float (Marlin's `float`; the parser reads numbers with strtof)."""
-    return struct.unpack("<f", struct.pack("<f", value))[0]
+    return _unpack(_pack(value))[0]
 
 
 def marlin_float(value: float, digits: int = 2) -> str:
