@@ -255,3 +255,27 @@ def test_an_idle_printer_in_virtual_time_keeps_reporting_temperatures(protocols_
             assert sim.now_s() == stopped
     finally:
         sim.stop()
+
+
+@pytest.mark.timeout(60)
+def test_the_driver_reconnects_to_a_halted_printer(protocols_dir):
+    """This driver's connect() flushes the port's input (as pyserial's open does), so reconnect() after an emergency
+    stop finds the printer booted again: unhomed, zeros."""
+    profile = load_printer_profile(protocols_dir / "printers" / "paper.toml")
+    sim = SimulatedPrinter(profile)
+    config = DriverConfig(boot_timeout_s=0.5, motion_time_scale=0.0)
+    driver = MarlinDriver.open(sim.start_pty(), 115200, profile=profile, config=config)
+    try:
+        driver.connect()
+        driver.send("G28")
+        assert driver.position().z_mm == 5.0
+        driver.emergency_stop()
+        end = time.monotonic() + 5
+        while not sim.core.halted and time.monotonic() < end:
+            time.sleep(0.01)
+        assert sim.core.halted and sim.core.resets == 0
+        driver.reconnect()
+        assert sim.core.resets == 1 and driver.position().z_mm == 0.0
+    finally:
+        driver.close()
+        sim.stop()
