@@ -10,11 +10,9 @@ G28's Z raises and its position report, M211's report and its S0 that clamps not
 tests/test_marlin_real_settings.py the settings commands of sim.settings, a bare M110's `Line: N`, M114's 32-bit
 numbers and cold extrusion, sim.extruder's). Commands run
 in order from a BUFSIZE-slot queue; moves go to a planner of `planner_buffer_size` slots (a full
-planner delays the `ok`). As stock Marlin (built without NO_MOTION_BEFORE_HOMING), a move before
-homing runs from where the firmware believes the head is (zeros at boot), unclamped on the axes not
-homed, and the probe moves by the same steps from where it really is (`_frame_mm`: real minus
-believed, per axis; zero once the axis is homed, until steps are lost against the frame);
-`no_motion_before_homing=True` refuses it instead (`echo:Home XYZ First`, then `ok`), as a Marlin
+planner delays the `ok`). What the firmware believes of its axes and how the probe moves (homing,
+moves before homing from the believed zeros, the soft endstops) is sim.belief's, the base class;
+`no_motion_before_homing=True` refuses a move before homing instead (`echo:Home XYZ First`, then `ok`), as a Marlin
 built with that option. Time is a clock object (sim.clock): virtual (jumps to when the motion is
 done; no sleeping) or scaled real time. Faults (faults.FaultConfig) are drawn from a seeded numpy
 Generator. Its memory is bounded however long it runs: the latest `history_lines` executed commands
@@ -24,28 +22,26 @@ Generator. Its memory is bounded however long it runs: the latest `history_lines
 from __future__ import annotations
 
 import collections
-import math
 
 import numpy as np
 
-from neatskin.gcode.machine import Machine, MaybeXyz, Move, Xyz, homing_request
+from neatskin.gcode.machine import Machine, MaybeXyz, homing_request
 from neatskin.gcode.parse import GcodeLine
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.marlin import replies as R
+from neatskin.sim.belief import MOVES, Belief
 from neatskin.sim.clock import ScaledClock, VirtualClock
-from neatskin.sim.extruder import COLD_EXTRUSION, Extruder, position_report
+from neatskin.sim.extruder import Extruder, position_report
 from neatskin.sim.faults import FaultConfig
 from neatskin.sim.firmware_texts import banner_lines, m115_lines
 from neatskin.sim.housekeeping import CODES as HOUSEKEEPING
 from neatskin.sim.housekeeping import TEMPERATURES, Housekeeping
-from neatskin.sim.intake import LineIntake
 from neatskin.sim.motion import Timeline
 from neatskin.sim.settings import CODES as SETTINGS
-from neatskin.sim.settings import Settings, f32, marlin_float, settings_report
+from neatskin.sim.settings import Settings, marlin_float, settings_report
 
 __all__ = ["MarlinCore", "ScaledClock", "VirtualClock"]
 
-_MOVES = frozenset({"G0", "G1", "G2", "G3"})  # an arc (G2/G3) goes along its chord: the end is right, the path not
 _MODES = frozenset({"G90", "G91", "M82", "M83"})
 _SILENT = frozenset({"G0", "G1", "G4", "M400", "M999", "M111"})
 _OK = b"ok\n"
@@ -60,7 +56,7 @@ _QUIET = frozenset(
 )
 
 
-class MarlinCore(LineIntake):
+class MarlinCore(Belief):
     def __init__(
         self,
         profile: PrinterProfile,
@@ -134,25 +130,6 @@ class MarlinCore(LineIntake):
         self.resets += 1
         self.timeline.teleport(self.clock.now(), self.timeline.position_mm(self.clock.now()))
         self._boot()
-
-    def _set_soft_endstops(self, on: bool) -> None:
-        """M211: the machine clamps native targets on homed axes to the soft limits while they are on (and to
-        nothing while they are off: the real firmware, `M211 S0` then `G1 X-5`, reports X:-5.00)."""
-        self.soft_endstops = on
-        self._apply_limits()
-
-    def _travel_mm(self, soft: bool) -> tuple[Xyz, Xyz]:
-        """The bed's travel (lo, hi), within the soft limits when `soft`: the profile's boxes, built once."""
-        return self.profile.soft_box_mm if soft else self.profile.travel_box_mm
-
-    def _apply_limits(self) -> None:
-        # Marlin's apply_motion_limits clamps only the axes it has homed (motion.cpp: `if (axis_was_homed(..))`)
-        lo, hi = self._travel_mm(True)
-        h = self.homed if self.soft_endstops else (False, False, False)
-        self.machine.limits_mm = (
-            (lo[0] if h[0] else -math.inf, lo[1] if h[1] else -math.inf, lo[2] if h[2] else -math.inf),
-            (hi[0] if h[0] else math.inf, hi[1] if h[1] else math.inf, hi[2] if h[2] else math.inf),
-        )
 
     def _kill(self) -> None:
         self.queue.clear()
@@ -231,7 +208,7 @@ class MarlinCore(LineIntake):
         wait = self._wait(self._head_ready)
         if wait > 0:
             return wait
-        moved = code in _MOVES and line is not None and not self._refuses_motion()
+        moved = code in MOVES and line is not None and not self._refuses_motion()
         if moved:
             self._move(line)  # type: ignore[arg-type]
         self.executed.append((number, text))
@@ -243,20 +220,11 @@ class MarlinCore(LineIntake):
             self._ok(number)
         return 0.0
 
-    @property
-    def homed_all(self) -> bool:
-        h = self.homed
-        return h[0] and h[1] and h[2]
-
-    def _refuses_motion(self) -> bool:
-        """NO_MOTION_BEFORE_HOMING: Marlin's G0/G1 does nothing but say so while an axis is not homed."""
-        return self.no_motion_before_homing and not self.homed_all
-
     def _start(self, code: str, line: GcodeLine | None) -> float | None:
         """Side effects at the start of a command; the time its `ok` waits for (None: at once)."""
         now = self.clock.now()
         tl = self.timeline
-        if code in _MOVES:
+        if code in MOVES:
             return None if self._refuses_motion() else tl.slot_free_s(now, self.profile.planner_buffer_size)
         if code == "M400":
             return tl.end_s
@@ -269,89 +237,9 @@ class MarlinCore(LineIntake):
             return self._home(*homing_request(line.params if line is not None else {}))
         return None
 
-    def _home(self, axes: tuple[int, ...], raise_mm: float | None = None) -> float:
-        """G28 as Marlin's G28.cpp; when it is done. The machine model (gcode.machine `Machine.home`) says what
-        the firmware does: before homing X or Y, Z rises by the profile's homing clearance (relative while Z is
-        not homed, to that height once it is; never down); the axes go home; once Z is homed it moves to the
-        post-homing height (down too). The native build: G0 Z5, G28 X -> Z:10.00; a full G28 -> Z:5.00; G1 Z2,
-        G28 Y -> Z:5.00; G1 Z20, G28 Y -> Z:20.00; G28 X R3 -> Z:23.00 (R: relative); G28 Y R0 -> no raise.
-        _reply prints the position. The profile's `homing_time_s` is
-        a whole G28 as measured, raises included: the homing takes what they leave."""
-        now = self.clock.now()
-        tl = self.timeline
-        # M206's home offset: an axis homed is believed to be at its home plus the offset (set_axis_is_at_home), so
-        # the probe, at the home itself, is the offset away from where the firmware believes it (_frame_mm)
-        offset = self.settings.home_offset_mm
-        self.machine.home_mm = tuple(h + o for h, o in zip(self.profile.soft_min_mm, offset))  # type: ignore[assignment]
-        home = self.machine.home(axes, raise_mm)
-        if home.rise is not None:
-            self._queue_move(home.rise, "G28")
-        for i in home.axes:
-            self._frame_mm[i] = -offset[i]
-        self._apply_limits()
-        # the axes homed go home; the others stay where the probe is
-        homed_end = home.after.start_mm if home.after is not None else home.end_mm
-        frame = self._frame_mm
-        end = tuple(
-            h + frame[i] if i in home.axes and h is not None else p
-            for i, (h, p) in enumerate(zip(homed_end, tl.end_mm))
-        )
-        tl.add_homing(now, end, home.homing_s)  # type: ignore[arg-type]
-        if home.after is not None:
-            self._queue_move(home.after, "G28")
-        return tl.end_s
-
-    def _move(self, line: GcodeLine) -> None:
-        e = line.get("E")
-        # an arc's segments each say it on the real firmware; the simulated arc (one chord) says nothing
-        if isinstance(e, float) and self.extruder.move(e, self.settings.steps_per_mm[3]) and line.code in ("G0", "G1"):
-            self._emit(COLD_EXTRUSION)
-        if line.code in ("G2", "G3"):  # the arc's chord, to the same end
-            line = GcodeLine("G1", {k: v for k, v in line.params.items() if k in "XYZF"}, raw=line.raw)
-        event = self.machine.step(line)
-        self.machine.position_mm = [None if p is None else f32(p) for p in self.machine.position_mm]  # 32-bit
-        self._queue_move(event, line.raw)  # type: ignore[arg-type]
-
-    def _round_belief(self) -> None:
-        """Marlin's positions and offsets are 32-bit: the machine model's result (of 32-bit numbers: sim.intake)
-        rounds to what the firmware computes, so M114 prints what it prints (-0.335 through a G92 offset)."""
-        machine = self.machine
-        machine.position_mm = [None if p is None else f32(p) for p in machine.position_mm]
-        machine.offset_mm = [f32(o) for o in machine.offset_mm]
-
-    def _quick_stop(self) -> None:
-        """M410 (quickstop_stepper): the planned motion is dropped and the steppers stop where they are, which the
-        firmware then believes (set_current_from_steppers); a queued command waiting for the motion goes on."""
-        now = self.clock.now()
-        here = self.timeline.position_mm(now)
-        self.timeline.teleport(now, here)
-        position, frame = self.machine.position_mm, self._frame_mm
-        for i in range(3):
-            position[i] = here[i] - frame[i]
-        if self.queue and self._head_ready is not None and (self.queue[0][2] in _MOVES or self.queue[0][2] == "M400"):
-            self._head_ready = now
-
-    def _queue_move(self, event: Move, raw: str) -> None:
-        """The probe's motion for a move the firmware believes it made."""
-        assert event.duration_s is not None  # the machine starts at zeros: all known
-        now = self.clock.now()
-        if event.clamped:
-            self.clip_events.append((now, raw, event.requested_mm, event.end_mm))
-        frame = self._frame_mm
-        if self.homed_all and self.soft_endstops and frame[0] == frame[1] == frame[2] == 0.0:
-            self.timeline.add(now, event)  # the targets are clamped inside the bed: the probe is where it is believed
-            return
-        # not homed, or soft endstops off: the steppers step from where the probe is; a stop at the end of the
-        # bed's travel loses steps (the firmware still believes the target)
-        lo, hi = self._travel_mm(False)
-        end = [min(max(e + f, a), b) for e, f, a, b in zip(event.end_mm, frame, lo, hi)]  # type: ignore[operator]
-        for i in range(3):
-            frame[i] = end[i] - event.end_mm[i]  # type: ignore[operator]
-        self.timeline.add(now, event._replace(start_mm=self.timeline.end_mm, end_mm=(end[0], end[1], end[2])))
-
     def _reply(self, code: str, line: GcodeLine | None, text: str) -> bool:
         """Replies of a command other than a move that ran; True when its `ok` is already sent."""
-        if code in _MOVES:
+        if code in MOVES:
             if self._refuses_motion():  # motion.cpp homing_needed_error: every main axis not homed, named
                 self._emit("echo:Home " + "".join(a for a, h in zip("XYZ", self.homed) if not h) + " First")
         elif code in _MODES or code == "G92":
