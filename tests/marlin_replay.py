@@ -194,3 +194,117 @@ HOST_TEXT: list[tuple[bytes, float]] = [
     (b"M410\n", QUICK_STOP_WAIT_S),
     (b"M114\n", OK_WAIT_S),
 ]
+
+
+# The settings commands a slicer's start code and a host's settings page send (M92, M201, M203-M206, M301, M109/M190
+# S0): each sets silently (M206 prints the position; M205 J out of range is refused with an Error:), alone each
+# prints its line of the settings report, M503 reports what was set, M502 loads the defaults again. A bare M110
+# prints `Line: <the last line number>` (framed too); with N it sets it. M92 X100 makes the step count 100 a mm.
+SETTINGS: list[tuple[bytes, float]] = [
+    (b"M110 N0\n", OK_WAIT_S),
+    (b"M92 X80\n", OK_WAIT_S),
+    (b"M201 X3000\n", OK_WAIT_S),
+    (b"M203 X300\n", OK_WAIT_S),
+    (b"M204 P500\n", OK_WAIT_S),
+    (b"M205 J0.02\n", OK_WAIT_S),
+    (b"M301 P22\n", OK_WAIT_S),
+    (b"M206 X0\n", OK_WAIT_S),
+    (b"M109 S0\n", OK_WAIT_S),
+    (b"M190 S0\n", OK_WAIT_S),
+    (b"M110\n", OK_WAIT_S),
+    (frame("M110", 1), OK_WAIT_S),
+    (frame("M118 E1 two", 2), OK_WAIT_S),
+    (b"M110\n", OK_WAIT_S),
+    (b"M110 N7\n", OK_WAIT_S),
+    (b"M110\n", OK_WAIT_S),
+    (frame("M118 E1 eight", 8), OK_WAIT_S),
+    (b"M92\n", OK_WAIT_S),
+    (b"M201\n", OK_WAIT_S),
+    (b"M203\n", OK_WAIT_S),
+    (b"M204\n", OK_WAIT_S),
+    (b"M205\n", OK_WAIT_S),
+    (b"M206\n", OK_WAIT_S),
+    (b"M301\n", OK_WAIT_S),
+    (b"G1 X5 F3000\n", OK_WAIT_S),
+    (b"M400\n", OK_WAIT_S),
+    (b"M92 X100\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+    (b"M206 X5 Z-1\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+    (b"M204 S500\n", OK_WAIT_S),
+    (b"M204\n", OK_WAIT_S),
+    (b"M204 T1000 R2000\n", OK_WAIT_S),
+    (b"M205 J0.5\n", OK_WAIT_S),
+    (b"M205 J0.001\n", OK_WAIT_S),
+    (b"M205 S1 T2 B3000\n", OK_WAIT_S),
+    (b"M301 P22 I1 D100\n", OK_WAIT_S),
+    (b"M92 E10\n", OK_WAIT_S),
+    (b"M201 X1000 E5000\n", OK_WAIT_S),
+    (b"M503 S0\n", OK_WAIT_S),
+    (b"M503\n", OK_WAIT_S),
+    (b"M502\n", OK_WAIT_S),
+    (b"M503 S0\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+]
+
+# M114's numbers as the firmware prints them: 32-bit floats and Marlin's printFloat (add half a hundredth, cut),
+# steps by lroundf, at positions on either side of a rounding boundary (52.345 is 52.3450012 as a float: 52.35;
+# 2.675 is 2.6749999: 2.67; 0.00625 mm is half a step: 1 step), negative ones (not homed: unclamped) and through
+# a G92 offset. The extruder: G1 with E on a cold hot end says `echo: cold extrusion prevented` (the E position
+# still moves, and M114 reports it), in absolute and relative E (M82/M83, and G90/G91, which M82/M83 override
+# until the next G90/G91). G92 reports the stepper counts, which lag a move in flight: an M400 comes first.
+ROUNDING_AND_EXTRUSION: list[tuple[bytes, float]] = [
+    (b"M110 N0\n", OK_WAIT_S),
+    (b"G1 X52.345 F6000\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+    (b"G1 X0.125\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+    (b"G1 X10.015 Y2.675 Z1.005\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+    (b"G1 X0.00625 Y0.0125 Z0.00125\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+    (b"M400\n", OK_WAIT_S),
+    (b"G92 X0.5 Y-0.005 Z3.14159\n", OK_WAIT_S),
+    (b"G1 X-0.125 Y-0.135 Z-0.335 F600\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+    (b"G1 X5 E1 F600\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+    (b"G1 E1\n", OK_WAIT_S),
+    (b"M400\n", OK_WAIT_S),
+    (b"G92 E0\n", OK_WAIT_S),
+    (b"M83\n", OK_WAIT_S),
+    (b"G1 E0.5\n", OK_WAIT_S),
+    (b"G1 E0.001\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+    (b"G91\n", OK_WAIT_S),
+    (b"G1 E1\n", OK_WAIT_S),
+    (b"G90\n", OK_WAIT_S),
+    (b"G1 E2\n", OK_WAIT_S),
+    (b"G91\n", OK_WAIT_S),
+    (b"M82\n", OK_WAIT_S),
+    (b"G1 E1\n", OK_WAIT_S),
+    (b"M83\n", OK_WAIT_S),
+    (b"G90\n", OK_WAIT_S),
+    (b"G1 E1\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+    (b"G1 X1 E-1\n", OK_WAIT_S),
+    (b"M400\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+]
+
+# M206's home offset applies at the next G28 (set_axis_is_at_home: the axis is believed at its home plus the
+# offset): X at the endstop reports -2, Z homes to -1 and then moves to the post-homing 5 (native); a move to 0 is 2
+# mm off X's endstop (open) and 1 mm above Z's. Two G28s: about 45 s on the native board.
+HOMING_OFFSET: list[tuple[bytes, float]] = [
+    (b"M110 N0\n", OK_WAIT_S),
+    (b"M206 X-2 Z-1\n", OK_WAIT_S),
+    (b"G28\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+    (b"G1 X0 Z0 F3000\n", OK_WAIT_S),
+    (b"M400\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+    (b"M119\n", OK_WAIT_S),
+    (b"M211\n", OK_WAIT_S),
+    (b"G28 X\n", OK_WAIT_S),
+    (b"M114\n", OK_WAIT_S),
+]

@@ -17,7 +17,10 @@ printcore_module = pytest.importorskip(
 
 
 @pytest.mark.timeout(60)
-@pytest.mark.parametrize("faults", [FaultConfig(), FaultConfig(corrupt=0.05)])
+@pytest.mark.parametrize(
+    "faults",
+    [FaultConfig(), FaultConfig(corrupt=0.05), FaultConfig(corrupt=0.05, busy_storm=0.05)],  # the last: noisy's kinds
+)
 def test_printcore_streams_a_program_through_the_pty(protocols_dir, faults):
     from printrun import gcoder
 
@@ -41,3 +44,10 @@ def test_printcore_streams_a_program_through_the_pty(protocols_dir, faults):
     ran = [text for _, text in sim.executed if not text.startswith(("M105", "M110"))]
     assert ran == program
     assert sim.probe_position(sim.now_s()) == (69.0, 138.0, 5.0)  # G28 left Z 5 mm up, as Marlin
+
+
+def test_the_noisy_preset_keeps_only_what_a_third_party_host_recovers_from():
+    """printcore has no lost-ok recovery: the preset the docs give for it loses no line and no `ok`."""
+    noisy = FaultConfig.parse("noisy")
+    assert noisy == FaultConfig(corrupt=0.003, busy_storm=0.002)
+    assert noisy.drop_line == noisy.drop_ok == 0.0 and FaultConfig.parse("realistic").drop_ok > 0

@@ -16,15 +16,19 @@ def register(subparsers) -> None:
         "printer",
         help="serve a simulated Marlin printer on a pseudo-terminal",
         description="Start a simulated Marlin printer on a new pseudo-terminal, print its device path as the "
-        "first line, and serve until interrupted (Ctrl-C). Point any host at the path.",
+        "first line, and serve until interrupted (Ctrl-C). Point any host at the path. After M112 it is halted "
+        "until a host reopens the port (pyserial's open resets it, as a board's auto-reset does) or it gets "
+        "SIGUSR1 (kill -USR1 <pid>); then it boots again (`start`, unhomed).",
     )
     printer.add_argument("--profile", default=DEFAULT_PROFILE, help=f"printer profile TOML (default {DEFAULT_PROFILE})")
     printer.add_argument("--seed", type=int, default=0, help="seed of the injected faults")
     printer.add_argument(
         "--faults",
         default="",
-        help="none, realistic, extreme, or key=value,... "
-        "(corrupt, drop_line, drop_ok, duplicate, busy_storm, reset_after, dead_after, dead_closes)",
+        help="none, noisy, realistic, extreme, or key=value,... "
+        "(corrupt, drop_line, drop_ok, duplicate, busy_storm, reset_after, dead_after, dead_closes). "
+        "Hosts without lost-line recovery (Printrun, OctoPrint) stall on drop_line and drop_ok, which realistic "
+        "and extreme include: give them noisy (corrupted lines, answered by Resend:, and busy storms)",
     )
     printer.add_argument(
         "--time",
@@ -68,6 +72,9 @@ def sim_printer_handler(args: argparse.Namespace) -> int:
         file=sys.stderr,
         flush=True,
     )
+    import signal
+
+    signal.signal(signal.SIGUSR1, lambda *_: sim.reset())  # the reset button, for a host that cannot reopen the port
     try:
         while True:
             time.sleep(0.5)

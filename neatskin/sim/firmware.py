@@ -6,13 +6,13 @@ seconds) until something is due; `take_output()` gives the reply bytes. What it 
 real firmware byte for byte where tests/test_marlin_real_vs_sim.py compares them (`\r\n` after M118
 and the M111 echo, the banner, M115's capabilities, M114 zeros before homing, `Count` at the end of
 the queued motion, M112 only as a command, nothing after a kill until a reset, moves before homing,
-G28's Z raises and its position report, M211's report and its S0 that clamps nothing). Commands run
+G28's Z raises and its position report, M211's report and its S0 that clamps nothing; in
+tests/test_marlin_real_settings.py the settings commands of sim.settings, a bare M110's `Line: N`, M114's 32-bit
+numbers and cold extrusion, sim.extruder's). Commands run
 in order from a BUFSIZE-slot queue; moves go to a planner of `planner_buffer_size` slots (a full
-planner delays the `ok`). As stock Marlin (built without NO_MOTION_BEFORE_HOMING), a move before
-homing runs from where the firmware believes the head is (zeros at boot), unclamped on the axes not
-homed, and the probe moves by the same steps from where it really is (`_frame_mm`: real minus
-believed, per axis; zero once the axis is homed, until steps are lost against the frame);
-`no_motion_before_homing=True` refuses it instead (`echo:Home XYZ First`, then `ok`), as a Marlin
+planner delays the `ok`). What the firmware believes of its axes and how the probe moves (homing,
+moves before homing from the believed zeros, the soft endstops) is sim.belief's, the base class;
+`no_motion_before_homing=True` refuses a move before homing instead (`echo:Home XYZ First`, then `ok`), as a Marlin
 built with that option. Time is a clock object (sim.clock): virtual (jumps to when the motion is
 done; no sleeping) or scaled real time. Faults (faults.FaultConfig) are drawn from a seeded numpy
 Generator. Its memory is bounded however long it runs: the latest `history_lines` executed commands
@@ -22,25 +22,26 @@ Generator. Its memory is bounded however long it runs: the latest `history_lines
 from __future__ import annotations
 
 import collections
-import math
 
 import numpy as np
 
-from neatskin.gcode.machine import Machine, MaybeXyz, Move, Xyz, homing_request
+from neatskin.gcode.machine import Machine, MaybeXyz, homing_request
 from neatskin.gcode.parse import GcodeLine
 from neatskin.gcode.profile import PrinterProfile
 from neatskin.marlin import replies as R
+from neatskin.sim.belief import MOVES, Belief
 from neatskin.sim.clock import ScaledClock, VirtualClock
+from neatskin.sim.extruder import Extruder, position_report
 from neatskin.sim.faults import FaultConfig
-from neatskin.sim.firmware_texts import STEPS_PER_MM, banner_lines, m115_lines, settings_report
+from neatskin.sim.firmware_texts import banner_lines, m115_lines
 from neatskin.sim.housekeeping import CODES as HOUSEKEEPING
 from neatskin.sim.housekeeping import TEMPERATURES, Housekeeping
-from neatskin.sim.intake import LineIntake
 from neatskin.sim.motion import Timeline
+from neatskin.sim.settings import CODES as SETTINGS
+from neatskin.sim.settings import Settings, marlin_float, settings_report
 
 __all__ = ["MarlinCore", "ScaledClock", "VirtualClock"]
 
-_MOVES = frozenset({"G0", "G1", "G2", "G3"})  # an arc (G2/G3) goes along its chord: the end is right, the path not
 _MODES = frozenset({"G90", "G91", "M82", "M83"})
 _SILENT = frozenset({"G0", "G1", "G4", "M400", "M999", "M111"})
 _OK = b"ok\n"
@@ -49,10 +50,13 @@ QUICK_STOP_HOLD_S = 1.0
 _QUIET = frozenset(
     {"G21", "G90", "G91", "M17", "M18", "M82", "M83", "M84", "M104", "M106", "M107", "M108", "M117", "M140", "M220"}
     | {"M221", "M410"}
+    # M109/M190 wait for a heater to reach its target: the simulated heaters stay at the room's temperature, so a
+    # target at or below it (S0 in slicers' start code: the real firmware answers a plain ok) is reached at once
+    | {"M109", "M190"}
 )
 
 
-class MarlinCore(LineIntake):
+class MarlinCore(Belief):
     def __init__(
         self,
         profile: PrinterProfile,
@@ -116,7 +120,9 @@ class MarlinCore(LineIntake):
         self._last_busy = self.clock.now()
         self.echo_commands = False
         self.housekeeping = Housekeeping(self._emit, self.clock.now, self.keepalive_s)  # M113, M155, M31, M500-M503
-        for line in banner_lines(self.profile):
+        self.settings = Settings(self.profile)  # M92, M201, M203-M206, M301: what M503 reports
+        self.extruder = Extruder()  # E, which Marlin tracks although the probe rig has no extruder
+        for line in banner_lines(self.profile, settings_report(self.settings, comments=True)):
             self._emit(line)
 
     def reset(self) -> None:
@@ -124,25 +130,6 @@ class MarlinCore(LineIntake):
         self.resets += 1
         self.timeline.teleport(self.clock.now(), self.timeline.position_mm(self.clock.now()))
         self._boot()
-
-    def _set_soft_endstops(self, on: bool) -> None:
-        """M211: the machine clamps native targets on homed axes to the soft limits while they are on (and to
-        nothing while they are off: the real firmware, `M211 S0` then `G1 X-5`, reports X:-5.00)."""
-        self.soft_endstops = on
-        self._apply_limits()
-
-    def _travel_mm(self, soft: bool) -> tuple[Xyz, Xyz]:
-        """The bed's travel (lo, hi), within the soft limits when `soft`: the profile's boxes, built once."""
-        return self.profile.soft_box_mm if soft else self.profile.travel_box_mm
-
-    def _apply_limits(self) -> None:
-        # Marlin's apply_motion_limits clamps only the axes it has homed (motion.cpp: `if (axis_was_homed(..))`)
-        lo, hi = self._travel_mm(True)
-        h = self.homed if self.soft_endstops else (False, False, False)
-        self.machine.limits_mm = (
-            (lo[0] if h[0] else -math.inf, lo[1] if h[1] else -math.inf, lo[2] if h[2] else -math.inf),
-            (hi[0] if h[0] else math.inf, hi[1] if h[1] else math.inf, hi[2] if h[2] else math.inf),
-        )
 
     def _kill(self) -> None:
         self.queue.clear()
@@ -172,6 +159,12 @@ class MarlinCore(LineIntake):
             if self.rx:
                 self._read_lines()
         return None
+
+    def idle(self, real_s: float) -> None:
+        """Real seconds passed with the queue empty: with M155 on, the virtual clock follows them, so the reports go on
+        as a real board's do (standing still, it left OctoPrint without them); with M155 off it stays put."""
+        if self._virtual and real_s > 0 and self.housekeeping.report_every_s and not (self.queue or self.halted):
+            self.clock.wait_until(self.clock.now() + real_s)
 
     def _after_command(self) -> None:
         count = self.executed_count
@@ -215,7 +208,7 @@ class MarlinCore(LineIntake):
         wait = self._wait(self._head_ready)
         if wait > 0:
             return wait
-        moved = code in _MOVES and line is not None and not self._refuses_motion()
+        moved = code in MOVES and line is not None and not self._refuses_motion()
         if moved:
             self._move(line)  # type: ignore[arg-type]
         self.executed.append((number, text))
@@ -227,20 +220,11 @@ class MarlinCore(LineIntake):
             self._ok(number)
         return 0.0
 
-    @property
-    def homed_all(self) -> bool:
-        h = self.homed
-        return h[0] and h[1] and h[2]
-
-    def _refuses_motion(self) -> bool:
-        """NO_MOTION_BEFORE_HOMING: Marlin's G0/G1 does nothing but say so while an axis is not homed."""
-        return self.no_motion_before_homing and not self.homed_all
-
     def _start(self, code: str, line: GcodeLine | None) -> float | None:
         """Side effects at the start of a command; the time its `ok` waits for (None: at once)."""
         now = self.clock.now()
         tl = self.timeline
-        if code in _MOVES:
+        if code in MOVES:
             return None if self._refuses_motion() else tl.slot_free_s(now, self.profile.planner_buffer_size)
         if code == "M400":
             return tl.end_s
@@ -253,77 +237,30 @@ class MarlinCore(LineIntake):
             return self._home(*homing_request(line.params if line is not None else {}))
         return None
 
-    def _home(self, axes: tuple[int, ...], raise_mm: float | None = None) -> float:
-        """G28 as Marlin's G28.cpp; when it is done. The machine model (gcode.machine `Machine.home`) says what
-        the firmware does: before homing X or Y, Z rises by the profile's homing clearance (relative while Z is
-        not homed, to that height once it is; never down); the axes go home; once Z is homed it moves to the
-        post-homing height (down too). The native build: G0 Z5, G28 X -> Z:10.00; a full G28 -> Z:5.00; G1 Z2,
-        G28 Y -> Z:5.00; G1 Z20, G28 Y -> Z:20.00; G28 X R3 -> Z:23.00 (R: relative); G28 Y R0 -> no raise.
-        _reply prints the position. The profile's `homing_time_s` is
-        a whole G28 as measured, raises included: the homing takes what they leave."""
-        now = self.clock.now()
-        tl = self.timeline
-        home = self.machine.home(axes, raise_mm)
-        if home.rise is not None:
-            self._queue_move(home.rise, "G28")
-        for i in home.axes:
-            self._frame_mm[i] = 0.0
-        self._apply_limits()
-        # the axes homed go home; the others stay where the probe is
-        homed_end = home.after.start_mm if home.after is not None else home.end_mm
-        end = tuple(h if i in home.axes else p for i, (h, p) in enumerate(zip(homed_end, tl.end_mm)))
-        tl.add_homing(now, end, home.homing_s)  # type: ignore[arg-type]
-        if home.after is not None:
-            self._queue_move(home.after, "G28")
-        return tl.end_s
-
-    def _move(self, line: GcodeLine) -> None:
-        if line.code in ("G2", "G3"):  # the arc's chord, to the same end
-            line = GcodeLine("G1", {k: v for k, v in line.params.items() if k in "XYZF"}, raw=line.raw)
-        self._queue_move(self.machine.step(line), line.raw)  # type: ignore[arg-type]
-
-    def _quick_stop(self) -> None:
-        """M410 (quickstop_stepper): the planned motion is dropped and the steppers stop where they are, which the
-        firmware then believes (set_current_from_steppers); a queued command waiting for the motion goes on."""
-        now = self.clock.now()
-        here = self.timeline.position_mm(now)
-        self.timeline.teleport(now, here)
-        position, frame = self.machine.position_mm, self._frame_mm
-        for i in range(3):
-            position[i] = here[i] - frame[i]
-        if self.queue and self._head_ready is not None and (self.queue[0][2] in _MOVES or self.queue[0][2] == "M400"):
-            self._head_ready = now
-
-    def _queue_move(self, event: Move, raw: str) -> None:
-        """The probe's motion for a move the firmware believes it made."""
-        assert event.duration_s is not None  # the machine starts at zeros: all known
-        now = self.clock.now()
-        if event.clamped:
-            self.clip_events.append((now, raw, event.requested_mm, event.end_mm))
-        frame = self._frame_mm
-        if self.homed_all and self.soft_endstops and frame[0] == frame[1] == frame[2] == 0.0:
-            self.timeline.add(now, event)  # the targets are clamped inside the bed: the probe is where it is believed
-            return
-        # not homed, or soft endstops off: the steppers step from where the probe is; a stop at the end of the
-        # bed's travel loses steps (the firmware still believes the target)
-        lo, hi = self._travel_mm(False)
-        end = [min(max(e + f, a), b) for e, f, a, b in zip(event.end_mm, frame, lo, hi)]  # type: ignore[operator]
-        for i in range(3):
-            frame[i] = end[i] - event.end_mm[i]  # type: ignore[operator]
-        self.timeline.add(now, event._replace(start_mm=self.timeline.end_mm, end_mm=(end[0], end[1], end[2])))
-
     def _reply(self, code: str, line: GcodeLine | None, text: str) -> bool:
         """Replies of a command other than a move that ran; True when its `ok` is already sent."""
-        if code in _MOVES:
+        if code in MOVES:
             if self._refuses_motion():  # motion.cpp homing_needed_error: every main axis not homed, named
                 self._emit("echo:Home " + "".join(a for a, h in zip("XYZ", self.homed) if not h) + " First")
         elif code in _MODES or code == "G92":
             if line is not None:
                 self.machine.step(line)
+                self._round_belief()
+            self.extruder.mode(code)
             if code == "G92":
+                e = line.get("E") if line is not None else None
+                if isinstance(e, float):
+                    self.extruder.set_position(e)
                 self._emit(self._m114())  # G92 reports the position it set
-        elif code == "M110" and line is not None:
-            self.last_n = int(line.get("N", 0.0) or 0)
+        elif code == "M110":  # M110.cpp: N sets the line number; alone, it reports it
+            n = line.get("N") if line is not None else None
+            if isinstance(n, float):
+                self.last_n = int(n)
+            else:
+                self._emit(f"Line: {self.last_n}")
+        elif code in SETTINGS:
+            if self.settings.run(code, line, self._emit) and code == "M206":
+                self._emit(self._m114())  # M206.cpp reports the position (the offset applies at the next G28)
         elif code == "M114" or code == "G28":  # G28 reports where it left the head (report_current_position)
             self._emit(self._m114())
         elif code == "M119":
@@ -351,7 +288,9 @@ class MarlinCore(LineIntake):
             for text_line in m115_lines():
                 self._emit(text_line)
         elif code in HOUSEKEEPING:
-            self.housekeeping.run(code, line, lambda comments: settings_report(self.profile, comments))
+            if code in ("M501", "M502"):  # no EEPROM: both load the configuration's defaults
+                self.settings.load_defaults()
+            self.housekeeping.run(code, line, lambda comments: settings_report(self.settings, comments))
         elif code not in _QUIET and code not in _SILENT and code[:1] != "T":  # a tool change: ok (one tool)
             self._emit(f'echo:{R.UNKNOWN_COMMAND}{text}"')
         return False
@@ -369,14 +308,8 @@ class MarlinCore(LineIntake):
         self._emit(f"ok{tag} P{free} B{self.bufsize - len(self.queue)}", is_ok=True)
 
     def _m114(self) -> str:
-        # the planner's position (the end of the queued motion) as Marlin reports it, zeros before homing
-        native = [p if p is not None else 0.0 for p in self.machine.position_mm]
-        logical = [p + o for p, o in zip(native, self.machine.offset_mm)]
-        counts = [round(a * s) for a, s in zip(native, STEPS_PER_MM)]
-        return (
-            f"X:{logical[0]:.2f} Y:{logical[1]:.2f} Z:{logical[2]:.2f} E:0.00 "
-            f"Count X:{counts[0]} Y:{counts[1]} Z:{counts[2]}"
-        )
+        m = self.machine
+        return position_report(m.position_mm, m.offset_mm, self.extruder.e_mm, self.settings.steps_per_mm)
 
     def _m211_report(self) -> None:
         """M211 alone (M211.cpp M211_report): the state, then the limits in logical mm (G92 shifts them)."""
@@ -385,4 +318,5 @@ class MarlinCore(LineIntake):
         o = self.machine.offset_mm
         lo = [v + k + 0.0 for v, k in zip(self.profile.soft_min_mm, o)]
         hi = [v + k + 0.0 for v, k in zip(self.profile.soft_max_mm, o)]
-        self._emit(f"  Min:  X{lo[0]:.2f} Y{lo[1]:.2f} Z{lo[2]:.2f}   Max:  X{hi[0]:.2f} Y{hi[1]:.2f} Z{hi[2]:.2f}")
+        m = marlin_float
+        self._emit(f"  Min:  X{m(lo[0])} Y{m(lo[1])} Z{m(lo[2])}   Max:  X{m(hi[0])} Y{m(hi[1])} Z{m(hi[2])}")

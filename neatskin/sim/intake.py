@@ -19,6 +19,7 @@ from neatskin.errors import ConfigError
 from neatskin.gcode.parse import TEXT_COMMANDS, GcodeLine, checksum, parse_line
 from neatskin.marlin import replies as R
 from neatskin.sim.faults import FaultConfig
+from neatskin.sim.settings import f32
 
 _N = re.compile(r"N\s*(-?\d+)")
 _DIGITS = re.compile(r"\d+")
@@ -26,6 +27,7 @@ _EOL = re.compile(rb"[\r\n]")
 _FRAMED = re.compile(r"N(\d+)([^*]*)\*(\d+)")  # the common framed line: N<n> <command>*<checksum>
 _PARSE_CACHE_LINES = 1024  # distinct command texts kept parsed (the repeated ones come first)
 MAX_LINE_CHARS = 95  # Marlin's MAX_CMD_SIZE (96) less its terminating NUL
+_AXES = "XYZE"
 _COMMAND = re.compile(r"[GMT]\d")  # parser.cpp: the command letter, upper case (stock: not GCODE_CASE_INSENSITIVE)
 
 #: A queued command: (line number, command, code, parsed, the line as received: M111 S1 echoes it)
@@ -222,4 +224,10 @@ def _marlin_parse(text: str) -> tuple[str, GcodeLine | None]:
         line = None
     if line is not None and code_text in TEXT_COMMANDS and text[-1:] == " ":  # Marlin keeps the text's spaces
         line = dataclasses.replace(line, params={**line.params, "text": line.text + text[len(text.rstrip(" ")) :]})
+    if line is not None:  # strtof: the firmware's positions are 32-bit (the parse is new: its params are its own)
+        params = line.params
+        for axis in _AXES:
+            value = params.get(axis)
+            if isinstance(value, float):
+                params[axis] = f32(value)
     return (line.code if line is not None else code_text, line)

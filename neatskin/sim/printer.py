@@ -1,7 +1,11 @@
 """SimulatedPrinter: the simulated Marlin printer, served on a real pseudo-terminal or in-process.
 
 `start_pty()` returns a `/dev/pts/N` path that any host (our driver through pyserial, Printrun,
-a terminal) opens like a USB port; a thread serves it. `serial()` returns a pyserial-compatible
+a terminal) opens like a USB port; a thread serves it. A printer halted by M112 resets (boots again,
+`start` and the banner) when a host next opens the port: a real board with auto-reset reboots on
+the DTR pulse of an open; the pty has no DTR, so the flush of its input that pyserial's `open()`
+makes stands in for it (sim.pty's packet mode). A host that opens without flushing (a terminal
+program) finds it halted: `reset()`, or the CLI's SIGUSR1 (docs/marlin.md). `serial()` returns a pyserial-compatible
 object for in-process use without a pty. Both wrap one MarlinCore (firmware.py) under a lock,
 so `probe_position()`, `now_s()` and `executed` may be read from any thread while it runs.
 """
@@ -16,7 +20,7 @@ from neatskin.gcode.profile import PrinterProfile, load_printer_profile
 from neatskin.sim.faults import FaultConfig
 from neatskin.sim.firmware import MarlinCore, ScaledClock, VirtualClock
 from neatskin.sim.motion import Segment
-from neatskin.sim.pty import PtyPair, open_pty, read_available, write_all
+from neatskin.sim.pty import PtyPair, open_pty, read_packet, write_all
 from neatskin.tomlfile import resolve_path
 
 
@@ -119,7 +123,7 @@ class SimulatedPrinter:
         """Serve on a new raw pseudo-terminal from a thread; returns the path a host opens."""
         if self._pty is not None:
             return self._pty.path
-        self._pty = open_pty()  # the boot banner waits in the pty for a host that does not flush it
+        self._pty = open_pty(packet=True)  # the boot banner waits in the pty for a host that does not flush it
         self._thread = threading.Thread(target=self._serve, name=f"sim-printer {self._pty.path}", daemon=True)
         self._thread.start()
         return self._pty.path
@@ -130,8 +134,16 @@ class SimulatedPrinter:
         assert pty is not None
         core, lock, fd, stop = self.core, self.lock, pty.master_fd, self._stop
         data = b""
+        opened = False
+        last_s = time.monotonic()
         while not stop.is_set():
             with lock:
+                now_s = time.monotonic()
+                core.idle(now_s - last_s)  # M155's reports go on while idle, in virtual time too
+                last_s = now_s
+                if opened and core.halted:  # a host opened the port: a halted board reboots (auto-reset)
+                    core.reset()
+                    lock.notify_all()
                 if data:
                     core.receive(data)
                 wait = core.step()
@@ -142,7 +154,7 @@ class SimulatedPrinter:
                     write_all(fd, out)
                 if closed:
                     break
-                data = read_available(fd, 0.05 if wait is None or wait > 0.05 else wait)
+                data, opened = read_packet(fd, 0.05 if wait is None or wait > 0.05 else wait)
             except OSError:
                 break
         pty.close()
