@@ -254,16 +254,31 @@ def test_a_pause_past_the_stepper_timeout_homes_again_and_changes_no_row(tmp_pat
     _same_rows(read_presses(folder), reference)
 
 
-def test_stop_parks_and_resume_finishes_with_the_same_rows(tmp_path, reference):
+def test_stop_parks_and_resume_finishes_with_the_same_rows(tmp_path, reference, monkeypatch):
     folder = tmp_path / "run"
+    # the dry run's 12 presses take under a second of wall time (virtual clock): a stop sent once 3 parts were on
+    # disk could arrive after the last press under load (seen in a loaded fast lane). The runner's checkpoint after
+    # its 3rd press waits (at most 60 s) for the request instead, so the stop lands mid-campaign every time
+    third_done, real_after_press = threading.Event(), Checkpoint.after_press
+
+    def after_press(self, press_id, flags):
+        if not third_done.is_set() and press_id >= 2:
+            third_done.set()
+            deadline = time.monotonic() + 60
+            while not read_requests(self.folder) and time.monotonic() < deadline:
+                time.sleep(0.01)
+        return real_after_press(self, press_id, flags)
+
+    monkeypatch.setattr(Checkpoint, "after_press", after_press)
     thread, result = _run_in_thread(folder)
-    _wait_for(lambda: len(press_parts(folder)) >= 3)
+    assert third_done.wait(120), "the campaign reached its third press"
     assert main(["campaign", "stop", str(folder)]) == 0
     thread.join(120)
     r = result["r"]
     assert r.interrupted and 3 <= r.completed < 12
     assert json.loads((folder / "manifest.json").read_text())["status"] == "interrupted"
     assert read_state(folder)["state"] == "stopped"
+    monkeypatch.setattr(Checkpoint, "after_press", real_after_press)
     thread, result = _run_in_thread(folder, resume=True)  # the old stop request is not acted on again
     thread.join(120)
     assert result["r"].completed == 12 and not result["r"].interrupted
