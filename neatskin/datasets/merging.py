@@ -22,7 +22,7 @@ from neatskin.datasets.durable import write_durably
 from neatskin.datasets.manifest import create_manifest, utc_now_iso
 from neatskin.datasets.manifestchecks import same_file_ref
 from neatskin.datasets.paths import CONSOLIDATED_NAME
-from neatskin.datasets.reader import press_files, read_press_table
+from neatskin.datasets.reader import press_files, read_press_table, refuse_missing_columns
 from neatskin.datasets.schema import decode_metadata, encode_metadata
 from neatskin.datasets.tables import unreadable_presses
 from neatskin.datasets.writer import FINALIZE_BATCH, deduplicate_sorted, read_parquet
@@ -160,6 +160,10 @@ def _plan_source(folder: Path) -> _SourcePlan:
     """A source's summary from five small columns of its presses (consolidated file and parts, first copy
     of a press id kept)."""
     files = press_files(folder)
+    try:
+        refuse_missing_columns(pq.read_schema(files[0]), files[0])  # the damaged source named, not the healthy one
+    except (OSError, pa.ArrowException) as exc:
+        raise unreadable_presses(exc, files[0]) from exc
     tables = []
     for path in files:
         try:

@@ -14,7 +14,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from neatskin.datasets.durable import write_durably
+from neatskin.datasets.durable import read_error, write_durably
 from neatskin.errors import DataError
 
 
@@ -34,11 +34,16 @@ def read_parquet(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
     return handle.read(columns=columns, use_threads=False).replace_schema_metadata(None)
 
 
-def file_sha256(path: Path) -> str:
+def file_sha256(path: Path, restore: str = "restore the file from a backup") -> str:
+    """The file's sha256; a file that cannot be read (permission, a folder in its place) is a DataError naming it,
+    whose fix ends with `restore` (how to get the file back)."""
     digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
+    try:
+        with open(path, "rb") as handle:
+            for block in iter(lambda: handle.read(1 << 20), b""):
+                digest.update(block)
+    except OSError as exc:
+        raise read_error(exc, path, restore) from exc
     return digest.hexdigest()
 
 
