@@ -268,11 +268,35 @@ def test_every_dataset_command_refuses_a_missing_column_as_validate_names_it(pap
     for command, extra in outputs.items():
         assert main(["dataset", command.split("-")[0], str(folder), *extra]) == 5, command
         assert one_error(capsys.readouterr().err) == expected, command
+    assert main(["dataset", "info", str(folder / "presses.parquet")]) == 5  # the file itself, not the folder
+    assert one_error(capsys.readouterr().err) == expected
     for sources in ([healthy, folder], [folder, healthy]):  # the damaged folder named, first or second
         assert main(["dataset", "merge", *map(str, sources), "-o", str(tmp_path / "m")]) == 5
         assert one_error(capsys.readouterr().err) == expected
     assert not any((tmp_path / name).exists() for name in ("split", "x.parquet", "x.csv", "hf", "png", "m"))
     assert snapshot(folder) == before
+
+
+def test_a_part_missing_a_column_is_refused_by_name_even_by_merge_allow_invalid(paper_layout, tmp_path, capsys):
+    """An interrupted campaign whose fourth part lacks x_mm: every reader names that part with validate's line; merge
+    refuses it even with --allow-invalid (it cannot place those presses) before it makes the output folder."""
+    healthy = make_campaign(tmp_path / "healthy", paper_layout, "healthy", seed=1)
+    folder = make_campaign(tmp_path / "c", paper_layout, finalize=False)
+    part = sorted((folder / "presses").glob("part-*.parquet"))[3]
+    drop_column(part, "x_mm")
+    expected = (
+        f"neatskin: error: {part}: [x_mm]: missing column(s): x_mm (fix: rewrite the file with every column of the "
+        "layout's schema (or validate against the layout the campaign used))"
+    )
+    assert main(["dataset", "validate", str(folder)]) == 1
+    assert expected in capsys.readouterr().err.splitlines()
+    for argv in (["info", str(folder)], ["split", str(folder), "-o", str(tmp_path / "s")]):
+        assert main(["dataset", *argv]) == 5
+        assert one_error(capsys.readouterr().err) == expected
+    merge = ["dataset", "merge", str(healthy), str(folder), "-o", str(tmp_path / "m"), "--allow-incomplete"]
+    assert main([*merge, "--allow-invalid"]) == 5
+    assert one_error(capsys.readouterr().err) == expected
+    assert not (tmp_path / "m").exists() and not (tmp_path / "s").exists()
 
 
 def test_a_campaign_on_other_pairs_is_no_missing_column(paper_layout, tmp_path):

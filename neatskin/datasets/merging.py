@@ -22,9 +22,9 @@ from neatskin.datasets.durable import write_durably
 from neatskin.datasets.manifest import create_manifest, utc_now_iso
 from neatskin.datasets.manifestchecks import same_file_ref
 from neatskin.datasets.paths import CONSOLIDATED_NAME
-from neatskin.datasets.reader import press_files, read_press_table, refuse_missing_columns
+from neatskin.datasets.reader import press_files, read_press_table
 from neatskin.datasets.schema import decode_metadata, encode_metadata
-from neatskin.datasets.tables import unreadable_presses
+from neatskin.datasets.tables import refuse_missing_columns, unreadable_presses
 from neatskin.datasets.writer import FINALIZE_BATCH, deduplicate_sorted, read_parquet
 from neatskin.errors import DataError
 
@@ -156,6 +156,9 @@ class _SourcePlan:
     max_press_id: int | None
 
 
+_PLAN_COLUMNS = ("press_id", "position_id", "x_mm", "y_mm", "flags")  # what a merge plans from
+
+
 def _plan_source(folder: Path) -> _SourcePlan:
     """A source's summary from five small columns of its presses (consolidated file and parts, first copy
     of a press id kept)."""
@@ -167,9 +170,12 @@ def _plan_source(folder: Path) -> _SourcePlan:
     tables = []
     for path in files:
         try:
-            tables.append(read_parquet(path, columns=["press_id", "position_id", "x_mm", "y_mm", "flags"]))
+            table = read_parquet(path, columns=list(_PLAN_COLUMNS))
+            if table.num_columns < len(_PLAN_COLUMNS):  # pyarrow leaves out a column the file lacks
+                refuse_missing_columns(pq.read_schema(path), path)
         except (OSError, pa.ArrowException) as exc:
             raise unreadable_presses(exc, path) from exc
+        tables.append(table)
     keys = deduplicate_sorted(pa.concat_tables(tables, promote_options="permissive"))
     frame = keys.select(["position_id", "x_mm", "y_mm"]).to_pandas()
     schema = pq.read_schema(files[0])

@@ -6,7 +6,7 @@ arrays the baselines learn from.
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -17,9 +17,9 @@ import pyarrow.dataset as pads
 import pyarrow.parquet as pq
 
 from neatskin.datasets.paths import CONSOLIDATED_NAME, WAVEFORMS_DIR, part_press_id, press_parts
-from neatskin.datasets.schema import BASE_COLUMNS, decode_metadata, normalise_pairs, pair_columns, parse_pair_column
-from neatskin.datasets.tables import deduplicate_sorted, read_tables, unreadable_presses
-from neatskin.errors import DataError, Problem
+from neatskin.datasets.schema import decode_metadata, parse_pair_column
+from neatskin.datasets.tables import deduplicate_sorted, read_tables, refuse_missing_columns, unreadable_presses
+from neatskin.errors import DataError
 from neatskin.layout import ElectrodePair
 
 
@@ -44,36 +44,6 @@ def press_files(path: str | os.PathLike) -> list[Path]:
             fix="check the path; a campaign that never finished a press has no data",
         )
     return files
-
-
-MISSING_COLUMNS_FIX = (
-    "rewrite the file with every column of the layout's schema (or validate against the layout the campaign used)"
-)
-
-
-def missing_columns_problem(missing: Sequence[str], file: str) -> Problem:
-    """The problem `dataset validate` reports for a press file that lacks columns (and every reader refuses)."""
-    return Problem(f"missing column(s): {', '.join(missing)}", file, ", ".join(missing), MISSING_COLUMNS_FIX)
-
-
-def missing_press_columns(schema: pa.Schema) -> list[str]:
-    """The press columns a file's schema lacks: the fixed ones, and R_ohm and dR_ohm of every pair its metadata
-    names (metadata gone or damaged: of every pair either kind of pair column names)."""
-    try:
-        pairs = normalise_pairs(decode_metadata(schema.metadata).get("pairs") or ())
-    except (DataError, TypeError, ValueError, IndexError, KeyError):
-        found = (parse_pair_column(name) for name in schema.names)
-        pairs = tuple(dict.fromkeys(pair for _, pair in filter(None, found)))
-    r_cols, dr_cols = pair_columns(pairs)
-    return [name for name in (*BASE_COLUMNS, *r_cols, *dr_cols) if name not in schema.names]
-
-
-def refuse_missing_columns(schema: pa.Schema, file: Path) -> None:
-    """One DataError, validate's own, for a press file without a column every reader relies on (a position, a
-    key, a pair's dR): refused before anything downstream fails on it or writes a dataset without it."""
-    missing = missing_press_columns(schema)
-    if missing:
-        raise DataError(problems=[missing_columns_problem(missing, str(file))])
 
 
 def read_press_table(path: str | os.PathLike, *, deduplicate: bool = True) -> pa.Table:

@@ -23,9 +23,10 @@ import pyarrow as pa
 from neatskin.datasets.folderchecks import integrity_problems, part_ids_valid, unreadable_fix, waveform_problems, where
 from neatskin.datasets.manifest import MANIFEST_NAME, read_manifest
 from neatskin.datasets.manifestchecks import manifest_layout, manifest_problems, same_file_ref
-from neatskin.datasets.reader import missing_columns_problem, press_files
+from neatskin.datasets.reader import press_files
 from neatskin.datasets.scan import DatasetScan, read_schema, scan_files
 from neatskin.datasets.schema import BASE_FIELDS, OPTIONAL_COLUMNS, decode_metadata, parse_pair_column, press_schema
+from neatskin.datasets.tables import missing_columns_problem
 from neatskin.datasets.values import metadata_layout, value_problems
 from neatskin.errors import DataError, Problem
 from neatskin.layout import ElectrodePair, Layout
