@@ -128,6 +128,22 @@ def test_a_manifest_that_cannot_be_read_is_one_error_naming_it(paper_layout, tmp
     assert not (folder / "campaign.lock").exists()
 
 
+def test_a_stop_is_recorded_and_the_damaged_manifest_named_as_a_warning(paper_layout, tmp_path, capsys):
+    """`campaign stop` on a folder whose manifest is not UTF-8: the runner reads the request, not the manifest, so
+    the stop is kept (exit 0) and the manifest's damage is a warning naming it, not a traceback after the write."""
+    import json
+
+    folder = make_campaign(tmp_path / "c", paper_layout, finalize=False)
+    manifest = folder / "manifest.json"
+    _not_utf8(manifest)
+    assert main(["campaign", "stop", str(folder)]) == 0
+    captured = capsys.readouterr()
+    assert "Traceback" not in captured.err and captured.err.count("neatskin: warning:") == 1
+    assert captured.err.startswith(f"neatskin: warning: {manifest}: manifest.json is not UTF-8 text")
+    assert f"stop requested for {folder} (campaign unknown" in captured.out and "not running" not in captured.out
+    assert json.loads((folder / "control.json").read_text())["action"] == "stop"
+
+
 def test_a_manifest_without_read_permission_is_one_error_naming_it(paper_layout, tmp_path):
     folder = make_campaign(tmp_path / "c", paper_layout)
     manifest = folder / "manifest.json"
