@@ -60,8 +60,8 @@ def one_error(err: str) -> str:
 
 
 def cli_child(*argv, root_bypass=True):
-    """`neatskin ARGV` in a child process; as root, with the capabilities that read through mode bits dropped (as
-    the audit ran it) unless root_bypass... is asked for."""
+    """`neatskin ARGV` in a child process. root_bypass=False: as root, the capabilities that read and write through
+    mode bits are dropped first (setpriv, as the audit ran it), so a chmod 000 file is unreadable to the child."""
     command = [sys.executable, "-m", "neatskin", *argv]
     if os.geteuid() == 0 and not root_bypass:
         if shutil.which("setpriv") is None:

@@ -8,8 +8,10 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from neatskin.datasets.paths import PRESSES_DIR, WAVEFORMS_DIR, part_name, waveform_parts
-from neatskin.errors import Problem
+from neatskin.datasets.manifest import read_manifest
+from neatskin.datasets.paths import CONSOLIDATED_NAME, PRESSES_DIR, WAVEFORMS_DIR, part_name, waveform_parts
+from neatskin.datasets.tables import read_parquet
+from neatskin.errors import DataError, Problem
 
 
 def records_waveforms(manifest: Mapping[str, Any] | None) -> bool:
@@ -57,3 +59,28 @@ def lost_waveforms_problem(
     return Problem(
         f"press(es) {shown} of a campaign that records waveforms have no waveform part", where, "waveforms", fix
     )
+
+
+def refuse_lost_waveforms(
+    folder: Path, completed: set[int], parts: Mapping[int, Path], part_last: Mapping[int, int]
+) -> None:
+    """The writer's check on resume or finish: a committed press (`completed`; `parts` by first press id, each
+    holding ids up to `part_last[first]`) of a running or interrupted campaign that records waveforms, whose
+    waveform part is gone, is a DataError. A real press's raw samples cannot be recomputed, and the campaign must
+    not be completed without them; a complete campaign is not marked so again (validate names the loss)."""
+    if not completed:
+        return
+    try:
+        manifest = read_manifest(folder)
+    except DataError:
+        return  # no manifest (a writer used alone), or a damaged one: the runner refuses that itself
+    if not records_waveforms(manifest) or manifest.get("status") == "complete":
+        return
+    lost = presses_without_waveforms(folder, completed)
+    if not lost:
+        return
+    holders = {i: next((parts[f] for f, last in part_last.items() if f <= i <= last), None) for i in lost}
+    source = holders[lost[0]] or Path(folder) / CONSOLIDATED_NAME
+    keys = read_parquet(source, columns=["press_id", "position_id"]).to_pydict()
+    positions = dict(zip(keys["press_id"], keys["position_id"]))
+    raise DataError(problems=[lost_waveforms_problem(folder, lost, positions, holders)])

@@ -34,7 +34,6 @@ import pyarrow.parquet as pq
 
 import neatskin
 from neatskin.datasets.durable import fsync_dir, remove_temp_files, write_bytes_durably, write_durably
-from neatskin.datasets.manifest import read_manifest
 from neatskin.datasets.paths import (
     CONSOLIDATED_NAME,
     COPY_NAME,
@@ -53,7 +52,7 @@ from neatskin.datasets.tables import (  # re-exported: callers import them from 
     waveform_table,
     write_table_durably,
 )
-from neatskin.datasets.waveformcheck import lost_waveforms_problem, presses_without_waveforms, records_waveforms
+from neatskin.datasets.waveformcheck import refuse_lost_waveforms
 from neatskin.errors import DataError
 from neatskin.layout import ElectrodePair
 
@@ -168,27 +167,7 @@ class CampaignWriter:
         for press_id, path in waveform_parts(self.folder).items():
             if press_id not in self._completed:
                 path.unlink(missing_ok=True)  # orphan: its press was never committed
-        self._refuse_lost_waveforms(parts)
-
-    def _refuse_lost_waveforms(self, parts: dict[int, Path]) -> None:
-        """A committed press of a campaign that records waveforms, whose waveform part is gone, is refused: a real
-        press's raw samples cannot be recomputed, and the campaign must not be completed without them."""
-        if not self._completed:
-            return
-        try:
-            manifest = read_manifest(self.folder)
-        except DataError:
-            return  # no manifest (a writer used alone), or a damaged one: the runner refuses that itself
-        if not records_waveforms(manifest) or manifest.get("status") == "complete":
-            return  # complete: not marked so again here; validate names a waveform part lost since
-        lost = presses_without_waveforms(self.folder, self._completed)
-        if not lost:
-            return
-        holders = {i: next((parts[f] for f, last in self._part_last.items() if f <= i <= last), None) for i in lost}
-        source = holders[lost[0]] or self.folder / CONSOLIDATED_NAME
-        keys = read_parquet(source, columns=["press_id", "position_id"]).to_pydict()
-        positions = dict(zip(keys["press_id"], keys["position_id"]))
-        raise DataError(problems=[lost_waveforms_problem(self.folder, lost, positions, holders)])
+        refuse_lost_waveforms(self.folder, self._completed, parts, self._part_last)
 
     def _verified_part(self, press_id: int, path: Path) -> pa.Table:
         """A committed part's rows, refused unless it is intact (recorded sha256, page checksums), holds press
