@@ -421,3 +421,27 @@ def test_a_printer_profile_given_as_the_protocol_is_one_problem(protocols, capsy
     assert lines[0].endswith(
         "), not a protocol (fix: name a protocol file here: check the protocol's [files] entry or the path given)"
     )
+
+
+def test_a_loop_of_links_in_files_is_one_config_error_naming_the_field(protocols, tmp_path, capsys):
+    """`ln -s loop.toml loop.toml` as the layout: Python 3.11's Path.resolve() raises RuntimeError, not OSError."""
+    (protocols / "loop.toml").symlink_to("loop.toml")
+    path = protocols / "smoke.toml"
+    edit(path, 'layout = "skins/paper.toml"', 'layout = "loop.toml"')
+    with pytest.raises(ConfigError) as info:
+        load_protocol(path)
+    (problem,) = [p for p in info.value.problems if p.field == "files.layout"]
+    assert problem.file == str(path) and "loop of symbolic links" in problem.message and "'loop.toml'" in problem.fix
+    out = tmp_path / "out"
+    for argv, code in (
+        (["campaign", "check", str(path)], 1),
+        (["campaign", "plan", str(path)], 3),
+        (["campaign", "run", str(path), "--dry-run", "-o", str(out), "--no-report", "-q"], 3),
+    ):
+        assert main(argv) == code, argv
+        err = capsys.readouterr().err
+        assert "Traceback" not in err and f"{path}: [files.layout]: layout file path cannot be used" in err, err
+    assert not out.exists()  # refused before the campaign folder was made
+    assert main(["campaign", "resume", str(protocols / "loop.toml"), "--no-report"]) == 5
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and f"{protocols / 'loop.toml'}: not a campaign folder" in err

@@ -208,7 +208,14 @@ def test_merge_refuses_other_pairs_and_existing_output(paper_layout, tmp_path):
     campaign(tmp_path / "a", paper_layout)
     (tmp_path / "b").mkdir()
     table = pq.read_table(tmp_path / "a" / "presses.parquet")
-    pq.write_table(table.drop_columns(["R_ohm_7_8", "dR_ohm_7_8"]), tmp_path / "b" / "presses.parquet")
+    from neatskin.datasets.schema import decode_metadata, encode_metadata
+
+    # a campaign measuring other pairs: its metadata says so (columns dropped under intact metadata are damage,
+    # refused as missing columns: test_datasets_damaged.py)
+    meta = decode_metadata(table.schema.metadata)
+    meta["pairs"] = [p for p in meta["pairs"] if p != [7, 8]]
+    other = table.drop_columns(["R_ohm_7_8", "dR_ohm_7_8"]).replace_schema_metadata(encode_metadata(meta))
+    pq.write_table(other, tmp_path / "b" / "presses.parquet")
     with pytest.raises(DataError) as err:
         merge([tmp_path / "a", tmp_path / "b"], tmp_path / "m", allow_mixed=True)
     assert err.value.field == "pairs"

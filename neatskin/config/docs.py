@@ -38,7 +38,9 @@ returns a fully typed value.
 
 Files are read by `neatskin.tomlfile.read_toml`: only regular files of at most 4 MiB of UTF-8
 text; a device (`/dev/zero`), a folder, a binary file or an over-long path is one error naming
-the file. A path starting with `protocols/` that does not exist where you are falls back to the
+the file. A `[files]` entry that is a loop of links (`ln -s loop.toml loop.toml`) is a ConfigError naming
+the protocol and the field (`files.layout`: "a loop of symbolic links"), before any folder is made.
+A path starting with `protocols/` that does not exist where you are falls back to the
 packaged copy (`neatskin/protocols/`), so the defaults work from any folder and from a wheel.
 
 The tables are the values the code uses: `PressSpec` (`[press]`), `PositionSpec` (`[positions]`),

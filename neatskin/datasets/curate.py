@@ -68,7 +68,7 @@ def describe(path: str | os.PathLike) -> dict[str, Any]:
     try:
         table = read_press_table(path)
     except DataError:
-        if not manifest:
+        if not manifest or (path / CONSOLIDATED_NAME).exists() or press_parts(path):  # damaged presses: refused
             raise
         return {  # a campaign that has not finished a press yet: its state is still worth telling
             "path": str(path),

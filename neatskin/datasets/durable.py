@@ -1,4 +1,5 @@
-"""Durable file writes: temp file in the same folder, flush + fsync, atomic rename, fsync of the folder.
+"""Durable file writes: temp file in the same folder, flush + fsync, atomic rename, fsync of the folder; and the one
+clear error for a campaign file that cannot be written or read.
 
 A process killed at any instant leaves either the old file, or the new one complete, plus at most a
 hidden temp file (`.NAME.<random>.tmp`) that readers ignore and `remove_temp_files` cleans up.
@@ -46,6 +47,20 @@ def write_error(exc: BaseException, path: str | os.PathLike) -> DataError:
         if code is not None
         else "check the disk and the folder's permissions, then resume",
     )
+
+
+def read_error(exc: OSError, path: str | os.PathLike, restore: str = "restore the file from a backup") -> DataError:
+    """One clear DataError for a file that exists but cannot be read (no read permission, a folder or a loop of
+    links in its place), naming the file, the system's reason and a fix; `restore` says how to get the file back."""
+    if isinstance(exc, PermissionError):
+        fix = f"give your user read permission on it (chmod u+r {path})"
+    elif isinstance(exc, IsADirectoryError):
+        fix = f"a folder stands where the file should be: move the folder away, then {restore}"
+    elif exc.errno == errno.ELOOP:
+        fix = f"the name is a link that leads back to itself: remove the link, then {restore}"
+    else:
+        fix = f"check the disk (dmesg), then {restore}"
+    return DataError(f"cannot read the file: {exc.strerror or exc}", file=str(path), fix=fix)
 
 
 def is_write_failure(exc: BaseException) -> bool:

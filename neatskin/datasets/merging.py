@@ -24,7 +24,7 @@ from neatskin.datasets.manifestchecks import same_file_ref
 from neatskin.datasets.paths import CONSOLIDATED_NAME
 from neatskin.datasets.reader import press_files, read_press_table
 from neatskin.datasets.schema import decode_metadata, encode_metadata
-from neatskin.datasets.tables import unreadable_presses
+from neatskin.datasets.tables import refuse_missing_columns, unreadable_presses
 from neatskin.datasets.writer import FINALIZE_BATCH, deduplicate_sorted, read_parquet
 from neatskin.errors import DataError
 
@@ -156,16 +156,26 @@ class _SourcePlan:
     max_press_id: int | None
 
 
+_PLAN_COLUMNS = ("press_id", "position_id", "x_mm", "y_mm", "flags")  # what a merge plans from
+
+
 def _plan_source(folder: Path) -> _SourcePlan:
     """A source's summary from five small columns of its presses (consolidated file and parts, first copy
     of a press id kept)."""
     files = press_files(folder)
+    try:
+        refuse_missing_columns(pq.read_schema(files[0]), files[0])  # the damaged source named, not the healthy one
+    except (OSError, pa.ArrowException) as exc:
+        raise unreadable_presses(exc, files[0]) from exc
     tables = []
     for path in files:
         try:
-            tables.append(read_parquet(path, columns=["press_id", "position_id", "x_mm", "y_mm", "flags"]))
+            table = read_parquet(path, columns=list(_PLAN_COLUMNS))
+            if table.num_columns < len(_PLAN_COLUMNS):  # pyarrow leaves out a column the file lacks
+                refuse_missing_columns(pq.read_schema(path), path)
         except (OSError, pa.ArrowException) as exc:
             raise unreadable_presses(exc, path) from exc
+        tables.append(table)
     keys = deduplicate_sorted(pa.concat_tables(tables, promote_options="permissive"))
     frame = keys.select(["position_id", "x_mm", "y_mm"]).to_pandas()
     schema = pq.read_schema(files[0])

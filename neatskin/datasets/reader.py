@@ -18,7 +18,7 @@ import pyarrow.parquet as pq
 
 from neatskin.datasets.paths import CONSOLIDATED_NAME, MANIFEST_NAME, WAVEFORMS_DIR, part_press_id, press_parts
 from neatskin.datasets.schema import decode_metadata, parse_pair_column
-from neatskin.datasets.tables import deduplicate_sorted, read_tables, unreadable_presses
+from neatskin.datasets.tables import deduplicate_sorted, read_tables, refuse_missing_columns, unreadable_presses
 from neatskin.errors import DataError
 from neatskin.layout import ElectrodePair
 
@@ -111,10 +111,12 @@ def _no_presses_in(folder: Path) -> DataError:
 
 def read_press_table(path: str | os.PathLike, *, deduplicate: bool = True) -> pa.Table:
     """All presses as one arrow table (sorted by press_id, first copy of a duplicated id kept), with the
-    `neatskin.` metadata of the consolidated file (or of the first part)."""
+    `neatskin.` metadata of the consolidated file (or of the first part). A file that lacks a press column is
+    refused (refuse_missing_columns): the others must match the first's columns (read_tables)."""
     files = press_files(path)
     try:
         schema = pq.read_schema(files[0])
+        refuse_missing_columns(schema, files[0])
         table = read_tables(files, schema.remove_metadata())
     except (OSError, pa.ArrowException) as exc:
         raise unreadable_presses(exc, path) from exc

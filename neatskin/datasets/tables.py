@@ -1,5 +1,6 @@
-"""Whole parquet files of a campaign: checksummed reads, parts concatenated and deduplicated by press id,
-waveform tables, and a press table written as one durable file. Pure helpers of the writer, the reader
+"""Whole parquet files of a campaign: checksummed reads, the refusal of a press file that lacks a column (the
+line `validate` gives), parts concatenated and deduplicated by press id, waveform tables, and a press table
+written as one durable file. Pure helpers of the writer, the reader
 and the curation tools; the campaign writer itself is neatskin.datasets.writer.
 """
 
@@ -14,8 +15,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from neatskin.datasets.durable import write_durably
-from neatskin.errors import DataError
+from neatskin.datasets.durable import read_error, write_durably
+from neatskin.datasets.schema import BASE_COLUMNS, decode_metadata, normalise_pairs, pair_columns, parse_pair_column
+from neatskin.errors import DataError, Problem
 
 
 def unreadable_presses(exc: Exception, path: str | os.PathLike) -> DataError:
@@ -27,6 +29,36 @@ def unreadable_presses(exc: Exception, path: str | os.PathLike) -> DataError:
     )
 
 
+MISSING_COLUMNS_FIX = (
+    "rewrite the file with every column of the layout's schema (or validate against the layout the campaign used)"
+)
+
+
+def missing_columns_problem(missing: Sequence[str], file: str) -> Problem:
+    """The problem `dataset validate` reports for a press file that lacks columns (and every reader refuses)."""
+    return Problem(f"missing column(s): {', '.join(missing)}", file, ", ".join(missing), MISSING_COLUMNS_FIX)
+
+
+def missing_press_columns(schema: pa.Schema) -> list[str]:
+    """The press columns a file's schema lacks: the fixed ones, and R_ohm and dR_ohm of every pair its metadata
+    names (metadata gone or damaged: of every pair either kind of pair column names)."""
+    try:
+        pairs = normalise_pairs(decode_metadata(schema.metadata).get("pairs") or ())
+    except (DataError, TypeError, ValueError, IndexError, KeyError):
+        found = (parse_pair_column(name) for name in schema.names)
+        pairs = tuple(dict.fromkeys(pair for _, pair in filter(None, found)))
+    r_cols, dr_cols = pair_columns(pairs)
+    return [name for name in (*BASE_COLUMNS, *r_cols, *dr_cols) if name not in schema.names]
+
+
+def refuse_missing_columns(schema: pa.Schema, file: Path) -> None:
+    """One DataError, validate's own, for a press file without a column every reader relies on (a position, a
+    key, a pair's dR): refused before anything downstream fails on it or writes a dataset without it."""
+    missing = missing_press_columns(schema)
+    if missing:
+        raise DataError(problems=[missing_columns_problem(missing, str(file))])
+
+
 def read_parquet(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
     """One parquet file, its page checksums verified (a flipped bit is an error, not a changed value);
     metadata dropped."""
@@ -34,11 +66,16 @@ def read_parquet(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
     return handle.read(columns=columns, use_threads=False).replace_schema_metadata(None)
 
 
-def file_sha256(path: Path) -> str:
+def file_sha256(path: Path, restore: str = "restore the file from a backup") -> str:
+    """The file's sha256; a file that cannot be read (permission, a folder in its place) is a DataError naming it,
+    whose fix ends with `restore` (how to get the file back)."""
     digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
+    try:
+        with open(path, "rb") as handle:
+            for block in iter(lambda: handle.read(1 << 20), b""):
+                digest.update(block)
+    except OSError as exc:
+        raise read_error(exc, path, restore) from exc
     return digest.hexdigest()
 
 
@@ -57,6 +94,7 @@ def read_tables(files: Sequence[Path], schema: pa.Schema) -> pa.Table:
             ) from exc
         if not table.schema.equals(schema):
             if table.schema.names != schema.names or table.schema.types != schema.types:
+                refuse_missing_columns(pq.read_schema(path), path)  # validate's line for a column it lacks
                 raise DataError(
                     "the file's columns differ from the campaign's schema",
                     file=str(path),

@@ -26,6 +26,7 @@ from neatskin.datasets.manifestchecks import manifest_layout, manifest_problems,
 from neatskin.datasets.reader import ACCEPTED, press_files
 from neatskin.datasets.scan import DatasetScan, read_schema, scan_files
 from neatskin.datasets.schema import BASE_FIELDS, OPTIONAL_COLUMNS, decode_metadata, parse_pair_column, press_schema
+from neatskin.datasets.tables import missing_columns_problem
 from neatskin.datasets.values import metadata_layout, value_problems
 from neatskin.errors import DataError, Problem
 from neatskin.layout import ElectrodePair, Layout
@@ -100,7 +101,7 @@ def validate_dataset(
     problems += _content_problems(scan, expected, layout, allow_flagged)
     has_keys = {"press_id", "position_id"} <= scan.columns
     if path.is_dir() and has_keys:
-        problems += waveform_problems(path, scan.keys)
+        problems += waveform_problems(path, scan.keys, manifest, scan.files)
     if manifest is not None:
         problems += manifest_problems(manifest, manifest_file, metadata, scan, pairs, layout)
     if path.is_dir():
@@ -142,15 +143,9 @@ def _schema_problems(schemas: list[tuple[Path, pa.Schema]], expected: pa.Schema)
         names = schema.names
         missing = [n for n in expected.names if n not in names]
         extra = [n for n in names if n not in want and n not in OPTIONAL_COLUMNS]  # source_run of a merge
-        if missing:
-            grouped[
-                (
-                    ", ".join(missing),
-                    f"missing column(s): {', '.join(missing)}",
-                    "rewrite the file with every column of the layout's schema (or validate against the "
-                    "layout the campaign used)",
-                )
-            ].append(file)
+        if missing:  # the text every reader refuses the file with (reader.refuse_missing_columns)
+            problem = missing_columns_problem(missing, str(file))
+            grouped[(str(problem.field), problem.message, str(problem.fix))].append(file)
         if extra:
             grouped[
                 (

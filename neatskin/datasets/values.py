@@ -33,11 +33,11 @@ def metadata_layout(folder: Path, metadata: dict, notes: list[str] | None) -> La
             if candidate in tried or not candidate.is_file():
                 continue
             tried.append(candidate)
-            if ref.get("sha256") and file_sha256(candidate) != ref["sha256"]:
-                continue
             try:
+                if ref.get("sha256") and file_sha256(candidate) != ref["sha256"]:
+                    continue
                 return load_layout(candidate)
-            except ConfigError:
+            except (ConfigError, DataError):  # an unreadable candidate is one not found
                 continue
     if ref and notes is not None:
         notes.append(

@@ -52,6 +52,7 @@ from neatskin.datasets.tables import (  # re-exported: callers import them from 
     waveform_table,
     write_table_durably,
 )
+from neatskin.datasets.waveformcheck import refuse_lost_waveforms
 from neatskin.errors import DataError
 from neatskin.layout import ElectrodePair
 
@@ -166,6 +167,7 @@ class CampaignWriter:
         for press_id, path in waveform_parts(self.folder).items():
             if press_id not in self._completed:
                 path.unlink(missing_ok=True)  # orphan: its press was never committed
+        refuse_lost_waveforms(self.folder, self._completed, parts, self._part_last)
 
     def _verified_part(self, press_id: int, path: Path) -> pa.Table:
         """A committed part's rows, refused unless it is intact (recorded sha256, page checksums), holds press

@@ -4,6 +4,7 @@ neatskin.monitor.server, neatskin.rig.control and neatskin.monitor.console."""
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from neatskin.cligroups import add_connect_timeout, command_group
@@ -82,13 +83,19 @@ CONTROL_WAIT_S = 10.0  # how long `campaign pause DIR` waits for a starting run'
 
 def _control(args: argparse.Namespace) -> int:
     from neatskin.datasets.manifest import read_manifest
+    from neatskin.errors import DataError
     from neatskin.rig.control import read_state, request_control
 
     request_control(args.folder, args.control_action, by="cli", wait_s=CONTROL_WAIT_S)  # a run starting: kept
-    status = read_manifest(args.folder).get("status")
+    try:
+        status = read_manifest(args.folder).get("status")
+    except DataError as exc:  # the request is recorded (the runner reads it, not the manifest): say so, and why
+        status = "unknown"
+        for problem in exc.problems:
+            print(f"neatskin: warning: {problem}", file=sys.stderr)
     state = read_state(args.folder).get("state", "unknown")
     print(f"{args.control_action} requested for {args.folder} (campaign {status}, runner {state})")
-    if status != "running":
+    if status not in ("running", "unknown"):
         print(f"  the campaign is not running; to finish it: neatskin campaign resume {args.folder}")
     elif args.control_action in ("pause", "stop"):
         print("  the runner acts on it after the press in flight")

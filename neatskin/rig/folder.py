@@ -221,6 +221,14 @@ def load_inputs(folder: Path) -> CampaignProtocol:
     )
 
 
+# how a derived file that cannot be read comes back (the fix of the error naming it)
+_RESTORE = {
+    CONSOLIDATED_NAME: f"move it away: `neatskin campaign finish` restores it from {COPY_NAME}",
+    COPY_NAME: f"restore it from a backup ({CONSOLIDATED_NAME} differs from its recorded sha256, so it is no source)",
+    PHYSICAL_LIMIT: "move it away: `neatskin campaign finish` computes it again",
+}
+
+
 def missing_derived_files(folder: Path, manifest: dict, *, report: bool = True) -> list[str]:
     """What a complete campaign lacks: a consolidated file that is missing or differs from its recorded
     sha256, the physical limit of a dry run, the report (when asked for)."""
@@ -231,7 +239,7 @@ def missing_derived_files(folder: Path, manifest: dict, *, report: bool = True) 
         path = folder / name
         if name == PHYSICAL_LIMIT and rig_kind(folder, manifest) != "dry-run":
             continue
-        if not path.is_file() or (name in recorded and file_sha256(path) != recorded[name]):
+        if not path.is_file() or (name in recorded and file_sha256(path, _RESTORE[name]) != recorded[name]):
             missing.append(name)
     if report and not (folder / "report.md").is_file():
         missing.append("report.md")
@@ -247,9 +255,9 @@ def restore_consolidated(folder: Path, manifest: dict) -> None:
         else None
     )
     main, copy = folder / CONSOLIDATED_NAME, folder / COPY_NAME
-    if recorded is None or (main.is_file() and file_sha256(main) == recorded):
+    if recorded is None or (main.is_file() and file_sha256(main, _RESTORE[CONSOLIDATED_NAME]) == recorded):
         return
-    if copy.is_file() and file_sha256(copy) == recorded:
+    if copy.is_file() and file_sha256(copy, _RESTORE[COPY_NAME]) == recorded:
         log.warning("restoring %s from %s (it differed from its recorded sha256)", main, copy)
         write_bytes_durably(main, copy.read_bytes())
         return

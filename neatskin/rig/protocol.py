@@ -10,6 +10,7 @@ references is reported at once, each with its file, field and fix, before anythi
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import math
 from dataclasses import dataclass
@@ -289,13 +290,17 @@ def _referenced_files(
         try:
             resolved = Path(overrides.get(key) or (path.parent / rel)).resolve()
             is_file = resolved.is_file()
-        except OSError as exc:  # a name too long, a loop of links
+        except (OSError, RuntimeError) as exc:  # a name too long; a loop of links (RuntimeError before Python 3.13)
+            loop = isinstance(exc, RuntimeError) or getattr(exc, "errno", None) == errno.ELOOP
             problems.append(
                 Problem(
-                    f"{key} file path cannot be used: {exc.strerror or exc}",
+                    f"{key} file path cannot be used: "
+                    + ("it is a loop of symbolic links" if loop else str(getattr(exc, "strerror", None) or exc)),
                     str(path),
                     f"files.{key}",
-                    "give a shorter path to an existing TOML file",
+                    f"point files.{key} at an existing TOML file (remove or repair the link {rel!r})"
+                    if loop
+                    else "give a shorter path to an existing TOML file",
                 )
             )
             continue
