@@ -98,3 +98,17 @@ def test_the_terminal_gives_the_floors_as_report_md_does():
         "landing-point bound median 0.0500 mm over 10 positions"
     ) in summary
     assert "Floors" not in report_summary(Report(results, report.table, None, "", {"report": "r.md"}))
+
+
+def test_a_dataset_whose_manifest_cannot_be_read_reports_without_its_scene(tmp_path):
+    """The report reads the scene from the manifest; one it cannot read (here a folder in its place; no read
+    permission is the same OSError) leaves the scene unnamed, as a missing or non-JSON manifest does, instead of a
+    traceback (hostile-input audit)."""
+    from test_baselines_report import small_table, write_dataset
+
+    from neatskin.baselines.dataset import load_baseline_data
+
+    folder = write_dataset(tmp_path / "ds", small_table(10, 4))
+    (folder / "manifest.json").mkdir()
+    data = load_baseline_data(folder)
+    assert data.scene_preset is None and data.skin_fidelity is None and len(data.y) == 40

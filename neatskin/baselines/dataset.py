@@ -88,13 +88,11 @@ def _rig_skin(folder: Path) -> dict:
     import json
 
     path = folder / "manifest.json"
-    if not path.is_file():
-        return {}
     try:
         manifest = json.loads(path.read_text(encoding="utf-8"))
         skin = manifest.get("rig", {}).get("skin", {})
         scene = manifest.get("protocol_as_run", {}).get("scene", {})
-    except (ValueError, AttributeError):
+    except (OSError, ValueError, AttributeError):  # none, unreadable (a folder, no permission) or not JSON: no scene
         return {}
     if not isinstance(skin, dict):
         return {}
