@@ -101,14 +101,36 @@ def test_the_terminal_gives_the_floors_as_report_md_does():
 
 
 def test_a_dataset_whose_manifest_cannot_be_read_reports_without_its_scene(tmp_path):
-    """The report reads the scene from the manifest; one it cannot read (here a folder in its place; no read
-    permission is the same OSError) leaves the scene unnamed, as a missing or non-JSON manifest does, instead of a
-    traceback (hostile-input audit)."""
+    """The report reads the scene from the manifest; one it may not read (mode 000) leaves the scene unnamed, as a
+    missing or non-JSON manifest does, instead of a PermissionError traceback (hostile-input audit). As root the
+    child drops the capabilities that read through mode bits (setpriv), as the audit did."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import pytest
     from test_baselines_report import small_table, write_dataset
 
-    from neatskin.baselines.dataset import load_baseline_data
-
     folder = write_dataset(tmp_path / "ds", small_table(10, 4))
-    (folder / "manifest.json").mkdir()
-    data = load_baseline_data(folder)
-    assert data.scene_preset is None and data.skin_fidelity is None and len(data.y) == 40
+    manifest = folder / "manifest.json"
+    manifest.write_text('{"rig": {"skin": {"preset": "paper-like"}}}')
+    manifest.chmod(0)
+    command = [
+        sys.executable,
+        "-c",
+        f"from neatskin.baselines.dataset import load_baseline_data as f; "
+        f"d = f({str(folder)!r}); print(d.scene_preset, len(d.y))",
+    ]
+    if os.geteuid() == 0:
+        if shutil.which("setpriv") is None:
+            pytest.skip("root reads through mode bits and setpriv is not here to drop that")
+        command = ["setpriv", "--bounding-set=-dac_override,-dac_read_search,-fowner", *command]
+    repo = Path(__file__).resolve().parent.parent
+    done = subprocess.run(
+        command, capture_output=True, text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(repo)}
+    )
+    manifest.chmod(0o644)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["None", "40"]
