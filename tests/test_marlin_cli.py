@@ -164,9 +164,11 @@ def test_ctrl_c_stops_after_the_line_in_flight_lifts_and_from_line_continues_onc
 
 
 @pytest.mark.timeout(60)
-def test_ctrl_c_at_depth_ends_at_the_programs_travel_height(tmp_path):
-    """No profile: the probe held 2 mm into the skin gets SIGINT; it ends at the program's own travel height
-    (the highest Z it commanded, 15.5), not at a default 5 mm, and the printer's M114 says so."""
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP], ids=lambda s: s.name)
+def test_ctrl_c_at_depth_ends_at_the_programs_travel_height(tmp_path, signum):
+    """No profile: the probe held 2 mm into the skin gets SIGINT (or SIGTERM, SIGHUP: the same stop); it ends at
+    the program's own travel height (the highest Z it commanded, 15.5), not at a default 5 mm, and the printer's
+    M114 says so."""
     import os
     import time
 
@@ -196,7 +198,7 @@ def test_ctrl_c_at_depth_ends_at_the_programs_travel_height(tmp_path):
             time.sleep(0.02)
         # the dwell (G4 S10, the line in flight) holds the probe at Z 3.5, 2 mm below the surface at 5.5
         assert sim.probe_position()[2] == pytest.approx(3.5)
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signum)
         out, err = proc.communicate(timeout=40)
         assert proc.returncode == 130, err
         assert sim.probe_position()[2] == pytest.approx(15.5), err

@@ -1,6 +1,6 @@
 """The `neatskin printer send` command: stream a G-code file to a printer through the driver, and stop safely.
 
-Ctrl-C (SIGINT) stops after the line in flight: nothing queued is sent, the probe is lifted when
+Ctrl-C (SIGINT), SIGTERM or SIGHUP stops after the line in flight: nothing queued is sent, the probe is lifted when
 it may be down (the lift rule is in `lift_lines`, its height in `travel_height_mm`), and the last
 acknowledged line of the file is printed with the exact command that continues from the next one
 (`--from-line N`), so no line runs twice. The lift is checked with M114: "lifted" is said only
@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from neatskin.cligroups import add_connect_timeout, add_quiet, command_group
+from neatskin.stopsignals import as_ctrl_c
 
 DEFAULT_SAFE_Z_MM = 5.0  # without a profile or a Z of the program's own: the height taken to be clear
 
@@ -114,6 +115,7 @@ def lift_lines(
     return Lift(lines, f"lifted the probe by {rise:.3f} mm (Z was {where}, travel height {safe_z_mm:g} mm)")
 
 
+@as_ctrl_c()  # SIGTERM, SIGHUP: as Ctrl-C (stop after the line in flight, lift)
 def printer_send_handler(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 

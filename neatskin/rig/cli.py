@@ -9,6 +9,7 @@ from pathlib import Path
 
 from neatskin.cligroups import add_connect_timeout, add_out, add_quiet, command_group
 from neatskin.errors import CheckFailed, ConfigError, ExitCode
+from neatskin.stopsignals import as_ctrl_c
 
 
 def register(subparsers) -> None:
@@ -104,6 +105,7 @@ def printer_time_text(seconds: float, presses: int, which: str = "") -> str:
     )
 
 
+@as_ctrl_c()  # SIGTERM, SIGHUP: as Ctrl-C (the press in flight finishes, the probe parks)
 def _run(args: argparse.Namespace) -> int:
     from neatskin.errors import ConfigError
     from neatskin.rig.protocol import load_protocol
@@ -202,6 +204,7 @@ def default_campaign_folder(name: str, now: datetime | None = None) -> Path:
     return folder
 
 
+@as_ctrl_c()  # SIGTERM, SIGHUP: as Ctrl-C (the press in flight finishes, the probe parks)
 def _finish(args: argparse.Namespace) -> int:
     from neatskin.rig.runner import finish_campaign
 
@@ -210,6 +213,7 @@ def _finish(args: argparse.Namespace) -> int:
     return 0
 
 
+@as_ctrl_c()  # SIGTERM, SIGHUP: as Ctrl-C (the press in flight finishes, the probe parks)
 def _resume(args: argparse.Namespace) -> int:
     from neatskin.rig.runner import resume_campaign
 

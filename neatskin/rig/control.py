@@ -262,7 +262,7 @@ class Checkpoint:
         deadline = idle_since + self.max_pause_s
         while self._clock() < deadline:
             if self._interrupted():
-                return self._stop("Ctrl-C during a pause")
+                return self._stop("Ctrl-C (or SIGTERM, SIGHUP) during a pause")
             paused, by = True, ""
             for request in self._new_requests():  # in order: a continue then a pause stay paused
                 if request.action == "stop":
