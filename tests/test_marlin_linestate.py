@@ -312,3 +312,23 @@ def test_an_ok_line_gives_the_numbers_of_its_words(n, p, b, form):
     assert reply.kind is Kind.OK and reply.text == text
     expected = _ok_numbers_by_search(text) if (" N" in text or " P" in text) else (None, None, None)
     assert (reply.number, reply.planner_free, reply.buffer_free) == expected
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), 0.0, -1.0])
+@pytest.mark.parametrize("name", ["boot_timeout_s", "connect_timeout_s", "min_timeout_s", "write_timeout_s"])
+def test_a_deadline_that_is_never_reached_is_refused_in_the_config(name, value):
+    """One ConfigError naming the setting (the CLI prints it; no traceback), not a session that waits for ever."""
+    from neatskin.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=rf"DriverConfig\.{name} is {value!r}; it must be a finite number > 0") as e:
+        DriverConfig(**{name: value})
+    assert e.value.field == name
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf")])
+def test_a_boot_wait_that_never_ends_is_refused_at_the_start(value):
+    from neatskin.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="the boot wait is .* s; it must be a finite number of seconds"):
+        LineProtocol(CONFIG).start_session(0.0, value)
+    assert LineProtocol(CONFIG).start_session(0.0, 0.0).command == "M110 N0"  # no wait: hello at once

@@ -16,8 +16,10 @@ lost lines and lost oks (recovery.py), and this (values live in jobs.py).
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Iterable
 
+from neatskin.errors import ConfigError
 from neatskin.marlin import errors as E
 from neatskin.marlin.jobs import Event, Failed, Job
 from neatskin.marlin.recovery import Recovery
@@ -38,6 +40,12 @@ class LineProtocol(Recovery):
         """Begin a session: wait for `start` (or boot_timeout_s), then `M110 N0`; the returned job is the handshake."""
         self.reset(now)
         wait_s = self.config.boot_timeout_s if boot_timeout_s is None else boot_timeout_s
+        if not math.isfinite(wait_s):  # nan or inf: the boot wait would never end on a silent port
+            raise ConfigError(
+                f"the boot wait is {wait_s!r} s; it must be a finite number of seconds",
+                field="boot_timeout_s",
+                fix="give the connect timeout a finite number of seconds (e.g. 5)",
+            )
         self._phase = "booting"
         self._boot_deadline = now + wait_s
         self._connect_deadline = now + wait_s + self.config.connect_timeout_s
