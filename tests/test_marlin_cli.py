@@ -264,3 +264,52 @@ def test_sim_printer_built_with_no_motion_before_homing(tmp_path):
 
     assert answer("--no-motion-before-homing") == b"echo:Home XYZ First\nok\n"
     assert answer() == b"ok\n"
+
+
+@pytest.mark.timeout(60)
+def test_printer_send_with_a_profile_refuses_a_move_outside_the_bed_before_anything_is_sent(tmp_path):
+    """`gcode check --profile`'s bounds check, before the port is opened: X 500 on a 220 mm bed and Z -5 below the
+    soft limit are each named with the file, the line and the fix, exit 1 as `gcode check`; the simulated
+    printer on its pty receives nothing. The same file inside the bed streams (the check is no blanket refusal)."""
+    import os
+
+    from neatskin.sim.printer import sim_printer_for_tests
+
+    profile = str(REPO / "protocols" / "printers" / "paper.toml")
+    lines = ["G28", "G0 Z10 F300", "G0 X100 Y100 F3000", "G0 X500 Y100 F3000", "G0 Z-5"]
+    offbed, inside = tmp_path / "offbed.gcode", tmp_path / "inside.gcode"
+    offbed.write_text("\n".join(lines) + "\n")
+    inside.write_text("\n".join(lines[:3] + ["G0 X200 Y100 F3000", "G0 Z5"]) + "\n")
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    sim = sim_printer_for_tests(time_mode="virtual")
+    path = sim.start_pty()
+    wire = tmp_path / "wire.log"
+    try:
+
+        def send(program, *extra):
+            return subprocess.run(
+                [sys.executable, "-m", "neatskin", "printer", "send", "--port", path, "--profile", profile, "-q"]
+                + ["--connect-timeout-s", "0.2", "--wire-log", str(wire), *extra, str(program)],
+                capture_output=True,
+                text=True,
+                env=env,
+                timeout=50,
+            )
+
+        refused = send(offbed)
+        assert refused.returncode == 1, refused.stderr
+        errors = refused.stderr.splitlines()
+        assert len(errors) == 2 and "Traceback" not in refused.stderr
+        assert errors[0].startswith(f"neatskin: error: {offbed}: [line 4]: 'G0 X500 Y100 F3000' moves X to 500 mm")
+        assert errors[1].startswith(f"neatskin: error: {offbed}: [line 5]: 'G0 Z-5' moves Z to -5 mm")
+        assert all("fix: regenerate the program" in e and f"gcode check {offbed} --profile" in e for e in errors)
+        assert sim.executed == [] and not wire.exists()  # nothing reached the printer; the port was not opened
+        assert send(offbed, "--from-line", "5").returncode == 1  # line 5 alone is still below the bed
+
+        done = send(inside)
+        assert done.returncode == 0, done.stderr
+        assert [t for _, t in sim.executed if not t.startswith("M110") and "neatskin-probe" not in t] == [
+            "G28", "G0 Z10 F300", "G0 X100 Y100 F3000", "G0 X200 Y100 F3000", "G0 Z5",
+        ]  # fmt: skip
+    finally:
+        sim.stop()
