@@ -62,6 +62,47 @@ def check_folder(folder: Path, resume: bool) -> None:
         )
 
 
+PROBE_BYTES = 4096  # one block: a full disk refuses it where an empty file would still be created
+
+
+def check_parts_writable(folder: Path, protocol: CampaignProtocol, *, resuming: bool) -> None:
+    """Before any motion: the folders the presses are written to (presses/, and waveforms/ with each of its
+    position folders when the protocol records waveforms) take a file. Each is probed with a hidden temp file
+    (`.write-probe.<random>.tmp`, which readers ignore), written, closed and removed; one that refuses is one
+    DataError naming the folder, the cause and the fix. Without it a resume homed, travelled and pressed once
+    before the first part failed to write, and threw that press away (HOSTILE #6)."""
+    from neatskin.datasets.durable import temp_path_for
+    from neatskin.datasets.paths import PRESSES_DIR, WAVEFORMS_DIR
+
+    folders = [folder / PRESSES_DIR]
+    if protocol.record_waveforms:
+        waveforms = folder / WAVEFORMS_DIR
+        folders.append(waveforms)
+        if waveforms.is_dir():
+            folders += sorted(p for p in waveforms.iterdir() if p.is_dir() and p.name.startswith("position_id="))
+    for where in folders:
+        target = where if where.is_dir() else where.parent  # a folder not made yet: the writer makes it there
+        probe = temp_path_for(target / ".write-probe")
+        what = "waveforms" if WAVEFORMS_DIR in where.relative_to(folder).parts else "presses"
+        try:
+            fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+            try:
+                os.write(fd, b"\0" * PROBE_BYTES)
+            finally:
+                os.close(fd)
+                probe.unlink(missing_ok=True)
+        except OSError as exc:
+            fix = str(write_error(exc, target).problems[0].fix)
+            if not resuming:  # a new campaign's folder is removed on this error: there is nothing to resume
+                fix = fix.replace("then resume", "then run the campaign again")
+            raise DataError(
+                f"cannot write in this folder, where the {what} go: {os.strerror(exc.errno or 0)}; "
+                "nothing was sent to the printer",
+                file=str(target),
+                fix=fix,
+            ) from exc
+
+
 def _staging_name(folder: Path) -> Path:
     import secrets
 
