@@ -313,3 +313,35 @@ def test_printer_send_with_a_profile_refuses_a_move_outside_the_bed_before_anyth
         ]  # fmt: skip
     finally:
         sim.stop()
+
+
+@pytest.mark.timeout(60)
+def test_printer_send_to_a_peer_acknowledging_lines_never_sent_is_one_error(tmp_path):
+    """The audit's peer: a banner, then `ok N<n+1000> P15 B3` to every line (a pty). Before: "sent 5 lines",
+    exit 0. Now one error, exit 4, naming the ok and the fix; the wire log shows no line after the handshake."""
+    import os
+
+    from neatskin.marlin.wirelog import read_wire_log
+    from neatskin.sim.scripted import DialectFirmware, FirmwareOnPty
+
+    program = tmp_path / "p.gcode"
+    program.write_text("G28\nG0 Z10 F300\nG0 X100 Y100 F3000\nG0 X120 Y100 F3000\nM400\n")
+    peer = FirmwareOnPty(DialectFirmware(mode="ahead"), boot=b"start\necho:Marlin 2.1.2.4\n")
+    wire = tmp_path / "wire.log"
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "neatskin", "printer", "send", "--port", peer.path, "-q"]
+            + ["--connect-timeout-s", "0.2", "--wire-log", str(wire), str(program)],
+            capture_output=True,
+            text=True,
+            env={**os.environ, "PYTHONPATH": str(REPO)},
+            timeout=50,
+        )
+    finally:
+        peer.close()
+    assert done.returncode == 4 and "Traceback" not in done.stderr, done.stderr
+    (line,) = done.stderr.splitlines()
+    assert line.startswith(f"neatskin: error: the printer and the host are out of step on {peer.path}: ")
+    assert "every `ok` named another line (the latest N1000)" in line and "no other program" in line
+    sent = b"".join(data for direction, data in read_wire_log(wire) if direction == ">")
+    assert set(sent.splitlines()) == {b"N0 M110 N0*125"}  # the handshake and its retries, no line of the file

@@ -88,6 +88,17 @@ class ConnectFailed(MarlinError):
     )
 
 
+class OutOfStep(MarlinError):
+    """An `ok N..` named a line the host never sent in this session: the two disagree on what ran."""
+
+    what = "the printer and the host are out of step"
+    fix = (
+        "the printer acknowledged a line number this host never sent: make sure no other program (OctoPrint, "
+        "Pronterface, a second neatskin) talks to the printer, reset it, home (G28) and run the command again "
+        "(a campaign: neatskin campaign resume FOLDER)"
+    )
+
+
 class PortBusy(PortMissing):
     """Another process holds the port (opened exclusively): nothing was sent."""
 

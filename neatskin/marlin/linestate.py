@@ -255,13 +255,28 @@ class LineProtocol(Recovery):
                 if self._resend.ok_after:
                     self._resend.due = now  # replay now: its `ok` can no longer be mistaken for the replay's
             return
+        if reply.number is not None and reply.number >= self._next_n and self._phase == "session":
+            # Marlin's ADVANCED_OK copies N from the line it ran: this line was never sent in this session (its
+            # M110 N0 began the numbering at 0)
+            self._fail_here(
+                E.OutOfStep,
+                f"the printer said {reply.text!r}, acknowledging line N{reply.number}, but the last line sent "
+                f"in this session was N{self._next_n - 1}",
+            )
+            return
         if not self._inflight:
             self.stats["stray_oks"] += 1
             return
         head = self._inflight[0]
         if reply.buffer_free is not None:
             self._queue_free = reply.buffer_free
-        if reply.number is not None:  # ADVANCED_OK names the line
+        if reply.number is not None:  # ADVANCED_OK names the line: Marlin copies it from the line it ran
+            if head.m110 and reply.number != head.n:
+                # the ok of a line from before this session (a host that left lines in the firmware's queue runs
+                # them first): only the M110's own ok starts the session
+                self.stats["stale_oks"] += 1
+                self._foreign_ok = reply.number
+                return
             self._advanced_ok_seen = True
             if reply.number < head.n:
                 self.stats["stale_oks"] += 1
