@@ -67,6 +67,28 @@ def positive_finite(text: str) -> float:
     return value
 
 
+def positive_count(text: str) -> int:
+    """argparse type of a count of things to do (`--limit`): a whole number of 1 or more."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number (give 1 or more)") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text} is not 1 or more (leave the option out for no limit)")
+    return value
+
+
+def tcp_port(text: str) -> int:
+    """argparse type of a TCP port to listen on: 0 (a free one) to 65535."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port number (give 1024 to 65535, or 0)") from None
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"{value} is not a TCP port (give 1024 to 65535, or 0 for a free one)")
+    return value
+
+
 def add_connect_timeout(parser: argparse.ArgumentParser, default: float | None, help: str) -> None:
     """--connect-timeout-s: how long to wait for the printer's boot banner after opening its port."""
     parser.add_argument(

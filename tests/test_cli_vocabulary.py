@@ -160,3 +160,47 @@ def test_a_connect_timeout_that_never_ends_or_never_starts_is_a_usage_error_befo
     finally:
         os.close(master)
         os.close(slave)
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "message"),
+    [
+        ("--limit", "-3", "argument --limit: -3 is not 1 or more (leave the option out for no limit)"),
+        ("--limit", "0", "argument --limit: 0 is not 1 or more (leave the option out for no limit)"),
+        ("--monitor-port", "99999", "argument --monitor-port: 99999 is not a TCP port (give 1024 to 65535, or 0"),
+        ("--monitor-port", "-1", "argument --monitor-port: -1 is not a TCP port (give 1024 to 65535, or 0"),
+    ],
+)
+def test_a_count_or_port_out_of_range_is_a_usage_error_before_anything_starts(tmp_path, option, value, message):
+    """Before: --limit -3 pressed 9 of 12 (todo[:-3]); --monitor-port 99999 printed the monitor's traceback and
+    the campaign went on. Now exit 2 naming the option; no campaign folder."""
+    done = _neatskin(
+        "campaign", "run", str(PROTOCOLS / "smoke.toml"), "--dry-run", "-o", str(tmp_path / "run"), "-q",
+        "--no-report", "--monitor", f"{option}={value}",
+    )  # fmt: skip
+    assert done.returncode == ExitCode.USAGE, done.stderr
+    assert message in done.stderr.splitlines()[-1] and "Traceback" not in done.stderr
+    assert not (tmp_path / "run").exists()
+    monitor = _neatskin("monitor", str(tmp_path), "--port", "70000")
+    assert monitor.returncode == ExitCode.USAGE and "argument --port: 70000 is not a TCP port" in monitor.stderr
+
+
+def test_a_monitor_port_in_use_names_monitor_port_before_anything_starts(tmp_path):
+    """On `campaign run` --port is the printer's serial port: the live page's port in use names --monitor-port,
+    exit 3, before the campaign folder exists."""
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        done = _neatskin(
+            "campaign", "run", str(PROTOCOLS / "smoke.toml"), "--dry-run", "-o", str(tmp_path / "run"), "-q",
+            "--no-report", "--monitor", "--monitor-port", str(port),
+        )  # fmt: skip
+    assert done.returncode == ExitCode.CONFIG, done.stderr
+    assert done.stderr.splitlines() == [
+        f"neatskin: error: [--monitor-port]: the live page cannot listen on 127.0.0.1:{port}: Address already in use "
+        "(fix: choose another port (--monitor-port 0 picks a free one), or stop the other monitor)"
+    ]
+    assert not (tmp_path / "run").exists()

@@ -7,7 +7,7 @@ import re
 from datetime import datetime
 from pathlib import Path
 
-from neatskin.cligroups import add_connect_timeout, add_out, add_quiet, command_group
+from neatskin.cligroups import add_connect_timeout, add_out, add_quiet, command_group, positive_count, tcp_port
 from neatskin.errors import CheckFailed, ConfigError, ExitCode
 from neatskin.stopsignals import as_ctrl_c
 
@@ -32,7 +32,9 @@ def register(subparsers) -> None:
     )
     add_out(run, "campaign folder (default: runs/<name>-<date>-<time>)")
     add_connect_timeout(run, None, "seconds to wait for the printer's boot banner (real rig default 5)")
-    run.add_argument("--limit", type=int, help="stop after this many presses (the campaign stays resumable)")
+    run.add_argument(
+        "--limit", type=positive_count, help="stop after this many presses, 1 or more (the campaign stays resumable)"
+    )
     run.add_argument("--no-report", action="store_true", help="skip the baseline report at the end")
     add_quiet(run)
     run.add_argument(
@@ -40,7 +42,13 @@ def register(subparsers) -> None:
         action="store_true",
         help="also serve the live page (neatskin monitor, in its own process) on 127.0.0.1 while it runs",
     )
-    run.add_argument("--monitor-port", type=int, default=8765, metavar="N", help="the live page's port (default 8765)")
+    run.add_argument(
+        "--monitor-port",
+        type=tcp_port,
+        default=8765,
+        metavar="N",
+        help="the live page's port (default 8765; 0 picks a free one)",
+    )
     run.set_defaults(handler=_run)
 
     resume = sub.add_parser("resume", help="finish an interrupted campaign, no press lost or duplicated")
@@ -184,6 +192,7 @@ def _start_monitor(out: Path, port: int):
     import sys
     import time
 
+    port = _monitor_port_free(port)
     proc = subprocess.Popen([sys.executable, "-m", "neatskin", "monitor", str(out), "--port", str(port)])
     deadline = time.monotonic() + 15.0
     while proc.poll() is None and time.monotonic() < deadline:
@@ -193,6 +202,27 @@ def _start_monitor(out: Path, port: int):
         except OSError:
             time.sleep(0.1)
     return proc
+
+
+def _monitor_port_free(port: int) -> int:
+    """The live page's port, checked here before anything starts (0: a free one, chosen here so the run knows
+    it): a port in use is one ConfigError naming --monitor-port (--port is the printer's here)."""
+    import errno
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        try:
+            probe.bind(("127.0.0.1", port))
+        except OSError as exc:
+            in_use = exc.errno == errno.EADDRINUSE
+            raise ConfigError(
+                f"the live page cannot listen on 127.0.0.1:{port}: {exc.strerror or exc}",
+                field="--monitor-port",
+                fix="choose another port (--monitor-port 0 picks a free one), or stop the other monitor"
+                if in_use
+                else "use a port above 1023 (default 8765)",
+            ) from exc
+        return int(probe.getsockname()[1])
 
 
 def default_campaign_folder(name: str, now: datetime | None = None) -> Path:
