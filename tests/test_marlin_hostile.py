@@ -87,6 +87,10 @@ def test_peer_turning_hostile_mid_stream_ends_in_one_named_error(serve, mode):
     }
     assert isinstance(info.value, expected[mode]), info.value
     assert info.value.last_line == 3 and info.value.last_command == PROGRAM[2]
+    if mode == "start":  # the fix says what a user of the CLI does (before: "call reconnect()", Python only)
+        assert "run the command again (a campaign: neatskin campaign resume FOLDER, which homes first" in str(
+            info.value
+        )
     assert firmware.lines_received <= 1 + 3 + QUICK.max_resends + 2  # bounded: no flood
 
 

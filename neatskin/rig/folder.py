@@ -7,6 +7,7 @@ A folder is created in one step: lock, inputs/ and manifest.json are built under
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import logging
 import os
@@ -47,8 +48,13 @@ def check_folder(folder: Path, resume: bool) -> None:
         raise ConfigError(
             f"{folder} is a file, not a campaign folder",
             file=str(folder),
-            field="--out",
-            fix="give --out a folder name that does not exist yet",
+            field="folder" if resume else "--out",
+            fix=(
+                "give the campaign folder that `neatskin campaign run` wrote (it holds manifest.json), not a "
+                "protocol or other file"
+                if resume
+                else "give --out a folder name that does not exist yet"
+            ),
         )
     if resume:
         return
@@ -93,14 +99,14 @@ def check_parts_writable(folder: Path, protocol: CampaignProtocol, *, resuming: 
                 probe.unlink(missing_ok=True)
         except OSError as exc:
             fix = str(write_error(exc, target).problems[0].fix)
-            if not resuming:  # a new campaign's folder is removed on this error: there is nothing to resume
-                fix = fix.replace("then resume", "then run the campaign again")
-            raise DataError(
+            error = DataError(
                 f"cannot write in this folder, where the {what} go: {os.strerror(exc.errno or 0)}; "
                 "nothing was sent to the printer",
                 file=str(target),
                 fix=fix,
-            ) from exc
+            )
+            # a new campaign's folder is removed on this error: there is nothing to resume
+            raise (error if resuming else for_a_new_campaign(error)) from exc
 
 
 def _staging_name(folder: Path) -> Path:
@@ -118,9 +124,26 @@ def _remove_stale_staging(folder: Path) -> None:
             shutil.rmtree(entry, ignore_errors=True)
 
 
+def for_a_new_campaign(error: DataError) -> DataError:
+    """A write error met while a new campaign's folder is made: that folder is removed, so there is nothing to
+    resume; the fix says to run the campaign again instead."""
+    problems = [
+        dataclasses.replace(p, fix=p.fix.replace("then resume", "then run the campaign again")) if p.fix else p
+        for p in error.problems
+    ]
+    return DataError(problems=problems)
+
+
 def create_campaign_folder(protocol: CampaignProtocol, plan: Plan, folder: Path, rig_kind: str) -> CampaignLock:
     """Make the campaign folder in one atomic step: lock, inputs/ and manifest.json are built under a hidden
     staging name and renamed into place, so a kill leaves either no campaign folder or one that resumes."""
+    try:
+        return _create_campaign_folder(protocol, plan, folder, rig_kind)
+    except DataError as exc:
+        raise for_a_new_campaign(exc) from exc
+
+
+def _create_campaign_folder(protocol: CampaignProtocol, plan: Plan, folder: Path, rig_kind: str) -> CampaignLock:
     _remove_stale_staging(folder)
     staging = _staging_name(folder)
     try:

@@ -10,6 +10,7 @@ references is reported at once, each with its file, field and fix, before anythi
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import math
 from dataclasses import dataclass
@@ -276,6 +277,18 @@ def _wiring_layout_problems(wiring: Any, layout: Any, wiring_path: Path) -> list
     return []
 
 
+def _path_fix(exc: BaseException) -> str:
+    """The fix for a [files] path the OS refused, by its reason."""
+    code = getattr(exc, "errno", None)
+    if code in (errno.EACCES, errno.EPERM):
+        return "give your user read permission on the file and search (x) permission on each folder of its path"
+    if code == errno.ELOOP or isinstance(exc, RuntimeError):
+        return "the path is a loop of symbolic links: point it at the TOML file itself"
+    if code == errno.ENAMETOOLONG:
+        return "give a shorter path to an existing TOML file"
+    return "give the path of an existing, readable TOML file"
+
+
 def _referenced_files(
     files: schema.FilesTable | None, path: Path, overrides: dict[str, Path], problems: list[Problem]
 ) -> dict[str, Any]:
@@ -289,13 +302,13 @@ def _referenced_files(
         try:
             resolved = Path(overrides.get(key) or (path.parent / rel)).resolve()
             is_file = resolved.is_file()
-        except OSError as exc:  # a name too long, a loop of links
+        except (OSError, RuntimeError) as exc:  # a name too long, no permission, a loop of links (3.11: RuntimeError)
             problems.append(
                 Problem(
-                    f"{key} file path cannot be used: {exc.strerror or exc}",
+                    f"{key} file path cannot be used: {getattr(exc, 'strerror', None) or exc}",
                     str(path),
                     f"files.{key}",
-                    "give a shorter path to an existing TOML file",
+                    _path_fix(exc),
                 )
             )
             continue
