@@ -512,3 +512,31 @@ def test_a_wiring_file_without_permission_or_in_a_loop_of_links_gets_its_own_fix
         looped = _neatskin(*command[:2], str(smoke), *command[2:])
         assert looped.returncode in (1, 3) and "Traceback" not in looped.stderr, looped.stderr
         assert "the path is a loop of symbolic links: point it at the TOML file itself" in looped.stderr
+
+
+@pytest.mark.parametrize(
+    "old, new, field",
+    [
+        ('preset = "ideal"', 'preset = "idael"', "scene.preset"),
+        ("placement_error_mm = 0.0", "placement_error_mm = nan", "scene.placement_error_mm"),
+        ('signal = "waveforms"', 'signal = "wavefroms"', "scene.signal"),
+    ],
+)
+def test_a_bad_scene_value_is_one_error_not_a_second_about_record_waveforms(protocols, capsys, old, new, field):
+    """smoke.toml records waveforms with signal = "waveforms": a bad preset, a NaN or a misspelt signal is that
+    one error; the scene's default signal ("features") standing in must not add 'record.waveforms = true needs
+    the waveforms to be simulated' (HOSTILE #15)."""
+    smoke = protocols / "smoke.toml"
+    edit(smoke, old, new)
+    assert main(["campaign", "check", str(smoke)]) == 1
+    errors = capsys.readouterr().err.splitlines()
+    assert len(errors) == 1 and f"[{field}]:" in errors[0], errors
+
+
+def test_features_with_recorded_waveforms_is_still_refused(protocols, capsys):
+    """The negative control: the cross-check itself still fires when the scene really says features."""
+    smoke = protocols / "smoke.toml"
+    edit(smoke, 'signal = "waveforms"', 'signal = "features"')
+    assert main(["campaign", "check", str(smoke)]) == 1
+    (error,) = capsys.readouterr().err.splitlines()
+    assert "[scene.signal]: record.waveforms = true needs the waveforms to be simulated" in error

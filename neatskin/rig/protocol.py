@@ -141,7 +141,12 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
         problems += _timing_problems(excitation_t, acq, source)
     record: schema.RecordTable = tables.get("record") or schema.RecordTable()
     fsr: schema.FsrTable = tables.get("fsr") or schema.FsrTable()
-    scene, scene_problems = parse_scene(tables.get("scene", {}), source, record_waveforms=record.waveforms)
+    # a [scene] that failed its schema (an invalid preset, a NaN) is not read: its signal is not known, so the
+    # cross-check with [record] waits for the fix instead of blaming the default's signal
+    scene_failed = "scene" not in tables and isinstance(data.get("scene"), dict)
+    scene, scene_problems = parse_scene(
+        tables.get("scene", {}), source, record_waveforms=record.waveforms and not scene_failed
+    )
     problems.extend(scene_problems)
 
     layout, wiring, printer, press = _load_components(data, source, file_paths, problems)
