@@ -27,7 +27,8 @@ def parse_scene(raw: Mapping[str, Any] | Scene, source: str, *, record_waveforms
     A bad value is in the problems; the scene then holds the default in its place."""
     problems: list[Problem] = []
     if isinstance(raw, Scene):
-        scene, signal = raw, raw.signal
+        scene = raw
+        signal: str | None = raw.signal
     else:
         good, problems = parse_valid(Scene, raw, source, "scene")  # a bad value left out: the default stands in
         built, cross = build(Scene, good, source, "scene")
