@@ -89,8 +89,20 @@ def tcp_port(text: str) -> int:
     return value
 
 
+# What --connect-timeout-s does not bound, said in its help: the handshake after the boot wait (the Marlin
+# driver's DriverConfig defaults: M110 N0 sent 1 + probe_attempts times, min_timeout_s each; connect_timeout_s
+# while the printer only says busy). tests/test_cli_vocabulary.py holds these figures to DriverConfig.
+HANDSHAKE_TRIES, HANDSHAKE_TRY_S, HANDSHAKE_BUSY_MAX_S = 4, 2.0, 30.0
+CONNECT_AFTER_BOOT = (
+    f"; this bounds only the wait for `start`: the handshake after it (M110 N0) gives up on a silent or garbled "
+    f"printer {HANDSHAKE_TRIES * HANDSHAKE_TRY_S:g} s later ({HANDSHAKE_TRIES} tries of {HANDSHAKE_TRY_S:g} s), "
+    f"on one that only says busy {HANDSHAKE_BUSY_MAX_S:g} s later"
+)
+
+
 def add_connect_timeout(parser: argparse.ArgumentParser, default: float | None, help: str) -> None:
-    """--connect-timeout-s: how long to wait for the printer's boot banner after opening its port."""
+    """--connect-timeout-s: how long to wait for the printer's boot banner after opening its port; its help says
+    what it does not bound (the handshake after it)."""
     parser.add_argument(
         "--connect-timeout-s",
         "--connect-timeout",
@@ -99,7 +111,7 @@ def add_connect_timeout(parser: argparse.ArgumentParser, default: float | None, 
         type=positive_finite,
         default=default,
         metavar="S",
-        help=help,
+        help=help + CONNECT_AFTER_BOOT,
     )
 
 

@@ -408,3 +408,32 @@ def test_a_handshake_answered_only_with_other_lines_oks_is_out_of_step():
     failure = error(proto, hello)
     assert isinstance(failure, E.OutOfStep), failure
     assert "'M110 N0' (line N0) was sent 3 times and every `ok` named another line (the latest N1000)" in str(failure)
+
+
+@pytest.mark.parametrize("peer", ["silent", "busy"])
+def test_the_connect_help_states_the_handshake_limits_the_protocol_keeps(peer):
+    """--connect-timeout-s bounds the wait for `start` only; its help (cligroups.CONNECT_AFTER_BOOT) states what
+    follows, and this holds those figures to the protocol on its own clock, with DriverConfig's defaults: a
+    silent printer fails 4 x 2 s after the boot wait (NoAnswer), one that only says busy 30 s after it
+    (ConnectFailed)."""
+    from neatskin import cligroups
+
+    config = DriverConfig()
+    assert (cligroups.HANDSHAKE_TRIES, cligroups.HANDSHAKE_TRY_S) == (1 + config.probe_attempts, config.min_timeout_s)
+    assert cligroups.HANDSHAKE_BUSY_MAX_S == config.connect_timeout_s
+    boot_wait_s, step_s = 5.0, 0.01
+    proto = LineProtocol(config)
+    hello = proto.start_session(0.0, boot_wait_s)
+    now, last_busy = 0.0, 0.0
+    while proto.failure is None and now < 100:
+        now = round(now + step_s, 2)
+        if peer == "busy" and now - last_busy >= 2.0:  # Marlin's keep-alive, every 2 s
+            proto.receive(b"echo:busy: processing\n", now)
+            last_busy = now
+        proto.tick(now)
+        proto.data_to_send()
+    expected_s = boot_wait_s + (
+        cligroups.HANDSHAKE_TRIES * cligroups.HANDSHAKE_TRY_S if peer == "silent" else cligroups.HANDSHAKE_BUSY_MAX_S
+    )
+    assert isinstance(error(proto, hello), E.NoAnswer if peer == "silent" else E.ConnectFailed)
+    assert expected_s <= now <= expected_s + 2 * step_s, now
