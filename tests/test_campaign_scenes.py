@@ -277,3 +277,33 @@ def test_a_lost_terminal_stops_the_campaign_as_ctrl_c_does(tmp_path):
     _assert_ends_with_lift_and_park(folder / "wire.log", path)
     assert resume_campaign(folder, progress=False, report=False).completed == 240
     assert pd.read_parquet(folder / "presses.parquet").press_id.is_unique
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(180)
+def test_sigterm_during_resume_stops_it_as_ctrl_c_does(tmp_path):
+    """`campaign resume` (its own handler) under SIGTERM: exit 130, lift and park, still resumable, and the
+    campaign completes with every press once."""
+    path = make_protocol(tmp_path, *FEATURES, ("repeats = 2", "repeats = 40"))
+    folder = tmp_path / "run"
+    first = run_campaign(load_protocol(path), folder, progress=False, report=False, limit=3)
+    assert first.completed == 3
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "neatskin", "campaign", "resume", str(folder), "--no-report", "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and len(list((folder / "presses").glob("part-*.parquet"))) < 6:
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "Traceback" not in stderr, stderr
+    assert "SIGTERM: press" in stderr and "interrupted" in stdout
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert manifest["status"] == "interrupted" and 3 < manifest["counts"]["completed"] < 240
+    _assert_ends_with_lift_and_park(folder / "wire.log", path)
+    assert resume_campaign(folder, progress=False, report=False).completed == 240
+    rows = pd.read_parquet(folder / "presses.parquet")
+    assert len(rows) == 240 and rows.press_id.is_unique
