@@ -15,6 +15,7 @@ has a deadline; its failure, death or silence is one HardwareError naming the pr
 
 from __future__ import annotations
 
+import atexit
 import collections
 import contextlib
 import importlib
@@ -24,6 +25,7 @@ import os
 import signal
 import threading
 import time
+import weakref
 from collections.abc import Iterator
 from multiprocessing.connection import Connection, wait
 from typing import Any, Protocol
@@ -128,6 +130,7 @@ class SkinWorker:
         adopted = _take_prestarted(self.context)
         process, ours = adopted if adopted is not None else _launch(self.context)
         self._process, self._conn = process, ours
+        _LIVE.add(self)
         log.debug("skin worker %s, pid %s", "adopted" if adopted else "started", process.pid)
         # the factory (the protocol, ~70 kB) goes over our pipe, not in spawn's start-up data: spawn writes that
         # to a pipe the child reads only after importing the main module, so a payload over the pipe's 64 kB
@@ -266,6 +269,19 @@ def _launch(context: str, preload: tuple[str, ...] = ()) -> tuple[Any, Connectio
 
 # at most one worker launched ahead of its factory (`prestart`): (context, process, our end of its pipe)
 _PRESTARTED: list[tuple[str, Any, Connection]] = []
+_LIVE: weakref.WeakSet[SkinWorker] = weakref.WeakSet()  # workers started and not closed yet
+
+
+def _close_at_exit() -> None:
+    """At interpreter exit, end every worker this process still holds (closing the pipe, then kill()). The
+    workers ignore SIGTERM, so multiprocessing's own exit hook (terminate, then join) would wait for ever on one
+    left open (a campaign refused after the prestart); registered after multiprocessing's, this runs first."""
+    discard_prestarted()
+    for worker in list(_LIVE):
+        worker.close()
+
+
+atexit.register(_close_at_exit)
 
 
 SKIN_WORKER_ENV = "NEATSKIN_SKIN_WORKER"  # on | off: force the dry run's skin worker either way (benchmarks)
