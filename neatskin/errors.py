@@ -97,7 +97,7 @@ class ExitCode(IntEnum):
     CONFIG = 3  # ConfigError: a protocol, layout, wiring or profile file (or an option's value) is wrong
     HARDWARE = 4  # HardwareError: the printer, the serial line or the DAQ failed or is missing
     DATA = 5  # DataError: a dataset or campaign folder is malformed, or cannot be written
-    INTERRUPTED = 130  # Ctrl-C, SIGTERM or `campaign stop` (128 + SIGINT); a campaign stays resumable
+    INTERRUPTED = 130  # Ctrl-C, SIGTERM, SIGHUP or `campaign stop` (128 + SIGINT); a campaign stays resumable
     BROKEN_PIPE = 141  # the reader of the output went away (`| head`; 128 + SIGPIPE)
 
 

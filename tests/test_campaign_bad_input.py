@@ -445,3 +445,122 @@ def test_a_loop_of_links_in_files_is_one_config_error_naming_the_field(protocols
     assert main(["campaign", "resume", str(protocols / "loop.toml"), "--no-report"]) == 5
     err = capsys.readouterr().err
     assert "Traceback" not in err and f"{protocols / 'loop.toml'}: not a campaign folder" in err
+
+
+# ---- fix texts that fit their failure (HOSTILE #14): each says what the user can do, through the real CLI --------
+
+
+def _neatskin(*argv, privileged=True, cwd=None):
+    """`neatskin ARGV` in a child; privileged=False: as root without CAP_DAC_OVERRIDE (mode bits then bind it)."""
+    import subprocess
+    import sys
+
+    env = {**os.environ, "PYTHONPATH": str(PROTOCOLS.parent)}
+    prefix = []
+    if not privileged and os.geteuid() == 0:
+        if shutil.which("setpriv") is None:
+            pytest.skip("root without setpriv: mode bits cannot bind this test")
+        caps = "-dac_override,-dac_read_search"
+        prefix = ["setpriv", f"--inh-caps={caps}", f"--bounding-set={caps}"]
+    return subprocess.run(
+        [*prefix, sys.executable, "-m", "neatskin", *argv],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+        cwd=cwd,
+    )
+
+
+@pytest.mark.parametrize("port", ["plain", os.devnull])
+def test_a_file_given_as_the_serial_port_is_not_a_cable_problem(tmp_path, port):
+    program = tmp_path / "p.gcode"
+    program.write_text("G28\n")
+    if port == "plain":
+        port = str(tmp_path / "plain")
+        (tmp_path / "plain").write_text("")
+    done = _neatskin("printer", "send", str(program), "--port", port, "-q")
+    assert done.returncode == 4, done.stderr
+    assert done.stderr.startswith(f"neatskin: error: not a serial port {port!r}: ")
+    assert "nothing was sent (fix: give the printer's serial device (ls /dev/ttyUSB* /dev/ttyACM*)" in done.stderr
+    assert "USB cable" not in done.stderr and "Traceback" not in done.stderr
+
+
+def test_resume_given_a_protocol_file_asks_for_the_campaign_folder(tmp_path):
+    done = _neatskin("campaign", "resume", str(PROTOCOLS / "smoke.toml"))
+    assert done.returncode == 3, done.stderr
+    assert "[folder]:" in done.stderr and "--out" not in done.stderr  # resume has no --out
+    assert "give the campaign folder that `neatskin campaign run` wrote (it holds manifest.json)" in done.stderr
+
+
+def test_a_new_campaign_that_cannot_be_written_says_run_it_again_not_resume(tmp_path):
+    """The new folder is removed on the error: there is nothing to resume."""
+    parent = tmp_path / "ro"
+    parent.mkdir()
+    parent.chmod(0o555)
+    try:
+        done = _neatskin(
+            "campaign", "run", str(PROTOCOLS / "smoke.toml"), "--dry-run", "-o", str(parent / "x"), "-q",
+            "--no-report", privileged=False,
+        )  # fmt: skip
+    finally:
+        parent.chmod(0o755)
+    assert done.returncode == 5, done.stderr
+    assert "Permission denied (fix: give your user write permission on the folder (chmod u+w), then run the " in (
+        done.stderr
+    )
+    assert "resume" not in done.stderr and not list(parent.iterdir())
+
+
+def test_a_wiring_file_without_permission_or_in_a_loop_of_links_gets_its_own_fix(protocols):
+    """Before: 'Permission denied (fix: give a shorter path ...)', and a loop of links was a RuntimeError
+    traceback (Python 3.11's Path.resolve) in campaign check, run and plan."""
+    locked = protocols / "locked"
+    locked.mkdir()
+    shutil.copy(protocols / "wiring" / "paper.toml", locked / "w.toml")
+    smoke = protocols / "smoke.toml"
+    edit(smoke, 'wiring = "wiring/paper.toml"', 'wiring = "locked/w.toml"')
+    locked.chmod(0)
+    try:
+        denied = _neatskin("campaign", "check", str(smoke), privileged=False)
+    finally:
+        locked.chmod(0o755)
+    assert denied.returncode == 1, denied.stderr
+    assert "[files.wiring]: wiring file path cannot be used: Permission denied (fix: give your user read " in (
+        denied.stderr
+    )
+    assert "shorter path" not in denied.stderr
+    (protocols / "loop.toml").symlink_to("loop.toml")
+    edit(smoke, 'wiring = "locked/w.toml"', 'wiring = "loop.toml"')
+    for command in (["campaign", "check"], ["campaign", "run", "--dry-run", "-o", str(protocols / "r")]):
+        looped = _neatskin(*command[:2], str(smoke), *command[2:])
+        assert looped.returncode in (1, 3) and "Traceback" not in looped.stderr, looped.stderr
+        assert "the path is a loop of symbolic links: point it at the TOML file itself" in looped.stderr
+
+
+@pytest.mark.parametrize(
+    "old, new, field",
+    [
+        ('preset = "ideal"', 'preset = "idael"', "scene.preset"),
+        ("placement_error_mm = 0.0", "placement_error_mm = nan", "scene.placement_error_mm"),
+        ('signal = "waveforms"', 'signal = "wavefroms"', "scene.signal"),
+    ],
+)
+def test_a_bad_scene_value_is_one_error_not_a_second_about_record_waveforms(protocols, capsys, old, new, field):
+    """smoke.toml records waveforms with signal = "waveforms": a bad preset, a NaN or a misspelt signal is that
+    one error; the scene's default signal ("features") standing in must not add 'record.waveforms = true needs
+    the waveforms to be simulated' (HOSTILE #15)."""
+    smoke = protocols / "smoke.toml"
+    edit(smoke, old, new)
+    assert main(["campaign", "check", str(smoke)]) == 1
+    errors = capsys.readouterr().err.splitlines()
+    assert len(errors) == 1 and f"[{field}]:" in errors[0], errors
+
+
+def test_features_with_recorded_waveforms_is_still_refused(protocols, capsys):
+    """The negative control: the cross-check itself still fires when the scene really says features."""
+    smoke = protocols / "smoke.toml"
+    edit(smoke, 'signal = "waveforms"', 'signal = "features"')
+    assert main(["campaign", "check", str(smoke)]) == 1
+    (error,) = capsys.readouterr().err.splitlines()
+    assert "[scene.signal]: record.waveforms = true needs the waveforms to be simulated" in error

@@ -2,6 +2,7 @@
 a protocol without an FSR says so; Ctrl-C leaves a resumable campaign with the probe lifted."""
 
 import json
+import re
 import shutil
 import signal
 import subprocess
@@ -157,9 +158,29 @@ def test_real_run_never_builds_a_simulator(tmp_path):
     assert "neatskin: error:" in out.stderr and "nidaqmx" in out.stderr
 
 
+def _sent_commands(wire_log) -> list[str]:
+    """The command lines the host sent, in order, without their line numbers and checksums."""
+    sent = b"".join(data for direction, data in read_wire_log(wire_log) if direction == ">").decode()
+    return [re.sub(r"^N\d+ ", "", line).split("*")[0] for line in sent.splitlines() if line.strip()]
+
+
+def _assert_ends_with_lift_and_park(wire_log, protocol_path) -> None:
+    """The last press ran to its lift phase, then the probe went up and parked (the postamble's first three
+    moves and M400), and nothing came after."""
+    from neatskin.rig.plan import build_plan
+
+    post = build_plan(load_protocol(protocol_path)).program.postamble
+    sent = _sent_commands(wire_log)
+    last_lift = max(i for i, line in enumerate(sent) if "phase=lift" in line)
+    assert sent[last_lift + 1 :] == ["G0 Z15.5 F300", "M400", *post[:3], "M400"], sent[last_lift - 8 :]
+    assert post[1].startswith("G0 X") and float(post[2].split("Z")[1].split()[0]) >= 15.5  # park, then up
+
+
+# Ctrl-C; SIGTERM (systemctl stop, docker stop, timeout); SIGHUP (a dropped SSH session): one stop path
 @pytest.mark.slow
 @pytest.mark.timeout(180)
-def test_ctrl_c_stops_after_the_press_in_flight_and_resumes(tmp_path):
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP], ids=lambda s: s.name)
+def test_ctrl_c_stops_after_the_press_in_flight_and_resumes(tmp_path, signum):
     path = make_protocol(tmp_path, *FEATURES, ("repeats = 2", "repeats = 40"))
     folder = tmp_path / "run"
     proc = subprocess.Popen(
@@ -183,16 +204,106 @@ def test_ctrl_c_stops_after_the_press_in_flight_and_resumes(tmp_path):
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and len(list((folder / "presses").glob("part-*.parquet"))) < 3:
         time.sleep(0.02)
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(signum)
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 130, stderr
-    assert "interrupted" in stdout and "resume" in stdout
+    assert "interrupted" in stdout and "resume" in stdout and "Traceback" not in stderr
+    assert f"{signum.name}: press" in stderr and "the probe lifts and parks" in stderr
     manifest = json.loads((folder / "manifest.json").read_text())
     done = len(list((folder / "presses").glob("part-*.parquet")))
     assert manifest["status"] == "interrupted" and manifest["counts"]["completed"] == done < 240
-    sent = [data for direction, data in read_wire_log(folder / "wire.log") if direction == ">"]
-    assert b"phase=lift" in sent[-4] or b"phase=lift" in b"".join(sent[-6:])  # the last press finished with its lift
-    assert b"G0 Z" in b"".join(sent[-3:])  # and the probe was sent up to the safe height after it
+    _assert_ends_with_lift_and_park(folder / "wire.log", path)
     result = resume_campaign(folder, progress=False, report=False)
     rows = pd.read_parquet(folder / "presses.parquet")
     assert result.completed == 240 and rows.press_id.is_unique and len(rows) == 240
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(180)
+def test_a_lost_terminal_stops_the_campaign_as_ctrl_c_does(tmp_path):
+    """A dropped SSH session: the campaign's controlling terminal (a real pty, progress bar on) hangs up, the kernel
+    sends SIGHUP, and writes to that terminal fail from then on. The press in flight finishes, the probe lifts and
+    parks, the manifest says interrupted (exit 130, no traceback on a dead terminal), and resume completes it."""
+    import fcntl
+    import os
+    import pty
+    import struct
+    import termios
+    import threading
+
+    path = make_protocol(tmp_path, *FEATURES, ("repeats = 2", "repeats = 40"))
+    folder = tmp_path / "run"
+    master, slave = pty.openpty()
+    fcntl.ioctl(master, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 120, 0, 0))  # a terminal 120 columns wide
+
+    def controlling_terminal() -> None:  # in the child, after setsid: the pty becomes its terminal
+        fcntl.ioctl(0, termios.TIOCSCTTY, 0)
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "neatskin", "campaign", "run", str(path), "--dry-run", "--out", str(folder)]
+        + ["--no-report"],
+        stdin=slave,
+        stdout=slave,
+        stderr=slave,
+        start_new_session=True,
+        preexec_fn=controlling_terminal,
+    )
+    os.close(slave)
+    shown = bytearray()
+
+    def drain() -> None:  # the terminal's reader, until the terminal goes away
+        try:
+            while chunk := os.read(master, 4096):
+                shown.extend(chunk)
+        except OSError:
+            pass
+
+    reader = threading.Thread(target=drain, daemon=True)
+    reader.start()
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and len(list((folder / "presses").glob("part-*.parquet"))) < 3:
+            time.sleep(0.02)
+        assert proc.poll() is None, bytes(shown)
+        os.close(master)  # the hang-up
+        assert proc.wait(60) == 130
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert b"press" in bytes(shown)  # the progress bar was on the terminal
+    manifest = json.loads((folder / "manifest.json").read_text())
+    done = len(list((folder / "presses").glob("part-*.parquet")))
+    assert manifest["status"] == "interrupted" and manifest["counts"]["completed"] == done < 240
+    _assert_ends_with_lift_and_park(folder / "wire.log", path)
+    assert resume_campaign(folder, progress=False, report=False).completed == 240
+    assert pd.read_parquet(folder / "presses.parquet").press_id.is_unique
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(180)
+def test_sigterm_during_resume_stops_it_as_ctrl_c_does(tmp_path):
+    """`campaign resume` (its own handler) under SIGTERM: exit 130, lift and park, still resumable, and the
+    campaign completes with every press once."""
+    path = make_protocol(tmp_path, *FEATURES, ("repeats = 2", "repeats = 40"))
+    folder = tmp_path / "run"
+    first = run_campaign(load_protocol(path), folder, progress=False, report=False, limit=3)
+    assert first.completed == 3
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "neatskin", "campaign", "resume", str(folder), "--no-report", "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and len(list((folder / "presses").glob("part-*.parquet"))) < 6:
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "Traceback" not in stderr, stderr
+    assert "SIGTERM: press" in stderr and "interrupted" in stdout
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert manifest["status"] == "interrupted" and 3 < manifest["counts"]["completed"] < 240
+    _assert_ends_with_lift_and_park(folder / "wire.log", path)
+    assert resume_campaign(folder, progress=False, report=False).completed == 240
+    rows = pd.read_parquet(folder / "presses.parquet")
+    assert len(rows) == 240 and rows.press_id.is_unique

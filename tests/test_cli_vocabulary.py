@@ -115,3 +115,96 @@ def test_the_docs_and_the_help_list_every_exit_code(code):
     table = (ROOT / "docs" / "cli.md").read_text()
     assert f"| {int(code)} | `{code.name}` |" in table
     assert f"{int(code)} {code.name.lower().replace('_', ' ')}" in " ".join(build_parser().format_help().split())
+
+
+def _is_a_time_limit(action: argparse.Action) -> bool:
+    """An option whose value is a timeout, a deadline or a time limit (seconds or hours)."""
+    dest = action.dest or ""
+    return any(word in dest for word in ("timeout", "deadline")) or dest.endswith(("_hours", "max_s"))
+
+
+def test_every_time_limit_option_takes_only_a_finite_number_above_zero():
+    """nan or inf would never be reached (a silent port waited on for ever), 0 or less gives up at once."""
+    from neatskin.cligroups import positive_finite
+
+    limits = [(path, action) for path, _, action in _walk(build_parser()) if action and _is_a_time_limit(action)]
+    assert {"connect_timeout_s", "max_hours"} <= {action.dest for _, action in limits}
+    assert all(action.type is positive_finite for _, action in limits), [
+        (path, action.dest) for path, action in limits if action.type is not positive_finite
+    ]
+
+
+@pytest.mark.parametrize("value", ["inf", "nan", "0", "-5", "5s"])
+def test_a_connect_timeout_that_never_ends_or_never_starts_is_a_usage_error_before_the_port(tmp_path, value):
+    """A silent port (a pty whose master is open and never answers): refused at once, exit 2, naming the option
+    by its shown spelling, nothing written to the port and no campaign folder made."""
+    import pty
+
+    master, slave = pty.openpty()
+    port = os.ttyname(slave)
+    program = tmp_path / "p.gcode"
+    program.write_text("G28\n")
+    try:
+        send = _neatskin("printer", "send", str(program), "--port", port, "--connect-timeout-s", value, "-q")
+        run = _neatskin(
+            "campaign", "run", str(PROTOCOLS / "smoke.toml"), "--port", port, "--daq", "simulated", "-o",
+            str(tmp_path / "run"), "--no-report", "-q", "--connect-timeout", value,
+        )  # fmt: skip
+        for done in (send, run):
+            assert done.returncode == ExitCode.USAGE, done.stderr
+            assert done.stderr.splitlines()[-1].endswith(
+                f"error: argument --connect-timeout-s: {value!r} is not a number (give a finite number > 0, e.g. 5)"
+                if value == "5s"
+                else f"error: argument --connect-timeout-s: {value} is not a finite number > 0 (give e.g. 5)"
+            ), done.stderr
+        os.set_blocking(master, False)
+        with pytest.raises(BlockingIOError):
+            os.read(master, 1024)  # not a byte reached the printer's port
+        assert not (tmp_path / "run").exists()
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "message"),
+    [
+        ("--limit", "-3", "argument --limit: -3 is not 1 or more (leave the option out for no limit)"),
+        ("--limit", "0", "argument --limit: 0 is not 1 or more (leave the option out for no limit)"),
+        ("--monitor-port", "99999", "argument --monitor-port: 99999 is not a TCP port (give 1024 to 65535, or 0"),
+        ("--monitor-port", "-1", "argument --monitor-port: -1 is not a TCP port (give 1024 to 65535, or 0"),
+    ],
+)
+def test_a_count_or_port_out_of_range_is_a_usage_error_before_anything_starts(tmp_path, option, value, message):
+    """Before: --limit -3 pressed 9 of 12 (todo[:-3]); --monitor-port 99999 printed the monitor's traceback and
+    the campaign went on. Now exit 2 naming the option; no campaign folder."""
+    done = _neatskin(
+        "campaign", "run", str(PROTOCOLS / "smoke.toml"), "--dry-run", "-o", str(tmp_path / "run"), "-q",
+        "--no-report", "--monitor", f"{option}={value}",
+    )  # fmt: skip
+    assert done.returncode == ExitCode.USAGE, done.stderr
+    assert message in done.stderr.splitlines()[-1] and "Traceback" not in done.stderr
+    assert not (tmp_path / "run").exists()
+    monitor = _neatskin("monitor", str(tmp_path), "--port", "70000")
+    assert monitor.returncode == ExitCode.USAGE and "argument --port: 70000 is not a TCP port" in monitor.stderr
+
+
+def test_a_monitor_port_in_use_names_monitor_port_before_anything_starts(tmp_path):
+    """On `campaign run` --port is the printer's serial port: the live page's port in use names --monitor-port,
+    exit 3, before the campaign folder exists."""
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        done = _neatskin(
+            "campaign", "run", str(PROTOCOLS / "smoke.toml"), "--dry-run", "-o", str(tmp_path / "run"), "-q",
+            "--no-report", "--monitor", "--monitor-port", str(port),
+        )  # fmt: skip
+    assert done.returncode == ExitCode.CONFIG, done.stderr
+    assert done.stderr.splitlines() == [
+        f"neatskin: error: [--monitor-port]: the live page cannot listen on 127.0.0.1:{port}: Address already in use "
+        "(fix: choose another port (--monitor-port 0 picks a free one), or stop the other monitor)"
+    ]
+    assert not (tmp_path / "run").exists()

@@ -65,3 +65,18 @@ def test_two_runs_into_one_folder_at_once_name_the_run_that_holds_it(tmp_path):
         assert not list(tmp_path.glob(".run.staging-*"))  # the loser cleaned up its staging folder
     finally:
         first.release()
+
+
+@pytest.mark.parametrize("action", ["pause", "stop", "continue"])
+def test_a_manifest_that_is_a_folder_is_refused_at_once_not_waited_for(tmp_path, capsys, action):
+    """Before: `campaign stop` waited its 10 s for a manifest.json that was there all along (a folder), then said
+    "no manifest.json". Now: one error naming it, no wait (the wait's sleep is never called), nothing written."""
+    (tmp_path / "manifest.json").mkdir()
+    slept: list[float] = []
+    with pytest.raises(DataError) as info:
+        request_control(tmp_path, action, wait_s=10, sleep=slept.append)
+    assert slept == [] and str(info.value).startswith(f"{tmp_path / 'manifest.json'}: manifest.json is a folder")
+    assert main(["campaign", action, str(tmp_path)]) == ExitCode.DATA  # the CLI's request: the same refusal
+    err = capsys.readouterr().err
+    assert err.startswith("neatskin: error: ") and "manifest.json is a folder, not a campaign's manifest" in err
+    assert not (tmp_path / "control.json").exists()

@@ -233,10 +233,11 @@ def test_sigkill_of_the_campaign_leaves_no_worker_and_resume_equals_inline(
     try:
         children = _children_once_pressing(proc, folder)
         assert children
-        for pid in children:  # the worker ignores Ctrl-C (SIGINT) from its start
+        for pid in children:  # the worker ignores Ctrl-C (SIGINT), SIGTERM and SIGHUP from its start
             status = Path(f"/proc/{pid}/status").read_text()
             ignored = int(re.findall(r"SigIgn:\s+([0-9a-f]+)", status)[0], 16)
-            assert ignored & (1 << (signal.SIGINT - 1)), pid
+            for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+                assert ignored & (1 << (signum - 1)), (pid, signum)
     finally:
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(10)
@@ -247,14 +248,19 @@ def test_sigkill_of_the_campaign_leaves_no_worker_and_resume_equals_inline(
     pd.testing.assert_frame_equal(_rows(folder), inline_rows, check_exact=True)
 
 
+# SIGINT: what a terminal sends on Ctrl-C; SIGTERM: systemctl stop (every process of the unit); SIGHUP: a lost
+# terminal (its foreground group): every process of the job gets it
 @pytest.mark.slow
 @pytest.mark.timeout(240)
-def test_ctrl_c_to_the_group_stops_cleanly_and_resume_equals_inline(worker_protocol, inline_rows, tmp_path, worker_on):
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP], ids=lambda s: s.name)
+def test_ctrl_c_to_the_group_stops_cleanly_and_resume_equals_inline(
+    worker_protocol, inline_rows, tmp_path, worker_on, signum
+):
     folder = tmp_path / "campaign"
     proc = _start_campaign(worker_protocol, folder)
     try:
         children = _children_once_pressing(proc, folder)
-        os.killpg(proc.pid, signal.SIGINT)  # what a terminal sends on Ctrl-C: every process of the job
+        os.killpg(proc.pid, signum)  # every process of the job
         _, stderr = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:

@@ -126,3 +126,43 @@ def test_a_folder_the_user_may_not_write_is_one_clear_error(reference, tmp_path)
     result = resume_campaign(folder, progress=False, report=False)  # after the fix
     assert result.completed == 12 and result.written_now == 0
     pd.testing.assert_frame_equal(rows(folder), rows(reference), check_exact=True)
+
+
+@pytest.mark.timeout(180)
+@pytest.mark.parametrize("where", ["presses", "waveforms"])
+def test_resume_into_a_parts_folder_it_cannot_write_is_refused_before_any_motion(reference, tmp_path, where):
+    """presses/ (or a waveforms/position_id=K/ of a campaign recording waveforms) refuses files: resume says so
+    naming the folder and the fix before the rig is opened: the wire log gains not a byte (no G28, no press
+    thrown away), the manifest is as it was; after the fix resume completes identically."""
+    folder = tmp_path / "c"
+    done = run_cli_child("none", *RUN, "--out", str(folder), "--limit", "5")
+    assert done.returncode == 0 and "5/12 presses" in done.stdout, done.stderr
+    locked = folder / "presses" if where == "presses" else sorted((folder / "waveforms").glob("position_id=*"))[0]
+    wire_before = (folder / "wire.log").read_bytes()
+    manifest_before = json.loads((folder / "manifest.json").read_text())
+    if os.geteuid() == 0:  # root writes through any mode bits; an immutable folder stops it for real (EPERM)
+        if subprocess.run(["chattr", "+i", str(locked)], capture_output=True).returncode != 0:
+            pytest.skip("chattr +i is not supported on this file system")
+        undo = ["chattr", "-i", str(locked)]
+    else:
+        os.chmod(locked, 0o555)
+        undo = ["chmod", "755", str(locked)]
+    try:
+        refused = run_cli_child("none", "campaign", "resume", str(folder), "--no-report", "--quiet")
+    finally:
+        subprocess.run(undo, check=True)
+    assert (folder / "wire.log").read_bytes() == wire_before, refused.stderr  # not a byte to the printer
+    assert refused.returncode == 5 and "Traceback" not in refused.stderr, refused.stderr
+    what = "presses" if where == "presses" else "waveforms"
+    assert refused.stderr.startswith(
+        f"neatskin: error: {locked}: cannot write in this folder, where the {what} go: "
+    ), refused.stderr
+    assert "nothing was sent to the printer (fix: give your user write permission" in refused.stderr
+    assert len(refused.stderr.splitlines()) == 1
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert (manifest["status"], manifest["counts"]) == (manifest_before["status"], manifest_before["counts"])
+    assert not list(folder.rglob(".write-probe*"))  # the probe leaves nothing behind
+    result = resume_campaign(folder, progress=False, report=False)  # after the fix
+    assert (result.completed, result.written_now) == (12, 7)
+    pd.testing.assert_frame_equal(rows(folder), rows(reference), check_exact=True)
+    pd.testing.assert_frame_equal(waveforms(folder), waveforms(reference), check_exact=True)

@@ -164,9 +164,11 @@ def test_ctrl_c_stops_after_the_line_in_flight_lifts_and_from_line_continues_onc
 
 
 @pytest.mark.timeout(60)
-def test_ctrl_c_at_depth_ends_at_the_programs_travel_height(tmp_path):
-    """No profile: the probe held 2 mm into the skin gets SIGINT; it ends at the program's own travel height
-    (the highest Z it commanded, 15.5), not at a default 5 mm, and the printer's M114 says so."""
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP], ids=lambda s: s.name)
+def test_ctrl_c_at_depth_ends_at_the_programs_travel_height(tmp_path, signum):
+    """No profile: the probe held 2 mm into the skin gets SIGINT (or SIGTERM, SIGHUP: the same stop); it ends at
+    the program's own travel height (the highest Z it commanded, 15.5), not at a default 5 mm, and the printer's
+    M114 says so."""
     import os
     import time
 
@@ -196,7 +198,7 @@ def test_ctrl_c_at_depth_ends_at_the_programs_travel_height(tmp_path):
             time.sleep(0.02)
         # the dwell (G4 S10, the line in flight) holds the probe at Z 3.5, 2 mm below the surface at 5.5
         assert sim.probe_position()[2] == pytest.approx(3.5)
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signum)
         out, err = proc.communicate(timeout=40)
         assert proc.returncode == 130, err
         assert sim.probe_position()[2] == pytest.approx(15.5), err
@@ -262,3 +264,84 @@ def test_sim_printer_built_with_no_motion_before_homing(tmp_path):
 
     assert answer("--no-motion-before-homing") == b"echo:Home XYZ First\nok\n"
     assert answer() == b"ok\n"
+
+
+@pytest.mark.timeout(60)
+def test_printer_send_with_a_profile_refuses_a_move_outside_the_bed_before_anything_is_sent(tmp_path):
+    """`gcode check --profile`'s bounds check, before the port is opened: X 500 on a 220 mm bed and Z -5 below the
+    soft limit are each named with the file, the line and the fix, exit 1 as `gcode check`; the simulated
+    printer on its pty receives nothing. The same file inside the bed streams (the check is no blanket refusal)."""
+    import os
+
+    from neatskin.sim.printer import sim_printer_for_tests
+
+    profile = str(REPO / "protocols" / "printers" / "paper.toml")
+    lines = ["G28", "G0 Z10 F300", "G0 X100 Y100 F3000", "G0 X500 Y100 F3000", "G0 Z-5"]
+    offbed, inside = tmp_path / "offbed.gcode", tmp_path / "inside.gcode"
+    offbed.write_text("\n".join(lines) + "\n")
+    inside.write_text("\n".join(lines[:3] + ["G0 X200 Y100 F3000", "G0 Z5"]) + "\n")
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    sim = sim_printer_for_tests(time_mode="virtual")
+    path = sim.start_pty()
+    wire = tmp_path / "wire.log"
+    try:
+
+        def send(program, *extra):
+            return subprocess.run(
+                [sys.executable, "-m", "neatskin", "printer", "send", "--port", path, "--profile", profile, "-q"]
+                + ["--connect-timeout-s", "0.2", "--wire-log", str(wire), *extra, str(program)],
+                capture_output=True,
+                text=True,
+                env=env,
+                timeout=50,
+            )
+
+        refused = send(offbed)
+        assert refused.returncode == 1, refused.stderr
+        errors = refused.stderr.splitlines()
+        assert len(errors) == 2 and "Traceback" not in refused.stderr
+        assert errors[0].startswith(f"neatskin: error: {offbed}: [line 4]: 'G0 X500 Y100 F3000' moves X to 500 mm")
+        assert errors[1].startswith(f"neatskin: error: {offbed}: [line 5]: 'G0 Z-5' moves Z to -5 mm")
+        assert all("fix: regenerate the program" in e and f"gcode check {offbed} --profile" in e for e in errors)
+        assert sim.executed == [] and not wire.exists()  # nothing reached the printer; the port was not opened
+        assert send(offbed, "--from-line", "5").returncode == 1  # line 5 alone is still below the bed
+
+        done = send(inside)
+        assert done.returncode == 0, done.stderr
+        assert [t for _, t in sim.executed if not t.startswith("M110") and "neatskin-probe" not in t] == [
+            "G28", "G0 Z10 F300", "G0 X100 Y100 F3000", "G0 X200 Y100 F3000", "G0 Z5",
+        ]  # fmt: skip
+    finally:
+        sim.stop()
+
+
+@pytest.mark.timeout(60)
+def test_printer_send_to_a_peer_acknowledging_lines_never_sent_is_one_error(tmp_path):
+    """The audit's peer: a banner, then `ok N<n+1000> P15 B3` to every line (a pty). Before: "sent 5 lines",
+    exit 0. Now one error, exit 4, naming the ok and the fix; the wire log shows no line after the handshake."""
+    import os
+
+    from neatskin.marlin.wirelog import read_wire_log
+    from neatskin.sim.scripted import DialectFirmware, FirmwareOnPty
+
+    program = tmp_path / "p.gcode"
+    program.write_text("G28\nG0 Z10 F300\nG0 X100 Y100 F3000\nG0 X120 Y100 F3000\nM400\n")
+    peer = FirmwareOnPty(DialectFirmware(mode="ahead"), boot=b"start\necho:Marlin 2.1.2.4\n")
+    wire = tmp_path / "wire.log"
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "neatskin", "printer", "send", "--port", peer.path, "-q"]
+            + ["--connect-timeout-s", "0.2", "--wire-log", str(wire), str(program)],
+            capture_output=True,
+            text=True,
+            env={**os.environ, "PYTHONPATH": str(REPO)},
+            timeout=50,
+        )
+    finally:
+        peer.close()
+    assert done.returncode == 4 and "Traceback" not in done.stderr, done.stderr
+    (line,) = done.stderr.splitlines()
+    assert line.startswith(f"neatskin: error: the printer and the host are out of step on {peer.path}: ")
+    assert "every `ok` named another line (the latest N1000)" in line and "no other program" in line
+    sent = b"".join(data for direction, data in read_wire_log(wire) if direction == ">")
+    assert set(sent.splitlines()) == {b"N0 M110 N0*125"}  # the handshake and its retries, no line of the file

@@ -57,7 +57,19 @@ def test_hostile_peer_at_connect_ends_in_one_named_error(serve, mode, error, max
 
 
 @pytest.mark.timeout(30)
-@pytest.mark.parametrize("mode", ["start", "garbage", "silent", "resend0"])
+def test_a_peer_acknowledging_lines_never_sent_fails_the_handshake_out_of_step(serve):
+    """`ok N<n+1000>` to every line: not one of them is the handshake's own ok (N0): after the M110's retries,
+    one OutOfStep naming the ok's line; no session, nothing else sent."""
+    firmware = DialectFirmware(mode="ahead")
+    peer, driver = serve(firmware)
+    with pytest.raises(E.OutOfStep) as info:
+        driver.connect()
+    assert "every `ok` named another line (the latest N1000), never the handshake's" in str(info.value)
+    assert firmware.lines_received == 1 + QUICK.probe_attempts  # the M110 and its retries, nothing more
+
+
+@pytest.mark.timeout(30)
+@pytest.mark.parametrize("mode", ["start", "garbage", "silent", "resend0", "ahead"])
 def test_peer_turning_hostile_mid_stream_ends_in_one_named_error(serve, mode):
     firmware = DialectFirmware()
     peer, driver = serve(firmware)
@@ -66,9 +78,19 @@ def test_peer_turning_hostile_mid_stream_ends_in_one_named_error(serve, mode):
     firmware.mode = mode
     with pytest.raises(E.MarlinError) as info:
         driver.send_lines(PROGRAM[3:])
-    expected = {"start": E.PrinterReset, "garbage": E.NoAnswer, "silent": E.NoAnswer, "resend0": E.NoAnswer}
+    expected = {
+        "start": E.PrinterReset,
+        "garbage": E.NoAnswer,
+        "silent": E.NoAnswer,
+        "resend0": E.NoAnswer,
+        "ahead": E.OutOfStep,  # `ok N1004` for line N4: out of step at once, N4 not taken as done
+    }
     assert isinstance(info.value, expected[mode]), info.value
     assert info.value.last_line == 3 and info.value.last_command == PROGRAM[2]
+    if mode == "start":  # the fix says what a user of the CLI does (before: "call reconnect()", Python only)
+        assert "run the command again (a campaign: neatskin campaign resume FOLDER, which homes first" in str(
+            info.value
+        )
     assert firmware.lines_received <= 1 + 3 + QUICK.max_resends + 2  # bounded: no flood
 
 

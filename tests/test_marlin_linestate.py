@@ -312,3 +312,128 @@ def test_an_ok_line_gives_the_numbers_of_its_words(n, p, b, form):
     assert reply.kind is Kind.OK and reply.text == text
     expected = _ok_numbers_by_search(text) if (" N" in text or " P" in text) else (None, None, None)
     assert (reply.number, reply.planner_free, reply.buffer_free) == expected
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), 0.0, -1.0])
+@pytest.mark.parametrize("name", ["boot_timeout_s", "connect_timeout_s", "min_timeout_s", "write_timeout_s"])
+def test_a_deadline_that_is_never_reached_is_refused_in_the_config(name, value):
+    """One ConfigError naming the setting (the CLI prints it; no traceback), not a session that waits for ever."""
+    from neatskin.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=rf"DriverConfig\.{name} is {value!r}; it must be a finite number > 0") as e:
+        DriverConfig(**{name: value})
+    assert e.value.field == name
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf")])
+def test_a_boot_wait_that_never_ends_is_refused_at_the_start(value):
+    from neatskin.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="the boot wait is .* s; it must be a finite number of seconds"):
+        LineProtocol(CONFIG).start_session(0.0, value)
+    assert LineProtocol(CONFIG).start_session(0.0, 0.0).command == "M110 N0"  # no wait: hello at once
+
+
+def test_an_ok_naming_a_line_never_sent_is_one_out_of_step_error():
+    """Marlin's ADVANCED_OK copies N from the line it ran (gcode/queue.cpp, ok_to_send): an `ok N1001` when the
+    host sent up to N1 cannot be this session's. Before, it retired every line in flight; now one OutOfStep
+    fails the session, naming the reply and the last line sent; nothing more goes out."""
+    proto = connected()
+    first, second = Job("G1 X1 F6000"), Job("G1 X2 F6000")
+    proto.submit([first, second], 1.0)
+    assert proto.data_to_send() == [cs(1, "G1 X1 F6000")]
+    proto.receive(b"ok N1001 P15 B3\n", 1.1)
+    failure = error(proto, first)
+    assert isinstance(failure, E.OutOfStep) and proto.failure is failure
+    assert (
+        "the printer said 'ok N1001 P15 B3', acknowledging line N1001, but the last line sent in this session was N1"
+        in str(failure)
+    )
+    assert isinstance(error(proto, second), E.OutOfStep) and proto.data_to_send() == []
+    assert proto.last_acked == (0, "M110 N0")
+
+
+def test_an_ok_naming_a_line_never_sent_is_out_of_step_with_nothing_in_flight():
+    proto = connected()
+    proto.receive(b"ok N7 P15 B3\n", 1.0)
+    assert isinstance(proto.failure, E.OutOfStep) and "last line sent in this session was N0" in str(proto.failure)
+
+
+def test_the_oks_of_the_lines_sent_and_the_lines_before_are_legal():
+    """The rule never fires on a legal reply: `ok N<n>` for each line sent (n up to the last one, pipelined),
+    a late ok of a line already acknowledged (stale), and after a new session (M110 N0 numbers from 0 again)
+    `ok N0` though the session before reached N3; the oks of a previous host's lines still queued in the
+    firmware arrive before the M110's own and are not taken for it."""
+    config = DriverConfig(boot_timeout_s=0.5, min_timeout_s=0.4, poll_s=0.01, max_in_flight=4)
+    proto = connected(config)
+    jobs = [Job(f"G1 X{i} F6000") for i in range(1, 4)]
+    proto.receive(b"ok N0 P15 B3\n", 0.9)  # a duplicate ok of the handshake: stale, and ADVANCED_OK is learnt
+    proto.submit(jobs, 1.0)
+    sent = proto.data_to_send()
+    proto.receive(b"ok N1 P15 B3\n", 1.1)
+    sent += proto.data_to_send()
+    assert sent == [cs(1, "G1 X1 F6000"), cs(2, "G1 X2 F6000"), cs(3, "G1 X3 F6000")]  # pipelined
+    proto.receive(b"ok N3 P15 B3\n", 1.2)  # the last one sent: it and the one before it are done
+    assert all(ok(proto, job) for job in jobs) and proto.failure is None
+    proto.receive(b"ok N2 P15 B3\n", 1.3)  # late, already acknowledged
+    assert proto.failure is None and proto.stats["stray_oks"] == 2  # this one and the handshake's duplicate
+
+    hello = proto.start_session(2.0)  # a new session (reconnect): numbering from 0 again
+    proto.receive(b"start\n", 2.01)
+    proto.tick(2.1)
+    assert proto.data_to_send() == [b"N0 M110 N0*125\n"]
+    proto.receive(b"ok N41 P15 B1\nok N42 P15 B2\n", 2.2)  # a previous host's queued lines, run first
+    assert not done(proto, hello) and proto.failure is None
+    proto.receive(b"ok N0 P15 B3\n", 2.3)
+    assert ok(proto, hello) and proto.session
+    move = Job("G1 X9 F6000")
+    proto.submit([move], 2.4)
+    assert proto.data_to_send() == [cs(1, "G1 X9 F6000")]
+    proto.receive(b"ok N1 P15 B3\n", 2.5)
+    assert ok(proto, move) and proto.failure is None
+
+
+def test_a_handshake_answered_only_with_other_lines_oks_is_out_of_step():
+    proto = LineProtocol(CONFIG)
+    hello = proto.start_session(0.0)
+    proto.receive(b"start\n", 0.01)
+    now = 0.1
+    proto.tick(now)
+    while proto.failure is None and now < 30:
+        for data in proto.data_to_send():
+            n = int(data.split()[0][1:])
+            proto.receive(f"ok N{n + 1000} P15 B3\n".encode(), now)
+        now += 0.05
+        proto.tick(now)
+    failure = error(proto, hello)
+    assert isinstance(failure, E.OutOfStep), failure
+    assert "'M110 N0' (line N0) was sent 3 times and every `ok` named another line (the latest N1000)" in str(failure)
+
+
+@pytest.mark.parametrize("peer", ["silent", "busy"])
+def test_the_connect_help_states_the_handshake_limits_the_protocol_keeps(peer):
+    """--connect-timeout-s bounds the wait for `start` only; its help (cligroups.CONNECT_AFTER_BOOT) states what
+    follows, and this holds those figures to the protocol on its own clock, with DriverConfig's defaults: a
+    silent printer fails 4 x 2 s after the boot wait (NoAnswer), one that only says busy 30 s after it
+    (ConnectFailed)."""
+    from neatskin import cligroups
+
+    config = DriverConfig()
+    assert (cligroups.HANDSHAKE_TRIES, cligroups.HANDSHAKE_TRY_S) == (1 + config.probe_attempts, config.min_timeout_s)
+    assert cligroups.HANDSHAKE_BUSY_MAX_S == config.connect_timeout_s
+    boot_wait_s, step_s = 5.0, 0.01
+    proto = LineProtocol(config)
+    hello = proto.start_session(0.0, boot_wait_s)
+    now, last_busy = 0.0, 0.0
+    while proto.failure is None and now < 100:
+        now = round(now + step_s, 2)
+        if peer == "busy" and now - last_busy >= 2.0:  # Marlin's keep-alive, every 2 s
+            proto.receive(b"echo:busy: processing\n", now)
+            last_busy = now
+        proto.tick(now)
+        proto.data_to_send()
+    expected_s = boot_wait_s + (
+        cligroups.HANDSHAKE_TRIES * cligroups.HANDSHAKE_TRY_S if peer == "silent" else cligroups.HANDSHAKE_BUSY_MAX_S
+    )
+    assert isinstance(error(proto, hello), E.NoAnswer if peer == "silent" else E.ConnectFailed)
+    assert expected_s <= now <= expected_s + 2 * step_s, now

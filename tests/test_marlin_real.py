@@ -146,9 +146,11 @@ def test_printer_send_exits_0_with_noise(tmp_path):
 
 @pytest.mark.timeout(90)
 @pytest.mark.slow
-def test_ctrl_c_at_depth_lifts_to_the_travel_height(tmp_path):
-    """SIGINT while the probe dwells 2 mm below the surface (Z 5.5): with the paper profile it ends at the
-    profile's travel height, safe height 10 above the surface (Z 15.5), above the program's own Z 8."""
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=lambda s: s.name)
+def test_ctrl_c_at_depth_lifts_to_the_travel_height(tmp_path, signum):
+    """SIGINT (or SIGTERM: systemctl stop) while the probe dwells 2 mm below the surface (Z 5.5): with the paper
+    profile it ends at the profile's travel height, safe height 10 above the surface (Z 15.5), above the
+    program's own Z 8."""
     assert MARLIN is not None
     gcode = tmp_path / "press.gcode"
     gcode.write_text(
@@ -169,7 +171,7 @@ def test_ctrl_c_at_depth_lifts_to_the_travel_height(tmp_path):
         while time.monotonic() < deadline and not any(b"G4 S3" in line for _, d, line in relay.transcript if d == ">"):
             time.sleep(0.05)
         time.sleep(1.5)  # the probe is at Z 3.5, two mm into the skin, dwelling (Z 8 -> 3.5 takes about 1.2 s)
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signum)
         out, err = proc.communicate(timeout=60)
         assert proc.returncode == 130, err
         # where the firmware put the probe: M114 asked directly of the firmware, after the CLI left

@@ -288,7 +288,9 @@ def test_wire_tail_reads_every_line_of_a_pipelined_write(tmp_path):
 
 
 @pytest.mark.slow
-def test_campaign_run_with_monitor_starts_and_stops_the_page(tmp_path):
+@pytest.mark.parametrize("given", [True, False], ids=["port-given", "port-0"])
+def test_campaign_run_with_monitor_starts_and_stops_the_page(tmp_path, given):
+    """--monitor-port N, or 0: the run picks a free port itself (it must know it to wait for the page)."""
     import os
     import socket
     import subprocess
@@ -301,13 +303,16 @@ def test_campaign_run_with_monitor_starts_and_stops_the_page(tmp_path):
     root = Path(__file__).resolve().parents[1]
     proc = subprocess.run(
         [sys.executable, "-m", "neatskin", "campaign", "run", str(SMOKE), "--dry-run", "--out", str(out)]
-        + ["--no-report", "--quiet", "--monitor", "--monitor-port", str(port)],
+        + ["--no-report", "--quiet", "--monitor", "--monitor-port", str(port if given else 0)],
         capture_output=True,
         text=True,
         timeout=300,
         env={**os.environ, "PYTHONPATH": str(root), "PYTHONUNBUFFERED": "1"},
     )
     assert proc.returncode == 0, proc.stderr
+    if not given:
+        port = int(re.search(r"on http://127\.0\.0\.1:(\d+)/", proc.stdout).group(1))
+        assert port > 0
     assert f"on http://127.0.0.1:{port}/" in proc.stdout
     assert re.search(r"control token \(paste it in the page to pause/continue/stop\): \S{16,}", proc.stdout)
     assert "campaign complete: 12/12" in proc.stdout

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from neatskin.cligroups import add_out, add_quiet
+from neatskin.cligroups import add_out, add_quiet, positive_finite
 
 
 def register(subparsers) -> None:
@@ -64,7 +64,10 @@ def register(subparsers) -> None:
     add_quiet(parser)
     parser.add_argument("--yes", action="store_true", help="run even when the estimate is above --max-hours")
     parser.add_argument(
-        "--max-hours", type=float, default=1.0, help="refuse a run estimated longer than this without --yes (default 1)"
+        "--max-hours",
+        type=positive_finite,
+        default=1.0,
+        help="refuse a run estimated longer than this without --yes (default 1)",
     )
     parser.set_defaults(handler=handler)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from neatskin.cligroups import add_out, add_quiet
+from neatskin.cligroups import add_out, add_quiet, positive_finite
 
 
 def register(subparsers) -> None:
@@ -32,7 +32,7 @@ def register(subparsers) -> None:
     study.add_argument("--yes", action="store_true", help="run even when the estimate is above --max-hours")
     study.add_argument(
         "--max-hours",
-        type=float,
+        type=positive_finite,
         default=1.0,
         help="refuse a study estimated longer than this without --yes (default 1)",
     )

@@ -1,6 +1,6 @@
 """The `neatskin printer send` command: stream a G-code file to a printer through the driver, and stop safely.
 
-Ctrl-C (SIGINT) stops after the line in flight: nothing queued is sent, the probe is lifted when
+Ctrl-C (SIGINT), SIGTERM or SIGHUP stops after the line in flight: nothing queued is sent, the probe is lifted when
 it may be down (the lift rule is in `lift_lines`, its height in `travel_height_mm`), and the last
 acknowledged line of the file is printed with the exact command that continues from the next one
 (`--from-line N`), so no line runs twice. The lift is checked with M114: "lifted" is said only
@@ -10,6 +10,7 @@ when the firmware reports the probe at or above the height, and never below the 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import shlex
 import sys
 from dataclasses import dataclass
@@ -17,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from neatskin.cligroups import add_connect_timeout, add_quiet, command_group
+from neatskin.stopsignals import as_ctrl_c
 
 DEFAULT_SAFE_Z_MM = 5.0  # without a profile or a Z of the program's own: the height taken to be clear
 
@@ -36,7 +38,12 @@ def register(subparsers: Any) -> None:
         "--port", required=True, help="serial port or pyserial URL (/dev/ttyUSB0, /dev/pts/3, socket://h:p)"
     )
     send.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
-    send.add_argument("--profile", default=None, help="printer profile TOML, to size deadlines from the motion")
+    send.add_argument(
+        "--profile",
+        default=None,
+        help="printer profile TOML: every move checked against its bed and soft limits before anything is sent "
+        "(as gcode check --profile), and deadlines sized from the motion",
+    )
     send.add_argument("--wire-log", default=None, help="append a timestamped log of every byte to this file")
     add_connect_timeout(send, 3.0, "seconds to wait for the printer's boot banner, `start` (default 3)")
     add_quiet(send)
@@ -114,6 +121,7 @@ def lift_lines(
     return Lift(lines, f"lifted the probe by {rise:.3f} mm (Z was {where}, travel height {safe_z_mm:g} mm)")
 
 
+@as_ctrl_c()  # SIGTERM, SIGHUP: as Ctrl-C (stop after the line in flight, lift)
 def printer_send_handler(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -130,14 +138,18 @@ def printer_send_handler(args: argparse.Namespace) -> int:
         raise ConfigError(f"cannot read G-code: {exc}", file=path, fix="give a readable ASCII G-code file") from exc
     # a syntax error, or a line the firmware would not run as written (lower case, too long), is reported before
     # the port is touched: on the board a long numbered line fails its checksum on every resend
+    parsed = parse_numbered(text, source=str(path))
     refused = [
         Problem(what, str(path), f"line {number}", fix)
-        for number, line in parse_numbered(text, source=str(path))
+        for number, line in parsed
         if (problem := firmware_text_problem(line)) is not None
         for what, fix in [problem]
     ]
     if refused:
         raise ConfigError(problems=refused)
+    profile = load_printer_profile(args.profile) if args.profile else None
+    if profile is not None:  # SPEC: a move outside the bed or the soft limits is refused before anything is sent
+        _refuse_moves_outside(profile, args.profile, parsed, path, args.from_line)
     all_lines = text.splitlines()
     if not 1 <= args.from_line <= len(all_lines) + 1:
         raise ConfigError(
@@ -151,7 +163,6 @@ def printer_send_handler(args: argparse.Namespace) -> int:
         for number, line in enumerate(all_lines, start=1)
         if number >= args.from_line and line.split(";", 1)[0].strip()
     ]
-    profile = load_printer_profile(args.profile) if args.profile else None
     config = DriverConfig(boot_timeout_s=args.connect_timeout_s, confirm_batches=True)
     driver = MarlinDriver.open(args.port, args.baud, config=config, profile=profile, wire_log=args.wire_log)
     bar = tqdm(total=0, unit="line", disable=args.quiet, file=sys.stderr)
@@ -177,6 +188,28 @@ def printer_send_handler(args: argparse.Namespace) -> int:
         f"{stats['busy']} busy keep-alives"
     )
     return 0
+
+
+def _refuse_moves_outside(profile: Any, profile_arg: str, parsed: Any, path: Path, from_line: int) -> None:
+    """`gcode check --profile`'s bounds check (gcode.bounds.check_moves, on the whole file: the position a line
+    starts from depends on every line before it), refusing what lies in the lines this send would stream: one
+    CheckFailed (exit 1, as `gcode check`) naming the file, each line and the fix; the port is not opened."""
+    from neatskin.errors import CheckFailed
+    from neatskin.gcode.bounds import check_moves
+
+    numbers = [number for number, _ in parsed]
+    problems = check_moves(profile, [line for _, line in parsed], str(path), numbers)
+    sent = [p for p in problems if p.field is None or int(p.field.split()[-1]) >= from_line]
+    if sent:
+        fixed = [
+            dataclasses.replace(
+                p,
+                fix=f"{p.fix}, or give --profile the profile of the printer the file is for "
+                f"(check with: neatskin gcode check {path} --profile {profile_arg})",
+            )
+            for p in sent
+        ]
+        raise CheckFailed(problems=fixed)
 
 
 def _interrupted(args: argparse.Namespace, driver: Any, numbered: list[tuple[int, str]], profile: Any) -> int:

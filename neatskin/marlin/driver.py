@@ -14,6 +14,7 @@ but an M112 on request.
 from __future__ import annotations
 
 import collections
+import errno
 import os
 import time
 from collections.abc import Callable, Iterable
@@ -145,6 +146,8 @@ class MarlinDriver:
         except (serial.SerialException, OSError, ValueError) as exc:
             if "exclusively lock" in str(exc) or "Resource temporarily unavailable" in str(exc):
                 raise E.PortBusy(f"cannot open it exclusively: {exc}", port=self.port_name) from exc
+            if "(25," in str(exc) or getattr(exc, "errno", None) == errno.ENOTTY:  # a file, /dev/null: no termios
+                raise E.NotASerialPort(f"cannot configure it: {exc}", port=self.port_name) from exc
             raise E.PortDead(f"cannot open: {exc}", port=self.port_name) from exc
         self._link.start(channel_for(self.port, self.clock), boot_timeout_s)
         return self

@@ -38,7 +38,11 @@ class PrinterHalted(MarlinError):
 
 class PrinterReset(MarlinError):
     what = "the printer reset in mid-session"
-    fix = "the printer rebooted (power, USB or watchdog); call reconnect(), home (G28) and resume the campaign"
+    fix = (
+        "the printer rebooted (power, USB or watchdog): check its power supply and USB cable, then run the "
+        "command again (a campaign: neatskin campaign resume FOLDER, which homes first; from Python: "
+        "driver.reconnect(), then G28)"
+    )
 
 
 class PortDead(MarlinError):
@@ -85,6 +89,27 @@ class ConnectFailed(MarlinError):
     fix = (
         "the printer keeps rebooting or refusing `M110 N0`: check its power supply and USB cable, "
         "that the baud rate matches the firmware, and that no other program talks to it"
+    )
+
+
+class OutOfStep(MarlinError):
+    """An `ok N..` named a line the host never sent in this session: the two disagree on what ran."""
+
+    what = "the printer and the host are out of step"
+    fix = (
+        "the printer acknowledged a line number this host never sent: make sure no other program (OctoPrint, "
+        "Pronterface, a second neatskin) talks to the printer, reset it, home (G28) and run the command again "
+        "(a campaign: neatskin campaign resume FOLDER)"
+    )
+
+
+class NotASerialPort(PortMissing):
+    """The port opened but is no terminal (a plain file, /dev/null): nothing was sent, no cable to check."""
+
+    what = "not a serial port"
+    fix = (
+        "give the printer's serial device (ls /dev/ttyUSB* /dev/ttyACM*), or the pty that `neatskin sim printer` "
+        "prints, not a file"
     )
 
 

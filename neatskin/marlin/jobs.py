@@ -5,9 +5,11 @@ events: the protocol (linestate.LineProtocol) never mutates what the caller hand
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from neatskin.errors import ConfigError
 from neatskin.gcode.parse import GcodeLine
 from neatskin.marlin import errors as E
 
@@ -40,12 +42,31 @@ class DriverConfig:
     confirm_batches: bool | None = None
 
     def __post_init__(self) -> None:
-        for name in ("boot_timeout_s", "min_timeout_s", "busy_extension_s", "max_busy_s", "poll_s"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"DriverConfig.{name} must be > 0")
+        # a deadline of nan or inf is never reached: a silent port would be waited on for ever
+        positive = ("boot_timeout_s", "min_timeout_s", "busy_extension_s", "max_busy_s", "poll_s")
+        for name in (*positive, "write_timeout_s", "connect_timeout_s", "homing_time_s", "default_feed_mm_s"):
+            _check_seconds(name, getattr(self, name), positive=True)
+        for name in ("resend_grace_s", "duplicate_resend_s", "motion_time_scale"):
+            _check_seconds(name, getattr(self, name), positive=False)
         for name in ("probe_attempts", "max_resends", "connect_attempts", "max_in_flight"):
             if getattr(self, name) < 1:
-                raise ValueError(f"DriverConfig.{name} must be >= 1")
+                raise ConfigError(
+                    f"DriverConfig.{name} is {getattr(self, name)!r}; it must be >= 1",
+                    field=name,
+                    fix=f"give {name} a whole number of 1 or more",
+                )
+
+
+def _check_seconds(name: str, value: float, *, positive: bool) -> None:
+    """One DriverConfig time (or scale): a finite number, > 0 (or >= 0 where 0 means "none"), else ConfigError."""
+    ok = isinstance(value, int | float) and math.isfinite(value) and (value > 0 if positive else value >= 0)
+    if not ok:
+        bound = "> 0" if positive else ">= 0"
+        raise ConfigError(
+            f"DriverConfig.{name} is {value!r}; it must be a finite number {bound}",
+            field=name,
+            fix=f"give {name} a finite number {bound} (e.g. {DriverConfig.__dataclass_fields__[name].default!r})",
+        )
 
 
 @dataclass(frozen=True, eq=False)

@@ -16,8 +16,10 @@ lost lines and lost oks (recovery.py), and this (values live in jobs.py).
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Iterable
 
+from neatskin.errors import ConfigError
 from neatskin.marlin import errors as E
 from neatskin.marlin.jobs import Event, Failed, Job
 from neatskin.marlin.recovery import Recovery
@@ -38,6 +40,12 @@ class LineProtocol(Recovery):
         """Begin a session: wait for `start` (or boot_timeout_s), then `M110 N0`; the returned job is the handshake."""
         self.reset(now)
         wait_s = self.config.boot_timeout_s if boot_timeout_s is None else boot_timeout_s
+        if not math.isfinite(wait_s):  # nan or inf: the boot wait would never end on a silent port
+            raise ConfigError(
+                f"the boot wait is {wait_s!r} s; it must be a finite number of seconds",
+                field="boot_timeout_s",
+                fix="give the connect timeout a finite number of seconds (e.g. 5)",
+            )
         self._phase = "booting"
         self._boot_deadline = now + wait_s
         self._connect_deadline = now + wait_s + self.config.connect_timeout_s
@@ -247,13 +255,28 @@ class LineProtocol(Recovery):
                 if self._resend.ok_after:
                     self._resend.due = now  # replay now: its `ok` can no longer be mistaken for the replay's
             return
+        if reply.number is not None and reply.number >= self._next_n and self._phase == "session":
+            # Marlin's ADVANCED_OK copies N from the line it ran: this line was never sent in this session (its
+            # M110 N0 began the numbering at 0)
+            self._fail_here(
+                E.OutOfStep,
+                f"the printer said {reply.text!r}, acknowledging line N{reply.number}, but the last line sent "
+                f"in this session was N{self._next_n - 1}",
+            )
+            return
         if not self._inflight:
             self.stats["stray_oks"] += 1
             return
         head = self._inflight[0]
         if reply.buffer_free is not None:
             self._queue_free = reply.buffer_free
-        if reply.number is not None:  # ADVANCED_OK names the line
+        if reply.number is not None:  # ADVANCED_OK names the line: Marlin copies it from the line it ran
+            if head.m110 and reply.number != head.n:
+                # the ok of a line from before this session (a host that left lines in the firmware's queue runs
+                # them first): only the M110's own ok starts the session
+                self.stats["stale_oks"] += 1
+                self._foreign_ok = reply.number
+                return
             self._advanced_ok_seen = True
             if reply.number < head.n:
                 self.stats["stale_oks"] += 1

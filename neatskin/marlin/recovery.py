@@ -135,6 +135,13 @@ class Recovery(LineSession):
             return
         if head.m110:  # M110 is idempotent: say it again
             self._resend.counts[head.n] += 1
+            if self._resend.counts[head.n] > self.config.probe_attempts and self._foreign_ok is not None:
+                self._fail_here(
+                    E.OutOfStep,
+                    f"{head.command!r} (line N{head.n}) was sent {self.config.probe_attempts} times and every `ok` "
+                    f"named another line (the latest N{self._foreign_ok}), never the handshake's",
+                )
+                return
             if self._resend.counts[head.n] > self.config.probe_attempts:
                 self._fail_here(
                     E.NoAnswer,

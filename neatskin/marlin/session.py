@@ -98,6 +98,7 @@ class LineSession:
         self._history: dict[int, SentLine] = {}  # recently acknowledged lines, for a firmware that never took them
         self._resend = ResendState(self.config.ok_after_resend)
         self._advanced_ok_seen = False
+        self._foreign_ok: int | None = None  # under the handshake: the latest `ok N..` naming another line
         self._queue_free: int | None = None  # B of the latest `ok N.. P.. B..`: free slots of Marlin's command queue
         self._probe_fallback = False  # the firmware answered an M118 probe with a bare ok: probe with M114 instead
         self._probes_in_stall = 0

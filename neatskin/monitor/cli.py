@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from neatskin.cligroups import add_connect_timeout, command_group
+from neatskin.cligroups import add_connect_timeout, command_group, tcp_port
 
 
 def register(subparsers) -> None:
@@ -17,7 +17,7 @@ def register(subparsers) -> None:
         description="Serve a live page of CAMPAIGN_DIR on 127.0.0.1; prints the control token for pause/stop.",
     )
     monitor.add_argument("folder", type=Path, metavar="CAMPAIGN_DIR", help="the campaign folder to show")
-    monitor.add_argument("--port", type=int, default=8765, help="TCP port (default 8765; 0 picks a free one)")
+    monitor.add_argument("--port", type=tcp_port, default=8765, help="TCP port (default 8765; 0 picks a free one)")
     monitor.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1, this machine only)")
     monitor.add_argument(
         "--allow-remote",

@@ -8,8 +8,9 @@ import re
 from datetime import datetime
 from pathlib import Path
 
-from neatskin.cligroups import add_connect_timeout, add_out, add_quiet, command_group
+from neatskin.cligroups import add_connect_timeout, add_out, add_quiet, command_group, positive_count, tcp_port
 from neatskin.errors import CheckFailed, ConfigError, ExitCode
+from neatskin.stopsignals import as_ctrl_c
 
 
 def register(subparsers) -> None:
@@ -32,7 +33,9 @@ def register(subparsers) -> None:
     )
     add_out(run, "campaign folder (default: runs/<name>-<date>-<time>)")
     add_connect_timeout(run, None, "seconds to wait for the printer's boot banner (real rig default 5)")
-    run.add_argument("--limit", type=int, help="stop after this many presses (the campaign stays resumable)")
+    run.add_argument(
+        "--limit", type=positive_count, help="stop after this many presses, 1 or more (the campaign stays resumable)"
+    )
     run.add_argument("--no-report", action="store_true", help="skip the baseline report at the end")
     add_quiet(run)
     run.add_argument(
@@ -40,7 +43,13 @@ def register(subparsers) -> None:
         action="store_true",
         help="also serve the live page (neatskin monitor, in its own process) on 127.0.0.1 while it runs",
     )
-    run.add_argument("--monitor-port", type=int, default=8765, metavar="N", help="the live page's port (default 8765)")
+    run.add_argument(
+        "--monitor-port",
+        type=tcp_port,
+        default=8765,
+        metavar="N",
+        help="the live page's port (default 8765; 0 picks a free one)",
+    )
     run.set_defaults(handler=_run)
 
     resume = sub.add_parser("resume", help="finish an interrupted campaign, no press lost or duplicated")
@@ -112,6 +121,7 @@ def printer_time_text(seconds: float, presses: int, which: str = "") -> str:
     )
 
 
+@as_ctrl_c()  # SIGTERM, SIGHUP: as Ctrl-C (the press in flight finishes, the probe parks)
 def _run(args: argparse.Namespace) -> int:
     from neatskin.errors import ConfigError
     from neatskin.rig.protocol import load_protocol
@@ -190,6 +200,7 @@ def _start_monitor(out: Path, port: int):
     import sys
     import time
 
+    port = _monitor_port_free(port)
     proc = subprocess.Popen([sys.executable, "-m", "neatskin", "monitor", str(out), "--port", str(port)])
     deadline = time.monotonic() + 15.0
     while proc.poll() is None and time.monotonic() < deadline:
@@ -201,6 +212,27 @@ def _start_monitor(out: Path, port: int):
     return proc
 
 
+def _monitor_port_free(port: int) -> int:
+    """The live page's port, checked here before anything starts (0: a free one, chosen here so the run knows
+    it): a port in use is one ConfigError naming --monitor-port (--port is the printer's here)."""
+    import errno
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        try:
+            probe.bind(("127.0.0.1", port))
+        except OSError as exc:
+            in_use = exc.errno == errno.EADDRINUSE
+            raise ConfigError(
+                f"the live page cannot listen on 127.0.0.1:{port}: {exc.strerror or exc}",
+                field="--monitor-port",
+                fix="choose another port (--monitor-port 0 picks a free one), or stop the other monitor"
+                if in_use
+                else "use a port above 1023 (default 8765)",
+            ) from exc
+        return int(probe.getsockname()[1])
+
+
 def default_campaign_folder(name: str, now: datetime | None = None) -> Path:
     """runs/<name>-<date>-<time>, with the name reduced to letters, digits, '.', '_' and '-' (no leading dot),
     so no protocol name (`../../x`, `/etc/x`) can place the campaign outside runs/."""
@@ -210,6 +242,7 @@ def default_campaign_folder(name: str, now: datetime | None = None) -> Path:
     return folder
 
 
+@as_ctrl_c()  # SIGTERM, SIGHUP: as Ctrl-C (the press in flight finishes, the probe parks)
 def _finish(args: argparse.Namespace) -> int:
     from neatskin.rig.runner import finish_campaign
 
@@ -218,6 +251,7 @@ def _finish(args: argparse.Namespace) -> int:
     return 0
 
 
+@as_ctrl_c()  # SIGTERM, SIGHUP: as Ctrl-C (the press in flight finishes, the probe parks)
 def _resume(args: argparse.Namespace) -> int:
     from neatskin.rig.runner import resume_campaign
 

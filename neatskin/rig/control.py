@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import secrets
 import time
 from collections.abc import Callable, Sequence
@@ -49,6 +50,18 @@ class ControlRequest:
     by: str
 
 
+def _refuse_a_manifest_that_is_no_file(manifest_path: Path, action: str) -> None:
+    """A manifest.json that is there but is a folder (or a device, a socket) is no starting run to wait for."""
+    if os.path.lexists(manifest_path) and not manifest_path.is_file():
+        kind = "a folder" if manifest_path.is_dir() else "not a regular file"
+        raise DataError(
+            f"manifest.json is {kind}, not a campaign's manifest: the {action} was not recorded",
+            file=str(manifest_path),
+            fix="give the folder of a campaign (`neatskin campaign run` writes manifest.json as a file); if this is "
+            "one, its manifest.json was replaced: restore it from a backup",
+        )
+
+
 def _now_iso() -> str:
     return datetime.now(UTC).isoformat(timespec="microseconds")
 
@@ -71,7 +84,9 @@ def request_control(
         raise DataError(f"unknown control action {action!r}", field="action", fix=f"use one of {', '.join(ACTIONS)}")
     manifest_path = folder / "manifest.json"
     deadline = time.monotonic() + wait_s
+    _refuse_a_manifest_that_is_no_file(manifest_path, action)
     while not manifest_path.is_file() and time.monotonic() < deadline:
+        _refuse_a_manifest_that_is_no_file(manifest_path, action)
         sleep(min(POLL_S, max(0.0, deadline - time.monotonic())))
     if not manifest_path.is_file():
         waited = f" after waiting {wait_s:g} s" if wait_s > 0 else ""
@@ -262,7 +277,7 @@ class Checkpoint:
         deadline = idle_since + self.max_pause_s
         while self._clock() < deadline:
             if self._interrupted():
-                return self._stop("Ctrl-C during a pause")
+                return self._stop("Ctrl-C (or SIGTERM, SIGHUP) during a pause")
             paused, by = True, ""
             for request in self._new_requests():  # in order: a continue then a pause stay paused
                 if request.action == "stop":

@@ -7,6 +7,7 @@ A folder is created in one step: lock, inputs/ and manifest.json are built under
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import logging
 import os
@@ -47,8 +48,13 @@ def check_folder(folder: Path, resume: bool) -> None:
         raise ConfigError(
             f"{folder} is a file, not a campaign folder",
             file=str(folder),
-            field="--out",
-            fix="give --out a folder name that does not exist yet",
+            field="folder" if resume else "--out",
+            fix=(
+                "give the campaign folder that `neatskin campaign run` wrote (it holds manifest.json), not a "
+                "protocol or other file"
+                if resume
+                else "give --out a folder name that does not exist yet"
+            ),
         )
     if resume:
         return
@@ -60,6 +66,47 @@ def check_folder(folder: Path, resume: bool) -> None:
             field="--out",
             fix=f"choose a new folder, or continue it with: neatskin campaign resume {folder}",
         )
+
+
+PROBE_BYTES = 4096  # one block: a full disk refuses it where an empty file would still be created
+
+
+def check_parts_writable(folder: Path, protocol: CampaignProtocol, *, resuming: bool) -> None:
+    """Before any motion: the folders the presses are written to (presses/, and waveforms/ with each of its
+    position folders when the protocol records waveforms) take a file. Each is probed with a hidden temp file
+    (`.write-probe.<random>.tmp`, which readers ignore), written, closed and removed; one that refuses is one
+    DataError naming the folder, the cause and the fix. Without it a resume homed, travelled and pressed once
+    before the first part failed to write, and threw that press away (HOSTILE #6)."""
+    from neatskin.datasets.durable import temp_path_for
+    from neatskin.datasets.paths import PRESSES_DIR, WAVEFORMS_DIR
+
+    folders = [folder / PRESSES_DIR]
+    if protocol.record_waveforms:
+        waveforms = folder / WAVEFORMS_DIR
+        folders.append(waveforms)
+        if waveforms.is_dir():
+            folders += sorted(p for p in waveforms.iterdir() if p.is_dir() and p.name.startswith("position_id="))
+    for where in folders:
+        target = where if where.is_dir() else where.parent  # a folder not made yet: the writer makes it there
+        probe = temp_path_for(target / ".write-probe")
+        what = "waveforms" if WAVEFORMS_DIR in where.relative_to(folder).parts else "presses"
+        try:
+            fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+            try:
+                os.write(fd, b"\0" * PROBE_BYTES)
+            finally:
+                os.close(fd)
+                probe.unlink(missing_ok=True)
+        except OSError as exc:
+            fix = str(write_error(exc, target).problems[0].fix)
+            error = DataError(
+                f"cannot write in this folder, where the {what} go: {os.strerror(exc.errno or 0)}; "
+                "nothing was sent to the printer",
+                file=str(target),
+                fix=fix,
+            )
+            # a new campaign's folder is removed on this error: there is nothing to resume
+            raise (error if resuming else for_a_new_campaign(error)) from exc
 
 
 def _staging_name(folder: Path) -> Path:
@@ -77,9 +124,26 @@ def _remove_stale_staging(folder: Path) -> None:
             shutil.rmtree(entry, ignore_errors=True)
 
 
+def for_a_new_campaign(error: DataError) -> DataError:
+    """A write error met while a new campaign's folder is made: that folder is removed, so there is nothing to
+    resume; the fix says to run the campaign again instead."""
+    problems = [
+        dataclasses.replace(p, fix=p.fix.replace("then resume", "then run the campaign again")) if p.fix else p
+        for p in error.problems
+    ]
+    return DataError(problems=problems)
+
+
 def create_campaign_folder(protocol: CampaignProtocol, plan: Plan, folder: Path, rig_kind: str) -> CampaignLock:
     """Make the campaign folder in one atomic step: lock, inputs/ and manifest.json are built under a hidden
     staging name and renamed into place, so a kill leaves either no campaign folder or one that resumes."""
+    try:
+        return _create_campaign_folder(protocol, plan, folder, rig_kind)
+    except DataError as exc:
+        raise for_a_new_campaign(exc) from exc
+
+
+def _create_campaign_folder(protocol: CampaignProtocol, plan: Plan, folder: Path, rig_kind: str) -> CampaignLock:
     _remove_stale_staging(folder)
     staging = _staging_name(folder)
     try:

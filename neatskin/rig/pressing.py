@@ -12,8 +12,9 @@ the rig around it.
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
-import signal
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -22,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from neatskin import stopsignals
 from neatskin.acquisition.record import PendingPress
 from neatskin.datasets.writer import CampaignWriter
 from neatskin.gcode.blocks import PressBlock, PressBlocks
@@ -30,6 +32,7 @@ from neatskin.rig.control import Checkpoint
 from neatskin.rig.plan import Plan
 from neatskin.rig.pressrow import fsr_label
 from neatskin.rig.protocol import CampaignProtocol
+from neatskin.stopsignals import signal_name
 
 if TYPE_CHECKING:  # tqdm is imported when the loop starts (a progress bar, nothing else needs it)
     from tqdm import tqdm
@@ -39,27 +42,53 @@ MAX_PRESS_ATTEMPTS = 3  # a press the FSR never saw is retried twice, then store
 
 
 class _StopRequest:
-    """Ctrl-C sets a flag; the press in flight finishes, the probe lifts, the campaign stays resumable."""
+    """Ctrl-C, SIGTERM or SIGHUP (neatskin.stopsignals) sets a flag; the press in flight finishes, the probe lifts
+    and parks, the campaign stays resumable. A second one stops at once."""
 
     def __init__(self) -> None:
         self.requested = False
-        self._previous: Any = None
+        self.signal: str | None = None  # the first stop signal's name, for the message
+        self._handled: contextlib.ExitStack | None = None
 
     def __enter__(self) -> _StopRequest:
         def handler(signum: int, frame: FrameType | None) -> None:
-            if self.requested:  # a second Ctrl-C: stop now
-                raise KeyboardInterrupt
-            self.requested = True
+            if self.requested:  # a second stop signal: stop now
+                raise KeyboardInterrupt(f"stopped at once by a second {signal_name(signum)}")
+            self.requested, self.signal = True, signal_name(signum)
 
-        try:
-            self._previous = signal.signal(signal.SIGINT, handler)
-        except ValueError:  # not the main thread: no handler, Ctrl-C behaves as usual
-            self._previous = None
+        self._handled = contextlib.ExitStack()
+        self._handled.enter_context(stopsignals.handled(handler))  # not the main thread: signals act as usual
         return self
 
     def __exit__(self, *exc: object) -> None:
-        if self._previous is not None:
-            signal.signal(signal.SIGINT, self._previous)
+        if self._handled is not None:
+            self._handled.close()
+
+
+class _BarStream:
+    """The progress bar's stream: a terminal that went away (a dropped SSH session) fails every write with EIO,
+    which is no reason to leave the probe in the skin; the bar then stops showing, the campaign goes on to its
+    stop signal (SIGHUP) and parks."""
+
+    def __init__(self, stream: Any) -> None:
+        self._stream, self._lost = stream, False
+
+    def write(self, text: str) -> None:
+        if not self._lost:
+            try:
+                self._stream.write(text)
+            except OSError:
+                self._lost = True
+
+    def flush(self) -> None:
+        if not self._lost:
+            try:
+                self._stream.flush()
+            except OSError:
+                self._lost = True
+
+    def __getattr__(self, name: str) -> Any:  # isatty, fileno, encoding: what tqdm asks of its stream
+        return getattr(self._stream, name)
 
 
 @dataclass
@@ -146,6 +175,7 @@ def press_loop(
         disable=not progress,
         desc=f"{protocol.name} ({rig.kind})",
         dynamic_ncols=True,
+        file=_BarStream(sys.stderr),
     )
     pending = _InFlight(protocol, writer, pair_labels, bar, IN_FLIGHT_PRESSES)
     interrupted = False
@@ -155,9 +185,15 @@ def press_loop(
             for block in todo:
                 pressed = _run_press(protocol, plan, rig, block, pair_labels)
                 pending.add(pressed)
-                if stop.requested:
+                if stop.requested:  # Ctrl-C, SIGTERM or SIGHUP: as `campaign stop` does, after this press
                     interrupted = True
-                    driver.send_lines(plan.program.postamble[:2] if plan.program.postamble else (), source="lift")
+                    log.warning(
+                        "%s: press %d finished; the probe lifts and parks; finish with: neatskin campaign resume %s",
+                        stop.signal,
+                        block.press_id,
+                        writer.folder,
+                    )
+                    driver.send_lines(_park_lines(plan), source="stop park")
                     break
                 if block is not todo[-1] and not checkpoint.after_press(block.press_id, pressed.label_flags):
                     interrupted = True
@@ -187,13 +223,19 @@ def _checkpoint(
         writer.folder,
         flush=writer.flush if flush is None else flush,
         lift=lambda: driver.send_lines((*post[:1], "M400"), source="pause lift"),
-        park=lambda: driver.send_lines((*post[:3], "M400"), source="stop park"),
+        park=lambda: driver.send_lines(_park_lines(plan), source="stop park"),
         fsr_miss_limit=protocol.fsr_pause_after_misses,
         interrupted=lambda: stop.requested,
         # a pause that outlasted the stepper timeout: home as the program began, then back up to the safe height
         rehome=lambda: driver.send_lines((*plan.program.preamble, *post[:1], "M400"), source="re-home"),
         stepper_timeout_s=protocol.printer.stepper_timeout_s,
     )
+
+
+def _park_lines(plan: Plan) -> tuple[str, ...]:
+    """Lift to the safe height, park, lift, and wait for the moves (a stop: a request or a stop signal)."""
+    post = plan.program.postamble  # lift to the safe height, park, lift, M400, done marker
+    return (*post[:3], "M400") if post else ()
 
 
 def _hold_lines(hold_s: float) -> tuple[str, ...]:

@@ -141,7 +141,12 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
         problems += _timing_problems(excitation_t, acq, source)
     record: schema.RecordTable = tables.get("record") or schema.RecordTable()
     fsr: schema.FsrTable = tables.get("fsr") or schema.FsrTable()
-    scene, scene_problems = parse_scene(tables.get("scene", {}), source, record_waveforms=record.waveforms)
+    # a [scene] that failed its schema (an invalid preset, a NaN) is not read: its signal is not known, so the
+    # cross-check with [record] waits for the fix instead of blaming the default's signal
+    scene_failed = "scene" not in tables and isinstance(data.get("scene"), dict)
+    scene, scene_problems = parse_scene(
+        tables.get("scene", {}), source, record_waveforms=record.waveforms and not scene_failed
+    )
     problems.extend(scene_problems)
 
     layout, wiring, printer, press = _load_components(data, source, file_paths, problems)
@@ -277,6 +282,18 @@ def _wiring_layout_problems(wiring: Any, layout: Any, wiring_path: Path) -> list
     return []
 
 
+def _path_fix(exc: BaseException) -> str:
+    """The fix for a [files] path the OS refused, by its reason."""
+    code = getattr(exc, "errno", None)
+    if code in (errno.EACCES, errno.EPERM):
+        return "give your user read permission on the file and search (x) permission on each folder of its path"
+    if code == errno.ELOOP or isinstance(exc, RuntimeError):
+        return "the path is a loop of symbolic links: point it at the TOML file itself"
+    if code == errno.ENAMETOOLONG:
+        return "give a shorter path to an existing TOML file"
+    return "give the path of an existing, readable TOML file"
+
+
 def _referenced_files(
     files: schema.FilesTable | None, path: Path, overrides: dict[str, Path], problems: list[Problem]
 ) -> dict[str, Any]:
@@ -290,7 +307,7 @@ def _referenced_files(
         try:
             resolved = Path(overrides.get(key) or (path.parent / rel)).resolve()
             is_file = resolved.is_file()
-        except (OSError, RuntimeError) as exc:  # a name too long; a loop of links (RuntimeError before Python 3.13)
+        except (OSError, RuntimeError) as exc:  # a name too long, no permission, a loop of links (3.11: RuntimeError)
             loop = isinstance(exc, RuntimeError) or getattr(exc, "errno", None) == errno.ELOOP
             problems.append(
                 Problem(
@@ -298,9 +315,7 @@ def _referenced_files(
                     + ("it is a loop of symbolic links" if loop else str(getattr(exc, "strerror", None) or exc)),
                     str(path),
                     f"files.{key}",
-                    f"point files.{key} at an existing TOML file (remove or repair the link {rel!r})"
-                    if loop
-                    else "give a shorter path to an existing TOML file",
+                    f"{_path_fix(exc)} (remove or repair the link {rel!r})" if loop else _path_fix(exc),
                 )
             )
             continue

@@ -30,6 +30,7 @@ from neatskin.rig.folder import (
     INPUT_KEYS,
     check_folder,
     check_inputs_unchanged,
+    check_parts_writable,
     copy_inputs,
     create_campaign_folder,
     load_inputs,
@@ -138,6 +139,9 @@ def _run_locked(
     connect_timeout_s: float | None,
 ) -> tuple[CampaignResult, str]:
     try:
+        check_parts_writable(
+            folder, protocol, resuming=not created
+        )  # before the rig: a folder that takes no part moves nothing
         rig = _open_rig(
             protocol,
             plan,
@@ -149,7 +153,7 @@ def _run_locked(
             wire_log=folder / WIRE_LOG,
         )
     except BaseException:
-        if created:  # a rig that cannot be opened leaves nothing behind
+        if created:  # a folder that takes no part, or a rig that cannot be opened, leaves nothing behind
             shutil.rmtree(folder, ignore_errors=True)
         raise
     try:

@@ -28,12 +28,16 @@ def parse_scene(raw: Mapping[str, Any] | Scene, source: str, *, record_waveforms
     problems: list[Problem] = []
     if isinstance(raw, Scene):
         scene = raw
+        signal: str | None = raw.signal
     else:
         good, problems = parse_valid(Scene, raw, source, "scene")  # a bad value left out: the default stands in
         built, cross = build(Scene, good, source, "scene")
         problems += cross
         scene = built if built is not None else Scene()
-    if scene.signal == "features" and record_waveforms:
+        # the signal the table gives, not the default that stands in for a table with another bad value (an
+        # invalid preset, a NaN placement error); a bad signal is its own problem already
+        signal = None if any(p.field == "scene.signal" for p in problems) else good.get("signal", Scene().signal)
+    if signal == "features" and record_waveforms:
         problems.append(
             Problem(
                 "record.waveforms = true needs the waveforms to be simulated",

@@ -104,7 +104,8 @@ class DialectFirmware:
     k times as if its checksum were corrupted on the wire. M118 E1 echoes (`echo:<text>`), M114 answers
     `ok X:.. Y:.. Z:..` (OctoPrint's form). Hostile modes replace the answer to every line:
     "start" (a boot loop), "resend0" (`Resend: 0` for ever), "double_ok" (every ok twice; the
-    second is returned by the next feed, as a separate read), "garbage", "silent".
+    second is returned by the next feed, as a separate read), "garbage", "silent", "ahead" (`ok N<n+1000> P15 B3`:
+    an ok naming a line never sent).
     """
 
     def __init__(self, dialect: str = "marlin2", *, reject: dict[int, int] | None = None, mode: str = "") -> None:
@@ -141,6 +142,9 @@ class DialectFirmware:
             return b"Resend: 0\n"
         if mode == "garbage":
             return b"\x00\xff#!garbage " + text[::-1].encode() + b"\n"
+        if mode == "ahead":  # out of step: every line acknowledged as one 1000 later (ADVANCED_OK's form)
+            number = text.split(" ", 1)[0][1:]
+            return f"ok N{int(number) + 1000 if number.isdigit() else 1000} P15 B3\n".encode()
         body, _, check = text.partition("*")
         head, _, command = body.partition(" ")
         n = int(head[1:]) if head.startswith("N") and head[1:].isdigit() else None

@@ -8,13 +8,14 @@ the same function the inline recorder calls, on the same random stream keyed by 
 (the press's moves on its own clock) and answering in the order it was fed. The FSR trace is not deferred:
 the runner's retry decision needs the label before the next press.
 
-The worker ignores SIGINT (Ctrl-C reaches the whole process group; the main process stops cleanly and then
-closes the worker), and it exits by itself when the main process goes away (EOF on its pipe). Every wait on it
+The worker ignores SIGINT, SIGTERM and SIGHUP (they reach the whole process group; the main process stops cleanly
+and then closes the worker), and it exits by itself when the main process goes away (EOF on its pipe). Every wait on it
 has a deadline; its failure, death or silence is one HardwareError naming the press.
 """
 
 from __future__ import annotations
 
+import atexit
 import collections
 import contextlib
 import importlib
@@ -24,10 +25,12 @@ import os
 import signal
 import threading
 import time
+import weakref
 from collections.abc import Iterator
 from multiprocessing.connection import Connection, wait
 from typing import Any, Protocol
 
+from neatskin import stopsignals
 from neatskin.acquisition.estimates import PairEstimates
 from neatskin.acquisition.pressvalues import PressValues, press_values
 from neatskin.errors import ConfigError, HardwareError
@@ -127,6 +130,7 @@ class SkinWorker:
         adopted = _take_prestarted(self.context)
         process, ours = adopted if adopted is not None else _launch(self.context)
         self._process, self._conn = process, ours
+        _LIVE.add(self)
         log.debug("skin worker %s, pid %s", "adopted" if adopted else "started", process.pid)
         # the factory (the protocol, ~70 kB) goes over our pipe, not in spawn's start-up data: spawn writes that
         # to a pipe the child reads only after importing the main module, so a payload over the pipe's 64 kB
@@ -179,11 +183,8 @@ class SkinWorker:
             if process.is_alive():
                 if self._broken is None:
                     log.warning("the skin worker (pid %s) did not end; terminating it", process.pid)
-                process.terminate()
+                process.kill()  # it ignores SIGTERM (a stop signal reaches the whole group) and holds no files
                 process.join(CLOSE_TIMEOUT_S)
-                if process.is_alive():
-                    process.kill()
-                    process.join(CLOSE_TIMEOUT_S)
         if conn is not None:
             conn.close()
 
@@ -260,7 +261,7 @@ def _launch(context: str, preload: tuple[str, ...] = ()) -> tuple[Any, Connectio
     ctx: Any = multiprocessing.get_context(context)  # spawn or forkserver (typeshed: BaseContext)
     ours, theirs = ctx.Pipe(duplex=True)
     process = ctx.Process(target=serve, args=(theirs, preload), name="neatskin-skin-worker", daemon=True)
-    with _sigint_ignored():  # the child starts with SIGINT ignored, before its first line could catch it
+    with _stop_signals_ignored():  # the child starts with them ignored, before its first line could catch one
         process.start()
     theirs.close()  # ours is then the pipe's only other end: the worker sees EOF when this process dies
     return process, ours
@@ -268,6 +269,19 @@ def _launch(context: str, preload: tuple[str, ...] = ()) -> tuple[Any, Connectio
 
 # at most one worker launched ahead of its factory (`prestart`): (context, process, our end of its pipe)
 _PRESTARTED: list[tuple[str, Any, Connection]] = []
+_LIVE: weakref.WeakSet[SkinWorker] = weakref.WeakSet()  # workers started and not closed yet
+
+
+def _close_at_exit() -> None:
+    """At interpreter exit, end every worker this process still holds (closing the pipe, then kill()). The
+    workers ignore SIGTERM, so multiprocessing's own exit hook (terminate, then join) would wait for ever on one
+    left open (a campaign refused after the prestart); registered after multiprocessing's, this runs first."""
+    discard_prestarted()
+    for worker in list(_LIVE):
+        worker.close()
+
+
+atexit.register(_close_at_exit)
 
 
 SKIN_WORKER_ENV = "NEATSKIN_SKIN_WORKER"  # on | off: force the dry run's skin worker either way (benchmarks)
@@ -334,25 +348,34 @@ def _signal_name(number: int) -> str:
 
 
 @contextlib.contextmanager
-def _sigint_ignored() -> Iterator[None]:
+def _stop_signals_ignored() -> Iterator[None]:
+    """While a worker starts: Ctrl-C, SIGTERM and SIGHUP ignored here, so the child inherits them ignored."""
     if threading.current_thread() is not threading.main_thread():
-        yield  # only the main thread may touch signal handlers; the worker ignores SIGINT from its first line
+        yield  # only the main thread may touch signal handlers; the worker ignores them from its first line
         return
-    previous = signal.getsignal(signal.SIGINT)
-    if previous is None:  # a handler not set from Python: leave it alone
-        yield
-        return
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    previous = {signum: signal.getsignal(signum) for signum in stopsignals.STOP_SIGNALS}
+    for signum, handler in previous.items():
+        if handler is not None:  # None: a handler not set from Python, left alone
+            signal.signal(signum, signal.SIG_IGN)  # SIG_IGN, not a Python handler: only SIG_IGN survives exec
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for signum, handler in previous.items():
+            if handler is not None:
+                signal.signal(signum, handler)
+
+
+def _ignore_stop_signals() -> None:
+    """Ctrl-C, SIGTERM (systemctl stop) and SIGHUP (a lost terminal) reach the whole group: the main process
+    stops cleanly and then closes the worker; the worker ends by itself on EOF if the main process is gone."""
+    for signum in stopsignals.STOP_SIGNALS:
+        signal.signal(signum, signal.SIG_IGN)
 
 
 def serve(conn: Connection, preload: tuple[str, ...] = ()) -> None:
     """The worker's loop: import `preload` (a prestarted worker waits for its factory), receive the factory and
     build the estimator, say ready, answer each job in order; end on None or EOF."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the main process handles it
+    _ignore_stop_signals()
     for name in preload:
         try:
             importlib.import_module(name)
