@@ -118,9 +118,12 @@ def test_the_docs_and_the_help_list_every_exit_code(code):
 
 
 def _is_a_time_limit(action: argparse.Action) -> bool:
-    """An option whose value is a timeout, a deadline or a time limit (seconds or hours)."""
+    """An option whose value is a timeout, a deadline, a time limit (seconds or hours) or a time scale (the sim
+    printer's --speed: nan stalled its clock)."""
     dest = action.dest or ""
-    return any(word in dest for word in ("timeout", "deadline")) or dest.endswith(("_hours", "max_s"))
+    return (
+        any(word in dest for word in ("timeout", "deadline")) or dest.endswith(("_hours", "max_s")) or dest == "speed"
+    )
 
 
 def test_every_time_limit_option_takes_only_a_finite_number_above_zero():
@@ -128,7 +131,7 @@ def test_every_time_limit_option_takes_only_a_finite_number_above_zero():
     from neatskin.cligroups import positive_finite
 
     limits = [(path, action) for path, _, action in _walk(build_parser()) if action and _is_a_time_limit(action)]
-    assert {"connect_timeout_s", "max_hours"} <= {action.dest for _, action in limits}
+    assert {"connect_timeout_s", "max_hours", "speed"} <= {action.dest for _, action in limits}
     assert all(action.type is positive_finite for _, action in limits), [
         (path, action.dest) for path, action in limits if action.type is not positive_finite
     ]

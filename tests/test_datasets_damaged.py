@@ -388,3 +388,22 @@ def test_a_waveform_part_lost_after_completion_is_named_by_validate(complete, tm
     line = one_error(capsys.readouterr().err)
     assert line.startswith(f"neatskin: error: {lost}: [waveforms]: press(es) 7 of a campaign that records waveforms")
     assert "restore the waveform part(s) from a backup" in line
+
+
+def test_an_export_it_cannot_write_says_run_the_command_again_not_resume(tmp_path, paper_layout):
+    """The shared write errors end in the campaign writer's next step, "then resume"; for an export there is nothing
+    to resume (hostile-input audit #14): the fix says to run the command again."""
+    folder = tmp_path / "camp"
+    make_campaign(folder, paper_layout)
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o555)
+    try:
+        done = cli_child(
+            "dataset", "export", str(folder), "--format", "csv", "-o", str(locked / "s.csv"), root_bypass=False
+        )
+    finally:
+        locked.chmod(0o755)
+    assert done.returncode == 5, done.stderr
+    assert "chmod u+w), then run the command again)" in done.stderr and "resume" not in done.stderr
+    assert "Traceback" not in done.stderr and not (locked / "s.csv").exists()

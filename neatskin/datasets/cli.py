@@ -102,6 +102,25 @@ def register(subparsers) -> None:
     plot.set_defaults(handler=_plot)
 
 
+def _writes_outputs(handler):
+    """A command that writes a new dataset (merge, split, export, plot): a write that fails is fixed by running the
+    command again, not by `resume` (the campaign writer's next step, which the shared write errors name)."""
+    import functools
+
+    from neatskin.errors import DataError
+
+    @functools.wraps(handler)
+    def run(args: argparse.Namespace) -> int:
+        try:
+            return handler(args)
+        except DataError as exc:
+            from neatskin.datasets.durable import then_instead_of_resume
+
+            raise then_instead_of_resume(exc, "then run the command again") from exc
+
+    return run
+
+
 def _info(args: argparse.Namespace) -> int:
     from neatskin.datasets.curate import describe, format_description
     from neatskin.datasets.validate import validate_dataset
@@ -134,6 +153,7 @@ def _validate(args: argparse.Namespace) -> int:
     return 0
 
 
+@_writes_outputs
 def _merge(args: argparse.Namespace) -> int:
     from neatskin.datasets.curate import merge
     from neatskin.datasets.reader import read_metadata
@@ -157,6 +177,7 @@ def _merge(args: argparse.Namespace) -> int:
     return 0
 
 
+@_writes_outputs
 def _split(args: argparse.Namespace) -> int:
     from neatskin.datasets.curate import split
     from neatskin.datasets.reader import read_presses
@@ -167,6 +188,7 @@ def _split(args: argparse.Namespace) -> int:
     return 0
 
 
+@_writes_outputs
 def _export(args: argparse.Namespace) -> int:
     from neatskin.datasets.curate import export, export_format
 
@@ -190,6 +212,7 @@ def _export(args: argparse.Namespace) -> int:
     return 0
 
 
+@_writes_outputs
 def _plot(args: argparse.Namespace) -> int:
     from neatskin.datasets.plots import plot_press_map, plot_sensitivity_map
 

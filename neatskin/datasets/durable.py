@@ -63,6 +63,15 @@ def read_error(exc: OSError, path: str | os.PathLike, restore: str = "restore th
     return DataError(f"cannot read the file: {exc.strerror or exc}", file=str(path), fix=fix)
 
 
+def then_instead_of_resume(error: DataError, then: str) -> DataError:
+    """`error` with its fixes' "then resume" (a campaign's next step) replaced by `then`: for a write that is not a
+    campaign's (a dataset export, split or merge: run the command again), or a new campaign removed on the error."""
+    import dataclasses
+
+    problems = [dataclasses.replace(p, fix=p.fix.replace("then resume", then)) if p.fix else p for p in error.problems]
+    return DataError(problems=problems)
+
+
 def is_write_failure(exc: BaseException) -> bool:
     """An OS error that a fix on the user's side (space, limits, permissions) cures."""
     return isinstance(exc, OSError) and exc.errno in _WRITE_FIXES

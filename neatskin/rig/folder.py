@@ -7,7 +7,6 @@ A folder is created in one step: lock, inputs/ and manifest.json are built under
 
 from __future__ import annotations
 
-import dataclasses
 import errno
 import logging
 import os
@@ -17,7 +16,7 @@ from typing import Any
 
 import pyarrow as pa
 
-from neatskin.datasets.durable import fsync_dir, write_bytes_durably, write_error
+from neatskin.datasets.durable import fsync_dir, then_instead_of_resume, write_bytes_durably, write_error
 from neatskin.datasets.lock import CampaignLock, lock_state
 from neatskin.datasets.manifest import create_manifest
 from neatskin.datasets.paths import CONSOLIDATED_NAME, COPY_NAME, PHYSICAL_LIMIT
@@ -127,11 +126,7 @@ def _remove_stale_staging(folder: Path) -> None:
 def for_a_new_campaign(error: DataError) -> DataError:
     """A write error met while a new campaign's folder is made: that folder is removed, so there is nothing to
     resume; the fix says to run the campaign again instead."""
-    problems = [
-        dataclasses.replace(p, fix=p.fix.replace("then resume", "then run the campaign again")) if p.fix else p
-        for p in error.problems
-    ]
-    return DataError(problems=problems)
+    return then_instead_of_resume(error, "then run the campaign again")
 
 
 def create_campaign_folder(protocol: CampaignProtocol, plan: Plan, folder: Path, rig_kind: str) -> CampaignLock:

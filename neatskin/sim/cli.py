@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from neatskin.cligroups import command_group
+from neatskin.cligroups import command_group, positive_finite
 
 DEFAULT_PROFILE = "protocols/printers/paper.toml"
 
@@ -36,7 +36,7 @@ def register(subparsers) -> None:
         default="scaled",
         help="scaled: real time x --speed (default); virtual: no waiting, the clock jumps",
     )
-    printer.add_argument("--speed", type=float, default=1.0, help="time scale of --time scaled (default 1)")
+    printer.add_argument("--speed", type=positive_finite, default=1.0, help="time scale of --time scaled (default 1)")
     printer.add_argument("--advanced-ok", action="store_true", help="answer `ok N.. P.. B..` (ADVANCED_OK)")
     printer.add_argument(
         "--no-motion-before-homing",
