@@ -60,10 +60,12 @@ def not_a_press_file(path: Path) -> DataError | None:
     fix = f"neatskin reads {ACCEPTED}: give one"
     if head.startswith(PARQUET_MAGIC):
         try:
-            names = pq.read_schema(path).names
+            schema = pq.read_schema(path)
         except (OSError, pa.ArrowException):
             return None  # damaged: told by the reader (and by validate, file by file)
-        if "press_id" in names:
+        # a press table's own metadata (its pairs) with press_id gone is a damaged press table: the reader names
+        # the missing column as validate does
+        if "press_id" in schema.names or b"neatskin.pairs" in (schema.metadata or {}):
             return None
         what = "a parquet file without a press_id column, not a press table (a campaign's physical_limit.parquet?)"
     elif not head:
