@@ -12,14 +12,13 @@ import sys
 
 import pyarrow.parquet as pq
 import pytest
+import test_datasets_edges as edges
 from conftest import PROTOCOLS, REPO
 
 from neatskin.cli import main
-from neatskin.datasets.manifest import create_manifest, read_manifest, update_manifest
+from neatskin.datasets.manifest import read_manifest
 from neatskin.datasets.validate import validate_dataset
-from neatskin.datasets.writer import CampaignWriter, file_sha256
 from neatskin.errors import DataError
-from neatskin.skin.synthetic import synthetic_rows
 
 LAYOUT_PATH = PROTOCOLS / "skins" / "paper.toml"
 SMOKE = PROTOCOLS / "smoke.toml"
@@ -28,18 +27,7 @@ NO_ROOT_BYPASS = ["setpriv", "--bounding-set=-dac_override,-dac_read_search,-fow
 
 
 def make_campaign(folder, layout, campaign="dmg", seed=9, finalize=True):
-    ref = {"path": str(LAYOUT_PATH), "sha256": file_sha256(LAYOUT_PATH)}
-    rows = synthetic_rows(layout, 5, 3, seed=seed, campaign=campaign)
-    create_manifest(
-        folder, fsync=False, campaign=campaign, seed=seed, layout=ref, counts={"planned": 15, "completed": 15}
-    )
-    with CampaignWriter(folder, layout.pairs, {"seed": seed, "layout": ref}, fsync=False) as writer:
-        for row in rows:
-            writer.write_press(row)
-        if finalize:
-            writer.finalize()
-    update_manifest(folder, fsync=False, status="complete" if finalize else "interrupted")
-    return folder
+    return edges.make_campaign(folder, layout, campaign, seed, finalize)
 
 
 def snapshot(folder):

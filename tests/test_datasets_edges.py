@@ -19,7 +19,8 @@ from neatskin.skin.synthetic import synthetic_rows
 LAYOUT_PATH = PROTOCOLS / "skins" / "paper.toml"
 
 
-def make_campaign(folder, layout, campaign="edge", seed=9):
+def make_campaign(folder, layout, campaign="edge", seed=9, finalize=True):
+    """A 5-position x 3-press synthetic campaign; finalize=False leaves it interrupted (parts only)."""
     from neatskin.datasets.writer import file_sha256
 
     ref = {"path": str(LAYOUT_PATH), "sha256": file_sha256(LAYOUT_PATH)}
@@ -30,8 +31,9 @@ def make_campaign(folder, layout, campaign="edge", seed=9):
     with CampaignWriter(folder, layout.pairs, {"seed": seed, "layout": ref}, fsync=False) as writer:
         for row in rows:
             writer.write_press(row)
-        writer.finalize()
-    update_manifest(folder, fsync=False, status="complete")
+        if finalize:
+            writer.finalize()
+    update_manifest(folder, fsync=False, status="complete" if finalize else "interrupted")
     return folder
 
 

@@ -197,3 +197,29 @@ def test_the_estimate_shares_candidates_over_workers_and_scales_with_the_load(tm
     assert slowdown(0.0, 2, 2) == 1.0 and slowdown(9.0, 2, 1) == 5.0  # one process gets 2 / 10 of a core
     loaded = study_seconds(study, candidates, 1, load=9.0, cores=2)
     assert loaded == pytest.approx(5.0 * sum(each))
+
+
+def test_the_cli_bar_is_made_at_the_first_report_and_moved_by_progress_or_ticks():
+    """design study and validate share one bar: made when the total is known (at the done count reported then),
+    moved to each `done` when it follows (validate, a Dask study), else by a local study's ticks; none when quiet."""
+    import io
+
+    from neatskin.design.cli import _Bar
+
+    follows = _Bar(False, unit="check", file=io.StringIO())  # the bar's text kept off the terminal
+    follows.progress(0, 13)
+    follows.progress(5, 13)
+    assert (follows.bar.n, follows.bar.total) == (5, 13)
+    ticked = _Bar(False, follow=False, file=io.StringIO())
+    ticked.progress(2, 4)  # a resumed study: two candidates done before
+    ticked.progress(3, 4)  # not followed: the ticks move it
+    ticked.tick(0.25)
+    ticked.tick(0.5)
+    assert ticked.bar.n == pytest.approx(2.75)
+    quiet = _Bar(True)
+    quiet.progress(1, 4)
+    quiet.tick(0.5)
+    quiet.close()
+    assert quiet.bar is None
+    follows.close()
+    ticked.close()

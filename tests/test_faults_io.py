@@ -2,6 +2,7 @@
 read-only file system (a small tmpfs), and a folder the user may not write: each is one clear error naming
 the file and a fix, the manifest says `interrupted`, and `resume` after the fix completes identically."""
 
+import contextlib
 import json
 import os
 import shutil
@@ -45,6 +46,23 @@ def _assert_stopped_cleanly(done, folder, file_part, fix_part):
     manifest = json.loads((folder / "manifest.json").read_text())
     assert manifest["status"] == "interrupted" and file_part in manifest["stopped_by"]
     return manifest
+
+
+@contextlib.contextmanager
+def unwritable(folder):
+    """`folder` made unwritable for the block: mode 555, or for root (who writes through any mode bits) immutable
+    (chattr +i: EPERM); skipped where the file system has no immutable flag."""
+    if os.geteuid() == 0:
+        if subprocess.run(["chattr", "+i", str(folder)], capture_output=True).returncode != 0:
+            pytest.skip("chattr +i is not supported on this file system")
+        undo = ["chattr", "-i", str(folder)]
+    else:
+        os.chmod(folder, 0o555)
+        undo = ["chmod", "755", str(folder)]
+    try:
+        yield
+    finally:
+        subprocess.run(undo, check=True)
 
 
 @pytest.mark.timeout(180)
@@ -109,17 +127,8 @@ def test_a_folder_the_user_may_not_write_is_one_clear_error(reference, tmp_path)
     shutil.copytree(reference, folder)
     (folder / "presses.parquet").unlink()  # something for resume to do
     (folder / "campaign.lock").unlink()
-    if os.geteuid() == 0:  # root writes through any mode bits; an immutable folder stops it for real (EPERM)
-        if subprocess.run(["chattr", "+i", str(folder)], capture_output=True).returncode != 0:
-            pytest.skip("chattr +i is not supported on this file system")
-        undo = ["chattr", "-i", str(folder)]
-    else:
-        os.chmod(folder, 0o555)
-        undo = ["chmod", "755", str(folder)]
-    try:
+    with unwritable(folder):
         done = run_cli_child("none", "campaign", "resume", str(folder), "--no-report", "--quiet")
-    finally:
-        subprocess.run(undo, check=True)
     assert done.returncode == 5 and "Traceback" not in done.stderr, done.stderr
     assert str(folder / "campaign.lock") in done.stderr and "chmod u+w" in done.stderr
     assert "Permission denied" in done.stderr or "Operation not permitted" in done.stderr
@@ -140,17 +149,8 @@ def test_resume_into_a_parts_folder_it_cannot_write_is_refused_before_any_motion
     locked = folder / "presses" if where == "presses" else sorted((folder / "waveforms").glob("position_id=*"))[0]
     wire_before = (folder / "wire.log").read_bytes()
     manifest_before = json.loads((folder / "manifest.json").read_text())
-    if os.geteuid() == 0:  # root writes through any mode bits; an immutable folder stops it for real (EPERM)
-        if subprocess.run(["chattr", "+i", str(locked)], capture_output=True).returncode != 0:
-            pytest.skip("chattr +i is not supported on this file system")
-        undo = ["chattr", "-i", str(locked)]
-    else:
-        os.chmod(locked, 0o555)
-        undo = ["chmod", "755", str(locked)]
-    try:
+    with unwritable(locked):
         refused = run_cli_child("none", "campaign", "resume", str(folder), "--no-report", "--quiet")
-    finally:
-        subprocess.run(undo, check=True)
     assert (folder / "wire.log").read_bytes() == wire_before, refused.stderr  # not a byte to the printer
     assert refused.returncode == 5 and "Traceback" not in refused.stderr, refused.stderr
     what = "presses" if where == "presses" else "waveforms"

@@ -4,6 +4,7 @@ electrode placements and writes candidates.parquet, per-candidate maps and repor
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 from neatskin.cligroups import add_out, add_quiet, positive_finite
 
@@ -71,24 +72,10 @@ def study_handler(args: argparse.Namespace) -> int:
     study = load_study(args.study)
     out = study_out_dir(study, args.out)
     _confirm_cost(study, out, args)
-    bar = None
-
-    def progress(done: int, total: int) -> None:
-        nonlocal bar
-        if args.quiet:
-            return
-        if bar is None:
-            from tqdm import tqdm
-
-            bar = tqdm(total=total, initial=done, unit="candidate", desc=f"study {study.name}", bar_format=_BAR)
-            return
-        if args.scheduler == "dask":  # whole candidates; a local run's ticks move the bar within each
-            bar.update(done - bar.n)
-
-    def tick(share: float) -> None:
-        if bar is not None:
-            bar.update(share)  # within a candidate: per tile of presses, learned seed, inversion step
-
+    # a Dask run reports whole candidates; a local run's ticks move the bar within each (per tile of presses,
+    # learned seed, inversion step)
+    dask = args.scheduler == "dask"
+    bar = _Bar(args.quiet, follow=dask, unit="candidate", desc=f"study {study.name}", bar_format=_BAR)
     try:
         frame = run_study(
             study,
@@ -96,13 +83,12 @@ def study_handler(args: argparse.Namespace) -> int:
             jobs=args.jobs,
             scheduler=args.scheduler,
             address=args.address,
-            progress=progress,
-            tick=None if args.scheduler == "dask" else tick,
+            progress=bar.progress,
+            tick=None if dask else bar.tick,
             pngs=not args.no_png,
         )
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
     best = frame.sort_values("bound_mean_capped_mm").iloc[0]
     print(f"{len(frame)} candidates -> {out / 'candidates.parquet'}, report {out / 'report.md'}")
     print(
@@ -113,6 +99,33 @@ def study_handler(args: argparse.Namespace) -> int:
 
 
 _BAR = "{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total_fmt} candidates [{elapsed}<{remaining}]"
+
+
+class _Bar:
+    """A tqdm bar on stderr, made at the first progress call (when the total is known), none with --quiet.
+    follow: later progress calls move it to `done` (else only `tick` moves it, in shares of a unit)."""
+
+    def __init__(self, quiet: bool, follow: bool = True, **tqdm_kwargs) -> None:
+        self.quiet, self.follow, self.kwargs = quiet, follow, tqdm_kwargs
+        self.bar: Any = None  # a tqdm, once the total is known
+
+    def progress(self, done: int, total: int) -> None:
+        if self.quiet:
+            return
+        if self.bar is None:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, initial=done, **self.kwargs)
+        elif self.follow:
+            self.bar.update(done - self.bar.n)
+
+    def tick(self, share: float) -> None:
+        if self.bar is not None:
+            self.bar.update(share)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
 
 
 def _confirm_cost(study, out, args: argparse.Namespace) -> None:
@@ -149,25 +162,13 @@ def validate_handler(args: argparse.Namespace) -> int:
     study = load_study(args.study)
     out = study_out_dir(study, args.out)
     scale = NEGATIVE_PINCH if args.negative_control else 1.0
-    bar = None
-
-    def progress(done: int, total: int) -> None:
-        nonlocal bar
-        if args.quiet:
-            return
-        if bar is None:
-            from tqdm import tqdm
-
-            bar = tqdm(total=total, unit="check", desc=f"validate {study.name}")
-        bar.update(done - bar.n)
-
+    bar = _Bar(args.quiet, unit="check", desc=f"validate {study.name}")
     try:
         v = validate_study(
-            study, args.protocol, pinch_scale=scale, power=not args.no_power, n_jobs=args.jobs, progress=progress
+            study, args.protocol, pinch_scale=scale, power=not args.no_power, n_jobs=args.jobs, progress=bar.progress
         )
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
     print("\n".join([*table_lines(v), *verdict_lines(v)]))
     write_section(out / "report.md", markdown(v, study.name, str(args.protocol)))
     print(f"section written to {out / 'report.md'}")
