@@ -79,7 +79,7 @@ def test_kill_during_the_report_then_resume_writes_the_report(reference, tmp_pat
         return "the report"
 
     monkeypatch.setattr("neatskin.baselines.report.run_baselines", fake_report)
-    monkeypatch.setattr("neatskin.baselines.report.report_summary", lambda report: f"summary of {report}")
+    monkeypatch.setattr("neatskin.baselines.summary.report_summary", lambda report: f"summary of {report}")
     result = resume_campaign(folder, progress=False, report=True)
     assert (result.completed, result.written_now, made) == (12, 0, [folder])
     assert result.report_summary == "summary of the report"  # handed to the CLI to print

@@ -104,7 +104,8 @@ def _check_output(args: argparse.Namespace) -> None:
 
 
 def handler(args: argparse.Namespace) -> int:
-    from neatskin.baselines.report import report_summary, run_baselines
+    from neatskin.baselines.report import run_baselines
+    from neatskin.baselines.summary import report_summary
     from neatskin.errors import confirm_cost
 
     _check_output(args)

@@ -110,7 +110,8 @@ def run_campaign(
 
 
 def _make_report(folder: Path, progress: bool) -> str:
-    from neatskin.baselines.report import report_summary, run_baselines  # scikit-learn: only a report needs it
+    from neatskin.baselines.report import run_baselines  # scikit-learn: only a report needs it
+    from neatskin.baselines.summary import report_summary
 
     try:
         made = run_baselines(folder, split="both", progress=progress)
