@@ -436,12 +436,11 @@ def run_baselines(
 def _check_writable(folder: Path) -> None:
     """Create `folder` and write (then remove) a probe file in it, or one DataError naming it: a read-only dataset
     folder used to cost every fit of the report before the first file failed (the hostile-input audit)."""
-    import tempfile
+    from neatskin.datasets.durable import probe_write
 
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=folder, prefix=".neatskin-write-check-"):
-            pass
+        probe_write(folder)
     except OSError as exc:
         raise DataError(
             f"cannot write the report there: {exc.strerror or exc}",

@@ -63,6 +63,18 @@ def read_error(exc: OSError, path: str | os.PathLike, restore: str = "restore th
     return DataError(f"cannot read the file: {exc.strerror or exc}", file=str(path), fix=fix)
 
 
+def probe_write(folder: Path, size: int = 0) -> None:
+    """Write `size` bytes to a hidden temp file in `folder` (named as `temp_path_for` names them, so readers ignore
+    it), close and remove it: the OSError of a folder that will not take a file, before any work that needs it."""
+    probe = temp_path_for(Path(folder) / ".write-probe")
+    fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    try:
+        os.write(fd, b"\0" * size)
+    finally:
+        os.close(fd)
+        probe.unlink(missing_ok=True)
+
+
 def then_instead_of_resume(error: DataError, then: str) -> DataError:
     """`error` with its fixes' "then resume" (a campaign's next step) replaced by `then`: for a write that is not a
     campaign's (a dataset export, split or merge: run the command again), or a new campaign removed on the error."""

@@ -76,7 +76,7 @@ def check_parts_writable(folder: Path, protocol: CampaignProtocol, *, resuming: 
     (`.write-probe.<random>.tmp`, which readers ignore), written, closed and removed; one that refuses is one
     DataError naming the folder, the cause and the fix. Without it a resume homed, travelled and pressed once
     before the first part failed to write, and threw that press away (HOSTILE #6)."""
-    from neatskin.datasets.durable import temp_path_for
+    from neatskin.datasets.durable import probe_write
     from neatskin.datasets.paths import PRESSES_DIR, WAVEFORMS_DIR
 
     folders = [folder / PRESSES_DIR]
@@ -87,15 +87,9 @@ def check_parts_writable(folder: Path, protocol: CampaignProtocol, *, resuming: 
             folders += sorted(p for p in waveforms.iterdir() if p.is_dir() and p.name.startswith("position_id="))
     for where in folders:
         target = where if where.is_dir() else where.parent  # a folder not made yet: the writer makes it there
-        probe = temp_path_for(target / ".write-probe")
         what = "waveforms" if WAVEFORMS_DIR in where.relative_to(folder).parts else "presses"
         try:
-            fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-            try:
-                os.write(fd, b"\0" * PROBE_BYTES)
-            finally:
-                os.close(fd)
-                probe.unlink(missing_ok=True)
+            probe_write(target, PROBE_BYTES)
         except OSError as exc:
             fix = str(write_error(exc, target).problems[0].fix)
             error = DataError(
