@@ -138,7 +138,7 @@ class Recovery(LineSession):
             if self._resend.counts[head.n] > self.config.probe_attempts and self._foreign_ok is not None:
                 self._fail_here(
                     E.OutOfStep,
-                    f"{head.command!r} (line N{head.n}) was sent {self.config.probe_attempts} times and every `ok` "
+                    f"{head.command!r} (line N{head.n}) was sent {self._resend.counts[head.n]} times and every `ok` "
                     f"named another line (the latest N{self._foreign_ok}), never the handshake's",
                 )
                 return
@@ -146,7 +146,7 @@ class Recovery(LineSession):
                 self._fail_here(
                     E.NoAnswer,
                     f"no answer to {head.command!r} within {self.config.min_timeout_s:g} s, "
-                    f"{self.config.probe_attempts} times",
+                    f"{self._resend.counts[head.n]} times",
                 )
                 return
             head.deadline = now + self.config.min_timeout_s
