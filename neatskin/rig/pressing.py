@@ -185,7 +185,9 @@ def press_loop(
             for block in todo:
                 pressed = _run_press(protocol, plan, rig, block, pair_labels)
                 pending.add(pressed)
-                if stop.requested:  # Ctrl-C, SIGTERM or SIGHUP: as `campaign stop` does, after this press
+                if stop.requested and block is todo[-1]:  # the last press is done: the campaign is complete
+                    log.warning("%s during the last press: the campaign is complete", stop.signal)
+                elif stop.requested:  # Ctrl-C, SIGTERM or SIGHUP: as `campaign stop` does, after this press
                     interrupted = True
                     log.warning(
                         "%s: press %d finished; the probe lifts and parks; finish with: neatskin campaign resume %s",
@@ -199,6 +201,16 @@ def press_loop(
                     interrupted = True
                     break
             pending.flush()  # every press of this run is durable before the loop says it ended
+        except KeyboardInterrupt as exc:  # a second stop signal: no lift, no park
+            pending.settle_after_error()
+            try:  # a monitor page shows a stopped campaign, not a running one
+                checkpoint.finished("stopped")
+            except Exception as lost:  # the interrupt, not this, is what the user must hear
+                log.warning("the control state was not written: %s", lost)
+            raise KeyboardInterrupt(
+                f"{exc or 'stopped at once'}; the probe was not lifted: check the rig, then finish with: "
+                f"neatskin campaign resume {writer.folder}"
+            ) from None
         except BaseException:
             pending.settle_after_error()
             raise
