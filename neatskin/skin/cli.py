@@ -164,6 +164,7 @@ def press_handler(args: argparse.Namespace) -> int:
                 fix=f"pass a valid {flag}",
             )
     layout = load_layout(args.layout)
+    _check_press_on_skin(layout, args.x_mm, args.y_mm, args.depth_mm, args.probe_radius_mm)
     kernel = None
     if args.deformation == "fe-kernel":
         from neatskin.skin.kernel import KernelSpec, load_kernel
@@ -182,6 +183,30 @@ def press_handler(args: argparse.Namespace) -> int:
         for pair, r0, r in zip(layout.pairs, base, pressed):
             print(f"{pair.label:>6s} {r0:12.3f} {r:12.3f} {r - r0:12.3f} {100 * (r / r0 - 1):8.3f}")
     return 0
+
+
+def _check_press_on_skin(layout, x_mm: float, y_mm: float, depth_mm: float, probe_radius_mm: float) -> None:
+    """A press the skin cannot take is refused, as a protocol's would be, not answered with plausible numbers: a
+    depth above the surface or through the skin, or a probe that misses the channel grid (every dR 0)."""
+    from neatskin.errors import ConfigError
+
+    thickness = layout.thickness_mm
+    if not 0 <= depth_mm < thickness:
+        raise ConfigError(
+            f"--depth-mm {depth_mm:g} is {'above the surface' if depth_mm < 0 else 'through the skin'} "
+            f"(the skin of {layout.name} is {thickness:g} mm thick)",
+            field="--depth-mm",
+            fix=f"pass a depth from 0 (no press) to below {thickness:g} mm (the paper pressed 3.5 mm)",
+        )
+    x0, y0, x1, y1 = layout.bounds_mm
+    r = probe_radius_mm
+    if not (x0 - r < x_mm < x1 + r and y0 - r < y_mm < y1 + r):
+        raise ConfigError(
+            f"a probe of radius {r:g} mm at ({x_mm:g}, {y_mm:g}) mm misses the skin's channels "
+            f"(x {x0:g} to {x1:g}, y {y0:g} to {y1:g} mm): every dR would be 0",
+            field="--x-mm/--y-mm",
+            fix=f"press within x {x0:g} to {x1:g} and y {y0:g} to {y1:g} mm (the sensor frame)",
+        )
 
 
 def maps_handler(args: argparse.Namespace) -> int:
