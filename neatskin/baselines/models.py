@@ -50,8 +50,9 @@ DESCRIPTIONS = {
     "kernel_ridge": "kernel ridge, RBF kernel (gamma = 1 / (2 n_features)), standardised features and targets",
     "extra_trees": "extremely randomised trees, 50 trees",
     "mlp": "MLPRegressor 64-64 ReLU, adam until the training loss stalls, standardised features and targets",
-    "lm_network": "the paper's n-5-2 tanh network, Levenberg-Marquardt, best of its restarts on 3/98 validation "
-    "(whole held-out positions on the grouped split)",
+    "lm_network": "the paper's n-5-2 tanh network, Levenberg-Marquardt, stopped early on a validation share of its "
+    "training rows (3 of the 98 % that are not test: the paper's 95/3/2 split; whole held-out positions on the grouped "
+    "split); with several restarts, the one best on validation",
     "inversion": "physics, no training: per press (x, y, depth) by least squares through the skin's forward model "
     "(SkinModel of the campaign's layout), from a 1 mm grid start",
 }

@@ -378,7 +378,12 @@ def markdown_report(
         lines += _bound_text(bound, nuisance_bound, table, spreads, compared, extent_mm)
     lines += floors_section(table, floors)
     lm_note = (
-        f"The LM network trains {lm_restarts} network(s) per repeat (best on validation)."
+        (
+            "The LM network trains one network per repeat, as the paper trained each of its 10 networks on its own "
+            "random split: the repeats are its networks."
+            if lm_restarts == 1
+            else f"The LM network trains {lm_restarts} networks per repeat and keeps the one best on validation."
+        )
         if lm_restarts is not None
         else "The LM network keeps its default restarts."
     )
