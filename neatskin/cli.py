@@ -66,7 +66,22 @@ def build_parser() -> argparse.ArgumentParser:
                 raise
             continue  # an optional component left out of this installation
         module.register(subparsers)
+    _describe_commands(parser)
     return parser
+
+
+def _describe_commands(parser: argparse.ArgumentParser) -> None:
+    """Every command's own --help says what it does: one registered without a description gets its help line (the
+    line its group's --help lists), so `neatskin dataset split --help` is never usage and arguments alone."""
+    for action in parser._actions:
+        if not isinstance(action, argparse._SubParsersAction):
+            continue
+        said = {choice.dest: choice.help for choice in action._choices_actions}
+        for name, sub in action.choices.items():
+            if sub.description is None and said.get(name):
+                help_text = str(said[name]).replace("%%", "%")  # a help line's escape; a description is not formatted
+                sub.description = help_text[0].upper() + help_text[1:] + ("" if help_text.endswith(".") else ".")
+            _describe_commands(sub)
 
 
 class _VersionAction(argparse.Action):

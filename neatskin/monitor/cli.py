@@ -42,7 +42,7 @@ def register(subparsers) -> None:
         ("continue", "continue a paused campaign"),
         ("stop", "stop at the next safe point: the probe lifts and parks; `campaign resume` finishes it"),
     ):
-        sub = campaign.add_parser(action, help=text, description=text)
+        sub = campaign.add_parser(action, help=text, description=text[0].upper() + text[1:] + ".")
         sub.add_argument("folder", type=Path, metavar="DIR", help="the running campaign's folder")
         sub.set_defaults(handler=_control, control_action=action)
 
