@@ -88,10 +88,10 @@ def read_manifest(folder: str | os.PathLike) -> dict[str, Any]:
         raise DataError(
             f"manifest.json is not valid JSON: {exc}",
             file=str(path),
-            fix="restore the manifest from a backup or rewrite it with update_manifest",
+            fix=restore,  # not update_manifest: it reads the manifest first, and fails on the same damage
         ) from exc
     if not isinstance(data, dict):
-        raise DataError("manifest.json must hold a JSON object", file=str(path), fix="rewrite the manifest")
+        raise DataError("manifest.json must hold a JSON object ({...}): damaged", file=str(path), fix=restore)
     return data
 
 
