@@ -237,3 +237,14 @@ def test_os_error_without_a_path_names_the_exceptions_own_file():
     problem = _only_problem(os_error(OSError(errno.ENOSPC, "No space left on device", "/x/y"), "use"))
     assert problem.file == "/x/y" and problem.fix == USE[errno.ENOSPC]
     assert _only_problem(os_error(OSError(errno.ENOSPC, "No space left on device"), "use")).file is None
+
+
+def test_a_name_the_file_system_takes_is_written_though_its_temp_files_name_is_longer(tmp_path):
+    """255 bytes is the longest name; the temp file (`.NAME.<random>.tmp`, 14 more) is cut short, not refused."""
+    target = tmp_path / ("é" * 100 + "x" * 55)  # 255 bytes in UTF-8
+    assert len(target.name.encode()) == 255
+    write_bytes_durably(target, b"data")
+    assert target.read_bytes() == b"data" and sorted(tmp_path.iterdir()) == [target]
+    with pytest.raises(DataError) as raised:  # one byte more: the file system's own refusal, one clear error
+        write_bytes_durably(tmp_path / ("x" * 256), b"data")
+    assert _only_problem(raised.value).fix == "give a shorter path"

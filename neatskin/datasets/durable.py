@@ -52,8 +52,15 @@ def then_instead_of_resume(error: DataError, then: str) -> DataError:
     return DataError(problems=problems)
 
 
+NAME_MAX_BYTES = 255  # the longest file name Linux's file systems take (ext4, xfs, btrfs, tmpfs)
+
+
 def temp_path_for(path: Path) -> Path:
-    return path.with_name(f".{path.name}.{secrets.token_hex(4)}{TEMP_SUFFIX}")
+    """`.NAME.<random>.tmp` beside `path`; NAME cut short where the whole would pass the longest file name, so a name
+    the file system takes (up to 255 bytes) is written, not refused for its temp file's 14 more."""
+    tail = f".{secrets.token_hex(4)}{TEMP_SUFFIX}"
+    name = path.name.encode()[: NAME_MAX_BYTES - 1 - len(tail)].decode(errors="ignore")
+    return path.with_name(f".{name}{tail}")
 
 
 def is_temp_file(path: Path) -> bool:
