@@ -15,7 +15,6 @@ small on top of it; click would rewrite every `cli.py` (and the tests' calls) fo
 from __future__ import annotations
 
 import argparse
-import errno
 import importlib
 import os
 import sys
@@ -24,6 +23,7 @@ from pathlib import Path
 
 from neatskin.cligroups import Parser, command_group
 from neatskin.errors import DataError, ExitCode, NeatskinError, exit_code_of
+from neatskin.oserrors import os_error
 
 COMMAND_MODULES = (
     "neatskin.config.cli",
@@ -126,28 +126,9 @@ def main(argv: list[str] | None = None) -> int:
     return int(result or 0)
 
 
-_PATH_FIXES = {
-    errno.EACCES: "choose a path you may use (-o/--out for an output), or give your user permission on it",
-    errno.EPERM: "choose a path you may use (-o/--out for an output), or give your user permission on it",
-    errno.EROFS: "the file system is read-only: choose a folder on a writable disk",
-    errno.ENOSPC: "the disk is full: free space on it, then run the command again",
-    errno.EDQUOT: "your disk quota is used up: free space or raise the quota, then run the command again",
-    errno.ENAMETOOLONG: "give a shorter path",
-    errno.ELOOP: "the path runs through a loop of symbolic links: correct or remove the link",
-    errno.ENOENT: "check that the path and the folders above it exist",
-    errno.ENOTDIR: "a part of the path is a file, not a folder: correct the path",
-    errno.EISDIR: "give a file there, not a folder",
-    errno.EEXIST: "that path exists already: choose another one or remove it",
-}
-
-
 def path_error(exc: OSError) -> DataError:
     """One DataError for an OSError that reached the CLI: the path, the system's reason, a fix for it."""
-    return DataError(
-        f"cannot use the path: {exc.strerror or exc}",
-        file=None if exc.filename is None else str(exc.filename),
-        fix=_PATH_FIXES.get(exc.errno or 0, "check the path, the disk and the permissions, then run the command again"),
-    )
+    return os_error(exc, "use")
 
 
 def report_error(exc: NeatskinError) -> None:

@@ -535,7 +535,7 @@ def test_a_wiring_file_without_permission_or_in_a_loop_of_links_gets_its_own_fix
     for command in (["campaign", "check"], ["campaign", "run", "--dry-run", "-o", str(protocols / "r")]):
         looped = _neatskin(*command[:2], str(smoke), *command[2:])
         assert looped.returncode in (1, 3) and "Traceback" not in looped.stderr, looped.stderr
-        assert "the path is a loop of symbolic links: point it at the TOML file itself" in looped.stderr
+        assert "the path runs through a loop of symbolic links: point it at the TOML file itself" in looped.stderr
 
 
 @pytest.mark.parametrize(

@@ -331,7 +331,16 @@ def test_the_sensitivity_maps_title_counts_what_it_drew_and_what_it_left_out():
             "dR_ohm_1_3": [5.0, 5.0, -2.0, -2.0, np.inf],
         }
     )
-    title = sensitivity_title(df, sensitivity_by_position(df))
-    assert title.splitlines()[1:] == ["2 positions, 3 presses", "2 flagged presses left out (1 position wholly)"]
+    title = sensitivity_title(df, sensitivity_by_position(df))  # a press that cut a pair is drawn, not left out
+    assert title.splitlines()[1:] == [
+        "3 positions, 5 presses",
+        "2 presses cut a pair off (dR = inf): 2 positions at the top, marked x",
+    ]
+    missed = df.assign(flags=[[], ["fsr_missed"], [], [], ["fsr_missed"]])  # flagged for anything else: left out
+    title = sensitivity_title(missed, sensitivity_by_position(missed))
+    assert title.splitlines()[1:] == [
+        "2 positions, 3 presses",
+        "2 otherwise flagged presses left out (1 position wholly)",
+    ]
     clean = df.iloc[[0, 2, 3]]
     assert sensitivity_title(clean, sensitivity_by_position(clean)).splitlines()[1:] == ["2 positions, 3 presses"]

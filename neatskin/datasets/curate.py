@@ -16,7 +16,14 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
-from neatskin.datasets.curation import campaign_status, copy_inputs, empty_output, flagged_mask, manifest_or_empty
+from neatskin.datasets.curation import (
+    campaign_status,
+    copy_inputs,
+    empty_output,
+    flagged_mask,
+    manifest_or_empty,
+    source_manifest,
+)
 from neatskin.datasets.durable import write_bytes_durably
 from neatskin.datasets.manifest import create_manifest, utc_now_iso
 from neatskin.datasets.merging import POSITION_TOLERANCE_MM, merge  # noqa: F401 (curate.merge is the API)
@@ -161,10 +168,10 @@ def split(
     """Write out/train and out/test, split BY POSITION: every repeat of a position lands in the same set."""
     path, out = Path(path), Path(out)
     empty_output(out)
+    source = source_manifest(path)  # a damaged one stops the split here, before anything is written
     table = read_press_table(path)
     refuse_bad_values(table, str(path), "split")
     meta = decode_metadata(table.schema.metadata)
-    source_manifest = manifest_or_empty(path)
     positions = table.column("position_id").to_numpy()
     train_ids, test_ids = split_positions(positions, test_fraction, seed)
     result = {}
@@ -181,11 +188,11 @@ def split(
         manifest = {
             "kind": "split",
             "split": info,
-            "campaign": source_manifest.get("campaign"),
-            **copy_inputs(out / name, [path], [source_manifest]),
+            "campaign": source.get("campaign"),
+            **copy_inputs(out / name, [path], [source]),
         }
-        if "seed" in source_manifest or "seed" in meta:
-            manifest["seed"] = source_manifest.get("seed", meta.get("seed"))
+        if "seed" in source or "seed" in meta:
+            manifest["seed"] = source.get("seed", meta.get("seed"))
         result[name] = _write_campaign(out / name, part, {**meta, "split": info}, manifest)
     return result
 
@@ -193,11 +200,17 @@ def split(
 # ---- export --------------------------------------------------------------------------------------
 
 
-def _without_local_facts(table: pa.Table, path: Path) -> pa.Table:
+def export_source_manifest(path: Path) -> dict[str, Any]:
+    """The manifest an export scrubs the recorded host with: a campaign folder's own (a damaged one is its DataError,
+    before anything is written); for a presses file, its folder's when that reads (the file is what was asked for)."""
+    return source_manifest(path) if path.is_dir() else manifest_or_empty(path.parent)
+
+
+def _without_local_facts(table: pa.Table, manifest: dict[str, Any]) -> pa.Table:
     """The table's metadata without host names and absolute paths (privacy.scrub): an export leaves the lab."""
     from neatskin.datasets.privacy import recorded_hosts, scrub
 
-    hosts = recorded_hosts(manifest_or_empty(path if path.is_dir() else path.parent))
+    hosts = recorded_hosts(manifest)
     return table.replace_schema_metadata(encode_metadata(scrub(decode_metadata(table.schema.metadata), hosts)))
 
 
@@ -211,11 +224,12 @@ def export(
     out = Path(out)
     if out.exists():
         raise DataError("the output file exists", file=str(out), fix="choose a new name; export never overwrites")
+    manifest = export_source_manifest(Path(path))
     table = read_press_table(path)
     if drop_flagged:
         table = table.filter(pa.array(~flagged_mask(table)))
     refuse_bad_values(table, str(path), "export")
-    table = _without_local_facts(table, Path(path))
+    table = _without_local_facts(table, manifest)
     if format == "parquet":
         return write_table_durably(out, table)
     df = table.to_pandas()

@@ -1,9 +1,10 @@
 """What every curation (describe, split and export in curate.py, merge in merging.py) shares: a source folder's
-manifest and status, the presses it flagged, the empty output folder, and the output's copies of the inputs.
+manifest (leniently for describe and merge, strictly for split and export) and status, the presses it flagged, the empty output folder, and the output's copies of the inputs.
 """
 
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 from typing import Any
@@ -13,16 +14,29 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from neatskin.datasets.lock import lock_state
-from neatskin.datasets.manifest import read_manifest, resolve_manifest_path
+from neatskin.datasets.manifest import MANIFEST_NAME, read_manifest, resolve_manifest_path
 from neatskin.errors import DataError
 
 
 def manifest_or_empty(folder: Path) -> dict[str, Any]:
-    """The folder's manifest, or {} when it has none (a plain dataset folder) or an unreadable one."""
+    """The folder's manifest, or {} when it has none (a plain dataset folder) or an unreadable one: for describe and
+    merge, which name a damaged manifest in their own words (info's validation line, merge's refusal)."""
     try:
         return read_manifest(folder) if folder.is_dir() else {}
     except DataError:
         return {}
+
+
+def source_manifest(path: Path) -> dict[str, Any]:
+    """The manifest of a source that split or export copies out: {} for a presses file or a folder without a
+    manifest.json (a plain dataset folder); a manifest.json that is there but cannot be read (no permission, a
+    folder or a loop of links in its place, truncated, not JSON) is read_manifest's one DataError naming it and how to
+    restore it, as validate, plot and resume give it. Called before anything is written: a campaign's provenance
+    and recorded host (which an export must scrub) are in that file, and an output without them would pass for a
+    plain dataset."""
+    if not path.is_dir() or not os.path.lexists(path / MANIFEST_NAME):
+        return {}
+    return read_manifest(path)
 
 
 def empty_output(out: Path) -> None:

@@ -1,5 +1,5 @@
 """Durable file writes: temp file in the same folder, flush + fsync, atomic rename, fsync of the folder; and the one
-clear error for a campaign file that cannot be written or read.
+clear error for a campaign file that cannot be written or read (its texts: `neatskin.oserrors`).
 
 A process killed at any instant leaves either the old file, or the new one complete, plus at most a
 hidden temp file (`.NAME.<random>.tmp`) that readers ignore and `remove_temp_files` cleans up.
@@ -7,60 +7,28 @@ hidden temp file (`.NAME.<random>.tmp`) that readers ignore and `remove_temp_fil
 
 from __future__ import annotations
 
-import errno
 import os
 import secrets
 from collections.abc import Callable
 from pathlib import Path
 from typing import IO
 
-import pyarrow as pa
-
 from neatskin.errors import DataError
+from neatskin.oserrors import os_error
 
 TEMP_SUFFIX = ".tmp"
 
-_WRITE_FIXES = {
-    errno.ENOSPC: "the disk is full: free space on it (or move the campaign to a bigger disk), then resume",
-    errno.EDQUOT: "your disk quota is used up: free space or raise the quota, then resume",
-    errno.EFBIG: "the file is larger than this process may write (ulimit -f) or than the file system allows: "
-    "raise the limit (ulimit -f unlimited) or use another disk, then resume",
-    errno.EACCES: "give your user write permission on the folder (chmod u+w), then resume",
-    errno.EPERM: "give your user write permission on the folder (chmod u+w), then resume",
-    errno.EROFS: "the file system is read-only: remount it read-write or copy the campaign to a writable disk, "
-    "then resume",
-    errno.EIO: "the disk reported an I/O error: check it (dmesg), copy the campaign elsewhere, then resume",
-}
-
 
 def write_error(exc: BaseException, path: str | os.PathLike) -> DataError:
-    """One clear DataError for a failed write of `path`, naming the file, the cause and a fix."""
-    code = getattr(exc, "errno", None)
-    if code is None and isinstance(exc, pa.ArrowException):  # pyarrow wraps the OS error in its text
-        text = str(exc)
-        code = next((c for c in _WRITE_FIXES if os.strerror(c) in text or f"errno {c}" in text.lower()), None)
-    reason = os.strerror(code) if code is not None else str(exc)
-    return DataError(
-        f"cannot write the file: {reason}",
-        file=str(path),
-        fix=_WRITE_FIXES.get(code, "check the disk and the folder's permissions, then resume")
-        if code is not None
-        else "check the disk and the folder's permissions, then resume",
-    )
+    """One clear DataError for a failed write of `path`, naming the file, the cause and a fix (`neatskin.oserrors`'
+    table; the fix ends "then resume", which `then_instead_of_resume` replaces for a write that is not a campaign's)."""
+    return os_error(exc, "write", path)
 
 
 def read_error(exc: OSError, path: str | os.PathLike, restore: str = "restore the file from a backup") -> DataError:
     """One clear DataError for a file that exists but cannot be read (no read permission, a folder or a loop of
     links in its place), naming the file, the system's reason and a fix; `restore` says how to get the file back."""
-    if isinstance(exc, PermissionError):
-        fix = f"give your user read permission on it (chmod u+r {path})"
-    elif isinstance(exc, IsADirectoryError):
-        fix = f"a folder stands where the file should be: move the folder away, then {restore}"
-    elif exc.errno == errno.ELOOP:
-        fix = f"the name is a link that leads back to itself: remove the link, then {restore}"
-    else:
-        fix = f"check the disk (dmesg), then {restore}"
-    return DataError(f"cannot read the file: {exc.strerror or exc}", file=str(path), fix=fix)
+    return os_error(exc, "read", path, then=f"then {restore}")
 
 
 def probe_write(folder: Path, size: int = 0) -> None:
@@ -84,13 +52,15 @@ def then_instead_of_resume(error: DataError, then: str) -> DataError:
     return DataError(problems=problems)
 
 
-def is_write_failure(exc: BaseException) -> bool:
-    """An OS error that a fix on the user's side (space, limits, permissions) cures."""
-    return isinstance(exc, OSError) and exc.errno in _WRITE_FIXES
+NAME_MAX_BYTES = 255  # the longest file name Linux's file systems take (ext4, xfs, btrfs, tmpfs)
 
 
 def temp_path_for(path: Path) -> Path:
-    return path.with_name(f".{path.name}.{secrets.token_hex(4)}{TEMP_SUFFIX}")
+    """`.NAME.<random>.tmp` beside `path`; NAME cut short where the whole would pass the longest file name, so a name
+    the file system takes (up to 255 bytes) is written, not refused for its temp file's 14 more."""
+    tail = f".{secrets.token_hex(4)}{TEMP_SUFFIX}"
+    name = path.name.encode()[: NAME_MAX_BYTES - 1 - len(tail)].decode(errors="ignore")
+    return path.with_name(f".{name}{tail}")
 
 
 def is_temp_file(path: Path) -> bool:
@@ -123,10 +93,10 @@ def write_durably(
                 os.fsync(handle.fileno())
         os.replace(tmp, path)
     except OSError as exc:  # pyarrow's IO errors are OSErrors too
-        tmp.unlink(missing_ok=True)
+        _remove_quietly(tmp)
         raise write_error(exc, path) from exc
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        _remove_quietly(tmp)
         raise
     if fsync:
         try:
@@ -137,6 +107,15 @@ def write_durably(
         except OSError as exc:
             raise write_error(exc, path) from exc
     return path
+
+
+def _remove_quietly(tmp: Path) -> None:
+    """Remove a temp file after a failed write: the same fault (a name too long, a file where a folder should be)
+    refuses the removal too, and must not hide the write's own error behind a second one."""
+    try:
+        tmp.unlink(missing_ok=True)
+    except OSError:
+        pass
 
 
 def write_bytes_durably(path: Path, data: bytes, *, fsync: bool = True, dir_fd: int | None = None) -> Path:

@@ -17,8 +17,8 @@ import numpy as np
 import pyarrow as pa
 
 from neatskin.datasets.cardtext import card_body
-from neatskin.datasets.curate import split_positions
-from neatskin.datasets.curation import empty_output, flagged_mask, manifest_or_empty
+from neatskin.datasets.curate import export_source_manifest, split_positions
+from neatskin.datasets.curation import empty_output, flagged_mask
 from neatskin.datasets.durable import write_bytes_durably
 from neatskin.datasets.manifest import resolve_manifest_path
 from neatskin.datasets.privacy import recorded_hosts, scrub, scrub_text
@@ -124,13 +124,13 @@ def export_hf(
     empty_output(out)
     if not license.strip() or any(c.isspace() for c in license.strip()):
         raise DataError(f"licence {license!r}", field="--license", fix="give an SPDX-style id, e.g. cc-by-4.0")
+    folder = path if path.is_dir() else path.parent
+    manifest = export_source_manifest(path)  # a campaign folder's damaged manifest stops the export here
     table = read_press_table(path)
     if drop_flagged:
         table = table.filter(pa.array(~flagged_mask(table)))
     if table.num_rows == 0:
         raise DataError("the dataset holds no presses", file=str(path), fix="export a campaign that recorded presses")
-    folder = path if path.is_dir() else path.parent
-    manifest = manifest_or_empty(folder)
     hosts = recorded_hosts(manifest)
     table = _clean_table(table, hosts)
     positions = table.column("position_id").to_numpy()

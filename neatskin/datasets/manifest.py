@@ -17,7 +17,8 @@ from pathlib import Path
 from typing import Any
 
 import neatskin
-from neatskin.datasets.durable import read_error, write_bytes_durably
+from neatskin.campaignread import read_manifest as read_manifest  # re-exported: the datasets read it from here
+from neatskin.datasets.durable import write_bytes_durably
 from neatskin.datasets.paths import MANIFEST_NAME
 from neatskin.errors import DataError
 
@@ -53,46 +54,6 @@ def write_manifest(folder: str | os.PathLike, manifest: dict[str, Any], *, fsync
         ) from exc
     Path(folder).mkdir(parents=True, exist_ok=True)
     return write_bytes_durably(manifest_path(folder), (text + "\n").encode(), fsync=fsync)
-
-
-def read_manifest(folder: str | os.PathLike) -> dict[str, Any]:
-    """The folder's manifest as a dict; DataError naming the file when it is missing, cannot be read (permission,
-    a folder or a loop of links in its place), is not UTF-8 or not a JSON object."""
-    path = manifest_path(folder)
-    restore = "restore manifest.json from a backup (the presses are not in it and stay as they are)"
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError as exc:
-        raise DataError(
-            "no manifest.json in the campaign folder",
-            file=str(path),
-            fix="point at a campaign folder written by `neatskin campaign run`",
-        ) from exc
-    except OSError as exc:  # no read permission, a folder or a loop of links in the manifest's place
-        if not Path(folder).is_dir():  # the "folder" is a file, or a link that leads back to itself
-            raise DataError(
-                f"not a campaign folder ({exc.strerror or exc})",
-                file=str(folder),
-                fix="point at a campaign folder written by `neatskin campaign run`",
-            ) from exc
-        raise read_error(exc, path, restore) from exc
-    except UnicodeDecodeError as exc:
-        raise DataError(
-            f"manifest.json is not UTF-8 text (byte {exc.object[exc.start]:#04x} at offset {exc.start}): damaged",
-            file=str(path),
-            fix=restore,
-        ) from exc
-    try:
-        data = json.loads(text)
-    except ValueError as exc:
-        raise DataError(
-            f"manifest.json is not valid JSON: {exc}",
-            file=str(path),
-            fix="restore the manifest from a backup or rewrite it with update_manifest",
-        ) from exc
-    if not isinstance(data, dict):
-        raise DataError("manifest.json must hold a JSON object", file=str(path), fix="rewrite the manifest")
-    return data
 
 
 def create_manifest(folder: str | os.PathLike, *, fsync: bool = True, **fields: Any) -> dict[str, Any]:

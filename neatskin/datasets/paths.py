@@ -16,7 +16,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-MANIFEST_NAME = "manifest.json"
+from neatskin.campaignread import MANIFEST_NAME as MANIFEST_NAME  # re-exported: the one name, read on the ground floor
+
 CONSOLIDATED_NAME = "presses.parquet"
 COPY_NAME = "presses.copy.parquet"
 PHYSICAL_LIMIT = "physical_limit.parquet"  # a dry run's Cramér-Rao bounds per position (neatskin.rig.physlimit)

@@ -9,10 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
 
 from neatskin.datasets.manifest import read_manifest, resolve_manifest_path
 from neatskin.datasets.paths import MANIFEST_NAME
 from neatskin.datasets.reader import pair_labels_from_columns, read_presses
+from neatskin.datasets.scan import cut_pairs_only
 from neatskin.errors import DataError
 from neatskin.layout import Layout, load_layout
 
@@ -21,33 +23,57 @@ DPI = 100  # 600 x 500 px
 
 
 def sensitivity_by_position(df: pd.DataFrame) -> pd.DataFrame:
-    """Per position: x_mm, y_mm, presses, and z = max over pairs of the mean dR over its repeats, normalised
-    to [-1, 1] by the largest |z| (paper eq. 2 on measured data). Flagged presses are left out."""
-    clean = df[[len(f) == 0 for f in df["flags"]]]
-    pairs = pair_labels_from_columns(clean)
+    """Per position: x_mm, y_mm, presses, cut_presses, and z = max over pairs of the mean dR over its repeats,
+    normalised to [-1, 1] by the largest |z| over the presses that cut no pair (paper eq. 2 on measured data).
+
+    A press that cut a pair off (a channel pinched shut: that pair's dR = +inf, its row flagged `open_circuit:i-j`
+    and nothing else) is the most sensitive reading there is, so it counts: its position's z is +inf (drawn at the
+    top of the bar, marked), `cut_presses` says how many, and the finite values of the other positions do not move.
+    Presses flagged for anything else (a missed sweep, a pair clipped but still conducting) are left out."""
+    flags = df["flags"].tolist()
+    flagged = np.array([len(f) > 0 for f in flags], dtype=bool)
+    cut = cut_pairs_only(pa.chunked_array([pa.array(flags, type=pa.list_(pa.string()))]), flagged)
+    used = df[~flagged | cut].assign(cut_press=cut[~flagged | cut])
+    pairs = pair_labels_from_columns(used)
     dr_cols = [f"dR_ohm_{p.i}_{p.j}" for p in pairs]
-    grouped = clean.groupby("position_id")
-    mean_dr = grouped[dr_cols].mean()
-    finite = mean_dr.where(np.isfinite(mean_dr))
+    grouped = used.groupby("position_id")
+    with np.errstate(invalid="ignore"):  # +inf and -inf (a cut baseline) in one pair's repeats: NaN, masked below
+        mean_dr = grouped[dr_cols].mean()
+    # a pair cut in any repeat: its mean is +inf, the position's max with it (also where another repeat's cut
+    # baseline left -inf, whose mean with +inf would be NaN and skipped)
+    mean_dr = mean_dr.mask((used[dr_cols] == np.inf).groupby(used["position_id"]).any(), np.inf)
     out = grouped[["x_mm", "y_mm"]].first()
     out["presses"] = grouped.size()
-    z = finite.max(axis=1).to_numpy(float)
-    scale = np.nanmax(np.abs(z)) if np.isfinite(z).any() else 0.0
+    out["cut_presses"] = grouped["cut_press"].sum().astype(int)
+    z = mean_dr.max(axis=1).to_numpy(float)
+    # the scale: the largest |z| over the presses that cut nothing, as before cut presses were drawn, so a position's
+    # cut press moves no other position's value (a cut position's own clean presses still count towards it)
+    clean = used[~used["cut_press"]]
+    clean_dr = clean.groupby("position_id")[dr_cols].mean()
+    clean_z = clean_dr.where(np.isfinite(clean_dr)).max(axis=1).to_numpy(float)
+    scale = np.max(np.abs(clean_z[np.isfinite(clean_z)])) if np.isfinite(clean_z).any() else 0.0
     out["z"] = z / scale if scale > 0 else z
-    out["best_pair"] = finite.idxmax(axis=1).astype(str).str.removeprefix("dR_ohm_").str.replace("_", "-")
+    out["best_pair"] = mean_dr.idxmax(axis=1).astype(str).str.removeprefix("dR_ohm_").str.replace("_", "-")
     return out.reset_index()
 
 
 def sensitivity_title(df: pd.DataFrame, sens: pd.DataFrame) -> str:
-    """The map's title: the positions and presses it was drawn from, and what it left out. (It said every press
-    of the campaign: '92 positions, 2800 presses' for a paper dry run whose map left out 498 flagged presses and
-    with them the 8 positions where every press cut a pair off.)"""
+    """The map's title: the positions and presses it was drawn from, the presses that cut a pair off (drawn, at the
+    top), and what it left out. (It said every press of the campaign: '92 positions, 2800 presses' for a paper dry
+    run whose map then left out the 498 presses that cut a pair off, and with them 8 positions.)"""
     used = int(sens["presses"].sum()) if len(sens) else 0
     title = f"Sensitivity (paper Fig. 8): max over pairs of mean dR\n{len(sens)} positions, {used} presses"
+    cut = int(sens["cut_presses"].sum()) if len(sens) else 0
+    if cut:
+        at = int((sens["cut_presses"] > 0).sum())
+        title += (
+            f"\n{cut} press{'es' if cut != 1 else ''} cut a pair off (dR = inf): "
+            f"{at} position{'s' if at != 1 else ''} at the top, marked x"
+        )
     left = len(df) - used
     if left:
         gone = df["position_id"].nunique() - len(sens)
-        title += f"\n{left} flagged press{'es' if left != 1 else ''} left out"
+        title += f"\n{left} otherwise flagged press{'es' if left != 1 else ''} left out"
         if gone:
             title += f" ({gone} position{'s' if gone != 1 else ''} wholly)"
     return title
@@ -135,7 +161,8 @@ def plot_sensitivity_map(
     grid_step_mm: float = 0.25,
 ) -> Path:
     """Paper Fig. 8: normalised max-over-pairs mean dR per pressed position, interpolated linearly between
-    positions (blank outside their convex hull), pressed positions as dots, channel boundaries dashed."""
+    positions (blank outside their convex hull), pressed positions as dots, channel boundaries dashed. A position
+    where a press cut a pair off is drawn at the top of the bar (its arrow) and marked with a red x."""
     from scipy.interpolate import griddata
 
     df = read_presses(path)  # first: a path that holds no presses is told as such, not as a missing manifest
@@ -148,15 +175,20 @@ def plot_sensitivity_map(
     )
     points = sens[["x_mm", "y_mm"]].to_numpy(float)
     z = sens["z"].to_numpy(float)
-    ok = np.isfinite(z)
     vmin, vmax = colour_range(z)
+    cut = z == np.inf
+    z = np.where(cut, vmax, z)  # a cut pair: saturated at the top of the bar (and marked below), never dropped
+    ok = np.isfinite(z)
     if ok.sum() >= 3 and np.linalg.matrix_rank(points[ok] - points[ok].mean(axis=0)) == 2:
         grid = griddata(points[ok], z[ok], (gx, gy), method="linear")
         image = ax.pcolormesh(gx, gy, grid, cmap="viridis", vmin=vmin, vmax=vmax, shading="auto")
     else:
         image = ax.scatter(points[:, 0], points[:, 1], c=z, cmap="viridis", vmin=vmin, vmax=vmax, s=60)
-    fig.colorbar(image, ax=ax, label="normalised max dR (Fig. 8)")
-    ax.scatter(points[:, 0], points[:, 1], s=6, color="black")
+    fig.colorbar(image, ax=ax, label="normalised max dR (Fig. 8)", extend="max" if cut.any() else "neither")
+    ax.scatter(points[~cut, 0], points[~cut, 1], s=6, color="black")
+    if cut.any():
+        # no legend: it would hide pressed positions in a corner; the title says what the red x is
+        ax.scatter(points[cut, 0], points[cut, 1], s=40, marker="x", color="red", linewidths=1.5, zorder=3)
     _draw_channels(ax, layout)
     return _finish(
         plt,
@@ -170,7 +202,7 @@ def plot_sensitivity_map(
 
 def colour_range(z: np.ndarray) -> tuple[float, float]:
     """The normalised map's colour range: 0..1 when no value is negative (a press raises dR: the usual case),
-    -1..1 when one is, so the bar spans the data and no more."""
+    -1..1 when one is, so the bar spans the data and no more. A cut pair's +inf is at the top of either."""
     finite = z[np.isfinite(z)]
     return (0.0, 1.0) if finite.size == 0 or finite.min() >= 0 else (-1.0, 1.0)
 

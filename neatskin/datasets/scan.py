@@ -171,7 +171,7 @@ def _scan_batch(
         if keys["flagged"].any():
             values = pc.list_flatten(flags.filter(flagged))
             scan.flag_counts.update(v for v in values.to_pylist() if v is not None)
-            keys["cut_pairs_only"] = _cut_pairs_only(flags, keys["flagged"].to_numpy(bool))
+            keys["cut_pairs_only"] = cut_pairs_only(flags, keys["flagged"].to_numpy(bool))
     if "campaign" in names:
         scan.campaigns.update(v for v in pc.unique(table.column("campaign")).to_pylist() if v is not None)
     return keys
@@ -212,7 +212,7 @@ def _row_hashes(table: pa.Table, expected: pa.Schema) -> np.ndarray:
     return pd.util.hash_pandas_object(pd.DataFrame(columns), index=False).to_numpy()
 
 
-def _cut_pairs_only(flags: pa.ChunkedArray, flagged: np.ndarray) -> np.ndarray:
+def cut_pairs_only(flags: pa.ChunkedArray, flagged: np.ndarray) -> np.ndarray:
     """Per row: flagged, and every flag it carries says a pair was cut off (`open_circuit:i-j`, with or without
     `clipped:i-j` for the same pair). A pair clipped but still conducting, or a row-level flag, is not."""
     rows = np.flatnonzero(flagged)

@@ -15,19 +15,11 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from neatskin.campaignread import read_parquet as read_parquet  # re-exported: the datasets read them here
+from neatskin.campaignread import unreadable_presses as unreadable_presses
 from neatskin.datasets.durable import read_error, write_durably
 from neatskin.datasets.schema import BASE_COLUMNS, decode_metadata, normalise_pairs, pair_columns, parse_pair_column
 from neatskin.errors import DataError, Problem
-
-
-def unreadable_presses(exc: Exception, path: str | os.PathLike) -> DataError:
-    """The one error for a presses file (or a dataset folder) pyarrow cannot read."""
-    return DataError(
-        f"cannot read the presses: {exc}",
-        file=str(path),
-        fix="run `neatskin dataset validate` on the folder to find the damaged file",
-    )
-
 
 MISSING_COLUMNS_FIX = (
     "rewrite the file with every column of the layout's schema (or validate against the layout the campaign used)"
@@ -57,13 +49,6 @@ def refuse_missing_columns(schema: pa.Schema, file: Path) -> None:
     missing = missing_press_columns(schema)
     if missing:
         raise DataError(problems=[missing_columns_problem(missing, str(file))])
-
-
-def read_parquet(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
-    """One parquet file, its page checksums verified (a flipped bit is an error, not a changed value);
-    metadata dropped."""
-    handle = pq.ParquetFile(path, page_checksum_verification=True)
-    return handle.read(columns=columns, use_threads=False).replace_schema_metadata(None)
 
 
 def file_sha256(path: Path, restore: str = "restore the file from a backup") -> str:

@@ -25,6 +25,7 @@ from neatskin.errors import ConfigError, Problem
 from neatskin.gcode.profile import load_printer_profile
 from neatskin.gcode.spec import build_from_spec, press_spec_from_dict
 from neatskin.layout import load_layout
+from neatskin.oserrors import errno_of, fix_for
 from neatskin.sim.scene import Scene, parse_scene
 from neatskin.skin.network import equivalent_resistance
 from neatskin.tomlfile import read_toml, resolve_path
@@ -283,15 +284,9 @@ def _wiring_layout_problems(wiring: Any, layout: Any, wiring_path: Path) -> list
 
 
 def _path_fix(exc: BaseException) -> str:
-    """The fix for a [files] path the OS refused, by its reason."""
-    code = getattr(exc, "errno", None)
-    if code in (errno.EACCES, errno.EPERM):
-        return "give your user read permission on the file and search (x) permission on each folder of its path"
-    if code == errno.ELOOP or isinstance(exc, RuntimeError):
-        return "the path is a loop of symbolic links: point it at the TOML file itself"
-    if code == errno.ENAMETOOLONG:
-        return "give a shorter path to an existing TOML file"
-    return "give the path of an existing, readable TOML file"
+    """The fix for a [files] path the OS refused, by its reason (`neatskin.oserrors`' table)."""
+    code = errno.ELOOP if isinstance(exc, RuntimeError) else errno_of(exc)  # 3.11 says a loop as a RuntimeError
+    return fix_for(code, "find", what="TOML file")
 
 
 def _referenced_files(

@@ -29,13 +29,13 @@ returned as a number.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from neatskin.campaignread import read_manifest, read_presses_file
 from neatskin.errors import DataError
 from neatskin.layout import Layout, load_layout
 from neatskin.skin.deformation import PinchParams
@@ -153,7 +153,7 @@ def load_campaign(folder: str | Path) -> tuple[Layout, dict, dict[str, np.ndarra
     table = folder / "presses.parquet"
     if not table.exists():
         raise DataError(f"{folder} has no presses.parquet", field="presses.parquet", fix="fit a finished campaign")
-    df = _read_presses(table).sort_values("press_id")
+    df = read_presses_file(table).to_pandas().sort_values("press_id")
     missing = [c for c in ("x_mm", "y_mm", "depth_mm", "position_id", "press_id") if c not in df.columns]
     if missing:
         raise DataError(
@@ -161,7 +161,7 @@ def load_campaign(folder: str | Path) -> tuple[Layout, dict, dict[str, np.ndarra
             field=", ".join(missing),
             fix="fit a campaign recorded with positions (neatskin campaign run writes them)",
         )
-    manifest = _read_manifest(folder / "manifest.json")
+    manifest = read_manifest(folder)
     layout = load_layout(folder / "inputs" / "layout.toml")
     dr = df[[c for c in df.columns if c.startswith("dR_ohm_")]].to_numpy(float)
     r = df[[c for c in df.columns if c.startswith("R_ohm_")]].to_numpy(float)
@@ -177,38 +177,6 @@ def load_campaign(folder: str | Path) -> tuple[Layout, dict, dict[str, np.ndarra
         "dR": dr,
     }
     return layout, manifest, columns
-
-
-def _read_presses(table: Path):
-    """The press file as a DataFrame, its page checksums verified; a file pyarrow cannot read (truncated, damaged,
-    no permission) is the DataError the dataset commands give for it (datasets/tables.py's unreadable_presses)."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    try:
-        return pq.ParquetFile(table, page_checksum_verification=True).read(use_threads=False).to_pandas()
-    except (OSError, pa.ArrowException) as exc:
-        raise DataError(
-            f"cannot read the presses: {exc}",
-            file=str(table),
-            fix="run `neatskin dataset validate` on the folder to find the damaged file",
-        ) from exc
-
-
-def _read_manifest(path: Path) -> dict:
-    """The campaign's manifest.json as a dict; one DataError naming it when it is missing, unreadable or not a
-    JSON object (`neatskin dataset validate` on the folder says more)."""
-    try:
-        manifest = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:  # ValueError: not UTF-8 or not JSON
-        raise DataError(
-            f"cannot read the manifest: {exc}",
-            file=str(path),
-            fix="fit a campaign folder written by `neatskin campaign run`; restore manifest.json from a backup",
-        ) from exc
-    if not isinstance(manifest, dict):
-        raise DataError("manifest.json must hold a JSON object", file=str(path), fix="restore it from a backup")
-    return manifest
 
 
 def _refuse_nonfinite(df, table: Path) -> None:
