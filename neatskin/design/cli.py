@@ -50,7 +50,8 @@ def register(subparsers) -> None:
         description="Compare the study's learned errors, its physics (a study-trained model on campaign presses) and "
         "its ranking of candidates with simulated campaigns (other positions, folds, seeds, model; the protocol's "
         "scene for the ranking). Exit 0 when they agree, 1 when not. --negative-control scales the campaigns' pinch "
-        "by 0.6 and must disagree. Writes the section into OUT/report.md.",
+        "by 0.6 and must disagree. The study's optimised placements are checked too when `design study` has made them "
+        "in OUT for this same study file (else a line says they are left out). Writes the section into OUT/report.md.",
     )
     validate.add_argument("study", help="study TOML")
     add_out(validate, "output folder (default out/design/<study name>)")
@@ -165,7 +166,13 @@ def validate_handler(args: argparse.Namespace) -> int:
     bar = _Bar(args.quiet, unit="check", desc=f"validate {study.name}")
     try:
         v = validate_study(
-            study, args.protocol, pinch_scale=scale, power=not args.no_power, n_jobs=args.jobs, progress=bar.progress
+            study,
+            args.protocol,
+            pinch_scale=scale,
+            power=not args.no_power,
+            n_jobs=args.jobs,
+            progress=bar.progress,
+            out=out,
         )
     finally:
         bar.close()

@@ -13,10 +13,9 @@ import pandas as pd
 
 from neatskin.datasets.durable import write_bytes_durably, write_durably
 from neatskin.design.evaluate import CandidateResult
-from neatskin.design.study import Study
+from neatskin.design.study import PARTS, Study
 from neatskin.design.validate import existing_section
 
-PARTS = "parts"  # a study folder's one-row parquet per candidate done (what resume skips)
 MAPS = "maps"  # its per-candidate bound maps (parquet, png)
 ERROR_COLUMN = "bound_mean_capped_mm"
 PARETO_COLUMNS = (ERROR_COLUMN, "electrodes", "sweep_time_s")

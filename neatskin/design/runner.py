@@ -12,23 +12,20 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Callable, Iterator
-from dataclasses import asdict
 from pathlib import Path
-from typing import Any
 
 import pandas as pd
 
 from neatskin.datasets.durable import remove_temp_files, write_bytes_durably, write_durably
 from neatskin.design.candidates import Candidate, expand
 from neatskin.design.evaluate import CandidateResult, evaluate_candidate
-from neatskin.design.report import MAPS, PARTS, write_candidate, write_report
-from neatskin.design.study import Study
+from neatskin.design.report import MAPS, write_candidate, write_report
+from neatskin.design.study import FINGERPRINT, PARTS, Study, study_fingerprint
 from neatskin.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
 SCHEDULERS = ("local", "dask")
-FINGERPRINT = "study.json"
 
 Progress = Callable[[int, int], None]
 Tick = Callable[[float], None]
@@ -42,14 +39,6 @@ def default_jobs() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not on Linux
         return max(1, os.cpu_count() or 1)
-
-
-def study_fingerprint(study: Study) -> dict[str, Any]:
-    """Everything that changes a study's numbers (the source path and description do not)."""
-    data = asdict(study)
-    data.pop("source")
-    data.pop("description")
-    return json.loads(json.dumps(data))
 
 
 def done_ids(out_dir: Path) -> set[str]:

@@ -109,6 +109,20 @@ def load_study(path: str | Path) -> Study:
     return study_from_dict(data, source=str(path))
 
 
+FINGERPRINT = "study.json"  # a study folder's fingerprint of the study that wrote it (refuses a resume of another)
+PARTS = "parts"  # a study folder's one-row parquet per candidate done (what resume skips, what validate reads)
+
+
+def study_fingerprint(study: Study) -> dict[str, Any]:
+    """Everything that changes a study's numbers (the source path and description do not)."""
+    import json
+
+    data = dataclasses.asdict(study)
+    data.pop("source")
+    data.pop("description")
+    return json.loads(json.dumps(data))
+
+
 def study_out_dir(study: Study, out: str | Path | None, root: Path = DEFAULT_OUT_ROOT) -> Path:
     """The folder a study writes into: `out` as given, else root/<name>, which must stay inside root.
 

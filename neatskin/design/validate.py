@@ -2,7 +2,8 @@
 the dry run's skin and scene engine) whose positions, folds, seeds and model are not the study's; a negative control
 with the campaigns' skin pinch changed, and the power of the check.
 
-Candidates: the study's candidates with fixed placements (the optimised ones need the optimiser's run), at least 3.
+Candidates: the study's candidates with fixed placements (at least 3), and its optimised placements when a run of
+this study produced them in OUT (`validateset.py`; else one line says they are left out and how to make them).
 Per candidate, three checks:
 - level: the study's learned error (its uniform positions, group-shuffle split, k = 5 uniform kNN, its seeds)
   against campaigns in the scene the study assumes (no placement error, jitter, drift or fabrication; the study's
@@ -13,7 +14,8 @@ Per candidate, three checks:
   TRANSFER_TOLERANCE of the campaign's error. This is the check with power against wrong physics (the learned
   error alone barely moves with the pinch: interpolation between training positions sets it);
 - ranking (over candidates): campaigns in the protocol's own scene (paper-like: the finite-element pinch kernel,
-  placement, jitter, drift, fabrication, displaced fluid) order the candidates' errors as the study does, for every pair the study separates.
+  placement, jitter, drift, fabrication, displaced fluid) order the candidates' errors as the study does, for every pair the study separates;
+  beside it, optimised against boundary at each electrode count (paired over seeds: the same positions and splits).
 The verdict agrees when every check agrees. The pinch of the campaigns' skin can be scaled (`pinch_scale`): the
 negative control uses 0.6 (a 40 % change) and must disagree; the power sweep reports the smallest change detected.
 """
@@ -31,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from neatskin.design.study import Study
+from neatskin.design.validateset import fixed_candidates, validation_set
 
 SECTION = "## Validation against simulated campaigns"
 CAMPAIGN_SEEDS = 5
@@ -51,6 +54,9 @@ class CandidateCheck:
     campaign_mm: np.ndarray
     transfer_mm: np.ndarray
     scene_mm: np.ndarray
+    skin: tuple[float, ...] = ()  # validateset.skin_key: placements compete only on the same skin
+    strategy: str = ""
+    count: int = 0
 
     @staticmethod
     def _se(values: np.ndarray) -> float:
@@ -78,6 +84,17 @@ class Validation:
     ranking_agrees: bool
     kendall_tau: float
     power: tuple[tuple[float, bool], ...] = ()
+    note: str | None = None  # the optimised candidates left out, and why
+
+    @property
+    def head_to_head(self) -> list[HeadToHead]:
+        """Optimised against boundary at the same count on the same skin, for every optimised candidate checked."""
+        boundary = {(c.skin, c.count): c for c in self.checks if c.strategy == "boundary"}
+        return [
+            HeadToHead(c, boundary[(c.skin, c.count)])
+            for c in self.checks
+            if c.strategy == "optimised" and (c.skin, c.count) in boundary
+        ]
 
     @property
     def agree(self) -> bool:
@@ -89,19 +106,41 @@ class Validation:
         return min(found) if found else None
 
 
-def validation_candidates(study: Study) -> list[Any]:
-    from neatskin.design.candidates import expand
-    from neatskin.errors import ConfigError
+@dataclass(frozen=True)
+class HeadToHead:
+    """Optimised against boundary with the same electrodes on the same skin. Both sides use the same seeds (the
+    study: the same positions, noise shape and split per seed; the campaigns: the same positions per seed), so the
+    difference is taken per seed: mean and standard error of (optimised - boundary)."""
 
-    fixed = [c for c in expand(study) if c.strategy != "optimised" and c.nodes]
-    if len(fixed) < 3:
-        raise ConfigError(
-            f"the study has {len(fixed)} candidates with fixed placements; a ranking needs at least 3",
-            file=study.source,
-            field="electrodes.strategies",
-            fix="add boundary, interior or every_k placements (or more counts)",
-        )
-    return fixed
+    optimised: CandidateCheck
+    boundary: CandidateCheck
+
+    @staticmethod
+    def _paired(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+        d = a - b
+        return float(d.mean()), CandidateCheck._se(d)
+
+    @property
+    def study_diff_mm(self) -> tuple[float, float]:
+        return self._paired(self.optimised.study_mm, self.boundary.study_mm)
+
+    @property
+    def scene_diff_mm(self) -> tuple[float, float]:
+        return self._paired(self.optimised.scene_mm, self.boundary.scene_mm)
+
+    @property
+    def order(self) -> str:
+        """'same order' or 'reversed' (the signs of the two differences), with whether each side separates them
+        beyond 2 of its paired standard errors."""
+        (ds, ss), (dc, sc) = self.study_diff_mm, self.scene_diff_mm
+        same = "same order" if ds * dc > 0 else "reversed" if ds * dc < 0 else "tied"
+        sep = [name for name, d, se in (("study", ds, ss), ("campaigns", dc, sc)) if abs(d) > 2 * se]
+        return f"{same}; separated beyond 2 paired SE by: {', '.join(sep) or 'neither'}"
+
+
+def validation_candidates(study: Study) -> list[Any]:
+    """The study's fixed placements (at least 3; ConfigError otherwise)."""
+    return fixed_candidates(study)
 
 
 def _campaign_protocol(base, study: Study, candidate, layout, ideal: bool):
@@ -157,11 +196,13 @@ class StudySide:
 
 def study_side(study: Study, candidate) -> StudySide:
     from neatskin.baselines.models import make_models
-    from neatskin.design.evaluate import candidate_layout, pair_noise
+    from neatskin.design.evaluate import candidate_layout, canonical_nodes, pair_noise
     from neatskin.design.learned import learned_error_mm, simulated_features
     from neatskin.skin.model import SkinModel
 
-    layout = candidate_layout(study, candidate, candidate.nodes)
+    # the study's own electrode order (evaluate_candidate's): the same pairs in the same order draw the same noise,
+    # so the study column is the study's learned error itself (the boundary walk's order gave 4.90 for its 4.88 mm)
+    layout = candidate_layout(study, candidate, canonical_nodes(candidate.nodes))
     noise = pair_noise(study)
     study_mm = learned_error_mm(layout, study, candidate, noise)
     features, targets, _ = simulated_features(layout, study, candidate, noise, 0)
@@ -210,8 +251,18 @@ def check_candidate(
             if ideal:
                 predicted = side.trained.predict(presses.features)
                 transfer.append(float(np.mean(np.linalg.norm(predicted - presses.commanded_mm, axis=1))))
-    label = f"{candidate.placement.rstrip('-')} {candidate.count}"
-    return CandidateCheck(label, side.study_mm, np.array(campaign), np.array(transfer), np.array(scene))
+    from neatskin.design.validateset import label, skin_key
+
+    return CandidateCheck(
+        label(candidate),
+        side.study_mm,
+        np.array(campaign),
+        np.array(transfer),
+        np.array(scene),
+        skin_key(candidate),
+        candidate.strategy,
+        candidate.count,
+    )
 
 
 def ranking(checks: list[CandidateCheck]) -> tuple[bool, float]:
@@ -239,10 +290,12 @@ def validate_study(
     power: bool = True,
     n_jobs: int = 2,
     progress: Callable[[int, int], None] | None = None,
+    out: str | Path | None = None,
 ) -> Validation:
     """The checks for every fixed candidate, with campaigns whose pinch is scaled by `pinch_scale`; with `power`,
     the transfer check again with the study's pinch scaled by each of POWER_SCALES (the smallest change it detects;
-    the same whatever `pinch_scale` is). `progress(done, total)` is called as each step ends: a candidate's check,
+    the same whatever `pinch_scale` is). `out`: the study's folder, whose run's optimised placements are checked
+    too (validateset.py; without it or without that run they are left out, with a note). `progress(done, total)` is called as each step ends: a candidate's check,
     the power sweep's study side, each scale of the sweep (the CLI draws it as a bar)."""
     from joblib import delayed
 
@@ -251,7 +304,8 @@ def validate_study(
     from neatskin.tomlfile import resolve_path
 
     base = load_protocol(resolve_path(protocol))
-    candidates = validation_candidates(study)
+    chosen = validation_set(study, None if out is None else Path(out))
+    candidates = list(chosen.candidates)
     total = len(candidates) + (1 + len(POWER_SCALES) if power else 0)
     done = 0
 
@@ -291,7 +345,7 @@ def validate_study(
             )
         )
         found = [(s, not (c.transfer_agrees and c.level_agrees)) for s, c in zip(POWER_SCALES, scaled, strict=True)]
-    return Validation(tuple(checks), pinch_scale, agrees, tau, tuple(found))
+    return Validation(tuple(checks), pinch_scale, agrees, tau, tuple(found), chosen.note)
 
 
 _SECTION_RE = re.compile(re.escape(SECTION) + r".*?(?=^## |\Z)", re.S | re.M)

@@ -32,12 +32,29 @@ def table_lines(v: Validation) -> list[str]:
     return lines
 
 
+def head_to_head_lines(v: Validation) -> list[str]:
+    """Optimised against boundary at each electrode count: both sides' errors and the paired differences."""
+    lines = []
+    for h in v.head_to_head:
+        (ds, ss), (dc, sc) = h.study_diff_mm, h.scene_diff_mm
+        lines.append(
+            f"{h.optimised.label} against {h.boundary.label}: study {_cell(h.optimised.study_mm)} against "
+            f"{_cell(h.boundary.study_mm)} mm (difference {ds:+.2f} ± {ss:.2f} SE over {len(h.optimised.study_mm)} "
+            f"paired seeds); campaigns in the protocol's scene {_cell(h.optimised.scene_mm)} against "
+            f"{_cell(h.boundary.scene_mm)} mm (difference {dc:+.2f} ± {sc:.2f} SE over {len(h.optimised.scene_mm)} "
+            f"paired seeds): {h.order}"
+        )
+    return lines
+
+
 def verdict_lines(v: Validation) -> list[str]:
     order_study = " < ".join(c.label for c in sorted(v.checks, key=lambda c: c.study_mm.mean()))
     order_scene = " < ".join(c.label for c in sorted(v.checks, key=lambda c: c.scene_mm.mean()))
-    lines = [
+    lines = [f"note: {v.note}"] if v.note else []
+    lines += [
         f"ranking: study {order_study}; campaigns {order_scene}; Kendall tau {v.kendall_tau:.2f}: "
         + ("agree (no pair the study separates is reversed)" if v.ranking_agrees else "disagree"),
+        *head_to_head_lines(v),
     ]
     if v.power:
         detected = ", ".join(f"{s:g}" for s, d in v.power if d) or "none"
@@ -61,6 +78,7 @@ def markdown(v: Validation, study_name: str, protocol: str) -> str:
             f"Study `{study_name}` against simulated campaigns (`neatskin.rig.simcampaign`) built from `{protocol}`: "
             f"the protocol's position strategy, {CAMPAIGN_SEEDS} campaign seeds not the study's, {FOLDS}-fold grouped "
             "splits, the baselines' distance-weighted kNN; the study's own candidates with fixed placements"
+            + (", and its optimised placements from its run" if v.head_to_head else "")
             + (f"; **negative control: the campaigns' skin has its pinch x {v.pinch_scale:g}**" if negative else "")
             + ". Mean Euclidean error, mean ± std over seeds.",
             "",
