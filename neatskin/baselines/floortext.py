@@ -137,12 +137,12 @@ def floors_section(table: pd.DataFrame, floors: Floors | None, campaign_seeds: i
         )
     lines += [
         f"| landing-point bound | Cramér-Rao bound on where a press landed from its 28 dR: electronics noise, depth "
-        f"jitter, fluid drift and fabrication spread (per press) as nuisances | | {floors.landing_rms_mm:.3g} |",
+        f"jitter, fluid drift and fabrication spread (per press) as nuisances | | {_pooled(floors.landing_rms_mm)} |",
     ]
     if floors.landing_known_skin_rms_mm is not None:
         lines.append(
             "| landing-point bound, this skin's fabrication known | the same for a model trained on this skin, "
-            f"which has seen its channels | | {floors.landing_known_skin_rms_mm:.3g} |"
+            f"which has seen its channels | | {_pooled(floors.landing_known_skin_rms_mm)} |"
         )
     median, beyond, positions = floors.landing_spread
     if beyond:
@@ -218,6 +218,11 @@ def ratio_note(table: pd.DataFrame, limit: pd.DataFrame | None, extent_mm: float
             why = f"it is {' and '.join(parts) or 'not compared'}, so its pooled value says nothing"
         text += f" No result is compared with the {name} (no column for it): {why}."
     return text
+
+
+def _pooled(rms_mm: float) -> str:
+    """A pooled landing bound's cell: the figure, or why there is none (an infinite RMS is no error size)."""
+    return f"{rms_mm:.3g}" if np.isfinite(rms_mm) else "inf: infinite where a channel is shut, median below"
 
 
 def floor_column(split: str, stat: str = "rms") -> str:
