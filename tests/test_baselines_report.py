@@ -331,6 +331,15 @@ def test_an_infinite_bound_is_summarised_by_its_median_and_compared_with_nothing
     # the same reason is not given twice: the nuisance bound's paragraph points to it
     assert "Here the bound with nuisances exceeds the skin at some positions too, for the same reason" in text
     assert "Here the bound with nuisances exceeds the skin (30 mm)" not in text
+    # the full table has no all-NaN ratio column, and one line says why nothing is compared with either bound
+    full = text.split("## All figures")[1]
+    assert "RMS / bound" not in full and "RMS / nuisance bound" not in full and "| nan |" not in full
+    assert (
+        "No result is compared with the electronics-only bound (no column for it): it is infinite at 3 of 10 "
+        "positions (unresolvable: a channel the probe shuts), so its pooled value says nothing."
+    ) in full
+    assert "No result is compared with the bound with nuisances (no column for it): it is infinite at 3 of 10" in full
+    assert "each bound it is compared with" in text
     summary = report_summary(report)
     # the figures as report.md writes them (sig3); an infinite pooled bound is not printed as a figure ("inf mm"),
     # its median is, with why nothing is compared with it; no all-NaN ratio columns
@@ -365,6 +374,10 @@ def test_a_huge_finite_bound_is_no_more_compared_than_an_infinite_one(tmp_path):
     assert "Here the bound with nuisances exceeds the skin (30 mm) at some positions" in text
     assert "Here the electronics-only bound" not in text
     assert "| 348,000 |" in text  # sig3, not 3.48e+05
+    full = text.split("## All figures")[1]  # the electronics-only ratio is there, the all-NaN one is not
+    assert "`RMS / bound` = RMS error over the pooled electronics-only bound." in full
+    assert "| RMS / bound |" in full and "RMS / nuisance bound" not in full and "| nan |" not in full
+    assert "with nuisances (no column for it): it is beyond the skin (30 mm) at 1 of 10, so its pooled" in full
     summary = report_summary(report)  # the huge pooled bound is not compared: the terminal gives its median
     assert "as nuisances: median 1.00 mm over 10 positions, above the probe radius at 1; beyond the skin" in summary
     assert "electronics only: 0.500 mm" in summary and summary.splitlines()[0].split()[-1] == "RMS/CRB"  # no CRBn

@@ -113,6 +113,7 @@ def test_a_landing_bound_beyond_the_probe_radius_is_given_by_its_median_and_its_
         "the probe shuts tells which channel, not where along it); its median over positions is 0.05 mm (0.02 mm "
         "with this skin's fabrication known)." in text
     )
+    assert "| | inf: infinite where a channel is shut, median below |" in text  # no bare "inf" as an RMS
     assert read_floors(limit, radius_mm=1e5).landing_spread[1:] == (3, 10)  # the radius is the probe's
     assert "exceeds the probe radius" not in "\n".join(floors_section(pd.DataFrame(), read_floors(_limit())))
 

@@ -155,6 +155,35 @@ def test_bound_map_keeps_infinite_and_beyond_the_skin_positions_off_its_colour_s
         plt.close(fig)
 
 
+def test_bound_map_draws_the_landing_point_bound_with_the_files_infinite_count():
+    """With `landing_bound_mm` (report.md's landing-point bound) a third panel: each panel's red-cross count is the
+    file's count of +inf in its column, at those positions."""
+    limit = pd.DataFrame(
+        {
+            "position_id": [0, 1, 2, 3],
+            "x_mm": [5.0, 15.0, 25.0, 5.0],
+            "y_mm": [5.0, 15.0, 25.0, 25.0],
+            "crb_mm": [0.01, np.inf, 0.02, np.inf],
+            "crb_nuisance_mm": [1.0, np.inf, 1.1, np.inf],
+            "landing_bound_mm": [0.1, np.inf, 0.3, np.inf],
+        }
+    )
+    fig = bound_map_figure(limit)
+    try:
+        panels = [ax for ax in fig.axes if ax.get_xlabel() == "x (mm)"]
+        assert [ax.get_title().splitlines()[0] for ax in panels] == [
+            "electronics only",
+            "depth, drift, placement as nuisances",
+            "landing point: depth, drift, fabrication as nuisances",
+        ]
+        for ax in panels:
+            (line,) = ax.get_lines()
+            assert line.get_label() == "unobservable (+inf): 2"
+            assert (tuple(line.get_xdata()), tuple(line.get_ydata())) == ((15.0, 5.0), (15.0, 25.0))
+    finally:
+        plt.close(fig)
+
+
 def test_ellipses_keep_the_whole_skin_outline_in_view(report, tmp_path):
     layout = load_layout(resolve_path("protocols/skins/paper.toml"))
     x0, y0, x1, y1 = layout.bounds_mm

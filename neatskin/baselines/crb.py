@@ -2,8 +2,9 @@
 
 For features f(x, y) + noise with covariance C, any unbiased position estimate has
 covariance >= F^-1 with Fisher information F = J^T C^-1 J (J = d f / d(x, y), pairs x 2).
-The bound on the RMS Euclidean error is sqrt(trace(F^-1)). A singular F (no pair sees a
-direction of motion) gives +inf, never NaN.
+The bound on the RMS Euclidean error is sqrt(trace(F^-1)). A position the pairs cannot resolve (no pair sees a
+direction of motion, to float precision) gives +inf, never NaN: the rank rule of `neatskin.skin.fisherbound`,
+which the bounds with nuisances share.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from neatskin.errors import DataError
+from neatskin.skin.fisherbound import whitened_bound_mm
 
 
 def fisher_information(
@@ -71,11 +73,10 @@ def cramer_rao_bound_mm(
     """
     jac = np.asarray(jacobian, dtype=float)
     jac = np.where(np.isfinite(jac), jac, 0.0)
-    fisher = fisher_information(jac, noise_cov, noise_std)
-    a, b, d = fisher[:, 0, 0], fisher[:, 0, 1], fisher[:, 1, 1]
-    det = a * d - b * b
-    scale = np.maximum(a * d, np.finfo(float).tiny)
-    singular = det <= 1e-12 * scale
-    with np.errstate(divide="ignore", invalid="ignore"):
-        trace_inv = np.where(singular, np.inf, (a + d) / np.where(singular, 1.0, det))
-    return np.sqrt(trace_inv)
+    fisher_information(jac, noise_cov, noise_std)  # validates the shapes and the noise (one clear error)
+    if noise_std is not None:
+        whitened = jac / np.broadcast_to(np.asarray(noise_std, float), (jac.shape[1],))[None, :, None]
+    else:
+        whitened = np.linalg.solve(np.linalg.cholesky(np.asarray(noise_cov, float))[None], jac)
+    # no nuisance here: the rank rule is that of every bound of the package (neatskin.skin.fisherbound)
+    return whitened_bound_mm(whitened)

@@ -15,7 +15,8 @@ noise only adds to the error, so these are floors for any model, biased or not, 
 
 The landing-point bound is apart from the labels: sqrt(trace(S^-1)) of the Fisher information of one press's 28
 dR about where it landed, with depth, drift and fabrication (log channel heights) as nuisance parameters with
-priors (Schur complement S), for unbiased estimators of the landing point.
+priors (Schur complement S), for unbiased estimators of the landing point; +inf where the pairs cannot resolve the
+landing point once the nuisances are accounted for (`neatskin.skin.fisherbound` has the computation and its rank rule).
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
+
+from neatskin.skin.fisherbound import whitened_bound_mm
 
 LABEL_FLOOR_DRAWS = 64  # landing points per commanded position: the pooled floor's MC error is ~ s / sqrt(draws n)
 WEISZFELD_STEPS = 12
@@ -112,32 +115,17 @@ def landing_point_bound_mm(jacobian: np.ndarray, noise_std_ohm, nuisance_std: np
 
     jacobian: (n, pairs, 2 + k), d dR / d(x, y, nuisance_1..k); nuisance_std: (k,) prior std of each nuisance
     (0 = known, the column is dropped; inf = no prior). Non-finite Jacobian entries carry no information; a
-    direction no pair sees gives +inf."""
+    position the pairs cannot resolve once the nuisances are accounted for gives +inf, by the rank rule the
+    electronics-only and the depth-and-drift bounds share (`neatskin.skin.fisherbound`)."""
     jac = np.asarray(jacobian, float)
-    jac = np.where(np.isfinite(jac), jac, 0.0)
     k = jac.shape[2] - 2
     priors = np.zeros(k) if nuisance_std is None else np.asarray(nuisance_std, float).reshape(k)
     if np.any(~(priors >= 0)):
         raise ValueError(f"nuisance priors must be >= 0 (0 = known, inf = no prior), got {priors}")
-    kept = [0, 1] + [2 + j for j in range(k) if priors[j] > 0]
-    jac = jac[..., kept]
     std = np.broadcast_to(np.asarray(noise_std_ohm, float), jac.shape[:2])
     if not np.all(np.isfinite(std) & (std > 0)):
         raise ValueError("noise_std_ohm must be finite and > 0 for every pair")
-    fisher = np.einsum("npa,npb->nab", jac, jac / std[..., None] ** 2)
-    for col, j in enumerate(kept[2:], start=2):
-        if np.isfinite(priors[j - 2]):
-            fisher[:, col, col] += 1.0 / priors[j - 2] ** 2
-    schur = fisher[:, :2, :2]
-    if fisher.shape[1] > 2:
-        f_pn, f_nn = fisher[:, :2, 2:], fisher[:, 2:, 2:]
-        schur = schur - f_pn @ np.linalg.pinv(f_nn, hermitian=True) @ np.swapaxes(f_pn, 1, 2)
-    a, b, d = schur[:, 0, 0], schur[:, 0, 1], schur[:, 1, 1]
-    det = a * d - b * b
-    singular = ~(det > 1e-12 * np.maximum(a * d, np.finfo(float).tiny))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        trace_inv = np.where(singular, np.inf, (a + d) / np.where(singular, 1.0, det))
-    return np.sqrt(trace_inv)
+    return whitened_bound_mm(jac / std[..., None], priors)
 
 
 def split_floor_column(split: str, stat: str) -> str:

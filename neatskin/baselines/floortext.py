@@ -1,5 +1,6 @@
 """The floors of a report, read from physical_limit.parquet: the label-noise floor per split, the landing-point bound,
-each model's excess over its split's floor, and report.md's section that names them.
+each model's excess over its split's floor, report.md's section that names them, and which RMS / bound ratios the
+full table can show.
 
 `neatskin.baselines.floors` says what each floor measures; this module pools them over the positions and puts
 them beside the results.
@@ -136,12 +137,12 @@ def floors_section(table: pd.DataFrame, floors: Floors | None, campaign_seeds: i
         )
     lines += [
         f"| landing-point bound | Cramér-Rao bound on where a press landed from its 28 dR: electronics noise, depth "
-        f"jitter, fluid drift and fabrication spread (per press) as nuisances | | {floors.landing_rms_mm:.3g} |",
+        f"jitter, fluid drift and fabrication spread (per press) as nuisances | | {_pooled(floors.landing_rms_mm)} |",
     ]
     if floors.landing_known_skin_rms_mm is not None:
         lines.append(
             "| landing-point bound, this skin's fabrication known | the same for a model trained on this skin, "
-            f"which has seen its channels | | {floors.landing_known_skin_rms_mm:.3g} |"
+            f"which has seen its channels | | {_pooled(floors.landing_known_skin_rms_mm)} |"
         )
     median, beyond, positions = floors.landing_spread
     if beyond:
@@ -180,6 +181,48 @@ def floors_section(table: pd.DataFrame, floors: Floors | None, campaign_seeds: i
         "",
     ]
     return lines
+
+
+RATIO_COLUMNS = (("rms_over_crb", "RMS / bound"), ("rms_over_crb_nuisance", "RMS / nuisance bound"))
+RATIO_BOUNDS = {
+    "rms_over_crb": ("crb_mm", "electronics-only bound"),
+    "rms_over_crb_nuisance": ("crb_nuisance_mm", "bound with nuisances"),
+}
+
+
+def uncompared_ratios(table: pd.DataFrame) -> list[str]:
+    """The ratio columns of the table that no result has (NaN in every row: its bound is compared with nothing)."""
+    return [c for c, _ in RATIO_COLUMNS if c in table.columns and not np.isfinite(table[c].to_numpy(float)).any()]
+
+
+def ratio_note(table: pd.DataFrame, limit: pd.DataFrame | None, extent_mm: float = np.inf) -> str:
+    """One line for the full table: which RMS / bound columns it has, and for a bound with no column why nothing is
+    compared with it (its pooled value is infinite, or held by positions beyond the skin)."""
+    shown = [h for c, h in RATIO_COLUMNS if c in table.columns and c not in uncompared_ratios(table)]
+    text = ""
+    if "RMS / bound" in shown:
+        text += " `RMS / bound` = RMS error over the pooled electronics-only bound."
+    if "RMS / nuisance bound" in shown:
+        text += " `RMS / nuisance bound` = RMS error over the pooled bound with nuisances."
+    for column in uncompared_ratios(table):
+        bound_column, name = RATIO_BOUNDS[column]
+        values = None if limit is None or bound_column not in limit.columns else limit[bound_column].to_numpy(float)
+        if values is None:
+            why = "the dataset has no such bound"
+        else:
+            infinite = int(np.count_nonzero(np.isinf(values)))
+            beyond = int(np.count_nonzero(np.isfinite(values) & (values > extent_mm)))
+            parts = [f"infinite at {infinite} of {values.size} positions (unresolvable: a channel the probe shuts)"]
+            parts = parts if infinite else []
+            parts += [f"beyond the skin ({extent_mm:g} mm) at {beyond} of {values.size}"] if beyond else []
+            why = f"it is {' and '.join(parts) or 'not compared'}, so its pooled value says nothing"
+        text += f" No result is compared with the {name} (no column for it): {why}."
+    return text
+
+
+def _pooled(rms_mm: float) -> str:
+    """A pooled landing bound's cell: the figure, or why there is none (an infinite RMS is no error size)."""
+    return f"{rms_mm:.3g}" if np.isfinite(rms_mm) else "inf: infinite where a channel is shut, median below"
 
 
 def floor_column(split: str, stat: str = "rms") -> str:

@@ -290,8 +290,10 @@ def plot_bound_map(limit, path: Path, layout=None) -> Path:
 
 def bound_map_figure(limit, layout=None):
     """The physical limit over the skin: per pressed position, the electronics-only Cramér-Rao bound and, when
-    the dataset has it, the bound with depth, drift and placement as nuisances; each panel with its own colour
-    bar (the two differ by decades: one shared scale saturated one panel).
+    the dataset has them, the bound with depth, drift and placement as nuisances and the landing-point bound
+    (depth, drift and fabrication); each panel with its own colour bar (they differ by decades: one shared scale
+    saturated one panel). All three share one rank rule (`neatskin.skin.fisherbound`), so a position unresolvable
+    in one is unresolvable in all.
 
     Positions are drawn as squares at their (x, y); an unobservable position (+inf) is a red cross, and one whose
     bound exceeds the skin's extent (a press just off a channel the probe shuts: 1e6 mm) an orange one, kept off
@@ -302,6 +304,8 @@ def bound_map_figure(limit, layout=None):
     columns = [("crb_mm", "electronics only")]
     if "crb_nuisance_mm" in limit.columns:
         columns.append(("crb_nuisance_mm", "depth, drift, placement as nuisances"))
+    if "landing_bound_mm" in limit.columns:  # report.md's landing-point bound (Floors): its infinite count is here
+        columns.append(("landing_bound_mm", "landing point: depth, drift, fabrication as nuisances"))
     x, y = limit["x_mm"].to_numpy(float), limit["y_mm"].to_numpy(float)
     extent = skin_extent_mm(layout, np.column_stack([x, y]))
     spacing = _median_spacing_mm(x, y)

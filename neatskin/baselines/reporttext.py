@@ -17,7 +17,7 @@ import pandas as pd
 
 from neatskin.baselines.dataset import PHYSICAL_LIMIT_NAME, BaselineData
 from neatskin.baselines.evaluate import DESIGN_POSITIONS, DESIGN_PRESSES, PAPER_FRACTIONS
-from neatskin.baselines.floortext import Floors, floors_section
+from neatskin.baselines.floortext import RATIO_COLUMNS, Floors, floors_section, ratio_note, uncompared_ratios
 
 SPLIT_TEXT = {
     "grouped": "k-fold over positions: no test position is in training. The honest error for a press at a "
@@ -106,10 +106,10 @@ def main_table(table: pd.DataFrame) -> list[str]:
 
 def markdown_table(table: pd.DataFrame) -> list[str]:
     """The full results as a markdown table: mean ± std over repeats [95 % interval of the mean], and the RMS
-    error over each bound when the dataset has them."""
+    error over each bound some result is compared with (a column NaN in every row is left out: `ratio_note`
+    says why)."""
     winners = bold_winners(table)
-    ratios = [(c, h) for c, h in (("rms_over_crb", "RMS / bound"), ("rms_over_crb_nuisance", "RMS / nuisance bound"))]
-    ratios = [(c, h) for c, h in ratios if c in table.columns]
+    ratios = [(c, h) for c, h in RATIO_COLUMNS if c in table.columns and c not in uncompared_ratios(table)]
     head = (
         "| model | split | repeats | test rows | mean error mm | median mm | RMS mm | MSE mm² | MSE/coord mm² "
         "| within probe % | failures % | fit s | predict µs/press |"
@@ -301,7 +301,7 @@ def _bound_text(
             "positions, a bias the bound does not cover. That is not flagged as memorisation: the flag is the "
             f'electronics-only bound alone. The flag column notes it as "{NUISANCE_NOTE}" instead. With no '
             "nuisance in the scene (the `ideal` preset) the two bounds are equal. The full table gives every "
-            "result's RMS error over each bound.",
+            "result's RMS error over each bound it is compared with.",
         ]
         if not compared.get("crb_nuisance_mm", bool(np.isfinite(nuisance_bound))):
             electronics_too = not compared.get("crb_mm", bool(np.isfinite(bound)))
@@ -400,8 +400,7 @@ def markdown_report(
         "",
         "Each cell: mean ± std over the repeats [95 % Student-t interval of the mean]. `MSE mm²` = mean of "
         "dx²+dy²; `MSE/coord` = MATLAB's `mse` over both coordinates (half of it); `failures` = share more than 3 "
-        "probe radii off; `RMS / bound` = RMS error over the pooled electronics-only bound, `RMS / nuisance bound` "
-        "over the bound with nuisances (when the dataset has them).",
+        f"probe radii off.{ratio_note(table, data.physical_limit, extent_mm)}",
         "",
         *markdown_table(table),
         "",

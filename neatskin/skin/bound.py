@@ -12,7 +12,8 @@ where the probe landed has covariance >= S^-1. Placement error of std s_p per ax
 landing point away from the commanded position the labels hold, so the bound on the RMS error
 against the commanded position is sqrt(trace(S^-1) + 2 s_p^2). With every nuisance known and no
 placement error this is the electronics-only bound (neatskin.baselines.crb, which the skin does
-not import). A singular S (a direction no pair sees) gives +inf, never NaN.
+not import). A position the pairs cannot resolve after the nuisances gives +inf, never NaN (the rank rule of
+neatskin.skin.fisherbound, which every bound of the package shares).
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ from __future__ import annotations
 from typing import Protocol
 
 import numpy as np
+
+from neatskin.skin.fisherbound import whitened_bound_mm
 
 PARAMETERS = ("x_mm", "y_mm", "depth_mm", "log_resistivity")
 
@@ -98,31 +101,10 @@ def position_bound_mm(
     ):
         if not (value >= 0):  # also refuses NaN
             raise ValueError(f"{name} must be >= 0 (0 = known exactly, inf = no prior), got {value!r}")
-    jac = np.where(np.isfinite(jac), jac, 0.0)
     priors = np.array([depth_std_mm, drift_std], float)
-    kept = [0, 1] + [2 + k for k in range(2) if priors[k] > 0]
-    jac = jac[..., kept]
-    weighted = jac / std[..., None] ** 2
-    fisher = np.einsum("npa,npb->nab", jac, weighted)
-    for col, k in enumerate(kept[2:], start=2):
-        prior = priors[k - 2]
-        if np.isfinite(prior):
-            fisher[:, col, col] += 1.0 / prior**2
-    schur = _schur_position(fisher)
-    a, b, d = schur[:, 0, 0], schur[:, 0, 1], schur[:, 1, 1]
-    det = a * d - b * b
-    singular = ~(det > 1e-12 * np.maximum(a * d, np.finfo(float).tiny))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        trace_inv = np.where(singular, np.inf, (a + d) / np.where(singular, 1.0, det))
+    # the Schur complement and its rank rule are those of every bound of the package (neatskin.skin.fisherbound)
+    trace_inv = whitened_bound_mm(jac / std[..., None], priors) ** 2
     return np.sqrt(trace_inv + 2.0 * placement_std_mm**2)
-
-
-def _schur_position(fisher: np.ndarray) -> np.ndarray:
-    """F_pp - F_pn F_nn^+ F_np over the batch (n, k, k) -> (n, 2, 2); a nuisance no pair sees costs nothing."""
-    if fisher.shape[1] == 2:
-        return fisher
-    f_pp, f_pn, f_nn = fisher[:, :2, :2], fisher[:, :2, 2:], fisher[:, 2:, 2:]
-    return f_pp - f_pn @ np.linalg.pinv(f_nn, hermitian=True) @ np.swapaxes(f_pn, 1, 2)
 
 
 def bound_map_mm(
