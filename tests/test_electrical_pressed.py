@@ -107,3 +107,10 @@ def test_other_problems_pass_through_unchanged(tmp_path):
     assert with_pressed_figures(path, other) == other
     clip = Problem("the excitation would clip: 2 mA x ...", str(path), "excitation.amplitude_a", "lower, or else")
     assert with_pressed_figures(path, [clip, other[0]]) == [clip, other[0]]
+
+
+def test_a_scene_whose_presses_stay_inside_the_rails_gets_no_warning(capsys):
+    """The smoke protocol's parametric pinch raises no pair past 15,790 ohm: the line says so, without a warning."""
+    assert main(["campaign", "check", str(PROTOCOLS / "smoke.toml")]) == 0
+    line = next(line for line in capsys.readouterr().out.splitlines() if "electrical, pressed" in line)
+    assert "none of 12 presses puts a pair past the rails at 0.5 mA" in line and "warning" not in line

@@ -47,6 +47,12 @@ class PressedRails:
 
     def summary(self) -> str:
         peak_v = self.amplitude_a * (self.largest_ohm + self.series_ohm)
+        if not self.presses_over:
+            return (
+                f"none of {self.presses} presses puts a pair past the rails at {self.amplitude_a * 1e3:g} mA (the "
+                f"largest pressed R_eq {self.largest_ohm:.0f} ohm = {peak_v:.3g} V, {self.readable_ohm:.0f} ohm "
+                "readable)"
+            )
         return (
             f"{self.presses_over} of {self.presses} presses ({100 * self.share:.1f} %) put some pair past the "
             f"rails at {self.amplitude_a * 1e3:g} mA ({self.readings_over} of {self.readings} readings above "
