@@ -184,3 +184,20 @@ def test_the_forecasts_presses_treat_a_reading_past_the_rail_as_unreadable():
     saturation = SATURATION_FACTOR * np.abs(dr[clear]).max()
     np.testing.assert_allclose(presses.features[:, [OVER, FAR]], saturation, rtol=1e-12)
     assert presses.features[0, UNDER] == pytest.approx(dr[UNDER], rel=1e-12)
+
+
+@pytest.mark.parametrize("path", ["waveforms", "features"])
+def test_a_pair_cut_off_still_reads_as_before_beside_the_rails(config, sweep, path):
+    """A channel pinched shut (R = inf) keeps its model: no current, OPEN_CIRCUIT | CLIPPED, R and its uncertainty
+    +inf, in both paths; the rails do not turn it into a finite reading."""
+    r = _resistances()
+    r[[5, 9]] = np.inf
+    daq = SimulatedDAQ(config, constant(r), noise=NoiseModel())
+    rng = np.random.default_rng(5)
+    if path == "waveforms":
+        est = demodulate(daq.acquire(sweep, 2, rng=rng), sweep, "rms")
+    else:
+        est = daq.estimate_sweep(sweep, rng, method="rms", n_sweeps=2)
+    assert (est.flags[:, [5, 9]] == PairFlag.OPEN_CIRCUIT | PairFlag.CLIPPED).all()
+    assert np.isinf(est.resistance_ohm[:, [5, 9]]).all() and np.isinf(est.uncertainty_ohm[:, [5, 9]]).all()
+    assert (est.flags[:, OVER] == PairFlag.CLIPPED).all()
