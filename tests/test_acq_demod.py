@@ -14,6 +14,10 @@ from neatskin.acquisition.sequence import SweepTiming, build_sweep
 from neatskin.acquisition.wiring import load_wiring
 from neatskin.sim.daq import NoiseModel, SimulatedDAQ
 
+# the paper's 2 mA on a board with +-20 V rails (the DAQ's default is 0.5 mA through the MAX4052 at +-8 V): these
+# tests pin the estimator up to 8 kohm, not the mux rails (tests/test_acq_rails.py does)
+BENCH = {"amplitude_a": 0.002, "rail_positive_v": 20.0, "rail_negative_v": -20.0}
+
 PAPER = Path(__file__).resolve().parent.parent / "protocols" / "wiring" / "paper.toml"
 R_TRUE = np.linspace(2_000.0, 8_000.0, 28)  # ohm, inside the default +-10 V range at 2 mA
 NOISY = NoiseModel(voltage_noise_v=0.3, current_noise_a=3e-5)  # ~2 % of the signal per sample
@@ -31,7 +35,7 @@ def sweep(paper_layout):
 
 @pytest.mark.parametrize("method", ["rms", "lockin"])
 def test_ideal_instrument_is_exact(sweep, method):
-    daq = SimulatedDAQ(DaqConfig(), constant(R_TRUE), noise=NoiseModel.none())
+    daq = SimulatedDAQ(DaqConfig(**BENCH), constant(R_TRUE), noise=NoiseModel.none())
     est = demodulate(daq.acquire(sweep, 2, rng=np.random.default_rng(0)), sweep, method)
     assert est.resistance_ohm.shape == (2, 28)
     np.testing.assert_allclose(est.resistance_ohm, np.broadcast_to(R_TRUE, (2, 28)), rtol=1e-9)
@@ -42,7 +46,7 @@ def test_ideal_instrument_is_exact(sweep, method):
 @pytest.mark.parametrize("method", ["rms", "lockin"])
 def test_default_rig_noise_within_0_05_percent(sweep, method):
     # default noise: 2 mV and 0.1 uA white, 16-bit quantisation, switching transients (discarded with the settle)
-    daq = SimulatedDAQ(DaqConfig(), constant(R_TRUE))
+    daq = SimulatedDAQ(DaqConfig(**BENCH), constant(R_TRUE))
     est = demodulate(daq.acquire(sweep, 3, rng=np.random.default_rng(1)), sweep, method)
     assert np.max(np.abs(est.resistance_ohm / R_TRUE - 1)) < 5e-4
     assert np.all(est.flags == 0)
@@ -54,7 +58,7 @@ def test_settle_samples_discard_the_switching_transient(paper_layout):
     errors = {}
     for settle in (0, 30):
         sweep = build_sweep(wiring, SweepTiming(settle_samples=settle))
-        daq = SimulatedDAQ(DaqConfig(), constant(R_TRUE), noise=noise)
+        daq = SimulatedDAQ(DaqConfig(**BENCH), constant(R_TRUE), noise=noise)
         est = demodulate(daq.acquire(sweep, rng=np.random.default_rng(0)), sweep, "rms")
         errors[settle] = np.max(np.abs(est.resistance_ohm / R_TRUE - 1))
     assert errors[0] > 2e-4  # the transient biases an undiscarded window
@@ -62,7 +66,7 @@ def test_settle_samples_discard_the_switching_transient(paper_layout):
 
 
 def _relative_errors(sweep, noise, n_sweeps, seed):
-    daq = SimulatedDAQ(DaqConfig(), constant(R_TRUE), noise=noise)
+    daq = SimulatedDAQ(DaqConfig(**BENCH), constant(R_TRUE), noise=noise)
     acq = daq.acquire(sweep, n_sweeps, rng=np.random.default_rng(seed))
     return {m: demodulate(acq, sweep, m).resistance_ohm / R_TRUE - 1 for m in ("rms", "lockin")}
 
@@ -100,7 +104,7 @@ def test_dc_offset_flagged_and_only_biases_rms(sweep):
     # rms^2 picks up offset^2: R reads high by ~offset^2 / V0^2 (0.35 % at 2 kohm, 0.035 % at 8 kohm)
     expected = np.sqrt(1 + 0.3**2 / ((R_TRUE * 0.002) ** 2 / 2)) - 1
     np.testing.assert_allclose(err["rms"].mean(axis=0), expected, rtol=0.1)
-    daq = SimulatedDAQ(DaqConfig(), constant(R_TRUE), noise=NoiseModel(voltage_offset_v=0.3))
+    daq = SimulatedDAQ(DaqConfig(**BENCH), constant(R_TRUE), noise=NoiseModel(voltage_offset_v=0.3))
     est = demodulate(daq.acquire(sweep, rng=np.random.default_rng(0)), sweep)
     # 0.3 V is above 5 % of the AC RMS (V0 / sqrt 2) for V0 < 8.5 V, i.e. R < 4.24 kohm
     flagged = R_TRUE * 0.002 / np.sqrt(2) * 0.05 < 0.3
@@ -114,7 +118,7 @@ def test_clipping_and_open_circuit_flagged_others_exact(sweep, method):
     r = R_TRUE.copy()
     r[[3, 10]] = np.inf  # cut-off electrode: no current
     r[[5, 20]] = 0.0  # a dead short: zero volts, still a finite reading
-    cfg = DaqConfig(voltage_range_v=2.0)  # +-4 V across the pair: 2 mA clips above 2 kohm
+    cfg = DaqConfig(voltage_range_v=2.0, **BENCH)  # +-4 V across the pair: 2 mA clips above 2 kohm
     r[r > 2_000] = np.where(np.isinf(r[r > 2_000]), np.inf, 1_500.0)
     r[[7, 8]] = 4_000.0  # these clip
     daq = SimulatedDAQ(cfg, constant(r), noise=NoiseModel(0, 0, 0, quantise=False, clip=True, transient_v=0.0))
@@ -140,7 +144,7 @@ def test_zero_current_everywhere_never_divides_by_zero(sweep):
 
 def test_drift_follows_the_live_window_midpoint(sweep):
     noise = NoiseModel(0, 0, 0, quantise=False, clip=False, transient_v=0.0, drift_per_s=0.01)
-    daq = SimulatedDAQ(DaqConfig(), constant(R_TRUE), noise=noise)
+    daq = SimulatedDAQ(DaqConfig(**BENCH), constant(R_TRUE), noise=noise)
     est = demodulate(daq.acquire(sweep, 2, rng=np.random.default_rng(0), start_time_s=10.0), sweep, "lockin")
     mid_s = 10.0 + (np.arange(2)[:, None] * sweep.n_samples + sweep.live_windows.mean(axis=1)) / 10_000.0
     np.testing.assert_allclose(est.resistance_ohm, R_TRUE * (1 + 0.01 * mid_s), rtol=1e-9)
@@ -153,7 +157,7 @@ def test_window_counts():
 
 @pytest.mark.parametrize("method", ["rms", "lockin"])
 def test_features_only_path_matches_waveform_statistics(sweep, method):
-    daq = SimulatedDAQ(DaqConfig(), constant(R_TRUE), noise=NOISY)
+    daq = SimulatedDAQ(DaqConfig(**BENCH), constant(R_TRUE), noise=NOISY)
     n = 300
     wave = demodulate(daq.acquire(sweep, n, rng=np.random.default_rng(11)), sweep, method)
     fallbacks = []
@@ -179,7 +183,7 @@ def test_features_only_path_matches_waveform_statistics(sweep, method):
 def test_features_only_path_falls_back_for_open_and_clipped(sweep):
     r = R_TRUE.copy()
     r[4] = np.inf
-    daq = SimulatedDAQ(DaqConfig(), constant(r))
+    daq = SimulatedDAQ(DaqConfig(**BENCH), constant(r))
     fast = daq.estimate_sweep(sweep, np.random.default_rng(0))
     # the galvanostat rails at its 50 V compliance: open, and the voltage channel clips too
     assert fast.flags[0, 4] == PairFlag.OPEN_CIRCUIT | PairFlag.CLIPPED and np.isinf(fast.resistance_ohm[0, 4])
@@ -187,7 +191,7 @@ def test_features_only_path_falls_back_for_open_and_clipped(sweep):
 
 
 def test_features_only_path_flags_dc_offset_like_the_waveform_path(sweep):
-    daq = SimulatedDAQ(DaqConfig(), constant(R_TRUE), noise=NoiseModel(voltage_offset_v=0.3))
+    daq = SimulatedDAQ(DaqConfig(**BENCH), constant(R_TRUE), noise=NoiseModel(voltage_offset_v=0.3))
     wave = demodulate(daq.acquire(sweep, rng=np.random.default_rng(0)), sweep)
     fast = daq.estimate_sweep(sweep, np.random.default_rng(0))
     np.testing.assert_array_equal(fast.flags, wave.flags)
@@ -197,7 +201,7 @@ def test_features_only_path_flags_dc_offset_like_the_waveform_path(sweep):
 def test_same_rng_same_samples_and_rng_required(sweep):
     from neatskin.errors import ConfigError
 
-    daq = SimulatedDAQ(DaqConfig(), constant(R_TRUE))
+    daq = SimulatedDAQ(DaqConfig(**BENCH), constant(R_TRUE))
     a = daq.acquire(sweep, 2, rng=np.random.default_rng(42), start_time_s=5.0)
     b = daq.acquire(sweep, 2, rng=np.random.default_rng(42), start_time_s=5.0)
     np.testing.assert_array_equal(a.samples, b.samples)
@@ -209,7 +213,7 @@ def test_same_rng_same_samples_and_rng_required(sweep):
 def test_skin_callable_of_the_wrong_shape_refused(sweep):
     from neatskin.errors import ConfigError
 
-    daq = SimulatedDAQ(DaqConfig(), lambda t: np.ones((len(t), 27)))
+    daq = SimulatedDAQ(DaqConfig(**BENCH), lambda t: np.ones((len(t), 27)))
     with pytest.raises(ConfigError, match=r"returned shape \(28, 27\), expected \(28, 28\)"):
         daq.acquire(sweep, rng=np.random.default_rng(0))
 
@@ -220,11 +224,11 @@ def test_per_sample_resistance_follows_a_ramp(sweep):
     def ramp(t):
         return R_TRUE[None, :] * (1 + 0.02 * t[:, None])
 
-    per_sample = SimulatedDAQ(DaqConfig(), ramp, noise=NoiseModel.none(), resistance_sampling="per_sample")
+    per_sample = SimulatedDAQ(DaqConfig(**BENCH), ramp, noise=NoiseModel.none(), resistance_sampling="per_sample")
     est = demodulate(per_sample.acquire(sweep, rng=np.random.default_rng(0)), sweep, "lockin")
     mid_s = (sweep.live_windows.mean(axis=1) - 0.5) / 10_000.0
     np.testing.assert_allclose(est.resistance_ohm[0], R_TRUE * (1 + 0.02 * mid_s), rtol=3e-6)
-    per_pair = SimulatedDAQ(DaqConfig(), ramp, noise=NoiseModel.none())
+    per_pair = SimulatedDAQ(DaqConfig(**BENCH), ramp, noise=NoiseModel.none())
     est2 = demodulate(per_pair.acquire(sweep, rng=np.random.default_rng(0)), sweep, "lockin")
     np.testing.assert_allclose(est2.resistance_ohm, est.resistance_ohm, rtol=1e-5)
 
@@ -232,7 +236,7 @@ def test_per_sample_resistance_follows_a_ramp(sweep):
 def test_estimator_moments_closed_form(sweep):
     from neatskin.sim.daq import effective_noise_var, estimator_moments
 
-    cfg = DaqConfig()
+    cfg = DaqConfig(**BENCH)
     noise = NoiseModel(voltage_noise_v=0.3, current_noise_a=3e-5, quantise=False)
     r = R_TRUE[None, :]
     mean, std, blocks = estimator_moments(r, sweep, cfg, noise, "lockin")
@@ -254,7 +258,7 @@ def test_estimator_moments_closed_form(sweep):
 def test_ideal_instrument_recovers_any_resistance(sweep, r, start, method):
     """Any resistance in range (a dead short included), any start on the sample clock: exact, unflagged."""
     r = np.array(r)
-    daq = SimulatedDAQ(DaqConfig(), constant(r), noise=NoiseModel.none())
+    daq = SimulatedDAQ(DaqConfig(**BENCH), constant(r), noise=NoiseModel.none())
     est = demodulate(daq.acquire(sweep, rng=np.random.default_rng(0), start_time_s=start / 10_000.0), sweep, method)
     np.testing.assert_allclose(est.resistance_ohm[0], r, rtol=1e-9, atol=1e-9)
     assert np.all(est.flags == 0) and est.windows[0, 0, 0] == start + 22
@@ -263,7 +267,7 @@ def test_ideal_instrument_recovers_any_resistance(sweep, r, start, method):
 def test_bad_method_and_window_refused(sweep):
     from neatskin.errors import ConfigError
 
-    daq = SimulatedDAQ(DaqConfig(), constant(R_TRUE))
+    daq = SimulatedDAQ(DaqConfig(**BENCH), constant(R_TRUE))
     acq = daq.acquire(sweep, rng=np.random.default_rng(0))
     with pytest.raises(ConfigError, match="unknown demodulation 'fft'"):
         demodulate(acq, sweep, "fft")

@@ -12,6 +12,10 @@ from neatskin.acquisition.sequence import build_sweep
 from neatskin.acquisition.wiring import load_wiring
 from neatskin.sim.daq import NoiseModel, SimulatedDAQ
 
+# the paper's 2 mA on a board with +-20 V rails (the DAQ's default is 0.5 mA through the MAX4052 at +-8 V): these
+# tests pin the estimator up to 8 kohm, not the mux rails (tests/test_acq_rails.py does)
+BENCH = {"amplitude_a": 0.002, "rail_positive_v": 20.0, "rail_negative_v": -20.0}
+
 PAPER = Path(__file__).resolve().parent.parent / "protocols" / "wiring" / "paper.toml"
 R0 = np.linspace(2_000.0, 6_000.0, 28)
 CHANGE = np.where(np.arange(28) % 3 == 0, 0.2, 0.0)  # a third of the pairs rise by 20 % under the press
@@ -35,7 +39,7 @@ def sweep(paper_layout):
 
 
 def test_ideal_press_gives_exact_delta_r(sweep):
-    daq = SimulatedDAQ(DaqConfig(), skin, force, noise=NoiseModel.none())
+    daq = SimulatedDAQ(DaqConfig(**BENCH), skin, force, noise=NoiseModel.none())
     acq = daq.acquire(sweep, 8, rng=np.random.default_rng(0))  # 2.73 s
     feats, det, est = features_from_acquisition(acq, sweep, "lockin", margin_s=0.01)
     assert det.ok and det.n_presses == 1
@@ -59,7 +63,7 @@ def test_ideal_press_gives_exact_delta_r(sweep):
 
 
 def test_noisy_press_within_uncertainty(sweep):
-    daq = SimulatedDAQ(DaqConfig(), skin, force, noise=NoiseModel(voltage_noise_v=0.05, current_noise_a=5e-6))
+    daq = SimulatedDAQ(DaqConfig(**BENCH), skin, force, noise=NoiseModel(voltage_noise_v=0.05, current_noise_a=5e-6))
     acq = daq.acquire(sweep, 8, rng=np.random.default_rng(5))
     feats, det, _ = features_from_acquisition(acq, sweep, "rms", margin_s=0.01)
     z = (feats.delta_r_ohm - R0 * CHANGE) / feats.uncertainty_ohm
@@ -68,7 +72,7 @@ def test_noisy_press_within_uncertainty(sweep):
 
 
 def test_missed_press_leaves_every_pair_unpressed(sweep):
-    daq = SimulatedDAQ(DaqConfig(), skin, None, noise=NoiseModel.none())
+    daq = SimulatedDAQ(DaqConfig(**BENCH), skin, None, noise=NoiseModel.none())
     feats, det, _ = features_from_acquisition(daq.acquire(sweep, 3, rng=np.random.default_rng(0)), sweep)
     assert det.flags == ("missed",)
     assert np.all(feats.flags & PairFlag.NO_PRESSED) and np.all(feats.delta_r_ohm == 0)
@@ -81,7 +85,7 @@ def test_open_pair_under_press_is_inf_not_nan(sweep):
         r[(t >= T_ON) & (t < T_OFF), 5] = np.inf
         return r
 
-    daq = SimulatedDAQ(DaqConfig(), cut, force, noise=NoiseModel.none())
+    daq = SimulatedDAQ(DaqConfig(**BENCH), cut, force, noise=NoiseModel.none())
     feats, det, est = features_from_acquisition(
         daq.acquire(sweep, 8, rng=np.random.default_rng(0)), sweep, margin_s=0.01
     )
@@ -93,7 +97,7 @@ def test_open_pair_under_press_is_inf_not_nan(sweep):
 
 
 def test_press_features_uses_baseline_after_when_none_before(sweep):
-    daq = SimulatedDAQ(DaqConfig(), skin, force, noise=NoiseModel.none())
+    daq = SimulatedDAQ(DaqConfig(**BENCH), skin, force, noise=NoiseModel.none())
     est = daq.estimate_sweep(sweep, np.random.default_rng(0), n_sweeps=4)
     # a press covering the whole first two sweeps: the baseline comes from sweeps 2 and 3
     feats = press_features(est, 0, 2 * sweep.n_samples)
@@ -103,7 +107,7 @@ def test_press_features_uses_baseline_after_when_none_before(sweep):
 
 def test_fsr_spikes_and_noise_in_the_simulated_daq_do_not_break_the_label(sweep):
     noise = NoiseModel(fsr_noise_v=0.02, fsr_spike_rate_hz=20.0, fsr_spike_v=3.0)
-    daq = SimulatedDAQ(DaqConfig(), skin, force, noise=noise)
+    daq = SimulatedDAQ(DaqConfig(**BENCH), skin, force, noise=noise)
     acq = daq.acquire(sweep, 8, rng=np.random.default_rng(2))
     fsr = acq.fsr_v
     jumps = np.abs(np.diff(fsr)) > 1.0

@@ -22,12 +22,14 @@ def estimates(r, flags=None, sweep_samples=100, pairs=3):
 
 
 def reference_press_values(est, marks, labels):
-    """The row values as first written (commit 80806b2): one mask at a time, flags named pair by pair."""
+    """The row values as first written (commit 80806b2): one mask at a time, flags named pair by pair; since the
+    mux rails were modelled a CLIPPED sweep is no value, as an open one (+inf): the reading it gives is wrong."""
 
     def mean_over(use):
         count = use.sum(axis=0)
         total = np.where(use, est.resistance_ohm, 0.0).sum(axis=0)
-        inf = (use & np.isinf(est.resistance_ohm)).any(axis=0)
+        clipped = (est.flags & PairFlag.CLIPPED) != 0
+        inf = (use & (np.isinf(est.resistance_ohm) | clipped)).any(axis=0)
         mean = np.where(inf, np.inf, total / np.maximum(count, 1))
         flags = np.bitwise_or.reduce(np.where(use, est.flags, 0).astype(np.uint8), axis=0)
         return np.where(count > 0, mean, np.nan), flags
@@ -71,6 +73,13 @@ def test_open_circuits_missing_sweeps_and_flags_are_named():
     np.testing.assert_array_equal(v.resistance_ohm, [np.inf, 500.0, np.inf])
     np.testing.assert_array_equal(v.delta_r_ohm, [0.0, 0.0, np.inf])
     assert v.flags == ("open_circuit:a", "clipped:a", "open_circuit:c")
+    # a pressed sweep clipped (the ADC's range or a mux rail) with a finite, low value: the pair is no value
+    flags[7, 1] = PairFlag.CLIPPED
+    r[7, 1] = 300.0
+    v = press_values(estimates(r, flags), MARKS, ["a", "b", "c"])
+    np.testing.assert_array_equal(v.resistance_ohm, [np.inf, np.inf, np.inf])
+    np.testing.assert_array_equal(v.delta_r_ohm, [0.0, np.inf, np.inf])
+    assert v.flags == ("open_circuit:a", "clipped:a", "clipped:b", "open_circuit:c")
     # no sweep inside the hold: NaN, flagged
     late = dict(MARKS, hold_start=2000, hold_end=2500)
     v = press_values(estimates(r[:3]), late, ["a", "b", "c"])

@@ -11,7 +11,10 @@ Both use each pair's live window only (settle samples discarded), vectorised ove
 
 Flags: OPEN_CIRCUIT when the current RMS is below open_fraction of the excitation's RMS
 (resistance and uncertainty = +inf, no division by zero); CLIPPED when any live V or I
-sample reaches the AI range; DC_OFFSET when the mean of V or I exceeds DC_OFFSET_SHARE of
+sample reaches the AI range, or when the mux's switch node, v + i x mux_series_ohm (the
+wiring's 2 R_on + mismatch in series with the pair), reaches a mux rail: at a live sample, or
+at the sine's peak between samples (sqrt(2) x its RMS over the live window), so the rig flags
+exactly the readings with amplitude x (R + series) >= the rail (DaqConfig.rail_ohm); DC_OFFSET when the mean of V or I exceeds DC_OFFSET_SHARE of
 its AC RMS and one ADC step (the RMS estimate is then biased; the lock-in is not).
 """
 
@@ -80,12 +83,22 @@ def demodulate(
     flags[open_circuit] |= np.uint8(PairFlag.OPEN_CIRCUIT)
     lsb = cfg.lsb_ai_v * cfg.to_physical
     clipped = (np.abs(v) >= cfg.voltage_limit_v - lsb[0]).any(-1) | (np.abs(i) >= cfg.current_limit_a - lsb[1]).any(-1)
-    flags[clipped] |= np.uint8(PairFlag.CLIPPED)
+    flags[clipped | at_rail(v, i, cfg)] |= np.uint8(PairFlag.CLIPPED)
     dc = _dc_offset(v, lsb[0]) | _dc_offset(i, lsb[1])
     flags[dc & ~open_circuit] |= np.uint8(PairFlag.DC_OFFSET)
     r = np.where(open_circuit, np.inf, r)
     u = np.where(open_circuit, np.inf, u)
     return PairEstimates(r, u, flags, windows, method)
+
+
+def at_rail(v: np.ndarray, i: np.ndarray, cfg) -> np.ndarray:
+    """(sweeps, pairs) whether the switch node v + i x mux_series_ohm reached a mux rail (within one ADC step):
+    a live sample at it, or the sine through the samples peaking at it (sqrt(2) RMS: exact for whole periods)."""
+    lsb = float(cfg.lsb_ai_v[0] * cfg.to_physical[0] + cfg.mux_series_ohm * cfg.lsb_ai_v[1] * cfg.to_physical[1])
+    node = v + i * cfg.mux_series_ohm
+    sample = ((node >= cfg.rail_positive_v - lsb) | (node <= cfg.rail_negative_v + lsb)).any(-1)
+    peak = np.sqrt(2.0 * np.mean(node * node, axis=-1))
+    return sample | (peak >= cfg.rail_v - lsb)
 
 
 def _dc_offset(x: np.ndarray, lsb: float) -> np.ndarray:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from neatskin.acquisition.estimates import PairEstimates, flag_names
+from neatskin.acquisition.estimates import PairEstimates, PairFlag, flag_names
 
 
 @dataclass(frozen=True)
@@ -30,7 +30,11 @@ class PressValues:
 
 def press_values(estimates: PairEstimates, marks: dict[str, int], pair_labels: Sequence[str]) -> PressValues:
     """Per pair, the mean of the baseline sweeps and of the pressed sweeps (inf when any of them is an open
-    circuit, NaN when there is none), their difference and the flags of the sweeps used."""
+    circuit or clipped, NaN when there is none), their difference and the flags of the sweeps used.
+
+    A clipped sweep (the AI's range, or the mux rails: the switch clamped, so V / I is not the skin's R) is no
+    value: the pair's mean is +inf as a cut pair's, never a finite reading that looks valid (its per-sweep
+    estimate keeps its finite value, and the waveforms when recorded, for a curator)."""
     start, stop = estimates.windows[..., 0], estimates.windows[..., 1]
     baseline_use = stop <= marks["contact"]
     pressed_use = (start >= marks["hold_start"]) & (stop <= marks["hold_end"])
@@ -39,7 +43,8 @@ def press_values(estimates: PairEstimates, marks: dict[str, int], pair_labels: S
     count = use.sum(axis=1)
     with np.errstate(invalid="ignore"):
         total = np.where(use, r, 0.0).sum(axis=1)
-    open_circuit = (use & np.isinf(r)).any(axis=1)
+    clipped = (estimates.flags & np.uint8(PairFlag.CLIPPED)) != 0
+    open_circuit = (use & (np.isinf(r) | clipped)).any(axis=1)
     mean = np.where(open_circuit, np.inf, total / np.maximum(count, 1))
     (r_b, r_p) = np.where(count > 0, mean, np.nan)
     bits = np.bitwise_or.reduce(np.where(use, estimates.flags, 0).astype(np.uint8), axis=(0, 1))

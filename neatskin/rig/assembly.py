@@ -91,8 +91,10 @@ def open_daq(kind: str, config: DaqConfig = DaqConfig(), **kwargs: Any) -> Daq:
 
 
 def daq_config(protocol: CampaignProtocol) -> DaqConfig:
-    """The DAQ settings of a protocol, its electrical limits included (ADC range, voltage gain, compliance),
-    so a dry run clips where the protocol's rig would."""
+    """The DAQ settings of a protocol, its electrical limits included (ADC range, voltage gain, compliance, and the
+    wiring's mux rails with the switches' worst-case series resistance), so a dry run clips where the protocol's
+    rig would and the real rig's demodulator flags a reading the mux clamped."""
+    e = protocol.wiring.electrical
     return DaqConfig(
         rate_hz=protocol.acquisition.rate_hz,
         amplitude_a=protocol.excitation.amplitude_a,
@@ -100,6 +102,9 @@ def daq_config(protocol: CampaignProtocol) -> DaqConfig:
         voltage_range_v=protocol.acquisition.adc_range_v,
         voltage_gain=protocol.acquisition.voltage_gain,
         compliance_v=protocol.excitation.compliance_v,
+        rail_positive_v=e.supply_positive_v,
+        rail_negative_v=e.supply_negative_v,
+        mux_series_ohm=2 * e.r_on_ohm + e.r_on_mismatch_ohm,
     )
 
 

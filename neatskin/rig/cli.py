@@ -273,7 +273,9 @@ def _check(args: argparse.Namespace) -> int:
         protocol = load_protocol(args.protocol)
         plan = build_plan(protocol)
     except ConfigError as exc:  # the check's verdict: the protocol fails it
-        raise CheckFailed(problems=exc.problems) from exc
+        from neatskin.rig.railcheck import with_pressed_figures
+
+        raise CheckFailed(problems=with_pressed_figures(args.protocol, exc.problems)) from exc
     positions = len(set(plan.program.presses.position_ids.tolist()))  # no block needs formatting to count
     print(f"{protocol.path}: ok")
     print(
@@ -287,6 +289,9 @@ def _check(args: argparse.Namespace) -> int:
     print(f"  {printer_time_text(plan.printer_time_s, plan.n_presses)}")
     print(f"  resources (upper bounds): {protocol.resources.summary()}")
     print(f"  electrical: {protocol.electrical.summary()}")
+    from neatskin.rig.railcheck import pressed_rails_text
+
+    print(f"  electrical, {pressed_rails_text(protocol)}")
     return 0
 
 

@@ -229,8 +229,8 @@ def physical_limit_table(protocol: CampaignProtocol, plan: Plan, skin: SkinModel
     x = np.asarray(positions.x_mm, dtype=float)[ids]
     y = np.asarray(positions.y_mm, dtype=float)[ids]
     depth = np.full(ids.shape, protocol.press.press.depth_mm)
-    cfg = daq.config  # beyond the compliance or the AI's reach a pair's reading clips: no graded information
-    readable_ohm = min(cfg.compliance_v, cfg.voltage_limit_v) / cfg.amplitude_a if cfg.amplitude_a > 0 else np.inf
+    # beyond the compliance, the AI's reach or the mux rails a pair's reading clips: no graded information
+    readable_ohm = daq.config.readable_ohm
     jac = _by_chunks(
         lambda cx, cy, cd: feature_jacobian(skin, cx, cy, cd, max_resistance_ohm=readable_ohm), x, y, depth
     )  # (positions, pairs, 4)

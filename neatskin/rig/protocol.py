@@ -10,6 +10,7 @@ references is reported at once, each with its file, field and fix, before anythi
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import hashlib
 import math
@@ -123,11 +124,14 @@ def file_sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = None) -> CampaignProtocol:
+def load_protocol(
+    path: str | Path, file_overrides: dict[str, Path] | None = None, amplitude_a: float | None = None
+) -> CampaignProtocol:
     """Load and validate a protocol and everything it references; raise one ConfigError listing every problem.
 
     file_overrides replaces the layout, wiring or printer file the protocol names (resume uses the
-    copies kept in the campaign folder)."""
+    copies kept in the campaign folder); amplitude_a replaces the excitation's current (`campaign check`'s
+    figures for its suggested current when the file's is refused)."""
     path = resolve_path(path)
     source = str(path)
     data = read_toml(path, "protocol file", fix="check the path, e.g. protocols/paper.toml")
@@ -137,6 +141,8 @@ def load_protocol(path: str | Path, file_overrides: dict[str, Path] | None = Non
         problems += schema.campaign_name_problems(campaign.name, source)
     file_paths = _referenced_files(tables.get("files"), path, file_overrides or {}, problems)
     excitation_t: Excitation | None = tables.get("excitation")
+    if excitation_t is not None and amplitude_a is not None:
+        excitation_t = dataclasses.replace(excitation_t, amplitude_a=float(amplitude_a))
     acq: AcquisitionSettings | None = tables.get("acquisition")
     if acq is not None and excitation_t is not None:
         problems += _timing_problems(excitation_t, acq, source)
@@ -452,6 +458,9 @@ def electrical_check(
     return ElectricalCheck(layout.pairs[k].label, float(r_eq[k]), amplitude_a * path_ohm, limits[name], name)
 
 
+CLIP_MESSAGE = "the excitation would clip"  # the refusal's opening (rig.railcheck adds its pressed figures)
+
+
 def _electrical_problems(
     check: ElectricalCheck, layout: Any, wiring: Any, excitation: Excitation, source: str
 ) -> list[Problem]:
@@ -461,7 +470,7 @@ def _electrical_problems(
     amp_max = excitation.amplitude_a * check.limit_v / check.peak_v
     return [
         Problem(
-            f"the excitation would clip: {excitation.amplitude_a * 1e3:g} mA x ({check.largest_r_eq_ohm:.0f} ohm "
+            f"{CLIP_MESSAGE}: {excitation.amplitude_a * 1e3:g} mA x ({check.largest_r_eq_ohm:.0f} ohm "
             f"(pair {check.largest_pair}, undeformed) x {excitation.press_margin:g} press margin + 2 x "
             f"{e.r_on_ohm:g} ohm R_on + {e.r_on_mismatch_ohm:g} ohm mismatch) = {check.peak_v:.3g} V peak, beyond "
             f"the {check.limit_name}: {check.limit_v:.3g} V",

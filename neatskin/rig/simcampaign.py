@@ -121,19 +121,31 @@ def scale_pinch(skin: SkinModel, factor: float) -> SkinModel:
     return dataclasses.replace(skin, pinch=dataclasses.replace(skin.pinch, pinch_gain=skin.pinch.pinch_gain * factor))
 
 
-def simulate_presses(
+@dataclass(frozen=True)
+class PressedSkin:
+    """Presses drawn through the skin before the DAQ: pair R_eq (presses, pairs) in ohm, +inf for a pair cut off,
+    with the fluid drift factor per press, the commanded and landed positions and the groups."""
+
+    resistance_ohm: np.ndarray
+    drift: np.ndarray
+    commanded_mm: np.ndarray
+    landed_mm: np.ndarray
+    groups: np.ndarray
+
+
+def pressed_skin(
     protocol: CampaignProtocol,
     commanded_xy_mm: np.ndarray,
     repeats: int,
     depth_mm: float,
     seed: int,
-    noise_std_ohm: np.ndarray,
     *,
     skin: SkinModel | None = None,
     interval_s: float | None = None,
     first_press: int = 0,
-) -> Presses:
-    """Every position pressed `repeats` times in a row (position order), from press index `first_press` on."""
+) -> PressedSkin:
+    """Every position pressed `repeats` times in a row (position order), from press index `first_press` on,
+    through the skin with the scene's placement error, depth jitter and drift: what the DAQ is given."""
     scene = protocol.scene
     skin = skin_of(protocol) if skin is None else skin
     commanded = np.repeat(np.asarray(commanded_xy_mm, float).reshape(-1, 2), repeats, axis=0)
@@ -155,18 +167,39 @@ def simulate_presses(
         float,
     ) * np.ones(n)
     pressed = np.asarray(skin.pair_resistance_ohm(landed[:, 0], landed[:, 1], depth, resistivity_factor=drift), float)
-    # beyond the compliance or the AI's reach the DAQ reads no value, it flags the pair (open circuit, clipped) as
-    # it does a cut one: a channel nearly pinched shut gives a huge but finite R_eq that no rig would record
-    cfg = daq_config(protocol)
-    readable_ohm = min(cfg.compliance_v, cfg.voltage_limit_v) / cfg.amplitude_a if cfg.amplitude_a > 0 else np.inf
-    pressed = np.where(pressed > readable_ohm, np.inf, pressed)
-    base = np.asarray(skin.baseline_pair_resistance_ohm, float)[None, :] * drift[:, None]
+    return PressedSkin(pressed, drift, commanded, landed, groups)
+
+
+def simulate_presses(
+    protocol: CampaignProtocol,
+    commanded_xy_mm: np.ndarray,
+    repeats: int,
+    depth_mm: float,
+    seed: int,
+    noise_std_ohm: np.ndarray,
+    *,
+    skin: SkinModel | None = None,
+    interval_s: float | None = None,
+    first_press: int = 0,
+) -> Presses:
+    """Every position pressed `repeats` times in a row (position order), from press index `first_press` on."""
+    skin = skin_of(protocol) if skin is None else skin
+    drawn = pressed_skin(
+        protocol, commanded_xy_mm, repeats, depth_mm, seed, skin=skin, interval_s=interval_s, first_press=first_press
+    )
+    # beyond the compliance, the AI's reach or the mux rails (amplitude x (R + 2 R_on + mismatch) past a rail: the
+    # switch clamps) the rig reads no value: it flags the pair (clipped; open circuit too for a cut one) and the
+    # row records +inf, as a cut pair's (acquisition.pressvalues): a channel nearly pinched shut gives a huge but
+    # finite R_eq that no rig would record
+    readable_ohm = daq_config(protocol).readable_ohm
+    pressed = np.where(drawn.resistance_ohm >= readable_ohm, np.inf, drawn.resistance_ohm)
+    base = np.asarray(skin.baseline_pair_resistance_ohm, float)[None, :] * drawn.drift[:, None]
     noise = np.random.default_rng([seed, STREAMS["noise"]]).standard_normal(pressed.shape) * noise_std_ohm[None, :]
     features = pressed - base + noise
     # a pair cut off (a channel pinched shut) reads as the baselines read a recorded one: its column's saturation
     # value (baselines.dataset.saturate, here over this call's presses), never as no change
     features = saturate(features)[0]
-    return Presses(features, commanded, landed, groups)
+    return Presses(features, drawn.commanded_mm, drawn.landed_mm, drawn.groups)
 
 
 def strategy_positions(protocol: CampaignProtocol, count: int, seed: int) -> np.ndarray:

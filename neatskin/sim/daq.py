@@ -17,10 +17,14 @@ R cos(phi) - X sin(phi)), and mains pickup on the voltage channel.
 By default R is evaluated once per pair per sweep, at the middle of its live window
 (resistance_sampling="per_pair"); "per_sample" evaluates it at every sample.
 
+The mux rails (DaqConfig.rail_*_v, the wiring's): where i (R + mux_series_ohm) would pass a rail the switch
+clamps, V across the pair is rail R / (R + series) while I reads the galvanostat's current (`_clamp_at_rails`);
+the demodulator flags it CLIPPED.
+
 Features-only path (`estimate_sweep`): the estimate the demodulator would return, drawn
 from the estimator's analytic mean and standard deviation under this noise model (see
-docs/acquisition.md) — no waveform. Pairs that would clip, hit compliance or be open fall
-back to the waveform path, so flags and values stay the waveform path's.
+docs/acquisition.md) — no waveform. Pairs that would clip, hit compliance, come near a mux
+rail or be open fall back to the waveform path, so flags and values stay the waveform path's.
 """
 
 from __future__ import annotations
@@ -142,6 +146,7 @@ class SimulatedDAQ(Daq):
             current = np.clip(command, -i_max, i_max)
             physical[:, 0] = np.where(finite, current * np.where(finite, r, 0.0), cfg.compliance_v * np.sign(command))
         physical[:, 1] = current
+        self._clamp_at_rails(physical, r, current)
         self._add_interface_effects(physical, index, connected, i_max)
         if noise.transient_v:
             physical[:, 0] += transient
@@ -158,6 +163,25 @@ class SimulatedDAQ(Daq):
             where = rng.integers(0, n, k)
             physical[where, 2] += rng.choice([-1.0, 1.0], k) * rng.uniform(0.5, 1.0, k) * noise.fsr_spike_v
         return Acquisition(self._digitise(physical), index, cfg, n_sweeps)
+
+    def _clamp_at_rails(self, physical: np.ndarray, r: np.ndarray, current: np.ndarray) -> None:
+        """The mux rails, in place: the switch node on the galvanostat's side sits at i (R + mux_series_ohm); where
+        it would pass a rail the switch's protection diodes hold it there, the skin takes rail / (R + series) and
+        the excess goes into the rail, so V across the pair is rail R / (R + series) while the current monitor
+        still reads the galvanostat's i (the demodulator flags it CLIPPED). A cut pair (R = inf) keeps its model:
+        the galvanostat at compliance with no current (the diodes' path left out; it reads OPEN_CIRCUIT | CLIPPED
+        either way). Off when no finite R reaches `rail_ohm`: then no bit changes."""
+        cfg = self.config
+        finite = np.isfinite(r) & (r >= 0)
+        r_finite = np.where(finite, r, 0.0)
+        if not finite.any() or float(r_finite.max()) <= cfg.rail_ohm:
+            return
+        path = r_finite + cfg.mux_series_ohm
+        node = current * path
+        over = finite & ((node > cfg.rail_positive_v) | (node < cfg.rail_negative_v))
+        if over.any():
+            held = np.clip(node[over], cfg.rail_negative_v, cfg.rail_positive_v)
+            physical[over, 0] = held * r_finite[over] / path[over]
 
     def _add_interface_effects(self, physical, index, connected, i_max) -> None:
         """Double layer (V += (1 / C) integral of i dt, steady state), V/I sampling skew (I read skew later)
@@ -233,6 +257,7 @@ class SimulatedDAQ(Daq):
             & (r * amp < cfg.compliance_v)
             & ((peak_v < cfg.voltage_limit_v) | (not noise.clip))
             & ((peak_i < cfg.current_limit_a) | (not noise.clip))
+            & (amp * (np.abs(r) + cfg.mux_series_ohm) + self._rail_margin_v(sweep) < cfg.rail_v)
         )
         cut = ~np.isfinite(r) & self._surely_open_and_clipped()
         if not (exact | cut).all():
@@ -262,6 +287,24 @@ class SimulatedDAQ(Daq):
             uncertainty = np.where(cut, np.inf, uncertainty)
             flags[cut] = np.uint8(PairFlag.OPEN_CIRCUIT | PairFlag.CLIPPED)
         return PairEstimates(resistance, uncertainty, flags, windows, method)
+
+    def _rail_margin_v(self, sweep: Sweep) -> float:
+        """What could lift the demodulator's switch-node reading (v + i x mux_series_ohm) above i (R + series):
+        offsets, double layer, mains, the switching transient where the live window starts (settle_samples after
+        the switch) and 6 sigma of noise, plus one ADC step. A pair within it of a rail goes to the waveform path,
+        which clamps and flags exactly as the rig would."""
+        cfg, noise = self.config, self.noise
+        s = cfg.mux_series_ohm
+        lsb = float(cfg.lsb_ai_v[0] * cfg.to_physical[0] + s * cfg.lsb_ai_v[1] * cfg.to_physical[1])
+        return (
+            abs(noise.voltage_offset_v)
+            + s * abs(noise.current_offset_a)
+            + noise.reactance_ohm(cfg.frequency_hz) * cfg.amplitude_a
+            + noise.mains_v
+            + abs(noise.transient_v) * float(np.exp(-sweep.timing.settle_samples / noise.transient_tau_samples))
+            + 6.0 * float(np.hypot(noise.voltage_noise_v, s * noise.current_noise_a))
+            + lsb
+        )
 
     def _surely_open_and_clipped(self) -> bool:
         """Whether a cut pair (R = inf) surely reads as the waveform path reads it: the galvanostat at its

@@ -7,7 +7,14 @@ Channels (in this order): voltage_v (across the live pair), current_a (through i
 fsr_v (the force-sensing resistor's divider output). The AI reads volts; `voltage_gain`
 (AI volts per volt across the pair) and `current_gain_v_per_a` (the galvanostat's current
 monitor) convert them to the physical units stored here. The defaults fit the paper's rig on
-the NI USB-6229's +-10 V range: 2 mA through up to 10 kohm.
+the NI USB-6229's +-10 V range, through the paper's MAX4052 mux board at +-8 V: 0.5 mA (the paper's 2 mA
+would pass the mux rails on every pair above ~3.8 kohm; docs/acquisition.md, "Electrical limits").
+
+The mux rails (`rail_positive_v`, `rail_negative_v`, from the wiring's [electrical]) bound what the rig can
+read: the switch node on the galvanostat's side of the mux sits at i x (R + mux_series_ohm), mux_series_ohm
+= 2 R_on + the R_on mismatch (the wiring's worst case). Where that would pass a rail the switch's protection
+diodes clamp it: the galvanostat's current no longer all flows through the skin, so V / I is wrong and the
+demodulator flags the pair CLIPPED (neatskin.acquisition.demod).
 """
 
 from __future__ import annotations
@@ -23,10 +30,14 @@ from neatskin.errors import ConfigError, Problem
 CHANNELS = ("voltage_v", "current_a", "fsr_v")
 
 
+def _is_number(value: object) -> bool:
+    return not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
+
+
 @dataclass(frozen=True)
 class DaqConfig:
     rate_hz: float = 10_000.0
-    amplitude_a: float = 0.002  # excitation peak current
+    amplitude_a: float = 0.0005  # excitation peak current: 0.5 mA keeps the paper's undeformed skin in the rails
     frequency_hz: float = 1_000.0
     voltage_range_v: float = 10.0  # AI range (+-) of each channel
     current_range_v: float = 10.0
@@ -36,6 +47,11 @@ class DaqConfig:
     ao_v_per_a: float = 1_000.0  # galvanostat control input: AO volts per amp commanded
     compliance_v: float = 50.0  # the galvanostat's output voltage limit (HA-151B class; set your instrument's)
     adc_bits: int = 16
+    # the mux board between the galvanostat and the skin (wiring [electrical]; MAX4052 at +-8 V, datasheet
+    # maxima: assumed). rig/assembly.daq_config passes the protocol's wiring.
+    rail_positive_v: float = 8.0
+    rail_negative_v: float = -8.0
+    mux_series_ohm: float = 210.0  # 2 x 100 ohm R_on + 10 ohm mismatch, in series with the pair
     channel_names: tuple[str, ...] = CHANNELS
     device: str = "Dev1"
     ai_channels: tuple[str, ...] = ("ai0", "ai1", "ai2")
@@ -69,6 +85,20 @@ class DaqConfig:
                     "sample at least 4x faster than the excitation",
                 )
             )
+        for name, ok, rule in (
+            ("rail_positive_v", _is_number(self.rail_positive_v) and self.rail_positive_v > 0, "> 0"),
+            ("rail_negative_v", _is_number(self.rail_negative_v) and self.rail_negative_v < 0, "< 0"),
+            ("mux_series_ohm", _is_number(self.mux_series_ohm) and self.mux_series_ohm >= 0, ">= 0"),
+        ):
+            if not ok:
+                problems.append(
+                    Problem(
+                        f"{name} must be a number {rule}, got {getattr(self, name)!r}",
+                        "<daq config>",
+                        name,
+                        f"set {name} {rule} (the wiring's [electrical])",
+                    )
+                )
         if len(self.channel_names) != 3 or len(self.ai_channels) != 3:
             problems.append(
                 Problem(
@@ -103,6 +133,24 @@ class DaqConfig:
     def voltage_limit_v(self) -> float:
         """Largest voltage across the pair the AI can read without clipping."""
         return self.voltage_range_v / self.voltage_gain
+
+    @property
+    def rail_v(self) -> float:
+        """The nearer mux rail (V): the sine's peak reaches both signs."""
+        return min(self.rail_positive_v, -self.rail_negative_v)
+
+    @property
+    def rail_ohm(self) -> float:
+        """The largest pair R whose switch node stays inside the rails at the sine's peak:
+        rail_v / amplitude_a - mux_series_ohm. Above it the mux clamps and the reading is CLIPPED."""
+        return self.rail_v / self.amplitude_a - self.mux_series_ohm
+
+    @property
+    def readable_ohm(self) -> float:
+        """The largest pair R the rig reads as a value: within the galvanostat's compliance, the AI's reach and
+        the mux rails at the sine's peak. Above it the reading is flagged (CLIPPED, or OPEN_CIRCUIT too for a
+        pair cut off) and recorded as no value (+inf), as a cut pair's."""
+        return min(self.compliance_v / self.amplitude_a, self.voltage_limit_v / self.amplitude_a, self.rail_ohm)
 
     @property
     def current_limit_a(self) -> float:

@@ -1,0 +1,139 @@
+"""The pressed skin against the mux rails: how many of a protocol's presses would put some pair past the rails (or
+the compliance, or the AI's reach) at a given current, through the protocol's own scene's skin model.
+
+`campaign check`'s undeformed worst case (rig.protocol.electrical_check: the largest pair R_eq x press_margin) is
+the refusal; a press can raise a pair's R_eq far beyond that margin (the finite-element pinch of the paper's skin
+at 3.5 mm: up to 5.5x), and such a reading is clamped by the switch and flagged, recorded as a cut pair's (R =
+inf; neatskin.acquisition.demod, pressvalues). This module counts them: the protocol's positions (its strategy
+and seed) x its repeats at its depth, drawn as the forecast draws them (rig.simcampaign.pressed_skin: the scene's
+placement error, depth jitter and drift; no measurement noise, which moves a reading by ~1e-4 of R), against the
+DAQ's readable limit at each current (DaqConfig.readable_ohm). Pure in the pressed R; the skin is built once.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from neatskin.acquisition.daq.base import DaqConfig
+from neatskin.errors import ConfigError, Problem
+from neatskin.gcode.positions import generate_positions
+from neatskin.rig.assembly import daq_config
+from neatskin.rig.protocol import CLIP_MESSAGE, CampaignProtocol, load_protocol
+from neatskin.rig.simcampaign import pressed_skin
+
+
+@dataclass(frozen=True)
+class PressedRails:
+    """A protocol's pressed readings against what the DAQ can read at one current."""
+
+    amplitude_a: float
+    readable_ohm: float  # DaqConfig.readable_ohm at this current
+    rail_ohm: float  # rail_v / amplitude_a - 2 R_on - mismatch
+    presses: int
+    readings: int  # finite pressed readings (a pair already cut off by the pinch is not counted)
+    presses_over: int  # presses with some finite reading at or beyond readable_ohm
+    readings_over: int
+    largest_ohm: float  # the largest finite pressed R_eq
+    series_ohm: float
+
+    @property
+    def share(self) -> float:
+        return self.presses_over / self.presses if self.presses else 0.0
+
+    def summary(self) -> str:
+        peak_v = self.amplitude_a * (self.largest_ohm + self.series_ohm)
+        if not self.presses_over:
+            return (
+                f"none of {self.presses} presses puts a pair past the rails at {self.amplitude_a * 1e3:g} mA (the "
+                f"largest pressed R_eq {self.largest_ohm:.0f} ohm = {peak_v:.3g} V, {self.readable_ohm:.0f} ohm "
+                "readable)"
+            )
+        return (
+            f"{self.presses_over} of {self.presses} presses ({100 * self.share:.1f} %) put some pair past the "
+            f"rails at {self.amplitude_a * 1e3:g} mA ({self.readings_over} of {self.readings} readings above "
+            f"{self.readable_ohm:.0f} ohm; the largest pressed R_eq {self.largest_ohm:.0f} ohm = {peak_v:.3g} V): "
+            "flagged clipped and recorded as a cut pair's (R = inf)"
+        )
+
+
+def pressed_resistance_ohm(protocol: CampaignProtocol) -> np.ndarray:
+    """(presses, pairs) pair R_eq of the protocol's presses through its dry run's skin, +inf for a pair cut off."""
+    press = protocol.press
+    xy = generate_positions(protocol.layout, press.positions).xy_mm
+    drawn = pressed_skin(protocol, xy, int(press.press.repeats), float(press.press.depth_mm), int(protocol.seed))
+    return drawn.resistance_ohm
+
+
+def pressed_rails(r_ohm: np.ndarray, config: DaqConfig, amplitude_a: float | None = None) -> PressedRails:
+    """The pressed readings `r_ohm` (presses, pairs; +inf for a pair cut off) against `config` (at `amplitude_a`
+    if given): a finite reading at or above its readable_ohm is one the rig flags and records as no value."""
+    cfg = config if amplitude_a is None else dataclasses.replace(config, amplitude_a=float(amplitude_a))
+    r = np.asarray(r_ohm, float)
+    finite = np.isfinite(r)
+    over = finite & (r >= cfg.readable_ohm)
+    return PressedRails(
+        amplitude_a=cfg.amplitude_a,
+        readable_ohm=float(cfg.readable_ohm),
+        rail_ohm=float(cfg.rail_ohm),
+        presses=int(r.shape[0]),
+        readings=int(finite.sum()),
+        presses_over=int(over.any(axis=1).sum()),
+        readings_over=int(over.sum()),
+        largest_ohm=float(r[finite].max()) if finite.any() else 0.0,
+        series_ohm=float(cfg.mux_series_ohm),
+    )
+
+
+def _where(protocol: CampaignProtocol) -> str:
+    press = protocol.press
+    return (
+        f"{press.positions.count} positions x {press.press.repeats} at {press.press.depth_mm:g} mm through the "
+        f"scene's {getattr(protocol.scene, 'deformation', '')} skin, as the forecast draws them"
+    )
+
+
+def pressed_rails_text(protocol: CampaignProtocol) -> str:
+    """`campaign check`'s pressed line at the protocol's own current: a warning when some press passes the rails
+    (the protocol is not refused: those readings are flagged and recorded as a cut pair's)."""
+    result = pressed_rails(pressed_resistance_ohm(protocol), daq_config(protocol))
+    return f"pressed ({_where(protocol)}): {'warning: ' if result.presses_over else ''}{result.summary()}"
+
+
+def with_pressed_figures(path: str | Path, problems: Sequence[Problem]) -> list[Problem]:
+    """`campaign check`'s refusal of a current whose undeformed worst case passes the rails, with the pressed
+    figures at the current it suggests and at DaqConfig's default: the suggestion keeps the undeformed skin (x the
+    press margin) inside the rails, not every pressed reading. Other problems, or a protocol that fails for
+    another reason too, are returned as they are."""
+    refused = [p for p in problems if p.field == "excitation.amplitude_a" and p.message.startswith(CLIP_MESSAGE)]
+    if len(refused) != 1 or len(problems) != 1:
+        return list(problems)
+    default_a = DaqConfig().amplitude_a
+    try:
+        protocol = load_protocol(path, amplitude_a=default_a)
+        suggested_a = default_a * protocol.electrical.limit_v / protocol.electrical.peak_v
+        r = pressed_resistance_ohm(protocol)
+    except ConfigError:
+        return list(problems)
+    cfg = daq_config(protocol)
+    at_suggested, at_default = pressed_rails(r, cfg, suggested_a), pressed_rails(r, cfg, default_a)
+    p = refused[0]
+    rest = p.fix.split(", or ", 1)[1] if p.fix and ", or " in p.fix else None
+    fix = (
+        f"lower amplitude_a to {default_a * 1e3:g} mA (the default: pressed ({_where(protocol)}), "
+        f"{_share(at_default)} put some pair past the rails, flagged and recorded as a cut pair's); "
+        f"{suggested_a * 1e3:.3g} mA is the most that keeps the undeformed skin x the press margin inside them, "
+        f"where {_share(at_suggested)} would"
+    )
+    return [Problem(p.message, p.file, p.field, f"{fix}, or {rest}" if rest else fix)]
+
+
+def _share(result: PressedRails) -> str:
+    return (
+        f"{result.presses_over} of {result.presses} presses ({100 * result.share:.1f} %; "
+        f"{result.readings_over} of {result.readings} readings)"
+    )
