@@ -36,9 +36,9 @@ def test_plan_is_exact(wiring):
         ("Dev1/ai2", "fsr_v", -10.0, 10.0),
     ]
     assert plan.do_channel == ",".join(f"Dev1/port0/line{k}" for k in range(9))
-    # the default 0.5 mA at 1 V/mA: a 0.5 V sine, 10 samples per period, phase from the global index (start 10000 =
+    # the default 0.2 mA at 1 V/mA: a 0.2 V sine, 10 samples per period, phase from the global index (start 10000 =
     # whole periods)
-    np.testing.assert_allclose(plan.ao_data_v[:10], 0.5 * np.sin(2 * np.pi * np.arange(10) / 10), atol=1e-12)
+    np.testing.assert_allclose(plan.ao_data_v[:10], 0.2 * np.sin(2 * np.pi * np.arange(10) / 10), atol=1e-12)
     assert np.all(plan.ao_data_v[-IDLE_TAIL_SAMPLES:] == 0)
     # port words: sample 0 all inhibited (0x1FC) with the wrap address 3 (A=B=1) -> 0x1FF;
     # sample 1 address 0 -> 0x1FC; sample 2 chip U1 enabled (bit 2 low) -> 0x1F8

@@ -24,7 +24,7 @@ from neatskin.sim.daq import NoiseModel, SimulatedDAQ
 
 PROTOCOLS = Path(__file__).resolve().parent.parent / "protocols"
 WIRING = PROTOCOLS / "wiring" / "paper.toml"
-AMPLITUDE_A = 0.0005
+AMPLITUDE_A = 0.0002  # the protocols' and DaqConfig's default
 OVER, UNDER, FAR = 1, 2, 3  # the pairs set just over, just under and at twice the rail
 
 
@@ -36,7 +36,7 @@ def _wiring_numbers():
 
 
 RAIL_V, SERIES_OHM = _wiring_numbers()
-RAIL_OHM = RAIL_V / AMPLITUDE_A - SERIES_OHM  # 8 V / 0.5 mA - 210 ohm = 15790 ohm
+RAIL_OHM = RAIL_V / AMPLITUDE_A - SERIES_OHM  # 8 V / 0.2 mA - 210 ohm = 39790 ohm
 
 
 def _resistances() -> np.ndarray:
@@ -71,8 +71,8 @@ def test_the_wiring_rails_reach_the_protocols_daq_config():
     config = daq_config(load_protocol(PROTOCOLS / "paper.toml"))
     assert (config.rail_positive_v, config.rail_negative_v, config.mux_series_ohm) == (8.0, -8.0, SERIES_OHM)
     assert config.amplitude_a == AMPLITUDE_A
-    assert config.rail_ohm == pytest.approx(15_790.0, rel=1e-12) == RAIL_OHM
-    # the rails, not the ADC (10 V / 0.5 = 20 V) nor the compliance (50 V), bound the paper rig's readings
+    assert config.rail_ohm == pytest.approx(39_790.0, rel=1e-12) == RAIL_OHM
+    # the rails, not the ADC (10 V / 0.5 = 20 V: 100 kohm) nor the compliance (50 V), bound the paper rig's readings
     assert config.readable_ohm == config.rail_ohm
     assert DaqConfig().amplitude_a == AMPLITUDE_A  # the default is the consistent current, not the paper's 2 mA
 

@@ -32,7 +32,7 @@ def edit(path, old, new):
     "old, new, field, words",
     [
         ("depth_mm = 3.5", "depth_mm = 9.0", "press.depth_mm", "thickness"),
-        ("amplitude_a = 0.0005", "amplitude_a = -0.0005", "excitation.amplitude_a", "positive"),
+        ("amplitude_a = 0.0002", "amplitude_a = -0.0002", "excitation.amplitude_a", "positive"),
         ("rate_hz = 10000.0", "rate_hz = 1500.0", "excitation.frequency_hz", "Nyquist"),
         ("window = 10", "window = 500", "acquisition.window", "live window"),
         ('demodulation = "rms"', 'demodulation = "fft"', "acquisition.demodulation", "not one of"),
@@ -59,7 +59,7 @@ def test_each_protocol_mistake_is_named(protocols, old, new, field, words):
 
 def test_every_error_reported_at_once(protocols):
     path = protocols / "smoke.toml"
-    edit(path, "amplitude_a = 0.0005", "amplitude_a = 0")
+    edit(path, "amplitude_a = 0.0002", "amplitude_a = 0")
     edit(path, 'demodulation = "rms"', 'demodulation = "fft"')
     edit(path, "depth_mm = 3.5", "depth_mm = 9.0")
     with pytest.raises(ConfigError) as info:
@@ -281,7 +281,7 @@ def test_non_utf8_protocol_is_one_error(protocols):
 
 def test_the_papers_2_mA_clips_at_the_mux_rails(protocols):
     path = protocols / "smoke.toml"
-    edit(path, "amplitude_a = 0.0005", "amplitude_a = 0.002")
+    edit(path, "amplitude_a = 0.0002", "amplitude_a = 0.002")
     with pytest.raises(ConfigError) as info:
         load_protocol(path)
     assert [p.field for p in info.value.problems] == ["excitation.amplitude_a"]
@@ -299,7 +299,7 @@ def test_electrical_limits_come_from_the_wiring_and_the_protocol(protocols):
     edit(protocols / "wiring" / "paper.toml", "supply_negative_v = -8.0", "supply_negative_v = -15.0")
     path = protocols / "smoke.toml"
     edit(path, "[acquisition]", "[acquisition]\nadc_range_v = 2.0")
-    edit(path, "amplitude_a = 0.0005", "amplitude_a = 0.001")
+    edit(path, "amplitude_a = 0.0002", "amplitude_a = 0.001")
     with pytest.raises(ConfigError) as info:
         load_protocol(path)
     # rails now +-15 V; the ADC reaches 2 V / 0.5 = 4 V across the pair: 1 mA x 8647.5 ohm = 8.65 V
@@ -385,11 +385,11 @@ def test_a_wiring_drawn_for_another_skin_is_refused(protocols):
 
 
 def test_electrical_summary_of_the_smoke_campaign(protocols):
-    # 0.5 mA x (5625 ohm x 1.5 + 2 x 100 ohm + 10 ohm) = 4.32375 V against the +-8 V rails
+    # 0.2 mA x (5625 ohm x 1.5 + 2 x 100 ohm + 10 ohm) = 1.7295 V against the +-8 V rails
     summary = load_protocol(protocols / "smoke.toml").electrical.summary()
     assert summary == (
-        "peak 4.32 V (pair 2-6, 5625 ohm undeformed, with the press margin and R_on), "
-        "limit 8.00 V (mux supply rails (-8 V .. +8 V)), 1.85x headroom"
+        "peak 1.73 V (pair 2-6, 5625 ohm undeformed, with the press margin and R_on), "
+        "limit 8.00 V (mux supply rails (-8 V .. +8 V)), 4.63x headroom"
     )
 
 

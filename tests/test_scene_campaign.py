@@ -121,6 +121,7 @@ def test_a_drift_rate_is_recovered_from_a_fixed_position_pressed_over_time(tmp_p
         tmp_path,
         ("count = 6", "count = 1"),
         ("repeats = 2", "repeats = 10"),
+        ("amplitude_a = 0.0002", "amplitude_a = 0.0005"),  # the excitation these tolerances were measured at
         scene_lines=("temperature_drift_k_per_h = 20.0", "press_interval_s = 90.0"),
     )
     run_campaign(load_protocol(path), tmp_path / "run", progress=False, report=False)

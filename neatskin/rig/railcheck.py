@@ -123,9 +123,13 @@ def with_pressed_figures(path: str | Path, problems: Sequence[Problem]) -> list[
     at_suggested, at_default = pressed_rails(r, cfg, suggested_a), pressed_rails(r, cfg, default_a)
     p = refused[0]
     rest = p.fix.split(", or ", 1)[1] if p.fix and ", or " in p.fix else None
+    at_default_text = (
+        f"{_share(at_default)} put some pair past the rails, flagged and recorded as a cut pair's"
+        if at_default.presses_over
+        else f"none of {at_default.presses} presses puts a pair past the rails"
+    )
     fix = (
-        f"lower amplitude_a to {default_a * 1e3:g} mA (the default: pressed ({_where(protocol)}), "
-        f"{_share(at_default)} put some pair past the rails, flagged and recorded as a cut pair's); "
+        f"lower amplitude_a to {default_a * 1e3:g} mA (the default: pressed ({_where(protocol)}), {at_default_text}); "
         f"{suggested_a * 1e3:.3g} mA is the most that keeps the undeformed skin x the press margin inside them, "
         f"where {_share(at_suggested)} would"
     )

@@ -7,8 +7,9 @@ Channels (in this order): voltage_v (across the live pair), current_a (through i
 fsr_v (the force-sensing resistor's divider output). The AI reads volts; `voltage_gain`
 (AI volts per volt across the pair) and `current_gain_v_per_a` (the galvanostat's current
 monitor) convert them to the physical units stored here. The defaults fit the paper's rig on
-the NI USB-6229's +-10 V range, through the paper's MAX4052 mux board at +-8 V: 0.5 mA (the paper's 2 mA
-would pass the mux rails on every pair above ~3.8 kohm; docs/acquisition.md, "Electrical limits").
+the NI USB-6229's +-10 V range, through the paper's MAX4052 mux board at +-8 V: 0.2 mA, as the protocols (the
+paper's 2 mA would pass the mux rails on every pair above ~3.8 kohm, 0.5 mA on ~2 % of the pressed ones;
+docs/acquisition.md, "Electrical limits").
 
 The mux rails (`rail_positive_v`, `rail_negative_v`, from the wiring's [electrical]) bound what the rig can
 read: the switch node on the galvanostat's side of the mux sits at i x (R + mux_series_ohm), mux_series_ohm
@@ -37,7 +38,7 @@ def _is_number(value: object) -> bool:
 @dataclass(frozen=True)
 class DaqConfig:
     rate_hz: float = 10_000.0
-    amplitude_a: float = 0.0005  # excitation peak current: 0.5 mA keeps the paper's undeformed skin in the rails
+    amplitude_a: float = 0.0002  # excitation peak current: 0.2 mA keeps the paper's pressed skin in the rails
     frequency_hz: float = 1_000.0
     voltage_range_v: float = 10.0  # AI range (+-) of each channel
     current_range_v: float = 10.0
