@@ -44,3 +44,20 @@ def test_the_table_names_tests_that_exist():
     for name in suite_order.LONG_S:
         path, test = name.split("::")
         assert re.search(rf"^def {re.escape(test.split('[')[0])}\(", (root / path).read_text(), re.M), name
+
+
+def test_the_real_firmware_tests_start_first_on_every_worker(monkeypatch):
+    """They spin the firmware's threads: run together, they take the spare CPU from each other, not from the
+    long CPU-bound tests (suite_order.REAL_TIME_FILES)."""
+    timed = {"tests/test_marlin_real_vs_sim.py::test_a": 60.0, "tests/test_hil.py::test_real_firmware_b": 50.0}
+    monkeypatch.setattr(suite_order, "LONG_S", {**LONG, **timed})
+    ids = [*LONG, *timed, *(f"t/short.py::test_{i}" for i in range(20))]
+    ordered = long_first(ids, ids, 2)
+    assert sorted(ordered) == sorted(ids)
+    first, second = ordered[:13], ordered[13:]
+    assert (
+        first[0] == "tests/test_marlin_real_vs_sim.py::test_a"
+        and second[0] == "tests/test_hil.py::test_real_firmware_b"
+    )
+    # then the longest CPU-bound test, on the worker with less so far (50 s), the next ones on the other (60 s)
+    assert second[1] == "t/a.py::long_a" and first[1:3] == ["t/b.py::long_b", "t/c.py::long_c"]
