@@ -4,6 +4,7 @@ import signal
 from pathlib import Path
 
 import pytest
+from suite_order import long_first
 
 from neatskin.layout import load_layout
 
@@ -17,6 +18,22 @@ PROTOCOLS = REPO / "protocols"
 # default and get Python's.
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node) -> None:
+    """xdist's controller tells each worker its scheduling mode (a worker's own `dist` option reads "no")."""
+    node.workerinput["neatskin_dist"] = node.config.getoption("dist")
+
+
+@pytest.hookimpl(trylast=True)  # after -m/-k deselection: the blocks are of the tests that run
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Under xdist's worksteal (pyproject's addopts), each worker's first block starts with its share of the
+    longest tests (tests/suite_order.py). Every worker collects, and so orders, alike."""
+    workerinput = getattr(config, "workerinput", None)
+    if workerinput is None or workerinput.get("neatskin_dist") != "worksteal":
+        return
+    items[:] = long_first(items, [item.nodeid for item in items], int(workerinput["workercount"]))
 
 
 @pytest.fixture(scope="session")

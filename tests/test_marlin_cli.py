@@ -174,11 +174,11 @@ def test_ctrl_c_at_depth_ends_at_the_programs_travel_height(tmp_path, signum):
 
     from neatskin.sim.printer import sim_printer_for_tests
 
-    sim = sim_printer_for_tests(time_mode="scaled", speed=5.0)  # homing 25 s -> 5 s; the dwell 10 s -> 2 s
+    sim = sim_printer_for_tests(time_mode="scaled", speed=20.0)  # homing 25 s -> 1.25 s; the dwell 40 s -> 2 s
     path = sim.start_pty()
     program = tmp_path / "press.gcode"
     program.write_text(
-        "\n".join(["G28", "G90", "G0 Z15.5 F300", "G0 X100 Y100 F6000", "G1 Z5.5 F300", "G1 Z3.5 F120", "G4 S10"])
+        "\n".join(["G28", "G90", "G0 Z15.5 F300", "G0 X100 Y100 F6000", "G1 Z5.5 F300", "G1 Z3.5 F120", "G4 S40"])
         + "\nG0 Z15.5 F300\n"
     )
     env = {**os.environ, "PYTHONPATH": str(REPO)}
@@ -196,7 +196,7 @@ def test_ctrl_c_at_depth_ends_at_the_programs_travel_height(tmp_path, signum):
             [t for _, t in sim.executed[-1:]] == ["G1 Z3.5 F120"] and sim.probe_position()[2] == pytest.approx(3.5)
         ):
             time.sleep(0.02)
-        # the dwell (G4 S10, the line in flight) holds the probe at Z 3.5, 2 mm below the surface at 5.5
+        # the dwell (G4 S40, the line in flight) holds the probe at Z 3.5, 2 mm below the surface at 5.5
         assert sim.probe_position()[2] == pytest.approx(3.5)
         proc.send_signal(signum)
         out, err = proc.communicate(timeout=40)

@@ -18,6 +18,7 @@ G28's Z raises and its position report, M211's report, `M211 S` silent, `M211 S0
 from __future__ import annotations
 
 import re
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -92,9 +93,12 @@ def assert_same_replies(real: list[tuple[bytes, bytes]], sim: list[tuple[bytes, 
 
 def assert_plain_replays_alike(script: Script, *, speed: float = 1.0, max_wait_s: float = 10.0) -> None:
     """The script replayed to the real firmware's plain build and to the simulator (plain `ok`, `speed` times real
-    time), answered alike line by line."""
-    _, real = real_transcript(PLAIN, script, max_wait_s=max_wait_s)
-    _, sim = sim_transcript(advanced_ok=False, script=script, speed=speed, max_wait_s=max_wait_s)
+    time), answered alike line by line. The two replays run at once (the firmware's in a thread): each has its own
+    pty and process or threads, and both mostly wait on their clocks (G28 in real time on the firmware)."""
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="real-firmware-replay") as pool:
+        real_run = pool.submit(real_transcript, PLAIN, script, max_wait_s=max_wait_s)
+        _, sim = sim_transcript(advanced_ok=False, script=script, speed=speed, max_wait_s=max_wait_s)
+        _, real = real_run.result()
     assert_same_replies(real, sim, script)
 
 

@@ -1,0 +1,63 @@
+"""The suite's start order under worksteal (tests/suite_order.py): the longest tests first, spread over the workers'
+first blocks by longest processing time, every test still run once."""
+
+from __future__ import annotations
+
+import suite_order
+from suite_order import block_sizes, long_first
+
+LONG = {"t/a.py::long_a": 172.0, "t/b.py::long_b": 60.0, "t/c.py::long_c": 59.0, "t/d.py::long_d": 56.0}
+LONG["t/e.py::long_e"] = 48.0
+
+
+def test_blocks_are_worksteals_first_split():
+    assert block_sizes(7, 2) == [3, 4] and block_sizes(1663, 2) == [831, 832] and block_sizes(10, 3) == [3, 3, 4]
+    assert sum(block_sizes(1663, 3)) == 1663
+
+
+def test_each_worker_starts_with_its_share_of_the_long_tests_and_every_test_runs_once(monkeypatch):
+    monkeypatch.setattr(suite_order, "LONG_S", LONG)
+    ids = [f"t/short.py::test_{i}" for i in range(20)]
+    ids[3:3], ids[17:17] = list(LONG)[:3], list(LONG)[3:]  # collected in the middle and at the end
+    ordered = long_first(ids, ids, 2)
+    assert sorted(ordered) == sorted(ids)
+    first, second = ordered[:12], ordered[12:]  # 25 tests: blocks of 12 and 13
+    # 172 s to the first, 60 + 59 + 56 s to the second (175 s), then 48 s to the first (172 s < 175 s)
+    assert first[:3] == ["t/a.py::long_a", "t/e.py::long_e", "t/short.py::test_0"]
+    assert second[:4] == ["t/b.py::long_b", "t/c.py::long_c", "t/d.py::long_d", "t/short.py::test_10"]
+    assert [name for name in ordered if name not in LONG] == [name for name in ids if name not in LONG]
+
+
+def test_one_worker_or_no_long_test_keeps_the_collection_order(monkeypatch):
+    monkeypatch.setattr(suite_order, "LONG_S", LONG)
+    ids = [f"t{i}" for i in range(9)]
+    assert long_first(ids, ids, 2) == ids
+    assert long_first([*ids, *LONG], [*ids, *LONG], 1) == [*ids, *LONG]
+
+
+def test_the_table_names_tests_that_exist():
+    """A renamed test would only lose its early start; this says which one."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    for name in suite_order.LONG_S:
+        path, test = name.split("::")
+        assert re.search(rf"^def {re.escape(test.split('[')[0])}\(", (root / path).read_text(), re.M), name
+
+
+def test_the_real_firmware_tests_start_first_on_every_worker(monkeypatch):
+    """They spin the firmware's threads: run together, they take the spare CPU from each other, not from the
+    long CPU-bound tests (suite_order.REAL_TIME_FILES)."""
+    timed = {"tests/test_marlin_real_vs_sim.py::test_a": 60.0, "tests/test_hil.py::test_real_firmware_b": 50.0}
+    monkeypatch.setattr(suite_order, "LONG_S", {**LONG, **timed})
+    ids = [*LONG, *timed, *(f"t/short.py::test_{i}" for i in range(20))]
+    ordered = long_first(ids, ids, 2)
+    assert sorted(ordered) == sorted(ids)
+    first, second = ordered[:13], ordered[13:]
+    assert (
+        first[0] == "tests/test_marlin_real_vs_sim.py::test_a"
+        and second[0] == "tests/test_hil.py::test_real_firmware_b"
+    )
+    # then the longest CPU-bound test, on the worker with less so far (50 s), the next ones on the other (60 s)
+    assert second[1] == "t/a.py::long_a" and first[1:3] == ["t/b.py::long_b", "t/c.py::long_c"]
