@@ -38,8 +38,8 @@ def _protocol_accepts(tmp_path, amplitude_a: float) -> bool:
     for sub in ("skins", "wiring", "printers"):
         shutil.copytree(PROTOCOLS / sub, root / sub)
     text = (PROTOCOLS / "smoke.toml").read_text()
-    assert "amplitude_a = 0.0005" in text
-    (root / "smoke.toml").write_text(text.replace("amplitude_a = 0.0005", f"amplitude_a = {amplitude_a!r}"))
+    assert "amplitude_a = 0.0002" in text
+    (root / "smoke.toml").write_text(text.replace("amplitude_a = 0.0002", f"amplitude_a = {amplitude_a!r}"))
     try:
         protocol = load_protocol(root / "smoke.toml")
     except ConfigError as exc:
