@@ -94,7 +94,7 @@ def demodulate(
 def at_rail(v: np.ndarray, i: np.ndarray, cfg) -> np.ndarray:
     """(sweeps, pairs) whether the switch node v + i x mux_series_ohm reached a mux rail (within one ADC step):
     a live sample at it, or the sine through the samples peaking at it (sqrt(2) RMS: exact for whole periods)."""
-    lsb = float(cfg.lsb_ai_v[0] * cfg.to_physical[0] + cfg.mux_series_ohm * cfg.lsb_ai_v[1] * cfg.to_physical[1])
+    lsb = cfg.node_lsb_v
     node = v + i * cfg.mux_series_ohm
     sample = ((node >= cfg.rail_positive_v - lsb) | (node <= cfg.rail_negative_v + lsb)).any(-1)
     peak = np.sqrt(2.0 * np.mean(node * node, axis=-1))

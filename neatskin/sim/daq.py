@@ -295,7 +295,6 @@ class SimulatedDAQ(Daq):
         which clamps and flags exactly as the rig would."""
         cfg, noise = self.config, self.noise
         s = cfg.mux_series_ohm
-        lsb = float(cfg.lsb_ai_v[0] * cfg.to_physical[0] + s * cfg.lsb_ai_v[1] * cfg.to_physical[1])
         return (
             abs(noise.voltage_offset_v)
             + s * abs(noise.current_offset_a)
@@ -303,7 +302,7 @@ class SimulatedDAQ(Daq):
             + noise.mains_v
             + abs(noise.transient_v) * float(np.exp(-sweep.timing.settle_samples / noise.transient_tau_samples))
             + 6.0 * float(np.hypot(noise.voltage_noise_v, s * noise.current_noise_a))
-            + lsb
+            + cfg.node_lsb_v
         )
 
     def _surely_open_and_clipped(self) -> bool:

@@ -147,6 +147,13 @@ class DaqConfig:
         return self.rail_v / self.amplitude_a - self.mux_series_ohm
 
     @property
+    def node_lsb_v(self) -> float:
+        """One ADC step of the mux's switch node as the rig reads it, v + i x mux_series_ohm (V)."""
+        return float(
+            self.lsb_ai_v[0] * self.to_physical[0] + self.mux_series_ohm * self.lsb_ai_v[1] * self.to_physical[1]
+        )
+
+    @property
     def readable_ohm(self) -> float:
         """The largest pair R the rig reads as a value: within the galvanostat's compliance, the AI's reach and
         the mux rails at the sine's peak. Above it the reading is flagged (CLIPPED, or OPEN_CIRCUIT too for a
