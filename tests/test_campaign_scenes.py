@@ -176,6 +176,20 @@ def _assert_ends_with_lift_and_park(wire_log, protocol_path) -> None:
     assert post[1].startswith("G0 X") and float(post[2].split("Z")[1].split()[0]) >= 15.5  # park, then up
 
 
+def _signal_once_written(args, folder, parts, signum):
+    """Run `neatskin ARGS` in a child, send it `signum` once `parts` presses are on disk (within 60 s), and return
+    (process, stdout, stderr) when it has ended (within 60 s more)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "neatskin", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and len(list((folder / "presses").glob("part-*.parquet"))) < parts:
+        time.sleep(0.02)
+    proc.send_signal(signum)
+    stdout, stderr = proc.communicate(timeout=60)
+    return proc, stdout, stderr
+
+
 # Ctrl-C; SIGTERM (systemctl stop, docker stop, timeout); SIGHUP (a dropped SSH session): one stop path
 @pytest.mark.slow
 @pytest.mark.timeout(180)
@@ -183,29 +197,9 @@ def _assert_ends_with_lift_and_park(wire_log, protocol_path) -> None:
 def test_ctrl_c_stops_after_the_press_in_flight_and_resumes(tmp_path, signum):
     path = make_protocol(tmp_path, *FEATURES, ("repeats = 2", "repeats = 40"))
     folder = tmp_path / "run"
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "neatskin",
-            "campaign",
-            "run",
-            str(path),
-            "--dry-run",
-            "--out",
-            str(folder),
-            "--no-report",
-            "--quiet",
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
+    proc, stdout, stderr = _signal_once_written(
+        ["campaign", "run", str(path), "--dry-run", "--out", str(folder), "--no-report", "--quiet"], folder, 3, signum
     )
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline and len(list((folder / "presses").glob("part-*.parquet"))) < 3:
-        time.sleep(0.02)
-    proc.send_signal(signum)
-    stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 130, stderr
     assert "interrupted" in stdout and "resume" in stdout and "Traceback" not in stderr
     assert f"{signum.name}: press" in stderr and "the probe lifts and parks" in stderr
@@ -288,17 +282,9 @@ def test_sigterm_during_resume_stops_it_as_ctrl_c_does(tmp_path):
     folder = tmp_path / "run"
     first = run_campaign(load_protocol(path), folder, progress=False, report=False, limit=3)
     assert first.completed == 3
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "neatskin", "campaign", "resume", str(folder), "--no-report", "--quiet"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
+    proc, stdout, stderr = _signal_once_written(
+        ["campaign", "resume", str(folder), "--no-report", "--quiet"], folder, 6, signal.SIGTERM
     )
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline and len(list((folder / "presses").glob("part-*.parquet"))) < 6:
-        time.sleep(0.02)
-    proc.send_signal(signal.SIGTERM)
-    stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 130 and "Traceback" not in stderr, stderr
     assert "SIGTERM: press" in stderr and "interrupted" in stdout
     manifest = json.loads((folder / "manifest.json").read_text())
