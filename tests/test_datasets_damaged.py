@@ -179,6 +179,17 @@ def complete(tmp_path_factory):
     return folder
 
 
+def _assert_resume_and_finish_name_the_unreadable(folder, path) -> None:
+    """`campaign resume` and `campaign finish` both stop (exit 5) with the one error naming the unreadable file."""
+    for command in ("resume", "finish"):
+        done = cli_child("campaign", command, str(folder), "--no-report", "--quiet", root_bypass=False)
+        assert done.returncode == 5, done.stderr
+        assert one_error(done.stderr) == (
+            f"neatskin: error: {path}: cannot read the file: Permission denied "
+            f"(fix: give your user read permission on it (chmod u+r {path}))"
+        )
+
+
 def test_a_part_without_read_permission_is_named_by_validate_info_resume_and_finish(partial, tmp_path):
     folder = tmp_path / "c"
     shutil.copytree(partial, folder)
@@ -193,13 +204,7 @@ def test_a_part_without_read_permission_is_named_by_validate_info_resume_and_fin
         )
         done = cli_child("dataset", "info", str(folder), root_bypass=False)
         assert done.returncode == 5 and str(part) in one_error(done.stderr)
-        for command in ("resume", "finish"):
-            done = cli_child("campaign", command, str(folder), "--no-report", "--quiet", root_bypass=False)
-            assert done.returncode == 5, done.stderr
-            assert one_error(done.stderr) == (
-                f"neatskin: error: {part}: cannot read the file: Permission denied "
-                f"(fix: give your user read permission on it (chmod u+r {part}))"
-            )
+        _assert_resume_and_finish_name_the_unreadable(folder, part)
         assert {p.name: p.stat().st_size for p in (folder / "presses").iterdir()} == rows_before
         assert read_manifest(folder)["status"] != "complete"
     finally:
@@ -218,13 +223,7 @@ def test_a_presses_parquet_without_read_permission_is_named_by_resume_and_finish
     main_file.chmod(0o000)
     try:
         before = snapshot(folder)
-        for command in ("resume", "finish"):
-            done = cli_child("campaign", command, str(folder), "--no-report", "--quiet", root_bypass=False)
-            assert done.returncode == 5, done.stderr
-            assert one_error(done.stderr) == (
-                f"neatskin: error: {main_file}: cannot read the file: Permission denied "
-                f"(fix: give your user read permission on it (chmod u+r {main_file}))"
-            )
+        _assert_resume_and_finish_name_the_unreadable(folder, main_file)
         done = cli_child("dataset", "validate", str(folder), root_bypass=False)
         assert done.returncode == 1 and f"{main_file}: unreadable parquet file" in done.stderr, done.stderr
         assert snapshot(folder) == before
