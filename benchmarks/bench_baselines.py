@@ -46,7 +46,8 @@ import numpy as np
 from sklearn.model_selection import GroupShuffleSplit
 
 from neatskin.baselines.evaluate import paper_split
-from neatskin.baselines.lm import LMNetworkRegressor, fit_with_scipy_lm, forward, train_lm
+from neatskin.baselines.lm import LMNetworkRegressor, fit_with_scipy_lm
+from neatskin.baselines.lmnetwork import forward, train_lm
 from neatskin.baselines.metrics import position_errors
 from neatskin.baselines.models import make_models
 

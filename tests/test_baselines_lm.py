@@ -4,13 +4,11 @@ import numpy as np
 import pytest
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
-from neatskin.baselines.lm import (
-    LMNetworkRegressor,
-    fit_with_scipy_lm,
+from neatskin.baselines.lm import LMNetworkRegressor, fit_with_scipy_lm, minmax_fit
+from neatskin.baselines.lmnetwork import (
     forward,
     initial_weights,
     input_outer_products,
-    minmax_fit,
     n_weights,
     normal_equations,
     residual_jacobian,
