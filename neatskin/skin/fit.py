@@ -20,7 +20,7 @@ leverage), with Student-t quantiles on C - 1 degrees of freedom. It holds when t
 spread differs from pair to pair and position to position (the log baselines' noise scales as
 1 / R, dR's placement spread as the slope) and when a position's pairs move together (its placement
 draws). Step 4's noise and placement intervals are a parametric bootstrap-t by position
-(`_placement_and_noise`), formed for noise^2 and s_p^2 and mapped through the square root. The
+(`fitvariance.placement_and_noise`), formed for noise^2 and s_p^2 and mapped through the square root. The
 point estimates are those of the steps above; only the intervals come from here. A parameter the
 data cannot separate from the others (a singular direction of J^T J) is named in a DataError, not
 returned as a number.
@@ -40,13 +40,12 @@ from neatskin.errors import DataError
 from neatskin.layout import Layout, load_layout
 from neatskin.skin.deformation import PinchParams
 from neatskin.skin.fitblur import PROFILE_ROUNDS, averaged_dr, coverage_of
+from neatskin.skin.fitvariance import placement_and_noise, placement_point, sum_by_cluster
 from neatskin.skin.model import SkinModel
 from neatskin.skin.network import equivalent_resistance
 
 Z95 = 1.96  # the normal quantile; the intervals use Student's t on (positions - 1) degrees of freedom
 MIN_POSITIONS_FOR_PINCH = 4
-BOOTSTRAP_REPLICATES = 400  # the noise and placement intervals' simulated campaigns
-BOOTSTRAP_SEED = 2024  # fixed: one campaign always gets the same intervals
 
 
 @dataclass(frozen=True)
@@ -121,29 +120,6 @@ def _cluster_covariance(influence: np.ndarray) -> np.ndarray:
     variance (Liang and Zeger 1986; Cameron and Miller 2015, with their C / (C - 1) correction)."""
     clusters = influence.shape[0]
     return clusters / max(clusters - 1, 1) * (influence.T @ influence)
-
-
-def _jackknife_covariance(design: np.ndarray, target: np.ndarray, cluster: np.ndarray) -> np.ndarray:
-    """The leave-one-cluster-out jackknife covariance of the linear least-squares fit design @ coef = target:
-    (C - 1) / C sum_c (coef_-c - mean)(coef_-c - mean)^T over the C clusters (an index per row) that hold rows;
-    +inf with fewer than 2 clusters (MacKinnon and White 1985's jackknife, by cluster: CR3)."""
-    clusters, cluster = np.unique(cluster, return_inverse=True)
-    n_clusters = len(clusters)
-    m = design.shape[1]
-    per_ata = _sum_by_cluster(cluster, (design[:, :, None] * design[:, None, :]).reshape(-1, m * m), n_clusters)
-    per_ata = per_ata.reshape(n_clusters, m, m)
-    per_atb = _sum_by_cluster(cluster, design * target[:, None], n_clusters)
-    ata, atb = per_ata.sum(axis=0), per_atb.sum(axis=0)
-    if n_clusters < 2:
-        return np.full((design.shape[1], design.shape[1]), np.inf)
-    left_out = np.einsum("cij,cj->ci", np.linalg.pinv(ata[None] - per_ata), atb[None] - per_atb)
-    deviation = left_out - left_out.mean(axis=0)
-    return (n_clusters - 1) / n_clusters * (deviation.T @ deviation)
-
-
-def _sum_by_cluster(cluster: np.ndarray, values: np.ndarray, n_clusters: int) -> np.ndarray:
-    """Rows of `values` (n, m) summed per cluster index (n,) -> (n_clusters, m)."""
-    return np.stack([np.bincount(cluster, values[:, k], n_clusters) for k in range(values.shape[1])], axis=1)
 
 
 def load_campaign(folder: str | Path) -> tuple[Layout, dict, dict[str, np.ndarray]]:
@@ -260,7 +236,7 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
         )
     counts = np.bincount(inverse)
     dr = dr * np.exp(-k * hours)[:, None]  # back to the resistivity at t = 0, where the baselines were fitted
-    mean_dr = _sum_by_cluster(inverse, dr, n_positions) / counts[:, None]
+    mean_dr = sum_by_cluster(inverse, dr, n_positions) / counts[:, None]
     px = np.bincount(inverse, x) / counts
     py = np.bincount(inverse, y) / counts
     pd_ = np.bincount(inverse, depth) / counts
@@ -287,7 +263,7 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
 
     sol_p = fit_pinch([1.0, 0.5])
     for _ in range(PROFILE_ROUNDS):  # profile the placement error: s from the repeats' variance, the pinch at s
-        placement_sd = _placement_point(dr, inverse, counts, skin_for(sol_p.x).jacobian_mm(px, py, pd_))
+        placement_sd = placement_point(dr, inverse, counts, skin_for(sol_p.x).jacobian_mm(px, py, pd_))
         if placement_sd == blur[0]:
             break
         blur[0] = placement_sd
@@ -309,16 +285,16 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
     # d residual / d k: the mean dR was scaled by exp(-k t) press by press
     live = np.isfinite(pinch_model(sol_p.x)).ravel()
     d_res_dk = np.where(
-        live, (_sum_by_cluster(inverse, hours[:, None] * dr, n_positions) / counts[:, None]).ravel(), 0.0
+        live, (sum_by_cluster(inverse, hours[:, None] * dr, n_positions) / counts[:, None]).ravel(), 0.0
     )
     # each position's influence on (k, log r, theta): its presses' baseline deviations move the slope and,
     # through the mean log baseline, the channels; its mean dR's residual moves the pinch, as do the
     # channels' and the slope's own moves (the same baseline readings sit in dR = R - R_base)
-    influence_k = _sum_by_cluster(inverse, (centred_t * resid.sum(axis=1) / (n_pairs * stt))[:, None], n_positions)
+    influence_k = sum_by_cluster(inverse, (centred_t * resid.sum(axis=1) / (n_pairs * stt))[:, None], n_positions)
     # a position early or late in the campaign pulls the slope more than its residuals show (its leverage
     # h_c = sum t^2 / S_tt); the leave-one-position-out change is u_c / (1 - h_c) (CR3; z std 1.04 -> 1.00)
     influence_k = influence_k / (1.0 - np.bincount(inverse, centred_t**2, n_positions) / stt)[:, None]
-    influence_target = _sum_by_cluster(inverse, resid / n_presses, n_positions) - influence_k * hours.mean()
+    influence_target = sum_by_cluster(inverse, resid / n_presses, n_positions) - influence_k * hours.mean()
     influence_r = influence_target @ to_log_r.T
     own = -(to_theta * sol_p.fun).reshape(2, n_positions, n_pairs).sum(axis=2).T
     influence_p = own - influence_r @ (to_theta @ d_res).T - influence_k * (to_theta @ d_res_dk)[None, :]
@@ -334,7 +310,8 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
     correlation = float(cov_p[0, 1] / (se_p[0] * se_p[1]))
     # 4. placement and noise from the repeats' variance against |J|^2
     slope = skin_for(sol_p.x).jacobian_mm(px, py, pd_)  # (positions, pairs, 2)
-    noise, placement = _placement_and_noise(dr, inverse, counts, slope)
+    noise_var, placement_var = placement_and_noise(dr, inverse, counts, slope)
+    noise, placement = _sqrt_interval(*noise_var), _sqrt_interval(*placement_var)
     if placement.value == 0:
         notes.append("placement_error_mm is at its bound 0: the repeats' spread does not grow with the slope")
 
@@ -353,84 +330,6 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
         rms_residual_ohm=float(np.sqrt(np.mean(sol_p.fun**2))),
         notes=tuple(notes),
     )
-
-
-def _variance_rows(var: np.ndarray, grad2: np.ndarray, repeats: np.ndarray) -> tuple[np.ndarray, ...]:
-    """The variance regression's rows, one per (repeated position, pair): design [1, |J|^2], target, position."""
-    design = np.column_stack([np.ones(var[repeats].size), grad2[repeats].ravel()])
-    target = var[repeats].ravel()
-    position = np.repeat(np.flatnonzero(repeats), var.shape[1])
-    keep = np.isfinite(design[:, 1]) & np.isfinite(target)
-    return design[keep], target[keep], position[keep]
-
-
-def _repeat_variance(dr: np.ndarray, inverse: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """Each position's sample variance of dR over its repeats, (positions, pairs)."""
-    mean = _sum_by_cluster(inverse, dr, len(counts)) / counts[:, None]
-    spread = _sum_by_cluster(inverse, (dr - mean[inverse]) ** 2, len(counts))
-    return spread / np.maximum(counts - 1, 1)[:, None]
-
-
-def _variance_fit(design: np.ndarray, target: np.ndarray, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(noise^2, s_p^2) by non-negative least squares, and their jackknife standard errors by position."""
-    from scipy.optimize import nnls
-
-    coef, _ = nnls(design, target)
-    return coef, np.sqrt(np.diag(_jackknife_covariance(design, target, position)))
-
-
-def _placement_point(dr: np.ndarray, inverse: np.ndarray, counts: np.ndarray, slope: np.ndarray) -> float:
-    """The placement error's point estimate alone (the variance regression, no bootstrap), mm."""
-    from scipy.optimize import nnls
-
-    design, target, _ = _variance_rows(_repeat_variance(dr, inverse, counts), np.nansum(slope**2, axis=-1), counts >= 2)
-    return float(np.sqrt(nnls(design, target)[0][1]))
-
-
-def _placement_and_noise(
-    dr: np.ndarray, inverse: np.ndarray, counts: np.ndarray, slope: np.ndarray
-) -> tuple[FittedValue, FittedValue]:
-    """Reading noise and placement error from the repeats' variance, noise^2 + s_p^2 |J|^2, with bootstrap-t intervals.
-
-    The standard errors are the jackknife's by position; the quantiles are not Student's but those of
-    the studentised error (estimate* - estimate) / se* over `BOOTSTRAP_REPLICATES` campaigns simulated
-    from the fit, position by position (every press displaced by N(0, s_p^2) along the local slope
-    `slope` (positions, pairs, 2), every dR with N(0, noise^2)). A few positions on the steepest
-    slopes carry most of the placement, so its standard error is itself noisy and low when the
-    estimate is low; Student's quantiles then cover 87 % (docs/skin.md). The intervals are formed
-    for the variances and mapped through the square root."""
-    from scipy.special import stdtrit
-
-    repeats = counts >= 2
-    grad2 = np.nansum(slope**2, axis=-1)
-    design, target, position = _variance_rows(_repeat_variance(dr, inverse, counts), grad2, repeats)
-    coef, se = _variance_fit(design, target, position)
-    rng = np.random.default_rng(BOOTSTRAP_SEED)
-    repeated = repeats[inverse]
-    press_position = inverse[repeated]
-    local = np.nan_to_num(slope[press_position])  # (repeated presses, pairs, 2)
-    noise_sd, placement_sd = np.sqrt(coef)
-    studentised = np.full((BOOTSTRAP_REPLICATES, 2), np.nan)
-    sim_counts = np.maximum(np.bincount(press_position, minlength=len(counts)), 1)
-    for b in range(BOOTSTRAP_REPLICATES):
-        moved = rng.normal(0.0, placement_sd, (len(press_position), 2))
-        sim = np.einsum("npk,nk->np", local, moved) + rng.normal(0.0, noise_sd, local.shape[:2])
-        var = _repeat_variance(sim, press_position, sim_counts)
-        d, t, pos = _variance_rows(var, grad2, repeats)
-        coef_b, se_b = _variance_fit(d, t, pos)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            studentised[b] = np.where(se_b > 0, (coef_b - coef) / se_b, np.nan)
-    student = float(stdtrit(max(len(np.unique(position)) - 1, 1), 0.975))
-    fitted = []
-    for k in range(2):
-        column = studentised[:, k][np.isfinite(studentised[:, k])]
-        if coef[k] <= 0 or len(column) < max(BOOTSTRAP_REPLICATES // 2, 1):
-            # at the bound 0 the fit simulates no such spread, so nothing to studentise: Student's t
-            low_q, high_q = -student, student
-        else:
-            low_q, high_q = np.quantile(column, [0.025, 0.975])
-        fitted.append(_sqrt_interval(float(coef[k]), float(coef[k] - high_q * se[k]), float(coef[k] - low_q * se[k])))
-    return fitted[0], fitted[1]
 
 
 def load_skin_profile(path: str | Path, layout: Layout, probe_radius_mm: float = 2.75) -> SkinModel:
