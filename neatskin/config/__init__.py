@@ -1,5 +1,6 @@
-"""The one config layer: declarative schemas of every TOML file kind (`files`, `scene`, `studyfile`), the engine that reads
-them (`schema`), validation at construction (`settings`), the file kinds (`kinds`) and the generated reference (`docs`)."""
+"""The one config layer: declarative schemas of every TOML file kind (`files`, `scene`, `printerfile`, `studyfile`),
+the engine that reads them (`schema`), validation at construction (`settings`), the file kinds (`kinds`) and the
+generated reference (`docs`)."""
 
 from neatskin.config.kinds import parse_tables
 from neatskin.config.schema import Constraint, parse, parse_collect, parse_partial, setting, unknown_key_problems

@@ -26,8 +26,9 @@ from neatskin.config.schema import (
 
 INTRO = """# Configuration files
 
-Every TOML file the toolkit reads has a schema in `neatskin/config/files.py`: frozen dataclasses
-whose fields carry their unit, default, range and a line of documentation (the spirit of
+Every TOML file the toolkit reads has a schema in `neatskin/config/` (`files.py`: the protocol,
+layout and wiring; `scene.py`: the protocol's `[scene]`; `printerfile.py`; `studyfile.py`): frozen
+dataclasses whose fields carry their unit, default, range and a line of documentation (the spirit of
 scikit-learn's `_parameter_constraints`). One engine (`neatskin/config/schema.py`) reads a file
 against its schema and reports **every** problem at once, each as `file: [field]: what (fix: how)`:
 a wrong type, a value out of range (NaN and infinities are never numbers here), a missing key,

@@ -1,6 +1,6 @@
 """The file kinds (protocol, layout, wiring, printer profile, design study) and reading a whole file of one kind.
 
-Above the schemas (`files`, `studyfile`) and the engine (`schema`): knowing every kind lets a loader
+Above the schemas (`files`, `printerfile`, `studyfile`) and the engine (`schema`): knowing every kind lets a loader
 say "this is a layout file, not a wiring" instead of listing every table as unknown.
 """
 
@@ -9,7 +9,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from neatskin.config.files import LayoutFile, PrinterFile, ProtocolFile, WiringFile
+from neatskin.config.files import LayoutFile, ProtocolFile, WiringFile
+from neatskin.config.printerfile import PrinterFile
 from neatskin.config.schema import is_required, key_fields, parse_valid, toml_key
 from neatskin.config.studyfile import StudyFile
 from neatskin.errors import Problem

@@ -15,7 +15,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 from neatskin.config import parse_tables
-from neatskin.config.files import MotionTable, ParkTable, PrinterFile, PrinterTable
+from neatskin.config.printerfile import MotionTable, ParkTable, PrinterFile, PrinterTable
 from neatskin.config.schema import source_field
 from neatskin.errors import ConfigError, Problem
 from neatskin.gcode.calibration import Calibration
@@ -96,7 +96,7 @@ def load_printer_profile(path: str | Path) -> PrinterProfile:
 
 
 def printer_profile_from_dict(data: dict, source: str = "<memory>") -> PrinterProfile:
-    """A PrinterProfile from parsed TOML (schema: `neatskin.config.files.PrinterFile`); every problem at once."""
+    """A PrinterProfile from parsed TOML (schema: `neatskin.config.printerfile.PrinterFile`); every problem at once."""
     tables, problems = parse_tables(PrinterFile, data, source)
     nan3 = Axes(math.nan, math.nan, math.nan)
     printer: PrinterTable = tables.get("printer") or PrinterTable()
