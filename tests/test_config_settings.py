@@ -9,10 +9,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from neatskin.config import parse_collect
+from neatskin.config.declare import constraint_of, is_required, key_fields
 from neatskin.config.files import AcquisitionSettings, Excitation, PositionSpec, PressSpec
 from neatskin.config.printerfile import PrinterTable
 from neatskin.config.scene import PRESET_DEFORMATION, PRESETS, SCENE_KNOBS, Scene
-from neatskin.config.schema import constraint_of, is_required, key_fields
 from neatskin.errors import ConfigError
 from neatskin.gcode.profile import load_printer_profile
 

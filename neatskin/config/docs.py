@@ -13,8 +13,7 @@ import typing
 from typing import Any
 
 from neatskin.config import files
-from neatskin.config.kinds import FILE_KINDS
-from neatskin.config.schema import (
+from neatskin.config.declare import (
     constraint_of,
     describe_range,
     hints,
@@ -23,6 +22,7 @@ from neatskin.config.schema import (
     key_fields,
     toml_key,
 )
+from neatskin.config.kinds import FILE_KINDS
 
 INTRO = """# Configuration files
 

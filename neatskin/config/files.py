@@ -15,8 +15,8 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
+from neatskin.config.declare import setting, source_field
 from neatskin.config.scene import Scene
-from neatskin.config.schema import setting, source_field
 from neatskin.config.settings import Settings
 from neatskin.errors import Problem
 

@@ -9,9 +9,10 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+from neatskin.config.declare import is_required, key_fields, toml_key
 from neatskin.config.files import LayoutFile, ProtocolFile, WiringFile
 from neatskin.config.printerfile import PrinterFile
-from neatskin.config.schema import is_required, key_fields, parse_valid, toml_key
+from neatskin.config.schema import parse_valid
 from neatskin.config.studyfile import StudyFile
 from neatskin.errors import Problem
 

@@ -14,7 +14,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-from neatskin.config.schema import setting
+from neatskin.config.declare import setting
 from neatskin.config.settings import Settings
 
 SCENE_PRESETS = ("ideal", "paper-like")

@@ -1,7 +1,7 @@
-"""The declarative config engine: a TOML table is a frozen dataclass whose fields carry their constraints.
+"""The declarative config engine: reading a TOML table against its schema, with every problem's text and fix.
 
 A schema is a frozen dataclass; each field is declared with `setting(...)` (default, unit, range,
-choices, pattern, doc) or is itself a schema (a TOML table), a tuple of schemas (an array of
+choices, pattern, doc: `declare`) or is itself a schema (a TOML table), a tuple of schemas (an array of
 tables), a tuple of numbers, or a free `dict[str, X]` table. `parse(Schema, data, source)` walks
 the data once and collects every problem (wrong type, out of range, missing, unknown key at any
 level with a difflib "did you mean") as a `Problem` naming file, field and fix; it returns the
@@ -19,90 +19,22 @@ import re
 import types
 import typing
 from collections.abc import Mapping
-from dataclasses import MISSING, dataclass
+from dataclasses import MISSING
 from typing import Any, TypeVar, Union
 
+from neatskin.config.declare import (
+    Constraint,
+    constraint_of,
+    describe_range,
+    hints,
+    is_required,
+    is_schema,
+    key_fields,
+    toml_key,
+)
 from neatskin.errors import ConfigError, Problem
 
 T = TypeVar("T")
-_META = "neatskin.setting"
-_NOT_A_KEY = "neatskin.not_a_key"
-
-
-@dataclass(frozen=True)
-class Constraint:
-    """What one setting accepts: unit, range, choices, pattern, and the sentence that documents it."""
-
-    unit: str = ""
-    ge: float | None = None
-    gt: float | None = None
-    le: float | None = None
-    lt: float | None = None
-    choices: tuple[str, ...] = ()
-    pattern: str | None = None
-    pattern_text: str = ""  # the pattern in words, for the error and the docs
-    max_len: int | None = None
-    min_items: int = 0
-    allow_empty: bool = False  # text may be ""
-    one_or_list: bool = False  # a list may be written as its one value (pitch_mm = 15.0 for [15.0])
-    doc: str = ""
-    example: str = ""  # a value to put in the fix when the key is missing
-    default_doc: str = ""  # how a derived default (None in the schema) is computed
-
-
-_NO_CONSTRAINT = Constraint()
-
-
-def setting(default: Any = MISSING, *, key: str | None = None, **constraint: Any) -> Any:
-    """A schema field: its default (none = required), its TOML key if not the field's name, its `Constraint`."""
-    meta: dict[str, Any] = {_META: Constraint(**constraint)}
-    if key is not None:
-        meta["key"] = key
-    if isinstance(default, (list, dict, set)):
-        raise TypeError("use a tuple (immutable) default")
-    return dataclasses.field(default=default, metadata=meta)
-
-
-def source_field() -> Any:
-    """A field that is not a key of the file: the file a value was read from (set by the engine), for its errors."""
-    return dataclasses.field(default="<memory>", compare=False, metadata={_NOT_A_KEY: True})
-
-
-def key_fields(schema: type) -> tuple[dataclasses.Field, ...]:
-    """The fields that are keys of the file (a `source_field` is not)."""
-    return tuple(f for f in dataclasses.fields(schema) if not f.metadata.get(_NOT_A_KEY))
-
-
-def is_setting(f: dataclasses.Field) -> bool:
-    return _META in f.metadata
-
-
-def constraint_of(f: dataclasses.Field) -> Constraint:
-    return f.metadata.get(_META, _NO_CONSTRAINT)
-
-
-def is_schema(tp: Any) -> bool:
-    return isinstance(tp, type) and dataclasses.is_dataclass(tp)
-
-
-_HINTS: dict[type, dict[str, Any]] = {}
-
-
-def hints(schema: type) -> dict[str, Any]:
-    """The field types of a schema (resolved once per class: every construction checks its fields)."""
-    found = _HINTS.get(schema)
-    if found is None:
-        found = _HINTS[schema] = typing.get_type_hints(schema)
-    return found
-
-
-def toml_key(f: dataclasses.Field) -> str:
-    """The key in the file: the field name, or metadata `key` (for TOML keys that are Python keywords)."""
-    return f.metadata.get("key", f.name)
-
-
-def is_required(f: dataclasses.Field) -> bool:
-    return f.default is MISSING and f.default_factory is MISSING
 
 
 class _Walker:
@@ -349,25 +281,6 @@ def _range_violation(value: float, c: Constraint) -> str:
     if c.le is not None and not value <= c.le:
         return f"is above {c.le:g}"
     return ""
-
-
-def describe_range(c: Constraint) -> str:
-    """The constraint in words, e.g. '> 0, <= 0.1'."""
-    parts = []
-    for op, bound in ((">", c.gt), (">=", c.ge), ("<", c.lt), ("<=", c.le)):
-        if bound is not None:
-            parts.append(f"{op} {bound:g}")
-    if c.choices:
-        parts.append("one of " + ", ".join(repr(x) for x in c.choices))
-    if c.pattern_text:
-        parts.append(c.pattern_text)
-    if c.max_len is not None:
-        parts.append(f"at most {c.max_len} characters")
-    if c.min_items:
-        parts.append(f"at least {c.min_items} " + ("entry" if c.min_items == 1 else "entries"))
-    if c.one_or_list:
-        parts.append("one value for a list of one")
-    return ", ".join(parts)
 
 
 def _fix(key: str, c: Constraint, tp: Any) -> str:

@@ -13,7 +13,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, ClassVar
 
-from neatskin.config.schema import Constraint, check_value, constraint_of, hints, is_setting
+from neatskin.config.declare import Constraint, constraint_of, hints, is_setting
+from neatskin.config.schema import check_value
 from neatskin.errors import ConfigError, Problem
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from neatskin.config.schema import setting
+from neatskin.config.declare import setting
 from neatskin.config.settings import Settings
 
 STUDY_STRATEGIES = ("boundary", "interior", "every_k", "explicit", "optimised")

@@ -15,8 +15,8 @@ from pathlib import Path
 from types import SimpleNamespace
 
 from neatskin.config import parse_tables
+from neatskin.config.declare import source_field
 from neatskin.config.printerfile import MotionTable, ParkTable, PrinterFile, PrinterTable
-from neatskin.config.schema import source_field
 from neatskin.errors import ConfigError, Problem
 from neatskin.gcode.calibration import Calibration
 from neatskin.tomlfile import read_toml, resolve_path
