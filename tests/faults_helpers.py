@@ -25,6 +25,7 @@ def die(*args, **kwargs):
     os.kill(os.getpid(), signal.SIGKILL)
 
 stage, argv = sys.argv[1], sys.argv[2:]
+import neatskin.datasets.consolidate as consolidate
 import neatskin.datasets.manifest as manifest
 import neatskin.datasets.writer as writer
 import neatskin.rig.folder as folder
@@ -44,7 +45,7 @@ elif stage == "presses":  # five presses durable, the sixth not started
         return path
     writer.CampaignWriter.write_press = write_then_die
 elif stage == "finalize":  # presses.parquet written, its copy and the parts' deletion not yet
-    writer.CampaignWriter._keep_copy = die
+    consolidate.keep_copy = die
 elif stage == "physical-limit":  # consolidated, the physical limit not yet written
     import neatskin.rig.dryrig as dryrig  # the dry rig derives its physical limit (Rig.derived_files)
     dryrig.write_physical_limit = die

@@ -92,9 +92,9 @@ def test_a_lower_press_id_starts_a_new_part(paper_layout, tmp_path):
 
 
 def test_finalize_gives_the_same_file_whatever_the_batching(paper_layout, tmp_path, monkeypatch):
-    import neatskin.datasets.writer as writer_module
+    import neatskin.datasets.consolidate as consolidate_module
 
-    monkeypatch.setattr(writer_module, "FINALIZE_BATCH", 16)  # several row groups from few rows
+    monkeypatch.setattr(consolidate_module, "FINALIZE_BATCH", 16)  # several row groups from few rows
     rows = synthetic_rows(paper_layout, 10, 5, seed=4)  # 50 presses
     rows[7]["flags"] = ["clipped:1-2"]
     rows[8]["fsr_peak_n"] = None
@@ -106,15 +106,15 @@ def test_finalize_gives_the_same_file_whatever_the_batching(paper_layout, tmp_pa
 
 
 def test_finalize_reads_back_about_one_row_group_at_a_time(paper_layout, tmp_path, monkeypatch):
-    import neatskin.datasets.writer as writer_module
+    import neatskin.datasets.consolidate as consolidate_module
 
-    monkeypatch.setattr(writer_module, "FINALIZE_BATCH", 16)
+    monkeypatch.setattr(consolidate_module, "FINALIZE_BATCH", 16)
     rows = synthetic_rows(paper_layout, 10, 5, seed=4)  # 50 presses in parts of 7 (the last of 1)
     writer = CampaignWriter(tmp_path, paper_layout.pairs, META, fsync=False, batch_presses=7, batch_s=3600)
     for row in rows:
         writer.write_press(row)
     writer.flush()
-    groups = writer._read_groups(press_parts(tmp_path))
+    groups = consolidate_module.read_groups(press_parts(tmp_path), writer._part_last)
     sizes = [sum(len(part_ids(tmp_path)[int(p.stem[5:])]) for p in group) for group in groups]
     assert sizes == [21, 21, 8]  # closed once they may hold 16 rows: never the whole campaign at once
     writer.finalize()

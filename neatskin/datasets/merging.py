@@ -18,6 +18,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from neatskin.datasets import curation
+from neatskin.datasets.consolidate import FINALIZE_BATCH
 from neatskin.datasets.durable import write_durably
 from neatskin.datasets.manifest import create_manifest, utc_now_iso
 from neatskin.datasets.manifestchecks import same_file_ref
@@ -25,7 +26,7 @@ from neatskin.datasets.paths import CONSOLIDATED_NAME
 from neatskin.datasets.reader import press_files, read_press_table
 from neatskin.datasets.schema import decode_metadata, encode_metadata
 from neatskin.datasets.tables import refuse_missing_columns, unreadable_presses
-from neatskin.datasets.writer import FINALIZE_BATCH, deduplicate_sorted, read_parquet
+from neatskin.datasets.writer import deduplicate_sorted, read_parquet
 from neatskin.errors import DataError
 
 POSITION_TOLERANCE_MM = 0.01  # two presses this close (same layout and calibration) are one physical position

@@ -1,5 +1,4 @@
-"""The crash-safe campaign writer: durable parquet parts of presses, raw waveforms beside them, and a
-crash-safe finalize that consolidates the parts into presses.parquet.
+"""The crash-safe campaign writer: durable parquet parts of presses, raw waveforms beside them, resume and finalize.
 
 Durability: by default (the real rig) every press is one part and `write_press` returns only when it is
 complete on disk (temp file, fsync, atomic rename, fsync of the folder). With a batch (a dry run, whose
@@ -10,6 +9,7 @@ one-row parts are the per-press parts. The part is the commit record: waveforms 
 so a kill between the two leaves an orphan waveform part that the next writer deletes (the press is
 not in `completed_press_ids()` and will be pressed again). A kill inside a write leaves only a hidden
 temp file, which readers ignore and the next writer removes; a kill with presses in the batch loses them.
+`finalize` consolidates the parts into presses.parquet (`consolidate`, crash-safe and idempotent).
 
 Waveforms are stored one row per sample: columns press_id (int64), sample (int32) and one column per
 named signal, in `waveforms/position_id=K/part-{press_id:06d}.parquet` (hive partitioning, so pyarrow,
@@ -18,25 +18,23 @@ DuckDB and Spark add position_id as a column).
 
 from __future__ import annotations
 
-import filecmp
 import hashlib
 import logging
 import os
-import shutil
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 import neatskin
+from neatskin.datasets.consolidate import consolidate
 from neatskin.datasets.durable import fsync_dir, remove_temp_files, write_bytes_durably, write_durably
 from neatskin.datasets.paths import (
     CONSOLIDATED_NAME,
-    COPY_NAME,
     PRESSES_DIR,
     WAVEFORMS_DIR,
     part_name,
@@ -67,8 +65,6 @@ __all__ = [
     "write_table_durably",
 ]
 
-FINALIZE_BATCH = 4096  # rows per row group of presses.parquet: finalize's memory stays flat as campaigns grow
-READ_BATCH = 128  # at most this many parts read back at a time (one-row parts: a one-row table costs more than its row)
 MAX_BATCH_PRESSES = 256  # presses per part of a batched dry run: a kill loses at most these, recomputed on resume
 DRY_RUN_BATCH_S = 1.0  # a batch waits at most this long, so the live monitor sees presses land every second
 BATCH_FROM_PRESSES = 512  # shorter dry runs take seconds: they keep one part per press, as the real rig writes
@@ -325,80 +321,9 @@ class CampaignWriter:
         """Write the batch, consolidate every durable press into presses.parquet (sorted by press_id, this
         writer's metadata, row groups of FINALIZE_BATCH rows) and then delete the parts. Crash-safe and
         idempotent: the consolidated file is replaced atomically before any part is deleted, and readers
-        deduplicate a press found in both."""
+        deduplicate a press found in both (`consolidate`)."""
         self.flush()
-        consolidated = self.folder / CONSOLIDATED_NAME
-        parts = press_parts(self.folder)
-        if not parts and consolidated.exists():
-            self._keep_copy(consolidated)
-            return consolidated
-        plain = self.schema.remove_metadata()
-        if consolidated.exists() or not self._parts_in_order(parts):
-            # a finalize was killed half-way (or parts interleave): the rare path, rows held in memory once
-            tables = [read_tables([consolidated], plain)] if consolidated.exists() else []
-            table = pa.concat_tables([*tables, read_tables(list(parts.values()), plain)])
-            table = deduplicate_sorted(table).replace_schema_metadata(self.schema.metadata)
-            write_table_durably(consolidated, table, fsync=self.fsync)
-        else:  # the parts hold distinct ids, in order by name: stream them, FINALIZE_BATCH rows per row group
-            reads = self._read_groups(parts)
-
-            def stream(handle: IO[bytes]) -> None:
-                with pq.ParquetWriter(handle, self.schema, write_page_checksum=True) as out:
-                    pending: list[pa.Table] = []
-                    rows = 0
-                    for k, paths in enumerate(reads):
-                        chunk = read_tables(paths, plain).combine_chunks()
-                        pending.append(chunk)
-                        rows += chunk.num_rows
-                        last = k == len(reads) - 1
-                        while rows >= FINALIZE_BATCH or (last and rows):
-                            table = pa.concat_tables(pending).combine_chunks()
-                            group = min(rows, FINALIZE_BATCH)
-                            out.write_table(table.slice(0, group), row_group_size=FINALIZE_BATCH)
-                            pending, rows = [table.slice(group)], rows - group
-
-            write_durably(consolidated, stream, fsync=self.fsync)
-        self._keep_copy(consolidated)  # before the parts go: a damaged presses.parquet stays recoverable
-        for path in parts.values():
-            path.unlink(missing_ok=True)
-        if self.fsync and self._dir_fd is not None:
-            os.fsync(self._dir_fd)
-        return consolidated
-
-    def _read_groups(self, parts: Mapping[int, Path]) -> list[list[Path]]:
-        """The parts (in order) in groups read back together: up to READ_BATCH parts, closed as soon as they
-        may hold FINALIZE_BATCH rows, so finalize holds about one row group whatever the parts' size."""
-        groups: list[list[Path]] = []
-        current: list[Path] = []
-        rows = 0
-        for first, path in parts.items():
-            current.append(path)
-            rows += self._part_last[first] - first + 1  # at most: ids strictly increase from the name's
-            if len(current) >= READ_BATCH or rows >= FINALIZE_BATCH:
-                groups.append(current)
-                current, rows = [], 0
-        return [*groups, current] if current else groups
-
-    def _parts_in_order(self, parts: Mapping[int, Path]) -> bool:
-        """True when every part's ids are known and each part starts after the one before it ends."""
-        previous_last = -1
-        for first in parts:
-            last = self._part_last.get(first)
-            if last is None or first <= previous_last:
-                return False
-            previous_last = last
-        return True
-
-    def _keep_copy(self, consolidated: Path) -> None:
-        copy = self.folder / COPY_NAME
-        if copy.exists() and filecmp.cmp(consolidated, copy, shallow=False):
-            return
-
-        def stream(handle: IO[bytes]) -> None:  # block by block: a large campaign's file is never held whole
-            with open(consolidated, "rb") as source:
-                shutil.copyfileobj(source, handle, 1 << 20)
-
-        write_durably(copy, stream, fsync=self.fsync)
+        return consolidate(self.folder, self.schema, self._part_last, fsync=self.fsync, dir_fd=self._dir_fd)
 
     def close(self) -> None:
         """Write the batch, then release the folder."""
