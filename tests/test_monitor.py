@@ -18,7 +18,8 @@ from neatskin.datasets.paths import press_parts
 from neatskin.datasets.reader import read_presses
 from neatskin.errors import ConfigError
 from neatskin.monitor.server import make_server, resolve_inside
-from neatskin.monitor.state import CampaignView, wire_tail
+from neatskin.monitor.state import CampaignView
+from neatskin.monitor.wiretail import wire_tail
 from neatskin.rig.control import read_request
 from neatskin.tomlfile import resolve_path
 

@@ -89,7 +89,7 @@ def test_no_terminal_without_a_printer_port_or_on_a_read_only_monitor(tmp_path, 
 
 
 def test_wire_text_decodes_each_entry_into_lines_with_a_utc_clock():
-    from neatskin.monitor.state import wire_text
+    from neatskin.monitor.wiretail import wire_text
 
     lines = [
         "2026-11-25T19:07:55.801105Z     0.228258 > b'N1 G21*27\\nN2 G90*18\\n'",

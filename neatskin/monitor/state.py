@@ -1,6 +1,6 @@
 """The monitor's view of a campaign folder as one JSON-ready snapshot: status, counts, rate and ETA, pressed
 positions, the last press against the skin model, per-pair signal quality, baseline drift, printer position
-and the wire log's tail.
+and the wire log's tail (those two read by `wiretail`).
 
 Reads only the campaign folder, and its presses only through neatskin.datasets.reader (file by file, so a
 snapshot re-reads only the parts that landed since the last one). Works on a running, killed or finished
@@ -9,12 +9,9 @@ campaign: every file may be missing or half-written, and each section then says 
 
 from __future__ import annotations
 
-import ast
 import json
 import logging
 import math
-import os
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,19 +25,13 @@ from neatskin.datasets.manifest import read_manifest
 from neatskin.datasets.paths import part_press_id
 from neatskin.datasets.reader import press_files, read_presses
 from neatskin.errors import NeatskinError
+from neatskin.monitor.wiretail import WIRE_LOG, wire_tail, wire_text
 from neatskin.rig.control import read_request, read_state
 
 log = logging.getLogger(__name__)
 
-WIRE_LOG = "wire.log"
-WIRE_TAIL_BYTES = 64 * 1024
-WIRE_TAIL_LINES = 40
 DRIFT_MAX_POINTS = 600  # presses per drift line sent to the page (a 2,800-press campaign is strided)
 RATE_WINDOW_PRESSES = 20  # rate over the last presses, so a pause or a resume a day later does not skew it
-_AXIS = re.compile(r"\b([XYZ])(-?\d+(?:\.\d*)?)")
-_REPORT = re.compile(r"X:(-?\d+(?:\.\d*)?) Y:(-?\d+(?:\.\d*)?) Z:(-?\d+(?:\.\d*)?)")
-# a sent G0/G1 line; one wire-log entry holds every line of one write (pipelined lines: several, `\n`-separated)
-_SENT = re.compile(r"(?:> b'|\\n)N\d+ (G[01]\b[^*]*)\*")
 
 
 def _finite(values: Any) -> list[float | None]:
@@ -198,31 +189,6 @@ def _since_last_s(df: pd.DataFrame) -> float | None:
     return max(0.0, (pd.Timestamp.now(tz="UTC") - last).total_seconds())
 
 
-_WIRE_ENTRY = re.compile(r"^\d{4}-\d\d-\d\dT(\d\d:\d\d:\d\d)(\.\d{1,3})?\d*Z?\s+\S+\s+(\S) (b(['\"]).*\5)\s*$")
-WIRE_DIRECTIONS = {">": "→", "<": "←", "#": "#"}
-
-
-def wire_text(lines: Sequence[str]) -> list[str]:
-    """The wire log's entries as text: one line per line on the wire, `HH:MM:SS.mmm → N1 G21*27` (UTC, as the
-    log), bytes decoded instead of Python's b'...' reprs; an entry that is not one is kept as it is."""
-    out: list[str] = []
-    for entry in lines:
-        match = _WIRE_ENTRY.match(entry)
-        if match is None:
-            out.append(entry)
-            continue
-        try:
-            data = ast.literal_eval(match.group(4))
-        except (ValueError, SyntaxError):
-            out.append(entry)
-            continue
-        clock = match.group(1) + (match.group(2) or "")
-        arrow = WIRE_DIRECTIONS.get(match.group(3), match.group(3))
-        text = data.decode("utf-8", "replace") if isinstance(data, bytes) else str(data)
-        out.extend(f"{clock} {arrow} {part}" for part in (text.splitlines() or [""]))
-    return out[-WIRE_TAIL_LINES:]
-
-
 RESULT_FILES = ("report.md", "baselines.csv")  # with every PNG at the folder's top: the report's plots
 
 
@@ -234,34 +200,6 @@ def result_links(folder: Path) -> list[dict[str, str]]:
     except OSError:
         pass
     return [{"name": n, "href": f"/files/{n}"} for n in names]
-
-
-def wire_tail(folder: Path) -> tuple[list[str], dict[str, Any] | None]:
-    """The wire log's last lines and the printer's last position: an M114 report if one is newer than the
-    last commanded move, else the commanded target (printer coordinates)."""
-    path = folder / WIRE_LOG
-    try:
-        with open(path, "rb") as handle:
-            size = handle.seek(0, os.SEEK_END)
-            handle.seek(max(0, size - WIRE_TAIL_BYTES))
-            text = handle.read().decode("utf-8", "replace")
-    except OSError:
-        return [], None
-    lines = text.splitlines()[1:] if size > WIRE_TAIL_BYTES else text.splitlines()
-    position: dict[str, Any] | None = None
-    axes: dict[str, float] = {}
-    for line in lines:
-        report = _REPORT.search(line)
-        if report and "< " in line:
-            axes = dict(zip("XYZ", map(float, report.groups())))
-            position = {"source": "M114", **axes, "at": line[:27]}
-            continue
-        if "> b'" not in line:
-            continue
-        for sent in _SENT.finditer(line):
-            axes = {**axes, **{a: float(v) for a, v in _AXIS.findall(sent.group(1))}}
-            position = {"source": "commanded", **axes, "at": line[:27]}
-    return lines[-WIRE_TAIL_LINES:], position
 
 
 class CampaignView:
