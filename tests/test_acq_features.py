@@ -12,8 +12,8 @@ from neatskin.acquisition.sequence import build_sweep
 from neatskin.acquisition.wiring import load_wiring
 from neatskin.sim.daq import NoiseModel, SimulatedDAQ
 
-# the paper's 2 mA on a board with +-20 V rails (the DAQ's default is 0.5 mA through the MAX4052 at +-8 V): these
-# tests pin the estimator up to 8 kohm, not the mux rails (tests/test_acq_rails.py does)
+# the paper's 2 mA on a board with +-20 V rails (the DAQ's default is 0.2 mA through the MAX4052 at +-8 V): these
+# tests pin the estimator up to 8 kohm, not the mux rails (tests/test_acq_rails.py and test_features_clipped.py do)
 BENCH = {"amplitude_a": 0.002, "rail_positive_v": 20.0, "rail_negative_v": -20.0}
 
 PAPER = Path(__file__).resolve().parent.parent / "protocols" / "wiring" / "paper.toml"

@@ -6,9 +6,12 @@ onset - margin (or, if there is none before, wholly after offset + margin). Each
 averaged over its sweeps. Windows and onsets are in the acquisition's global sample index.
 
 Open circuits stay +inf (never NaN): dR = +inf when only the pressed value is open,
--inf when only the baseline is, and 0 with OPEN_CIRCUIT set when both are. A pair with no
-pressed (or no baseline) window gets R = 0, dR = 0, uncertainty +inf and NO_PRESSED (or
-NO_BASELINE): check the flags, not the values.
+-inf when only the baseline is, and 0 with OPEN_CIRCUIT set when both are. A clipped estimate
+(CLIPPED: the AI's range or the mux rails; V / I is then not the skin's R) is no value either and
+follows the same rules, as the campaign's row does (acquisition.pressvalues): a group with a
+clipped sweep is +inf, never the estimate's finite, low reading. Wherever a group is open or
+clipped the uncertainty of dR is +inf. A pair with no pressed (or no baseline) window gets
+R = 0, dR = 0, uncertainty +inf and NO_PRESSED (or NO_BASELINE): check the flags, not the values.
 
 `features_from_acquisition` is the whole per-press pipeline: demodulate every sweep, find the
 press on the FSR channel, and take the features around it.
@@ -42,13 +45,13 @@ class PressFeatures:
 
 def _group(est: PairEstimates, use: np.ndarray):
     n = use.sum(axis=0)
-    r = np.where(use, est.resistance_ohm, 0.0)
-    open_any = (use & np.isinf(est.resistance_ohm)).any(axis=0)
-    with np.errstate(invalid="ignore"):
-        finite_r = np.where(use & np.isfinite(est.resistance_ohm), r, 0.0)
-    mean = np.where(open_any, np.inf, finite_r.sum(axis=0) / np.maximum(n, 1))
-    u2 = np.where(use & np.isfinite(est.uncertainty_ohm), est.uncertainty_ohm**2, 0.0).sum(axis=0)
-    u = np.sqrt(u2) / np.maximum(n, 1)
+    # an open or clipped sweep is no value (the campaign row's rule): the group is +inf, its uncertainty too
+    clipped = (est.flags & np.uint8(PairFlag.CLIPPED)) != 0
+    valid = np.isfinite(est.resistance_ohm) & ~clipped
+    no_value = (use & ~valid).any(axis=0)
+    mean = np.where(no_value, np.inf, np.where(use & valid, est.resistance_ohm, 0.0).sum(axis=0) / np.maximum(n, 1))
+    u2 = np.where(use & valid, est.uncertainty_ohm, 0.0) ** 2
+    u = np.where(no_value, np.inf, np.sqrt(u2.sum(axis=0)) / np.maximum(n, 1))
     flags = np.bitwise_or.reduce(np.where(use, est.flags, 0).astype(np.uint8), axis=0)
     starts = np.where(use, est.windows[..., 0], np.iinfo(np.int64).max).min(axis=0)
     stops = np.where(use, est.windows[..., 1], -1).max(axis=0)

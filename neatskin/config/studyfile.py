@@ -106,7 +106,7 @@ class ProbesTable(Settings):
 @dataclass(frozen=True)
 class StudyExcitationTable(Settings):
     amplitude_a: float = setting(
-        0.0005, unit="A", gt=0, doc="peak excitation current (the paper's 2 mA exceeds the mux rails: docs/design.md)"
+        0.0002, unit="A", gt=0, doc="peak excitation current (the paper's 2 mA exceeds the mux rails: docs/design.md)"
     )
     rails_v: float = setting(8.0, unit="V", gt=0, doc="the mux supply rails (+-): the signal must stay within")
     # the rest as a protocol's [excitation] and its wiring's [electrical] (same defaults, a test holds them equal):

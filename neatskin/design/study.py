@@ -69,7 +69,7 @@ class Study:
     explicit: tuple[ExplicitPlacement, ...] = ()
     probe_diameter_mm: tuple[float, ...] = (5.5,)
     depth_mm: tuple[float, ...] = (3.5,)
-    amplitude_a: float = 0.0005  # as protocols/paper.toml: 2 mA cannot pass the muxes' rails
+    amplitude_a: float = 0.0002  # as protocols/paper.toml: 2 mA cannot pass the muxes' rails, 0.5 mA pressed pairs
     rails_v: float = 8.0
     r_on_ohm: float = 100.0
     r_on_mismatch_ohm: float = 10.0

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import re
+import sys
 from datetime import datetime
 from pathlib import Path
 
@@ -127,17 +128,21 @@ def _run(args: argparse.Namespace) -> int:
     from neatskin.rig.protocol import load_protocol
 
     protocol = load_protocol(args.protocol)
-    if args.dry_run:
-        _prestart_skin_worker(protocol)
-        _preimport("scipy.ndimage")  # the FSR labelling's (0.3 s): at the first press it would be on the critical path
-    from neatskin.rig.runner import run_campaign  # after the prestart: its imports overlap the worker's start
-
     if not args.dry_run and not args.port:
         raise ConfigError(
             "choose the rig: --dry-run (simulated, no hardware) or --port PORT (the real printer)",
             field="--dry-run/--port",
             fix=f"e.g. neatskin campaign run {args.protocol} --dry-run",
         )
+    forecast = None
+    if args.dry_run:
+        _prestart_skin_worker(protocol)
+        _preimport("scipy.ndimage")  # the FSR labelling's (0.3 s): at the first press it would be on the critical path
+    else:  # a real run builds no simulator (the skin model): its rails forecast runs in a child, from now on
+        forecast = _start_rails_forecast(protocol.path)
+    from neatskin.rig.runner import run_campaign  # after the prestart: its imports overlap the worker's start
+
+    _warn_pressed_rails(protocol, forecast)  # before any motion
     out = args.out or default_campaign_folder(protocol.name)
     monitor = _start_monitor(out, args.monitor_port) if args.monitor else None
     try:
@@ -162,6 +167,52 @@ def _run(args: argparse.Namespace) -> int:
     if monitor is not None:
         print(f"the live page stopped with the campaign; to look again: neatskin monitor {out}")
     return ExitCode.INTERRUPTED if result.interrupted else ExitCode.OK
+
+
+RAILS_FORECAST_TIMEOUT_S = 60.0  # the child's cap: the paper protocol's takes ~2 s on a loaded machine
+
+
+def _start_rails_forecast(path: Path):
+    """`python -m neatskin.rig.railcheck PROTOCOL` in a child (a real run's process builds no simulator)."""
+    import subprocess
+
+    return subprocess.Popen(
+        [sys.executable, "-m", "neatskin.rig.railcheck", str(path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def _warn_pressed_rails(protocol, forecast=None) -> None:
+    """`campaign check`'s pressed-rails warning, in its words, before any motion: a technician who runs without the
+    check sees it too (on stderr, before the progress bar); nothing when every press stays inside the rails. A dry
+    run draws the protocol's presses through its skin model here (about 0.2 s of CPU for the paper protocol's 2800,
+    while the prestarted skin worker starts on the other core); a real run reads the line from its `forecast` child,
+    started before the runner's imports, and runs on with a note if the child fails or passes its cap."""
+    if forecast is None:
+        from neatskin.rig.railcheck import pressed_rails_warning
+
+        warning = pressed_rails_warning(protocol)
+    else:
+        import subprocess
+
+        try:
+            stdout, stderr = forecast.communicate(timeout=RAILS_FORECAST_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            forecast.kill()
+            forecast.communicate()
+            stdout, stderr = "", f"no answer within {RAILS_FORECAST_TIMEOUT_S:g} s"
+        if forecast.returncode == 0:
+            warning = stdout.strip() or None
+        else:
+            why = (stderr.strip().splitlines() or [f"exit {forecast.returncode}"])[-1]
+            warning = (
+                f"electrical, pressed: not forecast ({why}); `neatskin campaign check {protocol.path}` prints "
+                "how many presses would pass the mux rails"
+            )
+    if warning:
+        print(f"{protocol.path}: {warning}", file=sys.stderr, flush=True)
 
 
 def _prestart_skin_worker(protocol) -> None:
@@ -291,7 +342,7 @@ def _check(args: argparse.Namespace) -> int:
     print(f"  electrical: {protocol.electrical.summary()}")
     from neatskin.rig.railcheck import pressed_rails_text
 
-    print(f"  electrical, {pressed_rails_text(protocol)}")
+    print(f"  {pressed_rails_text(protocol)}")
     return 0
 
 

@@ -23,8 +23,11 @@ from neatskin.acquisition.daq.base import DaqConfig
 from neatskin.errors import ConfigError, Problem
 from neatskin.gcode.positions import generate_positions
 from neatskin.rig.assembly import daq_config
+from neatskin.rig.dryrig import dry_scene
+from neatskin.rig.plan import build_plan
 from neatskin.rig.protocol import CLIP_MESSAGE, CampaignProtocol, load_protocol
 from neatskin.rig.simcampaign import pressed_skin
+from neatskin.sim.dryscene import dry_skin
 
 
 @dataclass(frozen=True)
@@ -65,7 +68,18 @@ def pressed_resistance_ohm(protocol: CampaignProtocol) -> np.ndarray:
     """(presses, pairs) pair R_eq of the protocol's presses through its dry run's skin, +inf for a pair cut off."""
     press = protocol.press
     xy = generate_positions(protocol.layout, press.positions).xy_mm
-    drawn = pressed_skin(protocol, xy, int(press.press.repeats), float(press.press.depth_mm), int(protocol.seed))
+    plan = build_plan(protocol)  # once: the skin's scene and the drift's press interval both read it
+    skin = dry_skin(dry_scene(protocol, plan))  # simcampaign.skin_of's skin
+    interval_s = float(getattr(protocol.scene, "press_interval_s", 0.0)) or plan.press_interval_s
+    drawn = pressed_skin(
+        protocol,
+        xy,
+        int(press.press.repeats),
+        float(press.press.depth_mm),
+        int(protocol.seed),
+        skin=skin,
+        interval_s=interval_s,
+    )
     return drawn.resistance_ohm
 
 
@@ -100,8 +114,18 @@ def _where(protocol: CampaignProtocol) -> str:
 def pressed_rails_text(protocol: CampaignProtocol) -> str:
     """`campaign check`'s pressed line at the protocol's own current: a warning when some press passes the rails
     (the protocol is not refused: those readings are flagged and recorded as a cut pair's)."""
+    return _line(protocol, pressed_rails(pressed_resistance_ohm(protocol), daq_config(protocol)))
+
+
+def pressed_rails_warning(protocol: CampaignProtocol) -> str | None:
+    """`campaign run`'s line before any motion: `campaign check`'s pressed line, word for word, when some press
+    passes the rails; None when none does (a run prints nothing then)."""
     result = pressed_rails(pressed_resistance_ohm(protocol), daq_config(protocol))
-    return f"pressed ({_where(protocol)}): {'warning: ' if result.presses_over else ''}{result.summary()}"
+    return _line(protocol, result) if result.presses_over else None
+
+
+def _line(protocol: CampaignProtocol, result: PressedRails) -> str:
+    return f"electrical, pressed ({_where(protocol)}): {'warning: ' if result.presses_over else ''}{result.summary()}"
 
 
 def with_pressed_figures(path: str | Path, problems: Sequence[Problem]) -> list[Problem]:
@@ -141,3 +165,28 @@ def _share(result: PressedRails) -> str:
         f"{result.presses_over} of {result.presses} presses ({100 * result.share:.1f} %; "
         f"{result.readings_over} of {result.readings} readings)"
     )
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """`python -m neatskin.rig.railcheck PROTOCOL`: the pressed-rails warning line, or nothing (a real `campaign
+    run` asks this child, so that its own process builds no simulator). A bad protocol: its error, exit 3."""
+    import sys
+
+    from neatskin.errors import ExitCode
+
+    args = list(sys.argv[1:] if argv is None else argv)
+    if len(args) != 1:
+        print("usage: python -m neatskin.rig.railcheck PROTOCOL", file=sys.stderr)
+        return int(ExitCode.USAGE)
+    try:
+        warning = pressed_rails_warning(load_protocol(args[0]))
+    except ConfigError as exc:
+        print(str(exc).replace("\n", " "), file=sys.stderr)
+        return int(ExitCode.CONFIG)
+    if warning:
+        print(warning)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

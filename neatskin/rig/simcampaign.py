@@ -18,8 +18,6 @@ from typing import Any
 
 import numpy as np
 
-from neatskin.baselines.dataset import saturate
-from neatskin.baselines.models import make_models
 from neatskin.gcode.positions import generate_positions
 from neatskin.rig.assembly import daq_config
 from neatskin.rig.dryrig import dry_scene
@@ -198,6 +196,8 @@ def simulate_presses(
     features = pressed - base + noise
     # a pair cut off (a channel pinched shut) reads as the baselines read a recorded one: its column's saturation
     # value (baselines.dataset.saturate, here over this call's presses), never as no change
+    from neatskin.baselines.dataset import saturate  # here: pressed_skin's callers (the rails check) need no baselines
+
     features = saturate(features)[0]
     return Presses(features, drawn.commanded_mm, drawn.landed_mm, drawn.groups)
 
@@ -210,6 +210,8 @@ def strategy_positions(protocol: CampaignProtocol, count: int, seed: int) -> np.
 
 def fitted_model(model_name: str, train: Presses, random_state: int) -> Any:
     """The named baseline fitted on train's features against its commanded positions."""
+    from neatskin.baselines.models import make_models  # scikit-learn: not for pressed_skin's callers
+
     model = make_models(
         [model_name],
         random_state=random_state,

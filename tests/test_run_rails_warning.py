@@ -1,0 +1,139 @@
+"""`campaign run` prints `campaign check`'s pressed-rails warning, word for word, once, before the first press: a
+technician who runs without the check sees it too. A protocol whose current puts pressed pairs past the mux rails
+(the paper protocol at 0.5 mA, the default before the rails were modelled: 58 of its 2800 presses) warns; the paper
+protocol at its 0.2 mA prints nothing of the kind."""
+
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from neatskin.rig.assembly import daq_config
+from neatskin.rig.protocol import load_protocol
+from neatskin.rig.railcheck import pressed_rails, pressed_rails_warning, pressed_resistance_ohm
+
+PROTOCOLS = Path(__file__).resolve().parent.parent / "protocols"
+
+
+def _paper_at(tmp_path: Path, amplitude: str) -> Path:
+    root = tmp_path / "protocols"
+    shutil.copytree(PROTOCOLS, root, symlinks=False)
+    path = root / "paper.toml"
+    text = path.read_text()
+    assert "amplitude_a = 0.0002 " in text
+    path.write_text(text.replace("amplitude_a = 0.0002 ", f"amplitude_a = {amplitude} "))
+    return path
+
+
+def _neatskin(*args: str) -> str:
+    """stdout and stderr of `neatskin ARGS` in one stream, in the order the child wrote them."""
+    done = subprocess.run(
+        [sys.executable, "-m", "neatskin", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        timeout=240,
+    )
+    assert done.returncode == 0, done.stdout
+    return done.stdout
+
+
+def _pressed_line(check_output: str) -> str:
+    return next(line for line in check_output.splitlines() if "electrical, pressed" in line).strip()
+
+
+@pytest.mark.timeout(300)
+def test_a_run_past_the_rails_warns_before_its_first_press_as_check_does(tmp_path):
+    path = _paper_at(tmp_path, "0.0005")
+    check_line = _pressed_line(_neatskin("campaign", "check", str(path)))
+    assert "warning: 58 of 2800 presses (2.1 %) put some pair past the rails at 0.5 mA" in check_line
+    out = _neatskin(
+        "campaign", "run", str(path), "--dry-run", "--limit", "2", "--no-report", "--out", str(tmp_path / "run")
+    )
+    assert out.count("past the rails") == 1, out
+    warning = next(line for line in out.splitlines() if "past the rails" in line)
+    assert warning == f"{path}: {check_line}"
+    first_press = out.index("paper (dry-run):")  # the progress bar's first line
+    assert out.index(warning) < first_press
+    assert "2/2800 presses" in out and "Traceback" not in out
+
+
+def test_the_warning_is_the_forecasts_count_and_none_at_the_protocols_current(tmp_path):
+    """The function behind the run's line: at 0.5 mA its counts are the forecast's pressed readings past 15,790
+    ohm; at the protocol's 0.2 mA it returns None (nothing printed)."""
+    protocol = load_protocol(PROTOCOLS / "paper.toml")
+    assert pressed_rails_warning(protocol) is None
+    at_05 = load_protocol(_paper_at(tmp_path, "0.0005"))
+    r = pressed_resistance_ohm(at_05)
+    over = np.isfinite(r) & (r >= 8.0 / 0.0005 - 210.0)
+    want = pressed_rails(r, daq_config(at_05))
+    assert (want.presses_over, want.readings_over) == (int(over.any(axis=1).sum()), int(over.sum())) == (58, 122)
+    line = pressed_rails_warning(at_05)
+    assert line is not None and line.startswith("electrical, pressed (100 positions x 28 at 3.5 mm")
+    assert "warning: 58 of 2800 presses" in line and "(122 of 74900 readings above 15790 ohm" in line
+
+
+@pytest.mark.timeout(300)
+def test_the_paper_protocol_runs_without_a_rails_line(tmp_path):
+    out = _neatskin(
+        "campaign",
+        "run",
+        str(PROTOCOLS / "paper.toml"),
+        "--dry-run",
+        "--limit",
+        "2",
+        "--no-report",
+        "--out",
+        str(tmp_path / "run"),
+    )
+    assert "past the rails" not in out and "electrical" not in out, out
+    assert "2/2800 presses" in out
+
+
+@pytest.mark.timeout(180)
+def test_a_real_run_warns_too_and_still_builds_no_simulator(tmp_path):
+    """A real run (a `neatskin sim printer` on a pty, the NI DAQ missing) reads the warning from a child process: the
+    same line before the rig opens, and no skin model or simulated DAQ in the run's own process."""
+    path = _paper_at(tmp_path, "0.0005")
+    check_line = _pressed_line(_neatskin("campaign", "check", str(path)))
+    sim = subprocess.Popen([sys.executable, "-m", "neatskin", "sim", "printer"], stdout=subprocess.PIPE, text=True)
+    try:
+        port = sim.stdout.readline().strip()
+        assert port.startswith("/dev/")
+        args = [
+            "campaign", "run", str(path), "--port", port, "--daq", "ni", "--out", str(tmp_path / "run"),
+            "--no-report", "--quiet", "--connect-timeout", "0.3",
+        ]  # fmt: skip
+        probe = ("neatskin.skin.model", "neatskin.sim.daq", "neatskin.sim.printer", "neatskin.rig.railcheck")
+        code = (
+            f"import sys\nfrom neatskin.cli import main\ncode = main({args!r})\n"
+            f"print(sorted(m for m in {probe!r} if m in sys.modules))"
+        )
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    finally:
+        sim.send_signal(signal.SIGINT)
+        sim.wait(10)
+    assert eval(out.stdout.strip().splitlines()[-1]) == []
+    lines = out.stderr.splitlines()
+    assert lines.count(f"{path}: {check_line}") == 1, out.stderr
+    error = next(k for k, line in enumerate(lines) if "neatskin: error:" in line)
+    assert lines.index(f"{path}: {check_line}") < error and "nidaqmx" in out.stderr
+
+
+def test_the_forecast_child_prints_the_line_or_nothing(tmp_path):
+    """`python -m neatskin.rig.railcheck PROTOCOL`, the real run's child: the warning at 0.5 mA, nothing at 0.2 mA, a
+    bad protocol's error with exit 3."""
+    child = [sys.executable, "-m", "neatskin.rig.railcheck"]
+    at_05 = subprocess.run([*child, str(_paper_at(tmp_path, "0.0005"))], capture_output=True, text=True, timeout=120)
+    assert at_05.returncode == 0 and at_05.stdout.startswith("electrical, pressed (") and at_05.stderr == ""
+    assert "warning: 58 of 2800 presses" in at_05.stdout
+    at_02 = subprocess.run([*child, str(PROTOCOLS / "paper.toml")], capture_output=True, text=True, timeout=120)
+    assert (at_02.returncode, at_02.stdout, at_02.stderr) == (0, "", "")
+    bad = tmp_path / "protocols" / "bad.toml"  # beside paper.toml: its files are relative to it
+    bad.write_text((tmp_path / "protocols" / "paper.toml").read_text().replace("depth_mm = 3.5", "depth_mm = -1"))
+    refused = subprocess.run([*child, str(bad)], capture_output=True, text=True, timeout=120)
+    assert refused.returncode == 3 and "depth_mm" in refused.stderr and refused.stdout == ""
