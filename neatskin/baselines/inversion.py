@@ -53,6 +53,7 @@ class InversionResult:
     n_iterations: int
     n_model_evaluations: int  # rows through the model; a value with its analytic Jacobian counts one
     time_s: float
+    n_surrogate_evaluations: int = 0  # rows through the surrogate table (method="surrogate"), not the model
 
 
 def _sqrt_threshold(limit: float) -> float:
@@ -243,6 +244,9 @@ def skin_inversion(
     kernel fits lower residuals but worse positions (docs/baselines.md), so it is not the default."""
     from neatskin.skin.model import DEFORMATIONS, SkinModel
 
+    method = kwargs.pop("method", "batched")
+    if method not in ("batched", "reference", "surrogate"):
+        raise ValueError(f"method must be 'batched', 'reference' or 'surrogate', got {method!r}")
     if deformation not in DEFORMATIONS:
         raise ValueError(f"deformation must be one of {DEFORMATIONS}, got {deformation!r}")
     kernel = None
@@ -255,6 +259,22 @@ def skin_inversion(
     x0, y0, x1, y1 = layout.bounds_mm
     r = margin_mm
     bounds = (x0 - r, y0 - r, x1 + r, y1 + r)
+    if method == "surrogate":
+        from neatskin.baselines.invpolish import surrogate_inversion
+
+        return surrogate_inversion(
+            skin,
+            dr_ohm,
+            bounds,
+            depth,
+            lambda s, **kw: _two_passes(s, dr_ohm, bounds, depth, retry_residual_factor, retry_race, **kw),
+            **kwargs,
+        )
+    return _two_passes(skin, dr_ohm, bounds, depth, retry_residual_factor, retry_race, method=method, **kwargs)
+
+
+def _two_passes(skin, dr_ohm, bounds, depth, retry_residual_factor, retry_race, **kwargs) -> InversionResult:
+    """skin_inversion's first pass and second pass (the presses whose residual is high, from more starts)."""
     first = invert_presses(skin, dr_ohm, bounds, depth, **kwargs)
     if retry_residual_factor is None or len(first.residual_ohm) == 0:
         return first

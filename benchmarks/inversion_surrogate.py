@@ -1,0 +1,157 @@
+"""Issue 27's seventh round, measured: the inversion on a tabulated surrogate of the skin model (method="surrogate").
+
+    python benchmarks/inversion_surrogate.py RUN [RUN ...] [--grids 0.5x9 0.25x9 ...] [--points 20000]
+
+For the first RUN's skin model (the parametric SkinModel the inversion assumes):
+- per table grid (x/y step mm x depths): its nodes, CPU to build it (model rows, then the spline's coefficients),
+  its size, and its relative dR error at random off-grid points of the inversion's box (the largest pair error over
+  the row's largest |dR|), by depth fifth, near the depth bound, and by how near the probe's edge passes a channel;
+  the gradient's error against the model's analytic Jacobian.
+Per RUN (one process, one BLAS thread, as a report lane): `skin_inversion` as the report calls it (method="batched")
+and with method="surrogate" (the table warm, from a fresh cache built first and timed), CPU split into the table,
+the search on the table and the polish on the true model; model rows a press; and the answers' distances to the
+batched ones (largest coordinate), the share ending at a higher residual, the mean position error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from neatskin.baselines.dataset import load_baseline_data
+from neatskin.baselines.inversion import skin_inversion
+from neatskin.baselines.invsolve import model_dr, model_drj
+from neatskin.baselines.invtable import build_table
+from neatskin.skin.model import SkinModel
+
+
+def _box(layout):
+    x0, y0, x1, y1 = layout.bounds_mm
+    lo = np.array([x0 - 0.5, y0 - 0.5, 0.05 * layout.thickness_mm])
+    hi = np.array([x1 + 0.5, y1 + 0.5, 0.95 * layout.thickness_mm])
+    return lo, hi
+
+
+def _channel_gap_mm(layout, xy, radius_mm):
+    """Per row: |distance to the nearest channel centreline - probe radius| (0: the probe's edge on a channel)."""
+    gap = np.full(len(xy), np.inf)
+    for ch in layout.channels:
+        a = np.array([layout.junctions[ch.a].x_mm, layout.junctions[ch.a].y_mm])
+        b = np.array([layout.junctions[ch.b].x_mm, layout.junctions[ch.b].y_mm])
+        t = np.clip(((xy - a) @ (b - a)) / max((b - a) @ (b - a), 1e-12), 0.0, 1.0)
+        d = np.linalg.norm(xy - (a + t[:, None] * (b - a)), axis=1)
+        gap = np.minimum(gap, np.abs(d - radius_mm))
+    return gap
+
+
+def _q(rel, rows) -> str:
+    return f"{np.median(rel[rows]):.1e} / {np.quantile(rel[rows], 0.99):.1e}"
+
+
+def accuracy(run: str, grids: list[str], n_points: int) -> None:
+    data = load_baseline_data(run)
+    skin = SkinModel(
+        data.layout, fidelity=data.skin_fidelity or "deformation", probe_radius_mm=data.probe_radius_mm or 2.75
+    )
+    baseline = np.asarray(skin.pair_resistance_ohm(0.0, 0.0, 0.0), float)[0]
+    lo, hi = _box(data.layout)
+    rng = np.random.default_rng(7)
+    points = lo + rng.random((n_points, 3)) * (hi - lo)
+    started = time.process_time()
+    truth = model_dr(skin, baseline, points)
+    row_us = 1e6 * (time.process_time() - started) / n_points
+    value, jac = model_drj(skin, baseline, points[:4000])
+    scale = np.maximum(np.abs(truth).max(axis=1), 1e-9)
+    depth_fifth = np.minimum(((points[:, 2] - lo[2]) / (hi[2] - lo[2]) * 5).astype(int), 4)
+    gap = _channel_gap_mm(data.layout, points[:, :2], skin.probe_radius_mm)
+    print(
+        f"\n{run}: surrogate accuracy at {n_points} random points (model {row_us:.1f} us a value row); load {os.getloadavg()[0]:.2f}"
+    )
+    print("relative error: the largest pair's |table - model| over the row's largest |dR|; median / 99th percentile")
+    head = "| grid | nodes | build CPU s (model + spline) | MB | all | depth fifths 1..5 | top 2 % depth | edge on a channel (< 0.25 mm) | gradient |"
+    print(head)
+    print("|---|---|---|---|---|---|---|---|---|")
+    for spec in grids:
+        step, depths = spec.split("x")
+        started = time.process_time()
+        table = build_table(skin, baseline, lo, hi, float(step), int(depths))
+        build_s = time.process_time() - started
+        got = table.evaluate(points, 1)
+        rel = np.abs(got[:, 0] - truth).max(axis=1) / scale
+        fifths = ", ".join(
+            f"{np.median(rel[depth_fifth == k]):.0e}/{np.quantile(rel[depth_fifth == k], 0.99):.0e}" for k in range(5)
+        )
+        deep = points[:, 2] > hi[2] - 0.02 * (hi[2] - lo[2])
+        grad = got[:4000, 1:4].transpose(0, 2, 1)
+        ok = np.all(np.isfinite(jac), axis=(1, 2))
+        grel = np.abs(grad[ok] - jac[ok]).max(axis=(1, 2)) / np.abs(jac[ok]).max(axis=(1, 2))
+        nodes = int(np.prod(table.shape))
+        mb = (table.values.nbytes + table.coef.nbytes) / 1e6
+        print(
+            f"| {spec} | {nodes} | {build_s:.2f} | {mb:.0f} | {_q(rel, slice(None))} | {fifths} | {_q(rel, deep)} | {_q(rel, gap < 0.25)} | "
+            f"{np.median(grel):.1e} / {np.quantile(grel, 0.99):.1e} |"
+        )
+
+
+def inversions(run: str) -> None:
+    data = load_baseline_data(run)
+    kw = dict(fidelity=data.skin_fidelity or "deformation", probe_radius_mm=data.probe_radius_mm or 2.75)
+    n = len(data.X)
+    with tempfile.TemporaryDirectory() as cache:
+        os.environ["NEATSKIN_CACHE"] = cache
+        results = {}
+        for name, extra in (
+            ("batched", {"method": "batched"}),
+            ("surrogate, cold (table built)", {"method": "surrogate"}),
+            ("surrogate, warm (table cached)", {"method": "surrogate"}),
+            ("surrogate, warm, secant polish", {"method": "surrogate", "polish": "secant"}),
+            ("batched", {"method": "batched"}),
+            ("surrogate, warm (table cached)", {"method": "surrogate"}),
+        ):
+            started = time.process_time()
+            res = skin_inversion(data.layout, data.X, **kw, **extra)
+            cpu = time.process_time() - started
+            if name in results:
+                results[name] = (min(cpu, results[name][0]), res)
+            else:
+                results[name] = (cpu, res)
+    ref = results["batched"][1]
+    print(f"\n{run}: {n} presses, one BLAS thread, load {os.getloadavg()[0]:.2f} (best of 2 where run twice)")
+    print(
+        "| inversion | CPU s | model rows a press | table rows a press | mean error mm | within 1e-3 mm of batched | moved > 0.1 mm | higher residual | lower residual |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
+    for name, (cpu, res) in results.items():
+        apart = np.abs(np.c_[res.xy_mm, res.depth_mm] - np.c_[ref.xy_mm, ref.depth_mm]).max(axis=1)
+        error = np.linalg.norm(res.xy_mm - data.y, axis=1).mean()
+        worse = np.mean(res.residual_ohm > ref.residual_ohm * (1 + 1e-6)) * 100
+        better = np.mean(res.residual_ohm < ref.residual_ohm * (1 - 1e-6)) * 100
+        print(
+            f"| {name} | {cpu:.2f} | {res.n_model_evaluations / n:.1f} | {res.n_surrogate_evaluations / n:.1f} | "
+            f"{error:.4f} | {np.mean(apart < 1e-3) * 100:.1f} % | {np.mean(apart > 0.1) * 100:.1f} % | {worse:.1f} % | "
+            f"{better:.1f} % |"
+        )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("runs", nargs="+")
+    parser.add_argument("--grids", nargs="*", default=["1.0x5", "0.5x9", "0.5x17", "0.25x9"])
+    parser.add_argument("--points", type=int, default=20000)
+    parser.add_argument("--no-accuracy", action="store_true")
+    args = parser.parse_args(argv)
+    threadpool_limits(1)
+    if not args.no_accuracy:
+        accuracy(args.runs[0], args.grids, args.points)
+    for run in args.runs:
+        inversions(run)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
