@@ -98,6 +98,58 @@ def accuracy(run: str, grids: list[str], n_points: int) -> None:
         )
 
 
+class _Counters:
+    """CPU per part of the surrogate path: functions wrapped in place, process time summed (nested parts included)."""
+
+    def __init__(self, parts):
+        self.cpu: dict[str, float] = {}
+        self.parts = parts
+        self.saved = []
+
+    def __enter__(self):
+        for owner, name, label in self.parts:
+            real = getattr(owner, name)
+            self.saved.append((owner, name, real))
+
+            def timed(*args, _real=real, _label=label, **kwargs):
+                started = time.process_time()
+                try:
+                    return _real(*args, **kwargs)
+                finally:
+                    self.cpu[_label] = self.cpu.get(_label, 0.0) + time.process_time() - started
+
+            setattr(owner, name, timed)
+        return self
+
+    def __exit__(self, *exc):
+        for owner, name, real in self.saved:
+            setattr(owner, name, real)
+
+
+def breakdown(run: str) -> None:
+    """Where the surrogate path's CPU goes (warm table), one run, with counters."""
+    from neatskin.baselines import inversion, invpolish, invtable
+
+    data = load_baseline_data(run)
+    kw = dict(fidelity=data.skin_fidelity or "deformation", probe_radius_mm=data.probe_radius_mm or 2.75)
+    parts = [
+        (invtable, "load_table", "table load (warm)"),
+        (inversion, "_diverse_starts", "start search"),
+        (inversion, "refine", "search on the table (solver + table rows)"),
+        (invpolish, "refine", "polish on the model (solver + model rows + table Hessians)"),
+        (invtable.SplineTable, "evaluate", "table rows (search and polish)"),
+        (invtable.TableSkin, "pair_resistance_ohm", "grid rows (table look-ups)"),
+    ]
+    skin_inversion(data.layout, data.X[:8], **kw, method="surrogate")  # the table in the cache
+    with _Counters(parts) as counters:
+        started = time.process_time()
+        skin_inversion(data.layout, data.X, **kw, method="surrogate")
+        total = time.process_time() - started
+    print(f"\n{run}: where the surrogate path's CPU goes (warm), load {os.getloadavg()[0]:.2f}; total {total:.2f} s")
+    for label, cpu in counters.cpu.items():
+        print(f"| {label} | {cpu:.3f} s | {100 * cpu / total:.0f} % |")
+
+
 def inversions(run: str) -> None:
     data = load_baseline_data(run)
     kw = dict(fidelity=data.skin_fidelity or "deformation", probe_radius_mm=data.probe_radius_mm or 2.75)
@@ -150,6 +202,7 @@ def main(argv: list[str] | None = None) -> int:
         accuracy(args.runs[0], args.grids, args.points)
     for run in args.runs:
         inversions(run)
+        breakdown(run)
     return 0
 
 

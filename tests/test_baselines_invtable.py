@@ -167,3 +167,45 @@ def test_noise_free_presses_come_back_exact_through_the_surrogate(tmp_path, monk
     assert np.all(res.residual_ohm[exact] <= batched.residual_ohm[exact] * (1 + 1e-6) + 1e-3)
     assert np.all(res.residual_ohm <= batched.residual_ohm + 0.1)
     assert res.n_surrogate_evaluations > 0 and len(list((tmp_path / "inversion-tables").glob("*.npz"))) == 1
+
+
+def test_a_press_that_shuts_a_channel_inverts_to_finite_numbers_through_the_surrogate(tmp_path, monkeypatch):
+    # the stiff case, as the default's test: a press on a channel at the depth bound, and its readings with that
+    # channel's pairs cut (infinite, saturated as the dataset does)
+    monkeypatch.setenv("NEATSKIN_CACHE", str(tmp_path))
+    layout = load_layout(PAPER_SKIN)
+    skin = SkinModel(layout, fidelity="deformation")
+    dr = skin.pair_resistance_ohm(np.array([7.5]), np.array([0.0]), np.array([0.95 * layout.thickness_mm]))
+    dr = np.vstack([dr, np.where(dr > np.median(dr), np.inf, dr)])
+    dr = np.where(np.isfinite(dr), dr - skin.baseline_pair_resistance_ohm, 1e9)
+    for polish in ("hessian", "secant"):
+        res = skin_inversion(layout, dr, method="surrogate", polish=polish)
+        assert np.all(np.isfinite(res.xy_mm)) and np.all(np.isfinite(res.residual_ohm))
+
+
+class _ShutSkin:
+    """A model whose first row has a channel shut: an infinite resistance and no Jacobian (as the skin's analytic
+    pass gives NaN there)."""
+
+    def __init__(self, pairs: int):
+        self.pairs = pairs
+
+    def pair_resistance_ohm(self, x, y, d):
+        out = np.outer(np.asarray(x, float) + 1.0, np.arange(1.0, self.pairs + 1))
+        out[0, 0] = np.inf
+        return out
+
+    def pair_resistance_and_jacobian_ohm(self, x, y, d):
+        jac = np.ones((len(x), self.pairs, 3))
+        jac[0] = np.nan
+        return np.where(np.isfinite(v := self.pair_resistance_ohm(x, y, d)), v, np.nan), jac
+
+
+def test_the_polishs_model_takes_the_tables_jacobian_where_a_channel_is_shut():
+    table = _cubic_table()
+    hybrid = invtable.HybridSkin(_ShutSkin(2), table)
+    p = np.array([[0.5, 3.0, 1.0], [1.0, 4.0, 1.2]])
+    value, jac, hess = hybrid.pair_resistance_jacobian_hessian(p)
+    assert value[0, 0] == invtable.BIG_OHM and value[0, 1] == 2 * 1.5 and np.all(value[1] == [2.0, 4.0])
+    assert np.allclose(jac[0], table.evaluate(p[:1], 1)[0, 1:4].T) and np.all(jac[1] == 1.0)
+    assert np.allclose(hess, hessian(table.evaluate(p, 2)))

@@ -16,7 +16,8 @@ from a forward model with the `pair_resistance_ohm(x_mm, y_mm, depth_mm)` signat
    the gain ratio, bounds by an active set, a secant estimate of the large residuals' curvature
    (NL2SOL), and starts of one press that meet merged; a row stops once its proposed step is under
    the tolerance (`method="reference"` is the solver before issue 27, `invref.refine_reference`, kept to
-   test against; docs/baselines.md has the figures).
+   test against; docs/baselines.md has the figures). `method="surrogate"` (`invpolish`, not the default) runs the
+   same search on a cached spline table of the model and polishes each winner on the model.
 
 Parameters are kept inside the skin's bounds and a depth range. The cost is reported like a
 learned model's (fit time 0, predict time per press).
@@ -241,7 +242,12 @@ def skin_inversion(
     deformation: the forward model's pinch: "parametric" (default; `SkinModel`'s parametric pinch, whatever skin
     made the data) or "fe-kernel" (the packaged or cached finite-element pinch kernel of this layout and probe,
     the dry run's; never solved here: FileNotFoundError names the command that makes it). On paper dry runs the
-    kernel fits lower residuals but worse positions (docs/baselines.md), so it is not the default."""
+    kernel fits lower residuals but worse positions (docs/baselines.md), so it is not the default.
+    method (in kwargs): "batched" (default), "reference", or "surrogate": both passes' search on a spline table of
+    the model (`invtable`, cached per skin model in the user cache) and each winner polished on the model
+    (`invpolish.surrogate_inversion`, which takes its own options: polish, table_step_mm, table_depths, cache).
+    On paper dry runs ~1.3x faster than "batched" with the table cached, but ~4 % of the positions move (docs/
+    baselines.md, issue 27's seventh round), so it is not the default."""
     from neatskin.skin.model import DEFORMATIONS, SkinModel
 
     method = kwargs.pop("method", "batched")

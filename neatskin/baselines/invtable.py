@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from neatskin.baselines.invsolve import model_dr
+from neatskin.baselines.invsolve import BIG_OHM, GRADIENT_CHUNK, model_dr
 
 logger = logging.getLogger(__name__)
 
@@ -204,8 +204,6 @@ class HybridSkin:
         return self.skin.pair_resistance_and_jacobian_ohm(x_mm, y_mm, depth_mm)
 
     def pair_resistance_jacobian_hessian(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        from neatskin.baselines.invsolve import GRADIENT_CHUNK
-
         value = np.empty((len(p), self.table.coef.shape[-1]))
         jac = np.empty((*value.shape, 3))
         for start in range(0, len(p), GRADIENT_CHUNK):
@@ -214,8 +212,11 @@ class HybridSkin:
                 self.skin.pair_resistance_and_jacobian_ohm(q[:, 0], q[:, 1], q[:, 2])
             )
         lost = ~np.all(np.isfinite(jac), axis=(1, 2))
-        if lost.any():  # a channel shut: the table's Jacobian there (the model's value stands)
-            jac[lost] = self.table.evaluate(p[lost], 1)[:, 1:4].transpose(0, 2, 1)
+        if lost.any():  # a channel shut: the model's value as `model_dr` takes it, the table's Jacobian
+            q = p[lost]
+            shut = self.skin.pair_resistance_ohm(q[:, 0], q[:, 1], q[:, 2])
+            value[lost] = np.where(np.isfinite(shut), shut, BIG_OHM)
+            jac[lost] = self.table.evaluate(q, 1)[:, 1:4].transpose(0, 2, 1)
         self.rows += len(p)
         self.table_rows += len(p)
         return value, jac, hessian(self.table.evaluate(p, 2))
