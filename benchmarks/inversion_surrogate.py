@@ -150,6 +150,62 @@ def breakdown(run: str) -> None:
         print(f"| {label} | {cpu:.3f} s | {100 * cpu / total:.0f} % |")
 
 
+def row_costs(run: str, rows: int = 2048, repeats: int = 7) -> None:
+    """us a row, best of `repeats`: the table's value / with gradient / with Hessian for the 28 pairs, and what one
+    row of a per-press scalar-cost spline would cost in numpy (f = |dR|^2 - 2 d.dR + |d|^2: the same gather of the
+    row's 64 x 28 coefficients, their product with the press's d, and the 10 derivative weights on 64 numbers)."""
+    from neatskin.baselines.invtable import _ORDER_INDEX, _basis
+
+    data = load_baseline_data(run)
+    skin = SkinModel(
+        data.layout, fidelity=data.skin_fidelity or "deformation", probe_radius_mm=data.probe_radius_mm or 2.75
+    )
+    baseline = np.asarray(skin.pair_resistance_ohm(0.0, 0.0, 0.0), float)[0]
+    lo, hi = _box(data.layout)
+    table = build_table(skin, baseline, lo, hi, 0.5, 9)
+    rng = np.random.default_rng(3)
+    p = lo + rng.random((rows, 3)) * (hi - lo)
+    d = data.X[rng.integers(0, len(data.X), rows)]
+
+    def best(f) -> float:
+        times = []
+        for _ in range(repeats):
+            started = time.process_time()
+            f()
+            times.append(time.process_time() - started)
+        return 1e6 * min(times) / rows
+
+    pairs = table.coef.shape[-1]
+    flat = table.coef.reshape(-1, pairs)
+    runs = np.lib.stride_tricks.as_strided(
+        flat, shape=(len(flat) - 3, 4 * pairs), strides=flat.strides, writeable=False
+    )
+    ny, nd = table.coef.shape[1:3]
+
+    def scalar_row():
+        cells, weights = [], []
+        for a in range(3):
+            cell, w = _basis((p[:, a] - table.lo[a]) / table.step[a], table.shape[a])
+            cells.append(cell)
+            weights.append(w)
+        four = np.arange(4)
+        first = (cells[0][:, None, None] + four[None, :, None]) * ny + cells[1][:, None, None] + four[None, None, :]
+        block = runs[(first * nd + cells[2][:, None, None]).reshape(rows, 16)].reshape(rows, 64, pairs)
+        coef = np.einsum("mkp,mp->mk", block, d)  # (|dR|^2's own block would add one 64-vector gather)
+        o = _ORDER_INDEX
+        wx, wy, wd = weights
+        combos = wx[:, o[0], :, None, None] * wy[:, o[1], None, :, None] * wd[:, o[2], None, None, :]
+        return np.einsum("mkc,mc->mk", combos.reshape(rows, 10, 64), coef)
+
+    model_s = best(lambda: model_drj(skin, baseline, p))
+    print(
+        f"\n{run}: us a row (best of {repeats}, {rows} rows, load {os.getloadavg()[0]:.2f}): model value and gradient "
+        f"{model_s:.1f}; table value {best(lambda: table.evaluate(p, 0)):.1f}, with gradient "
+        f"{best(lambda: table.evaluate(p, 1)):.1f}, with Hessian {best(lambda: table.evaluate(p, 2)):.1f}; a scalar-cost "
+        f"row with gradient and Hessian {best(scalar_row):.1f}"
+    )
+
+
 def inversions(run: str) -> None:
     data = load_baseline_data(run)
     kw = dict(fidelity=data.skin_fidelity or "deformation", probe_radius_mm=data.probe_radius_mm or 2.75)
@@ -200,6 +256,7 @@ def main(argv: list[str] | None = None) -> int:
     threadpool_limits(1)
     if not args.no_accuracy:
         accuracy(args.runs[0], args.grids, args.points)
+        row_costs(args.runs[0])
     for run in args.runs:
         inversions(run)
         breakdown(run)
