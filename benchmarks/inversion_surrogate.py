@@ -244,6 +244,22 @@ def inversions(run: str) -> None:
             f"{error:.4f} | {np.mean(apart < 1e-3) * 100:.1f} % | {np.mean(apart > 0.1) * 100:.1f} % | {worse:.1f} % | "
             f"{better:.1f} % |"
         )
+    # the presses that moved: in a basin of another cost, or elsewhere in a flat valley of the same cost?
+    res = results["surrogate, warm (table cached)"][1]
+    apart = np.abs(np.c_[res.xy_mm, res.depth_mm] - np.c_[ref.xy_mm, ref.depth_mm]).max(axis=1)
+    moved = apart > 0.1
+    change = (res.residual_ohm[moved] - ref.residual_ohm[moved]) / ref.residual_ohm[moved]
+    err_ref = np.linalg.norm(ref.xy_mm - data.y, axis=1)[moved]
+    err_res = np.linalg.norm(res.xy_mm - data.y, axis=1)[moved]
+    bound = 0.95 * data.layout.thickness_mm
+    print(
+        f"moved > 0.1 mm (warm): {moved.sum()} presses, {np.sum(np.abs(change) < 1e-3)} at a residual within 0.1 % of "
+        f"today's ({np.sum(change < -1e-2)} lower by > 1 %, {np.sum(change > 1e-2)} higher); their median residual "
+        f"{np.median(ref.residual_ohm[moved]):.1f} ohm (every press {np.median(ref.residual_ohm):.1f}); on the depth "
+        f"bound {np.mean(ref.depth_mm[moved] >= bound - 1e-9) * 100:.0f} % (every press "
+        f"{np.mean(ref.depth_mm >= bound - 1e-9) * 100:.0f} %); their mean error {err_ref.mean():.3f} -> "
+        f"{err_res.mean():.3f} mm"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
