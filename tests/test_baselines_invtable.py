@@ -209,3 +209,24 @@ def test_the_polishs_model_takes_the_tables_jacobian_where_a_channel_is_shut():
     assert value[0, 0] == invtable.BIG_OHM and value[0, 1] == 2 * 1.5 and np.all(value[1] == [2.0, 4.0])
     assert np.allclose(jac[0], table.evaluate(p[:1], 1)[0, 1:4].T) and np.all(jac[1] == 1.0)
     assert np.allclose(hess, hessian(table.evaluate(p, 2)))
+
+
+def test_a_skin_without_an_analytic_jacobian_is_polished_by_differences(tmp_path, monkeypatch):
+    # the network fidelity has no analytic Jacobian: the polish differences the model (S seeded from the table)
+    monkeypatch.setenv("NEATSKIN_CACHE", str(tmp_path))
+    layout = load_layout(PAPER_SKIN)
+    skin = SkinModel(layout, fidelity="network")
+    assert not skin.has_analytic_jacobian
+    rng = np.random.default_rng(2)
+    xy = rng.uniform(1.0, 29.0, (12, 2))
+    depth = rng.uniform(3.0, 4.0, 12)
+    dr = skin.pair_resistance_ohm(xy[:, 0], xy[:, 1], depth) - skin.baseline_pair_resistance_ohm
+    res = skin_inversion(layout, dr, fidelity="network", method="surrogate")
+    batched = skin_inversion(layout, dr, fidelity="network")
+    # noise-free: where the default fits to ~0 the polish does too (a position along a channel is not identifiable
+    # with this fidelity, so no position is compared); one of these 12 presses ends in a local minimum in both
+    # (measured: 0.094 ohm the default, 0.098 ohm the surrogate path)
+    fitted = batched.residual_ohm < 1e-3
+    assert fitted.sum() == 11
+    assert np.all(res.residual_ohm[fitted] < 1e-3), res.residual_ohm
+    assert np.all(res.residual_ohm <= batched.residual_ohm + 1e-2), (res.residual_ohm, batched.residual_ohm)

@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from neatskin.baselines.invsolve import model_drj, refine
+from neatskin.baselines.invsolve import model_dr, model_drj, refine
 
 TABLE_STEP_MM = 0.5  # x and y node spacing: the first pass's 1 mm grid and the second pass's 0.5 mm grid are nodes
 TABLE_DEPTHS = 9  # the grids' 5 depths are nodes too
@@ -50,15 +50,18 @@ def surrogate_inversion(
     hi = np.array([x1, y1, depth_range_mm[1]], dtype=float)
     table = load_table(skin, baseline, lo, hi, table_step_mm, table_depths, cache_dir() if cache else None)
     surrogate = TableSkin(table, baseline)
+    model = HybridSkin(skin, table) if polish == "hessian" else skin
     found = two_passes(
         surrogate, max_iterations=max_iterations, step_mm=step_mm, tolerance_mm=surrogate_tolerance_mm, **kwargs
     )
     p = np.c_[found.xy_mm, found.depth_mm]
-    value, jac = model_drj(skin, baseline, p)
+    if getattr(skin, "has_analytic_jacobian", False):
+        value, jac = model_drj(skin, baseline, p)
+    else:  # no analytic Jacobian (network fidelity, FE kernel, ...): the polish differences it, S seeded from the table
+        value, jac, model = model_dr(skin, baseline, p), None, skin
     r = value - observed
     cost = np.einsum("np,np->n", r, r)
     curvature = np.einsum("np,npab->nab", r, hessian(table.evaluate(p, 2)))
-    model = HybridSkin(skin, table) if polish == "hessian" else skin
     cost, iterations, evaluations = refine(
         model,
         baseline,

@@ -2,7 +2,7 @@
 interpolated by a tensor-product cubic B-spline (exact at the nodes, C2, with exact value, gradient and Hessian of
 the interpolant), and its on-disk cache per skin model (docs/baselines.md, issue 27's seventh round).
 
-Not the default path of the inversion (`invert_presses(..., method="surrogate")`): the measurements are in
+Not the default path of the inversion (`skin_inversion(..., method="surrogate")`, `invpolish`): the measurements are in
 docs/baselines.md.
 """
 
