@@ -230,3 +230,14 @@ def test_a_skin_without_an_analytic_jacobian_is_polished_by_differences(tmp_path
     assert fitted.sum() == 11
     assert np.all(res.residual_ohm[fitted] < 1e-3), res.residual_ohm
     assert np.all(res.residual_ohm <= batched.residual_ohm + 1e-2), (res.residual_ohm, batched.residual_ohm)
+
+
+def test_a_cache_that_cannot_be_written_costs_a_rebuild_not_the_answer(tmp_path, caplog):
+    skin = SkinModel(load_layout(PAPER_SKIN), fidelity="deformation")
+    baseline = skin.baseline_pair_resistance_ohm
+    blocked = tmp_path / "a-file"
+    blocked.write_text("not a folder")
+    args = (skin, baseline, (5.0, 5.0, 1.0), (10.0, 10.0, 5.0), 1.0, 5)
+    got = load_table(*args, blocked / "tables")
+    assert np.array_equal(got.coef, invtable.build_table(*args).coef)
+    assert "not cached" in caplog.text and blocked.read_text() == "not a folder"

@@ -313,17 +313,22 @@ def load_table(skin, baseline_ohm, lo, hi, step_mm: float, n_depths: int, cache:
             logger.warning("inversion table %s does not match its key or checksum: rebuilding it", path)
     started = time.perf_counter()
     table = build_table(skin, baseline_ohm, lo, hi, step_mm, n_depths)
-    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npz")
-    np.savez(
-        tmp,
-        key=key,
-        values=table.values,
-        coef=table.coef,
-        values_sha256=_digest(table.values),
-        coef_sha256=_digest(table.coef),
-    )
-    os.replace(tmp, path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(
+            tmp,
+            key=key,
+            values=table.values,
+            coef=table.coef,
+            values_sha256=_digest(table.values),
+            coef_sha256=_digest(table.coef),
+        )
+        os.replace(tmp, path)  # whole or not at all: a reader never sees a half-written table
+    except OSError as exc:  # a cache that cannot be written costs the next run a rebuild, not this run its answer
+        logger.warning("inversion table not cached in %s (%s): built for this run only", path.parent, exc)
+        if tmp.parent.is_dir():
+            tmp.unlink(missing_ok=True)
     logger.debug("inversion table %s built in %.2f s", path, time.perf_counter() - started)
     return table
 
