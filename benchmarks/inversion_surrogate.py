@@ -206,6 +206,40 @@ def row_costs(run: str, rows: int = 2048, repeats: int = 7) -> None:
     )
 
 
+def polish_caps(run: str, caps=(1, 2, 3, 4, 6)) -> None:
+    """How far a polish cut short lands from the full one: the polish's steps capped (the search unchanged)."""
+    from neatskin.baselines import invpolish
+
+    data = load_baseline_data(run)
+    kw = dict(fidelity=data.skin_fidelity or "deformation", probe_radius_mm=data.probe_radius_mm or 2.75)
+    full = skin_inversion(data.layout, data.X, **kw, method="surrogate")
+    at = np.c_[full.xy_mm, full.depth_mm]
+    real = invpolish.refine
+    print(f"\n{run}: the polish capped (the full polish: {full.n_model_evaluations / len(at):.2f} model rows a press)")
+    print(
+        "| polish steps | model rows a press | within 1e-5 mm of the full polish | 1e-4 mm | 1e-3 mm | higher residual |"
+    )
+    print("|---|---|---|---|---|---|")
+    for cap in caps:
+
+        def capped(*args, _cap=cap, **kwargs):
+            args = list(args)
+            args[8] = _cap  # max_iterations
+            return real(*args, **kwargs)
+
+        invpolish.refine = capped
+        try:
+            res = skin_inversion(data.layout, data.X, **kw, method="surrogate")
+        finally:
+            invpolish.refine = real
+        apart = np.abs(np.c_[res.xy_mm, res.depth_mm] - at).max(axis=1)
+        print(
+            f"| {cap} | {res.n_model_evaluations / len(at):.2f} | {np.mean(apart < 1e-5) * 100:.1f} % | "
+            f"{np.mean(apart < 1e-4) * 100:.1f} % | {np.mean(apart < 1e-3) * 100:.1f} % | "
+            f"{np.mean(res.residual_ohm > full.residual_ohm * (1 + 1e-6)) * 100:.1f} % |"
+        )
+
+
 def inversions(run: str) -> None:
     data = load_baseline_data(run)
     kw = dict(fidelity=data.skin_fidelity or "deformation", probe_radius_mm=data.probe_radius_mm or 2.75)
@@ -268,6 +302,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--grids", nargs="*", default=["1.0x5", "0.5x9", "0.5x17", "0.25x9"])
     parser.add_argument("--points", type=int, default=20000)
     parser.add_argument("--no-accuracy", action="store_true")
+    parser.add_argument("--polish-caps", action="store_true", help="also: the polish cut short after 1 to 6 steps")
     args = parser.parse_args(argv)
     threadpool_limits(1)
     if not args.no_accuracy:
@@ -276,6 +311,8 @@ def main(argv: list[str] | None = None) -> int:
     for run in args.runs:
         inversions(run)
         breakdown(run)
+        if args.polish_caps:
+            polish_caps(run)
     return 0
 
 
