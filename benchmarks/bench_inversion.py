@@ -18,7 +18,11 @@ the two checkouts' positions (the base's solver stops at its 40-step cap on most
 docs/baselines.md). --reference adds a third column: this checkout's `method="reference"` (invref: the solver
 before issue 27, at the same 40-step budget), in the same alternation. --blas-threads 1 runs every child on one
 BLAS thread, as a report lane runs the inversion (the default leaves the library's default: this checkout's
-`invert_presses` limits itself to one, older checkouts do not).
+`invert_presses` limits itself to one, older checkouts do not). --surrogate adds two more columns:
+this checkout's `method="surrogate"` (issue 27's seventh round: the search on a tabulated spline of the model,
+polished on the model) with its table cached ("surrogate", warm: the cache filled once before the rounds, not
+timed) and built in the run ("surrogate cold": an empty cache folder for every child); the table rows a press are
+printed beside the model rows.
 """
 
 from __future__ import annotations
@@ -73,7 +77,15 @@ def here(dataset: str, row_set: str, out: str, method: str = "batched", blas_thr
         method=method,
     )
     cpu_s = time.process_time() - started
-    np.savez(out, cpu_s=cpu_s, xy_mm=res.xy_mm, depth_mm=res.depth_mm, y=data.y[rows], evals=res.n_model_evaluations)
+    np.savez(
+        out,
+        cpu_s=cpu_s,
+        xy_mm=res.xy_mm,
+        depth_mm=res.depth_mm,
+        y=data.y[rows],
+        evals=res.n_model_evaluations,
+        table_rows=getattr(res, "n_surrogate_evaluations", 0),
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -83,6 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--row-set", choices=ROW_SETS, nargs="*", default=list(ROW_SETS))
     parser.add_argument("--reference", action="store_true", help="also time this checkout's method='reference'")
+    parser.add_argument("--surrogate", action="store_true", help="also time method='surrogate', warm and cold")
     parser.add_argument(
         "--blas-threads",
         type=int,
@@ -96,10 +109,21 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     checkouts = {"this": REPO} | ({"against": args.against.resolve()} if args.against else {})
     checkouts |= {"reference": REPO} if args.reference else {}
+    checkouts |= {"surrogate": REPO, "surrogate cold": REPO} if args.surrogate else {}
+    methods = {"reference": "reference", "surrogate": "surrogate", "surrogate cold": "surrogate"}
     best: dict[tuple[str, str], float] = {}
     answers: dict[tuple[str, str], dict] = {}
     load = []
     with tempfile.TemporaryDirectory() as tmp:
+        warm_cache = Path(tmp) / "warm-cache"
+        if args.surrogate:  # the warm column's table, built once before the rounds (not timed)
+            env = dict(os.environ, PYTHONPATH=str(REPO), NEATSKIN_CACHE=str(warm_cache))
+            subprocess.run(
+                [sys.executable, __file__, args.dataset, "--here", args.row_set[0], str(Path(tmp) / "warm.npz")]
+                + ["surrogate", "--blas-threads", str(args.blas_threads)],
+                env=env,
+                check=True,
+            )
         for round_ in range(args.rounds):
             order = list(checkouts.items())
             if round_ % 2:
@@ -108,7 +132,11 @@ def main(argv: list[str] | None = None) -> int:
                 for name, checkout in order:
                     out = str(Path(tmp) / f"{name}-{row_set.replace(' ', '_')}.npz")
                     env = dict(os.environ, PYTHONPATH=str(checkout))
-                    method = "reference" if name == "reference" else "batched"
+                    if name == "surrogate":
+                        env["NEATSKIN_CACHE"] = str(warm_cache)
+                    elif name == "surrogate cold":
+                        env["NEATSKIN_CACHE"] = tempfile.mkdtemp(dir=tmp)
+                    method = methods.get(name, "batched")
                     subprocess.run(
                         [sys.executable, __file__, args.dataset, "--here", row_set, out, method]
                         + ["--blas-threads", str(args.blas_threads)],
@@ -126,13 +154,16 @@ def main(argv: list[str] | None = None) -> int:
         f"\ninversion CPU s, best of {args.rounds} round(s), {threads}; load average {min(load):.2f} to {max(load):.2f}"
     )
     others = [name for name in checkouts if name != "this"]
-    print(f"{'rows':<13} {'n':>5} " + " ".join(f"{n + ' s':>11}" for n in checkouts) + " ratios (other / this)")
+    print(f"{'rows':<13} {'n':>5} " + " ".join(f"{n + ' s':>15}" for n in checkouts) + " ratios (other / this)")
     for row_set in args.row_set:
         n = len(answers[("this", row_set)]["y"])
-        cells = " ".join(f"{best[(name, row_set)]:>11.2f}" for name in checkouts)
+        cells = " ".join(f"{best[(name, row_set)]:>15.2f}" for name in checkouts)
         ratios = " ".join(f"{name} {best[(name, row_set)] / best[('this', row_set)]:.1f}x" for name in others)
         print(f"{row_set:<13} {n:>5} {cells} {ratios}")
-    print(f"\n{'rows':<13} {'checkout':<8} {'mean err mm':>12} {'median mm':>10} {'<= 2.75 %':>10} {'evals/press':>12}")
+    print(
+        f"\n{'rows':<13} {'checkout':<14} {'mean err mm':>12} {'median mm':>10} {'<= 2.75 %':>10} {'evals/press':>12} "
+        f"{'table/press':>12}"
+    )
     summary = {}
     for row_set in args.row_set:
         for name in checkouts:
@@ -140,8 +171,8 @@ def main(argv: list[str] | None = None) -> int:
             err = np.hypot(*(a["xy_mm"] - a["y"]).T)
             summary[f"{name} {row_set}"] = float(np.mean(err))
             print(
-                f"{row_set:<13} {name:<9} {np.mean(err):>12.4f} {np.median(err):>10.4f} {100 * np.mean(err <= 2.75):>10.2f} "
-                f"{float(a['evals']) / len(err):>12.0f}"
+                f"{row_set:<13} {name:<14} {np.mean(err):>12.4f} {np.median(err):>10.4f} {100 * np.mean(err <= 2.75):>10.2f} "
+                f"{float(a['evals']) / len(err):>12.1f} {float(a.get('table_rows', 0)) / len(err):>12.1f}"
             )
         for name in others:
             a, b = answers[("this", row_set)], answers[(name, row_set)]
@@ -149,7 +180,8 @@ def main(argv: list[str] | None = None) -> int:
             q = np.quantile(apart, [0.5, 0.9, 0.99, 1.0])
             print(
                 f"{'':<13} apart from {name} (largest coordinate, mm): median {q[0]:.2g}, 90 % {q[1]:.2g}, "
-                f"99 % {q[2]:.2g}, max {q[3]:.2g}"
+                f"99 % {q[2]:.2g}, max {q[3]:.2g}; within 1e-3 mm {100 * np.mean(apart < 1e-3):.1f} %, "
+                f"> 0.1 mm {100 * np.mean(apart > 0.1):.1f} %"
             )
     print(json.dumps(summary))
     return 0

@@ -16,7 +16,8 @@ from a forward model with the `pair_resistance_ohm(x_mm, y_mm, depth_mm)` signat
    the gain ratio, bounds by an active set, a secant estimate of the large residuals' curvature
    (NL2SOL), and starts of one press that meet merged; a row stops once its proposed step is under
    the tolerance (`method="reference"` is the solver before issue 27, `invref.refine_reference`, kept to
-   test against; docs/baselines.md has the figures).
+   test against; docs/baselines.md has the figures). `method="surrogate"` (`invpolish`, not the default) runs the
+   same search on a cached spline table of the model and polishes each winner on the model.
 
 Parameters are kept inside the skin's bounds and a depth range. The cost is reported like a
 learned model's (fit time 0, predict time per press).
@@ -53,6 +54,7 @@ class InversionResult:
     n_iterations: int
     n_model_evaluations: int  # rows through the model; a value with its analytic Jacobian counts one
     time_s: float
+    n_surrogate_evaluations: int = 0  # rows through the surrogate table (method="surrogate"), not the model
 
 
 def _sqrt_threshold(limit: float) -> float:
@@ -240,9 +242,17 @@ def skin_inversion(
     deformation: the forward model's pinch: "parametric" (default; `SkinModel`'s parametric pinch, whatever skin
     made the data) or "fe-kernel" (the packaged or cached finite-element pinch kernel of this layout and probe,
     the dry run's; never solved here: FileNotFoundError names the command that makes it). On paper dry runs the
-    kernel fits lower residuals but worse positions (docs/baselines.md), so it is not the default."""
+    kernel fits lower residuals but worse positions (docs/baselines.md), so it is not the default.
+    method (in kwargs): "batched" (default), "reference", or "surrogate": both passes' search on a spline table of
+    the model (`invtable`, cached per skin model in the user cache) and each winner polished on the model
+    (`invpolish.surrogate_inversion`, which takes its own options: polish, table_step_mm, table_depths, cache).
+    On paper dry runs ~1.3x faster than "batched" with the table cached, but ~4 % of the positions move (docs/
+    baselines.md, issue 27's seventh round), so it is not the default."""
     from neatskin.skin.model import DEFORMATIONS, SkinModel
 
+    method = kwargs.pop("method", "batched")
+    if method not in ("batched", "reference", "surrogate"):
+        raise ValueError(f"method must be 'batched', 'reference' or 'surrogate', got {method!r}")
     if deformation not in DEFORMATIONS:
         raise ValueError(f"deformation must be one of {DEFORMATIONS}, got {deformation!r}")
     kernel = None
@@ -255,6 +265,22 @@ def skin_inversion(
     x0, y0, x1, y1 = layout.bounds_mm
     r = margin_mm
     bounds = (x0 - r, y0 - r, x1 + r, y1 + r)
+    if method == "surrogate":
+        from neatskin.baselines.invpolish import surrogate_inversion
+
+        return surrogate_inversion(
+            skin,
+            dr_ohm,
+            bounds,
+            depth,
+            lambda s, **kw: _two_passes(s, dr_ohm, bounds, depth, retry_residual_factor, retry_race, **kw),
+            **kwargs,
+        )
+    return _two_passes(skin, dr_ohm, bounds, depth, retry_residual_factor, retry_race, method=method, **kwargs)
+
+
+def _two_passes(skin, dr_ohm, bounds, depth, retry_residual_factor, retry_race, **kwargs) -> InversionResult:
+    """skin_inversion's first pass and second pass (the presses whose residual is high, from more starts)."""
     first = invert_presses(skin, dr_ohm, bounds, depth, **kwargs)
     if retry_residual_factor is None or len(first.residual_ohm) == 0:
         return first

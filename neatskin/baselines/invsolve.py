@@ -52,6 +52,13 @@ def model_drj(skin, baseline_ohm: np.ndarray, p: np.ndarray) -> tuple[np.ndarray
     return np.where(np.isfinite(out), out, BIG_OHM), jac
 
 
+def model_drjh(skin, baseline_ohm: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """dR (m, pairs), its Jacobian (m, pairs, 3) and Hessian (m, pairs, 3, 3) from a skin that gives all three
+    (`pair_resistance_jacobian_hessian`: the surrogate, `invtable.TableSkin`), in one call."""
+    resistance, jac, hess = skin.pair_resistance_jacobian_hessian(p)
+    return resistance - baseline_ohm, jac, hess
+
+
 def jacobian(skin, baseline, pa, model_a, step_mm, hi, columns) -> np.ndarray:
     """d(dR)/d(x, y, depth) (m, pairs, 3) by forward differences at pa, stepping inward at the upper bound;
     model_a is the model's dR at pa. columns (m, 3) bool: only those offsets are evaluated (one model call
@@ -68,7 +75,22 @@ def jacobian(skin, baseline, pa, model_a, step_mm, hi, columns) -> np.ndarray:
 
 
 def refine(
-    skin, baseline, p, r, cost, dr, lo, hi, max_iterations, step_mm, tolerance_mm, n_start=1, race=None, ceiling=None
+    skin,
+    baseline,
+    p,
+    r,
+    cost,
+    dr,
+    lo,
+    hi,
+    max_iterations,
+    step_mm,
+    tolerance_mm,
+    n_start=1,
+    race=None,
+    ceiling=None,
+    jac0=None,
+    curvature0=None,
 ):
     """Bounded Levenberg-Marquardt over every (press, start) row at once, with a secant estimate of the
     residual's curvature (method="batched", the default).
@@ -91,7 +113,12 @@ def refine(
     - the damping follows the gain ratio (Nielsen's rule: x max(1/3, 1 - (2 rho - 1)^3) on success, x 2, 4, 8 ...
       on failure) instead of /10 and x10, which alternated between a rejected and an accepted step.
     race: (steps, factor, progress) or None: after `steps` steps the rows that lose and no longer descend stop
-    (`drop_losers`, against ceiling too; descending: a cost under progress times the cost halfway through). Updates p, r, cost in place; returns (cost, iterations, model evaluations)."""
+    (`drop_losers`, against ceiling too; descending: a cost under progress times the cost halfway through).
+    A skin with `pair_resistance_jacobian_hessian` (the surrogate, `invtable.TableSkin`) gives every trial its
+    Hessian too: S is then the exact sum_i r_i d2r_i at every accepted point, not the secant estimate.
+    jac0 (n, pairs, 3): the Jacobians at p, already known (no model call for them; NaN rows are differenced);
+    curvature0 (n, 3, 3): a first S (else zero: Gauss-Newton until the first secant update).
+    Updates p, r, cost in place; returns (cost, iterations, model evaluations)."""
     n = len(p)
     damping = np.full(n, 1e-3)
     growth = np.full(n, 2.0)
@@ -114,19 +141,31 @@ def refine(
     # the skin's own Jacobian where it has one: every trial step's model call gives its Jacobian too, so an accepted
     # step needs no forward differences (rows it cannot give, a channel shut, are differenced)
     analytic = bool(getattr(skin, "has_analytic_jacobian", False))
+    exact = hasattr(skin, "pair_resistance_jacobian_hessian")
 
-    def take(rows, jac_rows):
-        """Fresh Jacobians for `rows`: J'J, J'r and, after a step, the secant update."""
+    def take(rows, jac_rows, hess_rows=None):
+        """Fresh Jacobians for `rows`: J'J, J'r and, after a step, the secant update (or the exact S)."""
         jac[rows] = jac_rows
         jtj[rows] = np.einsum("mpa,mpb->mab", jac_rows, jac_rows)
         jtr[rows] = np.einsum("mpa,mp->ma", jac_rows, r[rows])
         stale[rows] = False
         partial[rows] = skip[rows].any(axis=1)
+        if hess_rows is not None:
+            curvature[rows] = np.einsum("mp,mpab->mab", r[rows], hess_rows)
+            use_secant[rows] = True
+            return
         upd = rows[has_step[rows]]
         if upd.size:
             curvature[upd] = secant_update(
                 curvature[upd], moved_by[upd], jtr[upd] - old_jtr[upd], jtr[upd] - old_jac_new_r[upd]
             )
+
+    if curvature0 is not None:
+        curvature[:] = curvature0
+        use_secant[:] = True
+    if jac0 is not None:
+        known = np.flatnonzero(np.all(np.isfinite(jac0), axis=(1, 2)))
+        take(known, jac0[known])
 
     evaluations = 0
     iteration = 0
@@ -141,6 +180,11 @@ def refine(
         if idx.size == 0:
             break
         need = idx[stale[idx]]
+        if need.size and exact:  # the surrogate: its Hessian too
+            _, fresh, hess = model_drjh(skin, baseline, p[need])
+            evaluations += len(need)
+            take(need, fresh, hess)
+            need = need[:0]
         if need.size and analytic:  # the starts (their values are the grid's), and nothing else but shut rows
             _, fresh = model_drj(skin, baseline, p[need])
             evaluations += len(need)
@@ -181,7 +225,10 @@ def refine(
         curv = curvature[idx]
         if idx.size == 0:
             continue
-        if analytic:
+        if exact:
+            r_new, jac_new, hess_new = model_drjh(skin, baseline, candidate)
+            r_new -= dr[idx]
+        elif analytic:
             r_new, jac_new = model_drj(skin, baseline, candidate)
             r_new -= dr[idx]
         else:
@@ -203,7 +250,9 @@ def refine(
         gain = np.where(np.isfinite(gain), gain, 1.0)
         p[good], r[good], cost[good] = candidate[better], r_new[better], cost_new[better]
         stale[good] = True
-        if analytic:  # the trial's own Jacobian, whole: nothing held over
+        if exact:
+            take(good, jac_new[better], hess_new[better])
+        elif analytic:  # the trial's own Jacobian, whole: nothing held over
             known = np.all(np.isfinite(jac_new[better]), axis=(1, 2))
             take(good[known], jac_new[better][known])
         else:
