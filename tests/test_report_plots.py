@@ -254,7 +254,7 @@ def test_the_flag_column_and_the_text_agree_on_what_is_memorisation():
 def test_the_papers_figure_is_drawn_on_both_readings_of_its_test_set_and_not_on_new_positions():
     from neatskin.baselines.evaluate import ModelResult
     from neatskin.baselines.metrics import position_errors
-    from neatskin.baselines.report import results_table
+    from neatskin.baselines.resultstable import results_table
 
     truth = np.zeros((66, 2))
     results = [
