@@ -26,12 +26,10 @@ import pandas as pd
 
 from neatskin.baselines.dataset import BaselineData, load_baseline_data
 from neatskin.baselines.evaluate import (
-    SPLITS,
     BaselineWarning,
     ModelResult,
     collect_results,
     fit_tasks,
-    repeat_splits,
     result_from_predictions,
 )
 from neatskin.baselines.floortext import Floors, bound_spread_mm, comparable, read_floors, skin_extent_mm
@@ -49,6 +47,7 @@ from neatskin.baselines.models import (
 )
 from neatskin.baselines.reporttext import markdown_report
 from neatskin.baselines.resultstable import BOUND_COLUMNS, bound_rms_mm, result_warnings, results_table
+from neatskin.baselines.splits import SPLITS, repeat_splits
 from neatskin.baselines.tasks import Task, run_tasks
 from neatskin.errors import ConfigError, DataError
 

@@ -16,8 +16,8 @@ import numpy as np
 import pandas as pd
 
 from neatskin.baselines.dataset import PHYSICAL_LIMIT_NAME, BaselineData
-from neatskin.baselines.evaluate import DESIGN_POSITIONS, DESIGN_PRESSES, PAPER_FRACTIONS
 from neatskin.baselines.floortext import RATIO_COLUMNS, Floors, floors_section, ratio_note, uncompared_ratios
+from neatskin.baselines.splits import DESIGN_POSITIONS, DESIGN_PRESSES, PAPER_FRACTIONS
 
 SPLIT_TEXT = {
     "grouped": "k-fold over positions: no test position is in training. The honest error for a press at a "
