@@ -6,6 +6,6 @@ receive ring, line numbers, checksums, resends, the command queue), clock (virtu
 faults, scripted (scripted serial peers for tests), daq (the simulated DAQ sampling a skin),
 noise (its imperfections), moments (the features path's statistics), recorder (the dry probe and
 recorder), deferred (a press whose estimates come later), skinworker (those estimates in a second
-process), dryscene (the dry run's skin, probe, DAQ and per-press conditions, built from the DryScene the
+process), pressestimator (what that process computes per press), dryscene (the dry run's skin, probe, DAQ and per-press conditions, built from the DryScene the
 rig hands over), cli (`neatskin sim printer`). Uses skin, gcode and acquisition; never rig.
 """
