@@ -246,7 +246,7 @@ def test_only_the_grouped_split_hands_positions_to_the_lm(monkeypatch):
 
 
 def test_bold_only_when_the_interval_beats_every_honest_competitor():
-    from neatskin.baselines.reporttext import bold_winners
+    from neatskin.baselines.tabletext import bold_winners
 
     t = pd.DataFrame(
         {

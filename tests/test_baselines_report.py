@@ -13,8 +13,8 @@ from neatskin.baselines.dataset import load_baseline_data
 from neatskin.baselines.evaluate import evaluate_model
 from neatskin.baselines.models import MODEL_NAMES, make_model, make_models
 from neatskin.baselines.report import run_baselines
-from neatskin.baselines.reporttext import sig3
 from neatskin.baselines.summary import report_summary
+from neatskin.baselines.tabletext import sig3
 from neatskin.cli import main
 from neatskin.errors import ConfigError, DataError
 from neatskin.layout import load_layout

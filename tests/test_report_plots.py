@@ -21,7 +21,8 @@ from neatskin.baselines.plots import (
     plot_error_ellipses,
 )
 from neatskin.baselines.report import run_baselines
-from neatskin.baselines.reporttext import _bound_text, flag_text, sig3
+from neatskin.baselines.reporttext import _bound_text
+from neatskin.baselines.tabletext import flag_text, sig3
 from neatskin.layout import load_layout
 from neatskin.tomlfile import resolve_path
 
