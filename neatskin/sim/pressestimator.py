@@ -13,7 +13,8 @@ from typing import Any
 from neatskin.acquisition.estimates import PairEstimates
 from neatskin.acquisition.pressvalues import PressValues, press_values
 from neatskin.sim.deferred import Estimated, EstimateJob
-from neatskin.sim.recorder import PRESS_SLOT_S, DryProbe, features_estimates
+from neatskin.sim.dryprobe import DryProbe
+from neatskin.sim.recorder import PRESS_SLOT_S, features_estimates
 
 
 class PressEstimator:
