@@ -38,7 +38,7 @@ from neatskin.baselines.lm import LMNetworkRegressor
 from neatskin.gcode.positions import PositionSpec, generate_positions
 from neatskin.layout import load_layout
 from neatskin.sim.daq import NoiseModel
-from neatskin.sim.recorder import skin_frame
+from neatskin.sim.dryprobe import skin_frame
 from neatskin.sim.scene import PAPER_LIKE
 from neatskin.skin.kernel import KernelSpec, load_kernel
 from neatskin.skin.model import SkinModel

@@ -1,9 +1,10 @@
-"""Skin layouts as data: junctions, channels, electrodes, the electrode pairs S and their symmetry classes.
+"""The skin layout value type: a channel network validated as a whole, its derived arrays, and reading it from TOML.
 
 A layout is a frozen value loaded from TOML (see protocols/skins/paper.toml) and validated
 at construction: an invalid layout cannot exist in memory. Nothing here knows that the
 paper's skin has 8 electrodes or 12 channels; pairs, faces (the quadrants between channels)
-and symmetry classes are all derived from the data.
+and symmetry classes are all derived from the data (the parts and the planar-graph geometry
+behind faces and symmetries are `neatskin.layoutgraph`'s).
 
 Every component takes a Layout as an argument; it is the shared value type of the toolkit.
 """
@@ -18,58 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
+from neatskin import layoutgraph
 from neatskin.config.files import ChannelDefaultsTable, LayoutFile, SkinTable
 from neatskin.errors import ConfigError, Problem
+from neatskin.layoutgraph import Channel, Electrode, ElectrodePair, Junction  # re-exported: callers import them here
 
-_GEOMETRY_TOL_MM = 1e-6
-
-
-@dataclass(frozen=True)
-class Junction:
-    name: str
-    x_mm: float
-    y_mm: float
-
-
-@dataclass(frozen=True)
-class Channel:
-    """A straight fluid channel between two junctions (indices into Layout.junctions)."""
-
-    name: str
-    a: int
-    b: int
-    length_mm: float
-    width_mm: float
-    height_mm: float
-
-    @property
-    def area_mm2(self) -> float:
-        return self.width_mm * self.height_mm
-
-
-@dataclass(frozen=True)
-class Electrode:
-    number: int
-    junction: int
-
-
-@dataclass(frozen=True, order=True)
-class ElectrodePair:
-    """An unordered electrode pair (i < j), by electrode number."""
-
-    i: int
-    j: int
-
-    def __post_init__(self) -> None:
-        if not self.i < self.j:
-            raise ValueError(f"an electrode pair needs i < j, got ({self.i}, {self.j})")
-
-    @property
-    def label(self) -> str:
-        return f"{self.i}-{self.j}"
-
-    def __str__(self) -> str:
-        return f"({self.i},{self.j})"
+__all__ = ["Channel", "Electrode", "ElectrodePair", "Junction", "Layout", "layout_from_dict", "load_layout"]
 
 
 @dataclass(frozen=True)
@@ -167,29 +122,18 @@ class Layout:
     @cached_property
     def faces(self) -> tuple[tuple[int, ...], ...]:
         """Bounded faces of the planar channel network (the 'quadrants'), as CCW junction cycles."""
-        return _bounded_faces(self.xy_mm, self.channel_ends)
+        return layoutgraph.bounded_faces(self.xy_mm, self.channel_ends)
 
     @cached_property
     def symmetries(self) -> tuple[dict[int, int], ...]:
         """Isometries of the layout (rotations and reflections about the junction centroid),
         each as a map electrode number -> electrode number. The identity is first."""
-        return _symmetries(self)
+        return layoutgraph.symmetries(self.xy_mm, self.channels, self.electrodes)
 
     @cached_property
     def pair_classes(self) -> tuple[tuple[ElectrodePair, ...], ...]:
         """Orbits of S under the layout's symmetries; each class sorted, classes by first pair."""
-        seen: set[ElectrodePair] = set()
-        classes = []
-        for pair in self.pairs:
-            if pair in seen:
-                continue
-            orbit = set()
-            for sym in self.symmetries:
-                a, b = sorted((sym[pair.i], sym[pair.j]))
-                orbit.add(ElectrodePair(a, b))
-            seen |= orbit
-            classes.append(tuple(sorted(orbit)))
-        return tuple(classes)
+        return layoutgraph.pair_classes(self.pairs, self.symmetries)
 
     def pair_class_representatives(self) -> tuple[ElectrodePair, ...]:
         return tuple(c[0] for c in self.pair_classes)
@@ -415,85 +359,3 @@ def _validate(layout: Layout) -> list[Problem]:
             "add channels so every junction is reachable, or remove the stray junctions",
         )
     return problems
-
-
-# ---- planar faces ------------------------------------------------------------------------
-
-
-def _bounded_faces(xy: np.ndarray, ends: np.ndarray) -> tuple[tuple[int, ...], ...]:
-    """Trace the faces of a straight-line planar embedding; keep those with positive (CCW) area."""
-    neighbours: dict[int, list[int]] = {}
-    for a, b in ends:
-        neighbours.setdefault(int(a), []).append(int(b))
-        neighbours.setdefault(int(b), []).append(int(a))
-    for u, nbrs in neighbours.items():
-        nbrs.sort(key=lambda v: math.atan2(xy[v, 1] - xy[u, 1], xy[v, 0] - xy[u, 0]))
-    visited: set[tuple[int, int]] = set()
-    faces = []
-    for a, b in ends:
-        for start in ((int(a), int(b)), (int(b), int(a))):
-            if start in visited:
-                continue
-            cycle = []
-            u, v = start
-            while (u, v) not in visited:
-                visited.add((u, v))
-                cycle.append(u)
-                nbrs = neighbours[v]
-                # next edge: the neighbour of v just clockwise of u (previous in CCW order)
-                w = nbrs[(nbrs.index(u) - 1) % len(nbrs)]
-                u, v = v, w
-            pts = xy[cycle]
-            area = 0.5 * float(np.sum(pts[:, 0] * np.roll(pts[:, 1], -1) - np.roll(pts[:, 0], -1) * pts[:, 1]))
-            if area > _GEOMETRY_TOL_MM:
-                faces.append(tuple(cycle))
-    return tuple(sorted(faces, key=lambda f: (float(xy[list(f), 1].mean()), float(xy[list(f), 0].mean()))))
-
-
-# ---- symmetries --------------------------------------------------------------------------
-
-
-def _symmetries(layout: Layout) -> tuple[dict[int, int], ...]:
-    xy = layout.xy_mm
-    centre = xy.mean(axis=0)
-    rel = xy - centre
-    radius = np.hypot(rel[:, 0], rel[:, 1])
-    angle = np.arctan2(rel[:, 1], rel[:, 0])
-    scale = max(float(radius.max()), 1.0)
-    tol = 1e-6 * scale
-    # candidate transforms: map the farthest junction onto every junction at the same radius
-    ref = int(np.argmax(radius))
-    candidates = []
-    for k in np.flatnonzero(np.abs(radius - radius[ref]) < tol):
-        theta = angle[k] - angle[ref]
-        c, s = math.cos(theta), math.sin(theta)
-        candidates.append(np.array([[c, -s], [s, c]]))
-        phi = angle[k] + angle[ref]  # reflection about the line at angle phi/2
-        c2, s2 = math.cos(phi), math.sin(phi)
-        candidates.append(np.array([[c2, s2], [s2, -c2]]))
-    channel_keys = {
-        frozenset((ch.a, ch.b)): (round(ch.width_mm, 9), round(ch.height_mm, 9), round(ch.length_mm, 9))
-        for ch in layout.channels
-    }
-    electrode_of = {e.junction: e.number for e in layout.electrodes}
-    found: list[dict[int, int]] = []
-    for matrix in candidates:
-        mapped = rel @ matrix.T
-        dist = np.linalg.norm(mapped[:, None, :] - rel[None, :, :], axis=2)
-        image = dist.argmin(axis=1)
-        if np.any(dist[np.arange(len(rel)), image] > tol) or len(set(image.tolist())) != len(rel):
-            continue
-        ok = all(
-            channel_keys.get(frozenset((int(image[a]), int(image[b])))) == props
-            for (a, b), props in ((tuple(k), v) for k, v in channel_keys.items())
-        )
-        if not ok:
-            continue
-        if any(int(image[j]) not in electrode_of for j in electrode_of):
-            continue
-        perm = {num: electrode_of[int(image[j])] for j, num in electrode_of.items()}
-        if perm not in found:
-            found.append(perm)
-    identity = {e.number: e.number for e in layout.electrodes}
-    found = [identity] + [p for p in found if p != identity]
-    return tuple(found)

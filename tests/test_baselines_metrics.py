@@ -6,8 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from neatskin.baselines.crb import cramer_rao_bound_mm
-from neatskin.baselines.evaluate import grouped_folds, paper_split, split_folds
 from neatskin.baselines.metrics import error_ellipses, position_errors
+from neatskin.baselines.splits import grouped_folds, paper_split, split_folds
 from neatskin.errors import DataError
 
 

@@ -8,15 +8,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from neatskin.baselines.evaluate import (
-    BaselineWarning,
-    design_split,
-    repeat_splits,
-)
+from neatskin.baselines.evaluate import BaselineWarning
 from neatskin.baselines.inversion import skin_inversion
 from neatskin.baselines.lm import LMNetworkRegressor
 from neatskin.baselines.metrics import interval95, position_errors, summarise_repeats
 from neatskin.baselines.report import run_baselines
+from neatskin.baselines.splits import design_split, repeat_splits
 from neatskin.cli import main
 from neatskin.errors import DataError
 from neatskin.layout import load_layout
@@ -249,7 +246,7 @@ def test_only_the_grouped_split_hands_positions_to_the_lm(monkeypatch):
 
 
 def test_bold_only_when_the_interval_beats_every_honest_competitor():
-    from neatskin.baselines.reporttext import bold_winners
+    from neatskin.baselines.tabletext import bold_winners
 
     t = pd.DataFrame(
         {

@@ -13,8 +13,8 @@ from neatskin.baselines.dataset import load_baseline_data
 from neatskin.baselines.evaluate import evaluate_model
 from neatskin.baselines.models import MODEL_NAMES, make_model, make_models
 from neatskin.baselines.report import run_baselines
-from neatskin.baselines.reporttext import sig3
 from neatskin.baselines.summary import report_summary
+from neatskin.baselines.tabletext import sig3
 from neatskin.cli import main
 from neatskin.errors import ConfigError, DataError
 from neatskin.layout import load_layout
@@ -287,7 +287,7 @@ def smoke_dry_run(tmp_path_factory):
 
 
 def test_on_a_dry_run_dataset_the_grouped_folds_keep_positions_apart(smoke_dry_run):
-    from neatskin.baselines.evaluate import grouped_folds
+    from neatskin.baselines.splits import grouped_folds
 
     data = load_baseline_data(smoke_dry_run)
     assert data.X.shape == (12, 28) and data.layout is not None and data.physical_limit is not None

@@ -6,8 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from neatskin.baselines.evaluate import Repeat, even_draw, fit_tasks
+from neatskin.baselines.evaluate import even_draw, fit_tasks
 from neatskin.baselines.models import TRAIN_ROW_CAP, make_models
+from neatskin.baselines.splits import Repeat
 
 
 def test_even_draw_takes_every_positions_kth_row_before_any_k_plus_first():

@@ -11,9 +11,9 @@ from hypothesis import strategies as st
 from neatskin.gcode.calibration import Calibration
 from neatskin.layout import load_layout
 from neatskin.sim.depthtrace import below_runs, z_mm
+from neatskin.sim.dryprobe import DryProbe, PressConditions, _positions_mm, _unique_states
 from neatskin.sim.moments import _sine, _weighted_sin2_sums
 from neatskin.sim.motion import Segment, positions_mm, segment_fraction
-from neatskin.sim.recorder import DryProbe, PressConditions, _positions_mm, _unique_states
 from neatskin.skin.model import SkinModel
 
 SURFACE_Z_MM = 5.5

@@ -77,7 +77,8 @@ def test_the_terminal_gives_the_floors_as_report_md_does():
     """The landing-point bound and the label-noise floors were in report.md only: the terminal's summary gives them
     too, with report.md's figures (sig3)."""
     from neatskin.baselines.floortext import read_floors
-    from neatskin.baselines.report import Report, results_table
+    from neatskin.baselines.report import Report
+    from neatskin.baselines.resultstable import results_table
     from neatskin.baselines.summary import report_summary
 
     n = 10

@@ -21,7 +21,8 @@ from neatskin.baselines.plots import (
     plot_error_ellipses,
 )
 from neatskin.baselines.report import run_baselines
-from neatskin.baselines.reporttext import _bound_text, flag_text, sig3
+from neatskin.baselines.reporttext import _bound_text
+from neatskin.baselines.tabletext import flag_text, sig3
 from neatskin.layout import load_layout
 from neatskin.tomlfile import resolve_path
 
@@ -254,7 +255,7 @@ def test_the_flag_column_and_the_text_agree_on_what_is_memorisation():
 def test_the_papers_figure_is_drawn_on_both_readings_of_its_test_set_and_not_on_new_positions():
     from neatskin.baselines.evaluate import ModelResult
     from neatskin.baselines.metrics import position_errors
-    from neatskin.baselines.report import results_table
+    from neatskin.baselines.resultstable import results_table
 
     truth = np.zeros((66, 2))
     results = [

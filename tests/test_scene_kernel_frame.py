@@ -16,9 +16,9 @@ from neatskin.baselines.dataset import SATURATION_FACTOR, load_baseline_data, sa
 from neatskin.gcode.calibration import Calibration
 from neatskin.layout import load_layout
 from neatskin.sim.daq import NoiseModel, SimulatedDAQ
+from neatskin.sim.dryprobe import DryProbe, skin_frame
 from neatskin.sim.dryscene import DryScene, dry_skin, frame_error
 from neatskin.sim.motion import Segment
-from neatskin.sim.recorder import DryProbe, skin_frame
 from neatskin.sim.scene import Scene
 from neatskin.skin.model import SkinModel
 

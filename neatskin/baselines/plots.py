@@ -104,7 +104,7 @@ def error_vs_time_figure(
     fig, axes = plt.subplots(1, len(splits), figsize=(max(5.0 * len(splits), 9.0), 5.2), squeeze=False, sharey=True)
 
     flagged = set()
-    if table is not None and "below_bound" in table.columns:  # the report's one rule (report.results_table)
+    if table is not None and "below_bound" in table.columns:  # the report's one rule (resultstable.results_table)
         flagged = {(m, sp) for m, sp, b in zip(table["model"], table["split"], table["below_bound"]) if b}
 
     def memorised(r: ModelResult) -> bool:

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from neatskin.baselines.reporttext import sig3
+from neatskin.baselines.tabletext import sig3
 
 if TYPE_CHECKING:
     from neatskin.baselines.report import Report

@@ -20,9 +20,10 @@ from neatskin.acquisition.sequence import Sweep
 from neatskin.gcode.calibration import Calibration
 from neatskin.layout import Layout
 from neatskin.sim.daq import NoiseModel, SimulatedDAQ
-from neatskin.sim.recorder import STREAM_DEPTH, STREAM_PLACEMENT, DryProbe, PressConditions
+from neatskin.sim.dryprobe import DryProbe, PressConditions
+from neatskin.sim.pressestimator import PressEstimator
+from neatskin.sim.recorder import STREAM_DEPTH, STREAM_PLACEMENT
 from neatskin.sim.scene import Scene
-from neatskin.sim.skinworker import PressEstimator
 from neatskin.skin.model import SkinModel, placement_error_mm
 from neatskin.skin.variability import Relaxation, drift_resistivity_factor, fabrication_heights
 

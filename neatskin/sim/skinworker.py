@@ -5,8 +5,9 @@ The main process holds one GIL for the driver, the simulated printer and the run
 evaluation is arithmetic that threads cannot share. So the features scene's estimates (`features_estimates`,
 the same function the inline recorder calls, on the same random stream keyed by (seed, press_id)) run in a
 `multiprocessing` spawn process (never fork: the main process has threads), fed one `EstimateJob` per press
-(the press's moves on its own clock) and answering in the order it was fed. The FSR trace is not deferred:
-the runner's retry decision needs the label before the next press.
+(the press's moves on its own clock) and answering in the order it was fed. This module carries the jobs and
+answers and knows no skin: the estimator the worker builds is `sim.pressestimator.PressEstimator`. The FSR trace
+is not deferred: the runner's retry decision needs the label before the next press.
 
 The worker ignores SIGINT, SIGTERM and SIGHUP (they reach the whole process group; the main process stops cleanly
 and then closes the worker), and it exits by itself when the main process goes away (EOF on its pipe). Every wait on it
@@ -32,10 +33,9 @@ from typing import Any, Protocol
 
 from neatskin import stopsignals
 from neatskin.acquisition.estimates import PairEstimates
-from neatskin.acquisition.pressvalues import PressValues, press_values
+from neatskin.acquisition.pressvalues import PressValues
 from neatskin.errors import ConfigError, HardwareError
 from neatskin.sim.deferred import Estimated, EstimateJob
-from neatskin.sim.recorder import PRESS_SLOT_S, DryProbe, features_estimates
 
 log = logging.getLogger(__name__)
 
@@ -54,45 +54,6 @@ class EstimatorFactory(Protocol):
     """Builds the worker's Estimator in the worker; picklable (a module-level function, or a partial of one)."""
 
     def __call__(self) -> Estimator: ...
-
-
-class PressEstimator:
-    """The worker's side: a probe with no printer (it is given each press's moves), the simulated DAQ reading it;
-    for a job with marks, also the row's per-pair values (`pair_labels`: the layout's pairs, which name the flags)."""
-
-    def __init__(
-        self,
-        daq: Any,
-        sweep: Any,
-        probe: DryProbe,
-        *,
-        seed: int,
-        method: str,
-        window: int,
-        pair_labels: tuple[str, ...] | None = None,
-    ) -> None:
-        self.daq, self.sweep, self.probe = daq, sweep, probe
-        self.seed, self.method, self.window = seed, method, window
-        self.pair_labels = pair_labels
-
-    def __call__(self, job: EstimateJob) -> PairEstimates | Estimated | PressValues:
-        estimates = self._estimates(job)
-        if job.marks is None or self.pair_labels is None:
-            return estimates
-        values = press_values(estimates, job.marks, self.pair_labels)
-        return values if job.values_only else Estimated(estimates, values)
-
-    def _estimates(self, job: EstimateJob) -> PairEstimates:
-        self.probe.load_segments(job.press_id, list(job.segments), job.press_id * PRESS_SLOT_S)
-        return features_estimates(
-            self.daq,
-            self.sweep,
-            job.press_id,
-            job.n_sweeps,
-            seed=self.seed,
-            method=self.method,
-            window=self.window,
-        )
 
 
 class SkinWorker:
