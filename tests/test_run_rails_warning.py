@@ -137,3 +137,70 @@ def test_the_forecast_child_prints_the_line_or_nothing(tmp_path):
     bad.write_text((tmp_path / "protocols" / "paper.toml").read_text().replace("depth_mm = 3.5", "depth_mm = -1"))
     refused = subprocess.run([*child, str(bad)], capture_output=True, text=True, timeout=120)
     assert refused.returncode == 3 and "depth_mm" in refused.stderr and refused.stdout == ""
+
+
+@pytest.mark.timeout(300)
+def test_a_refused_current_gets_the_same_fix_from_run_as_from_check(tmp_path):
+    """1 mA passes the rails undeformed: `campaign run` refuses it (exit 3, before anything starts) with `campaign
+    check`'s fix and its pressed figures (exit 1), not the bare 0.925 mA that would clip 44.5 % of the presses."""
+    path = _paper_at(tmp_path, "0.001")
+    runs = [
+        subprocess.run([sys.executable, "-m", "neatskin", *args], capture_output=True, text=True, timeout=240)
+        for args in (("campaign", "check", str(path)), ("campaign", "run", str(path), "--dry-run", "-o", "run"))
+    ]
+    check, run = runs
+    assert (check.returncode, run.returncode) == (1, 3), (check.stderr, run.stderr)
+    assert run.stderr == check.stderr and run.stdout == ""
+    assert "lower amplitude_a to 0.2 mA (the default: pressed" in run.stderr and "44.5 %" in run.stderr
+    assert not (tmp_path / "run").exists()
+
+
+def test_the_forecast_child_does_not_solve_a_missing_pinch_kernel(tmp_path, monkeypatch):
+    """A probe with no kernel packaged or cached (6 mm): the real run's child says so (exit 5) instead of solving it
+    (minutes before any motion); the cache stays empty."""
+    path = _paper_at(tmp_path, "0.0005")
+    path.write_text(path.read_text().replace("probe_diameter_mm = 5.5", "probe_diameter_mm = 6.0"))
+    monkeypatch.setenv("NEATSKIN_CACHE", str(tmp_path / "cache"))
+    child = subprocess.run(
+        [sys.executable, "-m", "neatskin.rig.railcheck", str(path)], capture_output=True, text=True, timeout=120
+    )
+    assert (child.returncode, child.stdout) == (5, ""), child.stderr
+    assert child.stderr.strip() == "no pinch kernel solved yet for this skin and probe"
+    assert not list((tmp_path / "cache").glob("kernels/*.parquet"))
+
+
+def _running(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except FileNotFoundError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.timeout(120)
+def test_the_forecasts_cap_ends_it_with_the_processes_it_started(tmp_path, monkeypatch, capsys):
+    """A forecast past its cap whose own child holds its pipes open (a kernel solve's workers did): the run goes on
+    with the note once the cap passes, and nothing of the forecast is left running."""
+    from types import SimpleNamespace
+
+    from neatskin.rig import cli
+
+    pid_file = tmp_path / "grandchild.pid"
+    script = (
+        "import subprocess, sys, time\n"
+        "g = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(1000)'])\n"
+        f"open({str(pid_file)!r}, 'w').write(str(g.pid))\n"
+        "time.sleep(100)\n"
+    )
+    forecast = subprocess.Popen(
+        [sys.executable, "-c", script],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,  # as cli._start_rails_forecast starts it
+    )
+    monkeypatch.setattr(cli, "RAILS_FORECAST_TIMEOUT_S", 2.0)
+    cli._warn_pressed_rails(SimpleNamespace(path=Path("p.toml")), forecast)
+    assert capsys.readouterr().err.startswith("p.toml: electrical, pressed: not forecast (no answer within 2 s)")
+    grandchild = int(pid_file.read_text())
+    assert not _running(forecast.pid) and not _running(grandchild)

@@ -127,7 +127,15 @@ def _run(args: argparse.Namespace) -> int:
     from neatskin.errors import ConfigError
     from neatskin.rig.protocol import load_protocol
 
-    protocol = load_protocol(args.protocol)
+    try:
+        protocol = load_protocol(args.protocol)
+    except ConfigError as exc:  # a refused current: the fix `campaign check` gives, with its pressed figures
+        from neatskin.rig.railcheck import with_pressed_figures
+
+        problems = with_pressed_figures(args.protocol, exc.problems, solve_kernel=False)
+        if problems == list(exc.problems):
+            raise
+        raise ConfigError(problems=problems) from exc
     if not args.dry_run and not args.port:
         raise ConfigError(
             "choose the rig: --dry-run (simulated, no hardware) or --port PORT (the real printer)",
@@ -181,7 +189,20 @@ def _start_rails_forecast(path: Path):
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        start_new_session=True,  # its own process group: the cap ends it with every process it started
     )
+
+
+def _end_forecast(forecast) -> None:
+    """End the forecast child and whatever it started (a kernel solve's workers hold its pipes open)."""
+    import os
+    import signal
+
+    try:
+        os.killpg(forecast.pid, signal.SIGKILL)  # the group outlives its leader while a worker of it lives
+    except ProcessLookupError:
+        pass
+    forecast.communicate()
 
 
 def _warn_pressed_rails(protocol, forecast=None) -> None:
@@ -197,12 +218,15 @@ def _warn_pressed_rails(protocol, forecast=None) -> None:
     else:
         import subprocess
 
+        answered = False
         try:
             stdout, stderr = forecast.communicate(timeout=RAILS_FORECAST_TIMEOUT_S)
+            answered = True
         except subprocess.TimeoutExpired:
-            forecast.kill()
-            forecast.communicate()
             stdout, stderr = "", f"no answer within {RAILS_FORECAST_TIMEOUT_S:g} s"
+        finally:  # the cap passed, or Ctrl-C (its own session does not get the terminal's): end it with its group
+            if not answered:
+                _end_forecast(forecast)
         if forecast.returncode == 0:
             warning = stdout.strip() or None
         else:

@@ -128,17 +128,20 @@ def _line(protocol: CampaignProtocol, result: PressedRails) -> str:
     return f"electrical, pressed ({_where(protocol)}): {'warning: ' if result.presses_over else ''}{result.summary()}"
 
 
-def with_pressed_figures(path: str | Path, problems: Sequence[Problem]) -> list[Problem]:
-    """`campaign check`'s refusal of a current whose undeformed worst case passes the rails, with the pressed
-    figures at the current it suggests and at DaqConfig's default: the suggestion keeps the undeformed skin (x the
-    press margin) inside the rails, not every pressed reading. Other problems, or a protocol that fails for
-    another reason too, are returned as they are."""
+def with_pressed_figures(path: str | Path, problems: Sequence[Problem], solve_kernel: bool = True) -> list[Problem]:
+    """The refusal (`campaign check`'s and `campaign run`'s) of a current whose undeformed worst case passes the
+    rails, with the pressed figures at the current it suggests and at DaqConfig's default: the suggestion keeps the
+    undeformed skin (x the press margin) inside the rails, not every pressed reading. Other problems, or a protocol
+    that fails for another reason too, are returned as they are; so is the refusal when the figures would first
+    need a pinch kernel solved and not solve_kernel (`campaign run`: minutes before one error line)."""
     refused = [p for p in problems if p.field == "excitation.amplitude_a" and p.message.startswith(CLIP_MESSAGE)]
     if len(refused) != 1 or len(problems) != 1:
         return list(problems)
     default_a = DaqConfig().amplitude_a
     try:
         protocol = load_protocol(path, amplitude_a=default_a)
+        if not solve_kernel and missing_kernel(protocol):
+            return list(problems)
         suggested_a = default_a * protocol.electrical.limit_v / protocol.electrical.peak_v
         r = pressed_resistance_ohm(protocol)
     except ConfigError:
@@ -167,19 +170,43 @@ def _share(result: PressedRails) -> str:
     )
 
 
+def missing_kernel(protocol: CampaignProtocol) -> str | None:
+    """Why the forecast would first have to solve the scene's finite-element pinch kernel (minutes of CPU: a probe
+    or geometry with no kernel packaged or cached), or None. A real run's forecast does not solve it: the run would
+    wait for it before any motion (`campaign check` solves it once and caches it)."""
+    scene = protocol.scene
+    if getattr(scene, "deformation", "parametric") != "fe-kernel" or scene.fidelity != "deformation":
+        return None
+    from neatskin.skin.kernel import KernelSpec, load_kernel
+
+    try:
+        load_kernel(KernelSpec.for_layout(protocol.layout, protocol.press.press.probe_diameter_mm / 2), compute=False)
+    except FileNotFoundError:
+        return "no pinch kernel solved yet for this skin and probe"
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """`python -m neatskin.rig.railcheck PROTOCOL`: the pressed-rails warning line, or nothing (a real `campaign
-    run` asks this child, so that its own process builds no simulator). A bad protocol: its error, exit 3."""
+    run` asks this child, so that its own process builds no simulator). A bad protocol: its error, exit 3; a pinch kernel it would first have to solve: exit 5."""
+    import os
     import sys
 
     from neatskin.errors import ExitCode
+    from neatskin.orphans import end_with_parent
 
+    end_with_parent(os.getppid())  # a run killed outright (or signalled alone) leaves no forecast running
     args = list(sys.argv[1:] if argv is None else argv)
     if len(args) != 1:
         print("usage: python -m neatskin.rig.railcheck PROTOCOL", file=sys.stderr)
         return int(ExitCode.USAGE)
     try:
-        warning = pressed_rails_warning(load_protocol(args[0]))
+        protocol = load_protocol(args[0])
+        missing = missing_kernel(protocol)
+        if missing:
+            print(missing, file=sys.stderr)
+            return int(ExitCode.DATA)
+        warning = pressed_rails_warning(protocol)
     except ConfigError as exc:
         print(str(exc).replace("\n", " "), file=sys.stderr)
         return int(ExitCode.CONFIG)
