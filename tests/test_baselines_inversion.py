@@ -437,3 +437,23 @@ def test_a_row_the_analytic_pass_cannot_give_is_differenced():
     assert np.all(np.isnan(jac[0])) and np.all(np.isfinite(jac[1]))
     res = invert_presses(skin, dr[:1], (0.0, 0.0, 30.0, 30.0), (0.2, 5.2))
     assert np.all(np.isfinite(res.xy_mm)) and np.all(np.isfinite(res.residual_ohm))
+
+
+@pytest.mark.parametrize("value", [np.inf, -np.inf, np.nan])
+def test_a_campaigns_raw_cut_pair_is_refused_with_the_reader_that_saturates_it(value):
+    """A campaign's own rows carry +inf for a cut pair: the inversion names the press and pair and the reader that
+    gives it a finite value, instead of failing later on a NaN position (or, surrogate, a LinAlgError)."""
+    layout = load_layout(PAPER_SKIN)
+    dr = np.zeros((3, len(layout.pairs)))
+    dr[2, 5] = value
+    for method in ("batched", "surrogate"):
+        with pytest.raises(ValueError, match=r"press 2, pair column 5\).*load_baseline_data"):
+            skin_inversion(layout, dr, method=method)
+    with pytest.raises(ValueError, match=r"\(presses, pairs\) array \(shape \(28,\)\)"):
+        skin_inversion(layout, np.zeros(len(layout.pairs)))
+
+
+def test_the_surrogate_refuses_the_fe_kernel_it_was_not_measured_on():
+    layout = load_layout(PAPER_SKIN)
+    with pytest.raises(ValueError, match="parametric pinch only"):
+        skin_inversion(layout, np.zeros((1, len(layout.pairs))), method="surrogate", deformation="fe-kernel")

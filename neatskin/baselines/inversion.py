@@ -255,6 +255,20 @@ def skin_inversion(
         raise ValueError(f"method must be 'batched', 'reference' or 'surrogate', got {method!r}")
     if deformation not in DEFORMATIONS:
         raise ValueError(f"deformation must be one of {DEFORMATIONS}, got {deformation!r}")
+    if method == "surrogate" and deformation != "parametric":
+        raise ValueError(
+            "method='surrogate' is measured on the parametric pinch only: with deformation='fe-kernel' it moved 81 % "
+            "of a paper dry run's positions by more than 0.1 mm; use method='batched' (the default)"
+        )
+    dr_ohm = np.asarray(dr_ohm, dtype=float)
+    if dr_ohm.ndim != 2 or not np.all(np.isfinite(dr_ohm)):
+        bad = np.argwhere(~np.isfinite(np.atleast_2d(dr_ohm)))
+        where = f"press {bad[0][0]}, pair column {bad[0][1]}" if len(bad) else f"shape {dr_ohm.shape}"
+        raise ValueError(
+            f"dr_ohm must be a finite (presses, pairs) array ({where}): a cut pair's dR is +inf in a campaign's "
+            "rows; read them with neatskin.baselines.dataset.load_baseline_data, which gives each one its pair's "
+            "saturation value (or drop those presses)"
+        )
     kernel = None
     if deformation == "fe-kernel":
         from neatskin.skin.kernel import KernelSpec, load_kernel
