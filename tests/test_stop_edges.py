@@ -64,3 +64,33 @@ def test_a_second_stop_signal_stops_at_once_says_so_and_resume_finishes(tmp_path
     result = resume_campaign(folder, progress=False, report=False)
     rows = pd.read_parquet(folder / "presses.parquet")
     assert result.completed == n and len(rows) == n and rows.press_id.is_unique
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("resuming", [False, True])
+def test_a_stop_before_the_press_loop_leaves_no_crashed_folder(tmp_path, monkeypatch, resuming):
+    """Ctrl-C after the rig opened but before the press loop had its writer (the folder's inputs copied, the manifest
+    saying running): a new campaign's folder, which holds no press, goes (it read "crashed": running, no process);
+    a resumed one stays, with its presses, to resume again."""
+    from neatskin.rig import runner
+
+    protocol = load_protocol(make_protocol(tmp_path, *FEATURES))
+    folder = tmp_path / "run"
+    if resuming:
+        run_campaign(protocol, folder, limit=3, report=False, progress=False)
+    before = sorted(p.name for p in (folder / "presses").iterdir()) if resuming else []
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(runner, "CampaignWriter", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        if resuming:
+            resume_campaign(folder, report=False, progress=False)
+        else:
+            run_campaign(protocol, folder, report=False, progress=False)
+    assert folder.exists() == resuming
+    if resuming:
+        assert sorted(p.name for p in (folder / "presses").iterdir()) == before and len(before) == 3
+        manifest = json.loads((folder / "manifest.json").read_text())
+        assert (manifest["status"], manifest["stopped_by"]) == ("interrupted", "KeyboardInterrupt")

@@ -157,6 +157,8 @@ def _run_locked(
         if created:  # a folder that takes no part, or a rig that cannot be opened, leaves nothing behind
             shutil.rmtree(folder, ignore_errors=True)
         raise
+    started = False  # a press loop with its writer: from then on the folder is a campaign's, resumable
+    discard = False
     try:
         refs = copy_inputs(protocol, folder)
         pair_labels = [p.label for p in protocol.layout.pairs]
@@ -184,6 +186,7 @@ def _run_locked(
             known_sha256=known,
             batch_presses=rig.batch_presses,
         )
+        started = True
         try:
             done = writer.completed_press_ids()
             todo = plan.program.presses.excluding(done)  # a view: each block's G-code is made when pressed
@@ -210,8 +213,18 @@ def _run_locked(
             raise
         finally:
             writer.close()
+    except BaseException as exc:
+        # stopped (Ctrl-C) or failed before the press loop had a writer: left as it was the folder read "running"
+        # with no process (crashed). A new one holds no press: it goes, as when the rig cannot be opened; a resumed
+        # one keeps its presses and says it was stopped
+        discard = created and not started
+        if not created and not started:
+            _mark_stopped(folder, exc)
+        raise
     finally:
         rig.close()
+        if discard:
+            shutil.rmtree(folder, ignore_errors=True)
     result = CampaignResult(
         folder,
         plan.n_presses,
@@ -250,6 +263,18 @@ def _mark_stopped_with_parts(folder: Path, exc: BaseException, writer: CampaignW
             parts_sha256=_parts_sha256(read_manifest(folder), writer),
         )
     except Exception as again:  # the disk may still be full; the lock then tells info that nobody runs it
+        log.warning("cannot mark %s interrupted: %s", folder, again)
+
+
+def _mark_stopped(folder: Path, exc: BaseException) -> None:
+    try:
+        update_manifest(
+            folder,
+            status="interrupted",
+            finished_at=utc_now_iso(),
+            stopped_by=str(exc).splitlines()[0] if str(exc) else type(exc).__name__,
+        )
+    except Exception as again:
         log.warning("cannot mark %s interrupted: %s", folder, again)
 
 
