@@ -3,7 +3,6 @@ technician who runs without the check sees it too. A protocol whose current puts
 (the paper protocol at 0.5 mA, the default before the rails were modelled: 58 of its 2800 presses) warns; the paper
 protocol at its 0.2 mA prints nothing of the kind."""
 
-import shutil
 import signal
 import subprocess
 import sys
@@ -11,22 +10,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_electrical_pressed import _paper_at
 
 from neatskin.rig.assembly import daq_config
 from neatskin.rig.protocol import load_protocol
 from neatskin.rig.railcheck import pressed_rails, pressed_rails_warning, pressed_resistance_ohm
 
 PROTOCOLS = Path(__file__).resolve().parent.parent / "protocols"
-
-
-def _paper_at(tmp_path: Path, amplitude: str) -> Path:
-    root = tmp_path / "protocols"
-    shutil.copytree(PROTOCOLS, root, symlinks=False)
-    path = root / "paper.toml"
-    text = path.read_text()
-    assert "amplitude_a = 0.0002 " in text
-    path.write_text(text.replace("amplitude_a = 0.0002 ", f"amplitude_a = {amplitude} "))
-    return path
 
 
 def _neatskin(*args: str) -> str:

@@ -68,6 +68,15 @@ def _sqrt_threshold(limit: float) -> float:
     return t
 
 
+def model_box(skin, bounds_mm, depth_range_mm) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The unpressed skin's pair R (the dR's zero) and the search box's lower and upper (x, y, depth) corners."""
+    baseline = np.asarray(skin.pair_resistance_ohm(0.0, 0.0, 0.0), dtype=float)[0]
+    x0, y0, x1, y1 = bounds_mm
+    lo = np.array([x0, y0, depth_range_mm[0]], dtype=float)
+    hi = np.array([x1, y1, depth_range_mm[1]], dtype=float)
+    return baseline, lo, hi
+
+
 def _diverse_starts(
     grid_xy: np.ndarray,
     grid_dr: np.ndarray,
@@ -163,10 +172,8 @@ def invert_presses(
         raise ValueError(f"method must be 'batched' or 'reference', got {method!r}")
     start_time = time.perf_counter()
     observed = np.asarray(dr_ohm, dtype=float)
-    baseline = np.asarray(skin.pair_resistance_ohm(0.0, 0.0, 0.0), dtype=float)[0]
+    baseline, lo, hi = model_box(skin, bounds_mm, depth_range_mm)
     x0, y0, x1, y1 = bounds_mm
-    lo = np.array([x0, y0, depth_range_mm[0]], dtype=float)
-    hi = np.array([x1, y1, depth_range_mm[1]], dtype=float)
     gx = np.linspace(x0, x1, max(2, int(round((x1 - x0) / grid_step_mm)) + 1))
     gy = np.linspace(y0, y1, max(2, int(round((y1 - y0) / grid_step_mm)) + 1))
     gd = np.linspace(depth_range_mm[0], depth_range_mm[1], max(1, n_grid_depths))

@@ -37,17 +37,14 @@ def surrogate_inversion(
     `skin` to tolerance_mm. polish: "hessian" (S from the table's second derivatives at every step) or "secant"
     (S from the table at the start, then NL2SOL's updates). cache: keep the table in the user cache
     (`invtable.cache_dir`), keyed by the skin model, the grid and the code."""
-    from neatskin.baselines.inversion import InversionResult
+    from neatskin.baselines.inversion import InversionResult, model_box
     from neatskin.baselines.invtable import HybridSkin, TableSkin, cache_dir, hessian, load_table
 
     if polish not in ("hessian", "secant"):
         raise ValueError(f"polish must be 'hessian' or 'secant', got {polish!r}")
     started = time.perf_counter()
     observed = np.asarray(dr_ohm, dtype=float)
-    baseline = np.asarray(skin.pair_resistance_ohm(0.0, 0.0, 0.0), dtype=float)[0]
-    x0, y0, x1, y1 = bounds_mm
-    lo = np.array([x0, y0, depth_range_mm[0]], dtype=float)
-    hi = np.array([x1, y1, depth_range_mm[1]], dtype=float)
+    baseline, lo, hi = model_box(skin, bounds_mm, depth_range_mm)
     table = load_table(skin, baseline, lo, hi, table_step_mm, table_depths, cache_dir() if cache else None)
     surrogate = TableSkin(table, baseline)
     model = HybridSkin(skin, table) if polish == "hessian" else skin
