@@ -26,7 +26,7 @@ def bad(line: bytes) -> bytes:
 # did, on a loaded machine: G28's keep-alives come 2 s apart on the firmware, and a firmware (or relay thread) held
 # off the CPU for a second past the 3 s then allowed cut the answer there and shifted every later one by a line.
 # The replay's max_wait_s still bounds every line: an `ok` that never comes ends the read there, and the
-# comparison of the two transcripts fails on it.
+# comparison of the two transcripts fails on it. A line answered by no `ok` ends its read at its quiet time.
 OK_WAIT_S = math.inf
 SCRIPT: list[tuple[bytes, float]] = [
     (b"M110 N0\n", OK_WAIT_S),
@@ -79,24 +79,32 @@ BEFORE_HOMING: list[tuple[bytes, float]] = [
 ]
 
 
-def busy_factor() -> float:
-    """How many times slower than idle this machine may answer now: the runnable tasks (load average over a
-    minute) per CPU this process may use, at least 1. It stretches the quiet times of lines answered by no `ok`:
-    an answer a loaded machine delays past a fixed quiet time would be read as the next line's."""
-    return max(1.0, os.getloadavg()[0] / len(os.sched_getaffinity(0)))
+def _command(line: bytes) -> bytes:
+    """The command word of a script line (`N17 M112*23` -> `M112`), or b"" for none."""
+    words = line.split(b";")[0].split(b"*")[0].split()
+    if words and words[0].startswith(b"N"):
+        words = words[1:]
+    return words[0].upper() if words else b""
+
+
+# Marlin's last words after M112, on the firmware and the simulator alike: the read of an M112 waits for them (up to
+# max_wait_s) before its quiet time starts, so a loaded machine that delays them cannot push them into the next
+# line's read. No other line answered by no `ok` has an answer to wait for (a comment, M999 while halted).
+HALTED = b"kill() called!"
 
 
 def replay(fd: int, script: list[tuple[bytes, float]] = SCRIPT, max_wait_s: float = 10.0) -> list[tuple[bytes, bytes]]:
-    """(line written, every byte read until its `ok`, or its quiet time times busy_factor) for each entry of the
-    script, each line's read bounded by max_wait_s."""
+    """(line written, every byte read until its `ok`, or until its quiet time passes after an M112's last words or
+    any other answer) for each entry of the script, each line's read bounded by max_wait_s."""
     out = []
     for line, quiet_s in script:
         os.write(fd, line)
         got = b""
         end = time.monotonic() + max_wait_s
-        quiet = quiet_s * busy_factor()
+        halts = _command(line) == b"M112"
         while (left_s := end - time.monotonic()) > 0:
-            ready, _, _ = select.select([fd], [], [], min(quiet, left_s))
+            wait_s = left_s if halts and HALTED not in got else min(quiet_s, left_s)
+            ready, _, _ = select.select([fd], [], [], wait_s)
             if not ready:
                 break
             got += os.read(fd, 4096)

@@ -61,3 +61,26 @@ def test_the_real_firmware_tests_start_first_on_every_worker(monkeypatch):
     )
     # then the longest CPU-bound test, on the worker with less so far (50 s), the next ones on the other (60 s)
     assert second[1] == "t/a.py::long_a" and first[1:3] == ["t/b.py::long_b", "t/c.py::long_c"]
+
+
+def test_the_homing_replays_go_together_to_one_worker_as_one_long_test(monkeypatch):
+    """TOGETHER's tests (the first starts the firmware's side of all of them): contiguous in one block, weighed as
+    the longest of them; a block too small for them leaves them in collection order; every test still once."""
+    group = {name: 60.0 - 10 * k for k, name in enumerate(suite_order.TOGETHER)}
+    hil = {"tests/test_hil.py::test_real_firmware_b": 50.0}
+    monkeypatch.setattr(suite_order, "LONG_S", {**LONG, **group, **hil})
+    ids = [*(f"t/short.py::test_{i}" for i in range(20)), *suite_order.TOGETHER, *hil, *LONG]
+    ordered = long_first(ids, ids, 2)
+    assert sorted(ordered) == sorted(ids)
+    first, second = ordered[:14], ordered[14:]
+    assert first[:3] == list(suite_order.TOGETHER) and second[0] == "tests/test_hil.py::test_real_firmware_b"
+    # 60 s for the three (their longest) against hil's 50 s: the 172 s CPU-bound test goes beside hil
+    assert second[1] == "t/a.py::long_a"
+    few = [*suite_order.TOGETHER, "t/short.py::test_0"]
+    assert long_first(few, few, 2) == few  # blocks of 2: the three fit in neither
+
+
+def test_together_names_the_replays_that_start_together():
+    from test_marlin_real_vs_sim import TOGETHER
+
+    assert tuple(TOGETHER) == suite_order.TOGETHER
