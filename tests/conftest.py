@@ -82,6 +82,31 @@ def paper_layout():
     return load_layout(PROTOCOLS / "skins" / "paper.toml")
 
 
+def _tree_state(folder: Path) -> dict[str, bytes]:
+    """Every file under folder (but Python's byte-code caches), by relative path, with its bytes."""
+    return {
+        str(path.relative_to(folder)): path.read_bytes()
+        for path in sorted(folder.rglob("*"))
+        if path.is_file() and "__pycache__" not in path.parts
+    }
+
+
+@pytest.fixture(scope="session")
+def smoke_reference(tmp_path_factory):
+    """The smoke campaign, uninterrupted, without a report (faults_helpers.make_reference: a `neatskin` child),
+    made once per worker for the test_faults_* modules, which read it or copy it (each module made its own, and
+    again whenever the suite's order came back to it). At the end of the session it must be as it was made: a test
+    that changed it fails here, naming the files."""
+    from faults_helpers import make_reference
+
+    folder = make_reference(tmp_path_factory)
+    made = _tree_state(folder)
+    yield folder
+    now = _tree_state(folder)
+    changed = sorted(name for name in made.keys() | now.keys() if made.get(name) != now.get(name))
+    assert not changed, f"a test changed the shared smoke reference run ({folder}): {changed}"
+
+
 WORKER_PRESSES = 512  # the batching writer's threshold: the smallest campaign that gets a skin worker by default
 
 
