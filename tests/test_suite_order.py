@@ -84,3 +84,20 @@ def test_together_names_the_replays_that_start_together():
     from test_marlin_real_vs_sim import TOGETHER
 
     assert tuple(TOGETHER) == suite_order.TOGETHER
+
+
+def test_no_hypothesis_example_has_a_deadline():
+    """conftest's profile: a deadline is a timed assertion, which a loaded machine fails (as Flaky). Three tests had
+    Hypothesis' default 200 ms, test_marlin_real_settings' property of marlin_float among them."""
+    from hypothesis import settings
+    from test_gcode_parse import test_framed_moves_round_trip
+    from test_marlin_real_settings import test_marlin_float_is_the_32_bit_value_rounded_half_up
+    from test_sim_housekeeping import test_duration_text_reads_back_to_the_seconds
+
+    assert settings.default.deadline is None
+    for test in (
+        test_framed_moves_round_trip,
+        test_marlin_float_is_the_32_bit_value_rounded_half_up,
+        test_duration_text_reads_back_to_the_seconds,
+    ):
+        assert test._hypothesis_internal_use_settings.deadline is None, test.__name__
