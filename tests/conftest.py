@@ -1,17 +1,16 @@
-"""Shared fixtures: the repo's protocol folder and the paper layout; Ctrl-C reaches the tests' children; the real
-firmware runs on one CPU; the suite's start order under xdist."""
+"""Shared fixtures: the repo's protocol folder, the paper layout and the smoke reference run; Ctrl-C reaches the tests'
+children; no Hypothesis deadline; the suite's start order under xdist and the early work it starts (tests/early.py)."""
 
-import os
 import signal
 from pathlib import Path
 
+import early
 import pytest
 import suite_order
 from hypothesis import settings
-from suite_order import long_first
+from suite_order import block_sizes, long_first
 
 from neatskin.layout import load_layout
-from neatskin.sim.realmarlin import FirmwareRelay
 
 REPO = Path(__file__).resolve().parent.parent
 PROTOCOLS = REPO / "protocols"
@@ -31,37 +30,6 @@ settings.register_profile("neatskin-suite", deadline=None)
 settings.load_profile("neatskin-suite")
 
 
-def _firmware_on_one_cpu() -> None:
-    """Every real firmware the tests start (FirmwareRelay) runs on one CPU, the last this process may use. Its HAL
-    spins three threads on sched_yield (about 200,000 switches a second each): unpinned, the firmwares of the tests
-    running at once spread that over both cores and take a share of each from the CPU-bound tests beside them;
-    pinned, the other core is left to those. The firmware's work is tiny (its real-time clock drives it), and its
-    threads are created at boot, before start() returns, so pinning them then covers them all."""
-    cpus = os.sched_getaffinity(0)
-    if len(cpus) < 2:
-        return
-    one = {max(cpus)}
-    start = FirmwareRelay.start
-
-    def start_on_one_cpu(self: FirmwareRelay, *, wait_for_banner: bool = True) -> str:
-        path = start(self, wait_for_banner=wait_for_banner)
-        try:
-            threads = os.listdir(f"/proc/{self._proc.pid}/task") if self._proc is not None else []
-        except OSError:  # it ended already: the test says why
-            threads = []
-        for tid in threads:
-            try:
-                os.sched_setaffinity(int(tid), one)
-            except OSError:  # a thread that ended in between
-                pass
-        return path
-
-    FirmwareRelay.start = start_on_one_cpu  # type: ignore[method-assign]
-
-
-_firmware_on_one_cpu()
-
-
 @pytest.hookimpl(optionalhook=True)
 def pytest_configure_node(node) -> None:
     """xdist's controller tells each worker its scheduling mode (a worker's own `dist` option reads "no")."""
@@ -76,7 +44,18 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     workerinput = getattr(config, "workerinput", None)
     if workerinput is None or workerinput.get("neatskin_dist") != "worksteal":
         return
-    items[:] = long_first(items, [item.nodeid for item in items], int(workerinput["workercount"]))
+    n_workers = int(workerinput["workercount"])
+    items[:] = long_first(items, [item.nodeid for item in items], n_workers)
+    # this worker's first block (worksteal hands block k to worker k): its tests' early work starts now, beside the
+    # real-firmware tests it starts with (tests/early.py)
+    k = int(str(workerinput["workerid"]).removeprefix("gw"))
+    first = sum(block_sizes(len(items), n_workers)[:k])
+    for item in items[first : first + block_sizes(len(items), n_workers)[k]]:
+        early.start(item.nodeid)
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    early.stop()
 
 
 @pytest.fixture(scope="session")

@@ -106,7 +106,7 @@ def assert_same_replies(real: list[tuple[bytes, bytes]], sim: list[tuple[bytes, 
 # the firmware's real-time G28s and uses little CPU, so the first of them to run starts the firmware's replays of
 # all of them selected in this session at once (tests/suite_order.py starts them one after another on one worker):
 # that worker waits about as long as the longest of them, not their sum. Each replay has its own firmware process
-# and pty, as when they ran one at a time; conftest pins every firmware to one CPU.
+# and pty, as when they ran one at a time.
 TOGETHER: dict[str, tuple[Script, float]] = {
     "tests/test_marlin_real_vs_sim.py::test_homing_and_soft_endstops_answer_as_the_real_firmware": (
         HOMING,
