@@ -101,3 +101,19 @@ def test_no_hypothesis_example_has_a_deadline():
         test_duration_text_reads_back_to_the_seconds,
     ):
         assert test._hypothesis_internal_use_settings.deadline is None, test.__name__
+
+
+def test_early_work_runs_in_a_process_of_its_own_and_is_taken_once(monkeypatch):
+    """tests/early.py: the started work's result comes from another process; taken once, then computed here."""
+    import os
+
+    import early
+
+    monkeypatch.setitem(early.WORK, "t/x.py::test_x", ("os", "getpid"))
+    try:
+        early.start("t/x.py::test_x")
+        assert early.result("t/x.py::test_x", os.getpid) != os.getpid()
+        assert early.result("t/x.py::test_x", os.getpid) == os.getpid()
+        assert early.result("t/y.py::test_never_started", lambda: "here") == "here"
+    finally:
+        early.stop()
