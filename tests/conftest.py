@@ -1,10 +1,14 @@
-"""Shared fixtures: the repo's protocol folder and the paper layout; Ctrl-C reaches the tests' children."""
+"""Shared fixtures: the repo's protocol folder, the paper layout and the smoke reference run; Ctrl-C reaches the tests'
+children; no Hypothesis deadline; the suite's start order under xdist and the early work it starts (tests/early.py)."""
 
 import signal
 from pathlib import Path
 
+import early
 import pytest
-from suite_order import long_first
+import suite_order
+from hypothesis import settings
+from suite_order import block_sizes, long_first
 
 from neatskin.layout import load_layout
 
@@ -19,6 +23,12 @@ PROTOCOLS = REPO / "protocols"
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
+# Hypothesis' default deadline (200 ms an example) is a timed assertion: on a loaded machine an example's first run
+# overran it and its replay did not, and the test failed as Flaky. Speed lives in benchmarks/; no example has a
+# deadline (a test's own @settings inherits this, as conftest is imported before the test modules).
+settings.register_profile("neatskin-suite", deadline=None)
+settings.load_profile("neatskin-suite")
+
 
 @pytest.hookimpl(optionalhook=True)
 def pytest_configure_node(node) -> None:
@@ -30,10 +40,22 @@ def pytest_configure_node(node) -> None:
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Under xdist's worksteal (pyproject's addopts), each worker's first block starts with its share of the
     longest tests (tests/suite_order.py). Every worker collects, and so orders, alike."""
+    suite_order.SELECTED = {item.nodeid for item in items}
     workerinput = getattr(config, "workerinput", None)
     if workerinput is None or workerinput.get("neatskin_dist") != "worksteal":
         return
-    items[:] = long_first(items, [item.nodeid for item in items], int(workerinput["workercount"]))
+    n_workers = int(workerinput["workercount"])
+    items[:] = long_first(items, [item.nodeid for item in items], n_workers)
+    # this worker's first block (worksteal hands block k to worker k): its tests' early work starts now, beside the
+    # real-firmware tests it starts with (tests/early.py)
+    k = int(str(workerinput["workerid"]).removeprefix("gw"))
+    first = sum(block_sizes(len(items), n_workers)[:k])
+    for item in items[first : first + block_sizes(len(items), n_workers)[k]]:
+        early.start(item.nodeid)
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    early.stop()
 
 
 @pytest.fixture(scope="session")
@@ -44,6 +66,31 @@ def protocols_dir() -> Path:
 @pytest.fixture(scope="session")
 def paper_layout():
     return load_layout(PROTOCOLS / "skins" / "paper.toml")
+
+
+def _tree_state(folder: Path) -> dict[str, bytes]:
+    """Every file under folder (but Python's byte-code caches), by relative path, with its bytes."""
+    return {
+        str(path.relative_to(folder)): path.read_bytes()
+        for path in sorted(folder.rglob("*"))
+        if path.is_file() and "__pycache__" not in path.parts
+    }
+
+
+@pytest.fixture(scope="session")
+def smoke_reference(tmp_path_factory):
+    """The smoke campaign, uninterrupted, without a report (faults_helpers.make_reference: a `neatskin` child),
+    made once per worker for the test_faults_* modules, which read it or copy it (each module made its own, and
+    again whenever the suite's order came back to it). At the end of the session it must be as it was made: a test
+    that changed it fails here, naming the files."""
+    from faults_helpers import make_reference
+
+    folder = make_reference(tmp_path_factory)
+    made = _tree_state(folder)
+    yield folder
+    now = _tree_state(folder)
+    changed = sorted(name for name in made.keys() | now.keys() if made.get(name) != now.get(name))
+    assert not changed, f"a test changed the shared smoke reference run ({folder}): {changed}"
 
 
 WORKER_PRESSES = 512  # the batching writer's threshold: the smallest campaign that gets a skin worker by default

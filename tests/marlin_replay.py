@@ -1,12 +1,13 @@
 """One command script replayed line by line against any Marlin on a pty: the real firmware or the simulator.
 
 Each entry is written as is (framed lines carry their own N and checksum, so a bad checksum or a
-skipped number is part of the script); the replies are read until the `ok` that answers it, or
-until the line's quiet time passes (a kill, a refused line with no `ok`).
+skipped number is part of the script); the replies are read until the `ok` that answers it, or, for a
+line answered by no `ok` (a kill, a line ignored while halted), until its quiet time passes.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import select
 import time
@@ -20,10 +21,13 @@ def bad(line: bytes) -> bytes:
     return head + b"*" + str((int(cs) + 1) % 256).encode() + b"\n"
 
 
-# (bytes written, the quiet time in s after which the answer is taken to be complete). A line that is answered
-# with an `ok` ends its read at the `ok`, so its quiet time only guards against an answer that never comes: it is
-# long, so that a loaded machine pausing the firmware between two lines of an answer (M115's) cannot cut it.
-OK_WAIT_S = 3.0
+# (bytes written, the quiet time in s after which the answer is taken to be complete). A line answered with an
+# `ok` (OK_WAIT_S) is read until that `ok`, however long its answer pauses: no quiet time can cut it. A fixed one
+# did, on a loaded machine: G28's keep-alives come 2 s apart on the firmware, and a firmware (or relay thread) held
+# off the CPU for a second past the 3 s then allowed cut the answer there and shifted every later one by a line.
+# The replay's max_wait_s still bounds every line: an `ok` that never comes ends the read there, and the
+# comparison of the two transcripts fails on it. A line answered by no `ok` ends its read at its quiet time.
+OK_WAIT_S = math.inf
 SCRIPT: list[tuple[bytes, float]] = [
     (b"M110 N0\n", OK_WAIT_S),
     (frame("M115", 1), OK_WAIT_S),
@@ -75,15 +79,32 @@ BEFORE_HOMING: list[tuple[bytes, float]] = [
 ]
 
 
+def _command(line: bytes) -> bytes:
+    """The command word of a script line (`N17 M112*23` -> `M112`), or b"" for none."""
+    words = line.split(b";")[0].split(b"*")[0].split()
+    if words and words[0].startswith(b"N"):
+        words = words[1:]
+    return words[0].upper() if words else b""
+
+
+# Marlin's last words after M112, on the firmware and the simulator alike: the read of an M112 waits for them (up to
+# max_wait_s) before its quiet time starts, so a loaded machine that delays them cannot push them into the next
+# line's read. No other line answered by no `ok` has an answer to wait for (a comment, M999 while halted).
+HALTED = b"kill() called!"
+
+
 def replay(fd: int, script: list[tuple[bytes, float]] = SCRIPT, max_wait_s: float = 10.0) -> list[tuple[bytes, bytes]]:
-    """(line written, every byte read until its `ok` or a quiet time) for each entry of the script."""
+    """(line written, every byte read until its `ok`, or until its quiet time passes after an M112's last words or
+    any other answer) for each entry of the script, each line's read bounded by max_wait_s."""
     out = []
     for line, quiet_s in script:
         os.write(fd, line)
         got = b""
         end = time.monotonic() + max_wait_s
-        while time.monotonic() < end:
-            ready, _, _ = select.select([fd], [], [], quiet_s)
+        halts = _command(line) == b"M112"
+        while (left_s := end - time.monotonic()) > 0:
+            wait_s = left_s if halts and HALTED not in got else min(quiet_s, left_s)
+            ready, _, _ = select.select([fd], [], [], wait_s)
             if not ready:
                 break
             got += os.read(fd, 4096)
@@ -156,8 +177,8 @@ HOMING_R: list[tuple[bytes, float]] = [
 # advertises: two reports in 2.5 s), M113 (the keep-alive interval), the print job timer (M75 to M77 and M31:
 # none started, 0s), the settings commands (M500 to M503), M108, T0, an arc (G2: its end; M114 reports it), M410.
 # The waits end at the `ok`; the comment-only line, answered by nothing, waits its quiet time out. M410 holds the
-# planner for a second (Planner::quick_stop's cleaning_buffer_counter), longer on a busy native board.
-QUICK_STOP_WAIT_S = 8.0
+# planner for a second (Planner::quick_stop's cleaning_buffer_counter), longer on a busy native board: its read
+# ends at its `ok` too.
 HOST_TEXT: list[tuple[bytes, float]] = [
     (b"M110 N0\n", OK_WAIT_S),
     (b";only a comment\n", 1.0),
@@ -191,7 +212,7 @@ HOST_TEXT: list[tuple[bytes, float]] = [
     (b"G2 X2 Y0 I1 J0 F6000\n", OK_WAIT_S),
     (b"M400\n", OK_WAIT_S),
     (b"M114\n", OK_WAIT_S),
-    (b"M410\n", QUICK_STOP_WAIT_S),
+    (b"M410\n", OK_WAIT_S),
     (b"M114\n", OK_WAIT_S),
 ]
 

@@ -104,23 +104,44 @@ def real_time(name: str) -> bool:
     return name.startswith(REAL_TIME_FILES)
 
 
+# The homing replays to the real firmware (test_marlin_real_vs_sim.TOGETHER): the first of them to run starts the
+# firmware's side of all of them at once, so they go to one worker, one after another, as one long test as long as
+# the longest of them.
+TOGETHER = (
+    "tests/test_marlin_real_vs_sim.py::test_homing_and_soft_endstops_answer_as_the_real_firmware",
+    "tests/test_marlin_real_vs_sim.py::test_g28_with_an_r_word_answers_as_the_real_firmware",
+    "tests/test_marlin_real_settings.py::test_m206_applies_at_homing_as_on_the_real_firmware",
+)
+
+#: The node ids this session runs, after -k/-m deselection (conftest sets it; None: not known, take them all).
+SELECTED: set[str] | None = None
+
+
 def long_first(items: Sequence[T], ids: Sequence[str], n_workers: int) -> list[T]:
     """`items` reordered so that each of the worker's first blocks starts with its share of the long tests: the
     real-firmware ones first, then the others, each longest first and to the block whose long tests add up to the
-    least so far; the other tests fill the blocks in their collection order. The same items, each once."""
+    least so far (TOGETHER's tests as one, in one block); the other tests fill the blocks in their collection order.
+    The same items, each once."""
     if n_workers < 2 or len(items) < n_workers:
         return list(items)
-    long = sorted((i for i, name in enumerate(ids) if name in LONG_S), key=lambda i: -LONG_S[ids[i]])
-    long = [i for i in long if real_time(ids[i])] + [i for i in long if not real_time(ids[i])]
+    where = {name: i for i, name in enumerate(ids)}
+    group = [where[name] for name in TOGETHER if name in where]
+    units = [([i], LONG_S[name]) for i, name in enumerate(ids) if name in LONG_S and i not in group]
+    if group:
+        units.append((group, max(LONG_S.get(ids[i], 0.0) for i in group)))
+    units.sort(key=lambda unit: -unit[1])
+    units = [u for u in units if real_time(ids[u[0][0]])] + [u for u in units if not real_time(ids[u[0][0]])]
     shares: list[list[int]] = [[] for _ in range(n_workers)]
     totals = [0.0] * n_workers
     sizes = block_sizes(len(items), n_workers)
-    for i in long:
-        open_blocks = [k for k in range(n_workers) if len(shares[k]) < sizes[k]]
+    for unit, seconds in units:
+        open_blocks = [k for k in range(n_workers) if len(shares[k]) + len(unit) <= sizes[k]]
+        if not open_blocks:
+            continue  # a block too small for it (a handful of tests selected): it keeps its collection order
         k = min(open_blocks, key=lambda b: totals[b])
-        shares[k].append(i)
-        totals[k] += LONG_S[ids[i]]
-    is_long = set(long)
+        shares[k] += unit
+        totals[k] += seconds
+    is_long = {i for share in shares for i in share}
     rest = iter([i for i in range(len(items)) if i not in is_long])
     order: list[int] = []
     for k in range(n_workers):

@@ -21,7 +21,8 @@ pytestmark = pytest.mark.slow  # the fast lane, pytest -m 'not slow', leaves it 
 WALL_CLOCK = ["started_at", "finished_at"]
 
 
-@pytest.fixture(scope="module")
+# this module's, made once per worker (module scope remade it whenever the suite's order came back to it)
+@pytest.fixture(scope="session")
 def kill_protocol(tmp_path_factory):
     """The smoke protocol with more presses (features only), so a kill lands mid-campaign."""
     root = tmp_path_factory.mktemp("protocols")
@@ -35,7 +36,7 @@ def kill_protocol(tmp_path_factory):
     return path
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def reference(kill_protocol, tmp_path_factory):
     folder = tmp_path_factory.mktemp("reference") / "run"
     run_campaign(load_protocol(kill_protocol), folder, dry_run=True, progress=False, report=False)

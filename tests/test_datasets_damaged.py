@@ -162,7 +162,8 @@ def test_a_manifest_without_read_permission_is_one_error_naming_it(paper_layout,
 # ---- #3: a press part or presses.parquet without read permission ----------------------------------------------
 
 
-@pytest.fixture(scope="module")
+# this module's, made once per worker (module scope remade it whenever the suite's order came back to it)
+@pytest.fixture(scope="session")
 def partial(tmp_path_factory):
     """The smoke campaign (records waveforms) stopped after 4 presses: one part per press."""
     folder = tmp_path_factory.mktemp("partial") / "c"
@@ -171,7 +172,7 @@ def partial(tmp_path_factory):
     return folder
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def complete(tmp_path_factory):
     folder = tmp_path_factory.mktemp("complete") / "c"
     done = cli_child("campaign", "run", str(SMOKE), "--dry-run", "--out", str(folder), "--no-report", "--quiet")

@@ -34,7 +34,9 @@ COMPARED = ["press_id", "flags", "fsr_onset_s", "fsr_offset_s", "fsr_peak_n"]
 FAIL_AT = 40
 
 
-@pytest.fixture(scope="module")
+# Session-scoped (this module's fixtures still): made once per worker. Module-scoped, they were made again each
+# time the suite's long-first order came back to this module after another one (12 s for the inline run).
+@pytest.fixture(scope="session")
 def worker_protocol(tmp_path_factory):
     """512 presses (8 positions x 64 repeats), features only, the paper-like scene: placement error, depth
     jitter, drift and the dents of earlier presses, so every per-press condition reaches the worker."""
@@ -43,7 +45,7 @@ def worker_protocol(tmp_path_factory):
     return path
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def inline_rows(worker_protocol, tmp_path_factory):
     folder = tmp_path_factory.mktemp("inline") / "run"
     with pytest.MonkeyPatch.context() as mp:

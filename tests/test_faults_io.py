@@ -11,7 +11,7 @@ import subprocess
 
 import pandas as pd
 import pytest
-from faults_helpers import SMOKE, make_reference, remount, rows, run_cli_child, small_disk, waveforms
+from faults_helpers import SMOKE, remount, rows, run_cli_child, small_disk, waveforms
 
 from neatskin.datasets.curate import describe
 from neatskin.errors import DataError
@@ -20,9 +20,9 @@ from neatskin.rig.runner import resume_campaign
 pytestmark = pytest.mark.slow  # the fast lane, pytest -m 'not slow', leaves it out
 
 
-@pytest.fixture(scope="module")
-def reference(tmp_path_factory):
-    return make_reference(tmp_path_factory)
+@pytest.fixture
+def reference(smoke_reference):
+    return smoke_reference  # conftest: once per worker, for every module that reads it
 
 
 RUN = ("campaign", "run", str(SMOKE), "--dry-run", "--quiet", "--no-report")

@@ -6,7 +6,7 @@ import json
 
 import pandas as pd
 import pytest
-from faults_helpers import SMOKE, make_reference, rows, run_cli_child, waveforms
+from faults_helpers import SMOKE, rows, run_cli_child, waveforms
 
 from neatskin.cli import main
 from neatskin.datasets.curate import describe
@@ -16,9 +16,9 @@ from neatskin.rig.runner import resume_campaign
 pytestmark = pytest.mark.slow  # the fast lane, pytest -m 'not slow', leaves it out
 
 
-@pytest.fixture(scope="module")
-def reference(tmp_path_factory):
-    return make_reference(tmp_path_factory)
+@pytest.fixture
+def reference(smoke_reference):
+    return smoke_reference  # conftest: once per worker, for every module that reads it
 
 
 def _killed(stage, folder, *extra):

@@ -9,7 +9,7 @@ from datetime import datetime
 import numpy as np
 import pytest
 from conftest import PROTOCOLS, REPO
-from faults_helpers import SMOKE, make_reference, run_cli_child
+from faults_helpers import SMOKE, run_cli_child
 
 from neatskin.cli import main
 from neatskin.datasets.curate import merge, split
@@ -21,9 +21,9 @@ from neatskin.rig.cli import default_campaign_folder
 pytestmark = pytest.mark.slow  # the fast lane, pytest -m 'not slow', leaves it out
 
 
-@pytest.fixture(scope="module")
-def reference(tmp_path_factory):
-    return make_reference(tmp_path_factory)
+@pytest.fixture
+def reference(smoke_reference):
+    return smoke_reference  # conftest: once per worker, for every module that reads it
 
 
 NOW = datetime(2026, 1, 2, 3, 4, 5)

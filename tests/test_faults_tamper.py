@@ -8,7 +8,7 @@ import shutil
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
-from faults_helpers import SMOKE, make_reference, rows, run_cli_child
+from faults_helpers import SMOKE, rows, run_cli_child
 
 from neatskin.cli import main
 from neatskin.datasets.validate import validate_dataset
@@ -18,9 +18,9 @@ from neatskin.rig.runner import finish_campaign, resume_campaign
 pytestmark = pytest.mark.slow  # the fast lane, pytest -m 'not slow', leaves it out
 
 
-@pytest.fixture(scope="module")
-def reference(tmp_path_factory):
-    return make_reference(tmp_path_factory)
+@pytest.fixture
+def reference(smoke_reference):
+    return smoke_reference  # conftest: once per worker, for every module that reads it
 
 
 @pytest.fixture(scope="module")

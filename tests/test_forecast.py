@@ -16,7 +16,8 @@ from neatskin.rig.runner import build_plan
 from neatskin.rig.simcampaign import CampaignSize, rig_hours, simulate_presses, skin_of, strategy_positions
 
 
-@pytest.fixture(scope="module")
+# this module's, made once per worker (module scope remade it whenever the suite's order came back to it)
+@pytest.fixture(scope="session")
 def paper():
     return load_protocol(PROTOCOLS / "paper.toml")
 
@@ -144,7 +145,7 @@ def test_campaign_plan_refuses_one_seed(tmp_path, capsys):
     assert "--seeds" in capsys.readouterr().err
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def kernel_skin(paper):
     """The paper's skin pressing through the packaged finite-element pinch kernel (fidelity 'deformation')."""
     from neatskin.skin.kernel import packaged_kernel_path, read_kernel

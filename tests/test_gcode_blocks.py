@@ -30,7 +30,8 @@ PAPER_COMMANDS_SHA256 = {
 }
 
 
-@pytest.fixture(scope="module")
+# this module's, made once per worker (module scope remade it whenever the suite's order came back to it)
+@pytest.fixture(scope="session")
 def program(paper_layout):
     profile = load_printer_profile(PROTOCOLS / "printers" / "paper.toml")
     positions = generate_positions(paper_layout, PositionSpec("paper", 6, 3))

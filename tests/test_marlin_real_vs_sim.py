@@ -18,12 +18,23 @@ G28's Z raises and its position report, M211's report, `M211 S` silent, `M211 S0
 from __future__ import annotations
 
 import re
-from concurrent.futures import ThreadPoolExecutor
+import threading
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
 import serial
-from marlin_replay import BEFORE_HOMING, HOMING, HOMING_R, HOMING_WAIT_S, HOST_TEXT, SCRIPT, replay
+import suite_order
+from marlin_replay import (
+    BEFORE_HOMING,
+    HOMING,
+    HOMING_OFFSET,
+    HOMING_R,
+    HOMING_WAIT_S,
+    HOST_TEXT,
+    SCRIPT,
+    replay,
+)
 
 from neatskin.gcode.machine import Home, Machine
 from neatskin.gcode.parse import parse_line
@@ -91,14 +102,49 @@ def assert_same_replies(real: list[tuple[bytes, bytes]], sim: list[tuple[bytes, 
         assert normalise(got) == normalise(want), line
 
 
+# The homing scripts' tests and the scripts they replay to the real firmware's plain build. Each waits 35 to 60 s on
+# the firmware's real-time G28s and uses little CPU, so the first of them to run starts the firmware's replays of
+# all of them selected in this session at once (tests/suite_order.py starts them one after another on one worker):
+# that worker waits about as long as the longest of them, not their sum. Each replay has its own firmware process
+# and pty, as when they ran one at a time.
+TOGETHER: dict[str, tuple[Script, float]] = {
+    "tests/test_marlin_real_vs_sim.py::test_homing_and_soft_endstops_answer_as_the_real_firmware": (
+        HOMING,
+        HOMING_WAIT_S,
+    ),
+    "tests/test_marlin_real_vs_sim.py::test_g28_with_an_r_word_answers_as_the_real_firmware": (HOMING_R, HOMING_WAIT_S),
+    "tests/test_marlin_real_settings.py::test_m206_applies_at_homing_as_on_the_real_firmware": (
+        HOMING_OFFSET,
+        HOMING_WAIT_S,
+    ),
+}
+_started: dict[int, Future[tuple[bytes, list[tuple[bytes, bytes]]]]] = {}
+_started_lock = threading.Lock()
+_replays = ThreadPoolExecutor(max_workers=len(TOGETHER) + 1, thread_name_prefix="real-firmware-replay")
+
+
+def real_plain_replay(script: Script, max_wait_s: float) -> Future[tuple[bytes, list[tuple[bytes, bytes]]]]:
+    """The plain build's transcript of `script`, under way in a thread: a script of TOGETHER's starts with every
+    other one of them whose test this session runs (once each), any other script on its own."""
+    together = [(test, s, wait_s) for test, (s, wait_s) in TOGETHER.items() if s is script]
+    if not together:
+        return _replays.submit(real_transcript, PLAIN, script, max_wait_s=max_wait_s)
+    with _started_lock:
+        if id(script) not in _started:
+            selected = suite_order.SELECTED
+            for test, (s, wait_s) in TOGETHER.items():
+                if s is script or selected is None or test in selected:
+                    _started[id(s)] = _replays.submit(real_transcript, PLAIN, s, max_wait_s=wait_s)
+        return _started.pop(id(script))
+
+
 def assert_plain_replays_alike(script: Script, *, speed: float = 1.0, max_wait_s: float = 10.0) -> None:
     """The script replayed to the real firmware's plain build and to the simulator (plain `ok`, `speed` times real
     time), answered alike line by line. The two replays run at once (the firmware's in a thread): each has its own
     pty and process or threads, and both mostly wait on their clocks (G28 in real time on the firmware)."""
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="real-firmware-replay") as pool:
-        real_run = pool.submit(real_transcript, PLAIN, script, max_wait_s=max_wait_s)
-        _, sim = sim_transcript(advanced_ok=False, script=script, speed=speed, max_wait_s=max_wait_s)
-        _, real = real_run.result()
+    real_run = real_plain_replay(script, max_wait_s)
+    _, sim = sim_transcript(advanced_ok=False, script=script, speed=speed, max_wait_s=max_wait_s)
+    _, real = real_run.result()
     assert_same_replies(real, sim, script)
 
 

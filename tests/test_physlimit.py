@@ -17,7 +17,8 @@ from neatskin.skin.bound import feature_jacobian
 from neatskin.skin.model import SkinModel
 
 
-@pytest.fixture(scope="module")
+# this module's, made once per worker (module scope remade it whenever the suite's order came back to it)
+@pytest.fixture(scope="session")
 def smoke_limit(tmp_path_factory):
     folder = tmp_path_factory.mktemp("limit") / "campaign"
     protocol = load_protocol(PROTOCOLS / "smoke.toml")

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 
+import early
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -134,12 +135,30 @@ def test_the_kernel_assembled_from_its_plane_strain_rows_equals_the_one_solved_f
 def test_the_shipped_kernel_is_what_its_sources_give():
     """The packaged kernel from its own plane-strain rows (reproduced by test_skin_kernel's solver check) and two
     fresh host solves: every column to 1e-9."""
-    kernel, spec = read_kernel(kmod.packaged_kernel_path()), KernelSpec.for_layout(LAYOUT)
-    again = compute_kernel(spec, n_jobs=2, plane_strain=plane_strain_rows(kernel, spec))
+    kernel = read_kernel(kmod.packaged_kernel_path())
+    # under xdist started early in a process of its own, as the transfer test's hosts (tests/early.py)
+    again = early.result("tests/test_skin_quasi3d.py::test_the_shipped_kernel_is_what_its_sources_give", kernel_again)
     assert again.key == kernel.key
     assert np.allclose(again.area_ratio, kernel.area_ratio, rtol=0, atol=1e-9, equal_nan=True)
     for name, column in kernel.extra.items():
         assert np.allclose(again.extra[name], column, rtol=0, atol=1e-9, equal_nan=True), name
+
+
+def kernel_again() -> kmod.PinchKernel:
+    """The packaged kernel computed again from its own plane-strain rows and two fresh host solves."""
+    kernel, spec = read_kernel(kmod.packaged_kernel_path()), KernelSpec.for_layout(LAYOUT)
+    return compute_kernel(spec, n_jobs=2, plane_strain=plane_strain_rows(kernel, spec))
+
+
+def fine_host_strains() -> list[np.ndarray]:
+    """The equivalent strain per band and depth of the intact host at 0.25 mm elements, the strip (plane strain) and
+    the round probe (axisymmetric), for the shipped kernel's spec."""
+    spec = KernelSpec.for_layout(LAYOUT)
+    fine = SolverSettings(element_mm=0.25)
+    return [
+        solve_press(spec.geometry, spec.material, fine, 0.0, False, ax, bands_mm=spec.offsets_mm).strain_eq
+        for ax in (False, True)
+    ]
 
 
 @pytest.mark.slow
@@ -149,12 +168,12 @@ def test_the_transfer_is_mesh_converged_on_the_host_side():
     within 0.02 at every cell to 3.5 mm deep except where the probe's edge crosses the channel, 4 to 4.5 mm from the
     axis and 2 mm deep or more (0.04 at 4 mm, 2.25 to 2.5 mm deep, where the strip's own table wobbles; 0.0202 at
     4.5 mm, 3.5 mm deep; docs/skin.md has the table)."""
-    kernel, spec = read_kernel(kmod.packaged_kernel_path()), KernelSpec.for_layout(LAYOUT)
-    fine = SolverSettings(element_mm=0.25)
-    hosts = [
-        solve_press(spec.geometry, spec.material, fine, 0.0, False, ax, bands_mm=spec.offsets_mm).strain_eq
-        for ax in (False, True)
-    ]
+    kernel = read_kernel(kmod.packaged_kernel_path())
+    # the two 0.25 mm host solves (~50 s idle): under xdist they start when this worker does, in a process of their
+    # own, while its first tests wait on the real firmware (tests/early.py); the same function either way
+    hosts = early.result(
+        "tests/test_skin_quasi3d.py::test_the_transfer_is_mesh_converged_on_the_host_side", fine_host_strains
+    )
     depths = kernel.depths_mm
     area, _ = transfer(kernel.extra["area_ratio_plane_strain"], *hosts, depths)
     diff = np.abs(area - kernel.area_ratio)[:, depths <= 3.5]

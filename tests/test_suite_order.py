@@ -61,3 +61,59 @@ def test_the_real_firmware_tests_start_first_on_every_worker(monkeypatch):
     )
     # then the longest CPU-bound test, on the worker with less so far (50 s), the next ones on the other (60 s)
     assert second[1] == "t/a.py::long_a" and first[1:3] == ["t/b.py::long_b", "t/c.py::long_c"]
+
+
+def test_the_homing_replays_go_together_to_one_worker_as_one_long_test(monkeypatch):
+    """TOGETHER's tests (the first starts the firmware's side of all of them): contiguous in one block, weighed as
+    the longest of them; a block too small for them leaves them in collection order; every test still once."""
+    group = {name: 60.0 - 10 * k for k, name in enumerate(suite_order.TOGETHER)}
+    hil = {"tests/test_hil.py::test_real_firmware_b": 50.0}
+    monkeypatch.setattr(suite_order, "LONG_S", {**LONG, **group, **hil})
+    ids = [*(f"t/short.py::test_{i}" for i in range(20)), *suite_order.TOGETHER, *hil, *LONG]
+    ordered = long_first(ids, ids, 2)
+    assert sorted(ordered) == sorted(ids)
+    first, second = ordered[:14], ordered[14:]
+    assert first[:3] == list(suite_order.TOGETHER) and second[0] == "tests/test_hil.py::test_real_firmware_b"
+    # 60 s for the three (their longest) against hil's 50 s: the 172 s CPU-bound test goes beside hil
+    assert second[1] == "t/a.py::long_a"
+    few = [*suite_order.TOGETHER, "t/short.py::test_0"]
+    assert long_first(few, few, 2) == few  # blocks of 2: the three fit in neither
+
+
+def test_together_names_the_replays_that_start_together():
+    from test_marlin_real_vs_sim import TOGETHER
+
+    assert tuple(TOGETHER) == suite_order.TOGETHER
+
+
+def test_no_hypothesis_example_has_a_deadline():
+    """conftest's profile: a deadline is a timed assertion, which a loaded machine fails (as Flaky). Three tests had
+    Hypothesis' default 200 ms, test_marlin_real_settings' property of marlin_float among them."""
+    from hypothesis import settings
+    from test_gcode_parse import test_framed_moves_round_trip
+    from test_marlin_real_settings import test_marlin_float_is_the_32_bit_value_rounded_half_up
+    from test_sim_housekeeping import test_duration_text_reads_back_to_the_seconds
+
+    assert settings.default.deadline is None
+    for test in (
+        test_framed_moves_round_trip,
+        test_marlin_float_is_the_32_bit_value_rounded_half_up,
+        test_duration_text_reads_back_to_the_seconds,
+    ):
+        assert test._hypothesis_internal_use_settings.deadline is None, test.__name__
+
+
+def test_early_work_runs_in_a_process_of_its_own_and_is_taken_once(monkeypatch):
+    """tests/early.py: the started work's result comes from another process; taken once, then computed here."""
+    import os
+
+    import early
+
+    monkeypatch.setitem(early.WORK, "t/x.py::test_x", ("os", "getpid"))
+    try:
+        early.start("t/x.py::test_x")
+        assert early.result("t/x.py::test_x", os.getpid) != os.getpid()
+        assert early.result("t/x.py::test_x", os.getpid) == os.getpid()
+        assert early.result("t/y.py::test_never_started", lambda: "here") == "here"
+    finally:
+        early.stop()

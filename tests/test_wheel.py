@@ -27,7 +27,7 @@ def _source_copy(root: Path) -> Path:
     return source
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # this module's; once per worker, however the suite's order splits its tests
 def installed(tmp_path_factory) -> Path:
     """The package built as a wheel and installed (without dependencies) into a folder of its own."""
     root = tmp_path_factory.mktemp("wheel")
