@@ -201,3 +201,22 @@ def test_the_forecasts_cap_ends_it_with_the_processes_it_started(tmp_path, monke
     while _running(grandchild) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not _running(grandchild)
+
+
+def test_check_says_it_solves_a_missing_pinch_kernel_before_the_pressed_line(tmp_path, monkeypatch, capsys):
+    """`campaign check` on a probe with no kernel packaged or cached solves it for its pressed line (minutes): it says
+    so first, naming the cache, instead of sitting silent. The solve itself is stood in for (it takes minutes)."""
+    from neatskin.cli import main
+    from neatskin.rig import railcheck
+
+    path = _paper_at(tmp_path, "0.0002")
+    path.write_text(path.read_text().replace("probe_diameter_mm = 5.5", "probe_diameter_mm = 6.0"))
+    monkeypatch.setenv("NEATSKIN_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(railcheck, "pressed_rails_text", lambda protocol: "electrical, pressed (stood in): none")
+    assert main(["campaign", "check", str(path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    solving = next(k for k, line in enumerate(lines) if "first solving the finite-element pinch kernel" in line)
+    assert str(tmp_path / "cache" / "kernels") in lines[solving]
+    assert lines[solving + 1] == "  electrical, pressed (stood in): none"
+    assert main(["campaign", "check", str(_paper_at(tmp_path / "b", "0.0002"))]) == 0  # the packaged 5.5 mm one
+    assert "first solving" not in capsys.readouterr().out

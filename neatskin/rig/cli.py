@@ -364,8 +364,16 @@ def _check(args: argparse.Namespace) -> int:
     print(f"  {printer_time_text(plan.printer_time_s, plan.n_presses)}")
     print(f"  resources (upper bounds): {protocol.resources.summary()}")
     print(f"  electrical: {protocol.electrical.summary()}")
-    from neatskin.rig.railcheck import pressed_rails_text
+    from neatskin.rig.railcheck import missing_kernel, pressed_rails_text
 
+    if missing_kernel(protocol):  # the pressed line needs it: say why nothing is printed for minutes
+        from neatskin.skin.kernel import cache_dir
+
+        print(
+            "  electrical, pressed: first solving the finite-element pinch kernel of this skin and probe (minutes "
+            f"of CPU, once: cached in {cache_dir() / 'kernels'})",
+            flush=True,
+        )
     print(f"  {pressed_rails_text(protocol)}")
     return 0
 
