@@ -209,7 +209,7 @@ def _run_locked(
                     parts_sha256=_parts_sha256(read_manifest(folder), writer),
                 )
         except BaseException as exc:
-            _mark_stopped_with_parts(folder, exc, writer)
+            _mark_stopped(folder, exc, writer)
             raise
         finally:
             writer.close()
@@ -248,33 +248,31 @@ def _parts_sha256(manifest: dict[str, Any], writer: CampaignWriter) -> dict[str,
     return {k: merged[k] for k in sorted(merged, key=int) if k in present}
 
 
-def _mark_stopped_with_parts(folder: Path, exc: BaseException, writer: CampaignWriter) -> None:
-    try:  # the presses in the batch are complete: keep them if the disk lets us
-        writer.flush()
-    except Exception as again:  # e.g. the disk is full: the batch is lost, resume presses it again
-        log.warning("the last batch of presses was not written (resume presses it again): %s", again)
+def _mark_stopped(folder: Path, exc: BaseException, writer: CampaignWriter | None = None) -> None:
+    """The manifest says `interrupted`, by what; with the press loop's writer, its last batch flushed first and the
+    presses and parts it holds recorded (before the loop had one, a resumed campaign's counts stay as they were)."""
+    if writer is not None:
+        try:  # the presses in the batch are complete: keep them if the disk lets us
+            writer.flush()
+        except Exception as again:  # e.g. the disk is full: the batch is lost, resume presses it again
+            log.warning("the last batch of presses was not written (resume presses it again): %s", again)
     try:
+        parts: dict[str, Any] = (
+            {}
+            if writer is None
+            else {
+                "counts": {"completed": len(writer.completed_press_ids())},
+                "parts_sha256": _parts_sha256(read_manifest(folder), writer),
+            }
+        )
         update_manifest(
             folder,
             status="interrupted",
             finished_at=utc_now_iso(),
             stopped_by=str(exc).splitlines()[0] if str(exc) else type(exc).__name__,
-            counts={"completed": len(writer.completed_press_ids())},
-            parts_sha256=_parts_sha256(read_manifest(folder), writer),
+            **parts,
         )
     except Exception as again:  # the disk may still be full; the lock then tells info that nobody runs it
-        log.warning("cannot mark %s interrupted: %s", folder, again)
-
-
-def _mark_stopped(folder: Path, exc: BaseException) -> None:
-    try:
-        update_manifest(
-            folder,
-            status="interrupted",
-            finished_at=utc_now_iso(),
-            stopped_by=str(exc).splitlines()[0] if str(exc) else type(exc).__name__,
-        )
-    except Exception as again:
         log.warning("cannot mark %s interrupted: %s", folder, again)
 
 
