@@ -68,17 +68,15 @@ def pressed_resistance_ohm(protocol: CampaignProtocol) -> np.ndarray:
     """(presses, pairs) pair R_eq of the protocol's presses through its dry run's skin, +inf for a pair cut off."""
     press = protocol.press
     xy = generate_positions(protocol.layout, press.positions).xy_mm
-    plan = build_plan(protocol)  # once: the skin's scene and the drift's press interval both read it
-    skin = dry_skin(dry_scene(protocol, plan))  # simcampaign.skin_of's skin
-    interval_s = float(getattr(protocol.scene, "press_interval_s", 0.0)) or plan.press_interval_s
+    dry = dry_scene(protocol, build_plan(protocol))  # the plan once: the skin and the drift's interval read it
     drawn = pressed_skin(
         protocol,
         xy,
         int(press.press.repeats),
         float(press.press.depth_mm),
         int(protocol.seed),
-        skin=skin,
-        interval_s=interval_s,
+        skin=dry_skin(dry),  # simcampaign.skin_of's skin
+        interval_s=dry.interval_s,  # simcampaign.press_interval_s's
     )
     return drawn.resistance_ohm
 

@@ -76,11 +76,7 @@ def rig_hours(protocol: CampaignProtocol, size: CampaignSize) -> float:
 
 def press_interval_s(protocol: CampaignProtocol) -> float:
     """Campaign time between presses for the drift: the scene's, else the protocol's G-code time per press."""
-    interval = float(getattr(protocol.scene, "press_interval_s", 0.0))
-    if interval:
-        return interval
-    plan = build_plan(protocol)
-    return float(plan.printer_time_s) / max(plan.n_presses, 1)
+    return float(getattr(protocol.scene, "press_interval_s", 0.0)) or build_plan(protocol).press_interval_s
 
 
 def pair_noise_std_ohm(protocol: CampaignProtocol) -> np.ndarray:
