@@ -110,12 +110,27 @@ def test_a_landing_bound_beyond_the_probe_radius_is_given_by_its_median_and_its_
     text = "\n".join(floors_section(pd.DataFrame(), floors))
     assert (
         "The landing-point bound exceeds the probe radius at 4 of 10 positions (infinite at 3: a press on a channel "
-        "the probe shuts tells which channel, not where along it); its median over positions is 0.05 mm (0.02 mm "
-        "with this skin's fabrication known)." in text
+        "the probe shuts tells which channel, not where along it); its median over all 10 positions is 0.05 mm (0.02 "
+        "mm with this skin's fabrication known), over the 7 where it is finite 0.05 mm." in text
     )
     assert "| | inf: infinite where a channel is shut, median below |" in text  # no bare "inf" as an RMS
     assert read_floors(limit, radius_mm=1e5).landing_spread[1:] == (3, 10)  # the radius is the probe's
     assert "exceeds the probe radius" not in "\n".join(floors_section(pd.DataFrame(), read_floors(_limit())))
+
+
+def test_the_landing_bounds_median_over_all_positions_is_given_beside_its_median_over_the_finite_ones():
+    """The median over all positions counts the infinite ones, which lifts it (0.1, 0.2, 0.3, 0.4, 0.5, inf, inf:
+    0.4); over the finite ones it is 0.3. Both are said; with no infinite position only the one."""
+    limit = _limit().iloc[:7].copy()
+    limit["landing_bound_mm"] = [0.1, 0.2, 0.3, 0.4, 0.5, np.inf, np.inf]
+    floors = read_floors(limit, radius_mm=0.35)
+    assert floors.landing_spread == (0.4, 4, 7) and floors.landing_infinite == 2
+    assert floors.landing_finite_median_mm == 0.3
+    text = "\n".join(floors_section(pd.DataFrame(), floors))
+    assert "its median over all 7 positions is 0.4 mm, over the 5 where it is finite 0.3 mm." in text
+    limit["landing_bound_mm"] = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7]
+    text = "\n".join(floors_section(pd.DataFrame(), read_floors(limit, radius_mm=0.35)))
+    assert "its median over all 7 positions is 0.4 mm." in text and "where it is finite" not in text
 
 
 def test_an_older_physical_limit_has_no_floors():

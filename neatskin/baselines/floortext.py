@@ -33,6 +33,8 @@ class Floors:
     landing_spread: tuple[float, int, int] = (np.nan, 0, 0)
     landing_known_skin_spread: tuple[float, int, int] | None = None
     landing_infinite: int = 0
+    # its median over the positions where it is finite: the median above counts the infinite ones, which lifts it
+    landing_finite_median_mm: float = np.nan
 
     def of_split(self, split: str) -> tuple[float, float]:
         return self.label_mm[SPLIT_PRIOR.get(split, "by_row")]
@@ -93,6 +95,7 @@ def read_floors(limit: pd.DataFrame | None, radius_mm: float = 2.75) -> Floors |
         spread,
         bound_spread_mm(limit, "landing_bound_known_skin_mm", radius_mm),
         int(np.count_nonzero(np.isinf(landing))),
+        float(np.median(landing[np.isfinite(landing)])) if np.isfinite(landing).any() else np.nan,
     )
 
 
@@ -152,7 +155,13 @@ def floors_section(table: pd.DataFrame, floors: Floors | None, campaign_seeds: i
             "",
             f"The landing-point bound exceeds the probe radius at {beyond} of {positions} positions (infinite at "
             f"{floors.landing_infinite}: a press on a channel the probe shuts tells which channel, not where along "
-            f"it); its median over positions is {median:.3g} mm{known_text}.",
+            f"it); its median over all {positions} positions is {median:.3g} mm{known_text}"
+            + (
+                f", over the {positions - floors.landing_infinite} where it is finite "
+                f"{floors.landing_finite_median_mm:.3g} mm."
+                if floors.landing_infinite and np.isfinite(floors.landing_finite_median_mm)
+                else "."
+            ),
         ]
     lines += [
         "",
