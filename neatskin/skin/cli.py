@@ -59,7 +59,11 @@ def register(subparsers) -> None:
         "fit",
         help="fit the skin model to a recorded campaign (channel baselines, pinch, placement, noise, drift)",
         description="Estimate the skin model's parameters from a recorded campaign by nonlinear least squares "
-        "through the forward model, with 95 % intervals and the pinch's correlation, and write a skin profile.",
+        "through the forward model, with 95 % intervals and the pinch's correlation, and write a skin profile. "
+        "The fit's pinch is the parametric one: it cannot describe a dry run of the paper-like scene, whose skin "
+        "presses the finite-element pinch kernel (channels shut under the probe), so on such a campaign its values "
+        "and intervals describe the parametric model's best compromise, not the skin (the command warns when the "
+        "manifest says so; docs/skin.md, 'Fitting a skin to a recorded campaign').",
     )
     fit.add_argument("campaign", metavar="CAMPAIGN_DIR", help="a finished campaign folder (presses.parquet)")
     add_out(fit, "skin profile TOML to write (default CAMPAIGN_DIR/skin_profile.toml)")
@@ -129,8 +133,16 @@ def mechanics_handler(args: argparse.Namespace) -> int:
 def fit_handler(args: argparse.Namespace) -> int:
     import time
 
-    from neatskin.skin.fit import fit_skin
+    from neatskin.campaignread import read_manifest
+    from neatskin.errors import NeatskinError
+    from neatskin.skin.fit import fit_skin, model_mismatch_warning
 
+    try:  # said first, so a fit the campaign cannot support still shows why its model was the wrong one
+        warning = model_mismatch_warning(read_manifest(args.campaign))
+    except NeatskinError:  # no readable manifest: fit_skin names the problem
+        warning = None
+    if warning:
+        print(f"warning: {warning}")
     t0 = time.perf_counter()
     result = fit_skin(args.campaign, probe_radius_mm=args.probe_radius_mm)
     out = Path(args.out) if args.out else Path(args.campaign) / "skin_profile.toml"

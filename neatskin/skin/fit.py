@@ -72,10 +72,14 @@ class SkinFit:
     pinch_correlation: float  # between pinch_gain and decay_ratio
     rms_residual_ohm: float
     notes: tuple[str, ...] = field(default=())
+    warning: str | None = None  # the campaign's skin is one this model cannot describe (model_mismatch_warning)
 
     def to_toml(self) -> str:
         """A skin profile: the fitted values, each with its interval as a comment."""
-        lines = [f"# skin profile fitted by `neatskin skin fit` to {self.source}", "[skin_profile]"]
+        lines = [f"# skin profile fitted by `neatskin skin fit` to {self.source}"]
+        if self.warning:
+            lines.append(f"# warning: {self.warning}")
+        lines.append("[skin_profile]")
         for name in ("pinch_gain", "decay_ratio", "placement_error_mm", "noise_ohm", "drift_per_h"):
             v = getattr(self, name)
             lines.append(f"{name} = {v.value!r}  # 95 % CI {v.ci95[0]:.4g} .. {v.ci95[1]:.4g}{v.coverage_text()}")
@@ -84,6 +88,30 @@ class SkinFit:
         )
         lines.append(f"pinch_correlation = {self.pinch_correlation!r}")
         return "\n".join(lines) + "\n"
+
+
+def model_mismatch_warning(manifest: dict) -> str | None:
+    """One line when the manifest says the campaign's skin was simulated with the finite-element pinch kernel (the
+    paper-like scene's, `deformation = "fe-kernel"` or `"auto"` with that preset): the fit's model is the parametric
+    pinch, which cannot describe those presses (the kernel shuts channels under the probe, a gain of about 5 there),
+    so its intervals describe the parametric model's best compromise, not the skin (docs/skin.md, "Fitting a skin
+    to a recorded campaign"). None for a real skin or a parametric dry run: nothing in the manifest says so."""
+    from neatskin.config.scene import PRESET_DEFORMATION
+
+    rig = manifest.get("rig")
+    run = manifest.get("protocol_as_run")
+    scene = run.get("scene") if isinstance(run, dict) else None
+    if not (isinstance(rig, dict) and rig.get("daq") == "simulated" and isinstance(scene, dict)):
+        return None
+    deformation = scene.get("deformation", "auto")
+    if deformation == "auto":
+        deformation = PRESET_DEFORMATION.get(scene.get("preset", "ideal"), "parametric")
+    if deformation != "fe-kernel":
+        return None
+    return (
+        "this campaign's simulated skin pressed the finite-element pinch kernel, which the fit's parametric pinch "
+        "cannot describe: the values and intervals below are that model's best compromise, not the skin's"
+    )
 
 
 def _interval(value: float, se: float, quantile: float = Z95) -> FittedValue:
@@ -181,7 +209,7 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
     from scipy.optimize import least_squares
     from scipy.special import stdtrit
 
-    layout, _, c = load_campaign(folder)
+    layout, manifest, c = load_campaign(folder)
     source = str(folder)
     with np.errstate(invalid="ignore"):  # a cut pair: inf - inf, left out below
         base = c["R"] - c["dR"]
@@ -329,6 +357,7 @@ def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
         pinch_correlation=correlation,
         rms_residual_ohm=float(np.sqrt(np.mean(sol_p.fun**2))),
         notes=tuple(notes),
+        warning=model_mismatch_warning(manifest),
     )
 
 
