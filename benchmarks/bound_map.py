@@ -11,7 +11,8 @@ and placement error; the drift ramp over the campaign, ptp / sqrt(12)). Unlike p
 the campaign's positions, with the unpressed noise everywhere, and no fabrication nuisance.
 
 Prints the median and the 10/90 % points of each map over its finite points, and how many grid points are
-infinite (a press that shuts a channel: sliding along it changes nothing a graded reading sees), and writes a
+infinite (around a junction, where every channel the probe reaches is shut and the others are beyond the pinch's
+reach: moving within that spot changes nothing a graded reading sees), and writes a
 three-panel PNG (log colour scale up to the skin's 30 mm, channels drawn, infinite points in red, finite ones
 beyond 30 mm in orange).
 """

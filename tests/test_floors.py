@@ -109,9 +109,10 @@ def test_a_landing_bound_beyond_the_probe_radius_is_given_by_its_median_and_its_
     assert floors.landing_spread[0] == 0.05 and floors.landing_known_skin_spread == (0.02, 3, 10)
     text = "\n".join(floors_section(pd.DataFrame(), floors))
     assert (
-        "The landing-point bound exceeds the probe radius at 4 of 10 positions (infinite at 3: a press on a channel "
-        "the probe shuts tells which channel, not where along it); its median over all 10 positions is 0.05 mm (0.02 "
-        "mm with this skin's fabrication known), over the 7 where it is finite 0.05 mm." in text
+        "The landing-point bound exceeds the probe radius at 4 of 10 positions (infinite at 3: a press that shuts "
+        "every channel it reaches, around a junction, tells which channels, not where among them); its median over "
+        "all 10 positions is 0.05 mm (0.02 mm with this skin's fabrication known), over the 7 where it is finite 0.05 mm."
+        in text
     )
     assert "| | inf: infinite where a channel is shut, median below |" in text  # no bare "inf" as an RMS
     assert read_floors(limit, radius_mm=1e5).landing_spread[1:] == (3, 10)  # the radius is the probe's

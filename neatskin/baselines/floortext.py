@@ -46,7 +46,8 @@ def bound_spread_mm(
     """(the median over positions of a bound, at how many positions it exceeds the probe radius, how many positions
     there are): what the skin measures at a typical position and where it does not locate a press within its own
     footprint, for planning where the pooled RMS is infinite or held by a few positions (on the FE skin a press
-    on a channel the probe shuts tells which channel, not where along it: its bound is infinite or huge). None when
+    that shuts every channel it reaches, around a junction, tells which channels, not where among them: its bound is
+    infinite or huge). None when
     the limit or its column is absent."""
     if limit is None or len(limit) == 0 or column not in limit.columns:
         return None
@@ -56,8 +57,8 @@ def bound_spread_mm(
 
 def comparable(limit: pd.DataFrame | None, column: str, extent_mm: float) -> bool:
     """Whether a pooled bound is compared with the errors: finite and within the skin's extent at every position.
-    Where a position's bound exceeds the skin itself (infinite, or huge just off a shut channel: a press on a
-    channel the probe shuts tells which channel, not where along it), no estimator that answers on the skin is
+    Where a position's bound exceeds the skin itself (infinite, or huge beside such a spot: a press that
+    shuts every channel it reaches tells which channels, not where among them), no estimator that answers on the skin is
     unbiased there, so the bound (of unbiased estimators) says nothing, and it holds the pooled RMS."""
     if limit is None or len(limit) == 0 or column not in limit.columns:
         return False
@@ -154,8 +155,8 @@ def floors_section(table: pd.DataFrame, floors: Floors | None, campaign_seeds: i
         lines += [
             "",
             f"The landing-point bound exceeds the probe radius at {beyond} of {positions} positions (infinite at "
-            f"{floors.landing_infinite}: a press on a channel the probe shuts tells which channel, not where along "
-            f"it); its median over all {positions} positions is {median:.3g} mm{known_text}"
+            f"{floors.landing_infinite}: a press that shuts every channel it reaches, around a junction, tells which "
+            f"channels, not where among them); its median over all {positions} positions is {median:.3g} mm{known_text}"
             + (
                 f", over the {positions - floors.landing_infinite} where it is finite "
                 f"{floors.landing_finite_median_mm:.3g} mm."

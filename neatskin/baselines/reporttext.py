@@ -189,8 +189,8 @@ def _bound_text(
     if not compared.get("crb_mm", bool(np.isfinite(bound))):
         lines += [
             "",
-            f"Here the electronics-only bound {beyond} (a press on a channel the probe shuts tells which channel, "
-            "not where along it), and those positions hold the pooled bound: no estimator that answers on the skin "
+            f"Here the electronics-only bound {beyond} (a press that shuts every channel it reaches, around a "
+            "junction, tells which channels, not where among them), and those positions hold the pooled bound: no estimator that answers on the skin "
             "is unbiased there, so no result is compared with it or flagged by it. "
             "The median over positions says what the skin measures at a typical position, and the count above "
             "the probe radius where it cannot place a press within its own footprint; they are for planning, "

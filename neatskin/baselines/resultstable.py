@@ -51,8 +51,8 @@ def results_table(
     row gets its split's floor and its excess over it (`floortext.add_floor_columns`)."""
     table = add_floor_columns(pd.DataFrame([r.row() for r in results]), floors)
     compared = compared or {}  # without a say (a bound's spread unknown): every bound is compared
-    # a pooled bound held by positions where it exceeds the skin (infinite, or huge: on the FE skin a press on a
-    # channel the probe shuts tells which channel, not where along it) has no ratio and flags nothing (`comparable`:
+    # a pooled bound held by positions where it exceeds the skin (infinite, or huge: on the FE skin a press that
+    # shuts every channel it reaches tells which channels, not where among them) has no ratio and flags nothing (`comparable`:
     # no estimator answering on the skin is unbiased there), and rms / inf = 0 (or rms / 1e5) read as "far below"
     if nuisance_bound is not None:
         table["crb_nuisance_rms_mm"] = nuisance_bound
