@@ -83,8 +83,12 @@ def evaluate_press(args: argparse.Namespace) -> PressResult:
         )
     x, y = (args.x_mm, args.y_mm) if pressed else (0.0, 0.0)
     depth = (PAPER_DEPTH_MM if args.depth_mm is None else args.depth_mm) if pressed else 0.0
-    for flag, value in (("--x-mm", x), ("--y-mm", y), ("--depth-mm", depth), ("--probe-radius-mm", None)):
-        value = args.probe_radius_mm if value is None else value
+    for flag, value in (
+        ("--x-mm", x),
+        ("--y-mm", y),
+        ("--depth-mm", depth),
+        ("--probe-radius-mm", args.probe_radius_mm),
+    ):
         positive = flag == "--probe-radius-mm"
         if not math.isfinite(value) or (positive and value <= 0):
             raise ConfigError(

@@ -78,8 +78,8 @@ def spice_netlist(
     degree = np.bincount(ends[:, 0], conductance, layout.n_junctions) + np.bincount(
         ends[:, 1], conductance, layout.n_junctions
     )
-    names = [j.name for j in layout.junctions]
-    lines = ["* " + title.replace("\n", " "), *("* " + n for n in notes), *_header(layout, r_ch, r_eq, names)]
+    names = [_one_line(j.name) for j in layout.junctions]
+    lines = ["* " + _one_line(t) for t in (title, *notes)] + _header(layout, r_ch, r_eq, names)
     probes = []
     for pair, r, (ia, ib) in zip(layout.pairs, r_eq.tolist(), layout.pair_electrode_index.tolist()):
         ja, jb = int(layout.electrode_junctions[ia]), int(layout.electrode_junctions[ib])
@@ -94,9 +94,14 @@ def spice_netlist(
     return Netlist("\n".join(lines) + "\n", tuple(probes))
 
 
+def _one_line(text: str) -> str:
+    """A name from the layout file inside a comment line: a line break in it would end the comment."""
+    return " ".join(str(text).splitlines())
+
+
 def _header(layout: Layout, r_ch: np.ndarray, r_eq: np.ndarray, names: list[str]) -> list[str]:
     lines = [
-        f"* layout {layout.name} ({layout.source}): {layout.n_junctions} junctions, {layout.n_channels} channels, "
+        f"* layout {_one_line(layout.name)} ({_one_line(layout.source)}): {layout.n_junctions} junctions, {layout.n_channels} channels, "
         f"{layout.n_electrodes} electrodes",
         "* One copy of the network per electrode pair (a, b): node p<a>_<b>_n<junction>; one electrode is ground",
         "* (node 0), 1 A DC flows from ground into the other, so its voltage in V is R_eq(a, b) in ohm.",
@@ -110,7 +115,7 @@ def _header(layout: Layout, r_ch: np.ndarray, r_eq: np.ndarray, names: list[str]
     ]
     for c, (channel, r) in enumerate(zip(layout.channels, r_ch.tolist())):
         state = "inf (shut: omitted)" if math.isinf(r) else repr(r)
-        lines.append(f"* c{c} {channel.name}  {names[channel.a]} {names[channel.b]}  {state}")
+        lines.append(f"* c{c} {_one_line(channel.name)}  {names[channel.a]} {names[channel.b]}  {state}")
     lines += ["*", "* pair  neatskin R_eq_ohm"]
     lines += [f"* {p.label} {r!r}" for p, r in zip(layout.pairs, r_eq.tolist())]
     return lines
@@ -171,7 +176,7 @@ def _control(probes: Sequence[PairProbe]) -> list[str]:
         lines.append(f"let r_{name} = v({p.node})")
         if math.isinf(p.r_eq_ohm):
             lines += [
-                f"echo pair {p.label}: neatskin R_eq = inf (cut apart), ngspice must read at least R_leak",
+                f"echo pair {p.label}: neatskin R_eq = inf (cut apart) so ngspice must read at least R_leak",  # no commas: echo drops them
                 f"print r_{name}",
                 f"if r_{name} < {LEAK_OHM * (1 - 1e-9)!r}",  # rounding: V is LEAK_OHM itself
                 "let cut_mismatches = cut_mismatches + 1",
