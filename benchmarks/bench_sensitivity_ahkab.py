@@ -17,7 +17,7 @@ Python, BLAS pinned the same way), in the same alternating rounds.
 Each round times every path once, alternating (Ahkab's one map against the mean of enough neatskin maps to
 fill ~0.2 s, the clock read once per doubling batch of maps, not once a map), in process CPU time; the table gives the median over rounds of the per-round ratio, with the
 range, and the largest difference between the maps. BLAS threads are pinned to 1. Ahkab 0.18 (2015) needs
-three shims on current SciPy and NumPy, applied here only: its window imports moved to scipy.signal.windows,
+three shims on current SciPy and NumPy (tests/ahkab_load.py, applied only where Ahkab is used): its window imports moved to scipy.signal.windows,
 and its per-element report (which calls float() on a 1x1 array, and which the map does not read) is skipped.
 """
 
@@ -29,8 +29,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUME
     os.environ[_var] = "1"
 
 import argparse  # noqa: E402
-import contextlib  # noqa: E402
-import io  # noqa: E402
 import json  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
@@ -47,28 +45,10 @@ REPO = Path(__file__).resolve().parent.parent
 
 
 def _import_ahkab():
-    import scipy.signal
-    import scipy.signal.windows
+    sys.path.insert(0, str(REPO / "tests"))  # the shims Ahkab needs live beside the tests that use it too
+    from ahkab_load import import_ahkab
 
-    for name in ("bartlett", "hann", "hamming", "blackman", "blackmanharris", "gaussian", "kaiser"):
-        if not hasattr(scipy.signal, name):
-            setattr(scipy.signal, name, getattr(scipy.signal.windows, name))
-    # ahkab's __init__ probes for a display by os.system('python -c "import matplotlib.pyplot ..."'): where the
-    # `python` on PATH lacks matplotlib, that child prints a traceback on file descriptor 2, which redirect_stderr
-    # does not reach; the descriptor itself goes to /dev/null for the import
-    saved_fd2, devnull = os.dup(2), os.open(os.devnull, os.O_WRONLY)
-    os.dup2(devnull, 2)
-    try:
-        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-            import ahkab
-            from ahkab import results
-    finally:
-        os.dup2(saved_fd2, 2)
-        os.close(saved_fd2)
-        os.close(devnull)
-    results.op_solution._get_elements_op = lambda self, circ, x: ([], {}, 0.0)
-    results.op_solution.write_to_file = lambda self, *a, **k: None
-    return ahkab
+    return import_ahkab()
 
 
 def ahkab_map(ahkab, layout, increase: float = 0.5) -> np.ndarray:

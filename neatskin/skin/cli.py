@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 from pathlib import Path
 
 from neatskin.cligroups import add_out, add_quiet
-
-DEFAULT_LAYOUT = "protocols/skins/paper.toml"
+from neatskin.skin.clipress import DEFAULT_LAYOUT, add_press_arguments, evaluate_press
 
 
 def register(subparsers) -> None:
@@ -39,22 +39,29 @@ def register(subparsers) -> None:
         help="R_eq of every pair for one press (baseline, pressed, change)",
         description="Print the baseline, pressed and changed R_eq of every electrode pair for one press.",
     )
-    press.add_argument("--layout", default=DEFAULT_LAYOUT, help=f"skin layout TOML (default {DEFAULT_LAYOUT})")
-    press.add_argument("--x-mm", type=float, required=True, help="press centre, sensor frame")
-    press.add_argument("--y-mm", type=float, required=True, help="press centre, sensor frame")
-    press.add_argument("--depth-mm", type=float, default=3.5, help="press depth (paper: 3.5 mm)")
-    press.add_argument("--probe-radius-mm", type=float, default=2.75, help="flat probe radius (paper: 2.75 mm)")
-    press.add_argument(
-        "--fidelity", choices=("deformation", "network"), default="deformation", help="skin model (default deformation)"
+    add_press_arguments(press, position_required=True)
+    digits = press.add_mutually_exclusive_group()
+    digits.add_argument(
+        "--digits", type=_decimals, default=3, metavar="N", help="decimals of the resistances (default 3)"
     )
-    press.add_argument(
-        "--deformation",
-        choices=("parametric", "fe-kernel"),
-        default="parametric",
-        help="the pinch: the parametric profile (default) or the finite-element kernel of this layout (packaged for "
-        "the paper skin, else computed once and cached)",
+    digits.add_argument(
+        "--exact",
+        action="store_true",
+        help="every resistance as its full double (repr: the shortest decimal that reads back exactly)",
     )
+    press.add_argument("--channels", action="store_true", help="also print every channel's resistance")
     press.set_defaults(handler=press_handler)
+    netlist = commands.add_parser(
+        "netlist",
+        help="a SPICE netlist of one press's channel network, with neatskin's R_eq, to check against ngspice",
+        description="Write a SPICE netlist of the channel network for one press (or none): one copy per electrode "
+        "pair, 1 A into one electrode and the other grounded, every channel's resistance as its full double, and "
+        "neatskin's R_eq of every pair beside it. `ngspice -b FILE` solves it and prints both with their relative "
+        "difference (docs/skin.md).",
+    )
+    add_press_arguments(netlist, position_required=False)
+    add_out(netlist, "netlist file to write (default: standard output)")
+    netlist.set_defaults(handler=netlist_handler)
     fit = commands.add_parser(
         "fit",
         help="fit the skin model to a recorded campaign (channel baselines, pinch, placement, noise, drift)",
@@ -160,65 +167,68 @@ def fit_handler(args: argparse.Namespace) -> int:
 
 
 def press_handler(args: argparse.Namespace) -> int:
-    import numpy as np
+    press = evaluate_press(args)
 
-    from neatskin.errors import ConfigError
-    from neatskin.layout import load_layout
-    from neatskin.skin.model import SkinModel
+    def text(value: float) -> str:
+        return repr(value) if args.exact else f"{value:.{args.digits}f}"
 
-    for name in ("x_mm", "y_mm", "depth_mm", "probe_radius_mm"):
-        value = getattr(args, name)
-        flag = "--" + name.replace("_", "-")
-        if not np.isfinite(value) or (name == "probe_radius_mm" and value <= 0):
-            raise ConfigError(
-                f"{flag} must be a finite number{' > 0' if name == 'probe_radius_mm' else ''}, got {value}",
-                field=flag,
-                fix=f"pass a valid {flag}",
+    rows: list[tuple[str, ...]] = [
+        (pair.label, text(r0), text(r), text(r - r0), f"{100 * (r / r0 - 1):.3f}")
+        for pair, r0, r in zip(press.layout.pairs, press.pair_rest_ohm.tolist(), press.pair_ohm.tolist())
+    ]
+    print(press.description)
+    _table(("pair", "R0_ohm", "R_ohm", "dR_ohm", "dR_pct"), rows)
+    if args.channels:
+        rows = [
+            (f"c{c} {channel.name}", text(r0), text(r), repr(r / r0) if args.exact else f"{r / r0:.6g}")
+            for c, (channel, r0, r) in enumerate(
+                zip(press.layout.channels, press.channel_rest_ohm.tolist(), press.channel_ohm.tolist())
             )
-    layout = load_layout(args.layout)
-    _check_press_on_skin(layout, args.x_mm, args.y_mm, args.depth_mm, args.probe_radius_mm)
-    kernel = None
-    if args.deformation == "fe-kernel":
-        from neatskin.skin.kernel import KernelSpec, load_kernel
-
-        kernel = load_kernel(KernelSpec.for_layout(layout, args.probe_radius_mm))
-    model = SkinModel(layout, fidelity=args.fidelity, probe_radius_mm=args.probe_radius_mm, kernel=kernel)
-    base = model.baseline_pair_resistance_ohm
-    pressed = model.pair_resistance_ohm(args.x_mm, args.y_mm, args.depth_mm)[0]
-    force = model.contact_force_n(args.depth_mm)[0]
-    print(
-        f"press at ({args.x_mm:g}, {args.y_mm:g}) mm, depth {args.depth_mm:g} mm, force {force:.2f} N, "
-        f"{args.fidelity} model, {model.deformation} pinch, layout {layout.name}"
-    )
-    print(f"{'pair':>6s} {'R0_ohm':>12s} {'R_ohm':>12s} {'dR_ohm':>12s} {'dR_pct':>8s}")
-    with np.errstate(invalid="ignore"):
-        for pair, r0, r in zip(layout.pairs, base, pressed):
-            print(f"{pair.label:>6s} {r0:12.3f} {r:12.3f} {r - r0:12.3f} {100 * (r / r0 - 1):8.3f}")
+        ]
+        _table(("channel", "R0_ohm", "R_ohm", "R/R0"), rows)
     return 0
 
 
-def _check_press_on_skin(layout, x_mm: float, y_mm: float, depth_mm: float, probe_radius_mm: float) -> None:
-    """A press the skin cannot take is refused, as a protocol's would be, not answered with plausible numbers: a
-    depth above the surface or through the skin, or a probe that misses the channel grid (every dR 0)."""
-    from neatskin.errors import ConfigError
+def _table(header: tuple[str, ...], rows: Sequence[tuple[str, ...]]) -> None:
+    """Right-aligned columns at least 12 wide (the pairs' table of old: 6, then 12s, 8), wider for longer values."""
+    widths = [max(len(h), *(len(row[k]) for row in rows)) for k, h in enumerate(header)]
+    widths = [max(w, 6 if k == 0 else 8 if k == len(header) - 1 else 12) for k, w in enumerate(widths)]
+    for row in (header, *rows):
+        print(" ".join(f"{cell:>{w}s}" for cell, w in zip(row, widths)))
 
-    thickness = layout.thickness_mm
-    if not 0 <= depth_mm < thickness:
-        raise ConfigError(
-            f"--depth-mm {depth_mm:g} is {'above the surface' if depth_mm < 0 else 'through the skin'} "
-            f"(the skin of {layout.name} is {thickness:g} mm thick)",
-            field="--depth-mm",
-            fix=f"pass a depth from 0 (no press) to below {thickness:g} mm (the paper pressed 3.5 mm)",
-        )
-    x0, y0, x1, y1 = layout.bounds_mm
-    r = probe_radius_mm
-    if not (x0 - r < x_mm < x1 + r and y0 - r < y_mm < y1 + r):
-        raise ConfigError(
-            f"a probe of radius {r:g} mm at ({x_mm:g}, {y_mm:g}) mm misses the skin's channels "
-            f"(x {x0:g} to {x1:g}, y {y0:g} to {y1:g} mm): every dR would be 0",
-            field="--x-mm/--y-mm",
-            fix=f"press within x {x0:g} to {x1:g} and y {y0:g} to {y1:g} mm (the sensor frame)",
-        )
+
+def _decimals(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= 17:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of decimals from 0 to 17 (or use --exact)")
+    return value
+
+
+def netlist_handler(args: argparse.Namespace) -> int:
+    import sys
+
+    from neatskin import __version__
+    from neatskin.skin.netlist import spice_netlist
+
+    press = evaluate_press(args)
+    netlist = spice_netlist(
+        press.layout,
+        press.channel_ohm,
+        press.pair_ohm,
+        title=f"neatskin skin netlist: {press.description}",
+        notes=[f"written by neatskin {__version__}; check it with: ngspice -b FILE"],
+    )
+    if args.out is None:
+        sys.stdout.write(netlist.text)
+        return 0
+    Path(args.out).write_text(netlist.text)
+    print(f"wrote {args.out}: {press.description}")
+    print("neatskin R_eq (repr), to compare with `ngspice -b` (its r_<a>_<b> lines):")
+    _table(("pair", "R_eq_ohm"), [(p.label, repr(p.r_eq_ohm)) for p in netlist.probes])
+    return 0
 
 
 def maps_handler(args: argparse.Namespace) -> int:
