@@ -328,16 +328,41 @@ def _finish(args: argparse.Namespace) -> int:
 
 @as_ctrl_c()  # SIGTERM, SIGHUP: as Ctrl-C (the press in flight finishes, the probe parks)
 def _resume(args: argparse.Namespace) -> int:
-    from neatskin.rig.runner import resume_campaign
-
     kwargs = {"progress": not args.quiet, "report": not args.no_report}
     if args.port:
         kwargs.update(dry_run=False, port=args.port)
-    result = resume_campaign(args.folder, **kwargs)
+    # the pressed-rails warning, as `campaign run` prints it, from the campaign's recorded protocol: a real resume's
+    # in a child started now (its process builds no simulator), a dry one's in this process, once the folder's
+    # checks passed and presses are left (a complete campaign only finishes: no motion, no line)
+    forecast = _start_rails_forecast(args.folder) if _resumes_real(args) else None
+    try:
+        from neatskin.rig.runner import resume_campaign
+
+        result = resume_campaign(
+            args.folder, before_motion=lambda protocol: _warn_pressed_rails(protocol, forecast), **kwargs
+        )
+    finally:
+        if forecast is not None and forecast.returncode is None:  # the warning was not reached (an error, Ctrl-C)
+            _end_forecast(forecast)
     if result.report_summary:
         print(result.report_summary)
     print(_summary(result))
     return ExitCode.INTERRUPTED if result.interrupted else ExitCode.OK
+
+
+def _resumes_real(args: argparse.Namespace) -> bool:
+    """Whether `campaign resume` runs the real rig: --port, or a real campaign's manifest. A folder whose manifest
+    cannot be read says False here: the resume itself reports it."""
+    if args.port:
+        return True
+    from neatskin.datasets.manifest import read_manifest
+    from neatskin.errors import NeatskinError
+    from neatskin.rig.folder import rig_kind
+
+    try:
+        return rig_kind(args.folder, read_manifest(args.folder)) == "real"
+    except (NeatskinError, OSError, ValueError):
+        return False
 
 
 def _check(args: argparse.Namespace) -> int:

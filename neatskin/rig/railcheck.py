@@ -186,7 +186,9 @@ def missing_kernel(protocol: CampaignProtocol) -> str | None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """`python -m neatskin.rig.railcheck PROTOCOL`: the pressed-rails warning line, or nothing (a real `campaign
-    run` asks this child, so that its own process builds no simulator). A bad protocol: its error, exit 3; a pinch kernel it would first have to solve: exit 5."""
+    run` asks this child, so that its own process builds no simulator). PROTOCOL may be a campaign folder: its
+    recorded protocol and files (`inputs/`, as `campaign resume` runs them). A bad protocol: its error, exit 3; a
+    pinch kernel it would first have to solve: exit 5."""
     import os
     import sys
 
@@ -199,7 +201,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("usage: python -m neatskin.rig.railcheck PROTOCOL", file=sys.stderr)
         return int(ExitCode.USAGE)
     try:
-        protocol = load_protocol(args[0])
+        protocol = _load(Path(args[0]))
         missing = missing_kernel(protocol)
         if missing:
             print(missing, file=sys.stderr)
@@ -211,6 +213,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     if warning:
         print(warning)
     return 0
+
+
+def _load(path: Path) -> CampaignProtocol:
+    """A protocol file, or a campaign folder's recorded protocol (what `campaign resume` runs)."""
+    if path.is_dir():
+        from neatskin.rig.folder import load_inputs
+
+        return load_inputs(path)
+    return load_protocol(path)
 
 
 if __name__ == "__main__":

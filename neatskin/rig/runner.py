@@ -16,6 +16,7 @@ import dataclasses
 import logging
 import shutil
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -330,9 +331,13 @@ def _open_rig(
     return build_real_rig(protocol, plan, port=port, daq_kind=daq_kind, wire_log=wire_log, **timeout)
 
 
-def resume_campaign(folder: str | Path, **kwargs: Any) -> CampaignResult:
+def resume_campaign(
+    folder: str | Path, *, before_motion: Callable[[CampaignProtocol], None] | None = None, **kwargs: Any
+) -> CampaignResult:
     """Finish a campaign from its folder: the protocol and files it ran with are the copies in inputs/.
-    A complete campaign whose derived files (physical limit, report) are missing gets them regenerated."""
+    A complete campaign whose derived files (physical limit, report) are missing gets them regenerated.
+    `before_motion(protocol)` is called with the recorded protocol once the folder's checks passed, when presses
+    are left to press, before the rig opens (the CLI's pressed-rails warning)."""
     folder = Path(folder)
     check_folder(folder, resume=True)
     read_manifest(folder)  # a clear error for a folder that is no campaign, before a lock file is made
@@ -355,7 +360,10 @@ def resume_campaign(folder: str | Path, **kwargs: Any) -> CampaignResult:
         rig = manifest.get("rig")
         if kind == "real" and isinstance(rig, dict) and rig.get("daq") == "simulated":  # a real printer, no DAQ yet
             kwargs.setdefault("daq_kind", "simulated")
-        return run_campaign(load_inputs(folder), folder, resume=True, **kwargs)
+        protocol = load_inputs(folder)
+        if before_motion is not None:
+            before_motion(protocol)
+        return run_campaign(protocol, folder, resume=True, **kwargs)
 
 
 def finish_campaign(folder: str | Path, *, report: bool = True, progress: bool = True) -> CampaignResult:
