@@ -150,7 +150,12 @@ def _run(args: argparse.Namespace) -> int:
         forecast = _start_rails_forecast(protocol.path)
     from neatskin.rig.runner import run_campaign  # after the prestart: its imports overlap the worker's start
 
-    _warn_pressed_rails(protocol, forecast)  # before any motion
+    plan = None
+    if args.dry_run:  # built once: the rails warning draws its presses, the runner presses it
+        from neatskin.rig.plan import build_plan
+
+        plan = build_plan(protocol)
+    _warn_pressed_rails(protocol, forecast, plan)  # before any motion
     out = args.out or default_campaign_folder(protocol.name)
     monitor = _start_monitor(out, args.monitor_port) if args.monitor else None
     try:
@@ -164,6 +169,7 @@ def _run(args: argparse.Namespace) -> int:
             limit=args.limit,
             report=not args.no_report,
             connect_timeout_s=args.connect_timeout_s,
+            plan=plan,
         )
     finally:
         if monitor is not None:
@@ -205,16 +211,17 @@ def _end_forecast(forecast) -> None:
     forecast.communicate()
 
 
-def _warn_pressed_rails(protocol, forecast=None) -> None:
+def _warn_pressed_rails(protocol, forecast=None, plan=None) -> None:
     """`campaign check`'s pressed-rails warning, in its words, before any motion: a technician who runs without the
     check sees it too (on stderr, before the progress bar); nothing when every press stays inside the rails. A dry
     run draws the protocol's presses through its skin model here (about 0.2 s of CPU for the paper protocol's 2800,
     while the prestarted skin worker starts on the other core); a real run reads the line from its `forecast` child,
-    started before the runner's imports, and runs on with a note if the child fails or passes its cap."""
+    started before the runner's imports, and runs on with a note if the child fails or passes its cap. `plan`: the
+    dry run's, which its runner then presses (built once)."""
     if forecast is None:
         from neatskin.rig.railcheck import pressed_rails_warning
 
-        warning = pressed_rails_warning(protocol)
+        warning = pressed_rails_warning(protocol, plan)
     else:
         import subprocess
 
@@ -339,7 +346,7 @@ def _resume(args: argparse.Namespace) -> int:
         from neatskin.rig.runner import resume_campaign
 
         result = resume_campaign(
-            args.folder, before_motion=lambda protocol: _warn_pressed_rails(protocol, forecast), **kwargs
+            args.folder, before_motion=lambda protocol, plan: _warn_pressed_rails(protocol, forecast, plan), **kwargs
         )
     finally:
         if forecast is not None and forecast.returncode is None:  # the warning was not reached (an error, Ctrl-C)

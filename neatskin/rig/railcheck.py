@@ -24,7 +24,7 @@ from neatskin.errors import ConfigError, Problem
 from neatskin.gcode.positions import generate_positions
 from neatskin.rig.assembly import daq_config
 from neatskin.rig.dryrig import dry_scene
-from neatskin.rig.plan import build_plan
+from neatskin.rig.plan import Plan, build_plan
 from neatskin.rig.protocol import CLIP_MESSAGE, CampaignProtocol, load_protocol
 from neatskin.rig.simcampaign import pressed_skin
 from neatskin.sim.dryscene import dry_skin
@@ -64,11 +64,13 @@ class PressedRails:
         )
 
 
-def pressed_resistance_ohm(protocol: CampaignProtocol) -> np.ndarray:
-    """(presses, pairs) pair R_eq of the protocol's presses through its dry run's skin, +inf for a pair cut off."""
+def pressed_resistance_ohm(protocol: CampaignProtocol, plan: Plan | None = None) -> np.ndarray:
+    """(presses, pairs) pair R_eq of the protocol's presses through its dry run's skin, +inf for a pair cut off.
+    `plan`: the protocol's, when the caller has built it (a dry run's, which its runner presses); else built here."""
     press = protocol.press
     xy = generate_positions(protocol.layout, press.positions).xy_mm
-    dry = dry_scene(protocol, build_plan(protocol))  # the plan once: the skin and the drift's interval read it
+    # the plan once: the skin and the drift's interval read it
+    dry = dry_scene(protocol, build_plan(protocol) if plan is None else plan)
     drawn = pressed_skin(
         protocol,
         xy,
@@ -115,10 +117,10 @@ def pressed_rails_text(protocol: CampaignProtocol) -> str:
     return _line(protocol, pressed_rails(pressed_resistance_ohm(protocol), daq_config(protocol)))
 
 
-def pressed_rails_warning(protocol: CampaignProtocol) -> str | None:
+def pressed_rails_warning(protocol: CampaignProtocol, plan: Plan | None = None) -> str | None:
     """`campaign run`'s line before any motion: `campaign check`'s pressed line, word for word, when some press
-    passes the rails; None when none does (a run prints nothing then)."""
-    result = pressed_rails(pressed_resistance_ohm(protocol), daq_config(protocol))
+    passes the rails; None when none does (a run prints nothing then). `plan`: the protocol's, if already built."""
+    result = pressed_rails(pressed_resistance_ohm(protocol, plan), daq_config(protocol))
     return _line(protocol, result) if result.presses_over else None
 
 

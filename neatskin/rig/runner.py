@@ -76,13 +76,16 @@ def run_campaign(
     report: bool = True,
     printer_faults: FaultConfig | None = None,
     connect_timeout_s: float | None = None,
+    plan: Plan | None = None,
 ) -> CampaignResult:
     """Run (or resume) a campaign into `folder`; returns what was done. The folder is locked while it runs:
-    a second run or resume into it gets a DataError naming this process."""
+    a second run or resume into it gets a DataError naming this process. `plan`: build_plan(protocol), when the
+    caller has built it already (the CLI's dry run, for its rails warning); else it is built here."""
     folder = Path(folder)
     wall0 = time.perf_counter()
     check_folder(folder, resume)
-    plan = build_plan(protocol)  # every check that needs no hardware happens here, before any motion
+    if plan is None:
+        plan = build_plan(protocol)  # every check that needs no hardware happens here, before any motion
     kind = "dry-run" if dry_run else "real"
     if resume:
         lock = CampaignLock(folder).acquire()
@@ -332,12 +335,13 @@ def _open_rig(
 
 
 def resume_campaign(
-    folder: str | Path, *, before_motion: Callable[[CampaignProtocol], None] | None = None, **kwargs: Any
+    folder: str | Path, *, before_motion: Callable[[CampaignProtocol, Plan], None] | None = None, **kwargs: Any
 ) -> CampaignResult:
     """Finish a campaign from its folder: the protocol and files it ran with are the copies in inputs/.
     A complete campaign whose derived files (physical limit, report) are missing gets them regenerated.
-    `before_motion(protocol)` is called with the recorded protocol once the folder's checks passed, when presses
-    are left to press, before the rig opens (the CLI's pressed-rails warning)."""
+    `before_motion(protocol, plan)` is called with the recorded protocol and its plan (the one the campaign then
+    presses) once the folder's checks passed, when presses are left, before the rig opens (the CLI's pressed-rails
+    warning)."""
     folder = Path(folder)
     check_folder(folder, resume=True)
     read_manifest(folder)  # a clear error for a folder that is no campaign, before a lock file is made
@@ -361,9 +365,10 @@ def resume_campaign(
         if kind == "real" and isinstance(rig, dict) and rig.get("daq") == "simulated":  # a real printer, no DAQ yet
             kwargs.setdefault("daq_kind", "simulated")
         protocol = load_inputs(folder)
+        plan = build_plan(protocol)
         if before_motion is not None:
-            before_motion(protocol)
-        return run_campaign(protocol, folder, resume=True, **kwargs)
+            before_motion(protocol, plan)
+        return run_campaign(protocol, folder, resume=True, plan=plan, **kwargs)
 
 
 def finish_campaign(folder: str | Path, *, report: bool = True, progress: bool = True) -> CampaignResult:
