@@ -372,6 +372,7 @@ def _resumes_real(args: argparse.Namespace) -> bool:
         return False
 
 
+@as_ctrl_c()  # SIGTERM, SIGHUP: as Ctrl-C (a kernel solve's workers end with it)
 def _check(args: argparse.Namespace) -> int:
     from neatskin.rig.plan import build_plan
     from neatskin.rig.protocol import load_protocol
@@ -398,7 +399,8 @@ def _check(args: argparse.Namespace) -> int:
     print(f"  electrical: {protocol.electrical.summary()}")
     from neatskin.rig.railcheck import missing_kernel, pressed_rails_text
 
-    if missing_kernel(protocol):  # the pressed line needs it: say why nothing is printed for minutes
+    solving = missing_kernel(protocol)
+    if solving:  # the pressed line needs it: say why nothing is printed for minutes
         from neatskin.skin.kernel import cache_dir
 
         print(
@@ -406,7 +408,15 @@ def _check(args: argparse.Namespace) -> int:
             f"of CPU, once: cached in {cache_dir() / 'kernels'})",
             flush=True,
         )
-    print(f"  {pressed_rails_text(protocol)}")
+    try:
+        line = pressed_rails_text(protocol)
+    except KeyboardInterrupt:  # Ctrl-C, SIGTERM, SIGHUP: joblib has ended the solve's workers; say what is left
+        if not solving:
+            raise
+        raise KeyboardInterrupt(
+            "the pinch kernel's solve was stopped, nothing cached: `neatskin campaign check` starts it again"
+        ) from None
+    print(f"  {line}")
     return 0
 
 

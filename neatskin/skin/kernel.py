@@ -197,15 +197,17 @@ def compute_kernel(spec: KernelSpec, n_jobs: int = 2, progress=None, plane_strai
     """Solve the press at every offset of the spec in plane strain and the intact skin under the strip and the
     round probe (in parallel), and carry the channel kernel onto the round probe (skin/quasi3d.py).
     `plane_strain` (A/A0, chord force, provenance) of this spec (`plane_strain_rows`) skips the channel solves."""
-    from joblib import Parallel, delayed
+    from joblib import delayed
 
     from neatskin import __version__
+    from neatskin.orphans import watched_parallel
     from neatskin.skin.quasi3d import band_average, local_spread, transfer
 
     tasks: list[tuple[str, float | bool]] = [("host", False), ("host", True)]
     if plane_strain is None:
         tasks += [("channel", float(o)) for o in spec.offsets_mm]
-    run = Parallel(n_jobs=n_jobs, return_as="generator")
+    # workers that end with this process: killed outright (SIGKILL, OOM), it leaves no solve running for nobody
+    run = watched_parallel(n_jobs, return_as="generator")
     solved = {}
     for task, result in run(delayed(_solve_task)(spec, t) for t in tasks):
         solved[task] = result
