@@ -358,16 +358,16 @@ def _resume(args: argparse.Namespace) -> int:
 
 
 def _resumes_real(args: argparse.Namespace) -> bool:
-    """Whether `campaign resume` runs the real rig: --port, or a real campaign's manifest. A folder whose manifest
-    cannot be read says False here: the resume itself reports it."""
-    if args.port:
-        return True
+    """Whether `campaign resume` presses on the real rig: --port, or a real campaign's manifest, and the campaign is
+    not complete (then it only finishes: no forecast child). A folder whose manifest cannot be read says False here:
+    the resume itself reports it."""
     from neatskin.datasets.manifest import read_manifest
     from neatskin.errors import NeatskinError
     from neatskin.rig.folder import rig_kind
 
     try:
-        return rig_kind(args.folder, read_manifest(args.folder)) == "real"
+        manifest = read_manifest(args.folder)
+        return manifest.get("status") != "complete" and (bool(args.port) or rig_kind(args.folder, manifest) == "real")
     except (NeatskinError, OSError, ValueError):
         return False
 
