@@ -150,7 +150,12 @@ def _run(args: argparse.Namespace) -> int:
         forecast = _start_rails_forecast(protocol.path)
     from neatskin.rig.runner import run_campaign  # after the prestart: its imports overlap the worker's start
 
-    _warn_pressed_rails(protocol, forecast)  # before any motion
+    plan = None
+    if args.dry_run:  # built once: the rails warning draws its presses, the runner presses it
+        from neatskin.rig.plan import build_plan
+
+        plan = build_plan(protocol)
+    _warn_pressed_rails(protocol, forecast, plan)  # before any motion
     out = args.out or default_campaign_folder(protocol.name)
     monitor = _start_monitor(out, args.monitor_port) if args.monitor else None
     try:
@@ -164,6 +169,7 @@ def _run(args: argparse.Namespace) -> int:
             limit=args.limit,
             report=not args.no_report,
             connect_timeout_s=args.connect_timeout_s,
+            plan=plan,
         )
     finally:
         if monitor is not None:
@@ -205,16 +211,17 @@ def _end_forecast(forecast) -> None:
     forecast.communicate()
 
 
-def _warn_pressed_rails(protocol, forecast=None) -> None:
+def _warn_pressed_rails(protocol, forecast=None, plan=None) -> None:
     """`campaign check`'s pressed-rails warning, in its words, before any motion: a technician who runs without the
     check sees it too (on stderr, before the progress bar); nothing when every press stays inside the rails. A dry
     run draws the protocol's presses through its skin model here (about 0.2 s of CPU for the paper protocol's 2800,
     while the prestarted skin worker starts on the other core); a real run reads the line from its `forecast` child,
-    started before the runner's imports, and runs on with a note if the child fails or passes its cap."""
+    started before the runner's imports, and runs on with a note if the child fails or passes its cap. `plan`: the
+    dry run's, which its runner then presses (built once)."""
     if forecast is None:
         from neatskin.rig.railcheck import pressed_rails_warning
 
-        warning = pressed_rails_warning(protocol)
+        warning = pressed_rails_warning(protocol, plan)
     else:
         import subprocess
 
@@ -328,18 +335,44 @@ def _finish(args: argparse.Namespace) -> int:
 
 @as_ctrl_c()  # SIGTERM, SIGHUP: as Ctrl-C (the press in flight finishes, the probe parks)
 def _resume(args: argparse.Namespace) -> int:
-    from neatskin.rig.runner import resume_campaign
-
     kwargs = {"progress": not args.quiet, "report": not args.no_report}
     if args.port:
         kwargs.update(dry_run=False, port=args.port)
-    result = resume_campaign(args.folder, **kwargs)
+    # the pressed-rails warning, as `campaign run` prints it, from the campaign's recorded protocol: a real resume's
+    # in a child started now (its process builds no simulator), a dry one's in this process, once the folder's
+    # checks passed and presses are left (a complete campaign only finishes: no motion, no line)
+    forecast = _start_rails_forecast(args.folder) if _resumes_real(args) else None
+    try:
+        from neatskin.rig.runner import resume_campaign
+
+        result = resume_campaign(
+            args.folder, before_motion=lambda protocol, plan: _warn_pressed_rails(protocol, forecast, plan), **kwargs
+        )
+    finally:
+        if forecast is not None and forecast.returncode is None:  # the warning was not reached (an error, Ctrl-C)
+            _end_forecast(forecast)
     if result.report_summary:
         print(result.report_summary)
     print(_summary(result))
     return ExitCode.INTERRUPTED if result.interrupted else ExitCode.OK
 
 
+def _resumes_real(args: argparse.Namespace) -> bool:
+    """Whether `campaign resume` presses on the real rig: --port, or a real campaign's manifest, and the campaign is
+    not complete (then it only finishes: no forecast child). A folder whose manifest cannot be read says False here:
+    the resume itself reports it."""
+    from neatskin.datasets.manifest import read_manifest
+    from neatskin.errors import NeatskinError
+    from neatskin.rig.folder import rig_kind
+
+    try:
+        manifest = read_manifest(args.folder)
+        return manifest.get("status") != "complete" and (bool(args.port) or rig_kind(args.folder, manifest) == "real")
+    except (NeatskinError, OSError, ValueError):
+        return False
+
+
+@as_ctrl_c()  # SIGTERM, SIGHUP: as Ctrl-C (a kernel solve's workers end with it)
 def _check(args: argparse.Namespace) -> int:
     from neatskin.rig.plan import build_plan
     from neatskin.rig.protocol import load_protocol
@@ -366,7 +399,8 @@ def _check(args: argparse.Namespace) -> int:
     print(f"  electrical: {protocol.electrical.summary()}")
     from neatskin.rig.railcheck import missing_kernel, pressed_rails_text
 
-    if missing_kernel(protocol):  # the pressed line needs it: say why nothing is printed for minutes
+    solving = missing_kernel(protocol)
+    if solving:  # the pressed line needs it: say why nothing is printed for minutes
         from neatskin.skin.kernel import cache_dir
 
         print(
@@ -374,7 +408,15 @@ def _check(args: argparse.Namespace) -> int:
             f"of CPU, once: cached in {cache_dir() / 'kernels'})",
             flush=True,
         )
-    print(f"  {pressed_rails_text(protocol)}")
+    try:
+        line = pressed_rails_text(protocol)
+    except KeyboardInterrupt:  # Ctrl-C, SIGTERM, SIGHUP: joblib has ended the solve's workers; say what is left
+        if not solving:
+            raise
+        raise KeyboardInterrupt(
+            "the pinch kernel's solve was stopped, nothing cached: `neatskin campaign check` starts it again"
+        ) from None
+    print(f"  {line}")
     return 0
 
 

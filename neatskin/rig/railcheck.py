@@ -24,7 +24,7 @@ from neatskin.errors import ConfigError, Problem
 from neatskin.gcode.positions import generate_positions
 from neatskin.rig.assembly import daq_config
 from neatskin.rig.dryrig import dry_scene
-from neatskin.rig.plan import build_plan
+from neatskin.rig.plan import Plan, build_plan
 from neatskin.rig.protocol import CLIP_MESSAGE, CampaignProtocol, load_protocol
 from neatskin.rig.simcampaign import pressed_skin
 from neatskin.sim.dryscene import dry_skin
@@ -64,11 +64,13 @@ class PressedRails:
         )
 
 
-def pressed_resistance_ohm(protocol: CampaignProtocol) -> np.ndarray:
-    """(presses, pairs) pair R_eq of the protocol's presses through its dry run's skin, +inf for a pair cut off."""
+def pressed_resistance_ohm(protocol: CampaignProtocol, plan: Plan | None = None) -> np.ndarray:
+    """(presses, pairs) pair R_eq of the protocol's presses through its dry run's skin, +inf for a pair cut off.
+    `plan`: the protocol's, when the caller has built it (a dry run's, which its runner presses); else built here."""
     press = protocol.press
     xy = generate_positions(protocol.layout, press.positions).xy_mm
-    dry = dry_scene(protocol, build_plan(protocol))  # the plan once: the skin and the drift's interval read it
+    # the plan once: the skin and the drift's interval read it
+    dry = dry_scene(protocol, build_plan(protocol) if plan is None else plan)
     drawn = pressed_skin(
         protocol,
         xy,
@@ -115,10 +117,10 @@ def pressed_rails_text(protocol: CampaignProtocol) -> str:
     return _line(protocol, pressed_rails(pressed_resistance_ohm(protocol), daq_config(protocol)))
 
 
-def pressed_rails_warning(protocol: CampaignProtocol) -> str | None:
+def pressed_rails_warning(protocol: CampaignProtocol, plan: Plan | None = None) -> str | None:
     """`campaign run`'s line before any motion: `campaign check`'s pressed line, word for word, when some press
-    passes the rails; None when none does (a run prints nothing then)."""
-    result = pressed_rails(pressed_resistance_ohm(protocol), daq_config(protocol))
+    passes the rails; None when none does (a run prints nothing then). `plan`: the protocol's, if already built."""
+    result = pressed_rails(pressed_resistance_ohm(protocol, plan), daq_config(protocol))
     return _line(protocol, result) if result.presses_over else None
 
 
@@ -186,7 +188,9 @@ def missing_kernel(protocol: CampaignProtocol) -> str | None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """`python -m neatskin.rig.railcheck PROTOCOL`: the pressed-rails warning line, or nothing (a real `campaign
-    run` asks this child, so that its own process builds no simulator). A bad protocol: its error, exit 3; a pinch kernel it would first have to solve: exit 5."""
+    run` asks this child, so that its own process builds no simulator). PROTOCOL may be a campaign folder: its
+    recorded protocol and files (`inputs/`, as `campaign resume` runs them). A bad protocol: its error, exit 3; a
+    pinch kernel it would first have to solve: exit 5."""
     import os
     import sys
 
@@ -199,7 +203,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("usage: python -m neatskin.rig.railcheck PROTOCOL", file=sys.stderr)
         return int(ExitCode.USAGE)
     try:
-        protocol = load_protocol(args[0])
+        protocol = _load(Path(args[0]))
         missing = missing_kernel(protocol)
         if missing:
             print(missing, file=sys.stderr)
@@ -211,6 +215,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     if warning:
         print(warning)
     return 0
+
+
+def _load(path: Path) -> CampaignProtocol:
+    """A protocol file, or a campaign folder's recorded protocol (what `campaign resume` runs)."""
+    if path.is_dir():
+        from neatskin.rig.folder import load_inputs
+
+        return load_inputs(path)
+    return load_protocol(path)
 
 
 if __name__ == "__main__":

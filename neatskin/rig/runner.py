@@ -16,6 +16,7 @@ import dataclasses
 import logging
 import shutil
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -75,13 +76,16 @@ def run_campaign(
     report: bool = True,
     printer_faults: FaultConfig | None = None,
     connect_timeout_s: float | None = None,
+    plan: Plan | None = None,
 ) -> CampaignResult:
     """Run (or resume) a campaign into `folder`; returns what was done. The folder is locked while it runs:
-    a second run or resume into it gets a DataError naming this process."""
+    a second run or resume into it gets a DataError naming this process. `plan`: build_plan(protocol), when the
+    caller has built it already (the CLI's dry run, for its rails warning); else it is built here."""
     folder = Path(folder)
     wall0 = time.perf_counter()
     check_folder(folder, resume)
-    plan = build_plan(protocol)  # every check that needs no hardware happens here, before any motion
+    if plan is None:
+        plan = build_plan(protocol)  # every check that needs no hardware happens here, before any motion
     kind = "dry-run" if dry_run else "real"
     if resume:
         lock = CampaignLock(folder).acquire()
@@ -330,9 +334,14 @@ def _open_rig(
     return build_real_rig(protocol, plan, port=port, daq_kind=daq_kind, wire_log=wire_log, **timeout)
 
 
-def resume_campaign(folder: str | Path, **kwargs: Any) -> CampaignResult:
+def resume_campaign(
+    folder: str | Path, *, before_motion: Callable[[CampaignProtocol, Plan], None] | None = None, **kwargs: Any
+) -> CampaignResult:
     """Finish a campaign from its folder: the protocol and files it ran with are the copies in inputs/.
-    A complete campaign whose derived files (physical limit, report) are missing gets them regenerated."""
+    A complete campaign whose derived files (physical limit, report) are missing gets them regenerated.
+    `before_motion(protocol, plan)` is called with the recorded protocol and its plan (the one the campaign then
+    presses) once the folder's checks passed, when presses are left, before the rig opens (the CLI's pressed-rails
+    warning)."""
     folder = Path(folder)
     check_folder(folder, resume=True)
     read_manifest(folder)  # a clear error for a folder that is no campaign, before a lock file is made
@@ -355,7 +364,11 @@ def resume_campaign(folder: str | Path, **kwargs: Any) -> CampaignResult:
         rig = manifest.get("rig")
         if kind == "real" and isinstance(rig, dict) and rig.get("daq") == "simulated":  # a real printer, no DAQ yet
             kwargs.setdefault("daq_kind", "simulated")
-        return run_campaign(load_inputs(folder), folder, resume=True, **kwargs)
+        protocol = load_inputs(folder)
+        plan = build_plan(protocol)
+        if before_motion is not None:
+            before_motion(protocol, plan)
+        return run_campaign(protocol, folder, resume=True, plan=plan, **kwargs)
 
 
 def finish_campaign(folder: str | Path, *, report: bool = True, progress: bool = True) -> CampaignResult:

@@ -5,6 +5,7 @@ vectorised bilinear interpolation."""
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -196,15 +197,17 @@ def compute_kernel(spec: KernelSpec, n_jobs: int = 2, progress=None, plane_strai
     """Solve the press at every offset of the spec in plane strain and the intact skin under the strip and the
     round probe (in parallel), and carry the channel kernel onto the round probe (skin/quasi3d.py).
     `plane_strain` (A/A0, chord force, provenance) of this spec (`plane_strain_rows`) skips the channel solves."""
-    from joblib import Parallel, delayed
+    from joblib import delayed
 
     from neatskin import __version__
+    from neatskin.orphans import watched_parallel
     from neatskin.skin.quasi3d import band_average, local_spread, transfer
 
     tasks: list[tuple[str, float | bool]] = [("host", False), ("host", True)]
     if plane_strain is None:
         tasks += [("channel", float(o)) for o in spec.offsets_mm]
-    run = Parallel(n_jobs=n_jobs, return_as="generator")
+    # workers that end with this process: killed outright (SIGKILL, OOM), it leaves no solve running for nobody
+    run = watched_parallel(n_jobs, return_as="generator")
     solved = {}
     for task, result in run(delayed(_solve_task)(spec, t) for t in tasks):
         solved[task] = result
@@ -287,7 +290,11 @@ def write_kernel(kernel: PinchKernel, path: Path) -> Path:
     )
     meta = {b"neatskin.kernel_key": kernel.key.encode(), b"neatskin.provenance": kernel.provenance.encode()}
     path.parent.mkdir(parents=True, exist_ok=True)
-    pq.write_table(table.replace_schema_metadata(meta), path)
+    # a new file renamed into place: a reader never sees half a kernel, and a rewritten one is another inode, which
+    # read_kernel_once reads again
+    staging = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    pq.write_table(table.replace_schema_metadata(meta), staging)
+    os.replace(staging, path)
     return path
 
 
@@ -314,6 +321,31 @@ def read_kernel(path: Path) -> PinchKernel:
         meta.get(b"neatskin.provenance", b"{}").decode(),
         extra or None,
     )
+
+
+def read_kernel_once(path: Path) -> PinchKernel:
+    """read_kernel, once per version of the file in this process (the paper kernel: 35 to 60 ms the first read with
+    pyarrow.parquet's import, 1 to 14 ms a repeat at load 7): `campaign check`
+    and the rails forecast ask whether the kernel is there (railcheck.missing_kernel) and then draw the presses
+    with it, and a dry run's rails warning, its skin and its physical limit each load it. A file rewritten (by
+    `skin mechanics`, or by hand) has another inode, size or change time and is read again. The kernel's arrays
+    are made read-only: every caller shares them."""
+    st = path.stat()
+    return _read_kernel_version(str(path.resolve()), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+
+
+@functools.lru_cache(maxsize=4)
+def _read_kernel_version(path: str, *version: int) -> PinchKernel:
+    kernel = read_kernel(Path(path))
+    for array in (
+        kernel.offsets_mm,
+        kernel.depths_mm,
+        kernel.area_ratio,
+        kernel.force_n,
+        *(kernel.extra or {}).values(),
+    ):
+        array.setflags(write=False)
+    return kernel
 
 
 def _column(table, name: str) -> np.ndarray:
@@ -347,12 +379,12 @@ def load_kernel(spec: KernelSpec, compute: bool = True, n_jobs: int = 2) -> Pinc
     key = spec.key()
     packaged = packaged_kernel_path()
     if packaged.exists():
-        kernel = read_kernel(packaged)
+        kernel = read_kernel_once(packaged)
         if kernel.key == key:
             return kernel
     cached = cache_dir() / "kernels" / f"{key}.parquet"
     if cached.exists():
-        return read_kernel(cached)
+        return read_kernel_once(cached)
     if not compute:
         raise FileNotFoundError(f"no pinch kernel {key} packaged or in {cached.parent}: run `neatskin skin mechanics`")
     kernel = compute_kernel(spec, n_jobs=n_jobs)

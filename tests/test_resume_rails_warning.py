@@ -1,0 +1,114 @@
+"""`campaign resume` prints `campaign check`'s pressed-rails warning, word for word, once, on stderr before any motion,
+as `campaign run` does: from the campaign's own recorded protocol (its `inputs/` copies), in process for a dry run,
+from the forecast child (`python -m neatskin.rig.railcheck FOLDER`) for a real one. A small paper-skin protocol
+(20 positions x 2 presses) at 0.5 mA puts one press past the rails; at its 0.2 mA nothing is printed."""
+
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+
+from neatskin.datasets.paths import press_parts
+
+PROTOCOLS = Path(__file__).resolve().parent.parent / "protocols"
+
+
+def _small_at(tmp_path: Path, amplitude: str) -> Path:
+    """The paper protocol cut to 20 positions x 2 presses at `amplitude` A, beside copies of the files it names."""
+    root = tmp_path / "protocols"
+    root.mkdir(parents=True)
+    for sub in ("skins", "wiring", "printers"):
+        (root / sub).symlink_to(PROTOCOLS / sub)
+    text = (PROTOCOLS / "paper.toml").read_text()
+    for old, new in (
+        ("count = 100", "count = 20"),
+        ("repeats = 28", "repeats = 2"),
+        ("amplitude_a = 0.0002 ", f"amplitude_a = {amplitude} "),
+    ):
+        assert old in text
+        text = text.replace(old, new)
+    path = root / "small.toml"
+    path.write_text(text)
+    return path
+
+
+def _neatskin(*args: str, code: int = 0, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    done = subprocess.run(
+        [sys.executable, "-m", "neatskin", *args], capture_output=True, text=True, timeout=240, cwd=cwd
+    )
+    assert done.returncode == code, done.stderr
+    return done
+
+
+def _pressed_line(check_stdout: str) -> str:
+    return next(line for line in check_stdout.splitlines() if "electrical, pressed" in line).strip()
+
+
+def _press_ids(folder: Path) -> list[int]:
+    return sorted(pq.read_table(folder / "presses.parquet", columns=["press_id"]).column("press_id").to_pylist())
+
+
+@pytest.mark.timeout(300)
+def test_a_dry_resume_past_the_rails_warns_once_before_its_presses_and_loses_none(tmp_path):
+    path = _small_at(tmp_path, "0.0005")
+    check_line = _pressed_line(_neatskin("campaign", "check", str(path)).stdout)
+    assert "warning: 1 of 40 presses (2.5 %) put some pair past the rails at 0.5 mA" in check_line
+    run = tmp_path / "run"
+    _neatskin("campaign", "run", str(path), "--dry-run", "--limit", "3", "--no-report", "-q", "--out", str(run))
+    assert not (run / "presses.parquet").exists()  # 3 of 40 pressed: interrupted, resumable
+    resumed = _neatskin("campaign", "resume", str(run), "--no-report")
+    warning = f"{run / 'inputs' / 'protocol.toml'}: {check_line}"
+    lines = resumed.stderr.splitlines()
+    assert [line for line in lines if "electrical" in line] == [warning], resumed.stderr
+    assert lines.index(warning) < next(k for k, line in enumerate(lines) if "paper (dry-run):" in line)  # the bar
+    assert "past the rails" not in resumed.stdout and "Traceback" not in resumed.stderr
+    assert "campaign complete: 40/40 presses" in resumed.stdout and "(37 written now" in resumed.stdout
+    assert _press_ids(run) == list(range(40))  # none lost, none twice
+
+
+@pytest.mark.timeout(300)
+def test_a_dry_resume_at_the_protocols_current_prints_no_rails_line(tmp_path):
+    path = _small_at(tmp_path, "0.0002")
+    run = tmp_path / "run"
+    _neatskin("campaign", "run", str(path), "--dry-run", "--limit", "3", "--no-report", "-q", "--out", str(run))
+    resumed = _neatskin("campaign", "resume", str(run), "--no-report", "-q")
+    assert "electrical" not in resumed.stderr + resumed.stdout, resumed.stderr
+    assert "campaign complete: 40/40 presses" in resumed.stdout
+    assert _press_ids(run) == list(range(40))
+    again = _neatskin("campaign", "resume", str(run), "--no-report", code=5)  # complete: nothing moves, no line
+    assert "already complete" in again.stderr and "electrical" not in again.stderr
+
+
+@pytest.mark.timeout(300)
+def test_a_real_resume_warns_from_the_forecast_child_before_the_rig_opens(tmp_path):
+    """A dry campaign resumed on a printer port (a `neatskin sim printer` on a pty, the NI DAQ missing): the line
+    comes from the child, read from the folder's recorded protocol, before the rig's error; the presses stay."""
+    path = _small_at(tmp_path, "0.0005")
+    check_line = _pressed_line(_neatskin("campaign", "check", str(path)).stdout)
+    run = tmp_path / "run"
+    _neatskin("campaign", "run", str(path), "--dry-run", "--limit", "2", "--no-report", "-q", "--out", str(run))
+    sim = subprocess.Popen([sys.executable, "-m", "neatskin", "sim", "printer"], stdout=subprocess.PIPE, text=True)
+    try:
+        port = sim.stdout.readline().strip()
+        assert port.startswith("/dev/")
+        args = ["campaign", "resume", str(run), "--port", port, "--no-report", "-q"]
+        probe = ("neatskin.skin.model", "neatskin.sim.daq", "neatskin.rig.railcheck")
+        code = (
+            f"import sys\nfrom neatskin.cli import main\ncode = main({args!r})\n"
+            f"print(sorted(m for m in {probe!r} if m in sys.modules))\nsys.exit(code)"
+        )
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    finally:
+        sim.send_signal(signal.SIGINT)
+        sim.wait(10)
+    assert eval(out.stdout.strip().splitlines()[-1]) == []  # the line came from the child
+    lines = out.stderr.splitlines()
+    warning = f"{run / 'inputs' / 'protocol.toml'}: {check_line}"
+    assert lines.count(warning) == 1, out.stderr
+    error = next(k for k, line in enumerate(lines) if "neatskin: error:" in line)
+    assert lines.index(warning) < error and "nidaqmx" in out.stderr
+    on_disk = [i for part in press_parts(run).values() for i in pq.read_table(part).column("press_id").to_pylist()]
+    assert sorted(on_disk) == [0, 1]  # the 2 pressed before stay, and no press was added
