@@ -83,3 +83,56 @@ def test_a_dry_run_with_a_long_hold_labels_every_press_once_at_its_hold(tmp_path
         on, off = (np.flatnonzero(model.newtons(fsr_v) > n) for n in (0.5, 0.25))  # the hysteresis' thresholds
         assert on[0] / rate_hz <= row.fsr_onset_s < row.fsr_onset_s + hold_s < row.fsr_offset_s
         assert row.fsr_offset_s == pytest.approx((off[-1] + 1) / rate_hz, abs=0.01)
+
+
+def _protocol(root, **replace: str):
+    """The smoke protocol with its hardware files under root, its text edited (old: new)."""
+    for sub in ("skins", "wiring", "printers"):
+        if not (root / sub).exists():
+            shutil.copytree(PROTOCOLS / sub, root / sub)
+    text = (PROTOCOLS / "smoke.toml").read_text()
+    for old, new in replace.items():
+        assert old in text
+        text = text.replace(old, new)
+    path = root / "edited.toml"
+    path.write_text(text)
+    return path
+
+
+def test_check_warns_of_a_hold_over_a_minute_but_passes_it(tmp_path, capsys):
+    from neatskin.rig.plan import LONG_HOLD_S, build_plan
+    from neatskin.rig.protocol import load_protocol
+
+    assert main(["campaign", "check", str(_protocol(tmp_path, **{"hold_s = 1.2": "hold_s = 1200"}))]) == 0
+    out = capsys.readouterr().out
+    assert "printer time 4.02 h for the 12 presses" in out
+    warning = "  warning: hold_s = 1200 s is over 60 s: the holds alone take 4.00 h of the 4.02 h; "
+    assert f"{warning}if it was meant in milliseconds, set hold_s = 1.2\n" in out
+    for hold, warns in (("1.2", False), (f"{LONG_HOLD_S:g}", False), ("60.5", True)):
+        plan = build_plan(load_protocol(_protocol(tmp_path, **{"hold_s = 1.2": f"hold_s = {hold}"})))
+        assert (plan.long_hold_warning() is not None) == warns
+
+
+def test_a_report_that_fails_after_the_recording_says_the_data_is_whole_first(tmp_path, capsys):
+    """Every press missed (the skin 5 mm below where it is calibrated): the run records them all, flagged; the
+    report then has nothing to learn from (exit 5). The CLI says the data is complete before the report's error,
+    whose fix is the command line; from Python the same error names the keyword."""
+    from neatskin.errors import DataError
+    from neatskin.rig.runner import finish_campaign
+
+    edits = {"count = 6": "count = 2", "repeats = 2": "repeats = 1", "surface_error_mm = 0.0": "surface_error_mm = 5.0"}
+    out = tmp_path / "run"
+    assert main(["campaign", "run", str(_protocol(tmp_path, **edits)), "--dry-run", "--out", str(out), "--quiet"]) == 5
+    err = capsys.readouterr().err.splitlines()
+    assert err == [
+        f"neatskin: error: {out}: the campaign's data is complete and intact (2 of 2 presses in {out}); only its "
+        "baseline report failed, for the reason below",
+        f"neatskin: error: {out}: [flags]: no presses left to learn from after dropping 2 flagged (fix: record "
+        f"presses without flags, or keep them: neatskin baselines {out} --flagged keep)",
+    ]
+    rows = pd.read_parquet(out / "presses.parquet")
+    assert len(rows) == 2 and all("fsr_missed" in list(f) for f in rows["flags"])
+    with pytest.raises(DataError) as caught:
+        finish_campaign(out, progress=False)
+    assert "(fix: record presses without flags, or pass flagged='keep')" in str(caught.value)
+    assert "--flagged" not in str(caught.value) and "complete and intact (2 of 2 presses" in str(caught.value)
