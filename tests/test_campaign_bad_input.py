@@ -160,14 +160,26 @@ def test_missing_daq_is_one_clear_error(tmp_path, capsys):
     assert printer.executed[-1][1].startswith("M110"), "nothing but the line-number reset may reach the printer"
 
 
-def test_existing_folder_is_not_overwritten(tmp_path):
+@pytest.mark.parametrize("campaign", [False, True])
+def test_existing_folder_is_not_overwritten(tmp_path, campaign):
+    """Resume is offered only for a campaign (a manifest.json): it refuses any other folder (the audit's notes.txt
+    folder was told to resume, which then failed on the missing manifest)."""
     out = tmp_path / "run"
     out.mkdir()
-    (out / "presses.parquet").write_bytes(b"precious")
+    (out / "notes.txt").write_bytes(b"precious")
+    if campaign:
+        (out / "manifest.json").write_text("{}")
     with pytest.raises(ConfigError) as info:
         run_campaign(load_protocol(PROTOCOLS / "smoke.toml"), out, dry_run=True, progress=False, report=False)
-    assert "resume" in info.value.problems[0].fix
-    assert (out / "presses.parquet").read_bytes() == b"precious"
+    problem = info.value.problems[0]
+    if campaign:
+        assert problem.message == f"the output folder {out} already holds files"
+        assert problem.fix == f"choose a new folder, or continue it with: neatskin campaign resume {out}"
+    else:
+        assert problem.message == f"the output folder {out} already holds files and is no campaign (no manifest.json)"
+        assert problem.fix == "choose a new or empty folder for --out"
+    assert (out / "notes.txt").read_bytes() == b"precious"
+    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "notes.txt"][1 - campaign :]
 
 
 def test_port_that_does_not_exist(tmp_path, capsys):
