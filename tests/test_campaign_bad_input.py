@@ -484,18 +484,30 @@ def _neatskin(*argv, privileged=True, cwd=None):
     )
 
 
-@pytest.mark.parametrize("port", ["plain", os.devnull])
+@pytest.mark.parametrize("port", ["plain", os.devnull, "folder"])
 def test_a_file_given_as_the_serial_port_is_not_a_cable_problem(tmp_path, port):
     program = tmp_path / "p.gcode"
     program.write_text("G28\n")
     if port == "plain":
         port = str(tmp_path / "plain")
         (tmp_path / "plain").write_text("")
+    elif port == "folder":  # `--port /tmp`: was "the serial port died ... Is a directory (fix: check the USB cable"
+        port = str(tmp_path)
     done = _neatskin("printer", "send", str(program), "--port", port, "-q")
     assert done.returncode == 4, done.stderr
     assert done.stderr.startswith(f"neatskin: error: not a serial port {port!r}: ")
     assert "nothing was sent (fix: give the printer's serial device (ls /dev/ttyUSB* /dev/ttyACM*)" in done.stderr
     assert "USB cable" not in done.stderr and "Traceback" not in done.stderr
+
+
+def test_a_folder_given_as_the_campaigns_port_is_not_a_serial_port(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["campaign", "run", str(PROTOCOLS / "smoke.toml"), "--port", str(tmp_path), "--daq", "simulated"]
+    assert main([*argv, "--out", str(out), "--quiet", "--no-report"]) == 4
+    err = capsys.readouterr().err
+    assert err.startswith(f"neatskin: error: not a serial port {str(tmp_path)!r}: it is a folder: ")
+    assert err.count("neatskin: error:") == 1 and "USB cable" not in err and "died" not in err
+    assert "nothing was sent (fix: give the printer's serial device" in err and not out.exists()
 
 
 def test_resume_given_a_protocol_file_asks_for_the_campaign_folder(tmp_path):
