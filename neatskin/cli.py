@@ -134,7 +134,7 @@ def path_error(exc: OSError) -> DataError:
 def report_error(exc: NeatskinError) -> None:
     """The one error format: `neatskin: error: file: [field]: what (fix: how)`, one line per problem."""
     problems = getattr(exc, "problems", None)
-    lines = [str(p) for p in problems] if problems else str(exc).splitlines() or [type(exc).__name__]
+    lines = [p.text(cli=True) for p in problems] if problems else str(exc).splitlines() or [type(exc).__name__]
     for line in lines:
         print(f"neatskin: error: {line}", file=sys.stderr)
 

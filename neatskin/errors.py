@@ -33,11 +33,18 @@ class Problem:
     file: str | None = None
     field: str | None = None
     fix: str | None = None
+    cli_fix: str | None = None  # the fix as a `neatskin` command line, where `fix` names a Python keyword
 
     def __str__(self) -> str:
+        return self.text(cli=False)
+
+    def text(self, *, cli: bool) -> str:
+        """`file: [field]: message (fix: ...)`; cli: the fix in the command line's words when it has them (the CLI's
+        error lines; str() gives the Python caller's)."""
         where = ": ".join(part for part in (self.file, f"[{self.field}]" if self.field else None) if part)
         text = f"{where}: {self.message}" if where else self.message
-        return f"{text} (fix: {self.fix})" if self.fix else text
+        fix = self.cli_fix if cli and self.cli_fix else self.fix
+        return f"{text} (fix: {fix})" if fix else text
 
 
 class NeatskinError(Exception):
@@ -53,11 +60,12 @@ class _ProblemError(NeatskinError):
         field: str | None = None,
         fix: str | None = None,
         problems: Iterable[Problem] | None = None,
+        cli_fix: str | None = None,
     ) -> None:
         if problems is None:
             if message is None:
                 raise TypeError("give a message or a list of problems")
-            problems = [Problem(message, None if file is None else str(file), field, fix)]
+            problems = [Problem(message, None if file is None else str(file), field, fix, cli_fix)]
         self.problems: tuple[Problem, ...] = tuple(problems)
         if not self.problems:
             raise TypeError("an error needs at least one problem")

@@ -1,7 +1,7 @@
 """One command script replayed line by line against any Marlin on a pty: the real firmware or the simulator.
 
 Each entry is written as is (framed lines carry their own N and checksum, so a bad checksum or a
-skipped number is part of the script); the replies are read until the `ok` that answers it, or, for a
+skipped number is part of the script); the replies are read until the `ok` that answers it (both of M999's), or, for a
 line answered by no `ok` (a kill, a line ignored while halted), until its quiet time passes.
 """
 
@@ -54,6 +54,24 @@ SCRIPT: list[tuple[bytes, float]] = [
     (b"M110 N0\n", 0.5),
 ]
 
+# M999 on a running printer (M999.cpp): without a true S it calls queue.cpp's flush_and_request_resend, which empties
+# the receive buffer and prints `Resend: <last N + 1>` and a bare `ok` (ADVANCED_OK or not), before the command's own
+# `ok` (`ok P15 B3` with ADVANCED_OK; `ok N11 P15 B3` for a numbered M999); `M999 S1` (S alone too) only its ok,
+# `S0` asks again. The line after it is the one asked for. (M999 after a kill is in SCRIPT: nothing answers.)
+M999_SCRIPT: list[tuple[bytes, float]] = [
+    (b"M110 N0\n", OK_WAIT_S),
+    *((frame("M400" if n % 2 else "M114", n), OK_WAIT_S) for n in range(1, 10)),
+    (b"M999\n", OK_WAIT_S),
+    (frame("M114", 10), OK_WAIT_S),
+    (b"M999 S1\n", OK_WAIT_S),
+    (b"M999 S\n", OK_WAIT_S),
+    (b"M999 S0\n", OK_WAIT_S),
+    (frame("M999", 11), OK_WAIT_S),
+    (frame("M400", 12), OK_WAIT_S),
+    (b"M110 N0\n", OK_WAIT_S),
+    (b"M999\n", OK_WAIT_S),
+]
+
 # Motion before homing: stock Marlin (no NO_MOTION_BEFORE_HOMING) moves from where it believes it is (zeros at
 # boot), with no word, and clamps only the axes it has homed (none yet: below the soft minimum is taken). Short
 # moves: the firmware runs them in real time. M114 reports the end of the queued motion, so it is exact at once.
@@ -93,6 +111,16 @@ def _command(line: bytes) -> bytes:
 HALTED = b"kill() called!"
 
 
+def oks_answering(line: bytes) -> int:
+    """How many `ok` lines answer a script line: two for M999 without a true S (the resend request's bare one, then
+    its own), one for any other."""
+    words = line.split(b";")[0].split(b"*")[0].split()
+    if _command(line) != b"M999":
+        return 1
+    s = [w[1:] for w in words if w.upper().startswith(b"S")]
+    return 1 if s and (s[0] == b"" or int(float(s[0])) > 0) else 2
+
+
 def replay(fd: int, script: list[tuple[bytes, float]] = SCRIPT, max_wait_s: float = 10.0) -> list[tuple[bytes, bytes]]:
     """(line written, every byte read until its `ok`, or until its quiet time passes after an M112's last words or
     any other answer) for each entry of the script, each line's read bounded by max_wait_s."""
@@ -102,13 +130,14 @@ def replay(fd: int, script: list[tuple[bytes, float]] = SCRIPT, max_wait_s: floa
         got = b""
         end = time.monotonic() + max_wait_s
         halts = _command(line) == b"M112"
+        oks = oks_answering(line)
         while (left_s := end - time.monotonic()) > 0:
             wait_s = left_s if halts and HALTED not in got else min(quiet_s, left_s)
             ready, _, _ = select.select([fd], [], [], wait_s)
             if not ready:
                 break
             got += os.read(fd, 4096)
-            if got.endswith(b"\n") and got.splitlines()[-1].startswith(b"ok"):
+            if got.endswith(b"\n") and sum(r.startswith(b"ok") for r in got.splitlines()) >= oks:
                 break
         out.append((line, got))
     return out

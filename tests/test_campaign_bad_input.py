@@ -160,14 +160,26 @@ def test_missing_daq_is_one_clear_error(tmp_path, capsys):
     assert printer.executed[-1][1].startswith("M110"), "nothing but the line-number reset may reach the printer"
 
 
-def test_existing_folder_is_not_overwritten(tmp_path):
+@pytest.mark.parametrize("campaign", [False, True])
+def test_existing_folder_is_not_overwritten(tmp_path, campaign):
+    """Resume is offered only for a campaign (a manifest.json): it refuses any other folder (the audit's notes.txt
+    folder was told to resume, which then failed on the missing manifest)."""
     out = tmp_path / "run"
     out.mkdir()
-    (out / "presses.parquet").write_bytes(b"precious")
+    (out / "notes.txt").write_bytes(b"precious")
+    if campaign:
+        (out / "manifest.json").write_text("{}")
     with pytest.raises(ConfigError) as info:
         run_campaign(load_protocol(PROTOCOLS / "smoke.toml"), out, dry_run=True, progress=False, report=False)
-    assert "resume" in info.value.problems[0].fix
-    assert (out / "presses.parquet").read_bytes() == b"precious"
+    problem = info.value.problems[0]
+    if campaign:
+        assert problem.message == f"the output folder {out} already holds files"
+        assert problem.fix == f"choose a new folder, or continue it with: neatskin campaign resume {out}"
+    else:
+        assert problem.message == f"the output folder {out} already holds files and is no campaign (no manifest.json)"
+        assert problem.fix == "choose a new or empty folder for --out"
+    assert (out / "notes.txt").read_bytes() == b"precious"
+    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "notes.txt"][1 - campaign :]
 
 
 def test_port_that_does_not_exist(tmp_path, capsys):
@@ -472,18 +484,30 @@ def _neatskin(*argv, privileged=True, cwd=None):
     )
 
 
-@pytest.mark.parametrize("port", ["plain", os.devnull])
+@pytest.mark.parametrize("port", ["plain", os.devnull, "folder"])
 def test_a_file_given_as_the_serial_port_is_not_a_cable_problem(tmp_path, port):
     program = tmp_path / "p.gcode"
     program.write_text("G28\n")
     if port == "plain":
         port = str(tmp_path / "plain")
         (tmp_path / "plain").write_text("")
+    elif port == "folder":  # `--port /tmp`: was "the serial port died ... Is a directory (fix: check the USB cable"
+        port = str(tmp_path)
     done = _neatskin("printer", "send", str(program), "--port", port, "-q")
     assert done.returncode == 4, done.stderr
     assert done.stderr.startswith(f"neatskin: error: not a serial port {port!r}: ")
     assert "nothing was sent (fix: give the printer's serial device (ls /dev/ttyUSB* /dev/ttyACM*)" in done.stderr
     assert "USB cable" not in done.stderr and "Traceback" not in done.stderr
+
+
+def test_a_folder_given_as_the_campaigns_port_is_not_a_serial_port(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["campaign", "run", str(PROTOCOLS / "smoke.toml"), "--port", str(tmp_path), "--daq", "simulated"]
+    assert main([*argv, "--out", str(out), "--quiet", "--no-report"]) == 4
+    err = capsys.readouterr().err
+    assert err.startswith(f"neatskin: error: not a serial port {str(tmp_path)!r}: it is a folder: ")
+    assert err.count("neatskin: error:") == 1 and "USB cable" not in err and "died" not in err
+    assert "nothing was sent (fix: give the printer's serial device" in err and not out.exists()
 
 
 def test_resume_given_a_protocol_file_asks_for_the_campaign_folder(tmp_path):

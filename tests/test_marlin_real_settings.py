@@ -175,28 +175,61 @@ def _replies(port: serial.Serial, data: bytes, needle: bytes, deadline_s: float 
     return _read_until(port.fd, needle, deadline_s)
 
 
+def _boots(port: serial.Serial) -> bytes:
+    """The boot banner a reopened port gets (to its settings report's last line), and the rest of that line."""
+    banner = _read_until(port.fd, b"M301", 5.0)
+    return banner + _read_until(port.fd, b"\n", 0.3)
+
+
 @pytest.mark.timeout(60)
-def test_a_halted_printer_boots_again_when_a_host_reopens_the_port(protocols_dir):
-    """After M112 nothing answers, M999 neither (the real firmware too); a host that closes and reopens the pty (pyserial:
-    its open flushes the input, the sim's stand-in for the DTR pulse of a board's auto-reset) gets `start`, and the
-    printer answers again, unhomed. A reopen of a printer that is not halted resets nothing."""
+def test_a_printer_boots_again_when_a_host_reopens_the_port(protocols_dir):
+    """A board with auto-reset reboots on every open (the DTR pulse): the simulator boots (`start`, unhomed, line 0)
+    when a host opens the port after the last one closed it (an inotify watch on the pty's path sees both). After
+    M112 nothing answers, M999 neither (the real firmware too), until the next open. Before, a reopen of a printer
+    that was not halted continued the session: a host found the previous one's homing and settings."""
     sim = SimulatedPrinter(load_printer_profile(protocols_dir / "printers" / "paper.toml"))
     sim.core.take_output()  # the boot banner (a host's open may come before or after the printer writes it)
     path = sim.start_pty()
     try:
         with serial.Serial(path, timeout=0) as port:
             assert _replies(port, b"G28\n", b"ok\n").endswith(b"Count X:0 Y:0 Z:2000\nok\n")
-        with serial.Serial(path, timeout=0) as port:  # not halted: the same session goes on
-            assert _replies(port, b"M114\n", b"ok\n") == b"X:0.00 Y:0.00 Z:5.00 E:0.00 Count X:0 Y:0 Z:2000\nok\n"
+        assert sim.core.resets == 0
+        with serial.Serial(path, timeout=0) as port:  # a new host: a new power-on, unhomed
+            assert _boots(port).startswith(b"start\n") and sim.core.resets == 1
+            assert _replies(port, b"M114\n", b"ok\n") == b"X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0\nok\n"
             assert _replies(port, b"M112\n", b"kill() called!\n").endswith(b"Error:Printer halted. kill() called!\n")
             assert _replies(port, b"M999\nM110 N0\n", b"ok\n", deadline_s=0.5) == b""
-        assert sim.core.halted and sim.core.resets == 0
+        assert sim.core.halted and sim.core.resets == 1
         with serial.Serial(path, timeout=0) as port:
-            banner = _read_until(port.fd, b"M301", 5.0)
-            assert banner.startswith(b"start\n") and sim.core.resets == 1
-            _read_until(port.fd, b"\n", 0.3)
+            assert _boots(port).startswith(b"start\n") and sim.core.resets == 2
             assert _replies(port, b"M110 N0\n", b"ok\n") == b"ok\n"
             assert _replies(port, b"M114\n", b"ok\n") == b"X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0\nok\n"
+    finally:
+        sim.stop()
+
+
+@pytest.mark.timeout(60)
+def test_a_new_host_does_not_inherit_the_last_ones_auto_reports(protocols_dir):
+    """The audit's case: OctoPrint left `M155 S2` on, and the next host got temperature reports it never asked for.
+    pyserial on the real pty: open, M155 S2, a report, close, open again at once (the close and the open both seen,
+    in order): the banner, then no report in 3 s. A host that opens without flushing (a terminal) gets the banner too
+    (OPEN_RESET_S after its open)."""
+    sim = SimulatedPrinter(load_printer_profile(NATIVE_PROFILE), time_mode="scaled")
+    sim.core.take_output()
+    path = sim.start_pty()
+    report = b" T:25.00 /0.00 B:25.00 /0.00 @:0 B@:0\n"
+    try:
+        with serial.Serial(path, timeout=0) as port:
+            assert _replies(port, b"M155 S2\n", b"ok\n") == b"ok\n"
+            assert _read_until(port.fd, report, 5.0).endswith(report)
+        with serial.Serial(path, timeout=0) as port:
+            assert _boots(port).startswith(b"start\n") and sim.core.resets == 1
+            assert report not in _read_until(port.fd, report, 3.0)
+        fd = os.open(path, os.O_RDWR | os.O_NOCTTY)  # no flush
+        try:
+            assert _read_until(fd, b"M301", 5.0).startswith(b"start\n") and sim.core.resets == 2
+        finally:
+            os.close(fd)
     finally:
         sim.stop()
 

@@ -32,6 +32,7 @@ from marlin_replay import (
     HOMING_R,
     HOMING_WAIT_S,
     HOST_TEXT,
+    M999_SCRIPT,
     SCRIPT,
     replay,
 )
@@ -156,6 +157,21 @@ def test_the_simulator_answers_the_script_as_the_real_firmware(build):
     sim_banner, sim = sim_transcript(advanced_ok=build == ADVANCED_OK)
     assert normalise(sim_banner) == normalise(real_banner)
     assert_same_replies(real, sim, SCRIPT)
+
+
+@pytest.mark.skipif(MARLIN is None, reason="the real firmware is absent: no shared/marlin beside the repository")
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("build", [PLAIN, ADVANCED_OK])
+def test_m999_answers_as_the_real_firmware(build):
+    """M999 on a running printer: `Resend: 10`, a bare ok and its own ok after N9 (the simulator once said a plain
+    `ok`, listing M999 among the silent commands); S1 and a bare S skip the resend, S0 does not."""
+    _, real = real_transcript(build, M999_SCRIPT)
+    _, sim = sim_transcript(advanced_ok=build == ADVANCED_OK, script=M999_SCRIPT)
+    assert_same_replies(real, sim, M999_SCRIPT)
+    answers = dict(sim)
+    own = b"ok P15 B3\n" if build == ADVANCED_OK else b"ok\n"
+    assert answers[b"M999\n"] == b"Resend: 1\nok\n" + own  # the last one, after M110 N0 (the first, after N9: 10)
+    assert sim[10] == (b"M999\n", b"Resend: 10\nok\n" + own)
 
 
 @pytest.mark.skipif(MARLIN is None, reason="the real firmware is absent: no shared/marlin beside the repository")

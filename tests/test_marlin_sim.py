@@ -196,6 +196,28 @@ def test_m112_halts_until_a_reset(profile):
     assert [t for _, t in core.executed] == ["M118 E1 M112 inside", "M112"]
 
 
+def test_m999_asks_for_the_line_after_the_last_numbered_one(profile):
+    """M999 on a running printer (M999.cpp -> queue.cpp flush_and_request_resend): `Resend: <last N + 1>` and a bare
+    ok, then its own ok; with ADVANCED_OK its own ok carries P and B (and N when numbered), the resend's stays bare;
+    a true S (S1, a bare S) skips the resend; the receive buffer is emptied. The real firmware's bytes:
+    tests/test_marlin_real_vs_sim.py::test_m999_answers_as_the_real_firmware."""
+    for advanced, own in ((False, b"ok\n"), (True, b"ok P15 B3\n")):
+        core = fresh(profile, advanced_ok=advanced)
+        for n in range(1, 10):
+            talk(core, framed(n, "M400"))
+        assert talk(core, b"M999\n") == b"Resend: 10\nok\n" + own
+        assert talk(core, b"M999 S1\n") == talk(core, b"M999 S\n") == own
+        assert talk(core, b"M999 S0\n") == b"Resend: 10\nok\n" + own
+        numbered = b"ok N10 P15 B3\n" if advanced else b"ok\n"
+        assert talk(core, framed(10, "M999")) == b"Resend: 11\nok\n" + numbered
+        core.receive(b"M999\n")
+        core.rx.extend(b"M118 E1 flushed\n")  # still in the receive buffer when M999 runs: emptied
+        core.step()
+        assert core.take_output() == b"Resend: 11\nok\n" + own
+        assert talk(core, b"M105\n").startswith(b"ok T:")
+    assert [t for _, t in core.executed if "flushed" in t] == []
+
+
 def test_advanced_ok_reports_line_planner_and_buffer(profile):
     core = fresh(profile, advanced_ok=True)
     # B counts the command being acknowledged as still in Marlin's ring buffer

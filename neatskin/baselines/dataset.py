@@ -239,6 +239,7 @@ def load_baseline_data(dataset: str | Path, flagged: str = "saturate") -> Baseli
             file=source,
             field="flags",
             fix="drop them (the default, flagged='drop') or keep them explicitly",
+            cli_fix=f"drop them (the default, --flagged drop) or keep them: neatskin baselines {source} --flagged keep",
         )
     if flagged == "saturate" and is_flagged.any():
         is_flagged = is_flagged & ~_cut_only(table, is_flagged)  # a cut pair stays, as information
@@ -251,6 +252,7 @@ def load_baseline_data(dataset: str | Path, flagged: str = "saturate") -> Baseli
             file=source,
             field="flags",
             fix="record presses without flags, or pass flagged='keep'",
+            cli_fix=f"record presses without flags, or keep them: neatskin baselines {source} --flagged keep",
         )
 
     def values_of(column: str) -> np.ndarray:

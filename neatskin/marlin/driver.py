@@ -148,6 +148,8 @@ class MarlinDriver:
                 raise E.PortBusy(f"cannot open it exclusively: {exc}", port=self.port_name) from exc
             if "(25," in str(exc) or getattr(exc, "errno", None) == errno.ENOTTY:  # a file, /dev/null: no termios
                 raise E.NotASerialPort(f"cannot configure it: {exc}", port=self.port_name) from exc
+            if getattr(exc, "errno", None) == errno.EISDIR:  # a folder (`--port /tmp`): no device, no cable to check
+                raise E.NotASerialPort(f"it is a folder: {exc}", port=self.port_name) from exc
             raise E.PortDead(f"cannot open: {exc}", port=self.port_name) from exc
         self._link.start(channel_for(self.port, self.clock), boot_timeout_s)
         return self

@@ -104,12 +104,13 @@ class OutOfStep(MarlinError):
 
 
 class NotASerialPort(PortMissing):
-    """The port opened but is no terminal (a plain file, /dev/null): nothing was sent, no cable to check."""
+    """The port is no terminal (a plain file, /dev/null: it opened; a folder: it did not): nothing was sent, no cable
+    to check."""
 
     what = "not a serial port"
     fix = (
         "give the printer's serial device (ls /dev/ttyUSB* /dev/ttyACM*), or the pty that `neatskin sim printer` "
-        "prints, not a file"
+        "prints, not a file or a folder"
     )
 
 

@@ -395,6 +395,8 @@ def _check(args: argparse.Namespace) -> int:
         f"{plan.n_sweeps} sweeps recorded per press, hold {plan.hold_s} s"
     )
     print(f"  {printer_time_text(plan.printer_time_s, plan.n_presses)}")
+    if long_hold := plan.long_hold_warning():  # a warning, not a refusal: the config allows up to 3600 s
+        print(f"  warning: {long_hold}")
     print(f"  resources (upper bounds): {protocol.resources.summary()}")
     print(f"  electrical: {protocol.electrical.summary()}")
     from neatskin.rig.railcheck import missing_kernel, pressed_rails_text

@@ -19,7 +19,7 @@ import pyarrow as pa
 from neatskin.datasets.durable import fsync_dir, then_instead_of_resume, write_bytes_durably, write_error
 from neatskin.datasets.lock import CampaignLock, lock_state
 from neatskin.datasets.manifest import create_manifest
-from neatskin.datasets.paths import CONSOLIDATED_NAME, COPY_NAME, PHYSICAL_LIMIT
+from neatskin.datasets.paths import CONSOLIDATED_NAME, COPY_NAME, MANIFEST_NAME, PHYSICAL_LIMIT
 from neatskin.datasets.writer import file_sha256
 from neatskin.errors import ConfigError, DataError, Problem
 from neatskin.rig.plan import Plan
@@ -60,11 +60,12 @@ def check_folder(folder: Path, resume: bool) -> None:
     if folder.exists() and any(folder.iterdir()):
         held, holder = lock_state(folder)
         running = f": another run holds this folder ({holder})" if held else ""
-        raise ConfigError(
-            f"the output folder {folder} already holds files{running}",
-            field="--out",
-            fix=f"choose a new folder, or continue it with: neatskin campaign resume {folder}",
-        )
+        if (folder / MANIFEST_NAME).is_file():  # a campaign: it can be continued
+            what, fix = "", f"choose a new folder, or continue it with: neatskin campaign resume {folder}"
+        else:  # resume would refuse it (no manifest.json): only a new or empty folder will do
+            what = " and is no campaign (no manifest.json)"
+            fix = "choose a new or empty folder for --out"
+        raise ConfigError(f"the output folder {folder} already holds files{what}{running}", field="--out", fix=fix)
 
 
 PROBE_BYTES = 4096  # one block: a full disk refuses it where an empty file would still be created

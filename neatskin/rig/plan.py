@@ -19,6 +19,11 @@ from neatskin.gcode.program import PressProgram
 from neatskin.gcode.spec import build_from_spec
 from neatskin.rig.protocol import CampaignProtocol
 
+# `campaign check` warns above this hold (the config allows up to 3600 s). Any workable hold is at least two sweeps
+# (0.68 s for the paper's 28 pairs): that many milliseconds typed as seconds is >= 683 s, so every ms/s slip of a
+# workable hold lands above 60 s, while a deliberate long hold (creep, relaxation) of up to a minute stays quiet.
+LONG_HOLD_S = 60.0
+
 
 @dataclass(frozen=True)
 class Plan:
@@ -37,6 +42,16 @@ class Plan:
     def press_interval_s(self) -> float:
         """The G-code's own printer time per press (the whole campaign's estimate over its presses)."""
         return self.printer_time_s / max(self.n_presses, 1)
+
+    def long_hold_warning(self) -> str | None:
+        """One line when the hold is longer than LONG_HOLD_S (a ms/s slip?): what it costs and the likely fix."""
+        if self.hold_s <= LONG_HOLD_S:
+            return None
+        holds_h = self.hold_s * self.n_presses / 3600
+        return (
+            f"hold_s = {self.hold_s:g} s is over {LONG_HOLD_S:g} s: the holds alone take {holds_h:.2f} h of the "
+            f"{self.printer_time_s / 3600:.2f} h; if it was meant in milliseconds, set hold_s = {self.hold_s / 1000:g}"
+        )
 
     def commanded_mm(self, depth_mm: float) -> np.ndarray:
         """(presses, 3): where press k presses (x, y, depth), in press-id order; no block's G-code is formatted."""

@@ -25,7 +25,7 @@ from neatskin.datasets.lock import CampaignLock
 from neatskin.datasets.manifest import read_manifest, update_manifest, utc_now_iso
 from neatskin.datasets.paths import CONSOLIDATED_NAME, press_parts
 from neatskin.datasets.writer import CampaignWriter, file_sha256, read_parquet
-from neatskin.errors import ConfigError, DataError
+from neatskin.errors import ConfigError, DataError, Problem
 from neatskin.rig.assembly import DerivedFiles, Rig, build_real_rig
 from neatskin.rig.folder import (
     INPUT_KEYS,
@@ -107,18 +107,25 @@ def run_campaign(
             connect_timeout_s=connect_timeout_s,
         )
         if report and status == "complete":
-            result = dataclasses.replace(result, report_summary=_make_report(folder, progress))
+            result = dataclasses.replace(result, report_summary=_make_report(folder, progress, result.completed))
     finally:
         lock.release()
     return result
 
 
-def _make_report(folder: Path, progress: bool) -> str:
+def _make_report(folder: Path, progress: bool, presses: int) -> str:
     from neatskin.baselines.report import run_baselines  # scikit-learn: only a report needs it
     from neatskin.baselines.summary import report_summary
 
     try:
         made = run_baselines(folder, split="both", progress=progress)
+    except (ConfigError, DataError) as exc:  # the data is whole: say so before the report's own error, its kind kept
+        intact = Problem(
+            f"the campaign's data is complete and intact ({presses} of {presses} presses in {folder}); only its baseline "
+            "report failed, for the reason below",
+            str(folder),
+        )
+        raise type(exc)(problems=(intact, *exc.problems)) from exc
     except KeyboardInterrupt:
         raise KeyboardInterrupt(
             f"the campaign's data is complete in {folder}; only its baseline report was "
@@ -420,7 +427,9 @@ def finish_campaign(folder: str | Path, *, report: bool = True, progress: bool =
                 finally:
                     if rig is not None:
                         rig.close()
-        summary = _make_report(folder, progress) if report and not (folder / "report.md").is_file() else None
+        summary = (
+            _make_report(folder, progress, plan.n_presses) if report and not (folder / "report.md").is_file() else None
+        )
     return CampaignResult(
         folder, plan.n_presses, plan.n_presses, 0, 0, False, time.perf_counter() - wall0, plan.printer_time_s, summary
     )

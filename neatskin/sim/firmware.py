@@ -43,7 +43,7 @@ from neatskin.sim.settings import Settings, marlin_float, settings_report
 __all__ = ["MarlinCore", "ScaledClock", "VirtualClock"]
 
 _MODES = frozenset({"G90", "G91", "M82", "M83"})
-_SILENT = frozenset({"G0", "G1", "G4", "M400", "M999", "M111"})
+_SILENT = frozenset({"G0", "G1", "G4", "M400", "M111"})
 _OK = b"ok\n"
 QUICK_STOP_HOLD_S = 1.0
 # (M84/M18 among them: stock Marlin keeps the axes homed when it turns the steppers off, HOME_AFTER_DEACTIVATE off)
@@ -252,6 +252,10 @@ class MarlinCore(Belief):
                 if isinstance(e, float):
                     self.extruder.set_position(e)
                 self._emit(self._m114())  # G92 reports the position it set
+        elif code == "M999":  # M999.cpp: running again; unless S is true, queue.cpp's flush_and_request_resend
+            s = line.params.get("S", 0.0) if line is not None else 0.0  # parser.boolval('S'): a bare S is true
+            if isinstance(s, float) and int(s) <= 0:
+                self._request_resend()
         elif code == "M110":  # M110.cpp: N sets the line number; alone, it reports it
             n = line.get("N") if line is not None else None
             if isinstance(n, float):

@@ -202,10 +202,15 @@ class LineIntake:
 
     def _line_error(self, message: str) -> None:
         self._emit(f"Error:{message}{self.last_n}")
-        self.rx.clear()  # Marlin empties its RX buffer before asking again
+        self._request_resend()
+
+    def _request_resend(self) -> None:
+        """queue.cpp flush_and_request_resend (after a line error, and M999's): the RX buffer emptied, then
+        `Resend: <last N + 1>` and a bare `ok`, even with ADVANCED_OK."""
+        self.rx.clear()
         self._emit(f"{R.RESEND}{self.last_n + 1}")
         if self.ok_after_resend:
-            self._emit(R.OK, is_ok=True)  # bare even with ADVANCED_OK (queue.cpp flush_and_request_resend)
+            self._emit(R.OK, is_ok=True)
 
 
 def _marlin_parse(text: str) -> tuple[str, GcodeLine | None]:

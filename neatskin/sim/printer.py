@@ -1,11 +1,12 @@
 """SimulatedPrinter: the simulated Marlin printer, served on a real pseudo-terminal or in-process.
 
 `start_pty()` returns a `/dev/pts/N` path that any host (our driver through pyserial, Printrun,
-a terminal) opens like a USB port; a thread serves it. A printer halted by M112 resets (boots again,
-`start` and the banner) when a host next opens the port: a real board with auto-reset reboots on
-the DTR pulse of an open; the pty has no DTR, so the flush of its input that pyserial's `open()`
-makes stands in for it (sim.pty's packet mode). A host that opens without flushing (a terminal
-program) finds it halted: `reset()`, or the CLI's SIGUSR1 (docs/marlin.md). `serial()` returns a pyserial-compatible
+a terminal) opens like a USB port; a thread serves it. A real board with auto-reset reboots on the DTR pulse of
+every open; the pty has no DTR, so: a host that opens the port after the last one closed it (sim.pty.OpenWatch,
+inotify) finds the printer booted again (`start`, the banner, unhomed, M155 off), and a printer halted by M112
+also resets at the flush of its input that pyserial's `open()` makes (sim.pty's packet mode), even without the
+watch. A host that opens without flushing a printer halted under it (a terminal program) finds it halted:
+`reset()`, or the CLI's SIGUSR1 (docs/marlin.md). `serial()` returns a pyserial-compatible
 object for in-process use without a pty. Both wrap one MarlinCore (firmware.py) under a lock,
 so `probe_position()`, `now_s()` and `executed` may be read from any thread while it runs.
 """
@@ -20,8 +21,13 @@ from neatskin.gcode.profile import PrinterProfile, load_printer_profile
 from neatskin.sim.faults import FaultConfig
 from neatskin.sim.firmware import MarlinCore, ScaledClock, VirtualClock
 from neatskin.sim.motion import Segment
-from neatskin.sim.pty import PtyPair, open_pty, read_packet, write_all
+from neatskin.sim.pty import OpenWatch, PtyPair, open_pty, open_watch, read_packet, write_all
 from neatskin.tomlfile import resolve_path
+
+# A host that opens the port after the last one closed it finds the printer booted again (power-on state: unhomed,
+# M155 off, line 0), as a board that the open's DTR pulse resets. The boot happens at the open's flush (pyserial),
+# the host's first bytes, or this long after the open (a host that does not flush sees the banner then).
+OPEN_RESET_S = 0.1
 
 
 class SimulatedPrinter:
@@ -66,6 +72,7 @@ class SimulatedPrinter:
         )
         self.lock = threading.Condition(threading.RLock())
         self._pty: PtyPair | None = None
+        self._watch: OpenWatch | None = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
 
@@ -124,6 +131,7 @@ class SimulatedPrinter:
         if self._pty is not None:
             return self._pty.path
         self._pty = open_pty(packet=True)  # the boot banner waits in the pty for a host that does not flush it
+        self._watch = open_watch(self._pty.path)  # every host's open and close of the port (None: no inotify)
         self._thread = threading.Thread(target=self._serve, name=f"sim-printer {self._pty.path}", daemon=True)
         self._thread.start()
         return self._pty.path
@@ -132,15 +140,27 @@ class SimulatedPrinter:
         # the hot path: one lock hold, one select, one read and at most one write per round
         pty = self._pty
         assert pty is not None
-        core, lock, fd, stop = self.core, self.lock, pty.master_fd, self._stop
+        core, lock, fd, stop, watch = self.core, self.lock, pty.master_fd, self._stop, self._watch
         data = b""
         opened = False
         last_s = time.monotonic()
+        hosts, left, boot_at = 0, False, None  # hosts holding the port; the last one closed it; when to boot
+        watched = False
         while not stop.is_set():
+            events = watch.events() if watched and watch is not None else ()
             with lock:
                 now_s = time.monotonic()
                 core.idle(now_s - last_s)  # M155's reports go on while idle, in virtual time too
                 last_s = now_s
+                for change in events:
+                    if change > 0 and hosts == 0 and left:  # a host opens the port another one closed
+                        boot_at = now_s + OPEN_RESET_S
+                    hosts = max(hosts + change, 0)
+                    left = left or (change < 0 and hosts == 0)
+                if boot_at is not None and (opened or data or now_s >= boot_at):
+                    boot_at, left, opened = None, False, False  # as a board auto-reset by the open's DTR pulse
+                    core.reset()
+                    lock.notify_all()
                 if opened and core.halted:  # a host opened the port: a halted board reboots (auto-reset)
                     core.reset()
                     lock.notify_all()
@@ -154,10 +174,15 @@ class SimulatedPrinter:
                     write_all(fd, out)
                 if closed:
                     break
-                data, opened = read_packet(fd, 0.05 if wait is None or wait > 0.05 else wait)
+                timeout_s = 0.05 if wait is None or wait > 0.05 else wait
+                if boot_at is not None:  # a boot due without a flush or data: wake for it
+                    timeout_s = min(timeout_s, max(boot_at - time.monotonic(), 0.0))
+                data, opened, watched = read_packet(fd, timeout_s, watch)
             except OSError:
                 break
         pty.close()
+        if watch is not None:
+            watch.close()
 
     def serial(self) -> SimSerial:
         """A pyserial-compatible port object talking to this printer in-process (no pty)."""
