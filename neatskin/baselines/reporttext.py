@@ -111,8 +111,10 @@ def _like_for_like(table: pd.DataFrame, paper: Mapping[str, Any], data: Baseline
         lines += [
             "",
             f"This scene's probe placement error ({data.placement_error_mm:g} mm) was fitted to the paper's figures "
-            "(`benchmarks/fit_paper_like.py`: the ten networks' 2.03 mm and 3.32 mm², the best network's 1.82 mm "
-            "and 54 of 66, on the random split, over 5 campaign seeds). So the random split's rows check that fit "
+            "(`benchmarks/fit_paper_like.py --test random`: the ten networks' 2.03 mm and 3.32 mm², the best network's "
+            "1.82 mm and 54 of 66, on the random split, over 5 campaign seeds; read as the 11 positions x 6 presses "
+            "the paper scores, the same figures fit 0.4 mm, and they do not tell 0.3 from 0.7 mm apart: "
+            "docs/skin.md). So the random split's rows check that fit "
             "on this campaign seed; they are not an independent test of the method. The design split was not "
             "fitted. The fit matched the seeds' average, not each seed: a campaign's own draw (where its positions "
             "fall, its channels' fabrication spread, its placement errors) moves its ten networks' mean by about as "

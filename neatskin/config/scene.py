@@ -115,11 +115,15 @@ _IDEAL = {k: 0.0 for k in SCENE_KNOBS} | {"relaxation_time_s": 30.0, "mains_freq
 # paper-like: placement_error_mm fitted on the quasi-3D FE-kernel skin (deformation = "fe-kernel", KERNEL_FORMAT 2) to
 # the paper's pairing: the ten-network average (2.03 mm, MSE/coord 3.32) against the average of 10 LM networks, the
 # best network (1.82 mm, 54 of 66 within 2.75 mm) against the best of 10, over 5 campaign seeds on a 3 x 3 grid of
-# placement and depth jitter (benchmarks/fit_paper_like.py; loss surface in docs/skin.md). The paper's numbers do not
-# identify the depth jitter (0 to 0.5 mm moves no statistic beyond the seed spread): it stays assumed. The other knobs
-# are assumed (docs/skin.md).
+# placement and depth jitter (benchmarks/fit_paper_like.py; loss surface in docs/skin.md), on the paper's stated 2 %
+# test split (`--test random`). Re-fitted on 2026-11-26 with the paper's own pairing (paperpairing: a network per
+# validation draw, the lowest test MSE selected, the reading noise derived): 0.7 mm on the 2 % reading, 0.4 mm on the
+# 11 positions x 6 presses the paper's figures are scored on (`--test design`), with the loss flat from 0.3 to 0.7 mm:
+# the paper's figures do not tell them apart. Kept at 0.7 until every figure is re-run at 0.4 (five main jobs at
+# 0.4 mm are in docs/skin.md). The paper's numbers do not identify the depth jitter (0 to 0.5 mm moves no statistic
+# beyond the seed spread): it stays assumed. The other knobs are assumed (docs/skin.md).
 PAPER_LIKE = _IDEAL | {
-    "placement_error_mm": 0.7,  # fitted: 2.03 / 1.82 mm interpolate to 0.63 / 0.73 between the 0.6 and 0.85 grid points
+    "placement_error_mm": 0.7,  # fitted on the 2 % reading (0.4 mm on the 11 x 6 one; flat from 0.3 to 0.7 mm)
     "depth_jitter_mm": 0.2,  # assumed (z repeatability and skin height); not identified by the paper's numbers
     "press_interval_s": 7.78,  # the paper protocol's G-code time per press (2,800 presses in 6.05 h)
     "fabrication_spread_fraction": 0.08,
