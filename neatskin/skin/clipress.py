@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from dataclasses import dataclass
+from decimal import Decimal, InvalidOperation
 from typing import TYPE_CHECKING
 
 from neatskin.errors import ConfigError
@@ -102,9 +104,19 @@ def evaluate_press(args: argparse.Namespace) -> PressResult:
         check_press_on_skin(layout, x, y, depth, args.probe_radius_mm)
     kernel = None
     if args.deformation == "fe-kernel":
-        from neatskin.skin.kernel import KernelSpec, load_kernel
+        from neatskin.skin.kernel import KernelSpec, cache_dir, load_kernel
 
-        kernel = load_kernel(KernelSpec.for_layout(layout, args.probe_radius_mm))
+        spec = KernelSpec.for_layout(layout, args.probe_radius_mm)
+        try:
+            kernel = load_kernel(spec, compute=False)
+        except FileNotFoundError:  # no kernel packaged or cached for this probe: say why nothing comes for minutes
+            print(
+                "neatskin: first solving the finite-element pinch kernel of this skin and probe (minutes of CPU, "
+                f"once: cached in {cache_dir() / 'kernels'})",
+                file=sys.stderr,
+                flush=True,
+            )
+            kernel = load_kernel(spec)
     model = SkinModel(layout, fidelity=args.fidelity, probe_radius_mm=args.probe_radius_mm, kernel=kernel)
     rest = model.channel_resistance_ohm(0.0, 0.0, 0.0)[0]
     channel = model.channel_resistance_ohm(x, y, depth)[0]
@@ -138,8 +150,14 @@ def parse_pinches(layout: Layout, specs: list[str]) -> dict[int, float]:
                 f"--pinch {spec!r}: no channel {channel!r} in layout {layout.name} (its channels: "
                 f"{', '.join(names)}, or an index 0 to {layout.n_channels - 1})"
             )
+        elif ratio == 0 and _written(ratio_text) > 0:
+            problems.append(f"--pinch {spec!r}: the ratio underflows to 0 (floats reach down to about 1e-308)")
         elif not ratio > 0:
             problems.append(f"--pinch {spec!r}: the ratio must be a number > 0 (inf shuts the channel)")
+        elif math.isinf(ratio) and _written(ratio_text).is_finite():
+            problems.append(
+                f"--pinch {spec!r}: the ratio overflows (floats reach up to about 1e308); write inf to shut the channel"
+            )
         elif index in out:
             problems.append(f"--pinch {spec!r}: channel {layout.channels[index].name} is pinched twice")
         else:
@@ -147,6 +165,14 @@ def parse_pinches(layout: Layout, specs: list[str]) -> dict[int, float]:
     if problems:
         raise ConfigError("; ".join(problems), field="--pinch", fix="give --pinch CHANNEL=RATIO, e.g. J00-J10=1e12")
     return out
+
+
+def _written(text: str) -> Decimal:
+    """A number as typed, without float's overflow or underflow (NaN when it is none)."""
+    try:
+        return Decimal(text.strip())
+    except InvalidOperation:
+        return Decimal("NaN")
 
 
 def check_press_on_skin(layout: Layout, x_mm: float, y_mm: float, depth_mm: float, probe_radius_mm: float) -> None:
