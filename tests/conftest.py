@@ -1,6 +1,7 @@
 """Shared fixtures: the repo's protocol folder, the paper layout and the smoke reference run; Ctrl-C reaches the tests'
 children; no Hypothesis deadline; the suite's start order under xdist and the early work it starts (tests/early.py)."""
 
+import os
 import signal
 from pathlib import Path
 
@@ -9,8 +10,21 @@ import pytest
 import suite_order
 from hypothesis import settings
 from suite_order import block_sizes, long_first
+from threadpoolctl import threadpool_limits
 
 from neatskin.layout import load_layout
+
+# Under xdist each worker is one of `-n` processes sharing the cores: numerical libraries on one thread each, as
+# joblib gives its workers (neatskin.baselines.tasks.THREAD_VARS), and so every process a test starts (early work,
+# `neatskin` children) inherits. On 2 cores, 2 workers with OpenMP's and OpenBLAS's default of a thread per core
+# ran 4 threads that spin at every barrier for a core a neighbour holds: scikit-learn's kNN search in `design
+# validate` took twice the CPU (test_the_study_agrees...: 20 to 25 s against 11 s, load 10 to 14) and the 0.25 mm
+# host solves 63.5 s against 37.9 s, their strains bit for bit the same. A variable already set is kept, and a test
+# that sets its own limit (threadpoolctl) still gets it.
+_ONE_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS")
+if os.environ.get("PYTEST_XDIST_WORKER") and not any(var in os.environ for var in _ONE_THREAD_VARS):
+    os.environ.update(dict.fromkeys(_ONE_THREAD_VARS, "1"))
+    threadpool_limits(1)  # the libraries loaded before this line (numpy's OpenBLAS: pytest-randomly, the imports above)
 
 REPO = Path(__file__).resolve().parent.parent
 PROTOCOLS = REPO / "protocols"

@@ -198,3 +198,31 @@ def test_a_profile_round_trips_and_refuses_another_layout(tmp_path, paper_layout
         load_skin_profile(path, grid_layout(4, 4, pitch_mm=10.0))
     assert err.value.field == "skin_profile.channel_resistance_ohm" and err.value.file == str(path)
     assert "12 channel resistances" in str(err.value) and "24 channels" in str(err.value)
+
+
+def test_the_bootstraps_batched_variance_fits_are_the_one_campaign_fits_bit_for_bit():
+    """fitvariance._variance_fits (all the bootstrap's simulated campaigns at once) against _variance_fit on each
+    campaign alone: the same noise^2, s_p^2 and jackknife errors, bit for bit; positions of 1 to 5 repeats (those of
+    1 out of the regression), a pair whose slope is unknown (NaN, left out), and a campaign with a non-finite
+    reading (the one-campaign path for all)."""
+    from neatskin.skin.fitvariance import _repeat_variance, _variance_fit, _variance_fits, _variance_rows
+
+    rng = np.random.default_rng(11)
+    counts = rng.integers(1, 6, 12)
+    inverse = np.repeat(np.arange(12), counts)
+    grad2 = rng.uniform(0.0, 30.0, (12, 5))
+    grad2[3, 2] = np.nan
+    repeats = counts >= 2
+    sims = rng.normal(0.0, 1.0, (7, inverse.size, 5)) * rng.uniform(0.1, 3.0, 5)
+    for batch in (
+        sims,
+        np.concatenate([sims, np.where(np.arange(inverse.size)[None, :, None] == 4, np.inf, sims[:1])]),
+    ):
+        with np.errstate(invalid="ignore"):  # the inf reading's inf - inf, on both paths alike
+            fits = _variance_fits(batch, inverse, counts, grad2, repeats)
+        assert len(fits) == len(batch)
+        for sim, (coef, se) in zip(batch, fits, strict=True):
+            with np.errstate(invalid="ignore"):
+                variance = _repeat_variance(sim, inverse, counts)
+            want_coef, want_se = _variance_fit(*_variance_rows(variance, grad2, repeats))
+            assert np.array_equal(coef, want_coef) and np.array_equal(se, want_se, equal_nan=True)

@@ -124,6 +124,35 @@ def test_homogeneous_plane_strain_compression_is_exact_at_large_strain():
     assert l1 * stretch == pytest.approx(1.0, abs=2e-3)  # nearly incompressible
 
 
+@pytest.mark.parametrize("axisymmetric", [False, True])
+def test_the_tangent_is_the_residuals_derivative(axisymmetric):
+    """The assembled tangent (batched element blocks summed into a sparsity found once, skin/feassembly.py) against
+    central differences of the residual, at a random large deformation of a distorted mesh (r > 0 for the hoop
+    term), along random directions and along single dofs of every kind (x, y, pressure): to 1e-6 of its size.
+    Halving one tangent modulus, or swapping its FiT_il FiT_kj to FiT_il FiT_jk, is off by 1e-2 and more."""
+    from neatskin.skin.axisym import AxisymmetricAssembler
+
+    rng = np.random.default_rng(7)
+    g = np.linspace(0.0, 1.0, 4)
+    xx, yy = np.meshgrid(g, g, indexing="ij")
+    points = np.vstack([xx.ravel() + 0.5, yy.ravel()]) + rng.uniform(-0.08, 0.08, (2, g.size**2))
+    mesh, ub, pb = _bases(points, _structured(g, g))
+    bulk = 50.0 * MU
+    asm = (AxisymmetricAssembler if axisymmetric else _Assembler)(ub, pb, MU, bulk)
+    n = ub.N + pb.N
+    X, Y = ub.doflocs
+    smooth = np.where(dof_component(ub) == 0, 0.2 * X - 0.15 * Y + 0.05 * np.sin(3 * Y), -0.3 * Y + 0.1 * X**2)
+    x = np.concatenate([smooth + rng.normal(0.0, 0.003, ub.N), rng.normal(0.0, 0.5 * MU, pb.N)])
+    assert asm.min_jacobian(x) > 0.5
+    K = asm.tangent(x)
+    assert K.shape == (n, n)
+    h = 1e-6
+    directions = [rng.normal(0.0, 1.0, n) for _ in range(3)] + [np.eye(n)[i] for i in (0, 1, ub.N - 1, ub.N, n - 1)]
+    for v in directions:
+        fd = (asm.residual(x + h * v) - asm.residual(x - h * v)) / (2 * h)
+        assert np.max(np.abs(K @ v - fd)) <= 1e-6 * np.max(np.abs(fd)), np.max(np.abs(K @ v - fd))
+
+
 COARSE = SolverSettings(element_mm=1.0, depth_step_mm=0.25, max_depth_mm=1.0)
 
 

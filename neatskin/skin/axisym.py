@@ -18,6 +18,7 @@ class AxisymmetricAssembler(_Assembler):
         self.hoop = np.stack([np.asarray(b[0])[0] for b in ub.basis]) / self.radius  # (12, el, q): d F3 / d u_a
         ub_dx = ub.dx * self.radius
         super().__init__(ub, pb, mu, bulk, dx=ub_dx)
+        self.hoopT = np.ascontiguousarray(self.hoop.transpose(1, 2, 0))  # (el, q, 12)
 
     def kinematics(self, x):
         F, J2, FiT, p = super().kinematics(x)
@@ -39,17 +40,17 @@ class AxisymmetricAssembler(_Assembler):
     def tangent(self, x):
         F, J, FiT, p, F3 = self.kinematics(x)
         pJ = p * J
-        k_uu = self._in_plane_k_uu(FiT, pJ)
+        k_uu = self._in_plane_k_uu(FiT, pJ)  # (el, a, b)
+        hoop = self.hoopT  # (el, q, a)
         # in-plane <-> hoop: dP_ij/dF3 = pJ / F3 FiT_ij, dP3/dF_kl = pJ / F3 FiT_kl
-        cross = np.einsum("ijeq,aijeq->aeq", FiT * (pJ / F3 * self.dx), self.G)  # (12, el, q)
-        k_uu += np.einsum("aeq,beq->abe", cross, self.hoop) + np.einsum("aeq,beq->abe", self.hoop, cross)
+        cross = self._grad_dot(FiT * (pJ / F3 * self.dx))  # (el, q, a)
+        k_uu += cross.transpose(0, 2, 1) @ hoop + hoop.transpose(0, 2, 1) @ cross
         k33 = (self.mu + self.mu / F3**2) * self.dx  # dP3/dF3
-        k_uu += np.einsum("aeq,beq,eq->abe", self.hoop, self.hoop, k33)
+        k_uu += (hoop * k33[..., None]).transpose(0, 2, 1) @ hoop
         # pressure: dJ = J (FiT : dF + dF3 / F3)
-        grad_j = np.einsum("ijeq,aijeq->aeq", FiT * J, self.G) + self.hoop * (J / F3)
-        k_up = np.einsum("aeq,beq,eq->abe", grad_j, self.phi, self.dx)
-        K = self._matrix(k_uu, self.udofs, self.udofs) + self._matrix(k_up, self.udofs, self.pdofs)
-        return (K + self._matrix(np.swapaxes(k_up, 0, 1), self.pdofs, self.udofs) + self.Kpp).tocsr()
+        grad_j = self._grad_dot(FiT * J) + hoop * (J / F3)[..., None]
+        k_up = (grad_j * self.dx[..., None]).transpose(0, 2, 1) @ self.phiT
+        return self._assemble(k_uu, k_up)
 
     def solid_area(self, x) -> float:
         return float(np.sum(self.kinematics(x)[1] * self.dx))

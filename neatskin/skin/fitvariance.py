@@ -13,6 +13,9 @@ import numpy as np
 
 BOOTSTRAP_REPLICATES = 400  # the noise and placement intervals' simulated campaigns
 BOOTSTRAP_SEED = 2024  # fixed: one campaign always gets the same intervals
+# readings of simulated campaigns fitted at once (16 MB an array): the 40 x 6-press campaigns of tests/test_skin_fit
+# take 312 at a time, a 2,800-press paper campaign 26, so memory stays tens of MB whatever the campaign
+BATCH_VALUES = 2**21
 
 VarianceInterval = tuple[float, float, float]  # a variance, and its 95 % interval's low and high ends
 
@@ -64,6 +67,46 @@ def _variance_fit(design: np.ndarray, target: np.ndarray, position: np.ndarray) 
     return coef, np.sqrt(np.diag(_jackknife_covariance(design, target, position)))
 
 
+def _variance_fits(
+    sims: np.ndarray, inverse: np.ndarray, counts: np.ndarray, grad2: np.ndarray, repeats: np.ndarray
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """`_variance_fit` of each simulated campaign sims[b] (presses, pairs), as one per campaign gives it, bit for bit:
+    the sums per position over all campaigns at once (each slot's rows added in row order, as one campaign's are),
+    and the jackknife's leave-one-position-out inverses once, for the regression's design does not depend on the
+    draws (only its target does); the non-negative fit and the 2 x 2 products per campaign. A campaign whose
+    variances are not all finite, or fewer than 2 positions, takes the one-campaign path."""
+    from scipy.optimize import nnls
+
+    n_sims = sims.shape[0]
+
+    def by_cluster(cluster: np.ndarray, values: np.ndarray, n_clusters: int) -> np.ndarray:  # (sims, rows, m)
+        m = values.shape[2]
+        slots = ((np.arange(n_sims)[:, None] * n_clusters + cluster[None, :])[:, :, None] * m + np.arange(m)).ravel()
+        return np.bincount(slots, values.ravel(), n_sims * n_clusters * m).reshape(n_sims, n_clusters, m)
+
+    mean = by_cluster(inverse, sims, len(counts)) / counts[:, None]
+    var = by_cluster(inverse, (sims - mean[:, inverse]) ** 2, len(counts)) / np.maximum(counts - 1, 1)[:, None]
+    design, _, position = _variance_rows(var[0], grad2, repeats)
+    targets = var[:, repeats].reshape(n_sims, -1)
+    clusters, cluster = np.unique(position, return_inverse=True)
+    keep = np.isfinite(grad2[repeats].ravel())
+    if not np.all(np.isfinite(targets)) or len(clusters) < 2:
+        return [_variance_fit(*_variance_rows(v, grad2, repeats)) for v in var]
+    targets = targets[:, keep]
+    n_clusters, m = len(clusters), design.shape[1]
+    per_ata = sum_by_cluster(cluster, (design[:, :, None] * design[:, None, :]).reshape(-1, m * m), n_clusters)
+    per_ata = per_ata.reshape(n_clusters, m, m)
+    left_out_inverse = np.linalg.pinv(per_ata.sum(axis=0)[None] - per_ata)
+    per_atb = by_cluster(cluster, design[None] * targets[:, :, None], n_clusters)
+    left_out = np.einsum("cij,bcj->bci", left_out_inverse, per_atb.sum(axis=1)[:, None] - per_atb)
+    fits = []
+    for b in range(n_sims):
+        deviation = left_out[b] - left_out[b].mean(axis=0)
+        covariance = (n_clusters - 1) / n_clusters * (deviation.T @ deviation)
+        fits.append((nnls(design, targets[b])[0], np.sqrt(np.diag(covariance))))
+    return fits
+
+
 def placement_point(dr: np.ndarray, inverse: np.ndarray, counts: np.ndarray, slope: np.ndarray) -> float:
     """The placement error's point estimate alone (the variance regression, no bootstrap), mm."""
     from scipy.optimize import nnls
@@ -97,12 +140,15 @@ def placement_and_noise(
     noise_sd, placement_sd = np.sqrt(coef)
     studentised = np.full((BOOTSTRAP_REPLICATES, 2), np.nan)
     sim_counts = np.maximum(np.bincount(press_position, minlength=len(counts)), 1)
-    for b in range(BOOTSTRAP_REPLICATES):
-        moved = rng.normal(0.0, placement_sd, (len(press_position), 2))
-        sim = np.einsum("npk,nk->np", local, moved) + rng.normal(0.0, noise_sd, local.shape[:2])
-        var = _repeat_variance(sim, press_position, sim_counts)
-        d, t, pos = _variance_rows(var, grad2, repeats)
-        coef_b, se_b = _variance_fit(d, t, pos)
+    fits: list[tuple[np.ndarray, np.ndarray]] = []
+    chunk = max(BATCH_VALUES // max(local.shape[0] * local.shape[1], 1), 1)  # campaigns fitted at once
+    while len(fits) < BOOTSTRAP_REPLICATES:
+        sims = []
+        for _ in range(min(chunk, BOOTSTRAP_REPLICATES - len(fits))):
+            moved = rng.normal(0.0, placement_sd, (len(press_position), 2))
+            sims.append(np.einsum("npk,nk->np", local, moved) + rng.normal(0.0, noise_sd, local.shape[:2]))
+        fits += _variance_fits(np.stack(sims), press_position, sim_counts, grad2, repeats)
+    for b, (coef_b, se_b) in enumerate(fits):
         with np.errstate(divide="ignore", invalid="ignore"):
             studentised[b] = np.where(se_b > 0, (coef_b - coef) / se_b, np.nan)
     student = float(stdtrit(max(len(np.unique(position)) - 1, 1), 0.975))
