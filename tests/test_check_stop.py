@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 from test_electrical_pressed import _paper_at
+from test_run_rails_warning import _running
 
 STANDIN = """
 import os, sys, time
@@ -27,14 +28,6 @@ kernel._solve_task = slow_solve
 from neatskin.cli import main
 sys.exit(main(["campaign", "check", {protocol!r}]))
 """
-
-
-def _running(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except FileNotFoundError:
-        return False
-    return state != "Z"
 
 
 def _group(pgid: int) -> list[int]:
