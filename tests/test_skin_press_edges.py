@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from neatskin import cli
-from neatskin.errors import ConfigError
+from neatskin.errors import ConfigError, ExitCode
 from neatskin.layout import load_layout
 from neatskin.skin.clipress import DEFAULT_LAYOUT, parse_pinches
 
@@ -62,3 +62,10 @@ def test_a_kernel_still_to_solve_is_announced_on_stderr_before_the_solve(monkeyp
     monkeypatch.setattr(kernel_module, "load_kernel", real)  # packaged: found at once, nothing said
     assert cli.main(["skin", "press", "--x-mm", "7.5", "--y-mm", "0", "--deformation", "fe-kernel"]) == 0
     assert "first solving" not in capsys.readouterr().err
+
+
+def test_a_netlist_that_cannot_be_written_is_one_error_naming_its_path(capsys):
+    """/dev/full accepts the open and fails the write with ENOSPC, an exception that names no file."""
+    assert cli.main(["skin", "netlist", "-o", "/dev/full"]) == ExitCode.DATA
+    err = capsys.readouterr().err
+    assert "/dev/full" in err and "No space left on device" in err and "Traceback" not in err

@@ -224,7 +224,12 @@ def netlist_handler(args: argparse.Namespace) -> int:
     if args.out is None:
         sys.stdout.write(netlist.text)
         return 0
-    Path(args.out).write_text(netlist.text)
+    try:
+        Path(args.out).write_text(netlist.text)
+    except OSError as exc:  # a full disk fails at the close, with no file name on the exception: name it here
+        from neatskin.oserrors import os_error
+
+        raise os_error(exc, "write", args.out, then="then run it again") from exc
     print(f"wrote {args.out}: {press.description}")
     print("neatskin R_eq (repr), to compare with `ngspice -b` (its r_<a>_<b> lines):")
     _table(("pair", "R_eq_ohm"), [(p.label, repr(p.r_eq_ohm)) for p in netlist.probes])
