@@ -3,13 +3,13 @@ as `campaign run` does: from the campaign's own recorded protocol (its `inputs/`
 from the forecast child (`python -m neatskin.rig.railcheck FOLDER`) for a real one. A small paper-skin protocol
 (20 positions x 2 presses) at 0.5 mA puts one press past the rails; at its 0.2 mA nothing is printed."""
 
-import signal
 import subprocess
 import sys
 from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
+from test_run_rails_warning import PORT, cli_on_a_sim_printer
 
 from neatskin.datasets.paths import press_parts
 
@@ -90,21 +90,10 @@ def test_a_real_resume_warns_from_the_forecast_child_before_the_rig_opens(tmp_pa
     check_line = _pressed_line(_neatskin("campaign", "check", str(path)).stdout)
     run = tmp_path / "run"
     _neatskin("campaign", "run", str(path), "--dry-run", "--limit", "2", "--no-report", "-q", "--out", str(run))
-    sim = subprocess.Popen([sys.executable, "-m", "neatskin", "sim", "printer"], stdout=subprocess.PIPE, text=True)
-    try:
-        port = sim.stdout.readline().strip()
-        assert port.startswith("/dev/")
-        args = ["campaign", "resume", str(run), "--port", port, "--no-report", "-q"]
-        probe = ("neatskin.skin.model", "neatskin.sim.daq", "neatskin.rig.railcheck")
-        code = (
-            f"import sys\nfrom neatskin.cli import main\ncode = main({args!r})\n"
-            f"print(sorted(m for m in {probe!r} if m in sys.modules))\nsys.exit(code)"
-        )
-        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
-    finally:
-        sim.send_signal(signal.SIGINT)
-        sim.wait(10)
-    assert eval(out.stdout.strip().splitlines()[-1]) == []  # the line came from the child
+    args = ["campaign", "resume", str(run), "--port", PORT, "--no-report", "-q"]
+    probe = ("neatskin.skin.model", "neatskin.sim.daq", "neatskin.rig.railcheck")
+    out, imported = cli_on_a_sim_printer(args, probe, tmp_path)
+    assert imported == []  # the line came from the child
     lines = out.stderr.splitlines()
     warning = f"{run / 'inputs' / 'protocol.toml'}: {check_line}"
     assert lines.count(warning) == 1, out.stderr

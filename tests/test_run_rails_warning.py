@@ -91,28 +91,39 @@ def test_a_real_run_warns_too_and_still_builds_no_simulator(tmp_path):
     same line before the rig opens, and no skin model or simulated DAQ in the run's own process."""
     path = _paper_at(tmp_path, "0.0005")
     check_line = _pressed_line(_neatskin("campaign", "check", str(path)))
-    sim = subprocess.Popen([sys.executable, "-m", "neatskin", "sim", "printer"], stdout=subprocess.PIPE, text=True)
-    try:
-        port = sim.stdout.readline().strip()
-        assert port.startswith("/dev/")
-        args = [
-            "campaign", "run", str(path), "--port", port, "--daq", "ni", "--out", str(tmp_path / "run"),
-            "--no-report", "--quiet", "--connect-timeout", "0.3",
-        ]  # fmt: skip
-        probe = ("neatskin.skin.model", "neatskin.sim.daq", "neatskin.sim.printer", "neatskin.rig.railcheck")
-        code = (
-            f"import sys\nfrom neatskin.cli import main\ncode = main({args!r})\n"
-            f"print(sorted(m for m in {probe!r} if m in sys.modules))"
-        )
-        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
-    finally:
-        sim.send_signal(signal.SIGINT)
-        sim.wait(10)
-    assert eval(out.stdout.strip().splitlines()[-1]) == []
+    args = [
+        "campaign", "run", str(path), "--port", PORT, "--daq", "ni", "--out", str(tmp_path / "run"),
+        "--no-report", "--quiet", "--connect-timeout", "0.3",
+    ]  # fmt: skip
+    probe = ("neatskin.skin.model", "neatskin.sim.daq", "neatskin.sim.printer", "neatskin.rig.railcheck")
+    out, imported = cli_on_a_sim_printer(args, probe, tmp_path)
+    assert imported == []
     lines = out.stderr.splitlines()
     assert lines.count(f"{path}: {check_line}") == 1, out.stderr
     error = next(k for k, line in enumerate(lines) if "neatskin: error:" in line)
     assert lines.index(f"{path}: {check_line}") < error and "nidaqmx" in out.stderr
+
+
+PORT = "{port}"  # cli_on_a_sim_printer's stand-in for the simulated printer's pty
+
+
+def cli_on_a_sim_printer(args: list[str], probe: tuple[str, ...], cwd: Path):
+    """`neatskin ARGS` in a child process, PORT in ARGS the pty of a `neatskin sim printer` started for it (and
+    stopped after): its completed process, and which of the `probe` modules the child's own process imported."""
+    sim = subprocess.Popen([sys.executable, "-m", "neatskin", "sim", "printer"], stdout=subprocess.PIPE, text=True)
+    try:
+        port = sim.stdout.readline().strip()
+        assert port.startswith("/dev/")
+        argv = [port if arg == PORT else arg for arg in args]
+        code = (
+            f"import sys\nfrom neatskin.cli import main\ncode = main({argv!r})\n"
+            f"print(sorted(m for m in {probe!r} if m in sys.modules))\nsys.exit(code)"
+        )
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=cwd, timeout=120)
+    finally:
+        sim.send_signal(signal.SIGINT)
+        sim.wait(10)
+    return out, eval(out.stdout.strip().splitlines()[-1])
 
 
 def test_the_forecast_child_prints_the_line_or_nothing(tmp_path):

@@ -403,13 +403,9 @@ def _check(args: argparse.Namespace) -> int:
 
     solving = missing_kernel(protocol)
     if solving:  # the pressed line needs it: say why nothing is printed for minutes
-        from neatskin.skin.kernel import cache_dir
+        from neatskin.skin.kernel import solve_notice
 
-        print(
-            "  electrical, pressed: first solving the finite-element pinch kernel of this skin and probe (minutes "
-            f"of CPU, once: cached in {cache_dir() / 'kernels'})",
-            flush=True,
-        )
+        print(f"  electrical, pressed: {solve_notice()}", flush=True)
     try:
         line = pressed_rails_text(protocol)
     except KeyboardInterrupt:  # Ctrl-C, SIGTERM, SIGHUP: joblib has ended the solve's workers; say what is left

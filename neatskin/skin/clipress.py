@@ -104,18 +104,13 @@ def evaluate_press(args: argparse.Namespace) -> PressResult:
         check_press_on_skin(layout, x, y, depth, args.probe_radius_mm)
     kernel = None
     if args.deformation == "fe-kernel":
-        from neatskin.skin.kernel import KernelSpec, cache_dir, load_kernel
+        from neatskin.skin.kernel import KernelSpec, load_kernel, solve_notice
 
         spec = KernelSpec.for_layout(layout, args.probe_radius_mm)
         try:
             kernel = load_kernel(spec, compute=False)
         except FileNotFoundError:  # no kernel packaged or cached for this probe: say why nothing comes for minutes
-            print(
-                "neatskin: first solving the finite-element pinch kernel of this skin and probe (minutes of CPU, "
-                f"once: cached in {cache_dir() / 'kernels'})",
-                file=sys.stderr,
-                flush=True,
-            )
+            print(f"neatskin: {solve_notice()}", file=sys.stderr, flush=True)
             kernel = load_kernel(spec)
     model = SkinModel(layout, fidelity=args.fidelity, probe_radius_mm=args.probe_radius_mm, kernel=kernel)
     rest = model.channel_resistance_ohm(0.0, 0.0, 0.0)[0]

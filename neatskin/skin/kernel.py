@@ -373,6 +373,15 @@ def packaged_kernel_path() -> Path:
     return Path(str(files("neatskin") / "protocols" / "skins" / PAPER_KERNEL))
 
 
+def solve_notice() -> str:
+    """What a command says before it solves a missing kernel (`load_kernel(..., compute=False)` raised): why nothing
+    comes for minutes, and where the result goes."""
+    return (
+        "first solving the finite-element pinch kernel of this skin and probe (minutes of CPU, once: cached in "
+        f"{cache_dir() / 'kernels'})"
+    )
+
+
 def load_kernel(spec: KernelSpec, compute: bool = True, n_jobs: int = 2) -> PinchKernel:
     """The kernel of a spec: the packaged paper kernel if its key matches, else the user cache, else (compute)
     solve it once and cache it. compute=False raises FileNotFoundError instead of solving."""
