@@ -119,11 +119,12 @@ _IDEAL = {k: 0.0 for k in SCENE_KNOBS} | {"relaxation_time_s": 30.0, "mains_freq
 # test split (`--test random`). Re-fitted on 2026-11-26 with the paper's own pairing (paperpairing: a network per
 # validation draw, the lowest test MSE selected, the reading noise derived): 0.7 mm on the 2 % reading, 0.4 mm on the
 # 11 positions x 6 presses the paper's figures are scored on (`--test design`), with the loss flat from 0.3 to 0.7 mm:
-# the paper's figures do not tell them apart. Kept at 0.7 until every figure is re-run at 0.4 (five main jobs at
-# 0.4 mm are in docs/skin.md). The paper's numbers do not identify the depth jitter (0 to 0.5 mm moves no statistic
+# the paper's figures do not tell them apart. Decided on 2026-11-26 (session 14): kept at 0.7, the upper end of what
+# the paper allows, so every planning figure (floors, bounds, `campaign plan`) errs toward more presses, not fewer;
+# five main jobs at 0.4 mm, the lower end, are in docs/skin.md. The paper's numbers do not identify the depth jitter (0 to 0.5 mm moves no statistic
 # beyond the seed spread): it stays assumed. The other knobs are assumed (docs/skin.md).
 PAPER_LIKE = _IDEAL | {
-    "placement_error_mm": 0.7,  # fitted on the 2 % reading (0.4 mm on the 11 x 6 one; flat from 0.3 to 0.7 mm)
+    "placement_error_mm": 0.7,  # fitted, weakly: 0.7 on the 2 % reading, 0.4 on 11 x 6; the upper end kept
     "depth_jitter_mm": 0.2,  # assumed (z repeatability and skin height); not identified by the paper's numbers
     "press_interval_s": 7.78,  # the paper protocol's G-code time per press (2,800 presses in 6.05 h)
     "fabrication_spread_fraction": 0.08,
