@@ -1,0 +1,446 @@
+"""Issue 27's eighth round, measured: the default inversion's model row compiled with numba, against numpy's.
+
+    python benchmarks/inversion_compiled.py RUN [--rows 4096] [--repeats 7]
+
+Needs numba, which the package does not depend on: run it from a scratch venv
+(`python -m venv V && V/bin/pip install -e . numba`); without numba it exits 2.
+
+One model row of `skin_inversion`'s default model (the parametric `SkinModel` of RUN's layout and probe), written
+once more as plain loops and compiled (`@njit`, no cache, so every run pays the compile and it is timed):
+- the pinch's channel factors F and their gradient in (x, y, depth): `modelgrad.factor_and_gradient`'s integrand and
+  sums on `deformation._side_panels`' panels (the standard ones, graded ones on the sides peaking above 0.9, graded
+  by the chunk's highest peak in chunks of 768 presses as numpy does, or by the row's own with `per_row`), the same
+  Gauss-Legendre nodes: so the same quadrature, and agreement to rounding;
+- the network's R_eq and Jacobian (`modelgrad.pair_resistance_and_gradient`): the grounded Laplacian's Cholesky
+  factor solved for the electrodes' columns, R_ab = (e_a - e_b)' Z (e_a - e_b) and Foster's
+  dR_ab/dtheta = sum_c (b_c' Z (e_a - e_b))^2 g_c (dF_c/dtheta) / F_c;
+- a value-only row too (the grids' rows, `pair_resistance_ohm`).
+It prints the largest relative difference against numpy on random rows of the inversion's box (uniform, and with
+80 % on the depth bound as the solver's rows are), and the CPU per row of each, side by side (one thread, the best
+of --repeats, every row in one call for the compiled row, numpy in the solver's calls of 512 and 256 rows), with the
+compile's CPU and wall time and `import numba`'s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+import numpy as np
+
+try:
+    import numba
+except ImportError:  # not a dependency of the package: this benchmark only measures what it would buy
+    print("inversion_compiled.py needs numba: pip install numba (in a scratch venv; the package does not use it)")
+    raise SystemExit(2) from None
+
+# --fastmath: LLVM may reorder float arithmetic (and vectorise the reductions); read before the kernels compile
+FASTMATH = "--fastmath" in sys.argv
+njit = numba.njit(cache=False, fastmath=FASTMATH)
+
+CHUNK_PRESSES = 768  # deformation._CHUNK_PRESSES: a chunk's graded panels follow its highest side peak
+GRADED_FROM_P0 = 0.9  # deformation._GRADED_FROM_P0
+CUTOFF_DECAYS = 6.1  # deformation._CUTOFF_DECAYS
+STANDARD_EDGES = np.array([0.0, 0.5, 2.0, np.inf])  # deformation._PANEL_EDGES
+OUTER_EDGES = np.array([0.5, 1.0, 1.5, 2.0, 3.0, np.inf])  # deformation._GRADED_OUTER_EDGES
+
+
+@njit
+def graded_edges(peak_max):
+    """deformation._graded_edges of the highest peak: [0, 0.5 / 2^levels ... 0.25, 0.5, 1, 1.5, 2, 3, inf]."""
+    width = np.sqrt(max(1.0 - peak_max, 1e-300) / peak_max)
+    levels = int(min(max(np.ceil(np.log(0.5 / width) / np.log(2.0)), 1.0), 30.0))
+    edges = np.empty(levels + 1 + OUTER_EDGES.size)
+    edges[0] = 0.0
+    for i in range(levels):
+        edges[1 + i] = 0.5 * 2.0 ** -(levels - i)
+    edges[levels + 1 :] = OUTER_EDGES
+    return edges
+
+
+@njit
+def channel_setup(x, y, d, c, geo, consts, scale):
+    """One (press, channel): p0, dp0/d(depth), decay l, perp, perp^2, footprint, and per side base, length, active."""
+    gain, ratio, thickness, cdepth, a = consts[0], consts[1], consts[2], consts[3], consts[4]
+    raw = gain * d / thickness * scale[c]
+    rate = gain / thickness * scale[c]
+    p0 = min(1.0, raw)
+    if not raw < 1.0:
+        rate = 0.0
+    decay = ratio * (cdepth + d)
+    sx, sy, ux, uy, length = geo[c, 0], geo[c, 1], geo[c, 2], geo[c, 3], geo[c, 4]
+    rel_x, rel_y = x - sx, y - sy
+    s0 = rel_x * ux + rel_y * uy
+    perp = rel_x * uy - rel_y * ux
+    perp2 = perp * perp
+    half_chord = np.sqrt(max(a * a - perp2, 0.0))
+    foot_lo = min(max(s0 - half_chord, 0.0), length)
+    foot_hi = min(max(s0 + half_chord, 0.0), length)
+    reach = max(np.sqrt(max((a + CUTOFF_DECAYS * decay) ** 2 - perp2, 0.0)) - half_chord, 0.0)
+    base0, base1 = foot_hi - s0, s0 - foot_lo
+    len0, len1 = length - foot_hi, foot_lo
+    return p0, rate, decay, perp, perp2, foot_hi - foot_lo, base0, base1, len0, len1, min(reach, len0), min(reach, len1)
+
+
+@njit
+def side_peak(p0, base, perp2, a, decay):
+    """The pinch at a side's start (its nearest point to the probe axis): deformation._side_panels' peak."""
+    lift = max(np.sqrt(base * base + perp2) - a, 0.0) / decay
+    return p0 * np.exp(-lift * lift)
+
+
+@njit
+def row_peak(x, y, d, geo, consts, scale):
+    """The highest peak above GRADED_FROM_P0 of a press's live sides (0 if none): what grades its panels."""
+    best = 0.0
+    for c in range(geo.shape[0]):
+        p0, _, decay, _, perp2, _, base0, base1, _, _, act0, act1 = channel_setup(x, y, d, c, geo, consts, scale)
+        if p0 > GRADED_FROM_P0:
+            for base, act in ((base0, act0), (base1, act1)):
+                if act > 0.0:
+                    peak = side_peak(p0, base, perp2, consts[4], decay)
+                    if peak > GRADED_FROM_P0 and peak > best:
+                        best = peak
+    return best
+
+
+@njit
+def side_sums(edges, base, act, decay, perp2, a, p0, nodes, weights, want_grad, out):
+    """A side's integrals over its panels (modelgrad._side_sums): f, f^2 P u / r, f^2 P u tau / r, f^2 P, f^2 P u^2."""
+    inv_l = 1.0 / decay
+    for k in range(5):
+        out[k] = 0.0
+    lower = 0.0  # min(edges[0] * l, active) = 0
+    for i in range(1, edges.size):
+        upper = act if i == edges.size - 1 else min(edges[i] * decay, act)
+        width = upper - lower
+        begin = base + lower
+        lower = upper
+        if width == 0.0:  # numpy sums these too: w f 0 = 0 exactly (f is finite below a shut channel)
+            continue
+        s0 = s1 = s2 = s3 = s4 = 0.0
+        for j in range(nodes.size):
+            tau = nodes[j] * width + begin
+            r = np.sqrt(tau * tau + perp2)
+            u = (r - a) * inv_l
+            u2 = u * u
+            big_p = np.exp(-u2) * p0
+            f = 1.0 / (1.0 - big_p)
+            w = weights[j]
+            s0 += w * f
+            if want_grad:
+                fp = f * f * big_p
+                a_term = fp * u / r
+                s1 += w * a_term
+                s2 += w * (a_term * tau)
+                s3 += w * fp
+                s4 += w * (fp * u2)
+        out[0] += s0 * width
+        if want_grad:
+            out[1] += s1 * width
+            out[2] += s2 * width
+            out[3] += s3 * width
+            out[4] += s4 * width
+
+
+@njit
+def factor_row(x, y, d, peak_max, geo, consts, scale, nodes, weights, want_grad, factor, grad, sums):
+    """F (C,) and dF/d(x, y, depth) (C, 3) of one press, its graded sides graded by peak_max."""
+    a, ratio = consts[4], consts[1]
+    standard = STANDARD_EDGES
+    graded = graded_edges(peak_max) if peak_max > GRADED_FROM_P0 else STANDARD_EDGES
+    for c in range(geo.shape[0]):
+        p0, rate, decay, perp, perp2, foot, base0, base1, len0, len1, act0, act1 = channel_setup(
+            x, y, d, c, geo, consts, scale
+        )
+        length, ux, uy = geo[c, 4], geo[c, 2], geo[c, 3]
+        total = foot / (1.0 - p0) if foot > 0.0 else 0.0
+        gx = gy = gd = 0.0
+        depth_rate = rate / p0 if p0 > 0.0 else 0.0
+        two_over_l = 2.0 / decay
+        outer = 0.0
+        for k in range(2):
+            base, side_len, act = (base0, len0, act0) if k == 0 else (base1, len1, act1)
+            sign = 1.0 if k == 0 else -1.0
+            if act > 0.0:
+                edges = standard
+                if p0 > GRADED_FROM_P0 and side_peak(p0, base, perp2, a, decay) > GRADED_FROM_P0:
+                    edges = graded
+                side_sums(edges, base, act, decay, perp2, a, p0, nodes, weights, want_grad, sums)
+            else:
+                for m in range(5):
+                    sums[m] = 0.0
+            outer += sums[0] + (side_len - act)
+            if want_grad:
+                gx += two_over_l * (sign * ux * sums[2] - perp * uy * sums[1])
+                gy += two_over_l * (sign * uy * sums[2] + perp * ux * sums[1])
+                gd += depth_rate * sums[3] + ratio * two_over_l * sums[4]
+        factor[c] = (total + outer) / length
+        if want_grad:
+            inner_d = foot * rate / (1.0 - p0) ** 2 if foot > 0.0 else 0.0
+            grad[c, 0] = gx / length
+            grad[c, 1] = gy / length
+            grad[c, 2] = (gd + inner_d) / length
+
+
+@njit
+def network_row(factor, grad, r0, ends, electrodes, pair_ends, want_grad, lap, cols, g, out_r, out_j):
+    """R_eq (pairs,) and its gradient (pairs, 3) from the channel factors: the grounded Laplacian's Cholesky
+    factor, its columns for the electrodes, Foster's dR/dg. ends, electrodes, pair_ends: free indices, -1 grounded."""
+    n_free, n_ch = lap.shape[0], factor.size
+    lap[:, :] = 0.0
+    for c in range(n_ch):
+        g[c] = 1.0 / (factor[c] * r0[c])
+        i, j = ends[c, 0], ends[c, 1]
+        if i >= 0:
+            lap[i, i] += g[c]
+        if j >= 0:
+            lap[j, j] += g[c]
+        if i >= 0 and j >= 0:
+            lap[i, j] -= g[c]
+            lap[j, i] -= g[c]
+    for k in range(n_free):  # Cholesky, lower, in place
+        s = lap[k, k]
+        for m in range(k):
+            s -= lap[k, m] * lap[k, m]
+        lap[k, k] = np.sqrt(s)
+        for i in range(k + 1, n_free):
+            s = lap[i, k]
+            for m in range(k):
+                s -= lap[i, m] * lap[k, m]
+            lap[i, k] = s / lap[k, k]
+    for e in range(electrodes.size):  # cols[:, e] = Z e_electrode (0 for the grounded one)
+        cols[:, e] = 0.0
+        node = electrodes[e]
+        if node < 0:
+            continue
+        for i in range(n_free):  # forward: L y = e
+            s = 1.0 if i == node else 0.0
+            for m in range(i):
+                s -= lap[i, m] * cols[m, e]
+            cols[i, e] = s / lap[i, i]
+        for i in range(n_free - 1, -1, -1):  # back: L' z = y
+            s = cols[i, e]
+            for m in range(i + 1, n_free):
+                s -= lap[m, i] * cols[m, e]
+            cols[i, e] = s / lap[i, i]
+    for q in range(pair_ends.shape[0]):
+        ea, eb = pair_ends[q, 0], pair_ends[q, 1]
+        na, nb = electrodes[ea], electrodes[eb]
+        # potentials v = Z (e_a - e_b) = cols[:, ea] - cols[:, eb]; R = v_a - v_b (grounded nodes at 0)
+        va = cols[na, ea] - cols[na, eb] if na >= 0 else 0.0
+        vb = cols[nb, ea] - cols[nb, eb] if nb >= 0 else 0.0
+        out_r[q] = va - vb
+        if want_grad:
+            j0 = j1 = j2 = 0.0
+            for c in range(n_ch):
+                i, j = ends[c, 0], ends[c, 1]
+                vi = cols[i, ea] - cols[i, eb] if i >= 0 else 0.0
+                vj = cols[j, ea] - cols[j, eb] if j >= 0 else 0.0
+                drop = vi - vj
+                weight = drop * drop * g[c] / factor[c]
+                j0 += weight * grad[c, 0]
+                j1 += weight * grad[c, 1]
+                j2 += weight * grad[c, 2]
+            out_j[q, 0], out_j[q, 1], out_j[q, 2] = j0, j1, j2
+
+
+@njit
+def model_rows(
+    p, per_row, want_grad, network, geo, consts, scale, nodes, weights, r0, ends, electrodes, pair_ends, out_r, out_j
+):
+    """R_eq (n, pairs) and, with want_grad, its Jacobian (n, pairs, 3) of the presses p (n, 3), every depth > 0.
+    per_row False: each chunk of CHUNK_PRESSES grades its sides by its highest peak, as numpy; True: by the row's.
+    network False: the channel factors only (to time the two parts; out_r, out_j untouched)."""
+    n, n_ch, n_free = p.shape[0], geo.shape[0], ends.max() + 1
+    factor, grad, sums = np.empty(n_ch), np.empty((n_ch, 3)), np.empty(5)
+    lap, cols, g = np.empty((n_free, n_free)), np.empty((n_free, electrodes.size)), np.empty(n_ch)
+    for lo in range(0, n, CHUNK_PRESSES):
+        hi = min(lo + CHUNK_PRESSES, n)
+        chunk_peak = 0.0
+        if not per_row:
+            for i in range(lo, hi):
+                chunk_peak = max(chunk_peak, row_peak(p[i, 0], p[i, 1], p[i, 2], geo, consts, scale))
+        for i in range(lo, hi):
+            peak = row_peak(p[i, 0], p[i, 1], p[i, 2], geo, consts, scale) if per_row else chunk_peak
+            factor_row(
+                p[i, 0], p[i, 1], p[i, 2], peak, geo, consts, scale, nodes, weights, want_grad, factor, grad, sums
+            )
+            if network:
+                network_row(factor, grad, r0, ends, electrodes, pair_ends, want_grad, lap, cols, g, out_r[i], out_j[i])
+
+
+class CompiledSkin:
+    """The parametric `SkinModel`'s arrays as `model_rows` takes them, and its calls."""
+
+    def __init__(self, skin) -> None:
+        from neatskin.skin.channelchange import grounded_bases
+        from neatskin.skin.deformation import _channel_geometry, _gauss_legendre
+
+        layout = skin.layout
+        if not skin.has_analytic_jacobian:
+            raise ValueError("only the parametric pinch with the 'deformation' fidelity is compiled here")
+        start, unit, length = _channel_geometry(layout)
+        self.geo = np.ascontiguousarray(np.c_[start, unit, length])
+        pinch = skin.pinch
+        self.consts = np.array(
+            [pinch.pinch_gain, pinch.decay_ratio, layout.thickness_mm, layout.channel_depth_mm, skin.probe_radius_mm]
+        )
+        scale = skin._pinch_scale
+        self.scale = np.ones(layout.n_channels) if scale is None else np.asarray(scale, float)
+        self.nodes, self.weights = (np.ascontiguousarray(v) for v in _gauss_legendre(pinch.nodes_per_panel))
+        self.r0 = np.asarray(skin.channel_baseline_ohm, float)
+        ground = int(layout.electrode_junctions[0])
+        free = np.array([-1 if j == ground else j - (j > ground) for j in range(layout.n_junctions)], dtype=np.int64)
+        self.ends = free[np.asarray(layout.channel_ends)]
+        self.electrodes = free[np.asarray(layout.electrode_junctions)]
+        self.pair_ends = np.ascontiguousarray(np.asarray(layout.pair_electrode_index, dtype=np.int64))
+        self.n_pairs = len(layout.pairs)
+        # the bases numpy uses, to check the index maps against
+        incidence, pairs = grounded_bases(layout)
+        for c, (i, j) in enumerate(self.ends):
+            assert (i < 0 or incidence[i, c] == 1.0) and (j < 0 or incidence[j, c] == -1.0)
+        for q, (ea, eb) in enumerate(self.pair_ends):
+            na, nb = self.electrodes[ea], self.electrodes[eb]
+            assert (na < 0 or pairs[na, q] == 1.0) and (nb < 0 or pairs[nb, q] == -1.0)
+
+    def rows(self, p: np.ndarray, want_grad: bool = True, per_row: bool = False, network: bool = True):
+        """R_eq (n, pairs) and its Jacobian (n, pairs, 3) (NaN without want_grad) at p (n, 3)."""
+        p = np.ascontiguousarray(p, dtype=float)
+        out_r = np.empty((len(p), self.n_pairs))
+        out_j = np.full((len(p), self.n_pairs, 3), np.nan)
+        model_rows(
+            p, per_row, want_grad, network, self.geo, self.consts, self.scale, self.nodes, self.weights, self.r0,
+            self.ends, self.electrodes, self.pair_ends, out_r, out_j,
+        )  # fmt: skip
+        return out_r, out_j
+
+
+def _box(layout):
+    """The inversion's box (skin_inversion: the layout's bounds + 0.5 mm, depths 5 to 95 % of the thickness)."""
+    x0, y0, x1, y1 = layout.bounds_mm
+    return np.array([x0 - 0.5, y0 - 0.5, 0.05 * layout.thickness_mm]), np.array(
+        [x1 + 0.5, y1 + 0.5, 0.95 * layout.thickness_mm]
+    )
+
+
+def random_rows(layout, n: int, on_bound: float, seed: int) -> np.ndarray:
+    """n uniform rows of the box, the share on_bound of them at the depth bound (where the solver's rows sit)."""
+    lo, hi = _box(layout)
+    rng = np.random.default_rng(seed)
+    p = lo + rng.random((n, 3)) * (hi - lo)
+    p[rng.random(n) < on_bound, 2] = hi[2]
+    return p
+
+
+def _relative(a: np.ndarray, b: np.ndarray) -> float:
+    """The largest |a - b| of a row over the row's largest |b|, the worst row."""
+    axes = tuple(range(1, a.ndim))
+    scale = np.maximum(np.max(np.abs(b), axis=axes), 1e-300)
+    return float(np.max(np.max(np.abs(a - b), axis=axes) / scale))
+
+
+def _best_cpu_us(call, n_rows: int, repeats: int) -> float:
+    best = np.inf
+    for _ in range(repeats):
+        started = time.process_time()
+        call()
+        best = min(best, time.process_time() - started)
+    return 1e6 * best / n_rows
+
+
+def numpy_rows(skin, p, want_grad: bool):
+    """numpy's model as the solver calls it: value and gradient in calls of 512 rows, values in calls of 256."""
+    from neatskin.baselines.invsolve import GRADIENT_CHUNK, MODEL_CHUNK
+
+    chunk = GRADIENT_CHUNK if want_grad else MODEL_CHUNK
+    out_r = np.empty((len(p), len(skin.layout.pairs)))
+    out_j = np.full((*out_r.shape, 3), np.nan)
+    for s in range(0, len(p), chunk):
+        q = p[s : s + chunk]
+        if want_grad:
+            out_r[s : s + chunk], out_j[s : s + chunk] = skin.pair_resistance_and_jacobian_ohm(
+                q[:, 0], q[:, 1], q[:, 2]
+            )
+        else:
+            out_r[s : s + chunk] = skin.pair_resistance_ohm(q[:, 0], q[:, 1], q[:, 2])
+    return out_r, out_j
+
+
+def rows_report(skin, compiled: CompiledSkin, n_rows: int, repeats: int) -> None:
+    """Agreement and CPU per row, numpy against compiled, on uniform and depth-bound-heavy rows."""
+    print(f"\nmodel rows: {n_rows} random rows a set, CPU per row best of {repeats}; load {os.getloadavg()[0]:.2f}")
+    print(
+        "| rows | kind | max rel. diff R (chunk grading) | max rel. diff J | per-row grading: R, J | numpy us "
+        "| compiled us (factors + network) | ratio |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for label, on_bound, seed in (("uniform in the box", 0.0, 1), ("80 % on the depth bound", 0.8, 2)):
+        p = random_rows(skin.layout, n_rows, on_bound, seed)
+        for want_grad in (True, False):
+            ref_r, ref_j = numpy_rows(skin, p, want_grad)
+            got_r, got_j = compiled.rows(p, want_grad)
+            row_r, row_j = compiled.rows(p, want_grad, per_row=True)
+            diff_j = _relative(got_j, ref_j) if want_grad else np.nan
+            per_row_j = _relative(row_j, ref_j) if want_grad else np.nan
+            t_np = _best_cpu_us(lambda: numpy_rows(skin, p, want_grad), n_rows, repeats)  # noqa: B023
+            t_nb = _best_cpu_us(lambda: compiled.rows(p, want_grad), n_rows, repeats)  # noqa: B023
+            t_factor = _best_cpu_us(lambda: compiled.rows(p, want_grad, network=False), n_rows, repeats)  # noqa: B023
+            kind = "value + Jacobian" if want_grad else "value"
+            print(
+                f"| {label} | {kind} | {_relative(got_r, ref_r):.1e} | {diff_j:.1e} | "
+                f"{_relative(row_r, ref_r):.1e}, {per_row_j:.1e} | {t_np:.2f} | {t_nb:.2f} ({t_factor:.2f} + "
+                f"{t_nb - t_factor:.2f}) | {t_np / t_nb:.1f}x |"
+            )
+
+
+def compile_report(compiled: CompiledSkin) -> None:
+    """The first call's CPU and wall time (numba's type inference and LLVM), each signature once."""
+    p = random_rows(compiled_layout(compiled), 4, 0.5, 0)
+    started, wall = time.process_time(), time.perf_counter()
+    compiled.rows(p, True)
+    cpu_s, wall_s = time.process_time() - started, time.perf_counter() - wall
+    started = time.process_time()
+    compiled.rows(p, True)
+    again_s = time.process_time() - started
+    print(
+        f"compile (first call of model_rows): {cpu_s:.2f} s CPU, {wall_s:.2f} s wall; the second call {again_s * 1e3:.2f} ms"
+    )
+
+
+def compiled_layout(compiled: CompiledSkin):
+    return compiled.layout
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("run")
+    parser.add_argument("--rows", type=int, default=4096)
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--fastmath", action="store_true", help="compile with fastmath (read at import, above)")
+    args = parser.parse_args(argv)
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(1)  # one BLAS thread, as a report lane runs the inversion; numba's code here has one thread
+    from neatskin.baselines.dataset import load_baseline_data
+    from neatskin.skin.model import SkinModel
+
+    data = load_baseline_data(args.run)
+    skin = SkinModel(
+        data.layout, fidelity=data.skin_fidelity or "deformation", probe_radius_mm=data.probe_radius_mm or 2.75
+    )
+    compiled = CompiledSkin(skin)
+    compiled.layout = skin.layout
+    print(
+        f"numba {numba.__version__}, numpy {np.__version__}, python {sys.version.split()[0]}, fastmath {FASTMATH}; "
+        f"{args.run}"
+    )
+    compile_report(compiled)
+    rows_report(skin, compiled, args.rows, args.repeats)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
