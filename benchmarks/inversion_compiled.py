@@ -30,6 +30,7 @@ import time
 
 import numpy as np
 
+_started = time.process_time()
 try:
     import numba
 except ImportError:  # not a dependency of the package: this benchmark only measures what it would buy
@@ -38,6 +39,7 @@ except ImportError:  # not a dependency of the package: this benchmark only meas
 
 # --fastmath: LLVM may reorder float arithmetic (and vectorise the reductions); read before the kernels compile
 FASTMATH = "--fastmath" in sys.argv
+IMPORT_NUMBA_CPU_S = time.process_time() - _started
 njit = numba.njit(cache=False, fastmath=FASTMATH)
 
 CHUNK_PRESSES = 768  # deformation._CHUNK_PRESSES: a chunk's graded panels follow its highest side peak
@@ -145,8 +147,69 @@ def side_sums(edges, base, act, decay, perp2, a, p0, nodes, weights, want_grad, 
             out[4] += s4 * width
 
 
+EXP_TAYLOR = 1.0 / np.cumprod(np.r_[1.0, np.arange(1.0, 17.0)])  # 1 / k!, k = 0..16
+
+
 @njit
-def factor_row(x, y, d, peak_max, geo, consts, scale, nodes, weights, want_grad, factor, grad, sums):
+def exp_nonpositive(x):
+    """exp(x) for x in [-37.3, 0] (here -u^2, u up to the 6.1 decay lengths' cutoff) in plain arithmetic, so that a
+    loop of it vectorises (numba has no vector exp without Intel's SVML, which this llvmlite is not built for):
+    exp(x / 64) by its Taylor polynomial of degree 16 (|x / 64| <= 0.59: < 1e-18), squared 6 times (the squarings
+    multiply its relative error by 64: ~1e-14)."""
+    r = x * (1.0 / 64.0)
+    poly = EXP_TAYLOR[16]
+    for m in range(15, -1, -1):
+        poly = poly * r + EXP_TAYLOR[m]
+    for _ in range(6):
+        poly = poly * poly
+    return poly
+
+
+@njit
+def side_sums_flat(edges, base, act, decay, perp2, a, p0, nodes, weights, want_grad, out, tau_buf, w_buf):
+    """side_sums with the side's nodes laid out flat first (tau, and the weight times its panel's width), then one
+    loop over them that LLVM can vectorise (fastmath lets it reorder the sums; the own exp lets it vectorise)."""
+    inv_l = 1.0 / decay
+    m = 0
+    lower = 0.0
+    for i in range(1, edges.size):
+        upper = act if i == edges.size - 1 else min(edges[i] * decay, act)
+        width = upper - lower
+        begin = base + lower
+        lower = upper
+        if width == 0.0:
+            continue
+        for j in range(nodes.size):
+            tau_buf[m] = nodes[j] * width + begin
+            w_buf[m] = weights[j] * width
+            m += 1
+    s0 = s1 = s2 = s3 = s4 = 0.0
+    if want_grad:
+        for t in range(m):
+            tau = tau_buf[t]
+            r = np.sqrt(tau * tau + perp2)
+            u = (r - a) * inv_l
+            u2 = u * u
+            big_p = exp_nonpositive(-u2) * p0
+            f = 1.0 / (1.0 - big_p)
+            w = w_buf[t]
+            fp = f * f * big_p
+            a_term = fp * u / r
+            s0 += w * f
+            s1 += w * a_term
+            s2 += w * (a_term * tau)
+            s3 += w * fp
+            s4 += w * (fp * u2)
+    else:
+        for t in range(m):
+            tau = tau_buf[t]
+            u = (np.sqrt(tau * tau + perp2) - a) * inv_l
+            s0 += w_buf[t] / (1.0 - exp_nonpositive(-u * u) * p0)
+    out[0], out[1], out[2], out[3], out[4] = s0, s1, s2, s3, s4
+
+
+@njit
+def factor_row(x, y, d, peak_max, geo, consts, scale, nodes, weights, want_grad, flat, factor, grad, sums, buf):
     """F (C,) and dF/d(x, y, depth) (C, 3) of one press, its graded sides graded by peak_max."""
     a, ratio = consts[4], consts[1]
     standard = STANDARD_EDGES
@@ -168,7 +231,12 @@ def factor_row(x, y, d, peak_max, geo, consts, scale, nodes, weights, want_grad,
                 edges = standard
                 if p0 > GRADED_FROM_P0 and side_peak(p0, base, perp2, a, decay) > GRADED_FROM_P0:
                     edges = graded
-                side_sums(edges, base, act, decay, perp2, a, p0, nodes, weights, want_grad, sums)
+                if flat:
+                    side_sums_flat(
+                        edges, base, act, decay, perp2, a, p0, nodes, weights, want_grad, sums, buf[0], buf[1]
+                    )
+                else:
+                    side_sums(edges, base, act, decay, perp2, a, p0, nodes, weights, want_grad, sums)
             else:
                 for m in range(5):
                     sums[m] = 0.0
@@ -186,7 +254,7 @@ def factor_row(x, y, d, peak_max, geo, consts, scale, nodes, weights, want_grad,
 
 
 @njit
-def network_row(factor, grad, r0, ends, electrodes, pair_ends, want_grad, lap, cols, g, out_r, out_j):
+def network_row(factor, grad, r0, ends, electrodes, pair_ends, want_grad, lap, cols, g, drops, weight, out_r, out_j):
     """R_eq (pairs,) and its gradient (pairs, 3) from the channel factors: the grounded Laplacian's Cholesky
     factor, its columns for the electrodes, Foster's dR/dg. ends, electrodes, pair_ends: free indices, -1 grounded."""
     n_free, n_ch = lap.shape[0], factor.size
@@ -226,6 +294,13 @@ def network_row(factor, grad, r0, ends, electrodes, pair_ends, want_grad, lap, c
             for m in range(i + 1, n_free):
                 s -= lap[m, i] * cols[m, e]
             cols[i, e] = s / lap[i, i]
+    for c in range(n_ch):  # drops[e, c]: the drop across channel c for a unit current in at electrode e
+        i, j = ends[c, 0], ends[c, 1]
+        for e in range(electrodes.size):
+            drops[e, c] = (cols[i, e] if i >= 0 else 0.0) - (cols[j, e] if j >= 0 else 0.0)
+        if want_grad:
+            for k in range(3):
+                weight[k, c] = g[c] * grad[c, k] / factor[c]
     for q in range(pair_ends.shape[0]):
         ea, eb = pair_ends[q, 0], pair_ends[q, 1]
         na, nb = electrodes[ea], electrodes[eb]
@@ -236,27 +311,42 @@ def network_row(factor, grad, r0, ends, electrodes, pair_ends, want_grad, lap, c
         if want_grad:
             j0 = j1 = j2 = 0.0
             for c in range(n_ch):
-                i, j = ends[c, 0], ends[c, 1]
-                vi = cols[i, ea] - cols[i, eb] if i >= 0 else 0.0
-                vj = cols[j, ea] - cols[j, eb] if j >= 0 else 0.0
-                drop = vi - vj
-                weight = drop * drop * g[c] / factor[c]
-                j0 += weight * grad[c, 0]
-                j1 += weight * grad[c, 1]
-                j2 += weight * grad[c, 2]
+                drop = drops[ea, c] - drops[eb, c]
+                d2 = drop * drop
+                j0 += d2 * weight[0, c]
+                j1 += d2 * weight[1, c]
+                j2 += d2 * weight[2, c]
             out_j[q, 0], out_j[q, 1], out_j[q, 2] = j0, j1, j2
 
 
 @njit
 def model_rows(
-    p, per_row, want_grad, network, geo, consts, scale, nodes, weights, r0, ends, electrodes, pair_ends, out_r, out_j
+    p,
+    per_row,
+    want_grad,
+    network,
+    flat,
+    geo,
+    consts,
+    scale,
+    nodes,
+    weights,
+    r0,
+    ends,
+    electrodes,
+    pair_ends,
+    out_r,
+    out_j,
 ):
     """R_eq (n, pairs) and, with want_grad, its Jacobian (n, pairs, 3) of the presses p (n, 3), every depth > 0.
     per_row False: each chunk of CHUNK_PRESSES grades its sides by its highest peak, as numpy; True: by the row's.
-    network False: the channel factors only (to time the two parts; out_r, out_j untouched)."""
+    network False: the channel factors only (to time the two parts; out_r, out_j untouched). flat: the sides'
+    integrals by side_sums_flat (own exp, vectorisable), else side_sums (libm's exp, node by node as numpy orders)."""
     n, n_ch, n_free = p.shape[0], geo.shape[0], ends.max() + 1
     factor, grad, sums = np.empty(n_ch), np.empty((n_ch, 3)), np.empty(5)
     lap, cols, g = np.empty((n_free, n_free)), np.empty((n_free, electrodes.size)), np.empty(n_ch)
+    drops, weight = np.empty((electrodes.size, n_ch)), np.empty((3, n_ch))
+    buf = np.empty((2, 64 * nodes.size))  # a side's nodes, for side_sums_flat (at most 36 panels)
     for lo in range(0, n, CHUNK_PRESSES):
         hi = min(lo + CHUNK_PRESSES, n)
         chunk_peak = 0.0
@@ -266,10 +356,39 @@ def model_rows(
         for i in range(lo, hi):
             peak = row_peak(p[i, 0], p[i, 1], p[i, 2], geo, consts, scale) if per_row else chunk_peak
             factor_row(
-                p[i, 0], p[i, 1], p[i, 2], peak, geo, consts, scale, nodes, weights, want_grad, factor, grad, sums
+                p[i, 0],
+                p[i, 1],
+                p[i, 2],
+                peak,
+                geo,
+                consts,
+                scale,
+                nodes,
+                weights,
+                want_grad,
+                flat,
+                factor,
+                grad,
+                sums,
+                buf,
             )
             if network:
-                network_row(factor, grad, r0, ends, electrodes, pair_ends, want_grad, lap, cols, g, out_r[i], out_j[i])
+                network_row(
+                    factor,
+                    grad,
+                    r0,
+                    ends,
+                    electrodes,
+                    pair_ends,
+                    want_grad,
+                    lap,
+                    cols,
+                    g,
+                    drops,
+                    weight,
+                    out_r[i],
+                    out_j[i],
+                )
 
 
 class CompiledSkin:
@@ -279,7 +398,7 @@ class CompiledSkin:
         from neatskin.skin.channelchange import grounded_bases
         from neatskin.skin.deformation import _channel_geometry, _gauss_legendre
 
-        layout = skin.layout
+        self.layout = layout = skin.layout
         if not skin.has_analytic_jacobian:
             raise ValueError("only the parametric pinch with the 'deformation' fidelity is compiled here")
         start, unit, length = _channel_geometry(layout)
@@ -306,13 +425,13 @@ class CompiledSkin:
             na, nb = self.electrodes[ea], self.electrodes[eb]
             assert (na < 0 or pairs[na, q] == 1.0) and (nb < 0 or pairs[nb, q] == -1.0)
 
-    def rows(self, p: np.ndarray, want_grad: bool = True, per_row: bool = False, network: bool = True):
+    def rows(self, p, want_grad: bool = True, per_row: bool = False, network: bool = True, flat: bool = False):
         """R_eq (n, pairs) and its Jacobian (n, pairs, 3) (NaN without want_grad) at p (n, 3)."""
         p = np.ascontiguousarray(p, dtype=float)
         out_r = np.empty((len(p), self.n_pairs))
         out_j = np.full((len(p), self.n_pairs, 3), np.nan)
         model_rows(
-            p, per_row, want_grad, network, self.geo, self.consts, self.scale, self.nodes, self.weights, self.r0,
+            p, per_row, want_grad, network, flat, self.geo, self.consts, self.scale, self.nodes, self.weights, self.r0,
             self.ends, self.electrodes, self.pair_ends, out_r, out_j,
         )  # fmt: skip
         return out_r, out_j
@@ -369,49 +488,181 @@ def numpy_rows(skin, p, want_grad: bool):
     return out_r, out_j
 
 
+def compiled_rows(compiled: CompiledSkin, p, want_grad: bool, **options):
+    """The compiled row in numpy's call sizes (a call is a grading chunk, so the same panels as numpy_rows)."""
+    from neatskin.baselines.invsolve import GRADIENT_CHUNK, MODEL_CHUNK
+
+    chunk = GRADIENT_CHUNK if want_grad else MODEL_CHUNK
+    parts = [compiled.rows(p[s : s + chunk], want_grad, **options) for s in range(0, len(p), chunk)]
+    return np.concatenate([r for r, _ in parts]), np.concatenate([j for _, j in parts])
+
+
 def rows_report(skin, compiled: CompiledSkin, n_rows: int, repeats: int) -> None:
-    """Agreement and CPU per row, numpy against compiled, on uniform and depth-bound-heavy rows."""
+    """Agreement and CPU per row, numpy against the two compiled rows, on uniform and depth-bound-heavy rows."""
     print(f"\nmodel rows: {n_rows} random rows a set, CPU per row best of {repeats}; load {os.getloadavg()[0]:.2f}")
+    print("compiled: node by node with libm's exp (as numpy orders the sums); flat: own exp, vectorisable loop")
     print(
-        "| rows | kind | max rel. diff R (chunk grading) | max rel. diff J | per-row grading: R, J | numpy us "
-        "| compiled us (factors + network) | ratio |"
+        "| rows | kind | max rel. diff R, J: compiled | flat | compiled, per-row grading | numpy us | compiled us "
+        "(factors + network) | flat us (factors + network) | numpy / compiled | numpy / flat |"
     )
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for label, on_bound, seed in (("uniform in the box", 0.0, 1), ("80 % on the depth bound", 0.8, 2)):
         p = random_rows(skin.layout, n_rows, on_bound, seed)
         for want_grad in (True, False):
             ref_r, ref_j = numpy_rows(skin, p, want_grad)
-            got_r, got_j = compiled.rows(p, want_grad)
-            row_r, row_j = compiled.rows(p, want_grad, per_row=True)
-            diff_j = _relative(got_j, ref_j) if want_grad else np.nan
-            per_row_j = _relative(row_j, ref_j) if want_grad else np.nan
+            diffs = []
+            for flat, per_row in ((False, False), (True, False), (False, True)):
+                got_r, got_j = compiled_rows(compiled, p, want_grad, per_row=per_row, flat=flat)
+                diff_j = f"{_relative(got_j, ref_j):.1e}" if want_grad else "-"
+                diffs.append(f"{_relative(got_r, ref_r):.1e}, {diff_j}")
             t_np = _best_cpu_us(lambda: numpy_rows(skin, p, want_grad), n_rows, repeats)  # noqa: B023
-            t_nb = _best_cpu_us(lambda: compiled.rows(p, want_grad), n_rows, repeats)  # noqa: B023
-            t_factor = _best_cpu_us(lambda: compiled.rows(p, want_grad, network=False), n_rows, repeats)  # noqa: B023
+            cells = []
+            for flat in (False, True):
+                whole = _best_cpu_us(lambda: compiled_rows(compiled, p, want_grad, flat=flat), n_rows, repeats)  # noqa: B023
+                part = _best_cpu_us(
+                    lambda: compiled_rows(compiled, p, want_grad, network=False, flat=flat),  # noqa: B023
+                    n_rows,
+                    repeats,
+                )
+                cells.append((whole, part))
             kind = "value + Jacobian" if want_grad else "value"
+            times = " | ".join(f"{w:.2f} ({f:.2f} + {w - f:.2f})" for w, f in cells)
             print(
-                f"| {label} | {kind} | {_relative(got_r, ref_r):.1e} | {diff_j:.1e} | "
-                f"{_relative(row_r, ref_r):.1e}, {per_row_j:.1e} | {t_np:.2f} | {t_nb:.2f} ({t_factor:.2f} + "
-                f"{t_nb - t_factor:.2f}) | {t_np / t_nb:.1f}x |"
+                f"| {label} | {kind} | {' | '.join(diffs)} | {t_np:.2f} | {times} | {t_np / cells[0][0]:.1f}x "
+                f"| {t_np / cells[1][0]:.1f}x |"
             )
 
 
 def compile_report(compiled: CompiledSkin) -> None:
     """The first call's CPU and wall time (numba's type inference and LLVM), each signature once."""
-    p = random_rows(compiled_layout(compiled), 4, 0.5, 0)
+    p = random_rows(compiled.layout, 4, 0.5, 0)
     started, wall = time.process_time(), time.perf_counter()
     compiled.rows(p, True)
+    compiled.rows(p, False)
     cpu_s, wall_s = time.process_time() - started, time.perf_counter() - wall
     started = time.process_time()
     compiled.rows(p, True)
     again_s = time.process_time() - started
     print(
-        f"compile (first call of model_rows): {cpu_s:.2f} s CPU, {wall_s:.2f} s wall; the second call {again_s * 1e3:.2f} ms"
+        f"import numba {IMPORT_NUMBA_CPU_S:.2f} s CPU; compile (the first calls of model_rows, with and without the "
+        f"gradient): {cpu_s:.2f} s CPU, {wall_s:.2f} s wall; a second call of 4 rows {again_s * 1e3:.2f} ms"
     )
 
 
-def compiled_layout(compiled: CompiledSkin):
-    return compiled.layout
+class Recorder:
+    """Wraps `SkinModel`'s two model calls and `inversion._diverse_starts` in this process: every call's rows (depth >
+    0: the baseline's row is left out) and the CPU spent in each."""
+
+    def __init__(self) -> None:
+        from neatskin.baselines import inversion
+        from neatskin.skin.model import SkinModel
+
+        self.calls: list[tuple[bool, np.ndarray]] = []
+        self.cpu = {"value": 0.0, "value + Jacobian": 0.0, "start search": 0.0}
+        self.rows = {"value": 0, "value + Jacobian": 0}
+        self._saved = [
+            (SkinModel, "pair_resistance_ohm", SkinModel.pair_resistance_ohm),
+            (SkinModel, "pair_resistance_and_jacobian_ohm", SkinModel.pair_resistance_and_jacobian_ohm),
+            (inversion, "_diverse_starts", inversion._diverse_starts),
+        ]
+        for owner, name, original in self._saved:
+            setattr(owner, name, self._wrap(name, original))
+
+    def _wrap(self, name, original):
+        kind = {"pair_resistance_ohm": "value", "_diverse_starts": "start search"}.get(name, "value + Jacobian")
+
+        def call(*args, **kwargs):
+            started = time.process_time()
+            out = original(*args, **kwargs)
+            self.cpu[kind] += time.process_time() - started
+            if kind != "start search":
+                p = np.column_stack([np.broadcast_to(np.asarray(v, float), np.shape(args[1])) for v in args[1:4]])
+                if np.all(p[:, 2] > 0):
+                    self.calls.append((kind != "value", p))
+                    self.rows[kind] += len(p)
+            return out
+
+        return call
+
+    def restore(self) -> None:
+        for owner, name, original in self._saved:
+            setattr(owner, name, original)
+
+
+def replay_cpu_s(calls, evaluate, stride: int = 1) -> float:
+    """CPU s of `evaluate(want_grad, p)` over every stride-th recorded call (in the recorded call sizes), scaled up."""
+    started = time.process_time()
+    for want_grad, p in calls[::stride]:
+        evaluate(want_grad, p)
+    return (time.process_time() - started) * len(calls) / max(len(calls[::stride]), 1)
+
+
+def projection_report(run: str, compiled: CompiledSkin, repeats: int) -> None:
+    """skin_inversion as the report calls it, and its reference, with their model calls recorded; the recorded rows
+    replayed through numpy and the compiled row (best of `repeats`); the inversion's CPU with the compiled row."""
+    from neatskin.baselines.dataset import load_baseline_data
+    from neatskin.baselines.inversion import skin_inversion
+    from neatskin.skin.model import SkinModel
+
+    data = load_baseline_data(run)
+    options = {"fidelity": data.skin_fidelity or "deformation", "probe_radius_mm": data.probe_radius_mm or 2.75}
+    skin = SkinModel(data.layout, **options)
+    n = len(data.X)
+    print(f"\n{run}: every press ({n}), one process, one BLAS thread; load {os.getloadavg()[0]:.2f}")
+    print(
+        "| inversion | CPU s | model rows a press (value, value + Jacobian) | model CPU s in the run | start search s |"
+    )
+    print("|---|---|---|---|---|")
+    recorded = {}
+    for method in ("batched", "reference"):
+        recorder = Recorder()
+        started = time.process_time()
+        result = skin_inversion(data.layout, data.X, method=method, **options)
+        total = time.process_time() - started
+        recorder.restore()
+        recorded[method] = (total, recorder, result)
+        model_s = recorder.cpu["value"] + recorder.cpu["value + Jacobian"]
+        print(
+            f"| {method} | {total:.2f} | {recorder.rows['value'] / n:.1f}, {recorder.rows['value + Jacobian'] / n:.1f} "
+            f"| {model_s:.2f} | {recorder.cpu['start search']:.2f} |"
+        )
+
+    def numpy_eval(want_grad, p):
+        if want_grad:
+            return skin.pair_resistance_and_jacobian_ohm(p[:, 0], p[:, 1], p[:, 2])
+        return skin.pair_resistance_ohm(p[:, 0], p[:, 1], p[:, 2])
+
+    def compiled_eval(want_grad, p):
+        return compiled.rows(p, want_grad)
+
+    total, recorder, result = recorded["batched"]
+    worst = 0.0
+    for want_grad, p in recorder.calls[:: max(1, len(recorder.calls) // 200)]:
+        ref, got = numpy_eval(want_grad, p), compiled_eval(want_grad, p)
+        worst = max(worst, _relative(got[0], ref if not want_grad else ref[0]))
+        if want_grad:
+            worst = max(worst, _relative(got[1], ref[1]))
+    print(f"\nthe default's recorded rows through both (200 calls sampled): max rel. diff {worst:.1e}")
+    print("| inversion | model CPU s: numpy replay | compiled replay | CPU s as run | with the compiled row |")
+    print("|---|---|---|---|---|")
+    projected = {}
+    for method, stride in (("batched", 1), ("reference", 10)):
+        total, recorder, _ = recorded[method]
+        np_s = min(replay_cpu_s(recorder.calls, numpy_eval, stride) for _ in range(repeats))
+        nb_s = min(replay_cpu_s(recorder.calls, compiled_eval, stride) for _ in range(repeats))
+        in_run = recorder.cpu["value"] + recorder.cpu["value + Jacobian"]
+        projected[method] = total - in_run + nb_s
+        print(f"| {method} | {np_s:.2f} | {nb_s:.2f} | {total:.2f} | {projected[method]:.2f} |")
+    ref_s = recorded["reference"][0]
+    default_s = recorded["batched"][0]
+    rest = default_s - recorded["batched"][1].cpu["value"] - recorded["batched"][1].cpu["value + Jacobian"]
+    print(
+        f"\nreference / default: as run {ref_s / default_s:.1f}x; the default with the compiled row "
+        f"{ref_s / projected['batched']:.1f}x against the numpy reference, {projected['reference'] / projected['batched']:.1f}x "
+        f"with both compiled; 20x = {ref_s / 20:.2f} s. The default's CPU outside the model {rest:.2f} s (start search "
+        f"{recorded['batched'][1].cpu['start search']:.2f} s); its model rows alone, compiled: "
+        f"{projected['batched'] - rest:.2f} s"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -419,6 +670,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("run")
     parser.add_argument("--rows", type=int, default=4096)
     parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--projection", action="store_true", help="also invert every press and project (below)")
+    parser.add_argument("--skip-rows", action="store_true", help="skip the random rows' table")
     parser.add_argument("--fastmath", action="store_true", help="compile with fastmath (read at import, above)")
     args = parser.parse_args(argv)
     from threadpoolctl import threadpool_limits
@@ -432,13 +685,15 @@ def main(argv: list[str] | None = None) -> int:
         data.layout, fidelity=data.skin_fidelity or "deformation", probe_radius_mm=data.probe_radius_mm or 2.75
     )
     compiled = CompiledSkin(skin)
-    compiled.layout = skin.layout
     print(
         f"numba {numba.__version__}, numpy {np.__version__}, python {sys.version.split()[0]}, fastmath {FASTMATH}; "
         f"{args.run}"
     )
     compile_report(compiled)
-    rows_report(skin, compiled, args.rows, args.repeats)
+    if not args.skip_rows:
+        rows_report(skin, compiled, args.rows, args.repeats)
+    if args.projection:
+        projection_report(args.run, compiled, min(args.repeats, 3))
     return 0
 
 
