@@ -40,7 +40,9 @@ except ImportError:  # not a dependency of the package: this benchmark only meas
 # --fastmath: LLVM may reorder float arithmetic (and vectorise the reductions); read before the kernels compile
 FASTMATH = "--fastmath" in sys.argv
 IMPORT_NUMBA_CPU_S = time.process_time() - _started
-njit = numba.njit(cache=False, fastmath=FASTMATH)
+# error_model "numpy": a float division by zero gives inf or NaN as in numpy (a shut channel's F = inf), where numba's
+# default ("python") tests every divisor to raise ZeroDivisionError, and that branch keeps LLVM from vectorising a loop
+njit = numba.njit(cache=False, fastmath=FASTMATH, error_model="numpy")
 
 CHUNK_PRESSES = 768  # deformation._CHUNK_PRESSES: a chunk's graded panels follow its highest side peak
 GRADED_FROM_P0 = 0.9  # deformation._GRADED_FROM_P0
@@ -150,19 +152,24 @@ def side_sums(edges, base, act, decay, perp2, a, p0, nodes, weights, want_grad, 
 EXP_TAYLOR = 1.0 / np.cumprod(np.r_[1.0, np.arange(1.0, 17.0)])  # 1 / k!, k = 0..16
 
 
+E0, E1, E2, E3, E4, E5, E6, E7, E8, E9, E10, E11, E12, E13, E14, E15, E16 = EXP_TAYLOR
+
+
 @njit
 def exp_nonpositive(x):
     """exp(x) for x in [-37.3, 0] (here -u^2, u up to the 6.1 decay lengths' cutoff) in plain arithmetic, so that a
     loop of it vectorises (numba has no vector exp without Intel's SVML, which this llvmlite is not built for):
     exp(x / 64) by its Taylor polynomial of degree 16 (|x / 64| <= 0.59: < 1e-18), squared 6 times (the squarings
-    multiply its relative error by 64: ~1e-14)."""
+    multiply its relative error by 64: ~1e-14). Written out: a loop here would have to be unrolled first."""
     r = x * (1.0 / 64.0)
-    poly = EXP_TAYLOR[16]
-    for m in range(15, -1, -1):
-        poly = poly * r + EXP_TAYLOR[m]
-    for _ in range(6):
-        poly = poly * poly
-    return poly
+    p = ((((((((E16 * r + E15) * r + E14) * r + E13) * r + E12) * r + E11) * r + E10) * r + E9) * r + E8) * r + E7
+    p = (((((((p * r + E6) * r + E5) * r + E4) * r + E3) * r + E2) * r + E1) * r) + E0
+    p = p * p
+    p = p * p
+    p = p * p
+    p = p * p
+    p = p * p
+    return p * p
 
 
 @njit
