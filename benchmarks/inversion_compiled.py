@@ -1,24 +1,31 @@
 """Issue 27's eighth round, measured: the default inversion's model row compiled with numba, against numpy's.
 
-    python benchmarks/inversion_compiled.py RUN [--rows 4096] [--repeats 7]
+    python benchmarks/inversion_compiled.py RUN [--rows 4096] [--repeats 7] [--fastmath] [--projection] [--cache]
 
 Needs numba, which the package does not depend on: run it from a scratch venv
-(`python -m venv V && V/bin/pip install -e . numba`); without numba it exits 2.
+(`python -m venv V && V/bin/pip install -e . numba`); without numba it exits 2. RUN: a paper dry run
+(`neatskin campaign run protocols/paper.toml --dry-run --no-report -o RUN`).
 
 One model row of `skin_inversion`'s default model (the parametric `SkinModel` of RUN's layout and probe), written
-once more as plain loops and compiled (`@njit`, no cache, so every run pays the compile and it is timed):
+once more as plain loops and compiled (`@njit`, no cache unless --cache, so a run pays the compile, timed):
 - the pinch's channel factors F and their gradient in (x, y, depth): `modelgrad.factor_and_gradient`'s integrand and
   sums on `deformation._side_panels`' panels (the standard ones, graded ones on the sides peaking above 0.9, graded
-  by the chunk's highest peak in chunks of 768 presses as numpy does, or by the row's own with `per_row`), the same
-  Gauss-Legendre nodes: so the same quadrature, and agreement to rounding;
+  by the call's highest peak as numpy grades a chunk, or by the row's own with `per_row`), the same Gauss-Legendre
+  nodes: the same quadrature, so agreement to rounding. Two ways: node by node with libm's exp, as numpy orders the
+  sums, and "flat": a side's nodes laid out first, then one loop with an exp in plain arithmetic, which LLVM
+  vectorises with --fastmath (numba has no vector exp here: its llvmlite is not built with Intel's SVML);
 - the network's R_eq and Jacobian (`modelgrad.pair_resistance_and_gradient`): the grounded Laplacian's Cholesky
   factor solved for the electrodes' columns, R_ab = (e_a - e_b)' Z (e_a - e_b) and Foster's
   dR_ab/dtheta = sum_c (b_c' Z (e_a - e_b))^2 g_c (dF_c/dtheta) / F_c;
 - a value-only row too (the grids' rows, `pair_resistance_ohm`).
 It prints the largest relative difference against numpy on random rows of the inversion's box (uniform, and with
 80 % on the depth bound as the solver's rows are), and the CPU per row of each, side by side (one thread, the best
-of --repeats, every row in one call for the compiled row, numpy in the solver's calls of 512 and 256 rows), with the
-compile's CPU and wall time and `import numba`'s.
+of --repeats, both in the solver's call sizes, 512 rows with the gradient and 256 without), with the compile's CPU
+and wall time and `import numba`'s. --projection: `skin_inversion` and its reference on every press of RUN with
+their model calls recorded, the recorded rows replayed through numpy and the compiled row, and each inversion's CPU
+with its model rows compiled (the rest as measured), against the 20x target. --swap ROUNDS: the inversion itself
+(`inversion._two_passes`, today's solver) run with the compiled row in place of numpy's model, and the reference too,
+timed side by side, the answers compared.
 """
 
 from __future__ import annotations
@@ -37,12 +44,14 @@ except ImportError:  # not a dependency of the package: this benchmark only meas
     print("inversion_compiled.py needs numba: pip install numba (in a scratch venv; the package does not use it)")
     raise SystemExit(2) from None
 
-# --fastmath: LLVM may reorder float arithmetic (and vectorise the reductions); read before the kernels compile
+# --fastmath: LLVM may reorder float arithmetic (and vectorise the reductions); read before the kernels compile.
+# --cache: numba's on-disk cache (NUMBA_CACHE_DIR, else __pycache__): what a second run of an installed tool would pay
 FASTMATH = "--fastmath" in sys.argv
+CACHE = "--cache" in sys.argv
 IMPORT_NUMBA_CPU_S = time.process_time() - _started
 # error_model "numpy": a float division by zero gives inf or NaN as in numpy (a shut channel's F = inf), where numba's
 # default ("python") tests every divisor to raise ZeroDivisionError, and that branch keeps LLVM from vectorising a loop
-njit = numba.njit(cache=False, fastmath=FASTMATH, error_model="numpy")
+njit = numba.njit(cache=CACHE, fastmath=FASTMATH, error_model="numpy")
 
 CHUNK_PRESSES = 768  # deformation._CHUNK_PRESSES: a chunk's graded panels follow its highest side peak
 GRADED_FROM_P0 = 0.9  # deformation._GRADED_FROM_P0
@@ -263,58 +272,57 @@ def factor_row(x, y, d, peak_max, geo, consts, scale, nodes, weights, want_grad,
 @njit
 def network_row(factor, grad, r0, ends, electrodes, pair_ends, want_grad, lap, cols, g, drops, weight, out_r, out_j):
     """R_eq (pairs,) and its gradient (pairs, 3) from the channel factors: the grounded Laplacian's Cholesky
-    factor, its columns for the electrodes, Foster's dR/dg. ends, electrodes, pair_ends: free indices, -1 grounded."""
-    n_free, n_ch = lap.shape[0], factor.size
+    factor, its columns for the electrodes, Foster's dR/dg. ends, electrodes: indices of free nodes, the grounded
+    electrode's as n_free, whose row of lap and cols is zero (so no branch); pair_ends: electrode indices."""
+    n_free, n_ch, n_el = lap.shape[0] - 1, factor.size, electrodes.size
     lap[:, :] = 0.0
     for c in range(n_ch):
-        g[c] = 1.0 / (factor[c] * r0[c])
+        gc = 1.0 / (factor[c] * r0[c])
+        g[c] = gc
         i, j = ends[c, 0], ends[c, 1]
-        if i >= 0:
-            lap[i, i] += g[c]
-        if j >= 0:
-            lap[j, j] += g[c]
-        if i >= 0 and j >= 0:
-            lap[i, j] -= g[c]
-            lap[j, i] -= g[c]
-    for k in range(n_free):  # Cholesky, lower, in place
+        lap[i, i] += gc
+        lap[j, j] += gc
+        lap[i, j] -= gc
+        lap[j, i] -= gc
+    for k in range(n_free):  # Cholesky, lower, in place, the ground row and column left out; 1 / diagonal kept
         s = lap[k, k]
         for m in range(k):
             s -= lap[k, m] * lap[k, m]
-        lap[k, k] = np.sqrt(s)
+        diag = np.sqrt(s)
+        lap[k, n_free] = 1.0 / diag  # the ground column is free storage
         for i in range(k + 1, n_free):
             s = lap[i, k]
             for m in range(k):
                 s -= lap[i, m] * lap[k, m]
-            lap[i, k] = s / lap[k, k]
-    for e in range(electrodes.size):  # cols[:, e] = Z e_electrode (0 for the grounded one)
-        cols[:, e] = 0.0
+            lap[i, k] = s * lap[k, n_free]
+    cols[:, :] = 0.0  # cols[:, e] = Z e_electrode; the grounded electrode's column, and the ground row, stay 0
+    for e in range(n_el):
         node = electrodes[e]
-        if node < 0:
+        if node == n_free:
             continue
-        for i in range(n_free):  # forward: L y = e
+        for i in range(node, n_free):  # forward: L y = e_node (y is 0 above the node)
             s = 1.0 if i == node else 0.0
-            for m in range(i):
+            for m in range(node, i):
                 s -= lap[i, m] * cols[m, e]
-            cols[i, e] = s / lap[i, i]
+            cols[i, e] = s * lap[i, n_free]
         for i in range(n_free - 1, -1, -1):  # back: L' z = y
             s = cols[i, e]
             for m in range(i + 1, n_free):
                 s -= lap[m, i] * cols[m, e]
-            cols[i, e] = s / lap[i, i]
+            cols[i, e] = s * lap[i, n_free]
     for c in range(n_ch):  # drops[e, c]: the drop across channel c for a unit current in at electrode e
         i, j = ends[c, 0], ends[c, 1]
-        for e in range(electrodes.size):
-            drops[e, c] = (cols[i, e] if i >= 0 else 0.0) - (cols[j, e] if j >= 0 else 0.0)
+        for e in range(n_el):
+            drops[e, c] = cols[i, e] - cols[j, e]
         if want_grad:
+            gf = g[c] / factor[c]
             for k in range(3):
-                weight[k, c] = g[c] * grad[c, k] / factor[c]
+                weight[k, c] = gf * grad[c, k]
     for q in range(pair_ends.shape[0]):
         ea, eb = pair_ends[q, 0], pair_ends[q, 1]
         na, nb = electrodes[ea], electrodes[eb]
-        # potentials v = Z (e_a - e_b) = cols[:, ea] - cols[:, eb]; R = v_a - v_b (grounded nodes at 0)
-        va = cols[na, ea] - cols[na, eb] if na >= 0 else 0.0
-        vb = cols[nb, ea] - cols[nb, eb] if nb >= 0 else 0.0
-        out_r[q] = va - vb
+        # potentials v = Z (e_a - e_b) = cols[:, ea] - cols[:, eb]; R = v_a - v_b
+        out_r[q] = (cols[na, ea] - cols[na, eb]) - (cols[nb, ea] - cols[nb, eb])
         if want_grad:
             j0 = j1 = j2 = 0.0
             for c in range(n_ch):
@@ -349,9 +357,9 @@ def model_rows(
     per_row False: each chunk of CHUNK_PRESSES grades its sides by its highest peak, as numpy; True: by the row's.
     network False: the channel factors only (to time the two parts; out_r, out_j untouched). flat: the sides'
     integrals by side_sums_flat (own exp, vectorisable), else side_sums (libm's exp, node by node as numpy orders)."""
-    n, n_ch, n_free = p.shape[0], geo.shape[0], ends.max() + 1
+    n, n_ch, n_free = p.shape[0], geo.shape[0], ends.max()  # the ground is index n_free
     factor, grad, sums = np.empty(n_ch), np.empty((n_ch, 3)), np.empty(5)
-    lap, cols, g = np.empty((n_free, n_free)), np.empty((n_free, electrodes.size)), np.empty(n_ch)
+    lap, cols, g = np.empty((n_free + 1, n_free + 1)), np.empty((n_free + 1, electrodes.size)), np.empty(n_ch)
     drops, weight = np.empty((electrodes.size, n_ch)), np.empty((3, n_ch))
     buf = np.empty((2, 64 * nodes.size))  # a side's nodes, for side_sums_flat (at most 36 panels)
     for lo in range(0, n, CHUNK_PRESSES):
@@ -419,7 +427,10 @@ class CompiledSkin:
         self.nodes, self.weights = (np.ascontiguousarray(v) for v in _gauss_legendre(pinch.nodes_per_panel))
         self.r0 = np.asarray(skin.channel_baseline_ohm, float)
         ground = int(layout.electrode_junctions[0])
-        free = np.array([-1 if j == ground else j - (j > ground) for j in range(layout.n_junctions)], dtype=np.int64)
+        n_free = layout.n_junctions - 1  # the grounded junction gets index n_free (a zero row, no branch)
+        free = np.array(
+            [n_free if j == ground else j - (j > ground) for j in range(layout.n_junctions)], dtype=np.int64
+        )
         self.ends = free[np.asarray(layout.channel_ends)]
         self.electrodes = free[np.asarray(layout.electrode_junctions)]
         self.pair_ends = np.ascontiguousarray(np.asarray(layout.pair_electrode_index, dtype=np.int64))
@@ -427,10 +438,10 @@ class CompiledSkin:
         # the bases numpy uses, to check the index maps against
         incidence, pairs = grounded_bases(layout)
         for c, (i, j) in enumerate(self.ends):
-            assert (i < 0 or incidence[i, c] == 1.0) and (j < 0 or incidence[j, c] == -1.0)
+            assert (i == n_free or incidence[i, c] == 1.0) and (j == n_free or incidence[j, c] == -1.0)
         for q, (ea, eb) in enumerate(self.pair_ends):
             na, nb = self.electrodes[ea], self.electrodes[eb]
-            assert (na < 0 or pairs[na, q] == 1.0) and (nb < 0 or pairs[nb, q] == -1.0)
+            assert (na == n_free or pairs[na, q] == 1.0) and (nb == n_free or pairs[nb, q] == -1.0)
 
     def rows(self, p, want_grad: bool = True, per_row: bool = False, network: bool = True, flat: bool = False):
         """R_eq (n, pairs) and its Jacobian (n, pairs, 3) (NaN without want_grad) at p (n, 3)."""
@@ -639,8 +650,8 @@ def projection_report(run: str, compiled: CompiledSkin, repeats: int) -> None:
             return skin.pair_resistance_and_jacobian_ohm(p[:, 0], p[:, 1], p[:, 2])
         return skin.pair_resistance_ohm(p[:, 0], p[:, 1], p[:, 2])
 
-    def compiled_eval(want_grad, p):
-        return compiled.rows(p, want_grad)
+    def compiled_eval(want_grad, p):  # the flat row where it vectorises (--fastmath), else node by node
+        return compiled.rows(p, want_grad, flat=FASTMATH)
 
     total, recorder, result = recorded["batched"]
     worst = 0.0
@@ -649,7 +660,8 @@ def projection_report(run: str, compiled: CompiledSkin, repeats: int) -> None:
         worst = max(worst, _relative(got[0], ref if not want_grad else ref[0]))
         if want_grad:
             worst = max(worst, _relative(got[1], ref[1]))
-    print(f"\nthe default's recorded rows through both (200 calls sampled): max rel. diff {worst:.1e}")
+    row = "flat, fastmath" if FASTMATH else "node by node"
+    print(f"\nthe default's recorded rows through both ({row}; 200 calls sampled): max rel. diff {worst:.1e}")
     print("| inversion | model CPU s: numpy replay | compiled replay | CPU s as run | with the compiled row |")
     print("|---|---|---|---|---|")
     projected = {}
@@ -668,7 +680,83 @@ def projection_report(run: str, compiled: CompiledSkin, repeats: int) -> None:
         f"{ref_s / projected['batched']:.1f}x against the numpy reference, {projected['reference'] / projected['batched']:.1f}x "
         f"with both compiled; 20x = {ref_s / 20:.2f} s. The default's CPU outside the model {rest:.2f} s (start search "
         f"{recorded['batched'][1].cpu['start search']:.2f} s); its model rows alone, compiled: "
-        f"{projected['batched'] - rest:.2f} s"
+        f"{projected['batched'] - rest:.2f} s; with the start search as measured and a solver of no cost of its own "
+        f"(a bound for a compiled loop): {projected['batched'] - rest + recorded['batched'][1].cpu['start search']:.2f} s"
+    )
+
+
+class SwappedSkin:
+    """A `SkinModel` whose two model calls are the compiled row (a call with a row at depth <= 0, the unpressed
+    baseline, stays numpy's): what `invert_presses` calls, so the solver, its starts and passes are today's code."""
+
+    has_analytic_jacobian = True
+
+    def __init__(self, skin, compiled: CompiledSkin) -> None:
+        self.skin, self.compiled = skin, compiled
+
+    def pair_resistance_ohm(self, x_mm, y_mm, depth_mm):
+        x, y, d = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, float)) for v in (x_mm, y_mm, depth_mm)))
+        if not np.all(d > 0):
+            return self.skin.pair_resistance_ohm(x, y, d)
+        return self.compiled.rows(np.c_[x, y, d], False, flat=FASTMATH)[0]
+
+    def pair_resistance_and_jacobian_ohm(self, x_mm, y_mm, depth_mm):
+        return self.compiled.rows(np.c_[x_mm, y_mm, depth_mm], True, flat=FASTMATH)
+
+
+def swapped_report(run: str, compiled: CompiledSkin, rounds: int) -> None:
+    """skin_inversion's two passes (`inversion._two_passes`, as `skin_inversion` calls them) on every press of RUN,
+    with numpy's model and with the compiled row swapped in, and the reference the same way: CPU (best of rounds,
+    alternating) and the answers against numpy's."""
+    from neatskin.baselines.dataset import load_baseline_data
+    from neatskin.baselines.inversion import _two_passes
+    from neatskin.skin.model import SkinModel
+
+    data = load_baseline_data(run)
+    layout = data.layout
+    skin = SkinModel(layout, data.skin_fidelity or "deformation", probe_radius_mm=data.probe_radius_mm or 2.75)
+    skins = {"numpy": skin, "compiled": SwappedSkin(skin, compiled)}
+    x0, y0, x1, y1 = layout.bounds_mm
+    bounds = (x0 - 0.5, y0 - 0.5, x1 + 0.5, y1 + 0.5)  # skin_inversion's box
+    depth = (0.05 * layout.thickness_mm, 0.95 * layout.thickness_mm)
+    best: dict[tuple[str, str], float] = {}
+    answers = {}
+    load = []
+    for round_ in range(rounds):
+        for method in ("batched", "reference") if round_ == 0 else ("batched",):
+            order = ["numpy", "compiled"][:: -1 if round_ % 2 else 1]
+            for name in order:
+                started = time.process_time()
+                res = _two_passes(skins[name], data.X, bounds, depth, 2.0, (6, 1.0, 0.9), method=method)
+                cpu = time.process_time() - started
+                load.append(os.getloadavg()[0])
+                best[(name, method)] = min(best.get((name, method), np.inf), cpu)
+                answers[(name, method)] = res
+    row = "flat, fastmath" if FASTMATH else "node by node"
+    print(
+        f"\n{run}: skin_inversion's passes with the compiled row ({row}) swapped in; every press ({len(data.X)}); CPU s, "
+        f"best of {rounds} (the reference: 1); load {min(load):.2f} to {max(load):.2f}"
+    )
+    print(
+        "| inversion | numpy s | compiled s | ratio | mean error mm (numpy, compiled) | within 1e-3 mm of numpy's "
+        "| moved > 0.1 mm | residual higher (> 1e-6 rel.) |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for method in ("batched", "reference"):
+        a, b = answers[("numpy", method)], answers[("compiled", method)]
+        apart = np.max(np.abs(np.c_[a.xy_mm, a.depth_mm] - np.c_[b.xy_mm, b.depth_mm]), axis=1)
+        err = [np.mean(np.hypot(*(r.xy_mm - data.y).T)) for r in (a, b)]
+        higher = np.mean(b.residual_ohm > a.residual_ohm * (1 + 1e-6))
+        t_np, t_nb = best[("numpy", method)], best[("compiled", method)]
+        print(
+            f"| {method} | {t_np:.2f} | {t_nb:.2f} | {t_np / t_nb:.2f}x | {err[0]:.4f}, {err[1]:.4f} "
+            f"| {100 * np.mean(apart < 1e-3):.1f} % | {100 * np.mean(apart > 0.1):.2f} % | {100 * higher:.2f} % |"
+        )
+    ref = best[("numpy", "reference")]
+    print(
+        f"numpy reference / compiled default: {ref / best[('compiled', 'batched')]:.1f}x (numpy default "
+        f"{ref / best[('numpy', 'batched')]:.1f}x); compiled reference / compiled default "
+        f"{best[('compiled', 'reference')] / best[('compiled', 'batched')]:.1f}x; 20x = {ref / 20:.2f} s"
     )
 
 
@@ -678,8 +766,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rows", type=int, default=4096)
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--projection", action="store_true", help="also invert every press and project (below)")
+    parser.add_argument(
+        "--swap", type=int, default=0, metavar="ROUNDS", help="run the inversion with the row swapped in"
+    )
     parser.add_argument("--skip-rows", action="store_true", help="skip the random rows' table")
     parser.add_argument("--fastmath", action="store_true", help="compile with fastmath (read at import, above)")
+    parser.add_argument("--cache", action="store_true", help="numba's on-disk cache (read at import, above)")
     args = parser.parse_args(argv)
     from threadpoolctl import threadpool_limits
 
@@ -693,7 +785,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     compiled = CompiledSkin(skin)
     print(
-        f"numba {numba.__version__}, numpy {np.__version__}, python {sys.version.split()[0]}, fastmath {FASTMATH}; "
+        f"numba {numba.__version__}, numpy {np.__version__}, python {sys.version.split()[0]}, fastmath {FASTMATH}, "
+        f"cache {CACHE}; "
         f"{args.run}"
     )
     compile_report(compiled)
@@ -701,6 +794,8 @@ def main(argv: list[str] | None = None) -> int:
         rows_report(skin, compiled, args.rows, args.repeats)
     if args.projection:
         projection_report(args.run, compiled, min(args.repeats, 3))
+    if args.swap:
+        swapped_report(args.run, compiled, args.swap)
     return 0
 
 
