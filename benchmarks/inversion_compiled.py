@@ -53,11 +53,15 @@ IMPORT_NUMBA_CPU_S = time.process_time() - _started
 # default ("python") tests every divisor to raise ZeroDivisionError, and that branch keeps LLVM from vectorising a loop
 njit = numba.njit(cache=CACHE, fastmath=FASTMATH, error_model="numpy")
 
-CHUNK_PRESSES = 768  # deformation._CHUNK_PRESSES: a chunk's graded panels follow its highest side peak
-GRADED_FROM_P0 = 0.9  # deformation._GRADED_FROM_P0
-CUTOFF_DECAYS = 6.1  # deformation._CUTOFF_DECAYS
-STANDARD_EDGES = np.array([0.0, 0.5, 2.0, np.inf])  # deformation._PANEL_EDGES
-OUTER_EDGES = np.array([0.5, 1.0, 1.5, 2.0, 3.0, np.inf])  # deformation._GRADED_OUTER_EDGES
+# the quadrature's constants from the skin itself (numba reads globals when it compiles): a chunk's graded panels
+# follow its highest side peak; sides peaking above GRADED_FROM_P0 are graded; the standard and outer panel edges
+from neatskin.skin.deformation import _CHUNK_PRESSES as CHUNK_PRESSES  # noqa: E402
+from neatskin.skin.deformation import _CUTOFF_DECAYS as CUTOFF_DECAYS  # noqa: E402
+from neatskin.skin.deformation import _GRADED_FROM_P0 as GRADED_FROM_P0  # noqa: E402
+from neatskin.skin.deformation import _GRADED_OUTER_EDGES as OUTER_EDGES  # noqa: E402
+from neatskin.skin.deformation import _PANEL_EDGES as STANDARD_EDGES  # noqa: E402
+
+assert np.array_equal(STANDARD_EDGES, [0.0, 0.5, 2.0, np.inf]), "side_sums takes the last edge as the side's end"
 
 
 @njit
