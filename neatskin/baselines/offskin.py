@@ -14,11 +14,16 @@ clipping beside the error after, so the extrapolation stays in sight (`offskin_t
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
 from neatskin.baselines.tabletext import sig3
+
+if TYPE_CHECKING:  # evaluate imports this module: its types only for the checker
+    from neatskin.baselines.dataset import BaselineData
+    from neatskin.baselines.evaluate import ModelResult, Repeat
 
 Box = tuple[float, float, float, float]  # (x_min, y_min, x_max, y_max), mm
 
@@ -72,7 +77,7 @@ def _common_electrode(columns: Sequence[str]) -> str:
     return f"electrode {sorted(common)[0]}'s {count}" if len(common) == 1 and len(columns) > 1 else count
 
 
-def _repeat_note(result, repeats: Sequence, size_mm: float, data) -> str:
+def _repeat_note(result: ModelResult, repeats: Sequence[Repeat], size_mm: float, data: BaselineData) -> str:
     """The repeat clipping changed most, the positions with a clipped prediction farther off than the skin is wide,
     and whether those positions' presses cut a set of pairs no training press of the repeat cut."""
     change = [u.mean_error_mm - c.mean_error_mm for u, c in zip(result.unclipped_per_repeat, result.per_repeat)]
@@ -111,10 +116,10 @@ def _repeat_note(result, repeats: Sequence, size_mm: float, data) -> str:
 
 def offskin_text(
     table: pd.DataFrame,
-    results: Sequence,
+    results: Sequence[ModelResult],
     box: Box | None,
-    split_repeats: Mapping[str, Sequence],
-    data,
+    split_repeats: Mapping[str, Sequence[Repeat]],
+    data: BaselineData,
 ) -> list[str]:
     """report.md's "Predictions off the skin": the box, and per model and split that had a prediction clipped, how
     many, its mean error before and after, and the repeat and positions most of them came from."""
