@@ -18,7 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 from sklearn.base import BaseEstimator, clone
 
-from neatskin.baselines.metrics import Interval, PositionErrors, position_errors, summarise_repeats
+from neatskin.baselines.metrics import Interval, PositionErrors, interval95, position_errors, summarise_repeats
+from neatskin.baselines.offskin import Box, clip_to_box
 from neatskin.baselines.splits import (  # re-exported: docs/baselines.md lists them with evaluate.py
     Repeat,
     design_split,
@@ -58,6 +59,10 @@ class ModelResult:
 
     y_true_mm / y_pred_mm / groups: the predictions the Fig. 9 ellipses are drawn from (grouped:
     the first k-fold partition, every row once; random and design: repeat 0).
+    per_repeat is scored on the predictions clipped to the skin's box (`offskin`) when one was given;
+    unclipped_per_repeat on the model's own, clipped_per_repeat counts the predictions moved and
+    clipped_positions names their positions with the largest unclipped error of each, farthest first, per repeat
+    (empty: no box).
     """
 
     model: str
@@ -69,6 +74,9 @@ class ModelResult:
     y_true_mm: np.ndarray
     y_pred_mm: np.ndarray
     groups: np.ndarray
+    unclipped_per_repeat: tuple[PositionErrors, ...] = ()
+    clipped_per_repeat: tuple[int, ...] = ()
+    clipped_positions: tuple[tuple[tuple[int, float], ...], ...] = ()  # per repeat (position, largest error mm)
 
     @property
     def n_repeats(self) -> int:
@@ -106,6 +114,11 @@ class ModelResult:
         out["best_mean_error_mm"] = best.mean_error_mm
         out["best_within_probe_pct"] = 100.0 * best.within_probe_share
         out["best_mse_per_coordinate_mm2"] = best.mse_per_coordinate_mm2
+        raw = self.unclipped_per_repeat or self.per_repeat
+        unclipped = interval95(np.array([e.mean_error_mm for e in raw]))
+        out["unclipped_mean_error_mm"], out["unclipped_mean_error_mm_std"] = unclipped.mean, unclipped.std
+        out["unclipped_max_error_mm"] = max(e.max_error_mm for e in raw)
+        out["clipped_pct"] = 100.0 * sum(self.clipped_per_repeat) / max(sum(e.n for e in self.per_repeat), 1)
         out["fit_time_s"] = self.fit_time_s
         out["predict_time_per_sample_us"] = 1e6 * self.predict_time_per_sample_s
         return out
@@ -154,6 +167,16 @@ def fit_predict(
     return pred, fit_s, time.perf_counter() - start
 
 
+def _moved_positions(groups: np.ndarray, moved: np.ndarray, error_mm: np.ndarray) -> tuple[tuple[int, float], ...]:
+    """(position, the largest unclipped error of its clipped predictions, mm) of every position with a clipped
+    prediction, the farthest off first."""
+    positions, which = np.unique(np.asarray(groups)[moved], return_inverse=True)
+    largest = np.zeros(len(positions))
+    np.maximum.at(largest, which, error_mm[moved])
+    order = np.argsort(-largest, kind="stable")
+    return tuple((int(positions[k]), float(largest[k])) for k in order)
+
+
 def _collect(
     name: str,
     split: str,
@@ -161,8 +184,9 @@ def _collect(
     outputs: Sequence[tuple[np.ndarray, float, float]],
     y: np.ndarray,
     groups: np.ndarray,
+    box_mm: Box | None = None,
 ) -> ModelResult:
-    per_repeat = []
+    per_repeat, raw, moved, where, scored = [], [], [], [], []
     for rep, (pred, _, _) in zip(repeats, outputs):
         if not np.isfinite(pred).all():
             raise DataError(
@@ -170,11 +194,16 @@ def _collect(
                 field=name,
                 fix="report this dataset: every baseline should give finite predictions",
             )
-        per_repeat.append(position_errors(y[rep.test], pred))
+        clipped, off = clip_to_box(pred, box_mm) if box_mm is not None else (pred, np.zeros(len(pred), dtype=bool))
+        scored.append(clipped)
+        per_repeat.append(position_errors(y[rep.test], clipped))
+        raw.append(position_errors(y[rep.test], pred))
+        moved.append(int(off.sum()))
+        where.append(_moved_positions(groups[rep.test], off, np.hypot(*(pred - y[rep.test]).T)))
     # example predictions: grouped -> the first partition (same seed as repeat 0), else repeat 0
     first = [i for i, rep in enumerate(repeats) if rep.seed == repeats[0].seed] if split == "grouped" else [0]
     rows = np.concatenate([repeats[i].test for i in first])
-    preds = np.concatenate([outputs[i][0] for i in first])
+    preds = np.concatenate([scored[i] for i in first])
     n_pred = sum(len(rep.test) for rep in repeats)
     return ModelResult(
         model=name,
@@ -186,6 +215,9 @@ def _collect(
         y_true_mm=y[rows],
         y_pred_mm=preds,
         groups=groups[rows],
+        unclipped_per_repeat=tuple(raw) if box_mm is not None else (),
+        clipped_per_repeat=tuple(moved) if box_mm is not None else (),
+        clipped_positions=tuple(where) if box_mm is not None else (),
     )
 
 
@@ -197,10 +229,12 @@ def result_from_predictions(
     y: np.ndarray,
     groups: np.ndarray,
     predict_time_per_sample_s: float,
+    box_mm: Box | None = None,
 ) -> ModelResult:
-    """A model that needs no training (the physics inversion): its predictions of every row, cut per repeat."""
+    """A model that needs no training (the physics inversion): its predictions of every row, cut per repeat (and
+    clipped to box_mm, when given, as every model's: `offskin`)."""
     outputs = [(predictions[rep.test], 0.0, predict_time_per_sample_s * len(rep.test)) for rep in repeats]
-    return _collect(name, split, repeats, outputs, y, groups)
+    return _collect(name, split, repeats, outputs, y, groups, box_mm)
 
 
 def fit_tasks(
@@ -262,10 +296,12 @@ def collect_results(
     outputs: Mapping,
     y: np.ndarray,
     groups: np.ndarray,
+    box_mm: Box | None = None,
 ) -> list[ModelResult]:
-    """The fit tasks' outputs (keyed as `fit_tasks` keys them) as results in (split, model) order."""
+    """The fit tasks' outputs (keyed as `fit_tasks` keys them) as results in (split, model) order; with box_mm every
+    prediction is clipped to it before it is scored (`offskin`: the report passes the skin's box)."""
     return [
-        _collect(n, s, reps, [outputs[(s, n, rep.index)] for rep in reps], y, groups)
+        _collect(n, s, reps, [outputs[(s, n, rep.index)] for rep in reps], y, groups, box_mm)
         for s, reps in split_repeats.items()
         for n in names
     ]
@@ -282,6 +318,7 @@ def evaluate_models(
     progress=None,
     costs_s: Mapping[str, float] | None = None,
     row_caps: Mapping[str, int] | None = None,
+    box_mm: Box | None = None,
 ) -> list[ModelResult]:
     """Every (split, model, repeat) fit as one task (see `fit_tasks`); results in (split, model) order.
 
@@ -289,10 +326,12 @@ def evaluate_models(
     (none by default: the tasks' own lanes; "dask" with a dask.distributed client registered).
     progress: optional callable(done_tasks, total_tasks). costs_s: estimated seconds per fit by
     model name: in processes the costliest fits start first (the results do not depend on it).
+    box_mm: (x_min, y_min, x_max, y_max) every prediction is clipped to before it is scored (`offskin`; the report
+    passes the skin's box); None: unclipped.
     """
     tasks = fit_tasks(estimators, X, y, groups, split_repeats, costs_s, row_caps)
     outputs = run_tasks(tasks, n_jobs=n_jobs, backend=backend, progress=progress)
-    return collect_results(list(estimators), split_repeats, outputs, y, groups)
+    return collect_results(list(estimators), split_repeats, outputs, y, groups, box_mm)
 
 
 def evaluate_model(
@@ -307,12 +346,14 @@ def evaluate_model(
     *,
     n_repeats: int | None = None,
     n_jobs: int = 1,
+    box_mm: Box | None = None,
 ) -> ModelResult:
-    """One model on one split over its repeats (default: grouped, one k-fold partition; others 1 repeat)."""
+    """One model on one split over its repeats (default: grouped, one k-fold partition; others 1 repeat); box_mm as
+    in `evaluate_models`."""
     if n_repeats is None:
         n_repeats = min(n_splits, len(np.unique(groups))) if split == "grouped" else 1
     check_arrays(X, y)
     repeats, notes = repeat_splits(split, groups, n_repeats, random_state, n_splits)
     for note in notes:
         logger.warning(note)
-    return evaluate_models({name: estimator}, X, y, groups, {split: repeats}, n_jobs=n_jobs)[0]
+    return evaluate_models({name: estimator}, X, y, groups, {split: repeats}, n_jobs=n_jobs, box_mm=box_mm)[0]

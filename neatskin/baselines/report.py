@@ -45,6 +45,7 @@ from neatskin.baselines.models import (
     fit_cost_s,
     make_models,
 )
+from neatskin.baselines.offskin import offskin_text, prediction_box_mm
 from neatskin.baselines.reporttext import markdown_report
 from neatskin.baselines.resultstable import BOUND_COLUMNS, bound_rms_mm, result_warnings, results_table
 from neatskin.baselines.splits import SPLITS, repeat_splits
@@ -270,7 +271,8 @@ def run_baselines(
     # after the fits: matplotlib is imported once the workers have ended, not beside them
     outputs = run_tasks(tasks, n_jobs=n_jobs, backend=backend, progress=advance)
     bar.close()
-    learned_results = collect_results(learned, split_repeats, outputs, data.y, data.groups)
+    box = prediction_box_mm(data.layout, data.y)  # every model's predictions are clipped to the skin (offskin)
+    learned_results = collect_results(learned, split_repeats, outputs, data.y, data.groups, box)
     results = []
     physics_results = []
     if physics:
@@ -278,7 +280,9 @@ def run_baselines(
         per_row_s = inv.time_s / max(n_rows, 1)
         for s in splits:
             physics_results.append(
-                result_from_predictions("inversion", s, split_repeats[s], inv.xy_mm, data.y, data.groups, per_row_s)
+                result_from_predictions(
+                    "inversion", s, split_repeats[s], inv.xy_mm, data.y, data.groups, per_row_s, box
+                )
             )
     for s in splits:
         results += [r for r in learned_results if r.split == s] + [r for r in physics_results if r.split == s]
@@ -329,6 +333,7 @@ def run_baselines(
         descriptions={n: DESCRIPTIONS[n] + (inversion_text if n == "inversion" else "") for n in (*learned, *physics)},
         paper=PAPER_REAL_SKIN,
         lm_restarts=lm_restarts,
+        offskin=offskin_text(table, results, box, split_repeats, data),
     )
     files["report"].write_text(text, encoding="utf-8")
     return Report(

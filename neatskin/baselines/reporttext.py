@@ -257,6 +257,7 @@ def markdown_report(
     descriptions: Mapping[str, str],
     paper: Mapping[str, Any],
     lm_restarts: int | None,
+    offskin: Sequence[str] = (),
 ) -> str:
     t, v, s = (int(100 * f) for f in PAPER_FRACTIONS)
     lines = ["# Baseline report", ""]
@@ -281,6 +282,7 @@ def markdown_report(
         "",
         *main_table(table),
         "",
+        *offskin,
     ]
     if bound is not None:
         lines += _bound_text(bound, nuisance_bound, table, spreads, compared, extent_mm)

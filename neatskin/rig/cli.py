@@ -211,17 +211,19 @@ def _end_forecast(forecast) -> None:
     forecast.communicate()
 
 
-def _warn_pressed_rails(protocol, forecast=None, plan=None) -> None:
+def _warn_pressed_rails(protocol, forecast=None, plan=None, resumed: Path | None = None) -> None:
     """`campaign check`'s pressed-rails warning, in its words, before any motion: a technician who runs without the
     check sees it too (on stderr, before the progress bar); nothing when every press stays inside the rails. A dry
     run draws the protocol's presses through its skin model here (about 0.2 s of CPU for the paper protocol's 2800,
     while the prestarted skin worker starts on the other core); a real run reads the line from its `forecast` child,
     started before the runner's imports, and runs on with a note if the child fails or passes its cap. `plan`: the
-    dry run's, which its runner then presses (built once)."""
+    dry run's, which its runner then presses (built once). `resumed`: the campaign folder a resume presses on; the
+    line then counts only the presses not on disk yet ("of the N left"; the forecast child reads the folder itself)."""
     if forecast is None:
-        from neatskin.rig.railcheck import pressed_rails_warning
+        from neatskin.rig.railcheck import pressed_rails_warning, recorded_press_ids
 
-        warning = pressed_rails_warning(protocol, plan)
+        done = recorded_press_ids(resumed) if resumed is not None else None
+        warning = pressed_rails_warning(protocol, plan, done)
     else:
         import subprocess
 
@@ -338,15 +340,19 @@ def _resume(args: argparse.Namespace) -> int:
     kwargs = {"progress": not args.quiet, "report": not args.no_report}
     if args.port:
         kwargs.update(dry_run=False, port=args.port)
-    # the pressed-rails warning, as `campaign run` prints it, from the campaign's recorded protocol: a real resume's
-    # in a child started now (its process builds no simulator), a dry one's in this process, once the folder's
-    # checks passed and presses are left (a complete campaign only finishes: no motion, no line)
+    # the pressed-rails warning, as `campaign run` prints it, from the campaign's recorded protocol, counting the
+    # presses left (those not on disk): a real resume's in a child started now (its process builds no simulator), a
+    # dry one's in this process, once the folder's checks passed and presses are left (a complete campaign only
+    # finishes: no motion, no line)
     forecast = _start_rails_forecast(args.folder) if _resumes_real(args) else None
+    folder = Path(args.folder)
     try:
         from neatskin.rig.runner import resume_campaign
 
         result = resume_campaign(
-            args.folder, before_motion=lambda protocol, plan: _warn_pressed_rails(protocol, forecast, plan), **kwargs
+            args.folder,
+            before_motion=lambda protocol, plan: _warn_pressed_rails(protocol, forecast, plan, resumed=folder),
+            **kwargs,
         )
     finally:
         if forecast is not None and forecast.returncode is None:  # the warning was not reached (an error, Ctrl-C)

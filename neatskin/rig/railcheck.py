@@ -13,7 +13,7 @@ DAQ's readable limit at each current (DaqConfig.readable_ohm). Pure in the press
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -48,16 +48,18 @@ class PressedRails:
     def share(self) -> float:
         return self.presses_over / self.presses if self.presses else 0.0
 
-    def summary(self) -> str:
+    def summary(self, left: bool = False) -> str:
+        """The line's figures; `left`: the presses are those a resume has left to press ("of the N left")."""
         peak_v = self.amplitude_a * (self.largest_ohm + self.series_ohm)
+        presses = f"the {self.presses} left" if left else f"{self.presses} presses"
         if not self.presses_over:
             return (
-                f"none of {self.presses} presses puts a pair past the rails at {self.amplitude_a * 1e3:g} mA (the "
+                f"none of {presses} puts a pair past the rails at {self.amplitude_a * 1e3:g} mA (the "
                 f"largest pressed R_eq {self.largest_ohm:.0f} ohm = {peak_v:.3g} V, {self.readable_ohm:.0f} ohm "
                 "readable)"
             )
         return (
-            f"{self.presses_over} of {self.presses} presses ({100 * self.share:.1f} %) put some pair past the "
+            f"{self.presses_over} of {presses} ({100 * self.share:.1f} %) put some pair past the "
             f"rails at {self.amplitude_a * 1e3:g} mA ({self.readings_over} of {self.readings} readings above "
             f"{self.readable_ohm:.0f} ohm; the largest pressed R_eq {self.largest_ohm:.0f} ohm = {peak_v:.3g} V): "
             "flagged clipped and recorded as a cut pair's (R = inf)"
@@ -117,15 +119,54 @@ def pressed_rails_text(protocol: CampaignProtocol) -> str:
     return _line(protocol, pressed_rails(pressed_resistance_ohm(protocol), daq_config(protocol)))
 
 
-def pressed_rails_warning(protocol: CampaignProtocol, plan: Plan | None = None) -> str | None:
+def pressed_rails_warning(
+    protocol: CampaignProtocol, plan: Plan | None = None, done_press_ids: Collection[int] | None = None
+) -> str | None:
     """`campaign run`'s line before any motion: `campaign check`'s pressed line, word for word, when some press
-    passes the rails; None when none does (a run prints nothing then). `plan`: the protocol's, if already built."""
-    result = pressed_rails(pressed_resistance_ohm(protocol, plan), daq_config(protocol))
-    return _line(protocol, result) if result.presses_over else None
+    passes the rails; None when none does (a run prints nothing then). `plan`: the protocol's, if already built.
+    `done_press_ids` (a resume: the presses on disk, `recorded_press_ids`): only the presses left are counted, and
+    the line says "of the N left"; None when none of those passes the rails."""
+    plan = build_plan(protocol) if plan is None else plan
+    r_ohm = pressed_resistance_ohm(protocol, plan)
+    if done_press_ids is not None:
+        r_ohm = r_ohm[left_rows(plan, int(protocol.press.press.repeats), done_press_ids)]
+    result = pressed_rails(r_ohm, daq_config(protocol))
+    return _line(protocol, result, left=done_press_ids is not None) if result.presses_over else None
 
 
-def _line(protocol: CampaignProtocol, result: PressedRails) -> str:
-    return f"electrical, pressed ({_where(protocol)}): {'warning: ' if result.presses_over else ''}{result.summary()}"
+def left_rows(plan: Plan, repeats: int, done_press_ids: Collection[int]) -> np.ndarray:
+    """The rows of `pressed_resistance_ohm` (position by position, `repeats` each) of the plan's presses whose id is
+    not in `done_press_ids`: a press is its (position, repeat), whatever the press order."""
+    left = plan.program.presses.excluding(done_press_ids)
+    return np.array([b.position_id * repeats + b.repeat for b in left], dtype=np.int64)
+
+
+def recorded_press_ids(folder: str | Path) -> set[int]:
+    """The press ids a campaign folder holds on disk (its parts and consolidated file, read only): the presses a
+    resume does not press again. A folder with none, or a file that cannot be read (the resume's own checks refuse
+    it, with its fix), adds none."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from neatskin.datasets.reader import press_files
+    from neatskin.errors import DataError
+
+    try:
+        files = press_files(folder)
+    except DataError:
+        return set()
+    ids: set[int] = set()
+    for file in files:
+        try:
+            ids.update(int(i) for i in pq.read_table(file, columns=["press_id"]).column("press_id").to_pylist())
+        except (OSError, pa.ArrowException, KeyError):
+            continue
+    return ids
+
+
+def _line(protocol: CampaignProtocol, result: PressedRails, left: bool = False) -> str:
+    warning = "warning: " if result.presses_over else ""
+    return f"electrical, pressed ({_where(protocol)}): {warning}{result.summary(left)}"
 
 
 def with_pressed_figures(path: str | Path, problems: Sequence[Problem], solve_kernel: bool = True) -> list[Problem]:
@@ -189,8 +230,9 @@ def missing_kernel(protocol: CampaignProtocol) -> str | None:
 def main(argv: Sequence[str] | None = None) -> int:
     """`python -m neatskin.rig.railcheck PROTOCOL`: the pressed-rails warning line, or nothing (a real `campaign
     run` asks this child, so that its own process builds no simulator). PROTOCOL may be a campaign folder: its
-    recorded protocol and files (`inputs/`, as `campaign resume` runs them). A bad protocol: its error, exit 3; a
-    pinch kernel it would first have to solve: exit 5."""
+    recorded protocol and files (`inputs/`, as `campaign resume` runs them), and only the presses not on disk yet
+    (the line says "of the N left"). A bad protocol: its error, exit 3; a pinch kernel it would first have to
+    solve: exit 5."""
     import os
     import sys
 
@@ -208,7 +250,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if missing:
             print(missing, file=sys.stderr)
             return int(ExitCode.DATA)
-        warning = pressed_rails_warning(protocol)
+        done = recorded_press_ids(args[0]) if Path(args[0]).is_dir() else None  # a resume: the presses left
+        warning = pressed_rails_warning(protocol, done_press_ids=done)
     except ConfigError as exc:
         print(str(exc).replace("\n", " "), file=sys.stderr)
         return int(ExitCode.CONFIG)

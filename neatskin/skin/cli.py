@@ -144,14 +144,17 @@ def fit_handler(args: argparse.Namespace) -> int:
     from neatskin.errors import NeatskinError
     from neatskin.skin.fit import fit_skin, model_mismatch_warning
 
-    try:  # said first, so a fit the campaign cannot support still shows why its model was the wrong one
-        warning = model_mismatch_warning(read_manifest(args.campaign))
-    except NeatskinError:  # no readable manifest: fit_skin names the problem
-        warning = None
+    manifest = None
+    try:  # read once: the warning is said first, so a fit the campaign cannot support still shows why its model
+        # was the wrong one, and the fit takes the same manifest
+        manifest = read_manifest(args.campaign)
+    except NeatskinError:  # no readable manifest: fit_skin reads it again and names the problem
+        pass
+    warning = model_mismatch_warning(manifest) if manifest is not None else None
     if warning:
         print(f"warning: {warning}")
     t0 = time.perf_counter()
-    result = fit_skin(args.campaign, probe_radius_mm=args.probe_radius_mm)
+    result = fit_skin(args.campaign, probe_radius_mm=args.probe_radius_mm, manifest=manifest)
     out = Path(args.out) if args.out else Path(args.campaign) / "skin_profile.toml"
     out.write_text(result.to_toml())
     print(f"skin fitted to {args.campaign} in {time.perf_counter() - t0:.1f} s (95 % intervals)")

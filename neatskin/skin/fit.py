@@ -150,8 +150,9 @@ def _cluster_covariance(influence: np.ndarray) -> np.ndarray:
     return clusters / max(clusters - 1, 1) * (influence.T @ influence)
 
 
-def load_campaign(folder: str | Path) -> tuple[Layout, dict, dict[str, np.ndarray]]:
-    """The campaign's layout, manifest and press columns (x, y, depth, press time in h, R and dR per pair)."""
+def load_campaign(folder: str | Path, manifest: dict | None = None) -> tuple[Layout, dict, dict[str, np.ndarray]]:
+    """The campaign's layout, manifest and press columns (x, y, depth, press time in h, R and dR per pair).
+    `manifest`: the folder's, when the caller has read it (`skin fit`'s handler); else read here."""
 
     folder = Path(folder)
     table = folder / "presses.parquet"
@@ -165,7 +166,7 @@ def load_campaign(folder: str | Path) -> tuple[Layout, dict, dict[str, np.ndarra
             field=", ".join(missing),
             fix="fit a campaign recorded with positions (neatskin campaign run writes them)",
         )
-    manifest = read_manifest(folder)
+    manifest = read_manifest(folder) if manifest is None else manifest
     layout = load_layout(folder / "inputs" / "layout.toml")
     dr = df[[c for c in df.columns if c.startswith("dR_ohm_")]].to_numpy(float)
     r = df[[c for c in df.columns if c.startswith("R_ohm_")]].to_numpy(float)
@@ -204,12 +205,13 @@ def _refuse_nonfinite(df, table: Path) -> None:
         )
 
 
-def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75) -> SkinFit:
-    """Fit the skin model to the campaign in `folder` (see the module docstring)."""
+def fit_skin(folder: str | Path, probe_radius_mm: float = 2.75, manifest: dict | None = None) -> SkinFit:
+    """Fit the skin model to the campaign in `folder` (see the module docstring). `manifest`: the folder's
+    manifest, when the caller has read it (read once, not again here)."""
     from scipy.optimize import least_squares
     from scipy.special import stdtrit
 
-    layout, manifest, c = load_campaign(folder)
+    layout, manifest, c = load_campaign(folder, manifest)
     source = str(folder)
     with np.errstate(invalid="ignore"):  # a cut pair: inf - inf, left out below
         base = c["R"] - c["dR"]
