@@ -23,7 +23,7 @@ from neatskin.skin.model import SkinModel
 # +-2.2 % (1 / sqrt(2 (DRAWS - 1))); 64 draws (the former count) left +-8.9 % per pair, which was most of the
 # spread over pairs the docs quoted (1.07 to 1.50 ohm where the estimator's own std varies by a few %)
 DRAWS = 1024
-CHUNK = 64  # draws per DAQ call: a state the features path cannot read exactly goes to the waveforms, in chunks
+CHUNK = 256  # draws per DAQ call: a state the features path cannot read exactly goes to the waveforms (~30 MB a chunk)
 
 
 def typical_phases_s(plan: Plan) -> np.ndarray:
