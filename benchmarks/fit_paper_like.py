@@ -19,7 +19,7 @@ grid; every other variability knob at the preset's assumed value (docs/skin.md).
 a paper campaign's features come straight from the FE-kernel skin model with every skin-side source of the scene
 (placement, depth jitter, fabrication spread, sealed fluid, drift, dents in press order), the DAQ's mean reading
 (|Z| through the double layer for the RMS demodulator) and the reading noise of dR per pair derived from the
-simulated DAQ's noise model at the protocol's current (`reading_noise_ohm`: 1.04 ohm median at 0.2 mA); a cut pair
+simulated DAQ's noise model at the protocol's current (`reading_noise_ohm`: 1.05 ohm median at 0.2 mA, 0.92 to 1.15); a cut pair
 reads +inf and is saturated as the baselines do. The draws are common across grid points (standard normals scaled
 by the knob), so neighbouring points differ by the knob, not by the luck of the draw. The loss is the squared misses
 of the four paired statistics on the seed means (the average's mean error and MSE per coordinate, the best's mean

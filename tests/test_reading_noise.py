@@ -189,3 +189,40 @@ def test_the_nominal_windows_are_the_dry_runs():
     daq = SimulatedDAQ(dry.daq, lambda t: np.broadcast_to(base, (len(t), base.size)), noise=NoiseModel())
     est = daq.estimate_sweep(plan.sweep, np.random.default_rng(0), 0.0, method="rms", n_sweeps=plan.n_sweeps)
     np.testing.assert_array_equal(press_windows(plan), est.windows)
+
+
+def test_the_physical_limit_and_the_simulated_campaigns_take_this_noise(monkeypatch):
+    """One derivation: physical_limit_table's bounds come from dr_noise_std_ohm's figure (doubling it doubles the
+    electronics-only bound, a Cramér-Rao bound being linear in the noise std), and simcampaign's pair noise is the
+    same function at the layout's centre."""
+    import neatskin.rig.physlimit as physlimit
+    from neatskin.rig.simcampaign import pair_noise_std_ohm
+
+    protocol = ideal_paper(1)
+    plan = build_plan(protocol)
+    dry = dry_scene(protocol, plan)
+    skin = dry_skin(dry)
+    daq = SimulatedDAQ(dry.daq, lambda t: None, noise=interface_noise(NoiseModel(), dry.scene))
+    seen = []
+
+    def scaled(factor):
+        def noise(*args, **kwargs):
+            std = dr_noise_std_ohm(*args, **kwargs)
+            seen.append(std)
+            return factor * std
+
+        return noise
+
+    monkeypatch.setattr(physlimit, "dr_noise_std_ohm", scaled(1.0))
+    once = physlimit.physical_limit_table(protocol, plan, skin, daq).to_pandas()
+    monkeypatch.setattr(physlimit, "dr_noise_std_ohm", scaled(2.0))
+    twice = physlimit.physical_limit_table(protocol, plan, skin, daq).to_pandas()
+    assert len(seen) == 2 and seen[0].shape == (1, 28)
+    np.testing.assert_array_equal(seen[0], seen[1])
+    assert np.isfinite(once.crb_mm).all() and (once.crb_mm > 0).all()
+    np.testing.assert_allclose(twice.crb_mm, 2 * once.crb_mm, rtol=1e-9)
+    x0, y0, x1, y1 = protocol.layout.bounds_mm
+    centre = dr_noise_std_ohm(
+        protocol, plan, skin, daq, np.array([(x0 + x1) / 2]), np.array([(y0 + y1) / 2]), np.array([3.5])
+    )[0]
+    np.testing.assert_array_equal(pair_noise_std_ohm(protocol), centre)

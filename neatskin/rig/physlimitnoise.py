@@ -20,7 +20,7 @@ from neatskin.sim.daq import SimulatedDAQ
 from neatskin.skin.model import SkinModel
 
 # draws of one sweep's estimate per state: the std of a pair's estimate comes from DRAWS - 1 degrees of freedom,
-# +-2.2 % (1 / sqrt(2 (DRAWS - 1))); 64 draws (the former count) left +-8.9 % per pair, which was most of the
+# +-2.2 % (1 / sqrt(2 (DRAWS - 1))); the former 64 draws left +-8.9 % per pair, which was most of the
 # spread over pairs the docs quoted (1.07 to 1.50 ohm where the estimator's own std varies by a few %)
 DRAWS = 1024
 CHUNK = 256  # draws per DAQ call: a state the features path cannot read exactly goes to the waveforms (~30 MB a chunk)
