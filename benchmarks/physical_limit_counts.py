@@ -25,13 +25,13 @@ PROBE_RADIUS_MM = 2.75
 def recompute(run: Path):
     """physical_limit_table of the run's own protocol, plan, dry skin and DAQ, as a pandas frame."""
     from neatskin.rig.dryrig import dry_scene
+    from neatskin.rig.folder import load_inputs
     from neatskin.rig.physlimit import physical_limit_table
     from neatskin.rig.plan import build_plan
-    from neatskin.rig.protocol import load_protocol
     from neatskin.sim.daq import NoiseModel, SimulatedDAQ
     from neatskin.sim.dryscene import dry_skin, interface_noise
 
-    protocol = load_protocol(str(run / "inputs" / "protocol.toml"))
+    protocol = load_inputs(run)  # the run's copies of its layout, wiring and printer, as `campaign resume` reads them
     plan = build_plan(protocol)
     dry = dry_scene(protocol, plan)
     skin = dry_skin(dry)

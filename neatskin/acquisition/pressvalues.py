@@ -10,7 +10,7 @@ which then sends the press's values with its estimates; the same function, the s
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,9 +35,7 @@ def press_values(estimates: PairEstimates, marks: dict[str, int], pair_labels: S
     A clipped sweep (the AI's range, or the mux rails: the switch clamped, so V / I is not the skin's R) is no
     value: the pair's mean is +inf as a cut pair's, never a finite reading that looks valid (its per-sweep
     estimate keeps its finite value, and the waveforms when recorded, for a curator)."""
-    start, stop = estimates.windows[..., 0], estimates.windows[..., 1]
-    baseline_use = stop <= marks["contact"]
-    pressed_use = (start >= marks["hold_start"]) & (stop <= marks["hold_end"])
+    baseline_use, pressed_use = sweeps_used(estimates.windows, marks)
     use = np.stack([baseline_use, pressed_use])  # (2, sweeps, pairs): baseline, pressed
     r = estimates.resistance_ohm
     count = use.sum(axis=1)
@@ -61,6 +59,19 @@ def press_values(estimates: PairEstimates, marks: dict[str, int], pair_labels: S
     return PressValues(
         r_p, r_b, delta, tuple(flags), int(baseline_use.any(axis=1).sum()), int(pressed_use.all(axis=1).sum())
     )
+
+
+def sweeps_used(windows: np.ndarray, marks: Mapping[str, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Which estimates a press's values average, (sweeps, pairs) bool each: the baseline's (the pair's live window
+    ended before the probe reached the surface, `contact`) and the pressed value's (the live window lies wholly
+    inside the hold, `hold_start` .. `hold_end`). Per pair, not per sweep: a pair whose live window falls inside
+    the hold counts although the sweep it belongs to began before the hold or ends after it (so a 1.2 s hold of
+    0.34 s sweeps gives each pair 3 or 4 pressed estimates, not the 3 whole sweeps). The physical limit's reading
+    noise counts the same way (neatskin.rig.physlimitnoise)."""
+    start, stop = windows[..., 0], windows[..., 1]
+    baseline_use = stop <= marks["contact"]
+    pressed_use = (start >= marks["hold_start"]) & (stop <= marks["hold_end"])
+    return baseline_use, pressed_use
 
 
 @functools.lru_cache(maxsize=256)

@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from neatskin.datasets.paths import PHYSICAL_LIMIT
+from neatskin.rig.physlimitnoise import dr_noise_std_ohm, typical_phases_s
 from neatskin.rig.plan import Plan
 from neatskin.rig.protocol import CampaignProtocol
 from neatskin.sim.daq import SimulatedDAQ
@@ -234,7 +235,8 @@ def physical_limit_table(protocol: CampaignProtocol, plan: Plan, skin: SkinModel
     jac = _by_chunks(
         lambda cx, cy, cd: feature_jacobian(skin, cx, cy, cd, max_resistance_ohm=readable_ohm), x, y, depth
     )  # (positions, pairs, 4)
-    std = _dr_noise_std_ohm(protocol, plan, skin, daq, x, y, depth)
+    pressed = _by_chunks(skin.pair_resistance_ohm, x, y, depth)
+    std = dr_noise_std_ohm(protocol, plan, skin, daq, x, y, depth, pressed_ohm=pressed)
     # a pair cut off at a position (a channel pinched shut: R = inf, its estimate's spread NaN or inf) reads no
     # graded value there: it drops out of that position's information, and the other pairs keep theirs (a NaN
     # here used to send every position to the noise-free branch: a bound of 0)
@@ -308,46 +310,7 @@ def _campaign_s(protocol: CampaignProtocol, plan: Plan) -> float:
     return float(plan.printer_time_s)
 
 
-def _dr_noise_std_ohm(
-    protocol: CampaignProtocol,
-    plan: Plan,
-    skin: SkinModel,
-    daq: SimulatedDAQ,
-    x: np.ndarray,
-    y: np.ndarray,
-    depth: np.ndarray,
-) -> np.ndarray:
-    """Std of one press's dR per pair (positions, pairs): the estimator noise of the baseline and pressed sweeps
-    that a press averages, drawn from the simulated DAQ's features path at the unpressed and pressed states."""
-    sweep, draws = plan.sweep, 64
-    pressed = _by_chunks(skin.pair_resistance_ohm, x, y, depth)
-    states = np.vstack([np.asarray(skin.baseline_pair_resistance_ohm)[None], pressed])  # (1 + positions, pairs)
-    var = np.empty_like(states)
-    # one DAQ per state: each state keeps its own random stream (seed, 10**6, k), so the std does not
-    # depend on how many positions the campaign has
-    for k, state in enumerate(states):
-
-        def constant(t: np.ndarray, s: np.ndarray = state) -> np.ndarray:
-            return np.broadcast_to(s, (len(t), s.size))
-
-        daq = SimulatedDAQ(daq.config, constant, noise=daq.noise)
-        est = daq.estimate_sweep(
-            sweep,
-            np.random.default_rng([protocol.seed, 10**6, k]),
-            0.0,
-            method=protocol.acquisition.demodulation,
-            window=protocol.acquisition.window,
-            n_sweeps=draws,
-        )
-        with np.errstate(invalid="ignore"):  # a pair cut off (R_eq infinite) has no variance: NaN, no information
-            var[k] = est.resistance_ohm.var(axis=0)
-    durations = _typical_phases_s(plan, protocol)
-    n_base = max(1, int(durations[1] // sweep.duration_s))  # sweeps while descending through air
-    n_press = max(1, int(plan.hold_s // sweep.duration_s) - 1)  # whole sweeps inside the hold
-    return np.sqrt(var[0] / n_base + var[1:] / n_press)
-
-
-def _typical_phases_s(plan: Plan, protocol: CampaignProtocol) -> np.ndarray:
-    """The median printer time of each phase over the campaign's presses (the plan's
-    gcode.motion.phase_durations_s, computed once when the plan was built)."""
-    return np.median(plan.phase_s, axis=0)
+def _typical_phases_s(plan: Plan, protocol: CampaignProtocol | None = None) -> np.ndarray:
+    """The median printer time of each phase over the campaign's presses (physlimitnoise.typical_phases_s, where
+    the reading noise's marks come from; kept here under its former name)."""
+    return typical_phases_s(plan)

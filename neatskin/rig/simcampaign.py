@@ -21,7 +21,7 @@ import numpy as np
 from neatskin.gcode.positions import generate_positions
 from neatskin.rig.assembly import daq_config
 from neatskin.rig.dryrig import dry_scene
-from neatskin.rig.physlimit import _dr_noise_std_ohm
+from neatskin.rig.physlimitnoise import dr_noise_std_ohm
 from neatskin.rig.plan import build_plan
 from neatskin.rig.protocol import CampaignProtocol
 from neatskin.sim.daq import NoiseModel, SimulatedDAQ
@@ -80,9 +80,10 @@ def press_interval_s(protocol: CampaignProtocol) -> float:
 
 
 def pair_noise_std_ohm(protocol: CampaignProtocol) -> np.ndarray:
-    """Std of one press's dR per pair (pairs,): the dry run's DAQ estimator noise at the unpressed skin, averaged
-    over the sweeps a press records (as `rig.physlimit` computes it per position), with the dry run's skin, DAQ
-    settings and interface noise (neatskin.sim.dryscene)."""
+    """Std of one press's dR per pair (pairs,): the dry run's DAQ estimator noise, the unpressed skin's over the
+    baseline estimates a press averages and a press at the layout's centre over the pressed ones, counted per pair
+    as the recorder's press values select them (`rig.physlimitnoise.dr_noise_std_ohm`, which `rig.physlimit` uses
+    per position), with the dry run's skin, DAQ settings and interface noise (neatskin.sim.dryscene)."""
     plan = build_plan(protocol)
     dry = dry_scene(protocol, plan)
     skin = dry_skin(dry)
@@ -95,7 +96,7 @@ def pair_noise_std_ohm(protocol: CampaignProtocol) -> np.ndarray:
     daq = SimulatedDAQ(dry.daq, at_rest, noise=noise)
     x0, y0, x1, y1 = protocol.layout.bounds_mm
     x, y = np.array([(x0 + x1) / 2]), np.array([(y0 + y1) / 2])
-    std = _dr_noise_std_ohm(protocol, plan, skin, daq, x, y, np.array([protocol.press.press.depth_mm]))
+    std = dr_noise_std_ohm(protocol, plan, skin, daq, x, y, np.array([protocol.press.press.depth_mm]))
     return np.asarray(std, float).reshape(-1)
 
 
