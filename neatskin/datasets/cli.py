@@ -51,6 +51,12 @@ def register(subparsers) -> None:
         action="store_true",
         help="merge campaigns `dataset validate` refuses (their problems recorded in the merged manifest)",
     )
+    mer.add_argument(
+        "--allow-mixed-rigs",
+        action="store_true",
+        help="merge campaigns of different rigs (a dry run with a real-printer run, a simulated DAQ with a real "
+        "one); each source's rig is recorded in the merged manifest and named on its card",
+    )
     mer.set_defaults(handler=_merge)
 
     spl = sub.add_parser("split", help="split into train/ and test/ by position (repeats never straddle)")
@@ -164,6 +170,7 @@ def _merge(args: argparse.Namespace) -> int:
         allow_mixed=args.allow_mixed,
         allow_incomplete=args.allow_incomplete,
         allow_invalid=args.allow_invalid,
+        allow_mixed_rigs=args.allow_mixed_rigs,
     )
     sources = read_metadata(out)["merged_from"]
     for source in sources:
