@@ -116,7 +116,7 @@ def test_two_dry_runs_merge_with_their_one_rig_in_manifest_and_metadata(runs, tm
     assert "A merge of one rig's runs: 3 presses dry run, 2 presses dry run." in scene
 
 
-def test_a_merge_of_a_mixed_merge_keeps_every_runs_rig_and_refuses_without_the_flag(runs, tmp_path):
+def test_a_merge_of_a_mixed_merge_keeps_every_runs_rig_and_refuses_without_the_flag(runs, tmp_path, capsys):
     mixed = tmp_path / "mixed"
     assert (
         main(["dataset", "merge", str(runs["real"]), str(runs["dry-a"]), "-o", str(mixed), "--allow-mixed-rigs"]) == 0
@@ -124,10 +124,16 @@ def test_a_merge_of_a_mixed_merge_keeps_every_runs_rig_and_refuses_without_the_f
     # a mixed merge beside a real-printer run: still two rigs, refused without the flag
     again = tmp_path / "again"
     assert main(["dataset", "merge", str(mixed), str(runs["dry-b"]), "-o", str(again)]) == 5
+    capsys.readouterr()
     assert main(["dataset", "merge", str(mixed), str(runs["dry-b"]), "-o", str(again), "--allow-mixed-rigs"]) == 0
+    out = capsys.readouterr().out
+    assert f"{mixed.resolve()} (complete; real printer with a simulated DAQ + dry run): 5 presses" in out
+    assert f"{runs['dry-b'].resolve()} (complete; dry run): 2 presses" in out
     entries = _manifest(again)["source_rigs"]
     assert [(e["presses"], e["description"]) for e in entries] == [
         (2, "real printer with a simulated DAQ"),
         (3, "dry run"),
         (2, "dry run"),
     ]
+    assert [e["source"] for e in entries] == [str(mixed.resolve())] * 2 + [str(runs["dry-b"].resolve())]
+    assert [e["folder"] for e in entries] == [str(runs[k].resolve()) for k in ("real", "dry-a", "dry-b")]

@@ -172,12 +172,18 @@ def _merge(args: argparse.Namespace) -> int:
         allow_invalid=args.allow_invalid,
         allow_mixed_rigs=args.allow_mixed_rigs,
     )
+    from neatskin.datasets.curation import manifest_or_empty
+
     sources = read_metadata(out)["merged_from"]
+    rigs: dict[str, list[str]] = {}  # each source folder's rig(s) in words, as the merged manifest records them
+    for entry in manifest_or_empty(out).get("source_rigs") or []:
+        rigs.setdefault(str(entry.get("source", entry.get("folder"))), []).append(str(entry.get("description")))
     for source in sources:
         ids = sorted(set(source["position_ids"].values()))
         span = f"{ids[0]}..{ids[-1]}" if ids else "none"
+        rig = " + ".join(dict.fromkeys(rigs.get(source["folder"], []))) or "rig not recorded"
         print(
-            f"{source['folder']} ({source['status']}): {source['presses']} presses, press ids "
+            f"{source['folder']} ({source['status']}; {rig}): {source['presses']} presses, press ids "
             f"+{source['press_id_offset']}, {len(ids)} physical positions (merged ids {span})"
         )
     print(f"wrote {out}")

@@ -63,10 +63,11 @@ def rig_kind(manifest: dict[str, Any], metadata: dict[str, Any]) -> RigKind:
 
 def source_rigs(run: str, folder: str, presses: int, manifest: dict[str, Any], metadata: dict[str, Any]) -> list[dict]:
     """One source's entries for a merged manifest's `source_rigs`: one per run behind it (a merged source's own
-    entries, which its rows' `source_run` already names), each with its rig kind in words and the manifest's rig."""
+    entries, which its rows' `source_run` already names), each with its rig kind in words and the manifest's rig;
+    `folder` is the run's own folder, `source` the folder this merge read it from."""
     inner = manifest.get("source_rigs")
     if manifest.get("kind") == "merge" and isinstance(inner, list) and inner:
-        return [dict(entry) for entry in inner if isinstance(entry, dict)]
+        return [{**entry, "source": folder} for entry in inner if isinstance(entry, dict)]
     kind = rig_kind(manifest, metadata)
     rig = manifest.get("rig")
     if not isinstance(rig, dict):
@@ -75,6 +76,7 @@ def source_rigs(run: str, folder: str, presses: int, manifest: dict[str, Any], m
         {
             "run": run,
             "folder": folder,
+            "source": folder,  # the merge's source it came through (a merged source's folder for its runs)
             "presses": presses,
             "printer": kind.printer,
             "daq": kind.daq,
