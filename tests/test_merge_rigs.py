@@ -137,3 +137,32 @@ def test_a_merge_of_a_mixed_merge_keeps_every_runs_rig_and_refuses_without_the_f
     ]
     assert [e["source"] for e in entries] == [str(mixed.resolve())] * 2 + [str(runs["dry-b"].resolve())]
     assert [e["folder"] for e in entries] == [str(runs[k].resolve()) for k in ("real", "dry-a", "dry-b")]
+
+
+def test_lone_presses_files_are_told_apart_by_their_metadata(runs, tmp_path):
+    # no manifest beside a copied presses file: the rig comes from its neatskin.rig / neatskin.daq metadata
+    for name in ("dry-a", "real"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / f"{name}.parquet").write_bytes((runs[name] / "presses.parquet").read_bytes())
+    files = [str(tmp_path / n / f"{n}.parquet") for n in ("dry-a", "real")]
+    assert main(["dataset", "merge", *files, "-o", str(tmp_path / "refused")]) == 5
+    assert main(["dataset", "merge", *files, "-o", str(tmp_path / "m"), "--allow-mixed-rigs"]) == 0
+    entries = _manifest(tmp_path / "m")["source_rigs"]
+    assert [(e["run"], e["description"]) for e in entries] == [
+        ("dry-a", "dry run"),
+        ("real", "real printer with a simulated DAQ"),
+    ]
+
+
+def test_the_rig_in_words_from_what_the_runner_writes():
+    from neatskin.datasets.rigkind import RigKind, rig_kind
+
+    assert rig_kind({"rig": {"kind": "dry-run", "daq": "simulated"}}, {}) == RigKind("simulated", "simulated")
+    assert rig_kind({"rig": {"kind": "real", "daq": "simulated"}}, {}).describe() == "real printer with a simulated DAQ"
+    assert rig_kind({"rig": {"kind": "real", "daq": "ni"}}, {}).describe() == "real printer and DAQ"
+    # the presses' metadata: the runner writes neatskin.daq only for a simulated DAQ
+    assert rig_kind({}, {"rig": "real"}).describe() == "real printer and DAQ"
+    assert rig_kind({}, {"rig": "real", "daq": "simulated"}) == RigKind("real", "simulated")
+    assert rig_kind({}, {}).describe() == "rig not recorded" and not rig_kind({}, {}).known
+    with pytest.raises(ValueError):
+        RigKind("virtual", None)
