@@ -55,7 +55,7 @@ def test_the_placement_error_has_the_scenes_spread(paper):
     assert offsets.std(axis=0) == pytest.approx([sigma, sigma], rel=0.05)  # 2,000 draws: about 1.6 % std error
 
 
-def test_hours_for_an_error_interpolates_in_log_hours_along_the_envelope():
+def test_hours_for_an_error_interpolates_in_log_hours_along_the_frontier():
     frame = pd.DataFrame(
         {
             "design": ["random"] * 4,
@@ -64,8 +64,8 @@ def test_hours_for_an_error_interpolates_in_log_hours_along_the_envelope():
             "mean_error_mm": [4.0, 2.0, 5.0, 1.5],
         }
     )
-    # the envelope: 2 h can do what 1 h does (4 mm); 3 mm is halfway from 4 mm at 2 h to 2 mm at 4 h, in log h
-    assert hours_for_error(frame, 3.0) == pytest.approx(np.sqrt(2.0 * 4.0))
+    # 2 h for 5 mm is dominated by 1 h for 4 mm and left out: 3 mm is halfway from 4 mm at 1 h to 2 mm at 4 h, in log h
+    assert hours_for_error(frame, 3.0) == pytest.approx(np.sqrt(1.0 * 4.0))
     assert hours_for_error(frame, 4.5) == pytest.approx(1.0)
     assert hours_for_error(frame, 1.0) is None
 

@@ -110,6 +110,35 @@ def _scene_lines(manifest: dict[str, Any]) -> list[str]:
     return [f"**Recorded on the real rig** (DAQ `{rig.get('daq')}`)."]
 
 
+def _merged_scene_lines(manifest: dict[str, Any], table: pa.Table, first: dict[str, Any]) -> list[str]:
+    """A merge's scene: each source's share of the exported presses and its rig in words (the manifest's
+    `source_rigs`, the rows' `source_run`), then each source's own scene; merge refuses to mix rigs unless
+    --allow-mixed-rigs, so a mixed merge says so first."""
+    from neatskin.datasets.rigkind import MIXED
+
+    entries = [e for e in manifest.get("source_rigs") or [] if isinstance(e, dict)]
+    if not entries:
+        return _scene_lines(first)  # a merge written before merge recorded its sources' rigs
+    counts: dict[str, int] = {}
+    if "source_run" in table.column_names:
+        for run, n in zip(*np.unique(table.column("source_run").to_numpy(zero_copy_only=False), return_counts=True)):
+            counts[str(run)] = int(n)
+    shares = ", ".join(f"{counts.get(str(e.get('run')), 0):,} presses {e.get('description')}" for e in entries)
+    rig = manifest.get("rig")
+    mixed = isinstance(rig, dict) and rig.get("kind") == MIXED
+    lines = [
+        ("**Mixed rigs (merged with --allow-mixed-rigs):** " if mixed else "A merge of one rig's runs: ")
+        + shares
+        + ".",
+        "",
+    ]
+    for entry in entries:
+        scene = _scene_lines({"rig": entry.get("rig")})  # the source manifest's rig, as merge recorded it
+        scene[0] = scene[0].replace("(`rig.skin`)", "(`source_rigs`, each source's `rig.skin`)")
+        lines.append(f"- run `{entry.get('run')}` ({counts.get(str(entry.get('run')), 0):,} presses): {scene[0]}")
+    return lines
+
+
 def card_body(
     front: dict[str, Any],
     table: pa.Table,
@@ -146,7 +175,7 @@ def card_body(
         "",
         "## Scene",
         "",
-        *_scene_lines(first),
+        *(_merged_scene_lines(manifest, table, first) if manifest.get("kind") == "merge" else _scene_lines(first)),
         "",
         "## Splits",
         "",

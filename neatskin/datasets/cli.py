@@ -51,6 +51,12 @@ def register(subparsers) -> None:
         action="store_true",
         help="merge campaigns `dataset validate` refuses (their problems recorded in the merged manifest)",
     )
+    mer.add_argument(
+        "--allow-mixed-rigs",
+        action="store_true",
+        help="merge campaigns of different rigs (a dry run with a real-printer run, a simulated DAQ with a real "
+        "one); each source's rig is recorded in the merged manifest and named on its card",
+    )
     mer.set_defaults(handler=_merge)
 
     spl = sub.add_parser("split", help="split into train/ and test/ by position (repeats never straddle)")
@@ -164,13 +170,20 @@ def _merge(args: argparse.Namespace) -> int:
         allow_mixed=args.allow_mixed,
         allow_incomplete=args.allow_incomplete,
         allow_invalid=args.allow_invalid,
+        allow_mixed_rigs=args.allow_mixed_rigs,
     )
+    from neatskin.datasets.curation import manifest_or_empty
+
     sources = read_metadata(out)["merged_from"]
+    rigs: dict[str, list[str]] = {}  # each source folder's rig(s) in words, as the merged manifest records them
+    for entry in manifest_or_empty(out).get("source_rigs") or []:
+        rigs.setdefault(str(entry.get("source", entry.get("folder"))), []).append(str(entry.get("description")))
     for source in sources:
         ids = sorted(set(source["position_ids"].values()))
         span = f"{ids[0]}..{ids[-1]}" if ids else "none"
+        rig = " + ".join(dict.fromkeys(rigs.get(source["folder"], []))) or "rig not recorded"
         print(
-            f"{source['folder']} ({source['status']}): {source['presses']} presses, press ids "
+            f"{source['folder']} ({source['status']}; {rig}): {source['presses']} presses, press ids "
             f"+{source['press_id_offset']}, {len(ids)} physical positions (merged ids {span})"
         )
     print(f"wrote {out}")

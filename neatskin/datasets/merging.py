@@ -24,6 +24,7 @@ from neatskin.datasets.manifest import create_manifest, utc_now_iso
 from neatskin.datasets.manifestchecks import same_file_ref
 from neatskin.datasets.paths import CONSOLIDATED_NAME
 from neatskin.datasets.reader import press_files, read_press_table
+from neatskin.datasets.rigkind import merged_rig, refuse_mixed_rigs, source_rigs
 from neatskin.datasets.schema import decode_metadata, encode_metadata
 from neatskin.datasets.tables import refuse_missing_columns, unreadable_presses
 from neatskin.datasets.writer import deduplicate_sorted, read_parquet
@@ -256,13 +257,17 @@ def merge(
     allow_mixed: bool = False,
     allow_incomplete: bool = False,
     allow_invalid: bool = False,
+    allow_mixed_rigs: bool = False,
     tolerance_mm: float = POSITION_TOLERANCE_MM,
 ) -> Path:
     """Merge campaigns into one dataset folder. Press ids are re-keyed (source k's ids shifted by the sum of
     (max id + 1) of the sources before it); position ids are physical: presses of campaigns on the same layout
     and calibration within tolerance_mm share an id, so a grouped split never puts one spot on both sides.
-    Refuses different pair sets always, different layouts or wirings unless allow_mixed, a folder named twice,
-    and campaigns that run or are incomplete unless allow_incomplete (recorded in the manifest).
+    Refuses different pair sets always, different layouts or wirings unless allow_mixed, different rigs (a simulated
+    or a real printer, a simulated or a real DAQ: a dry run beside a real-printer run) unless allow_mixed_rigs, a
+    folder named twice, and campaigns that run or are incomplete unless allow_incomplete (recorded in the manifest).
+    The merged manifest's `source_rigs` names each source's rig and presses; its `rig` is their one rig, or
+    {"kind": "mixed"} when allowed to differ.
 
     Memory stays bounded as the merged dataset grows: merge plans from four small columns of each source,
     then streams the sources one at a time into presses.parquet (at most the largest source plus one row
@@ -293,6 +298,13 @@ def merge(
                     field=key,
                     fix="merge only campaigns on one skin and wiring, or pass --allow-mixed",
                 )
+    runs = source_run_names(sources)
+    rigs = [
+        entry
+        for folder, plan, run in zip(sources, plans, runs)
+        for entry in source_rigs(run, str(folder.resolve()), plan.presses, plan.manifest, plan.metadata)
+    ]
+    refuse_mixed_rigs(rigs, allow_mixed_rigs)
     invalid = _refuse_invalid(sources, allow_invalid)  # after the checks that name a merge's own fields
     calibration = [
         (
@@ -321,10 +333,12 @@ def merge(
             press_offset += plan.max_press_id + 1
     out.mkdir(parents=True, exist_ok=True)
     refs = curation.copy_inputs(out, sources, [p.manifest for p in plans])
+    rig, rig_metadata = merged_rig(rigs)
     metadata = {
         "pairs": first.metadata.get("pairs"),
         "software_version": first.metadata.get("software_version"),
         "merged_from": provenance,
+        **rig_metadata,
         **refs,
     }
     manifest = {
@@ -332,6 +346,9 @@ def merge(
         "allow_mixed": allow_mixed,
         "allow_incomplete": allow_incomplete,
         "allow_invalid": allow_invalid,
+        "allow_mixed_rigs": allow_mixed_rigs,
+        **({"rig": rig} if rig is not None else {}),
+        "source_rigs": rigs,
         "invalid_sources": invalid,
         "position_tolerance_mm": tolerance_mm,
         "sources": [p["folder"] for p in provenance],
@@ -341,7 +358,6 @@ def merge(
     if len(seeds) == 1:
         metadata["seed"] = manifest["seed"] = json.loads(seeds.pop())
     plain = _with_source_run(_schema_types(first.schema.remove_metadata()).empty_table(), "").schema.remove_metadata()
-    runs = source_run_names(sources)
     metadata["source_runs"] = runs
 
     def tables() -> Iterator[pa.Table]:

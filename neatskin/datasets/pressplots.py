@@ -11,7 +11,7 @@ floor and the dataset reader are used: no acquisition code.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +24,9 @@ from neatskin.errors import DataError
 FIGSIZE_IN = (9.0, 6.5)
 DPI = 100
 SLOT_MATCH_TOLERANCE = 0.05  # a slot's first-sweep R within 5 % of its pair's stored baseline
+# a cut pair's recorded sweep reads open above this many times its first sweep: a pinched channel reads RMS(V) over
+# a collapsed current, about 1e8 ohm on a 3e3 ohm pair (10^4 to 10^5 fold); a press moves an open pair a few fold
+OPEN_FOLD = 100.0
 
 
 @dataclass(frozen=True)
@@ -40,6 +43,9 @@ class PressSeries:
     fsr_unit: str
     onset_s: float | None
     offset_s: float | None
+    # (pairs,) True where the press cut the pair off (its row's R and dR = +inf, a channel pinched shut): the row
+    # holds no baseline for it, and its pressed R is infinite
+    cut: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
 
 def _row(df: pd.DataFrame, press_id: int, folder: Path) -> pd.Series:
@@ -67,10 +73,13 @@ def press_series(folder: str | os.PathLike, press_id: int) -> PressSeries:
     pairs = pair_labels_from_columns(df)
     labels = tuple(p.label for p in pairs)
     r = np.array([row[f"R_ohm_{p.i}_{p.j}"] for p in pairs], dtype=float)
-    base = r - np.array([row[f"dR_ohm_{p.i}_{p.j}"] for p in pairs], dtype=float)
+    dr = np.array([row[f"dR_ohm_{p.i}_{p.j}"] for p in pairs], dtype=float)
+    cut = ~(np.isfinite(r) & np.isfinite(dr))
+    base = np.where(cut, np.nan, r - np.where(cut, 0.0, dr))  # a cut pair: no baseline (and no inf - inf warning)
     onset, offset = _opt(row["fsr_onset_s"]), _opt(row["fsr_offset_s"])
     if (folder / "waveforms").is_dir():
-        return _from_waveforms(folder, press_id, labels, base, onset, offset)
+        series = _from_waveforms(folder, press_id, labels, base, onset, offset)
+        return PressSeries(**{**series.__dict__, "cut": cut})
     # features only: the baseline until the FSR onset, the pressed value until its offset, then the baseline
     t_on = onset if onset is not None else 1.0
     t_off = offset if offset is not None else t_on + 1.0
@@ -88,6 +97,7 @@ def press_series(folder: str | os.PathLike, press_id: int) -> PressSeries:
         "N (peak)",
         onset,
         offset,
+        cut,
     )
 
 
@@ -152,14 +162,16 @@ def plot_press(folder: str | os.PathLike, press_id: int, out: str | os.PathLike)
     fig, (ax_f, ax_r) = plt.subplots(2, 1, figsize=FIGSIZE_IN, sharex=True, height_ratios=(1, 2.2))
     ax_f.plot(s.fsr_time_s, s.fsr, color="0.25", lw=0.8)
     ax_f.set_ylabel(f"FSR ({s.fsr_unit})")
-    change = np.abs(s.resistance_ohm.max(axis=0) - s.resistance_ohm.min(axis=0))
-    top = set(np.argsort(np.nan_to_num(change, nan=-1.0))[-5:])
-    highlight = iter(f"C{k}" for k in range(10))  # the default colour cycle
+    cut = s.cut if len(s.cut) == len(s.pairs) else np.zeros(len(s.pairs), bool)
+    is_open = open_points(s.resistance_ohm, cut)
+    drawn = np.where(is_open, np.nan, s.resistance_ohm)  # open points at the top (_mark_cut), not on the R scale
+    top = set(largest_changes(drawn, cut))
+    highlight = iter(f"C{k}" for k in range(10) if k != 3)  # the default cycle, its red (C3) kept for "cut"
     for k, label in enumerate(s.pairs):
         ax_r.plot(
             s.time_s,
-            s.resistance_ohm[:, k],
-            color=next(highlight) if k in top else "0.72",
+            drawn[:, k],  # matplotlib leaves a gap at a NaN point: the open ones are marked at the top below
+            color="tab:red" if cut[k] else next(highlight) if k in top else "0.72",
             lw=1.5 if k in top else 0.7,
             label=label if k in top else None,
             marker="." if s.source == "waveforms" else None,
@@ -167,6 +179,7 @@ def plot_press(folder: str | os.PathLike, press_id: int, out: str | os.PathLike)
             ms=3,
             zorder=3 if k in top else 2,
         )
+    _mark_cut(ax_r, s, cut, is_open)
     for ax in (ax_f, ax_r):
         for t, name in ((s.onset_s, "FSR onset"), (s.offset_s, "FSR offset")):
             if t is not None:
@@ -183,14 +196,16 @@ def plot_press(folder: str | os.PathLike, press_id: int, out: str | os.PathLike)
                     )
     ax_r.set_ylabel("R per pair (ohm)")
     ax_r.set_xlabel("time since the press record began (s)")
-    ax_r.legend(title="5 largest changes (others grey)", fontsize=8, title_fontsize=8, loc="upper right")
-    if s.source == "waveforms":
-        title = f"press {s.press_id}: R of {len(s.pairs)} pairs and FSR, recorded (one point per sweep: RMS over each pair's live window)"
-    else:
-        title = (
-            f"press {s.press_id}: SCHEMATIC rebuilt from features, not recorded (the campaign stored no waveforms)\n"
-            f"baseline and pressed R of {len(s.pairs)} pairs and the FSR peak, stepped at the FSR onset and offset"
-        )
+    kept = len(s.pairs) - int(cut.sum())
+    ax_r.legend(
+        title=f"{len(top)} largest changes\nof the {kept} pairs{' not cut' if cut.any() else ''}\n(others grey)",
+        fontsize=8,
+        title_fontsize=8,
+        loc="upper left",
+        bbox_to_anchor=(1.01, 1.0),  # beside the axes: inside, it hid the top where the cut pairs are marked
+    )
+    title = press_title(s, cut)
+    if s.source == "features":
         for ax in (ax_f, ax_r):
             ax.text(
                 0.5,
@@ -212,6 +227,87 @@ def plot_press(folder: str | os.PathLike, press_id: int, out: str | os.PathLike)
     fig.savefig(out, dpi=DPI)
     plt.close(fig)
     return out
+
+
+def press_title(s: PressSeries, cut: np.ndarray) -> str:
+    """The press plot's title: what it shows (recorded, or a schematic from features), and how many pairs the press
+    cut off (their row's R = inf), marked at the top of the R axis, as the drift and sensitivity plots count theirs."""
+    note = (
+        f"\n{int(cut.sum())} of the {len(s.pairs)} pairs cut off by the press (R = inf in its row"
+        f"{': no pressed value, no baseline' if s.source == 'features' else ''}), marked 'cut' at the top"
+        if cut.any()
+        else ""
+    )
+    if s.source == "waveforms":
+        return (
+            f"press {s.press_id}: R of {len(s.pairs)} pairs and FSR, recorded (one point per sweep: RMS over each "
+            f"pair's live window){note}"
+        )
+    return (
+        f"press {s.press_id}: SCHEMATIC rebuilt from features, not recorded (the campaign stored no waveforms)\n"
+        f"baseline and pressed R of {len(s.pairs)} pairs and the FSR peak, stepped at the FSR onset and offset{note}"
+    )
+
+
+def largest_changes(resistance_ohm: np.ndarray, cut: np.ndarray, count: int = 5) -> list[int]:
+    """The pairs (column indices) of the `count` largest changes max - min over their finite points, among those the
+    press did not cut off; computed on finite values only (a cut pair's inf - inf was NaN and numpy's warning)."""
+    finite = np.isfinite(resistance_ohm)
+    hi = np.max(np.where(finite, resistance_ohm, -np.inf), axis=0, initial=-np.inf)
+    lo = np.min(np.where(finite, resistance_ohm, np.inf), axis=0, initial=np.inf)
+    usable = finite.any(axis=0) & ~cut
+    change = np.full(resistance_ohm.shape[1], -1.0)
+    change[usable] = hi[usable] - lo[usable]
+    ranked = [int(k) for k in np.argsort(change, kind="stable")[::-1] if usable[k]]
+    return ranked[:count]
+
+
+def open_points(resistance_ohm: np.ndarray, cut: np.ndarray) -> np.ndarray:
+    """(points, pairs): True at a cut pair's point that reads open, +inf (the features' pressed value) or above
+    OPEN_FOLD times the pair's first finite point (a recorded sweep over a pinched channel); False elsewhere."""
+    finite = np.isfinite(resistance_ohm)
+    first_k = np.argmax(finite, axis=0)
+    first = np.where(finite.any(axis=0), resistance_ohm[first_k, np.arange(resistance_ohm.shape[1])], np.inf)
+    with np.errstate(invalid="ignore"):  # NaN points (a schematic's missing baseline) compare False: not open
+        high = np.isposinf(resistance_ohm) | (finite & (resistance_ohm > OPEN_FOLD * np.abs(first)))
+    return high & cut[None, :]
+
+
+def _mark_cut(ax, s: PressSeries, cut: np.ndarray, is_open: np.ndarray) -> None:
+    """The cut pairs' open points drawn at the top of the R axis (x in data, y in axes fraction) as red x's,
+    joined in the schematic (its pressed step), with the label 'cut' and the pairs: never silently left out."""
+    if not cut.any():
+        return
+    inf_time = s.time_s[is_open.any(axis=1)]
+    if not len(inf_time):  # a recorded trace that stays finite: mark the pressed span (or the record) instead
+        inf_time = np.array([s.onset_s or s.time_s[0], s.offset_s or s.time_s[-1]])
+    names = [p for p, c in zip(s.pairs, cut) if c]
+    lo, hi = ax.get_ylim()
+    ax.set_ylim(lo, hi + 0.15 * (hi - lo))  # headroom: the marks above the highest finite trace, not on it
+    ax.plot(
+        inf_time,
+        np.full(len(inf_time), 0.96),
+        transform=ax.get_xaxis_transform(),
+        color="tab:red",
+        marker="x",
+        ls="-" if s.source == "features" else "none",
+        lw=1.5,
+        clip_on=False,
+        zorder=4,
+        label=f"cut: R = inf ({len(names)} pairs, at the top)",
+    )
+    shown = ", ".join(names[:8]) + (f" +{len(names) - 8}" if len(names) > 8 else "")
+    ax.annotate(
+        f"cut ({len(names)}): {shown}",
+        (float(np.mean(inf_time)), 0.96),
+        xycoords=("data", "axes fraction"),
+        xytext=(0, -4),
+        textcoords="offset points",
+        ha="center",
+        va="top",
+        fontsize=8,
+        color="tab:red",
+    )
 
 
 def _pair_values(df: pd.DataFrame) -> tuple[pd.DataFrame, tuple[str, ...], np.ndarray, np.ndarray]:

@@ -314,7 +314,9 @@ class CampaignView:
     @staticmethod
     def _drift(df: pd.DataFrame, pairs) -> dict[str, Any]:
         """Baseline R (R - dR) per pair against press order, relative to each pair's first finite value, in %
-        (at most DRIFT_MAX_POINTS presses, evenly strided, the first and last included)."""
+        (at most DRIFT_MAX_POINTS presses, evenly strided, the first and last included). A press that cut a pair off
+        (R = dR = +inf: no baseline in its row) is a gap (None), as every non-finite value the page gets, and no
+        reference: R - dR there would be inf - inf, numpy's 'invalid value encountered in subtract' on every poll."""
         if df.empty:
             return {"press_id": [], "pairs": [], "baseline_pct": [], "baseline_first_ohm": []}
         if len(df) > DRIFT_MAX_POINTS:  # the page draws lines, not every press: an even stride plus the last
@@ -322,7 +324,8 @@ class CampaignView:
             df = df.iloc[keep]
         r = df[[f"R_ohm_{i}_{j}" for i, j in pairs]].to_numpy(dtype=float)
         dr = df[[f"dR_ohm_{i}_{j}" for i, j in pairs]].to_numpy(dtype=float)
-        base = r - dr
+        cut = ~(np.isfinite(r) & np.isfinite(dr))
+        base = np.where(cut, np.nan, r - np.where(cut, 0.0, dr))
         first = np.array([col[np.isfinite(col)][0] if np.isfinite(col).any() else np.nan for col in base.T])
         with np.errstate(invalid="ignore", divide="ignore"):
             pct = 100.0 * (base / first - 1.0)
