@@ -148,7 +148,7 @@ def build_program(
         cal,
         positions,
         blocks,
-        emit.preamble_lines(),
+        emit.preamble_lines(cal.surface_z_mm + profile.safe_height_mm),
         postamble,
         route,
         route_unordered,
