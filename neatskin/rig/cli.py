@@ -341,6 +341,8 @@ def _finish(args: argparse.Namespace) -> int:
     from neatskin.rig.runner import finish_campaign
 
     result = finish_campaign(args.folder, report=not args.no_report, progress=not args.quiet)
+    if result.report_summary:
+        print(result.report_summary)
     print(f"campaign complete: {result.completed}/{result.planned} presses in {result.folder}")
     return 0
 

@@ -150,7 +150,19 @@ def _skip_report(folder: Path, presses: int, why: Problem) -> str:
     recorded in the manifest (`report.skipped`) so that resume and finish do not retry it."""
     reason = f"{why.message}; {why.fix}" if why.fix else why.message
     update_manifest(folder, report={"skipped": reason, "written_at": utc_now_iso()})
+    return _skip_note(presses, reason)
+
+
+def _skip_note(presses: int, reason: str) -> str:
     return f"note: no baseline report: {presses} presses are too few for its splits ({reason})"
+
+
+def _report_or_note(folder: Path, manifest: dict[str, Any], progress: bool, presses: int) -> str | None:
+    """finish's report: made when report.md is missing, but not again for a campaign too small for one (its note)."""
+    recorded = manifest.get("report")
+    if isinstance(recorded, dict) and isinstance(recorded.get("skipped"), str):
+        return _skip_note(presses, recorded["skipped"])
+    return None if (folder / "report.md").is_file() else _make_report(folder, progress, presses)
 
 
 def _run_locked(
@@ -465,9 +477,7 @@ def finish_campaign(folder: str | Path, *, report: bool = True, progress: bool =
                 finally:
                     if rig is not None:
                         rig.close()
-        summary = (
-            _make_report(folder, progress, plan.n_presses) if report and not (folder / "report.md").is_file() else None
-        )
+        summary = _report_or_note(folder, manifest, progress, plan.n_presses) if report else None
     return CampaignResult(
         folder,
         plan.n_presses,
