@@ -71,7 +71,11 @@ def register(subparsers) -> None:
     finish.set_defaults(handler=_finish)
 
     check = sub.add_parser("check", help="validate a protocol and print its plan and time estimate, moving nothing")
-    check.add_argument("protocol", type=Path, help="protocol TOML, e.g. protocols/paper.toml")
+    check.add_argument(
+        "protocol",
+        type=Path,
+        help="protocol TOML, e.g. protocols/paper.toml, or a campaign folder (the protocol and files it ran with)",
+    )
     check.set_defaults(handler=_check)
 
     plan = sub.add_parser(
@@ -388,16 +392,27 @@ def _resumes_real(args: argparse.Namespace) -> bool:
 
 @as_ctrl_c()  # SIGTERM, SIGHUP: as Ctrl-C (a kernel solve's workers end with it)
 def _check(args: argparse.Namespace) -> int:
+    from neatskin.gcode.program import low_park_warning
+    from neatskin.rig.folder import INPUTS_DIR, load_inputs
     from neatskin.rig.plan import build_plan
     from neatskin.rig.protocol import load_protocol
 
-    try:
-        protocol = load_protocol(args.protocol)
+    path = Path(args.protocol)
+    recorded = path / INPUTS_DIR / "protocol.toml"
+    try:  # a campaign folder: the protocol and files it ran with, its inputs/ copies (as resume uses them)
+        if path.is_dir() and not recorded.is_file():
+            raise ConfigError(
+                f"{path} is a folder, and no campaign folder (no {INPUTS_DIR}/protocol.toml in it)",
+                file=str(path),
+                fix="give a protocol file (e.g. protocols/paper.toml) or a campaign folder",
+            )
+        protocol = load_inputs(path) if path.is_dir() else load_protocol(path)
         plan = build_plan(protocol)
     except ConfigError as exc:  # the check's verdict: the protocol fails it
         from neatskin.rig.railcheck import with_pressed_figures
 
-        raise CheckFailed(problems=with_pressed_figures(args.protocol, exc.problems)) from exc
+        checked = recorded if path.is_dir() else path
+        raise CheckFailed(problems=with_pressed_figures(checked, exc.problems)) from exc
     positions = len(set(plan.program.presses.position_ids.tolist()))  # no block needs formatting to count
     print(f"{protocol.path}: ok")
     print(
@@ -411,6 +426,8 @@ def _check(args: argparse.Namespace) -> int:
     print(f"  {printer_time_text(plan.printer_time_s, plan.n_presses)}")
     if long_hold := plan.long_hold_warning():  # a warning, not a refusal: the config allows up to 3600 s
         print(f"  warning: {long_hold}")
+    if low_park := low_park_warning(protocol.printer):
+        print(f"  warning: {low_park}")
     print(f"  resources (upper bounds): {protocol.resources.summary()}")
     print(f"  electrical: {protocol.electrical.summary()}")
     from neatskin.rig.railcheck import missing_kernel, pressed_rails_text
