@@ -25,8 +25,9 @@ from neatskin.datasets.lock import CampaignLock
 from neatskin.datasets.manifest import read_manifest, update_manifest, utc_now_iso
 from neatskin.datasets.paths import CONSOLIDATED_NAME, press_parts
 from neatskin.datasets.writer import CampaignWriter, file_sha256, read_parquet
-from neatskin.errors import ConfigError, DataError, Problem
+from neatskin.errors import ConfigError, DataError
 from neatskin.rig.assembly import DerivedFiles, Rig, build_real_rig
+from neatskin.rig.campaignreport import make_report, report_or_note
 from neatskin.rig.folder import (
     INPUT_KEYS,
     check_folder,
@@ -108,61 +109,10 @@ def run_campaign(
             connect_timeout_s=connect_timeout_s,
         )
         if report and status == "complete":
-            result = dataclasses.replace(result, report_summary=_make_report(folder, progress, result.completed))
+            result = dataclasses.replace(result, report_summary=make_report(folder, progress, result.completed))
     finally:
         lock.release()
     return result
-
-
-def _make_report(folder: Path, progress: bool, presses: int) -> str:
-    from neatskin.baselines.report import run_baselines  # scikit-learn: only a report needs it
-    from neatskin.baselines.summary import report_summary
-
-    try:
-        made = run_baselines(folder, split="both", progress=progress)
-    except DataError as exc:
-        if exc.problems and exc.problems[0].field == "rows":  # too few presses for a split: a note, not a failure
-            return _skip_report(folder, presses, exc.problems[0])
-        raise _report_failed(folder, presses, exc) from exc
-    except ConfigError as exc:
-        raise _report_failed(folder, presses, exc) from exc
-    except KeyboardInterrupt:
-        raise KeyboardInterrupt(
-            f"the campaign's data is complete in {folder}; only its baseline report was "
-            f"stopped: make it with neatskin campaign finish {folder}"
-        ) from None
-    update_manifest(folder, report={"path": "report.md", "written_at": utc_now_iso()})
-    return report_summary(made)
-
-
-def _report_failed(folder: Path, presses: int, exc: ConfigError | DataError) -> ConfigError | DataError:
-    """The report's error, its kind kept, after one line saying the data is whole."""
-    intact = Problem(
-        f"the campaign's data is complete and intact ({presses} of {presses} presses in {folder}); only its baseline "
-        "report failed, for the reason below",
-        str(folder),
-    )
-    return type(exc)(problems=(intact, *exc.problems))
-
-
-def _skip_report(folder: Path, presses: int, why: Problem) -> str:
-    """A campaign too small for the baseline report's splits (a short test campaign) ends without one: one note,
-    recorded in the manifest (`report.skipped`) so that resume and finish do not retry it."""
-    reason = f"{why.message}; {why.fix}" if why.fix else why.message
-    update_manifest(folder, report={"skipped": reason, "written_at": utc_now_iso()})
-    return _skip_note(presses, reason)
-
-
-def _skip_note(presses: int, reason: str) -> str:
-    return f"note: no baseline report: {presses} presses are too few for its splits ({reason})"
-
-
-def _report_or_note(folder: Path, manifest: dict[str, Any], progress: bool, presses: int) -> str | None:
-    """finish's report: made when report.md is missing, but not again for a campaign too small for one (its note)."""
-    recorded = manifest.get("report")
-    if isinstance(recorded, dict) and isinstance(recorded.get("skipped"), str):
-        return _skip_note(presses, recorded["skipped"])
-    return None if (folder / "report.md").is_file() else _make_report(folder, progress, presses)
 
 
 def _run_locked(
@@ -477,7 +427,7 @@ def finish_campaign(folder: str | Path, *, report: bool = True, progress: bool =
                 finally:
                     if rig is not None:
                         rig.close()
-        summary = _report_or_note(folder, manifest, progress, plan.n_presses) if report else None
+        summary = report_or_note(folder, manifest, progress, plan.n_presses) if report else None
     return CampaignResult(
         folder,
         plan.n_presses,
