@@ -55,9 +55,9 @@ def test_the_rig_time_figures_say_what_they_are_and_agree(capsys):
 
     from conftest import PROTOCOLS
 
-    from neatskin.rig.cli import _summary
     from neatskin.rig.protocol import load_protocol
     from neatskin.rig.runner import CampaignResult, build_plan
+    from neatskin.rig.summarytext import run_summary as _summary
 
     smoke = PROTOCOLS / "smoke.toml"
     assert main(["campaign", "check", str(smoke)]) == 0
@@ -76,7 +76,7 @@ def test_the_rig_time_figures_say_what_they_are_and_agree(capsys):
 
 def test_the_run_summary_gives_a_slow_printers_wall_time_ratio_to_two_figures():
     """A real printer's run (0.6 of its wall time was printer time) read `0x this wall time`."""
-    from neatskin.rig.cli import _times
+    from neatskin.rig.summarytext import times_text as _times
 
     assert [_times(r) for r in (0.6, 0.0449, 2.54, 33.4, 150.0, float("inf"))] == [
         "0.6x",

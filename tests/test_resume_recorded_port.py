@@ -25,8 +25,8 @@ from neatskin.cli import main
 from neatskin.datasets.manifest import read_manifest, update_manifest
 from neatskin.errors import ExitCode
 from neatskin.gcode.profile import load_printer_profile
-from neatskin.rig.cli import _summary
 from neatskin.rig.runner import CampaignResult
+from neatskin.rig.summarytext import run_summary as _summary
 from neatskin.sim.printer import SimulatedPrinter
 
 REPO = Path(__file__).resolve().parent.parent

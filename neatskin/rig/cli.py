@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 import re
 import sys
 from datetime import datetime
@@ -11,6 +10,7 @@ from pathlib import Path
 
 from neatskin.cligroups import add_connect_timeout, add_out, add_quiet, command_group, positive_count, tcp_port
 from neatskin.errors import CheckFailed, ConfigError, ExitCode
+from neatskin.rig.summarytext import printer_time_text, run_summary
 from neatskin.stopsignals import as_ctrl_c
 
 
@@ -96,48 +96,6 @@ def register(subparsers) -> None:
     plan.set_defaults(handler=_plan)
 
 
-def _summary(result) -> str:
-    rig_s = result.printer_time_s * result.written_now / result.planned if result.planned else 0.0
-    state = (
-        "interrupted (resume with: neatskin campaign resume " + str(result.folder) + ")"
-        if result.completed < result.planned
-        else "complete"
-    )
-    text = (
-        f"campaign {state}: {result.completed}/{result.planned} presses in {result.folder} "
-        f"({result.written_now} written now, {result.flagged} flagged); wall {duration_text(result.wall_s)}; "
-        f"{printer_time_text(rig_s, result.written_now, 'written now')}"
-    )
-    if not result.dry_run:  # a real printer runs in real time: its share of the wall is no speed, say nothing
-        return text
-    ratio = rig_s / result.wall_s if result.wall_s > 0 else float("inf")
-    return f"{text}, {_times(ratio)} this wall time (the simulated printer runs faster than real time)"
-
-
-def _times(ratio: float) -> str:
-    """A ratio as `33x`, `2.5x` or `0.6x`: two significant figures below 10."""
-    return f"{ratio:.0f}x" if ratio >= 10 or not math.isfinite(ratio) else f"{ratio:.2g}x"
-
-
-def duration_text(seconds: float) -> str:
-    """A duration a reader takes in at once: `8.0 s`, `2.5 min`, `6.05 h` (an hour or more, as campaign check
-    has always given a campaign's)."""
-    if seconds < 59.5:
-        return f"{seconds:.1f} s" if seconds < 9.95 else f"{seconds:.0f} s"
-    if seconds < 3570:
-        return f"{seconds / 60:.1f} min" if seconds < 597 else f"{seconds / 60:.0f} min"
-    return f"{seconds / 3600:.2f} h"
-
-
-def printer_time_text(seconds: float, presses: int, which: str = "") -> str:
-    """The one wording of the printer-time figure, in `campaign check` and at the end of a run (they agree)."""
-    what = f"the {presses} {'press' if presses == 1 else 'presses'}{f' {which}' if which else ''}"
-    return (
-        f"printer time {duration_text(seconds)} for {what} (motion and holds from the G-code machine model; "
-        "homing and DAQ recording not included)"
-    )
-
-
 @as_ctrl_c()  # SIGTERM, SIGHUP: as Ctrl-C (the press in flight finishes, the probe parks)
 def _run(args: argparse.Namespace) -> int:
     from neatskin.errors import ConfigError
@@ -193,7 +151,7 @@ def _run(args: argparse.Namespace) -> int:
             monitor.wait(10)
     if result.report_summary:
         print(result.report_summary)
-    print(_summary(result))
+    print(run_summary(result))
     if monitor is not None:
         print(f"the live page stopped with the campaign; to look again: neatskin monitor {out}")
     return ExitCode.INTERRUPTED if result.interrupted else ExitCode.OK
@@ -371,7 +329,7 @@ def _resume(args: argparse.Namespace) -> int:
             _end_forecast(forecast)
     if result.report_summary:
         print(result.report_summary)
-    print(_summary(result))
+    print(run_summary(result))
     return ExitCode.INTERRUPTED if result.interrupted else ExitCode.OK
 
 
