@@ -55,27 +55,28 @@ def test_the_rig_time_figures_say_what_they_are_and_agree(capsys):
 
     from conftest import PROTOCOLS
 
-    from neatskin.rig.cli import _summary
     from neatskin.rig.protocol import load_protocol
     from neatskin.rig.runner import CampaignResult, build_plan
+    from neatskin.rig.summarytext import run_summary as _summary
 
     smoke = PROTOCOLS / "smoke.toml"
     assert main(["campaign", "check", str(smoke)]) == 0
     out = capsys.readouterr().out
     plan = build_plan(load_protocol(smoke))
-    hours = f"{plan.printer_time_s / 3600:.2f}"
-    assert f"printer time {hours} h for the 12 presses (motion and holds from the G-code machine model" in out
+    minutes = f"{plan.printer_time_s / 60:.1f}"  # under 10 minutes: in minutes, to a tenth
+    assert 60 < plan.printer_time_s < 597
+    assert f"printer time {minutes} min for the 12 presses (motion and holds from the G-code machine model" in out
     bound = re.search(r"rig time <= ([0-9.]+) h \(a bound from the protocol alone", out)
-    assert bound is not None and float(bound.group(1)) >= float(hours)  # the bound bounds the estimate
+    assert bound is not None and float(bound.group(1)) * 60 >= float(minutes)  # the bound bounds the estimate
     done = CampaignResult(Path("c"), 12, 12, 12, 0, False, 2.0, plan.printer_time_s, None)
-    assert f"printer time {hours} h for the 12 presses written now (motion and holds" in _summary(done)
+    assert f"printer time {minutes} min for the 12 presses written now (motion and holds" in _summary(done)
     half = CampaignResult(Path("c"), 12, 12, 6, 0, False, 2.0, plan.printer_time_s, None)
-    assert f"printer time {plan.printer_time_s / 2 / 3600:.2f} h for the 6 presses written now" in _summary(half)
+    assert f"printer time {plan.printer_time_s / 2:.0f} s for the 6 presses written now" in _summary(half)  # < 1 min
 
 
 def test_the_run_summary_gives_a_slow_printers_wall_time_ratio_to_two_figures():
     """A real printer's run (0.6 of its wall time was printer time) read `0x this wall time`."""
-    from neatskin.rig.cli import _times
+    from neatskin.rig.summarytext import times_text as _times
 
     assert [_times(r) for r in (0.6, 0.0449, 2.54, 33.4, 150.0, float("inf"))] == [
         "0.6x",

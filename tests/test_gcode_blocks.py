@@ -23,10 +23,12 @@ from neatskin.rig.plan import build_plan
 from neatskin.rig.protocol import load_protocol
 
 # sha256 of "\n".join(command_lines()) of protocols/paper.toml's program, as 98085f2 (which stored every
-# press's lines) produced it: the lines made on demand must be the same bytes
+# press's lines) produced it: the lines made on demand must be the same bytes. Changed once since, on purpose: the
+# preamble's G28 became G28 R15.5 (Z raised by the surface + safe height before homing); a diff of the two
+# programs' lines shows that line, the 4th, as the only difference
 PAPER_COMMANDS_SHA256 = {
-    False: "e3c917e58ad0db0f2be43f9a213938b5ad44d283b2fa4e45f81503760dc201ae",  # the runner's (no G4 hold)
-    True: "4e060cee71f946bb7f7d32b70351432bc2df5f3603572127588b599c0b749c9b",  # a file's (G4 P1200 hold)
+    False: "2bf4ab56aa5152bde1659552e2f53ff7e9e89932ccc00cc93cddcdcba6dcb32d",  # the runner's (no G4 hold)
+    True: "f8960fc0b68ca08336dc749f62b9ef24a6af7d173fb838a0b02226d0245f0946",  # a file's (G4 P1200 hold)
 }
 
 

@@ -37,7 +37,8 @@ class PrinterTable(Settings):
         ge=0,
         le=10_000,
         doc="Z_CLEARANCE_FOR_HOMING: G28 raises Z by this before homing X or Y (to it once Z is homed; 0: no raise);"
-        " stock Marlin 5 (Z_CLEARANCE_BETWEEN_PROBES, Conditionals_post.h)",
+        " stock Marlin 5 (Z_CLEARANCE_BETWEEN_PROBES, Conditionals_post.h). The campaign's preamble does not rely on"
+        " it: its `G28 R<surface_z_mm + safe_height_mm>` raises Z by that much first, homed or not",
     )
     z_after_homing_mm: float | None = setting(
         None,
@@ -123,7 +124,8 @@ class ParkTable(Settings):
         ge=-10_000,
         le=10_000,
         default_doc="soft_limits.max_z_mm",
-        doc="where the probe waits after the campaign, printer frame",
+        doc="where the probe waits after the campaign, printer frame; never below calibration.surface_z_mm +"
+        " motion.safe_height_mm (the program parks at the higher of the two; campaign check warns of a lower one)",
     )
 
 

@@ -149,8 +149,12 @@ def header_lines(program: PressProgram) -> list[str]:
     return lines
 
 
-def preamble_lines() -> tuple[str, ...]:
-    return ("G21", "G90", "M211 S1", "G28", "M400")
+def preamble_lines(raise_mm: float) -> tuple[str, ...]:
+    """Units, absolute mode, soft endstops on, then home with Z raised by `raise_mm` first (the profile's surface +
+    safe height). G28's R word: Marlin 2.1 (G28.cpp, `seenR`) raises Z by R relative to where it is, homed or not,
+    before homing X, Y or Z; a plain G28 raises only Z_CLEARANCE_FOR_HOMING (5 mm stock), which from a probe
+    left in the skin (a crash, a kill mid-press) drags it through the skin to X and Y's endstops."""
+    return ("G21", "G90", "M211 S1", f"G28 R{fmt(raise_mm)}", "M400")
 
 
 def program_lines(program: PressProgram) -> Iterator[str]:

@@ -133,7 +133,7 @@ def build_program(
     postamble = (
         f"G0 Z{z_safe} F{f_z}",
         f"G0 X{emit.fmt(park.x)} Y{emit.fmt(park.y)} F{f_travel}",
-        f"G0 Z{emit.fmt(max(park.z, cal.surface_z_mm + profile.safe_height_mm))} F{f_z}",
+        f"G0 Z{emit.fmt(park_z_mm(profile))} F{f_z}",
         "M400",
         f"{emit.MARKER} program=done",
     )
@@ -148,8 +148,26 @@ def build_program(
         cal,
         positions,
         blocks,
-        emit.preamble_lines(),
+        emit.preamble_lines(cal.surface_z_mm + profile.safe_height_mm),
         postamble,
         route,
         route_unordered,
+    )
+
+
+def park_z_mm(profile: PrinterProfile) -> float:
+    """Where the probe parks in Z: the profile's [park] z_mm, never below the travel height (surface + safe height),
+    so that a low park cannot leave the probe in the skin or on the fittings."""
+    return max(profile.park_mm.z, profile.calibration.surface_z_mm + profile.safe_height_mm)
+
+
+def low_park_warning(profile: PrinterProfile) -> str | None:
+    """One line for `campaign check` when [park] z_mm is below the travel height (the program parks higher)."""
+    floor = profile.calibration.surface_z_mm + profile.safe_height_mm
+    if profile.park_mm.z >= floor:
+        return None
+    return (
+        f"{profile.source}: [park] z_mm = {emit.fmt(profile.park_mm.z)} is below the travel height "
+        f"{emit.fmt(floor)} (calibration.surface_z_mm {emit.fmt(profile.calibration.surface_z_mm)} + "
+        f"motion.safe_height_mm {emit.fmt(profile.safe_height_mm)}): the probe parks at Z {emit.fmt(floor)}"
     )

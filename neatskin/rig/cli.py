@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 import re
 import sys
 from datetime import datetime
@@ -11,6 +10,7 @@ from pathlib import Path
 
 from neatskin.cligroups import add_connect_timeout, add_out, add_quiet, command_group, positive_count, tcp_port
 from neatskin.errors import CheckFailed, ConfigError, ExitCode
+from neatskin.rig.summarytext import printer_time_text, run_summary
 from neatskin.stopsignals import as_ctrl_c
 
 
@@ -71,7 +71,11 @@ def register(subparsers) -> None:
     finish.set_defaults(handler=_finish)
 
     check = sub.add_parser("check", help="validate a protocol and print its plan and time estimate, moving nothing")
-    check.add_argument("protocol", type=Path, help="protocol TOML, e.g. protocols/paper.toml")
+    check.add_argument(
+        "protocol",
+        type=Path,
+        help="protocol TOML, e.g. protocols/paper.toml, or a campaign folder (the protocol and files it ran with)",
+    )
     check.set_defaults(handler=_check)
 
     plan = sub.add_parser(
@@ -90,36 +94,6 @@ def register(subparsers) -> None:
     add_out(plan, "folder for the CSV and PNG (default campaign-plan)", default=Path("campaign-plan"))
     add_quiet(plan)
     plan.set_defaults(handler=_plan)
-
-
-def _summary(result) -> str:
-    rig_s = result.printer_time_s * result.written_now / result.planned if result.planned else 0.0
-    ratio = rig_s / result.wall_s if result.wall_s > 0 else float("inf")
-    state = (
-        "interrupted (resume with: neatskin campaign resume " + str(result.folder) + ")"
-        if result.completed < result.planned
-        else "complete"
-    )
-    return (
-        f"campaign {state}: {result.completed}/{result.planned} presses in {result.folder} "
-        f"({result.written_now} written now, {result.flagged} flagged); wall {result.wall_s:.1f} s; "
-        f"{printer_time_text(rig_s, result.written_now, 'written now')}, {_times(ratio)} this wall time"
-    )
-
-
-def _times(ratio: float) -> str:
-    """A ratio as `33x`, `2.5x` or `0.6x`: two significant figures below 10 (a real printer's run, slower than the
-    simulated one, read `0x`)."""
-    return f"{ratio:.0f}x" if ratio >= 10 or not math.isfinite(ratio) else f"{ratio:.2g}x"
-
-
-def printer_time_text(seconds: float, presses: int, which: str = "") -> str:
-    """The one wording of the printer-time figure, in `campaign check` and at the end of a run (they agree)."""
-    what = f"the {presses} presses{f' {which}' if which else ''}"
-    return (
-        f"printer time {seconds / 3600:.2f} h for {what} (motion and holds from the G-code machine model; "
-        "homing and DAQ recording not included)"
-    )
 
 
 @as_ctrl_c()  # SIGTERM, SIGHUP: as Ctrl-C (the press in flight finishes, the probe parks)
@@ -177,7 +151,7 @@ def _run(args: argparse.Namespace) -> int:
             monitor.wait(10)
     if result.report_summary:
         print(result.report_summary)
-    print(_summary(result))
+    print(run_summary(result))
     if monitor is not None:
         print(f"the live page stopped with the campaign; to look again: neatskin monitor {out}")
     return ExitCode.INTERRUPTED if result.interrupted else ExitCode.OK
@@ -331,6 +305,8 @@ def _finish(args: argparse.Namespace) -> int:
     from neatskin.rig.runner import finish_campaign
 
     result = finish_campaign(args.folder, report=not args.no_report, progress=not args.quiet)
+    if result.report_summary:
+        print(result.report_summary)
     print(f"campaign complete: {result.completed}/{result.planned} presses in {result.folder}")
     return 0
 
@@ -359,7 +335,7 @@ def _resume(args: argparse.Namespace) -> int:
             _end_forecast(forecast)
     if result.report_summary:
         print(result.report_summary)
-    print(_summary(result))
+    print(run_summary(result))
     return ExitCode.INTERRUPTED if result.interrupted else ExitCode.OK
 
 
@@ -380,16 +356,27 @@ def _resumes_real(args: argparse.Namespace) -> bool:
 
 @as_ctrl_c()  # SIGTERM, SIGHUP: as Ctrl-C (a kernel solve's workers end with it)
 def _check(args: argparse.Namespace) -> int:
+    from neatskin.gcode.program import low_park_warning
+    from neatskin.rig.folder import INPUTS_DIR, load_inputs
     from neatskin.rig.plan import build_plan
     from neatskin.rig.protocol import load_protocol
 
-    try:
-        protocol = load_protocol(args.protocol)
+    path = Path(args.protocol)
+    recorded = path / INPUTS_DIR / "protocol.toml"
+    try:  # a campaign folder: the protocol and files it ran with, its inputs/ copies (as resume uses them)
+        if path.is_dir() and not recorded.is_file():
+            raise ConfigError(
+                f"{path} is a folder, and no campaign folder (no {INPUTS_DIR}/protocol.toml in it)",
+                file=str(path),
+                fix="give a protocol file (e.g. protocols/paper.toml) or a campaign folder",
+            )
+        protocol = load_inputs(path) if path.is_dir() else load_protocol(path)
         plan = build_plan(protocol)
     except ConfigError as exc:  # the check's verdict: the protocol fails it
         from neatskin.rig.railcheck import with_pressed_figures
 
-        raise CheckFailed(problems=with_pressed_figures(args.protocol, exc.problems)) from exc
+        checked = recorded if path.is_dir() else path
+        raise CheckFailed(problems=with_pressed_figures(checked, exc.problems)) from exc
     positions = len(set(plan.program.presses.position_ids.tolist()))  # no block needs formatting to count
     print(f"{protocol.path}: ok")
     print(
@@ -403,6 +390,8 @@ def _check(args: argparse.Namespace) -> int:
     print(f"  {printer_time_text(plan.printer_time_s, plan.n_presses)}")
     if long_hold := plan.long_hold_warning():  # a warning, not a refusal: the config allows up to 3600 s
         print(f"  warning: {long_hold}")
+    if low_park := low_park_warning(protocol.printer):
+        print(f"  warning: {low_park}")
     print(f"  resources (upper bounds): {protocol.resources.summary()}")
     print(f"  electrical: {protocol.electrical.summary()}")
     from neatskin.rig.railcheck import missing_kernel, pressed_rails_text

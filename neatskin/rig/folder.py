@@ -285,7 +285,8 @@ _RESTORE = {
 
 def missing_derived_files(folder: Path, manifest: dict, *, report: bool = True) -> list[str]:
     """What a complete campaign lacks: a consolidated file that is missing or differs from its recorded
-    sha256, the physical limit of a dry run, the report (when asked for)."""
+    sha256, the physical limit of a dry run, the report (when asked for, and not skipped as the campaign was too
+    small for one: the manifest's `report.skipped`)."""
     files = manifest.get("files_sha256")
     recorded: dict[str, str] = files if isinstance(files, dict) else {}
     missing = []
@@ -295,7 +296,8 @@ def missing_derived_files(folder: Path, manifest: dict, *, report: bool = True) 
             continue
         if not path.is_file() or (name in recorded and file_sha256(path, _RESTORE[name]) != recorded[name]):
             missing.append(name)
-    if report and not (folder / "report.md").is_file():
+    skipped = isinstance(manifest.get("report"), dict) and "skipped" in manifest["report"]  # too few presses for one
+    if report and not skipped and not (folder / "report.md").is_file():
         missing.append("report.md")
     return missing
 

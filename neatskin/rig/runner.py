@@ -25,8 +25,9 @@ from neatskin.datasets.lock import CampaignLock
 from neatskin.datasets.manifest import read_manifest, update_manifest, utc_now_iso
 from neatskin.datasets.paths import CONSOLIDATED_NAME, press_parts
 from neatskin.datasets.writer import CampaignWriter, file_sha256, read_parquet
-from neatskin.errors import ConfigError, DataError, Problem
+from neatskin.errors import ConfigError, DataError
 from neatskin.rig.assembly import DerivedFiles, Rig, build_real_rig
+from neatskin.rig.campaignreport import make_report, report_or_note
 from neatskin.rig.folder import (
     INPUT_KEYS,
     check_folder,
@@ -61,6 +62,7 @@ class CampaignResult:
     wall_s: float
     printer_time_s: float
     report_summary: str | None = None  # the baseline report's table, for the CLI to show
+    dry_run: bool = True  # the simulated rig (its printer time runs faster than the wall), or the real one
 
 
 def run_campaign(
@@ -107,32 +109,10 @@ def run_campaign(
             connect_timeout_s=connect_timeout_s,
         )
         if report and status == "complete":
-            result = dataclasses.replace(result, report_summary=_make_report(folder, progress, result.completed))
+            result = dataclasses.replace(result, report_summary=make_report(folder, progress, result.completed))
     finally:
         lock.release()
     return result
-
-
-def _make_report(folder: Path, progress: bool, presses: int) -> str:
-    from neatskin.baselines.report import run_baselines  # scikit-learn: only a report needs it
-    from neatskin.baselines.summary import report_summary
-
-    try:
-        made = run_baselines(folder, split="both", progress=progress)
-    except (ConfigError, DataError) as exc:  # the data is whole: say so before the report's own error, its kind kept
-        intact = Problem(
-            f"the campaign's data is complete and intact ({presses} of {presses} presses in {folder}); only its baseline "
-            "report failed, for the reason below",
-            str(folder),
-        )
-        raise type(exc)(problems=(intact, *exc.problems)) from exc
-    except KeyboardInterrupt:
-        raise KeyboardInterrupt(
-            f"the campaign's data is complete in {folder}; only its baseline report was "
-            f"stopped: make it with neatskin campaign finish {folder}"
-        ) from None
-    update_manifest(folder, report={"path": "report.md", "written_at": utc_now_iso()})
-    return report_summary(made)
 
 
 def _run_locked(
@@ -245,6 +225,7 @@ def _run_locked(
         interrupted,
         time.perf_counter() - wall0,
         plan.printer_time_s,
+        dry_run=dry_run,
     )
     return result, status
 
@@ -369,13 +350,32 @@ def resume_campaign(
         kwargs.setdefault("dry_run", kind == "dry-run")
         restore_consolidated(folder, manifest)  # a damaged presses.parquet of a finalize cut short: from its copy
         rig = manifest.get("rig")
-        if kind == "real" and isinstance(rig, dict) and rig.get("daq") == "simulated":  # a real printer, no DAQ yet
-            kwargs.setdefault("daq_kind", "simulated")
+        if kind == "real":
+            _resume_real_defaults(folder, rig if isinstance(rig, dict) else {}, kwargs)
         protocol = load_inputs(folder)
         plan = build_plan(protocol)
         if before_motion is not None:
             before_motion(protocol, plan)
         return run_campaign(protocol, folder, resume=True, plan=plan, **kwargs)
+
+
+def _resume_real_defaults(folder: Path, rig: dict[str, Any], kwargs: dict[str, Any]) -> None:
+    """A real campaign resumes on the printer's port and with the DAQ its manifest records (`rig.printer`,
+    `rig.daq`) unless given; without a recorded port, one ConfigError naming the option resume has."""
+    if kwargs.get("dry_run"):
+        return
+    if not kwargs.get("port"):
+        recorded = rig.get("printer")
+        if not isinstance(recorded, str) or not recorded.strip():
+            raise ConfigError(
+                "a real campaign resumes on the printer's serial port, and its manifest records none",
+                file=str(folder / "manifest.json"),
+                field="rig.printer",
+                fix=f"pass it: neatskin campaign resume {folder} --port /dev/ttyUSB0",
+            )
+        kwargs["port"] = recorded
+    if rig.get("daq") in ("ni", "simulated"):  # the DAQ it recorded (a real printer without a DAQ: simulated)
+        kwargs.setdefault("daq_kind", rig["daq"])
 
 
 def finish_campaign(folder: str | Path, *, report: bool = True, progress: bool = True) -> CampaignResult:
@@ -427,9 +427,16 @@ def finish_campaign(folder: str | Path, *, report: bool = True, progress: bool =
                 finally:
                     if rig is not None:
                         rig.close()
-        summary = (
-            _make_report(folder, progress, plan.n_presses) if report and not (folder / "report.md").is_file() else None
-        )
+        summary = report_or_note(folder, manifest, progress, plan.n_presses) if report else None
     return CampaignResult(
-        folder, plan.n_presses, plan.n_presses, 0, 0, False, time.perf_counter() - wall0, plan.printer_time_s, summary
+        folder,
+        plan.n_presses,
+        plan.n_presses,
+        0,
+        0,
+        False,
+        time.perf_counter() - wall0,
+        plan.printer_time_s,
+        summary,
+        dry_run=kind == "dry-run",
     )
