@@ -3,6 +3,7 @@ children; no Hypothesis deadline; the suite's start order under xdist and the ea
 
 import os
 import signal
+from collections.abc import Callable
 from pathlib import Path
 
 import early
@@ -82,10 +83,36 @@ def paper_layout():
     return load_layout(PROTOCOLS / "skins" / "paper.toml")
 
 
-def _tree_state(folder: Path) -> dict[str, bytes]:
-    """Every file under folder (but Python's byte-code caches), by relative path, with its bytes."""
+def shared_folder(tmp_path_factory: pytest.TempPathFactory, name: str, make: Callable[[Path], object]) -> Path:
+    """The folder `name`, made once per test session and shared by its xdist workers: the first worker to ask calls
+    `make(folder)` on a new, empty folder under a lock (in the session's temporary folder, which holds each worker's
+    own, as pytest-xdist documents for data made once per session); a worker asking while it is being made waits
+    for it, and one asking later takes it as made. A `make` that fails leaves nothing: the next one to ask makes it
+    again (and fails as loudly). For read-only inputs (a reference run the tests read or copy): made per worker,
+    each was made twice whenever the suite's order split its tests over the workers."""
+    import fcntl
+    import shutil
+
+    base = tmp_path_factory.getbasetemp()
+    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    folder, done = shared / "shared" / name, shared / "shared" / f"{name}.done"
+    folder.parent.mkdir(exist_ok=True)
+    with open(shared / "shared" / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, also when make fails
+        if not done.is_file():
+            shutil.rmtree(folder, ignore_errors=True)  # a failed make's remains
+            folder.mkdir()
+            make(folder)
+            done.touch()
+    return folder
+
+
+def _tree_state(folder: Path) -> dict[str, str]:
+    """Every file under folder (but Python's byte-code caches), by relative path, with the sha256 of its bytes."""
+    import hashlib
+
     return {
-        str(path.relative_to(folder)): path.read_bytes()
+        str(path.relative_to(folder)): hashlib.sha256(path.read_bytes()).hexdigest()
         for path in sorted(folder.rglob("*"))
         if path.is_file() and "__pycache__" not in path.parts
     }
@@ -93,16 +120,22 @@ def _tree_state(folder: Path) -> dict[str, bytes]:
 
 @pytest.fixture(scope="session")
 def smoke_reference(tmp_path_factory):
-    """The smoke campaign, uninterrupted, without a report (faults_helpers.make_reference: a `neatskin` child),
-    made once per worker for the test_faults_* modules, which read it or copy it (each module made its own, and
-    again whenever the suite's order came back to it). At the end of the session it must be as it was made: a test
-    that changed it fails here, naming the files."""
-    from faults_helpers import make_reference
+    """The smoke campaign, uninterrupted, without a report (faults_helpers.write_reference: a `neatskin` child),
+    made once per session for the test_faults_* and test_campaign_edges modules, which read it or copy it (each
+    module made its own, then each worker; now the workers share it: shared_folder). At the end of each worker's
+    session it must be as it was made: a test that changed it fails here, naming the files."""
+    import json
 
-    folder = make_reference(tmp_path_factory)
-    made = _tree_state(folder)
+    from faults_helpers import write_reference
+
+    def make(root: Path) -> None:
+        write_reference(root / "run")
+        (root / "made.json").write_text(json.dumps(_tree_state(root / "run")))
+
+    root = shared_folder(tmp_path_factory, "smoke-reference", make)
+    folder = root / "run"
     yield folder
-    now = _tree_state(folder)
+    made, now = json.loads((root / "made.json").read_text()), _tree_state(folder)
     changed = sorted(name for name in made.keys() | now.keys() if made.get(name) != now.get(name))
     assert not changed, f"a test changed the shared smoke reference run ({folder}): {changed}"
 

@@ -89,12 +89,10 @@ def waveforms(folder: Path) -> pd.DataFrame:
     return read_waveforms(folder)
 
 
-def make_reference(tmp_path_factory) -> Path:
-    """The smoke campaign, uninterrupted (no report)."""
-    folder = tmp_path_factory.mktemp("reference") / "run"
+def write_reference(folder: Path) -> None:
+    """The smoke campaign, uninterrupted (no report), into `folder` (conftest's smoke_reference)."""
     done = run_cli_child("none", "campaign", "run", str(SMOKE), "--dry-run", "--out", str(folder), "--no-report")
     assert done.returncode == 0, done.stderr
-    return folder
 
 
 @contextlib.contextmanager

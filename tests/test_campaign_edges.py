@@ -7,14 +7,15 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from faults_helpers import make_reference, rows
+from faults_helpers import rows
 
 from neatskin.cli import main
 
 
-@pytest.fixture(scope="module")
-def reference(tmp_path_factory):
-    return make_reference(tmp_path_factory)
+@pytest.fixture
+def reference(smoke_reference):
+    """The shared smoke reference run (conftest; this module made its own copy of the same run before)."""
+    return smoke_reference
 
 
 @pytest.mark.parametrize("status", ["complete", "interrupted"])

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from conftest import PROTOCOLS
+from conftest import PROTOCOLS, shared_folder
 
 from neatskin.rig.protocol import load_protocol
 from neatskin.rig.runner import resume_campaign, run_campaign
@@ -38,9 +38,12 @@ def kill_protocol(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def reference(kill_protocol, tmp_path_factory):
-    folder = tmp_path_factory.mktemp("reference") / "run"
-    run_campaign(load_protocol(kill_protocol), folder, dry_run=True, progress=False, report=False)
-    return pd.read_parquet(folder / "presses.parquet").drop(columns=WALL_CLOCK)
+    """The uninterrupted run's rows, run once per session (conftest.shared_folder)."""
+
+    def make(root: Path) -> None:
+        run_campaign(load_protocol(kill_protocol), root / "run", dry_run=True, progress=False, report=False)
+
+    return _rows(shared_folder(tmp_path_factory, "kill-reference", make) / "run")
 
 
 def _rows(folder: Path) -> pd.DataFrame:

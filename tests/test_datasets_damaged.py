@@ -13,7 +13,7 @@ import sys
 import pyarrow.parquet as pq
 import pytest
 import test_datasets_edges as edges
-from conftest import PROTOCOLS, REPO
+from conftest import PROTOCOLS, REPO, shared_folder
 
 from neatskin.cli import main
 from neatskin.datasets.manifest import read_manifest
@@ -162,22 +162,28 @@ def test_a_manifest_without_read_permission_is_one_error_naming_it(paper_layout,
 # ---- #3: a press part or presses.parquet without read permission ----------------------------------------------
 
 
-# this module's, made once per worker (module scope remade it whenever the suite's order came back to it)
+# this module's, made once per session and read (copied) by its tests: conftest.shared_folder (module scope remade
+# them whenever the suite's order came back to the module, session scope once per worker)
 @pytest.fixture(scope="session")
 def partial(tmp_path_factory):
     """The smoke campaign (records waveforms) stopped after 4 presses: one part per press."""
-    folder = tmp_path_factory.mktemp("partial") / "c"
-    done = cli_child("campaign", "run", str(SMOKE), "--dry-run", "--out", str(folder), "--limit", "4", "--quiet")
-    assert done.returncode == 0, done.stderr
-    return folder
+
+    def make(root):
+        done = cli_child(
+            "campaign", "run", str(SMOKE), "--dry-run", "--out", str(root / "c"), "--limit", "4", "--quiet"
+        )
+        assert done.returncode == 0, done.stderr
+
+    return shared_folder(tmp_path_factory, "damaged-partial", make) / "c"
 
 
 @pytest.fixture(scope="session")
 def complete(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("complete") / "c"
-    done = cli_child("campaign", "run", str(SMOKE), "--dry-run", "--out", str(folder), "--no-report", "--quiet")
-    assert done.returncode == 0, done.stderr
-    return folder
+    def make(root):
+        done = cli_child("campaign", "run", str(SMOKE), "--dry-run", "--out", str(root / "c"), "--no-report", "--quiet")
+        assert done.returncode == 0, done.stderr
+
+    return shared_folder(tmp_path_factory, "damaged-complete", make) / "c"
 
 
 def _assert_resume_and_finish_name_the_unreadable(folder, path) -> None:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from conftest import PROTOCOLS, WORKER_PRESSES, write_worker_protocol
+from conftest import PROTOCOLS, WORKER_PRESSES, shared_folder, write_worker_protocol
 
 import neatskin.rig.control as control
 import neatskin.rig.dryrig as dryrig
@@ -47,11 +47,15 @@ def worker_protocol(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def inline_rows(worker_protocol, tmp_path_factory):
-    folder = tmp_path_factory.mktemp("inline") / "run"
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv(dryrig.SKIN_WORKER_ENV, "off")
-        run_campaign(load_protocol(worker_protocol), folder, progress=False, report=False)
-    return _rows(folder)
+    """The inline path's rows (no worker), run once per session (conftest.shared_folder): the suite's long-first
+    order spreads this module's long tests over both workers, and each ran the 512 presses again."""
+
+    def make(root: Path) -> None:
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setenv(dryrig.SKIN_WORKER_ENV, "off")
+            run_campaign(load_protocol(worker_protocol), root / "run", progress=False, report=False)
+
+    return _rows(shared_folder(tmp_path_factory, "dry-worker-inline", make) / "run")
 
 
 @pytest.fixture

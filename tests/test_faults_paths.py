@@ -1,6 +1,7 @@
 """Fault injection: hostile names and paths, closed pipes, and the curation traps (merge A A, one physical
 position under two ids, datasets that borrow their sources' inputs, export formats, stale reports)."""
 
+import os
 import shutil
 import subprocess
 import sys
@@ -104,10 +105,12 @@ def test_baselines_refuses_to_write_beside_an_old_report(reference, tmp_path, ca
 
 
 def test_merge_of_a_campaign_with_itself_is_refused(reference, tmp_path):
+    # the same folder spelled through this test's own folder and back up (`..`): the reference is not beside it
+    # any more (conftest.shared_folder), so the way up is counted, not assumed
+    spelled = tmp_path / ".." / tmp_path.name / os.path.relpath(reference, tmp_path)
+    assert ".." in spelled.parts and spelled.resolve() == reference.resolve()
     with pytest.raises(DataError, match="named twice") as err:
-        merge(
-            [reference, tmp_path / ".." / tmp_path.name / ".." / reference.parent.name / reference.name], tmp_path / "m"
-        )
+        merge([reference, spelled], tmp_path / "m")
     assert err.value.field == "folders" and not (tmp_path / "m").exists()
 
 

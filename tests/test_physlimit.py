@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from conftest import PROTOCOLS
+from conftest import PROTOCOLS, shared_folder
 
 from neatskin.baselines.crb import cramer_rao_bound_mm
 from neatskin.rig.physlimit import METADATA_KEY, NuisancePriors, physical_limit_frame
@@ -17,12 +17,16 @@ from neatskin.skin.bound import feature_jacobian
 from neatskin.skin.model import SkinModel
 
 
-# this module's, made once per worker (module scope remade it whenever the suite's order came back to it)
+# this module's, made once per session (conftest.shared_folder; module scope remade it whenever the suite's order
+# came back to the module, session scope once per worker)
 @pytest.fixture(scope="session")
 def smoke_limit(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("limit") / "campaign"
     protocol = load_protocol(PROTOCOLS / "smoke.toml")
-    run_campaign(protocol, folder, dry_run=True, progress=False, report=False)
+
+    def make(root):
+        run_campaign(protocol, root / "campaign", dry_run=True, progress=False, report=False)
+
+    folder = shared_folder(tmp_path_factory, "smoke-limit", make) / "campaign"
     return protocol, pq.read_table(folder / "physical_limit.parquet")
 
 

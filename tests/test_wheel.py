@@ -27,24 +27,47 @@ def _source_copy(root: Path) -> Path:
     return source
 
 
-@pytest.fixture(scope="session")  # this module's; once per worker, however the suite's order splits its tests
+def _shared_folder(tmp_path_factory) -> Path:
+    """The session's temporary folder, one for all its xdist workers (each worker's own is a folder in it, as
+    pytest-xdist documents for data made once per session); without xdist, the session's own."""
+    base = tmp_path_factory.getbasetemp()
+    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+
+
+@pytest.fixture(scope="session")
 def installed(tmp_path_factory) -> Path:
-    """The package built as a wheel and installed (without dependencies) into a folder of its own."""
-    root = tmp_path_factory.mktemp("wheel")
+    """The package built as a wheel and installed (without dependencies) into a folder of its own, once per session:
+    the first worker to need it builds it under a lock, a worker needing it later (the suite's order may split this
+    module's tests) waits for it and takes it (it built its own copy, 4 to 8 s of CPU, before). The tests only read
+    the installed folder; each writes in its own tmp_path or reads from /."""
+    import fcntl
+
+    shared = _shared_folder(tmp_path_factory)
+    root, done = shared / "wheel", shared / "wheel.done"
     wheels, target = root / "wheels", root / "site"
-    subprocess.run(
-        [*PIP, "wheel", "--no-deps", "-q", "-w", str(wheels), str(_source_copy(root))],
-        check=True,
-        timeout=600,
-        cwd=root,
-    )
-    (wheel,) = wheels.glob("neatskin_rig-*.whl")
+    with open(shared / "wheel.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, also if a build below fails
+        if not done.is_file():
+            shutil.rmtree(root, ignore_errors=True)  # an earlier worker's build that failed half way
+            root.mkdir()
+            subprocess.run(
+                [*PIP, "wheel", "--no-deps", "-q", "-w", str(wheels), str(_source_copy(root))],
+                check=True,
+                timeout=600,
+                cwd=root,
+            )
+            (wheel,) = wheels.glob("neatskin_rig-*.whl")
+            subprocess.run(
+                [*PIP, "install", "--no-deps", "-q", "--target", str(target), str(wheel)],
+                check=True,
+                timeout=600,
+                cwd=root,
+            )
+            done.write_text(wheel.name)
+    wheel = wheels / done.read_text()
     names = set(zipfile.ZipFile(wheel).namelist())
     for packaged in ("paper.toml", "smoke.toml", "skins/paper.toml", "wiring/paper.toml", "printers/paper.toml"):
         assert f"neatskin/protocols/{packaged}" in names
-    subprocess.run(
-        [*PIP, "install", "--no-deps", "-q", "--target", str(target), str(wheel)], check=True, timeout=600, cwd=root
-    )
     return target
 
 
