@@ -51,7 +51,7 @@ LONG_S: dict[str, float] = {
     "tests/test_dry_worker.py::test_ctrl_c_to_the_group_stops_cleanly_and_resume_equals_inline[SIGINT]": 21,
     "tests/test_campaign_scenes.py::test_ctrl_c_stops_after_the_press_in_flight_and_resumes[SIGINT]": 21,
     "tests/test_cli_warnings.py::test_a_command_that_warns_prints_one_line_per_warning": 21,
-    "tests/test_resume_rails_warning.py::test_a_dry_resume_past_the_rails_warns_once_before_its_presses_and_loses_none": 21,
+    "tests/test_resume_rails_warning.py::test_a_dry_resume_past_the_rails_warns_once_for_the_presses_left_and_loses_none": 21,
     "tests/test_campaign_scenes.py::test_a_lost_terminal_stops_the_campaign_as_ctrl_c_does": 20,
     "tests/test_baselines_inversion.py::test_the_batched_solver_lands_where_the_reference_does[0.0-0.0]": 20,
     "tests/test_campaign_scenes.py::test_ctrl_c_stops_after_the_press_in_flight_and_resumes[SIGTERM]": 20,
