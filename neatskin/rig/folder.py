@@ -251,6 +251,19 @@ def check_inputs_unchanged(folder: Path, manifest: dict) -> None:
         raise DataError(problems=problems)
 
 
+def refuse_merge(folder: Path, manifest: dict) -> None:
+    """A folder `dataset merge` wrote (manifest kind "merge") is a dataset, not a campaign: nothing to resume or finish
+    (its presses come from other folders; the resume's checks would otherwise fail on its extra source column)."""
+    if manifest.get("kind") == "merge":
+        raise DataError(
+            "this folder is a merged dataset (`neatskin dataset merge`), not a campaign: it has no presses left to "
+            "press and no derived files of a campaign",
+            file=str(folder / "manifest.json"),
+            field="kind",
+            fix="resume or finish each campaign it merged (its manifest's sources), then merge them again",
+        )
+
+
 def rig_kind(folder: Path, manifest: dict) -> str:
     rig = manifest.get("rig", {"kind": "dry-run"})
     kind = rig.get("kind") if isinstance(rig, dict) else None

@@ -37,6 +37,7 @@ from neatskin.rig.folder import (
     create_campaign_folder,
     load_inputs,
     missing_derived_files,
+    refuse_merge,
     restore_consolidated,
     rig_kind,
 )
@@ -332,7 +333,7 @@ def resume_campaign(
     warning)."""
     folder = Path(folder)
     check_folder(folder, resume=True)
-    read_manifest(folder)  # a clear error for a folder that is no campaign, before a lock file is made
+    refuse_merge(folder, read_manifest(folder))  # a clear error for a folder that is no campaign, before a lock file
     with CampaignLock(folder):
         manifest = read_manifest(folder)
         kind = rig_kind(folder, manifest)
@@ -385,7 +386,7 @@ def finish_campaign(folder: str | Path, *, report: bool = True, progress: bool =
     folder = Path(folder)
     wall0 = time.perf_counter()
     check_folder(folder, resume=True)
-    read_manifest(folder)
+    refuse_merge(folder, read_manifest(folder))
     with CampaignLock(folder):
         manifest = read_manifest(folder)
         kind = rig_kind(folder, manifest)
