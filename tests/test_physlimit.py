@@ -127,14 +127,14 @@ def test_a_scene_without_noise_has_a_zero_electronics_bound_and_a_report(tmp_pat
 
 def test_typical_phases_are_the_plans_phase_times():
     from neatskin.gcode.motion import phase_durations_s
-    from neatskin.rig.physlimit import _typical_phases_s
+    from neatskin.rig.physlimitnoise import typical_phases_s
     from neatskin.rig.plan import build_plan
 
     protocol = load_protocol(PROTOCOLS / "smoke.toml")
     plan = build_plan(protocol)
     durations = phase_durations_s(plan.program, protocol.printer)
     np.testing.assert_array_equal(plan.phase_s, durations)
-    np.testing.assert_array_equal(_typical_phases_s(plan, protocol), np.median(durations, axis=0))
+    np.testing.assert_array_equal(typical_phases_s(plan), np.median(durations, axis=0))
 
 
 def test_a_pair_cut_off_at_a_position_leaves_the_others_their_information(tmp_path):

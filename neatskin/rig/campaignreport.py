@@ -8,6 +8,7 @@ from typing import Any
 
 from neatskin.datasets.manifest import update_manifest, utc_now_iso
 from neatskin.errors import ConfigError, DataError, Problem
+from neatskin.rig.folder import skipped_report
 
 
 def make_report(folder: Path, progress: bool, presses: int) -> str:
@@ -55,7 +56,7 @@ def _skip_note(presses: int, reason: str) -> str:
 
 def report_or_note(folder: Path, manifest: dict[str, Any], progress: bool, presses: int) -> str | None:
     """finish's report: made when report.md is missing, but not again for a campaign too small for one (its note)."""
-    recorded = manifest.get("report")
-    if isinstance(recorded, dict) and isinstance(recorded.get("skipped"), str):
-        return _skip_note(presses, recorded["skipped"])
+    skipped = skipped_report(manifest)
+    if skipped is not None:
+        return _skip_note(presses, skipped)
     return None if (folder / "report.md").is_file() else make_report(folder, progress, presses)

@@ -296,6 +296,13 @@ _RESTORE = {
 }
 
 
+def skipped_report(manifest: dict) -> str | None:
+    """Why a campaign has no report, when it was too small for one (the manifest's `report.skipped`), else None."""
+    recorded = manifest.get("report")
+    skipped = recorded.get("skipped") if isinstance(recorded, dict) else None
+    return skipped if isinstance(skipped, str) else None
+
+
 def missing_derived_files(folder: Path, manifest: dict, *, report: bool = True) -> list[str]:
     """What a complete campaign lacks: a consolidated file that is missing or differs from its recorded
     sha256, the physical limit of a dry run, the report (when asked for, and not skipped as the campaign was too
@@ -309,8 +316,7 @@ def missing_derived_files(folder: Path, manifest: dict, *, report: bool = True) 
             continue
         if not path.is_file() or (name in recorded and file_sha256(path, _RESTORE[name]) != recorded[name]):
             missing.append(name)
-    skipped = isinstance(manifest.get("report"), dict) and "skipped" in manifest["report"]  # too few presses for one
-    if report and not skipped and not (folder / "report.md").is_file():
+    if report and skipped_report(manifest) is None and not (folder / "report.md").is_file():
         missing.append("report.md")
     return missing
 

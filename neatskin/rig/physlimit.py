@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from neatskin.datasets.paths import PHYSICAL_LIMIT
-from neatskin.rig.physlimitnoise import dr_noise_std_ohm, typical_phases_s
+from neatskin.rig.physlimitnoise import dr_noise_std_ohm
 from neatskin.rig.plan import Plan
 from neatskin.rig.protocol import CampaignProtocol
 from neatskin.sim.daq import SimulatedDAQ
@@ -308,9 +308,3 @@ def _campaign_s(protocol: CampaignProtocol, plan: Plan) -> float:
     if interval_s:
         return interval_s * plan.n_presses
     return float(plan.printer_time_s)
-
-
-def _typical_phases_s(plan: Plan, protocol: CampaignProtocol | None = None) -> np.ndarray:
-    """The median printer time of each phase over the campaign's presses (physlimitnoise.typical_phases_s, where
-    the reading noise's marks come from; kept here under its former name)."""
-    return typical_phases_s(plan)
